@@ -1,0 +1,40 @@
+// scalar_backend.cpp — the `cpu-scalar` backend: the host's reference traversals (MBVH2 and
+// MBVH4, stack and bitstack, closest and any hit) multi-threaded over ray batches.
+#include <thread>
+
+#include "backends/cpu/cpu_backends.h"
+#include "host/backend.h"
+
+namespace mbvh {
+namespace {
+
+class ScalarBackend final : public Backend {
+public:
+  explicit ScalarBackend(const BackendOptions& o) : threads_(resolve(o.threads)) {}
+  std::string name() const override { return "cpu-scalar"; }
+  std::string describe() const override {
+    return "cpu-scalar: reference scalar traversals, " + std::to_string(threads_) + " thread(s)";
+  }
+  bool supports(Layout, Traversal) const override { return true; }
+  void prepare(const Accel& acc, const TraceOptions& opt) override {
+    if (opt.layout == Layout::mbvh2) acc.mbvh2();
+    else acc.mbvh4();
+  }
+  void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
+    prepare(acc, opt);
+    trace_reference(acc, rays, opt, out, threads_);
+  }
+
+private:
+  static unsigned resolve(unsigned t) { return t ? t : std::max(1u, std::thread::hardware_concurrency()); }
+  unsigned threads_;
+};
+
+}  // namespace
+
+void register_cpu_scalar_backend() {
+  register_backend({"cpu-scalar", "scalar reference traversals (MBVH2/MBVH4, stack/bitstack), multi-threaded",
+                    [](const BackendOptions& o) { return std::unique_ptr<Backend>(new ScalarBackend(o)); }, ""});
+}
+
+}  // namespace mbvh

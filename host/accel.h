@@ -1,0 +1,109 @@
+// accel.h — one build of a scene: the binned-SAH binary BVH and, on demand and cached, the
+// MBVH2 and MBVH4 layouts every backend traces. Leaves and leaf-ordered triangles are shared by
+// all layouts, so a leaf reference means the same triangles everywhere.
+#pragma once
+#include <cstdint>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <vector>
+
+#include "host/scene.h"
+#include "shaders/mbvh_layout.h"
+
+namespace mbvh {
+
+enum class Layout { mbvh2, mbvh4 };
+const char* to_string(Layout l);
+Layout parse_layout(const std::string& s);  ///< throws Error on an unknown name
+
+struct BuildOptions {
+  unsigned threads = 0;         ///< 0: every hardware thread; the result does not depend on it
+  unsigned max_leaf = 8;        ///< largest leaf the SAH may choose (the depth cap may force bigger)
+  unsigned bins = 32;           ///< SAH bins per axis
+  unsigned depth_cap = MBVH_BINARY_DEPTH_CAP;  ///< binary leaf depth limit (root children: 1)
+  float traversal_cost = 1.0f;  ///< SAH cost of one node visit, relative to one triangle test
+};
+
+/// Statistics of one layout (binary tree, MBVH2 or MBVH4).
+struct LayoutStats {
+  std::string layout;
+  std::size_t nodes = 0;         ///< inner-node records
+  std::size_t leaves = 0;
+  unsigned depth = 0;            ///< levels below the root of the deepest leaf
+  double sah_cost = 0;           ///< sum over nodes of area/root area * cost (node visit 1, triangle 1)
+  std::size_t bytes = 0;         ///< node records (+ leaves and triangles for the binary tree)
+  double build_ms = 0;
+  unsigned bitstack_bits = 0;    ///< bits of the bitstack word the deepest path needs
+};
+
+/// The binary BVH: inner nodes in depth-first order (record 0 = root; children before siblings'
+/// subtrees), each child a reference as in mbvh_layout.h.
+struct Bvh2 {
+  struct Node {
+    Box box;             ///< the node's own box
+    std::int32_t child[2];
+    std::int32_t parent;
+    std::uint32_t height;  ///< binary levels below this node to its deepest leaf
+  };
+  std::vector<Node> nodes;
+  std::vector<Box> leaf_boxes;
+  std::size_t forced_leaves = 0;   ///< leaves made by the depth cap or unsplittable centroids
+  std::size_t largest_leaf = 0;
+  std::size_t degenerate = 0;      ///< triangles kept out of leaves (zero area)
+  const Box& box(std::int32_t ref) const { return ref >= 0 ? nodes[static_cast<std::size_t>(ref)].box : leaf_boxes[static_cast<std::size_t>(~ref)]; }
+};
+
+struct Mbvh2 {
+  std::vector<Node2> nodes;
+  LayoutStats stats;
+};
+
+struct Mbvh4 {
+  std::vector<Node4> nodes;
+  LayoutStats stats;
+};
+
+/// An acceleration structure. Build once with Accel::build; layouts are made on first use
+/// (thread-safe) and kept.
+class Accel {
+public:
+  /// Builds the binary BVH. Throws Error if the scene has no non-degenerate triangle.
+  /// Cost: O(n log n), parallel over `opt.threads`; the bytes do not depend on the thread count.
+  static std::unique_ptr<Accel> build(const Scene& scene, const BuildOptions& opt = {});
+
+  const Bvh2& bvh2() const { return bvh2_; }
+  const Mbvh2& mbvh2() const;   ///< MBVH2 layout (Aila–Laine nodes with links), made on first use
+  const Mbvh4& mbvh4() const;   ///< MBVH4 layout (depth-aware SAH-guided collapse), made on first use
+  const std::vector<Tri>& tris() const { return tris_; }
+  const std::vector<Leaf>& leaves() const { return leaves_; }
+  const Box& bounds() const { return bounds_; }
+  std::size_t scene_triangles() const { return scene_triangles_; }
+  const LayoutStats& binary_stats() const { return binary_stats_; }
+  const BuildOptions& options() const { return opt_; }
+  /// 64-bit hash of the build's bytes (nodes, leaves, triangles); equal across thread counts.
+  std::uint64_t hash() const { return hash_; }
+
+private:
+  Accel() = default;
+  BuildOptions opt_;
+  Bvh2 bvh2_;
+  std::vector<Tri> tris_;
+  std::vector<Leaf> leaves_;
+  Box bounds_;
+  std::size_t scene_triangles_ = 0;
+  LayoutStats binary_stats_;
+  std::uint64_t hash_ = 0;
+  mutable std::once_flag once2_, once4_;
+  mutable Mbvh2 mbvh2_;
+  mutable Mbvh4 mbvh4_;
+};
+
+/// Collapses a binary BVH into the layouts (host/build/collapse.cpp).
+Mbvh2 make_mbvh2(const Bvh2& bvh, const std::vector<Leaf>& leaves);
+Mbvh4 make_mbvh4(const Bvh2& bvh, const std::vector<Leaf>& leaves);
+
+/// FNV-1a over bytes, continuing from h.
+std::uint64_t hash_bytes(const void* p, std::size_t n, std::uint64_t h = 0xcbf29ce484222325ull);
+
+}  // namespace mbvh

@@ -1,0 +1,59 @@
+// backend.h — the one interface every tracing backend implements (cpu-scalar, cpu, opencl,
+// vulkan, embree) and the registry that makes them by name. host/ includes no backend header:
+// backends register themselves through register_builtin_backends() (backends/backends.cpp).
+#pragma once
+#include <functional>
+#include <memory>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "host/accel.h"
+#include "host/trace/trace.h"
+
+namespace mbvh {
+
+struct BackendOptions {
+  unsigned threads = 0;     ///< CPU workers (0 = every hardware thread)
+  std::string device;       ///< device selector for GPU/OpenCL backends ("" = the backend's choice)
+};
+
+class Backend {
+public:
+  virtual ~Backend() = default;
+  /// Registry name, e.g. "cpu-scalar".
+  virtual std::string name() const = 0;
+  /// One line: ISA, device and driver strings, for logs and benchmark records.
+  virtual std::string describe() const = 0;
+  /// Whether this backend implements the layout / traversal pair.
+  virtual bool supports(Layout layout, Traversal traversal) const = 0;
+  /// Makes the backend ready to trace `acc` with these options (uploads only the layout needed;
+  /// repeated calls with the same build are free). Called by trace() if not done before.
+  virtual void prepare(const Accel& acc, const TraceOptions& opt) = 0;
+  /// Traces `rays`, filling `out` in ray order (TraceOutput). Throws Error on failure.
+  virtual void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) = 0;
+  /// Bytes of traversal state per ray for these options (TRAVERSAL.md §5).
+  virtual std::size_t state_bytes(const TraceOptions& opt) const { return state_bytes_per_ray(opt.layout, opt.traversal); }
+};
+
+using BackendFactory = std::function<std::unique_ptr<Backend>(const BackendOptions&)>;
+
+struct BackendInfo {
+  std::string name;
+  std::string summary;
+  BackendFactory make;        ///< empty when the backend is not built into this binary
+  std::string unavailable;    ///< why it is not built (when `make` is empty)
+};
+
+/// Adds a backend to the registry (a later registration of the same name replaces it).
+void register_backend(BackendInfo info);
+/// Every backend known to this binary, built or not, in registration order.
+std::vector<BackendInfo> list_backends();
+/// Makes a backend by name; throws Error naming the known backends, or saying why a known
+/// backend is not built or cannot start.
+std::unique_ptr<Backend> make_backend(const std::string& name, const BackendOptions& opt = {});
+
+/// Defined outside host/ (backends/backends.cpp): registers every backend of this build.
+void register_builtin_backends();
+
+}  // namespace mbvh

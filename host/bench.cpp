@@ -1,0 +1,207 @@
+// bench.cpp — `mbvh bench`: verify, warm up, time, report medians (DESIGN.md, benchmark protocol).
+#include "host/bench.h"
+
+#include <sys/utsname.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <fstream>
+#include <map>
+#include <memory>
+#include <nlohmann/json.hpp>
+
+#include "host/backend.h"
+#include "host/compare.h"
+#include "host/parallel.h"
+
+#ifndef MBVH_COMPILE_FLAGS
+#define MBVH_COMPILE_FLAGS ""
+#endif
+
+namespace mbvh {
+
+std::string cpu_model() {
+  std::ifstream f("/proc/cpuinfo");
+  std::string line;
+  while (std::getline(f, line))
+    if (line.rfind("model name", 0) == 0) {
+      const auto p = line.find(':');
+      return p == std::string::npos ? line : line.substr(p + 2);
+    }
+  return "unknown CPU";
+}
+
+bool BenchReport::verified() const {
+  for (const auto& r : records)
+    if (r.verify_mismatches) return false;
+  return true;
+}
+
+std::string BenchReport::table() const {
+  std::string s;
+  char line[512];
+  std::snprintf(line, sizeof line, "%-10s %-6s %-8s %-7s %-8s %9s %15s %8s %8s %7s %7s %7s %9s\n", "backend", "layout",
+                "travers.", "query", "rays", "Mrays/s", "(min-max)", "vs stack", "state B", "nodes", "leaves", "tris",
+                "verified");
+  s += line;
+  for (const auto& r : records) {
+    char ratio[32] = "";
+    if (r.ratio_vs_stack > 0) std::snprintf(ratio, sizeof ratio, "%.3fx", r.ratio_vs_stack);
+    char spread[48];
+    std::snprintf(spread, sizeof spread, "(%.2f-%.2f)", r.mrays_min, r.mrays_max);
+    std::snprintf(line, sizeof line, "%-10s %-6s %-8s %-7s %-8s %9.3f %15s %8s %8zu %7.1f %7.2f %7.1f %9s\n",
+                  r.backend.c_str(), r.layout.c_str(), r.traversal.c_str(), r.query.c_str(), r.ray_kind.c_str(),
+                  r.mrays_per_s, spread, ratio, r.state_bytes_per_ray, r.nodes_per_ray, r.leaves_per_ray, r.tris_per_ray,
+                  r.verify_mismatches ? "MISMATCH" : "yes");
+    s += line;
+  }
+  return s;
+}
+
+std::string BenchReport::json() const {
+  nlohmann::json j;
+  j["machine"] = machine;
+  j["cpu"] = cpu;
+  j["compiler"] = compiler;
+  j["flags"] = flags;
+  j["bvh_hash"] = bvh_hash;
+  j["records"] = nlohmann::json::array();
+  for (const auto& r : records) {
+    j["records"].push_back({{"scene", r.scene},
+                            {"backend", r.backend},
+                            {"device", r.device},
+                            {"layout", r.layout},
+                            {"traversal", r.traversal},
+                            {"query", r.query},
+                            {"ray_kind", r.ray_kind},
+                            {"rays", r.rays},
+                            {"threads", r.threads},
+                            {"passes", r.passes},
+                            {"mrays_per_s", r.mrays_per_s},
+                            {"mrays_per_s_min", r.mrays_min},
+                            {"mrays_per_s_max", r.mrays_max},
+                            {"state_bytes_per_ray", r.state_bytes_per_ray},
+                            {"peak_state_bytes_per_ray", r.peak_state_bytes_per_ray},
+                            {"nodes_per_ray", r.nodes_per_ray},
+                            {"box_tests_per_ray", r.box_tests_per_ray},
+                            {"leaves_per_ray", r.leaves_per_ray},
+                            {"triangles_per_ray", r.tris_per_ray},
+                            {"climbs_per_ray", r.climbs_per_ray},
+                            {"verify_mismatches", r.verify_mismatches},
+                            {"bitstack_vs_stack", r.ratio_vs_stack},
+                            {"bvh_hash", bvh_hash}});
+  }
+  return j.dump(2);
+}
+
+BenchReport run_bench(const Scene& scene, const Accel& acc, const BenchOptions& opt,
+                      const std::function<void(std::size_t, std::size_t)>& progress) {
+  using Clock = std::chrono::steady_clock;
+  BenchReport rep;
+  utsname u{};
+  uname(&u);
+  rep.machine = std::string(u.nodename) + " " + u.sysname + " " + u.release + " " + u.machine + ", " +
+                std::to_string(resolve_threads(0)) + " hardware threads";
+  rep.cpu = cpu_model();
+  rep.compiler = std::string("g++ ") + __VERSION__;
+  rep.flags = MBVH_COMPILE_FLAGS;
+  char hash[32];
+  std::snprintf(hash, sizeof hash, "%016llx", static_cast<unsigned long long>(acc.hash()));
+  rep.bvh_hash = hash;
+  BackendOptions bo;
+  bo.threads = opt.threads;
+  std::map<std::string, std::unique_ptr<Backend>> backends;
+  for (const auto& n : opt.backends) backends[n] = make_backend(n, bo);
+  const unsigned passes = std::max(5u, opt.passes);
+  const std::size_t total = opt.kinds.size() * opt.queries.size() * opt.backends.size() * opt.layouts.size() * opt.traversals.size();
+  std::size_t done = 0;
+  for (RayKind kind : opt.kinds) {
+    RayGenOptions ro;
+    ro.kind = kind;
+    ro.count = opt.count;
+    ro.seed = opt.seed;
+    ro.threads = opt.threads;
+    const std::vector<Ray> rays = generate_rays(scene, acc, ro);
+    for (Query q : opt.queries) {
+      // the reference answer every timed result is verified against
+      TraceOptions refo;
+      refo.query = q;
+      refo.layout = Layout::mbvh4;
+      refo.traversal = Traversal::stack;
+      TraceOutput ref;
+      trace_reference(acc, rays, refo, ref, opt.threads);
+      TraceOutput closest;
+      if (q == Query::any) trace_reference(acc, rays, TraceOptions{}, closest, opt.threads);
+      for (const auto& bn : opt.backends)
+        for (Layout l : opt.layouts)
+          for (Traversal t : opt.traversals) {
+            Backend& b = *backends[bn];
+            if (!b.supports(l, t)) continue;
+            TraceOptions to;
+            to.layout = l;
+            to.traversal = t;
+            to.query = q;
+            BenchRecord r;
+            r.scene = scene.name;
+            r.backend = bn;
+            r.device = b.describe();
+            r.layout = to_string(l);
+            r.traversal = to_string(t);
+            r.query = to_string(q);
+            r.ray_kind = to_string(kind);
+            r.rays = rays.size();
+            r.threads = resolve_threads(opt.threads);
+            r.passes = passes;
+            r.state_bytes_per_ray = b.state_bytes(to);
+            // -- verify (also the warm-up pass)
+            TraceOutput out;
+            b.trace(acc, rays, to, out);
+            const Comparison c = q == Query::any ? compare_occlusion_arrays(out.occluded, ref.occluded, closest.hits, rays)
+                                                 : compare_hit_arrays(out.hits, ref.hits);
+            r.verify_mismatches = c.mismatches;
+            // -- time
+            std::vector<double> mr;
+            for (unsigned p = 0; p < passes; ++p) {
+              const auto t0 = Clock::now();
+              b.trace(acc, rays, to, out);
+              const double s = std::chrono::duration<double>(Clock::now() - t0).count();
+              mr.push_back(static_cast<double>(rays.size()) / s * 1e-6);
+            }
+            std::sort(mr.begin(), mr.end());
+            r.mrays_per_s = mr[mr.size() / 2];
+            r.mrays_min = mr.front();
+            r.mrays_max = mr.back();
+            // -- work per ray (a separate pass with counters)
+            TraceOptions so = to;
+            so.stats = true;
+            TraceOutput st;
+            trace_reference(acc, rays, so, st, opt.threads);
+            double n = 0, bt = 0, lf = 0, tr = 0, cl = 0, peak = 0;
+            for (const RayStats& s : st.stats) {
+              n += s.nodes; bt += s.box_tests; lf += s.leaves; tr += s.tris; cl += s.climbs;
+              peak += t == Traversal::stack ? 8.0 + 4.0 * s.max_depth : 12.0;
+            }
+            const double k = rays.empty() ? 1.0 : static_cast<double>(rays.size());
+            r.nodes_per_ray = n / k;
+            r.box_tests_per_ray = bt / k;
+            r.leaves_per_ray = lf / k;
+            r.tris_per_ray = tr / k;
+            r.climbs_per_ray = cl / k;
+            r.peak_state_bytes_per_ray = peak / k;
+            rep.records.push_back(r);
+            if (progress) progress(++done, total);
+          }
+    }
+  }
+  // bitstack / stack ratios, side by side from the same run
+  for (auto& r : rep.records)
+    if (r.traversal == "bitstack")
+      for (const auto& s : rep.records)
+        if (s.traversal == "stack" && s.backend == r.backend && s.layout == r.layout && s.query == r.query &&
+            s.ray_kind == r.ray_kind && s.mrays_per_s > 0)
+          r.ratio_vs_stack = r.mrays_per_s / s.mrays_per_s;
+  return rep;
+}
+
+}  // namespace mbvh

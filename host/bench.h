@@ -1,0 +1,54 @@
+// bench.h — the benchmark protocol of DESIGN.md (first cut): for every backend x layout x
+// traversal x query x ray kind, verify against the reference, warm up, time >= 5 passes, report
+// the median Mrays/s with its spread, the traversal state per ray and the work per ray.
+#pragma once
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "host/accel.h"
+#include "host/rays.h"
+#include "host/trace/trace.h"
+
+namespace mbvh {
+
+struct BenchOptions {
+  std::vector<std::string> backends{"cpu-scalar"};
+  std::vector<Layout> layouts{Layout::mbvh2, Layout::mbvh4};
+  std::vector<Traversal> traversals{Traversal::stack, Traversal::bitstack};
+  std::vector<Query> queries{Query::closest, Query::any};
+  std::vector<RayKind> kinds{RayKind::primary, RayKind::diffuse};
+  std::size_t count = 100000;
+  std::uint64_t seed = 1;
+  unsigned passes = 5;
+  unsigned threads = 0;
+};
+
+struct BenchRecord {
+  std::string scene, backend, device, layout, traversal, query, ray_kind;
+  std::size_t rays = 0;
+  unsigned threads = 0, passes = 0;
+  double mrays_per_s = 0, mrays_min = 0, mrays_max = 0;  ///< median and spread over the passes
+  std::size_t state_bytes_per_ray = 0;
+  double peak_state_bytes_per_ray = 0;  ///< mean over rays of the state actually used
+  double nodes_per_ray = 0, box_tests_per_ray = 0, leaves_per_ray = 0, tris_per_ray = 0, climbs_per_ray = 0;
+  std::size_t verify_mismatches = 0;    ///< genuine mismatches against the reference
+  double ratio_vs_stack = 0;            ///< Mrays/s of this record / its stack twin (bitstack rows)
+};
+
+struct BenchReport {
+  std::string machine, cpu, compiler, flags;
+  std::string bvh_hash;
+  std::vector<BenchRecord> records;
+  std::string table() const;
+  std::string json() const;
+  bool verified() const;
+};
+
+BenchReport run_bench(const Scene& scene, const Accel& acc, const BenchOptions& opt,
+                      const std::function<void(std::size_t done, std::size_t total)>& progress = {});
+
+/// CPU model name, from /proc/cpuinfo.
+std::string cpu_model();
+
+}  // namespace mbvh

@@ -1,0 +1,50 @@
+// check.h — cross-checking: run every chosen backend x layout x traversal x query on the same
+// rays, compare them ray by ray with each other and with the double-precision brute force, and
+// classify every difference (compare.h).
+#pragma once
+#include <functional>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "host/accel.h"
+#include "host/compare.h"
+#include "host/trace/trace.h"
+
+namespace mbvh {
+
+struct CheckOptions {
+  std::vector<std::string> backends{"cpu-scalar"};
+  std::vector<Layout> layouts{Layout::mbvh2, Layout::mbvh4};
+  std::vector<Traversal> traversals{Traversal::stack, Traversal::bitstack};
+  std::vector<Query> queries{Query::closest, Query::any};
+  std::size_t brute_rays = 2000;  ///< rays spread over the batch checked by brute force (SIZE_MAX: all)
+  unsigned threads = 0;
+};
+
+struct CheckVariant {
+  std::string backend;
+  TraceOptions opt;
+  std::string label() const;  ///< "cpu-scalar/mbvh4/bitstack/closest"
+};
+
+struct CheckReport {
+  std::size_t rays = 0, invalid = 0, brute_rays = 0;
+  std::vector<Comparison> comparisons;  ///< every pair compared, labels in Comparison::a / b
+  std::size_t mismatches() const;
+  bool ok() const { return mismatches() == 0; }
+  /// A readable table, and the first genuine mismatches with their rays.
+  std::string table(std::span<const Ray> rays) const;
+};
+
+/// Runs the check. The first variant of each query is the reference the others are compared
+/// with; twins (stack vs bitstack of one backend and layout) are reported bit for bit; any hit
+/// is compared with closest hit (occluded = a closest hit exists) and both with brute force.
+/// Throws Error if a backend cannot start or does not support a requested variant.
+CheckReport run_check(const Accel& acc, std::span<const Ray> rays, const CheckOptions& opt,
+                      const std::function<void(const std::string&)>& log = {});
+
+/// Indices of `k` rays spread evenly over n (all when k >= n).
+std::vector<std::size_t> spread_indices(std::size_t n, std::size_t k);
+
+}  // namespace mbvh

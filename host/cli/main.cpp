@@ -1,0 +1,378 @@
+// main.cpp — the `mbvh` program: info, rays, trace, check, bench, devices.
+#include <CLI/CLI.hpp>
+
+#include <chrono>
+#include <cstdio>
+#include <fstream>
+#include <iostream>
+#include <nlohmann/json.hpp>
+
+#include "host/backend.h"
+#include "host/bench.h"
+#include "host/check.h"
+#include "host/error.h"
+#include "host/parallel.h"
+#include "host/progress.h"
+#include "host/rays.h"
+
+using namespace mbvh;
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double ms_since(Clock::time_point t0) { return std::chrono::duration<double, std::milli>(Clock::now() - t0).count(); }
+
+std::vector<std::string> split_list(const std::string& s) {
+  std::vector<std::string> out;
+  std::size_t a = 0;
+  while (a <= s.size()) {
+    std::size_t b = s.find(',', a);
+    if (b == std::string::npos) b = s.size();
+    if (b > a) out.push_back(s.substr(a, b - a));
+    a = b + 1;
+  }
+  return out;
+}
+
+template <class T, class F>
+std::vector<T> parse_list(const std::string& s, F parse) {
+  std::vector<T> out;
+  for (const auto& x : split_list(s)) out.push_back(parse(x));
+  if (out.empty()) throw Error("empty list '" + s + "'");
+  return out;
+}
+
+struct SceneArgs {
+  std::string scene;
+  unsigned threads = 0;
+  unsigned max_leaf = 8;
+};
+
+void add_scene_args(CLI::App* c, SceneArgs& a) {
+  c->add_option("scene", a.scene, "scene file (.obj/.ply, optionally .zst) or gen:NAME:PARAMS")->required();
+  c->add_option("--threads", a.threads, "worker threads (0 = all hardware threads)");
+  c->add_option("--max-leaf", a.max_leaf, "largest leaf the SAH may choose");
+}
+
+struct Loaded {
+  Scene scene;
+  std::unique_ptr<Accel> acc;
+  double load_ms = 0;
+};
+
+Loaded load_and_build(const SceneArgs& a, bool verbose = true) {
+  Loaded l;
+  auto t0 = Clock::now();
+  l.scene = load_scene(a.scene);
+  l.load_ms = ms_since(t0);
+  BuildOptions bo;
+  bo.threads = a.threads;
+  bo.max_leaf = a.max_leaf;
+  Progress p("building BVH", 1);
+  l.acc = Accel::build(l.scene, bo);
+  p.finish();
+  if (verbose)
+    std::fprintf(stderr, "scene %s: %zu triangles, loaded in %.1f ms; BVH built in %.1f ms, hash %016llx\n", a.scene.c_str(),
+                 l.scene.triangle_count(), l.load_ms, l.acc->binary_stats().build_ms,
+                 static_cast<unsigned long long>(l.acc->hash()));
+  return l;
+}
+
+struct RayArgs {
+  std::string rays_file;
+  std::string kind = "primary";
+  std::size_t count = 100000;
+  std::uint64_t seed = 1;
+  std::vector<float> camera;
+};
+
+void add_ray_args(CLI::App* c, RayArgs& r, bool allow_file) {
+  if (allow_file) c->add_option("--rays", r.rays_file, "ray file (32 bytes per ray) instead of generated rays");
+  c->add_option("--kind", r.kind, "generated ray kind: primary, shadow, diffuse, random");
+  c->add_option("--count", r.count, "number of generated rays");
+  c->add_option("--seed", r.seed, "seed of the generated rays");
+  c->add_option("--camera", r.camera, "eye x y z, target x y z [, fov degrees] (default: frames the scene)")
+      ->delimiter(',')
+      ->expected(6, 7);
+}
+
+RayGenOptions ray_gen(const RayArgs& r, const std::string& kind, unsigned threads) {
+  RayGenOptions o;
+  o.kind = parse_ray_kind(kind);
+  o.count = r.count;
+  o.seed = r.seed;
+  o.threads = threads;
+  if (!r.camera.empty()) {
+    o.has_camera = true;
+    o.camera.eye = {r.camera[0], r.camera[1], r.camera[2]};
+    o.camera.target = {r.camera[3], r.camera[4], r.camera[5]};
+    if (r.camera.size() == 7) o.camera.fov_deg = r.camera[6];
+  }
+  return o;
+}
+
+std::vector<Ray> get_rays(const RayArgs& r, const Loaded& l, unsigned threads) {
+  if (!r.rays_file.empty()) return read_rays(r.rays_file);
+  return generate_rays(l.scene, *l.acc, ray_gen(r, r.kind, threads));
+}
+
+void print_stats_row(const LayoutStats& s, std::size_t state_stack, std::size_t state_bit) {
+  std::printf("%-7s %9zu %9zu %6u %9u %10.2f %12zu %9.1f %10zu %10zu\n", s.layout.c_str(), s.nodes, s.leaves, s.depth,
+              s.bitstack_bits, s.sah_cost, s.bytes, s.build_ms, state_stack, state_bit);
+}
+
+int cmd_info(const SceneArgs& a, const std::string& json_path) {
+  Loaded l = load_and_build(a, false);
+  const Accel& acc = *l.acc;
+  const Box b = acc.bounds();
+  std::printf("scene      %s\n", l.scene.name.c_str());
+  std::printf("triangles  %zu (%zu degenerate, kept out of leaves), %zu vertices, loaded in %.1f ms\n",
+              l.scene.triangle_count(), acc.bvh2().degenerate, l.scene.vertices.size(), l.load_ms);
+  std::printf("bounds     (%g, %g, %g) .. (%g, %g, %g)\n", b.lo.x, b.lo.y, b.lo.z, b.hi.x, b.hi.y, b.hi.z);
+  std::printf("build      binned SAH, %u bins, max leaf %u, depth cap %u, %u threads; hash %016llx\n",
+              acc.options().bins, acc.options().max_leaf, acc.options().depth_cap,
+              static_cast<unsigned>(resolve_threads(a.threads)), static_cast<unsigned long long>(acc.hash()));
+  std::printf("leaves     largest %zu triangles, %zu forced by the depth cap or equal centroids\n\n",
+              acc.bvh2().largest_leaf, acc.bvh2().forced_leaves);
+  std::printf("%-7s %9s %9s %6s %9s %10s %12s %9s %10s %10s\n", "layout", "nodes", "leaves", "depth", "bits", "SAH cost",
+              "bytes", "build ms", "stack B/r", "bitstk B/r");
+  const LayoutStats& bs = acc.binary_stats();
+  print_stats_row(bs, 0, 0);
+  const LayoutStats s2 = acc.mbvh2().stats;
+  const LayoutStats s4 = acc.mbvh4().stats;
+  print_stats_row(s2, state_bytes_per_ray(Layout::mbvh2, Traversal::stack), state_bytes_per_ray(Layout::mbvh2, Traversal::bitstack));
+  print_stats_row(s4, state_bytes_per_ray(Layout::mbvh4, Traversal::stack), state_bytes_per_ray(Layout::mbvh4, Traversal::bitstack));
+  std::printf("\ntraversal state per ray: stack %zu B, bitstack %zu B (%.1fx smaller)\n",
+              state_bytes_per_ray(Layout::mbvh2, Traversal::stack), state_bytes_per_ray(Layout::mbvh2, Traversal::bitstack),
+              double(state_bytes_per_ray(Layout::mbvh2, Traversal::stack)) / double(state_bytes_per_ray(Layout::mbvh2, Traversal::bitstack)));
+  if (!json_path.empty()) {
+    nlohmann::json j;
+    j["scene"] = l.scene.name;
+    j["triangles"] = l.scene.triangle_count();
+    char h[32];
+    std::snprintf(h, sizeof h, "%016llx", static_cast<unsigned long long>(acc.hash()));
+    j["hash"] = h;
+    for (const LayoutStats* s : {&bs, &s2, &s4})
+      j["layouts"].push_back({{"layout", s->layout}, {"nodes", s->nodes}, {"leaves", s->leaves}, {"depth", s->depth},
+                              {"bitstack_bits", s->bitstack_bits}, {"sah_cost", s->sah_cost}, {"bytes", s->bytes},
+                              {"build_ms", s->build_ms}});
+    std::ofstream(json_path) << j.dump(2) << "\n";
+  }
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"mbvh — one MBVH2/MBVH4 build, stackless bitstack traversal on several backends"};
+  app.require_subcommand(1);
+  app.set_help_all_flag("--help-all", "help for every command");
+
+  // -- info
+  SceneArgs info_a;
+  std::string info_json;
+  auto* info = app.add_subcommand("info", "scene and per-layout build statistics");
+  add_scene_args(info, info_a);
+  info->add_option("--json", info_json, "also write the statistics as JSON");
+
+  // -- rays
+  SceneArgs rays_a;
+  RayArgs rays_r;
+  std::string rays_out;
+  auto* rays = app.add_subcommand("rays", "generate a ray file (32 bytes per ray)");
+  add_scene_args(rays, rays_a);
+  add_ray_args(rays, rays_r, false);
+  rays->add_option("-o,--output", rays_out, "output ray file")->required();
+
+  // -- trace
+  SceneArgs tr_a;
+  RayArgs tr_r;
+  std::string tr_backend = "cpu-scalar", tr_layout = "mbvh4", tr_trav = "bitstack", tr_query = "closest", tr_out;
+  bool tr_stats = false;
+  auto* trace = app.add_subcommand("trace", "trace rays; write hits (closest) or occlusion (any)");
+  add_scene_args(trace, tr_a);
+  add_ray_args(trace, tr_r, true);
+  trace->add_option("--backend", tr_backend, "backend (see `mbvh devices`)");
+  trace->add_option("--layout", tr_layout, "mbvh2 or mbvh4");
+  trace->add_option("--traversal", tr_trav, "stack or bitstack");
+  trace->add_option("--query", tr_query, "closest (writes hits, 16 B/ray) or any (writes occlusion, 1 B/ray)");
+  trace->add_option("-o,--output", tr_out, "output file");
+  trace->add_flag("--stats", tr_stats, "also count work per ray (slower)");
+
+  // -- check
+  SceneArgs ck_a;
+  RayArgs ck_r;
+  std::string ck_backends = "cpu-scalar", ck_layouts = "mbvh2,mbvh4", ck_travs = "stack,bitstack",
+              ck_queries = "closest,any", ck_kinds = "", ck_brute = "2000";
+  auto* check = app.add_subcommand("check", "cross-check backends x layouts x traversals ray by ray and against brute force");
+  add_scene_args(check, ck_a);
+  add_ray_args(check, ck_r, true);
+  check->add_option("--backend", ck_backends, "comma-separated backends");
+  check->add_option("--layout", ck_layouts, "comma-separated layouts");
+  check->add_option("--traversal", ck_travs, "comma-separated traversals");
+  check->add_option("--query", ck_queries, "comma-separated queries");
+  check->add_option("--kinds", ck_kinds, "comma-separated generated ray kinds (default: --kind)");
+  check->add_option("--brute", ck_brute, "rays checked by double-precision brute force, spread over the batch, or 'all'");
+
+  // -- bench
+  SceneArgs bn_a;
+  std::string bn_backends = "cpu-scalar", bn_layouts = "mbvh2,mbvh4", bn_travs = "stack,bitstack", bn_queries = "closest,any",
+              bn_kinds = "primary,diffuse", bn_json;
+  std::size_t bn_count = 100000;
+  unsigned bn_passes = 5;
+  std::uint64_t bn_seed = 1;
+  auto* bench = app.add_subcommand("bench", "Mrays/s, traversal state and work per ray, verified before timing");
+  add_scene_args(bench, bn_a);
+  bench->add_option("--backend", bn_backends, "comma-separated backends");
+  bench->add_option("--layout", bn_layouts, "comma-separated layouts");
+  bench->add_option("--traversal", bn_travs, "comma-separated traversals");
+  bench->add_option("--query", bn_queries, "comma-separated queries");
+  bench->add_option("--kinds", bn_kinds, "comma-separated ray kinds");
+  bench->add_option("--count", bn_count, "rays per kind");
+  bench->add_option("--seed", bn_seed, "ray seed");
+  bench->add_option("--passes", bn_passes, "timed passes after the warm-up (at least 5)");
+  bench->add_option("--json", bn_json, "write the records as JSON");
+
+  // -- devices
+  auto* devices = app.add_subcommand("devices", "list the backends of this build and whether they can start");
+
+  CLI11_PARSE(app, argc, argv);
+  try {
+    if (*info) return cmd_info(info_a, info_json);
+
+    if (*rays) {
+      Loaded l = load_and_build(rays_a);
+      const std::vector<Ray> r = generate_rays(l.scene, *l.acc, ray_gen(rays_r, rays_r.kind, rays_a.threads));
+      write_rays(rays_out, r);
+      std::printf("wrote %zu %s rays (seed %llu) to %s\n", r.size(), rays_r.kind.c_str(),
+                  static_cast<unsigned long long>(rays_r.seed), rays_out.c_str());
+      return 0;
+    }
+
+    if (*trace) {
+      TraceOptions o;
+      o.layout = parse_layout(tr_layout);
+      o.traversal = parse_traversal(tr_trav);
+      o.query = parse_query(tr_query);
+      o.stats = tr_stats;
+      BackendOptions bo;
+      bo.threads = tr_a.threads;
+      auto backend = make_backend(tr_backend, bo);
+      if (!backend->supports(o.layout, o.traversal))
+        throw Error("backend '" + tr_backend + "' does not support " + tr_layout + "/" + tr_trav);
+      Loaded l = load_and_build(tr_a);
+      const std::vector<Ray> r = get_rays(tr_r, l, tr_a.threads);
+      std::fprintf(stderr, "backend: %s\n", backend->describe().c_str());
+      backend->prepare(*l.acc, o);
+      TraceOutput out;
+      const auto t0 = Clock::now();
+      backend->trace(*l.acc, r, o, out);
+      const double ms = ms_since(t0);
+      std::size_t hits = 0;
+      if (o.query == Query::any) for (auto v : out.occluded) hits += v;
+      else for (const auto& h : out.hits) hits += h.prim != MBVH_MISS_PRIM;
+      std::printf("traced %zu rays (%s/%s/%s) in %.1f ms: %.3f Mrays/s; %zu %s, %zu invalid\n", r.size(), tr_layout.c_str(),
+                  tr_trav.c_str(), tr_query.c_str(), ms, ms > 0 ? static_cast<double>(r.size()) / ms * 1e-3 : 0.0, hits,
+                  o.query == Query::any ? "occluded" : "hits", out.invalid);
+      if (tr_stats && !out.stats.empty()) {
+        double n = 0, lf = 0, t = 0, c = 0;
+        for (const auto& s : out.stats) { n += s.nodes; lf += s.leaves; t += s.tris; c += s.climbs; }
+        const double k = static_cast<double>(out.stats.size());
+        std::printf("per ray: %.2f nodes, %.2f leaves, %.2f triangles, %.2f climbs; state %zu B\n", n / k, lf / k, t / k,
+                    c / k, backend->state_bytes(o));
+      }
+      if (!tr_out.empty()) {
+        if (o.query == Query::any) write_occlusion(tr_out, out.occluded);
+        else write_hits(tr_out, out.hits);
+        std::printf("wrote %s\n", tr_out.c_str());
+      }
+      return 0;
+    }
+
+    if (*check) {
+      CheckOptions co;
+      co.backends = split_list(ck_backends);
+      co.layouts = parse_list<Layout>(ck_layouts, parse_layout);
+      co.traversals = parse_list<Traversal>(ck_travs, parse_traversal);
+      co.queries = parse_list<Query>(ck_queries, parse_query);
+      co.threads = ck_a.threads;
+      co.brute_rays = ck_brute == "all" ? SIZE_MAX : std::stoull(ck_brute);
+      for (const auto& b : co.backends) make_backend(b);  // fail early, naming the backend
+      Loaded l = load_and_build(ck_a);
+      std::vector<std::string> kinds = ck_kinds.empty() ? std::vector<std::string>{ck_r.kind} : split_list(ck_kinds);
+      if (!ck_r.rays_file.empty()) kinds = {"file"};
+      std::size_t genuine = 0;
+      for (const auto& k : kinds) {
+        const std::vector<Ray> r = k == "file" ? read_rays(ck_r.rays_file)
+                                               : generate_rays(l.scene, *l.acc, ray_gen(ck_r, k, ck_a.threads));
+        const bool tty = Progress::enabled();
+        CheckReport rep = run_check(*l.acc, r, co, [tty](const std::string& s) {
+          if (tty) std::fprintf(stderr, "\r%-72.72s\r", s.c_str());
+        });
+        if (tty) std::fprintf(stderr, "\r%72s\r", "");
+        std::printf("== %s: %s rays\n%s\n", l.scene.name.c_str(), k == "file" ? ck_r.rays_file.c_str() : k.c_str(),
+                    rep.table(r).c_str());
+        genuine += rep.mismatches();
+      }
+      return genuine ? 1 : 0;
+    }
+
+    if (*bench) {
+      BenchOptions bo;
+      bo.backends = split_list(bn_backends);
+      bo.layouts = parse_list<Layout>(bn_layouts, parse_layout);
+      bo.traversals = parse_list<Traversal>(bn_travs, parse_traversal);
+      bo.queries = parse_list<Query>(bn_queries, parse_query);
+      bo.kinds = parse_list<RayKind>(bn_kinds, parse_ray_kind);
+      bo.count = bn_count;
+      bo.seed = bn_seed;
+      bo.passes = bn_passes;
+      bo.threads = bn_a.threads;
+      for (const auto& b : bo.backends) make_backend(b);
+      Loaded l = load_and_build(bn_a);
+      Progress p("benchmarking", bo.kinds.size() * bo.queries.size() * bo.backends.size() * bo.layouts.size() *
+                                     bo.traversals.size());
+      BenchReport rep = run_bench(l.scene, *l.acc, bo, [&p](std::size_t d, std::size_t) { p.update(d); });
+      p.finish();
+      std::printf("scene %s, %zu triangles, BVH hash %s\ncpu %s, %u threads\n\n%s", l.scene.name.c_str(),
+                  l.scene.triangle_count(), rep.bvh_hash.c_str(), rep.cpu.c_str(), resolve_threads(bn_a.threads),
+                  rep.table().c_str());
+      std::printf("\ntraversal state per ray: stack %zu B (MBVH2: 64 x int32 + sp + node; MBVH4: 1 + 3x21 entries), "
+                  "bitstack %zu B (node + 64-bit word): %.0fx smaller\n",
+                  state_bytes_per_ray(Layout::mbvh2, Traversal::stack), state_bytes_per_ray(Layout::mbvh2, Traversal::bitstack),
+                  double(state_bytes_per_ray(Layout::mbvh2, Traversal::stack)) / double(state_bytes_per_ray(Layout::mbvh2, Traversal::bitstack)));
+      if (!bn_json.empty()) {
+        std::ofstream f(bn_json);
+        f << rep.json() << "\n";
+        if (!f) throw Error(bn_json + ": cannot write the JSON file");
+        std::printf("wrote %s\n", bn_json.c_str());
+      }
+      if (!rep.verified()) {
+        std::fprintf(stderr, "error: some timed results did not match the reference (see 'verified')\n");
+        return 1;
+      }
+      return 0;
+    }
+
+    if (*devices) {
+      for (const BackendInfo& b : list_backends()) {
+        if (!b.make) {
+          std::printf("%-12s not built: %s\n", b.name.c_str(), b.unavailable.c_str());
+          continue;
+        }
+        try {
+          auto be = b.make(BackendOptions{});
+          std::printf("%-12s ready: %s\n", b.name.c_str(), be->describe().c_str());
+        } catch (const std::exception& e) {
+          std::printf("%-12s cannot start: %s\n", b.name.c_str(), e.what());
+        }
+      }
+      return 0;
+    }
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "mbvh: error: %s\n", e.what());
+    return 2;
+  }
+  return 0;
+}

@@ -1,0 +1,81 @@
+// compare.cpp — tie classification of DESIGN.md's numerical contract.
+#include "host/compare.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+
+namespace mbvh {
+
+std::uint32_t ulp_distance(float a, float b) {
+  if (a == b) return 0;
+  if (std::isnan(a) || std::isnan(b) || std::isinf(a) || std::isinf(b)) return UINT32_MAX;
+  auto key = [](float f) {
+    std::int32_t i;
+    std::memcpy(&i, &f, 4);
+    return i < 0 ? static_cast<std::int64_t>(INT32_MIN) - i : static_cast<std::int64_t>(i);
+  };
+  const std::int64_t d = key(a) - key(b);
+  return static_cast<std::uint32_t>(std::min<std::int64_t>(d < 0 ? -d : d, UINT32_MAX));
+}
+
+bool on_edge(const Hit& h) {
+  if (h.prim == MBVH_MISS_PRIM) return false;
+  const float b0 = 1.0f - h.u - h.v;
+  return std::min(b0, std::min(h.u, h.v)) <= kEdgeBarycentric;
+}
+
+Verdict compare_hits(const Hit& a, const Hit& b) {
+  if (a.prim == b.prim) return Verdict::equal;
+  const bool ha = a.prim != MBVH_MISS_PRIM, hb = b.prim != MBVH_MISS_PRIM;
+  if (ha && hb) {
+    if (ulp_distance(a.t, b.t) <= 4) return Verdict::tie;
+    return on_edge(a.t < b.t ? a : b) ? Verdict::tie : Verdict::mismatch;
+  }
+  return on_edge(ha ? a : b) ? Verdict::tie : Verdict::mismatch;
+}
+
+Verdict compare_occlusion(std::uint8_t a, std::uint8_t b, const Hit& closest, const Ray& ray) {
+  if (a == b) return Verdict::equal;
+  if (closest.prim == MBVH_MISS_PRIM) return Verdict::mismatch;
+  if (on_edge(closest) || ulp_distance(closest.t, ray.tmax) <= 4 || ulp_distance(closest.t, ray.tmin) <= 4)
+    return Verdict::tie;
+  return Verdict::mismatch;
+}
+
+void Comparison::add(std::size_t ray, Verdict v) {
+  ++rays;
+  if (v == Verdict::equal) ++equal;
+  else if (v == Verdict::tie) ++ties;
+  else {
+    ++mismatches;
+    if (first_mismatches.size() < 8) first_mismatches.push_back(ray);
+  }
+}
+
+Comparison compare_hit_arrays(std::span<const Hit> a, std::span<const Hit> b, std::span<const std::size_t> index) {
+  Comparison c;
+  const std::size_t n = std::min(a.size(), b.size());
+  for (std::size_t i = 0; i < n; ++i) {
+    const std::size_t ray = index.empty() ? i : index[i];
+    if (std::memcmp(&a[i], &b[i], sizeof(Hit)) == 0) ++c.bit_identical;
+    if (a[i].prim == b[i].prim && a[i].prim != MBVH_MISS_PRIM) c.max_t_ulps = std::max(c.max_t_ulps, ulp_distance(a[i].t, b[i].t));
+    c.add(ray, compare_hits(a[i], b[i]));
+  }
+  return c;
+}
+
+Comparison compare_occlusion_arrays(std::span<const std::uint8_t> a, std::span<const std::uint8_t> b,
+                                    std::span<const Hit> closest, std::span<const Ray> rays,
+                                    std::span<const std::size_t> index) {
+  Comparison c;
+  const std::size_t n = std::min(a.size(), b.size());
+  for (std::size_t i = 0; i < n; ++i) {
+    const std::size_t ray = index.empty() ? i : index[i];
+    if (a[i] == b[i]) ++c.bit_identical;
+    c.add(ray, compare_occlusion(a[i], b[i], closest[i], rays[ray]));
+  }
+  return c;
+}
+
+}  // namespace mbvh

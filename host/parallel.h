@@ -1,0 +1,19 @@
+// parallel.h — the one threading primitive of mbvh: a blocking parallel loop over index chunks.
+// Chunks are claimed dynamically, so results that must be deterministic may depend only on the
+// chunk index, never on which worker ran it.
+#pragma once
+#include <cstddef>
+#include <functional>
+
+namespace mbvh {
+
+/// Number of worker threads to use for a request of `threads` (0 = every hardware thread).
+unsigned resolve_threads(unsigned threads);
+
+/// Calls fn(begin, end, worker) for consecutive chunks of [0, n) of size `grain` (the last may be
+/// shorter) on up to `threads` workers (0 = all hardware threads); returns when all are done.
+/// The first exception thrown by fn is rethrown on the calling thread.
+void parallel_for(std::size_t n, std::size_t grain, unsigned threads,
+                  const std::function<void(std::size_t, std::size_t, unsigned)>& fn);
+
+}  // namespace mbvh

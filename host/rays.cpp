@@ -1,0 +1,226 @@
+// rays.cpp — ray generators and the exact ray / hit / occlusion file formats.
+#include "host/rays.h"
+
+#include <algorithm>
+#include <bit>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <memory>
+#include <numbers>
+
+#include "host/error.h"
+#include "host/random.h"
+#include "host/trace/trace.h"
+
+namespace mbvh {
+
+static_assert(std::endian::native == std::endian::little, "file formats are little-endian; add byte swapping");
+
+const char* to_string(RayKind k) {
+  switch (k) {
+    case RayKind::primary: return "primary";
+    case RayKind::shadow: return "shadow";
+    case RayKind::diffuse: return "diffuse";
+    case RayKind::random: return "random";
+  }
+  return "?";
+}
+
+RayKind parse_ray_kind(const std::string& s) {
+  for (RayKind k : {RayKind::primary, RayKind::shadow, RayKind::diffuse, RayKind::random})
+    if (s == to_string(k)) return k;
+  throw Error("unknown ray kind '" + s + "' (known: primary, shadow, diffuse, random)");
+}
+
+namespace {
+
+struct V3 {
+  double x, y, z;
+};
+V3 d3(const Vec3f& v) { return {v.x, v.y, v.z}; }
+V3 operator-(V3 a, V3 b) { return {a.x - b.x, a.y - b.y, a.z - b.z}; }
+V3 operator+(V3 a, V3 b) { return {a.x + b.x, a.y + b.y, a.z + b.z}; }
+V3 operator*(V3 a, double s) { return {a.x * s, a.y * s, a.z * s}; }
+double dot(V3 a, V3 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+V3 cross(V3 a, V3 b) { return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x}; }
+V3 normalize(V3 a) { return a * (1.0 / std::sqrt(dot(a, a))); }
+Vec3f f3(V3 a) { return {static_cast<float>(a.x), static_cast<float>(a.y), static_cast<float>(a.z)}; }
+
+Ray make_ray(const Vec3f& o, V3 d, float tmax) {
+  const Vec3f df = f3(d);
+  return Ray{o.x, o.y, o.z, 0.0f, df.x, df.y, df.z, tmax};
+}
+
+// Primary ray through image position (px, py) in [0,1)^2.
+Ray camera_ray(const Camera& c, double px, double py) {
+  const V3 eye = d3(c.eye);
+  const V3 fwd = normalize(d3(c.target) - eye);
+  const V3 right = normalize(cross(fwd, d3(c.up)));
+  const V3 up = cross(right, fwd);
+  const double h = std::tan(c.fov_deg * std::numbers::pi / 360.0);
+  const V3 d = normalize(fwd + right * ((2 * px - 1) * h) + up * ((1 - 2 * py) * h));
+  return make_ray(c.eye, d, INFINITY);
+}
+
+void tri_vertices(const Scene& s, std::uint32_t prim, Vec3f& a, Vec3f& b, Vec3f& c) {
+  const auto& t = s.triangles[prim];
+  a = s.vertices[t[0]];
+  b = s.vertices[t[1]];
+  c = s.vertices[t[2]];
+}
+
+}  // namespace
+
+Camera default_camera(const Box& b) {
+  Camera c;
+  const Vec3f ctr = b.center(), e = b.extent();
+  const double radius = 0.5 * std::sqrt(double(e.x) * e.x + double(e.y) * e.y + double(e.z) * e.z);
+  const V3 dir = normalize(V3{0.45, 0.35, 1.0});
+  const double dist = radius / std::sin(c.fov_deg * std::numbers::pi / 360.0);
+  c.target = ctr;
+  c.eye = f3(d3(ctr) + dir * dist);
+  return c;
+}
+
+Vec3f default_light(const Box& b) {
+  const Vec3f c = b.center(), e = b.extent();
+  return {c.x + 0.05f * e.x, c.y + 0.45f * e.y, c.z + 0.05f * e.z};
+}
+
+Ray spawn_ray(const Vec3f& p0, const Vec3f& p1, const Vec3f& p2, float u, float v, const Vec3f& dir, float tmax) {
+  const float b0 = 1.0f - u - v;
+  const float P[3][3] = {{p0.x, p0.y, p0.z}, {p1.x, p1.y, p1.z}, {p2.x, p2.y, p2.z}};
+  constexpr float g7 = 7 * 0x1p-24f / (1 - 7 * 0x1p-24f);
+  float p[3], err[3];
+  for (int a = 0; a < 3; ++a) {
+    p[a] = b0 * P[0][a] + u * P[1][a] + v * P[2][a];
+    err[a] = g7 * (std::fabs(b0 * P[0][a]) + std::fabs(u * P[1][a]) + std::fabs(v * P[2][a]));
+  }
+  V3 n = normalize(cross(d3(p1) - d3(p0), d3(p2) - d3(p0)));
+  const double off = std::fabs(n.x) * err[0] + std::fabs(n.y) * err[1] + std::fabs(n.z) * err[2];
+  if (dot(n, d3(dir)) < 0) n = n * -1.0;
+  const double nn[3] = {n.x, n.y, n.z};
+  Vec3f o;
+  for (int a = 0; a < 3; ++a) {
+    float q = static_cast<float>(p[a] + off * nn[a]);
+    if (nn[a] > 0) q = std::nextafter(q, INFINITY);
+    else if (nn[a] < 0) q = std::nextafter(q, -INFINITY);
+    o[a] = q;
+  }
+  return Ray{o.x, o.y, o.z, 0.0f, dir.x, dir.y, dir.z, tmax};
+}
+
+std::vector<Ray> generate_rays(const Scene& scene, const Accel& acc, const RayGenOptions& opt) {
+  const Box bounds = acc.bounds();
+  const Camera cam = opt.has_camera ? opt.camera : default_camera(bounds);
+  std::vector<Ray> rays;
+  rays.reserve(opt.count);
+  Rng rng(opt.seed * 4 + static_cast<std::uint64_t>(opt.kind));
+  if (opt.kind == RayKind::primary) {
+    // a square image of at least `count` pixels, one jittered sample per pixel, row by row
+    const std::size_t w = static_cast<std::size_t>(std::ceil(std::sqrt(static_cast<double>(std::max<std::size_t>(opt.count, 1)))));
+    for (std::size_t i = 0; i < opt.count; ++i) {
+      const double px = (static_cast<double>(i % w) + rng.uniform_d()) / static_cast<double>(w);
+      const double py = (static_cast<double>(i / w) + rng.uniform_d()) / static_cast<double>(w);
+      rays.push_back(camera_ray(cam, px, py));
+    }
+    return rays;
+  }
+  if (opt.kind == RayKind::random) {
+    const Vec3f lo = bounds.lo, e = bounds.extent();
+    for (std::size_t i = 0; i < opt.count; ++i) {
+      Vec3f o;
+      for (int a = 0; a < 3; ++a) o[a] = static_cast<float>(lo[a] - 0.1 * e[a] + 1.2 * e[a] * rng.uniform_d());
+      const double z = 2 * rng.uniform_d() - 1, phi = 2 * std::numbers::pi * rng.uniform_d();
+      const double s = std::sqrt(std::max(0.0, 1 - z * z));
+      rays.push_back(make_ray(o, V3{s * std::cos(phi), s * std::sin(phi), z}, INFINITY));
+    }
+    return rays;
+  }
+  // -- shadow and diffuse: from hit points of primary rays at random image positions
+  const Vec3f light = default_light(bounds);
+  TraceOptions topt;
+  topt.layout = Layout::mbvh4;
+  topt.traversal = Traversal::stack;
+  std::size_t tried = 0;
+  while (rays.size() < opt.count) {
+    const std::size_t batch = std::max<std::size_t>(4096, (opt.count - rays.size()) * 2);
+    std::vector<Ray> prim(batch);
+    for (std::size_t i = 0; i < batch; ++i) prim[i] = camera_ray(cam, rng.uniform_d(), rng.uniform_d());
+    TraceOutput out;
+    trace_reference(acc, prim, topt, out, opt.threads);
+    for (std::size_t i = 0; i < batch && rays.size() < opt.count; ++i) {
+      const Hit& h = out.hits[i];
+      const double r1 = rng.uniform_d(), r2 = rng.uniform_d();  // drawn for every ray: deterministic
+      if (h.prim == MBVH_MISS_PRIM) continue;
+      Vec3f a, b, c;
+      tri_vertices(scene, h.prim, a, b, c);
+      const float b0 = 1.0f - h.u - h.v;
+      const V3 p{b0 * a.x + h.u * b.x + h.v * c.x, b0 * a.y + h.u * b.y + h.v * c.y, b0 * a.z + h.u * b.z + h.v * c.z};
+      if (opt.kind == RayKind::shadow) {
+        const V3 to = d3(light) - p;
+        const double dist = std::sqrt(dot(to, to));
+        if (!(dist > 0)) continue;
+        rays.push_back(spawn_ray(a, b, c, h.u, h.v, f3(to * (1.0 / dist)), static_cast<float>(dist)));
+      } else {
+        // cosine-weighted direction about the normal facing the incoming ray
+        V3 n = normalize(cross(d3(b) - d3(a), d3(c) - d3(a)));
+        const V3 in{prim[i].dx, prim[i].dy, prim[i].dz};
+        if (dot(n, in) > 0) n = n * -1.0;
+        const V3 t1 = normalize(std::fabs(n.x) > 0.5 ? cross(n, V3{0, 1, 0}) : cross(n, V3{1, 0, 0}));
+        const V3 t2 = cross(n, t1);
+        const double rr = std::sqrt(r1), phi = 2 * std::numbers::pi * r2;
+        const V3 d = normalize(t1 * (rr * std::cos(phi)) + t2 * (rr * std::sin(phi)) + n * std::sqrt(std::max(0.0, 1 - r1)));
+        rays.push_back(spawn_ray(a, b, c, h.u, h.v, f3(d), INFINITY));
+      }
+    }
+    tried += batch;
+    if (rays.empty() && tried >= 1u << 20)
+      throw Error(scene.name + ": the camera sees no geometry; no " + to_string(opt.kind) + " rays can start from hits");
+  }
+  return rays;
+}
+
+// -- files
+namespace {
+
+template <class T>
+std::vector<T> read_records(const std::string& path, const char* what) {
+  std::unique_ptr<FILE, int (*)(FILE*)> f(std::fopen(path.c_str(), "rb"), &std::fclose);
+  if (!f) throw Error(path + ": cannot open " + what + " file: " + std::strerror(errno));
+  std::fseek(f.get(), 0, SEEK_END);
+  const long size = std::ftell(f.get());
+  std::fseek(f.get(), 0, SEEK_SET);
+  if (size < 0) throw Error(path + ": cannot determine the size of the " + what + " file");
+  if (static_cast<std::size_t>(size) % sizeof(T) != 0)
+    throw Error(path + ": size " + std::to_string(size) + " bytes is not a multiple of the " + std::to_string(sizeof(T)) +
+                "-byte " + what + " record");
+  std::vector<T> out(static_cast<std::size_t>(size) / sizeof(T));
+  if (!out.empty() && std::fread(out.data(), sizeof(T), out.size(), f.get()) != out.size())
+    throw Error(path + ": read error in " + what + " file");
+  return out;
+}
+
+void write_bytes(const std::string& path, const void* data, std::size_t bytes) {
+  const std::string tmp = path + ".partial";
+  FILE* f = std::fopen(tmp.c_str(), "wb");
+  if (!f) throw Error(path + ": cannot create output file: " + std::strerror(errno));
+  const bool ok = (bytes == 0 || std::fwrite(data, 1, bytes, f) == bytes);
+  const bool closed = std::fclose(f) == 0;
+  if (!ok || !closed || std::rename(tmp.c_str(), path.c_str()) != 0) {
+    std::remove(tmp.c_str());
+    throw Error(path + ": write failed: " + std::strerror(errno));
+  }
+}
+
+}  // namespace
+
+std::vector<Ray> read_rays(const std::string& path) { return read_records<Ray>(path, "ray"); }
+std::vector<Hit> read_hits(const std::string& path) { return read_records<Hit>(path, "hit"); }
+std::vector<std::uint8_t> read_occlusion(const std::string& path) { return read_records<std::uint8_t>(path, "occlusion"); }
+void write_rays(const std::string& path, std::span<const Ray> r) { write_bytes(path, r.data(), r.size_bytes()); }
+void write_hits(const std::string& path, std::span<const Hit> h) { write_bytes(path, h.data(), h.size_bytes()); }
+void write_occlusion(const std::string& path, std::span<const std::uint8_t> o) { write_bytes(path, o.data(), o.size_bytes()); }
+
+}  // namespace mbvh

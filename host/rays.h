@@ -1,0 +1,55 @@
+// rays.h — ray generators (primary, shadow, diffuse, random; deterministic by seed), the
+// error-bound spawn helper for secondary rays, and the ray / hit / occlusion files of DESIGN.md.
+#pragma once
+#include <cstdint>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "host/accel.h"
+#include "host/scene.h"
+
+namespace mbvh {
+
+enum class RayKind { primary, shadow, diffuse, random };
+const char* to_string(RayKind k);
+RayKind parse_ray_kind(const std::string& s);  ///< throws Error on an unknown name
+
+/// A pinhole camera. The default frames the scene's box from the front-right-above.
+struct Camera {
+  Vec3f eye, target, up{0, 1, 0};
+  float fov_deg = 60.0f;
+};
+Camera default_camera(const Box& bounds);
+/// The point light of shadow rays: near the top of the box, centred.
+Vec3f default_light(const Box& bounds);
+
+struct RayGenOptions {
+  RayKind kind = RayKind::primary;
+  std::size_t count = 100000;
+  std::uint64_t seed = 1;
+  bool has_camera = false;  ///< use `camera` instead of default_camera
+  Camera camera;
+  unsigned threads = 0;
+};
+
+/// Generates `count` rays. Shadow and diffuse rays start at hit points of primary rays (traced
+/// with the reference traversal), offset by the hit point's rounding-error bound. Throws Error
+/// if the camera sees no geometry.
+std::vector<Ray> generate_rays(const Scene& scene, const Accel& acc, const RayGenOptions& opt);
+
+/// pbrt-v4-style secondary ray: the hit point on triangle (p0, p1, p2) at barycentrics (u, v),
+/// its origin pushed off the surface along the geometric normal by the point's error bound
+/// γ(7)·Σ|b_i·P_i|, to the side `dir` leaves from, then rounded away one more ulp.
+Ray spawn_ray(const Vec3f& p0, const Vec3f& p1, const Vec3f& p2, float u, float v, const Vec3f& dir, float tmax);
+
+/// Files (little-endian, no header): rays 32 B, hits 16 B, occlusion 1 B per ray. Writers go
+/// through a temporary file renamed on success, so no partial file is left behind.
+std::vector<Ray> read_rays(const std::string& path);
+void write_rays(const std::string& path, std::span<const Ray> rays);
+std::vector<Hit> read_hits(const std::string& path);
+void write_hits(const std::string& path, std::span<const Hit> hits);
+std::vector<std::uint8_t> read_occlusion(const std::string& path);
+void write_occlusion(const std::string& path, std::span<const std::uint8_t> occ);
+
+}  // namespace mbvh

@@ -1,0 +1,61 @@
+// scene.h — a triangle scene (float vertices, uint32 triangles) and how to get one: OBJ, PLY
+// (optionally zstd-compressed) or a built-in generator named "gen:NAME:PARAMS".
+#pragma once
+#include <array>
+#include <cmath>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+namespace mbvh {
+
+struct Vec3f {
+  float x = 0, y = 0, z = 0;
+  float operator[](int a) const { return a == 0 ? x : (a == 1 ? y : z); }
+  float& operator[](int a) { return a == 0 ? x : (a == 1 ? y : z); }
+};
+
+/// Axis-aligned box; an empty box has lo = +inf, hi = -inf.
+struct Box {
+  Vec3f lo{INFINITY, INFINITY, INFINITY};
+  Vec3f hi{-INFINITY, -INFINITY, -INFINITY};
+  void grow(const Vec3f& p);
+  void grow(const Box& b);
+  bool empty() const { return !(lo.x <= hi.x); }
+  Vec3f center() const { return {0.5f * (lo.x + hi.x), 0.5f * (lo.y + hi.y), 0.5f * (lo.z + hi.z)}; }
+  Vec3f extent() const { return {hi.x - lo.x, hi.y - lo.y, hi.z - lo.z}; }
+  /// Half the surface area (the SAH only needs ratios); 0 for an empty box.
+  float half_area() const;
+};
+
+/// A scene: vertices and triangles. Triangle i is the i-th triangle of the file after
+/// fan-triangulating polygons as (0, k, k+1): its prim id is i.
+struct Scene {
+  std::string name;                              ///< the path or generator spec it came from
+  std::vector<Vec3f> vertices;
+  std::vector<std::array<std::uint32_t, 3>> triangles;
+
+  std::size_t triangle_count() const { return triangles.size(); }
+  Box bounds() const;                            ///< box of the vertices used by triangles
+  /// 64-bit content hash of vertices and triangles (FNV-1a), for build caching and reports.
+  std::uint64_t hash() const;
+};
+
+/// Loads a scene from a path (.obj, .ply, optionally .zst-compressed) or a generator spec
+/// ("gen:sphere:64", "gen:soup:100000:7", "gen:hairball:1000000", "gen:exponential:200",
+/// "gen:cube:16"). Throws Error naming the file, line and what was wrong on malformed input.
+Scene load_scene(const std::string& path_or_spec);
+
+/// Parsers on an in-memory buffer (already decompressed); `name` is used in error messages.
+Scene parse_obj(const std::string& name, const char* data, std::size_t size);
+Scene parse_ply(const std::string& name, const char* data, std::size_t size);
+
+/// Reads a whole file, transparently decompressing zstd (by magic number). Throws Error.
+std::vector<char> read_file(const std::string& path);
+
+/// Builds a generated scene from "NAME:PARAMS" (the part after "gen:"). Throws Error.
+Scene generate_scene(const std::string& spec);
+/// One line per generator, for --help texts.
+std::string generator_help();
+
+}  // namespace mbvh

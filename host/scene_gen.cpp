@@ -1,0 +1,199 @@
+// scene_gen.cpp — built-in generated scenes ("gen:NAME:PARAMS"), deterministic by their params:
+// a closed UV sphere and a closed subdivided cube (watertightness), a random triangle soup,
+// a hairball of thin tubes of any size (tens of millions of triangles), and exponentially
+// spaced triangles (the worst case for the builder's depth cap).
+#include <charconv>
+#include <cmath>
+#include <numbers>
+
+#include "host/error.h"
+#include "host/random.h"
+#include "host/scene.h"
+
+namespace mbvh {
+namespace {
+
+std::vector<std::string> split(const std::string& s, char sep) {
+  std::vector<std::string> out;
+  std::size_t a = 0;
+  for (;;) {
+    std::size_t b = s.find(sep, a);
+    out.push_back(s.substr(a, b == std::string::npos ? std::string::npos : b - a));
+    if (b == std::string::npos) break;
+    a = b + 1;
+  }
+  return out;
+}
+
+std::uint64_t param(const std::vector<std::string>& p, std::size_t i, std::uint64_t def, std::uint64_t lo,
+                    std::uint64_t hi, const std::string& spec) {
+  if (i >= p.size() || p[i].empty()) return def;
+  std::uint64_t v = 0;
+  auto r = std::from_chars(p[i].data(), p[i].data() + p[i].size(), v);
+  if (r.ec != std::errc() || r.ptr != p[i].data() + p[i].size() || v < lo || v > hi)
+    throw Error("gen:" + spec + ": parameter " + std::to_string(i) + " '" + p[i] + "' must be an integer in [" +
+                std::to_string(lo) + ", " + std::to_string(hi) + "]");
+  return v;
+}
+
+std::uint32_t add(Scene& s, float x, float y, float z) {
+  s.vertices.push_back({x, y, z});
+  return static_cast<std::uint32_t>(s.vertices.size() - 1);
+}
+
+// Closed UV sphere of radius 1: `seg` segments around, seg/2 rings, poles shared.
+Scene sphere(std::uint32_t seg) {
+  Scene s;
+  const std::uint32_t rings = std::max<std::uint32_t>(2, seg / 2);
+  const double pi = std::numbers::pi;
+  const std::uint32_t north = add(s, 0, 1, 0);
+  for (std::uint32_t r = 1; r < rings; ++r) {
+    const double th = pi * r / rings;
+    for (std::uint32_t k = 0; k < seg; ++k) {
+      const double ph = 2 * pi * k / seg;
+      add(s, static_cast<float>(std::sin(th) * std::cos(ph)), static_cast<float>(std::cos(th)),
+          static_cast<float>(std::sin(th) * std::sin(ph)));
+    }
+  }
+  const std::uint32_t south = add(s, 0, -1, 0);
+  auto ring = [&](std::uint32_t r, std::uint32_t k) { return 1 + (r - 1) * seg + (k % seg); };
+  for (std::uint32_t k = 0; k < seg; ++k) s.triangles.push_back({north, ring(1, k + 1), ring(1, k)});
+  for (std::uint32_t r = 1; r + 1 < rings; ++r)
+    for (std::uint32_t k = 0; k < seg; ++k) {
+      s.triangles.push_back({ring(r, k), ring(r, k + 1), ring(r + 1, k + 1)});
+      s.triangles.push_back({ring(r, k), ring(r + 1, k + 1), ring(r + 1, k)});
+    }
+  for (std::uint32_t k = 0; k < seg; ++k) s.triangles.push_back({south, ring(rings - 1, k), ring(rings - 1, k + 1)});
+  return s;
+}
+
+// Closed cube [-1,1]^3, n x n quads per face, two triangles each; grid coordinates are computed
+// identically on every face, so shared edges are bit-identical.
+Scene cube(std::uint32_t n) {
+  Scene s;
+  auto g = [n](std::uint32_t i) { return -1.0f + 2.0f * static_cast<float>(i) / static_cast<float>(n); };
+  for (int axis = 0; axis < 3; ++axis)
+    for (int side = 0; side < 2; ++side) {
+      const std::uint32_t base = static_cast<std::uint32_t>(s.vertices.size());
+      for (std::uint32_t i = 0; i <= n; ++i)
+        for (std::uint32_t j = 0; j <= n; ++j) {
+          Vec3f p;
+          p[axis] = side ? 1.0f : -1.0f;
+          p[(axis + 1) % 3] = g(i);
+          p[(axis + 2) % 3] = g(j);
+          s.vertices.push_back(p);
+        }
+      for (std::uint32_t i = 0; i < n; ++i)
+        for (std::uint32_t j = 0; j < n; ++j) {
+          const std::uint32_t a = base + i * (n + 1) + j, b = a + 1, c = a + (n + 1), d = c + 1;
+          s.triangles.push_back({a, b, d});
+          s.triangles.push_back({a, d, c});
+        }
+    }
+  return s;
+}
+
+// Random triangle soup in the unit cube, edge lengths up to ~0.05.
+Scene soup(std::uint64_t count, std::uint64_t seed) {
+  Scene s;
+  Rng rng(seed);
+  s.vertices.reserve(count * 3);
+  for (std::uint64_t i = 0; i < count; ++i) {
+    const float cx = rng.uniform(), cy = rng.uniform(), cz = rng.uniform();
+    const float r = 0.05f * rng.uniform() + 0.002f;
+    std::array<std::uint32_t, 3> t{};
+    for (int k = 0; k < 3; ++k)
+      t[static_cast<std::size_t>(k)] = add(s, cx + r * (rng.uniform() - 0.5f), cy + r * (rng.uniform() - 0.5f),
+                                           cz + r * (rng.uniform() - 0.5f));
+    s.triangles.push_back(t);
+  }
+  return s;
+}
+
+// A hairball: random-walk tubes (6 sides, 16 segments, 192 triangles each) of radius 0.002
+// inside the unit sphere, truncated to exactly `count` triangles.
+Scene hairball(std::uint64_t count, std::uint64_t seed) {
+  Scene s;
+  Rng rng(seed);
+  const int sides = 6, segs = 16;
+  const double pi = std::numbers::pi;
+  s.triangles.reserve(count);
+  s.vertices.reserve(count / 2 + 64);
+  while (s.triangles.size() < count) {
+    // a walk start inside the sphere, smooth random direction changes
+    double p[3], d[3];
+    do {
+      for (double& c : p) c = 2 * rng.uniform_d() - 1;
+    } while (p[0] * p[0] + p[1] * p[1] + p[2] * p[2] > 0.8);
+    double len = 0;
+    do {
+      for (double& c : d) c = 2 * rng.uniform_d() - 1;
+      len = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+    } while (len < 0.1 || len > 1);
+    for (double& c : d) c /= len;
+    const double step = 0.02, radius = 0.002;
+    const std::uint32_t base = static_cast<std::uint32_t>(s.vertices.size());
+    for (int k = 0; k <= segs; ++k) {
+      // frame perpendicular to d
+      double a[3] = {std::fabs(d[0]) < 0.9 ? 1.0 : 0.0, std::fabs(d[0]) < 0.9 ? 0.0 : 1.0, 0.0};
+      double u[3] = {d[1] * a[2] - d[2] * a[1], d[2] * a[0] - d[0] * a[2], d[0] * a[1] - d[1] * a[0]};
+      double ul = std::sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2]);
+      for (double& c : u) c /= ul;
+      double w[3] = {d[1] * u[2] - d[2] * u[1], d[2] * u[0] - d[0] * u[2], d[0] * u[1] - d[1] * u[0]};
+      for (int j = 0; j < sides; ++j) {
+        const double ang = 2 * pi * j / sides, cs = std::cos(ang) * radius, sn = std::sin(ang) * radius;
+        add(s, static_cast<float>(p[0] + cs * u[0] + sn * w[0]), static_cast<float>(p[1] + cs * u[1] + sn * w[1]),
+            static_cast<float>(p[2] + cs * u[2] + sn * w[2]));
+      }
+      for (int c = 0; c < 3; ++c) p[c] += step * d[c];
+      for (double& c : d) c += 0.5 * (2 * rng.uniform_d() - 1);
+      len = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+      for (double& c : d) c /= len;
+    }
+    for (int k = 0; k < segs && s.triangles.size() < count; ++k)
+      for (int j = 0; j < sides && s.triangles.size() < count; ++j) {
+        const std::uint32_t a = base + static_cast<std::uint32_t>(k * sides + j);
+        const std::uint32_t b = base + static_cast<std::uint32_t>(k * sides + (j + 1) % sides);
+        s.triangles.push_back({a, b, b + sides});
+        if (s.triangles.size() < count) s.triangles.push_back({a, b + sides, a + sides});
+      }
+  }
+  return s;
+}
+
+// n triangles at exponentially growing distances (x_i = 1.5^i): every SAH split peels off one,
+// so an uncapped binary tree would be n deep.
+Scene exponential(std::uint32_t n) {
+  Scene s;
+  for (std::uint32_t i = 0; i < n; ++i) {
+    const float x = std::pow(1.5f, static_cast<float>(i));
+    const float w = 0.25f * x;
+    const std::uint32_t a = add(s, x, 0, 0), b = add(s, x + w, 0, 0), c = add(s, x, w, w);
+    s.triangles.push_back({a, b, c});
+  }
+  return s;
+}
+
+}  // namespace
+
+std::string generator_help() {
+  return "gen:sphere:SEGMENTS          closed UV sphere, SEGMENTS around (default 64), SEGMENTS/2 rings\n"
+         "gen:cube:N                   closed cube, N x N quads per face (default 16)\n"
+         "gen:soup:COUNT[:SEED]        COUNT random triangles in the unit cube (default 100000)\n"
+         "gen:hairball:COUNT[:SEED]    thin random tubes, exactly COUNT triangles (default 1000000)\n"
+         "gen:exponential:N            N exponentially spaced triangles (default 200), depth-cap worst case\n";
+}
+
+Scene generate_scene(const std::string& spec) {
+  const std::vector<std::string> p = split(spec, ':');
+  const std::string& n = p[0];
+  if (n == "sphere") return sphere(static_cast<std::uint32_t>(param(p, 1, 64, 3, 1u << 15, spec)));
+  if (n == "cube") return cube(static_cast<std::uint32_t>(param(p, 1, 16, 1, 4096, spec)));
+  if (n == "soup") return soup(param(p, 1, 100000, 1, 200'000'000, spec), param(p, 2, 1, 0, UINT64_MAX, spec));
+  if (n == "hairball")
+    return hairball(param(p, 1, 1'000'000, 1, 400'000'000, spec), param(p, 2, 1, 0, UINT64_MAX, spec));
+  if (n == "exponential") return exponential(static_cast<std::uint32_t>(param(p, 1, 200, 1, 200, spec)));
+  throw Error("gen:" + spec + ": unknown generator '" + n + "'; known generators:\n" + generator_help());
+}
+
+}  // namespace mbvh

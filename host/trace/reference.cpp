@@ -1,0 +1,158 @@
+// reference.cpp — the scalar reference traversals over ray batches (one instantiation per
+// layout x traversal x query x statistics), and the double-precision brute-force oracle.
+#include <atomic>
+#include <cmath>
+
+#include "host/error.h"
+#include "host/parallel.h"
+#include "host/trace/trace.h"
+
+namespace mbvh {
+
+const char* to_string(Query q) { return q == Query::closest ? "closest" : "any"; }
+const char* to_string(Traversal t) { return t == Traversal::stack ? "stack" : "bitstack"; }
+
+Query parse_query(const std::string& s) {
+  if (s == "closest") return Query::closest;
+  if (s == "any") return Query::any;
+  throw Error("unknown query '" + s + "' (known: closest, any)");
+}
+
+Traversal parse_traversal(const std::string& s) {
+  if (s == "stack") return Traversal::stack;
+  if (s == "bitstack") return Traversal::bitstack;
+  throw Error("unknown traversal '" + s + "' (known: stack, bitstack)");
+}
+
+std::size_t state_bytes_per_ray(Layout layout, Traversal traversal) {
+  if (traversal == Traversal::bitstack) return 4 + 8;
+  const std::size_t entries = layout == Layout::mbvh2 ? MBVH_STACK2_ENTRIES : MBVH_STACK4_ENTRIES;
+  return entries * 4 + 4 + 4;
+}
+
+bool ray_valid(const Ray& ray) {
+  RayPre p;
+  return prepare_ray(ray, p);
+}
+
+namespace {
+
+TraceView view_of(const Accel& acc, Layout layout) {
+  TraceView v;
+  if (layout == Layout::mbvh2) v.n2 = acc.mbvh2().nodes.data();
+  else v.n4 = acc.mbvh4().nodes.data();
+  v.leaves = acc.leaves().data();
+  v.tris = acc.tris().data();
+  return v;
+}
+
+template <bool Any, class St>
+Hit dispatch(const TraceView& v, const RayPre& r, Layout l, Traversal t, St& st) {
+  if (l == Layout::mbvh2)
+    return t == Traversal::stack ? trace_mbvh2_stack<Any>(v, r, st) : trace_mbvh2_bitstack<Any>(v, r, st);
+  return t == Traversal::stack ? trace_mbvh4_stack<Any>(v, r, st) : trace_mbvh4_bitstack<Any>(v, r, st);
+}
+
+template <bool Any, bool Stats>
+void run_batch(const TraceView& v, std::span<const Ray> rays, std::size_t b, std::size_t e, const TraceOptions& opt,
+               TraceOutput& out, std::size_t& invalid) {
+  for (std::size_t i = b; i < e; ++i) {
+    RayPre r;
+    Hit h = miss_hit();
+    if (!prepare_ray(rays[i], r)) {
+      ++invalid;
+    } else if constexpr (Stats) {
+      CountStats st;
+      h = dispatch<Any>(v, r, opt.layout, opt.traversal, st);
+      out.stats[i] = st.s;
+    } else {
+      NoStats st;
+      h = dispatch<Any>(v, r, opt.layout, opt.traversal, st);
+    }
+    if constexpr (Any) out.occluded[i] = h.prim != MBVH_MISS_PRIM ? 1 : 0;
+    else out.hits[i] = h;
+  }
+}
+
+}  // namespace
+
+Hit trace_one(const Accel& acc, const Ray& ray, const TraceOptions& opt, RayStats* stats,
+              std::vector<std::int32_t>* leaf_log) {
+  RayPre r;
+  if (!prepare_ray(ray, r)) return miss_hit();
+  const TraceView v = view_of(acc, opt.layout);
+  const bool any = opt.query == Query::any;
+  if (stats || leaf_log) {
+    CountStats st;
+    st.leaf_log = leaf_log;
+    const Hit h = any ? dispatch<true>(v, r, opt.layout, opt.traversal, st) : dispatch<false>(v, r, opt.layout, opt.traversal, st);
+    if (stats) *stats = st.s;
+    return h;
+  }
+  NoStats st;
+  return any ? dispatch<true>(v, r, opt.layout, opt.traversal, st) : dispatch<false>(v, r, opt.layout, opt.traversal, st);
+}
+
+void trace_reference(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out,
+                     unsigned threads, const std::function<void(std::size_t)>& progress) {
+  const TraceView v = view_of(acc, opt.layout);
+  const bool any = opt.query == Query::any;
+  out.hits.assign(any ? 0 : rays.size(), miss_hit());
+  out.occluded.assign(any ? rays.size() : 0, 0);
+  out.stats.assign(opt.stats ? rays.size() : 0, RayStats{});
+  std::atomic<std::size_t> invalid{0}, done{0};
+  parallel_for(rays.size(), 2048, threads, [&](std::size_t b, std::size_t e, unsigned worker) {
+    std::size_t inv = 0;
+    if (any) {
+      if (opt.stats) run_batch<true, true>(v, rays, b, e, opt, out, inv);
+      else run_batch<true, false>(v, rays, b, e, opt, out, inv);
+    } else {
+      if (opt.stats) run_batch<false, true>(v, rays, b, e, opt, out, inv);
+      else run_batch<false, false>(v, rays, b, e, opt, out, inv);
+    }
+    invalid += inv;
+    const std::size_t d = done += e - b;
+    if (progress && worker == 0) progress(d);
+  });
+  out.invalid = invalid;
+}
+
+Hit brute_force(const Accel& acc, const Ray& ray) {
+  RayPre r;
+  if (!prepare_ray(ray, r)) return miss_hit();
+  // the watertight test of Woop et al. evaluated in double from the float inputs
+  const double o[3] = {r.o[0], r.o[1], r.o[2]};
+  const double dk = ray_valid(ray) ? double(r.d[r.kz]) : 1.0;
+  const double sx = double(r.d[r.kx]) / dk, sy = double(r.d[r.ky]) / dk, sz = 1.0 / dk;
+  double best_t = INFINITY, best_u = 0, best_v = 0;
+  std::uint32_t best_prim = MBVH_MISS_PRIM;
+  for (const Tri& tri : acc.tris()) {
+    const float* P[3] = {tri.v0, tri.v1, tri.v2};
+    double X[3], Y[3], Z[3];
+    for (int i = 0; i < 3; ++i) {
+      const double ax = double(P[i][r.kx]) - o[r.kx], ay = double(P[i][r.ky]) - o[r.ky], az = double(P[i][r.kz]) - o[r.kz];
+      X[i] = ax - sx * az;
+      Y[i] = ay - sy * az;
+      Z[i] = sz * az;
+    }
+    const double U = X[2] * Y[1] - Y[2] * X[1];
+    const double V = X[0] * Y[2] - Y[0] * X[2];
+    const double W = X[1] * Y[0] - Y[1] * X[0];
+    if ((U < 0 || V < 0 || W < 0) && (U > 0 || V > 0 || W > 0)) continue;
+    const double det = U + V + W;
+    if (det == 0) continue;
+    const double t = (U * Z[0] + V * Z[1] + W * Z[2]) / det;
+    if (!(t > 0 && t >= r.tmin && t <= double(r.tmax))) continue;
+    const std::uint32_t prim = tri_prim(tri);
+    if (t < best_t || (t == best_t && prim < best_prim)) {
+      best_t = t;
+      best_u = V / det;
+      best_v = W / det;
+      best_prim = prim;
+    }
+  }
+  if (best_prim == MBVH_MISS_PRIM) return miss_hit();
+  return Hit{static_cast<float>(best_t), static_cast<float>(best_u), static_cast<float>(best_v), best_prim};
+}
+
+}  // namespace mbvh

@@ -1,0 +1,60 @@
+// trace.h — the traversal options every backend takes, the outputs it fills, and the host's
+// reference entry points: the scalar traversals over ray batches and the double-precision
+// brute force that serves as the oracle.
+#pragma once
+#include <cstdint>
+#include <functional>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "host/accel.h"
+#include "host/trace/traverse.h"
+
+namespace mbvh {
+
+enum class Query { closest, any };
+enum class Traversal { stack, bitstack };
+const char* to_string(Query q);
+const char* to_string(Traversal t);
+Query parse_query(const std::string& s);          ///< throws Error on an unknown name
+Traversal parse_traversal(const std::string& s);  ///< throws Error on an unknown name
+
+struct TraceOptions {
+  Layout layout = Layout::mbvh4;
+  Traversal traversal = Traversal::bitstack;
+  Query query = Query::closest;
+  bool stats = false;  ///< fill TraceOutput::stats (costs time; off compiles counters away)
+};
+
+/// Results in ray order. Closest hit fills `hits`; any hit fills `occluded` (1 = occluded).
+struct TraceOutput {
+  std::vector<Hit> hits;
+  std::vector<std::uint8_t> occluded;
+  std::vector<RayStats> stats;  ///< per ray, only when TraceOptions::stats
+  std::size_t invalid = 0;      ///< rays rejected as invalid (defined misses)
+};
+
+/// Bytes of traversal state one ray needs in the given layout and traversal (TRAVERSAL.md §5):
+/// stack = entries * 4 + stack pointer + current node; bitstack = current node + 64-bit word.
+std::size_t state_bytes_per_ray(Layout layout, Traversal traversal);
+
+/// Traces one ray with the scalar reference traversal. If `stats` is given, counts work; if
+/// `leaf_log` is given, appends every visited leaf reference in visit order.
+Hit trace_one(const Accel& acc, const Ray& ray, const TraceOptions& opt, RayStats* stats = nullptr,
+              std::vector<std::int32_t>* leaf_log = nullptr);
+
+/// Traces a batch with the scalar reference traversals on `threads` workers (0 = all).
+/// `progress` (may be null) is called with the number of rays finished so far.
+void trace_reference(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out,
+                     unsigned threads, const std::function<void(std::size_t)>& progress = {});
+
+/// Double-precision brute force over every triangle of the build (degenerate ones excluded:
+/// they have no area to hit): the closest hit in [tmin, tmax] with t > 0, ties to the smaller
+/// prim id; a miss for an invalid ray. Cost: one watertight test per triangle.
+Hit brute_force(const Accel& acc, const Ray& ray);
+
+/// True if the ray is valid (see prepare_ray).
+bool ray_valid(const Ray& ray);
+
+}  // namespace mbvh

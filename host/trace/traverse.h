@@ -1,0 +1,275 @@
+// traverse.h — the scalar reference traversals every backend is checked against: stack-based and
+// bitstack (Áfra & Szirmay-Kalos, "Stackless Multi-BVH Traversal for CPU, MIC and GPU Ray
+// Tracing", CGF 2014) for MBVH2 and MBVH4, templated on the query (closest / any hit) and on a
+// statistics policy (NoStats compiles every counter away). Pseudocode: TRAVERSAL.md §4.
+#pragma once
+#include <bit>
+#include <cstdint>
+#include <vector>
+
+#include "host/trace/intersect.h"
+
+namespace mbvh {
+
+/// Per-ray work counters.
+struct RayStats {
+  std::uint32_t nodes = 0;      ///< inner-node records visited
+  std::uint32_t box_tests = 0;  ///< child boxes tested (2 per MBVH2 node, 4 per MBVH4 node)
+  std::uint32_t leaves = 0;
+  std::uint32_t tris = 0;       ///< triangle tests
+  std::uint32_t climbs = 0;     ///< parent reads while backtracking (bitstack only)
+  std::uint32_t max_depth = 0;  ///< peak stack entries (stack) or bitstack levels (bitstack)
+};
+
+struct NoStats {
+  static constexpr bool on = false;
+  void node(unsigned) {}
+  void leaf(std::int32_t) {}
+  void tri() {}
+  void climb() {}
+  void depth(unsigned) {}
+};
+
+struct CountStats {
+  static constexpr bool on = true;
+  RayStats s;
+  std::vector<std::int32_t>* leaf_log = nullptr;  ///< if set, every visited leaf in order
+  void node(unsigned boxes) { ++s.nodes; s.box_tests += boxes; }
+  void leaf(std::int32_t ref) { ++s.leaves; if (leaf_log) leaf_log->push_back(ref); }
+  void tri() { ++s.tris; }
+  void climb() { ++s.climbs; }
+  void depth(unsigned d) { if (d > s.max_depth) s.max_depth = d; }
+};
+
+/// What a traversal reads: one layout's nodes plus the shared leaves and triangles.
+struct TraceView {
+  const Node2* n2 = nullptr;
+  const Node4* n4 = nullptr;
+  const Leaf* leaves = nullptr;
+  const Tri* tris = nullptr;
+};
+
+namespace detail {
+
+// LEAF (§4): closest hit keeps the smallest (t, prim) and shrinks tmax; any hit stops.
+template <bool Any, class St>
+inline bool visit_leaf(const TraceView& v, std::int32_t ref, const RayPre& r, float& tmax, Hit& best, St& st) {
+  const Leaf l = v.leaves[~ref];
+  st.leaf(ref);
+  for (std::uint32_t i = l.first; i < l.first + l.count; ++i) {
+    st.tri();
+    float t, u, w;
+    if (tri_test(r, v.tris[i], tmax, t, u, w)) {
+      const std::uint32_t prim = tri_prim(v.tris[i]);
+      if constexpr (Any) {
+        best = Hit{t, u, w, prim};
+        return true;
+      }
+      if (t < best.t || prim < best.prim) {  // t <= best.t holds: equal t -> smaller prim id
+        best = Hit{t, u, w, prim};
+        tmax = t;
+      }
+    }
+  }
+  return false;
+}
+
+template <class St>
+inline unsigned test2(const Node2& n, const RayPre& r, float tcull, float d[2], St& st) {
+  st.node(2);
+  const bool h0 = box_test(r, n.c0[0], n.c0[1], n.c0[2], n.c0[3], n.zz[0], n.zz[1], tcull, d[0]);
+  const bool h1 = box_test(r, n.c1[0], n.c1[1], n.c1[2], n.c1[3], n.zz[2], n.zz[3], tcull, d[1]);
+  return (h0 ? 1u : 0u) | (h1 ? 2u : 0u);
+}
+
+template <class St>
+inline unsigned test4(const Node4& n, const RayPre& r, float tcull, float d[4], St& st) {
+  st.node(4);
+  unsigned mask = 0;
+  for (int s = 0; s < 4; ++s)
+    if (box_test(r, n.lo_x[s], n.hi_x[s], n.lo_y[s], n.hi_y[s], n.lo_z[s], n.hi_z[s], tcull, d[s])) mask |= 1u << s;
+  return mask;
+}
+
+// Slot entered first: any hit takes the lowest set slot; closest hit the smallest entry
+// distance, ties to the lower slot (identical in stack and bitstack code).
+template <bool Any>
+inline int first_slot4(unsigned mask, const float d[4]) {
+  int i = std::countr_zero(mask);
+  if constexpr (!Any)
+    for (int s = i + 1; s < 4; ++s)
+      if (((mask >> s) & 1u) && d[s] < d[i]) i = s;
+  return i;
+}
+
+inline std::uint64_t skip_code(unsigned mask, int i) {  // rot(mask, i), TRAVERSAL.md §3.3
+  return ((mask >> (i + 1)) | (mask << (3 - i))) & 7u;
+}
+
+}  // namespace detail
+
+/// MBVH2, stack-based (Aila–Laine order without postponed leaves): nearest child first, the far
+/// child pushed when both are hit.
+template <bool Any, class St>
+inline Hit trace_mbvh2_stack(const TraceView& v, const RayPre& r, St& st) {
+  Hit best = miss_hit();
+  float tmax = r.tmax;
+  std::int32_t stack[MBVH_STACK2_ENTRIES];
+  unsigned sp = 0;
+  std::int32_t cur = 0;
+  for (;;) {
+    if (cur >= 0) {
+      const Node2& n = v.n2[cur];
+      float d[2];
+      const unsigned m = detail::test2(n, r, tmax * kCullSlack, d, st);
+      if (m) {
+        int k;
+        if constexpr (Any) k = (m & 1u) ? 0 : 1;
+        else k = m == 3u ? (d[1] < d[0] ? 1 : 0) : ((m & 1u) ? 0 : 1);
+        if (m == 3u) {
+          stack[sp++] = n.link[2 + (1 - k)];
+          st.depth(sp);
+        }
+        cur = n.link[2 + k];
+        continue;
+      }
+    } else if (detail::visit_leaf<Any>(v, cur, r, tmax, best, st)) {
+      return best;
+    }
+    if (sp == 0) return best;
+    cur = stack[--sp];
+  }
+}
+
+/// MBVH2 bitstack (TRAVERSAL.md §4.2): one bit per level, 1 = the sibling is still pending;
+/// backtracking climbs parent links to the deepest pending level and moves to the sibling.
+template <bool Any, class St>
+inline Hit trace_mbvh2_bitstack(const TraceView& v, const RayPre& r, St& st) {
+  Hit best = miss_hit();
+  float tmax = r.tmax;
+  std::int32_t cur = 0, par = MBVH_NONE, sib = MBVH_NONE;
+  std::uint64_t bits = 0;
+  unsigned level = 0;
+  for (;;) {
+    if (cur >= 0) {
+      const Node2& n = v.n2[cur];
+      float d[2];
+      const unsigned m = detail::test2(n, r, tmax * kCullSlack, d, st);
+      if (m) {
+        int k;
+        if constexpr (Any) k = (m & 1u) ? 0 : 1;
+        else k = m == 3u ? (d[1] < d[0] ? 1 : 0) : ((m & 1u) ? 0 : 1);
+        bits = (bits << 1) | (m == 3u ? 1u : 0u);  // push
+        if constexpr (St::on) st.depth(++level);
+        par = cur;
+        sib = n.link[2 + (1 - k)];
+        cur = n.link[2 + k];
+        continue;
+      }
+    } else if (detail::visit_leaf<Any>(v, cur, r, tmax, best, st)) {
+      return best;
+    }
+    // -- backtrack: climb to the deepest level with a pending sibling
+    while ((bits & 1u) == 0) {
+      if (bits == 0) return best;
+      cur = par;
+      par = v.n2[cur].link[0];
+      sib = v.n2[cur].link[1];
+      bits >>= 1;
+      st.climb();
+      if constexpr (St::on) --level;
+    }
+    bits ^= 1u;  // the sibling is now taken
+    const std::int32_t t = cur;
+    cur = sib;
+    sib = t;
+  }
+}
+
+/// MBVH4, stack-based twin of the skip-code traversal (TRAVERSAL.md §4.5): enter the nearest
+/// hit child, push the other hit children in reverse cyclic order so they pop in cyclic order.
+template <bool Any, class St>
+inline Hit trace_mbvh4_stack(const TraceView& v, const RayPre& r, St& st) {
+  Hit best = miss_hit();
+  float tmax = r.tmax;
+  std::int32_t stack[MBVH_STACK4_ENTRIES];
+  unsigned sp = 0;
+  std::int32_t cur = 0;
+  for (;;) {
+    if (cur >= 0) {
+      const Node4& n = v.n4[cur];
+      float d[4];
+      const unsigned m = detail::test4(n, r, tmax * kCullSlack, d, st);
+      if (m) {
+        const int i = detail::first_slot4<Any>(m, d);
+        for (int k = 2; k >= 0; --k) {
+          const int s = (i + 1 + k) & 3;
+          if ((m >> s) & 1u) stack[sp++] = n.child[s];
+        }
+        st.depth(sp);
+        cur = n.child[i];
+        continue;
+      }
+    } else if (detail::visit_leaf<Any>(v, cur, r, tmax, best, st)) {
+      return best;
+    }
+    if (sp == 0) return best;
+    cur = stack[--sp];
+  }
+}
+
+/// MBVH4 bitstack with skip codes (TRAVERSAL.md §4.3): 3 bits per level, the code of a level
+/// marks which cyclic siblings of the current node are pending; siblings come from registers
+/// filled on descent, or from the record climbed to.
+template <bool Any, class St>
+inline Hit trace_mbvh4_bitstack(const TraceView& v, const RayPre& r, St& st) {
+  Hit best = miss_hit();
+  float tmax = r.tmax;
+  std::int32_t cur = 0, par = MBVH_NONE;
+  std::int32_t sib[3] = {MBVH_NONE, MBVH_NONE, MBVH_NONE};
+  std::uint64_t bits = 0;
+  unsigned level = 0;
+  for (;;) {
+    if (cur >= 0) {
+      const Node4& n = v.n4[cur];
+      float d[4];
+      const unsigned m = detail::test4(n, r, tmax * kCullSlack, d, st);
+      if (m) {
+        const int i = detail::first_slot4<Any>(m, d);
+        bits = (bits << 3) | detail::skip_code(m, i);  // push
+        if constexpr (St::on) st.depth(++level);
+        par = cur;
+        for (int k = 0; k < 3; ++k) sib[k] = n.child[(i + 1 + k) & 3];
+        cur = n.child[i];
+        continue;
+      }
+    } else if (detail::visit_leaf<Any>(v, cur, r, tmax, best, st)) {
+      return best;
+    }
+    // -- backtrack: climb while the current level has no pending sibling
+    std::uint64_t code;
+    for (;;) {
+      if (bits == 0) return best;
+      code = bits & 7u;
+      if (code != 0) break;
+      cur = par;
+      const Node4& p = v.n4[cur];
+      par = p.parent;
+      sib[0] = p.sib[0];
+      sib[1] = p.sib[1];
+      sib[2] = p.sib[2];
+      bits >>= 3;
+      st.climb();
+      if constexpr (St::on) --level;
+    }
+    // -- move to the next pending sibling: skip k, keep the rest relative to the new node
+    const int k = std::countr_zero(code);
+    const std::uint64_t rest = code >> (k + 1);
+    bits ^= code ^ rest;
+    const std::int32_t R[4] = {sib[0], sib[1], sib[2], cur};
+    cur = R[k];
+    for (int j = 0; j < 3; ++j) sib[j] = R[(k + 1 + j) & 3];
+  }
+}
+
+}  // namespace mbvh

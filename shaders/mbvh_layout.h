@@ -1,0 +1,114 @@
+/* mbvh_layout.h — the one declaration of every record shared by host C++, OpenCL C and GLSL:
+ * rays, hits, triangles, leaves and the MBVH2 / MBVH4 nodes (TRAVERSAL.md §2).
+ *
+ * Rules (STYLE.md): rows of 16 bytes, integers in the 4th lane, no 3-vectors, bool, size_t or
+ * pointers; every size is asserted on the host. A per-language prelude maps the scalar names.
+ *
+ * Child reference (int32, TRAVERSAL.md §2.1):
+ *   ref >= 0          index of an inner-node record
+ *   ref <  0          a leaf: ~ref is an index into the Leaf array (Aila–Laine's ~triAddr)
+ *   ref == INT32_MIN  MBVH_EMPTY: an unused slot; its box is inverted (lo = +inf, hi = -inf)
+ * The root is record 0, its parent MBVH_NONE (-1). A node's own box lives in its parent.
+ */
+#ifndef MBVH_LAYOUT_H
+#define MBVH_LAYOUT_H
+
+#if defined(__cplusplus)
+#include <cstddef>
+#include <cstdint>
+#define MBVH_NS_BEGIN namespace mbvh {
+#define MBVH_NS_END }
+typedef float mbvh_float;
+typedef std::int32_t mbvh_int;
+typedef std::uint32_t mbvh_uint;
+#elif defined(__OPENCL_VERSION__)
+#define MBVH_NS_BEGIN
+#define MBVH_NS_END
+typedef float mbvh_float;
+typedef int mbvh_int;
+typedef uint mbvh_uint;
+#elif defined(GL_core_profile)
+#define MBVH_NS_BEGIN
+#define MBVH_NS_END
+#define mbvh_float float
+#define mbvh_int int
+#define mbvh_uint uint
+#endif
+
+#define MBVH_NONE (-1)
+#define MBVH_EMPTY (-2147483647 - 1)
+#define MBVH_MISS_PRIM 0xFFFFFFFFu
+
+/* Bitstack capacity (TRAVERSAL.md §3.5): one 64-bit word holds 64 MBVH2 levels and 21 MBVH4
+ * levels (63 bits). The builder caps the binary depth at 42, and the depth-aware collapse keeps
+ * MBVH4 within ceil(42/2) = 21 levels. */
+#define MBVH_BINARY_DEPTH_CAP 42
+#define MBVH_MBVH2_LEVEL_CAP 64
+#define MBVH_MBVH4_LEVEL_CAP 21
+/* Stack capacities of the stack-based twins: one entry per level (MBVH2), 1 + 3 * levels (MBVH4). */
+#define MBVH_STACK2_ENTRIES 64
+#define MBVH_STACK4_ENTRIES 64
+
+#if !defined(GL_core_profile)
+MBVH_NS_BEGIN
+
+/* A ray as stored in a .rays file: 32 bytes, little-endian. */
+typedef struct Ray {
+  mbvh_float ox, oy, oz, tmin;
+  mbvh_float dx, dy, dz, tmax;
+} Ray;
+
+/* A closest-hit answer as stored in a .hits file: 16 bytes. Miss: prim = MBVH_MISS_PRIM,
+ * t = +inf. u, v weight vertices 1 and 2: point = (1-u-v)*v0 + u*v1 + v*v2. */
+typedef struct Hit {
+  mbvh_float t, u, v;
+  mbvh_uint prim;
+} Hit;
+
+/* A triangle in leaf order: three vertices as rows; w of row 0 holds the file's prim id as bits. */
+typedef struct Tri {
+  mbvh_float v0[4]; /* x, y, z, prim id (uint bits) */
+  mbvh_float v1[4]; /* x, y, z, 0 */
+  mbvh_float v2[4]; /* x, y, z, 0 */
+} Tri;
+
+/* A leaf: a range of the leaf-ordered triangle array. Leaves have no node record. */
+typedef struct Leaf {
+  mbvh_uint first, count;
+} Leaf;
+
+/* MBVH2 node, 64 bytes (Aila & Laine 2009 layout; TRAVERSAL.md §2.2). parent/sibling are the
+ * node's OWN links (sibling: the other child of the parent, possibly a leaf reference). */
+typedef struct Node2 {
+  mbvh_float c0[4]; /* child 0: lo.x, hi.x, lo.y, hi.y */
+  mbvh_float c1[4]; /* child 1: lo.x, hi.x, lo.y, hi.y */
+  mbvh_float zz[4]; /* c0.lo.z, c0.hi.z, c1.lo.z, c1.hi.z */
+  mbvh_int link[4]; /* parent, sibling, child0, child1 */
+} Node2;
+
+/* MBVH4 node, 128 bytes, SoA view (TRAVERSAL.md §2.3). sib[k] = parent.child[(slot+1+k) & 3],
+ * where slot is this node's position in its parent (cyclic order used by the skip codes). */
+typedef struct Node4 {
+  mbvh_float lo_x[4], hi_x[4], lo_y[4], hi_y[4], lo_z[4], hi_z[4];
+  mbvh_int child[4];
+  mbvh_int parent;
+  mbvh_int sib[3];
+} Node4;
+
+MBVH_NS_END
+#endif /* !GL_core_profile */
+
+#if defined(__cplusplus)
+static_assert(sizeof(mbvh::Ray) == 32, "ray file record is 32 bytes");
+static_assert(sizeof(mbvh::Hit) == 16, "hit file record is 16 bytes");
+static_assert(sizeof(mbvh::Tri) == 48, "triangle is three 16-byte rows");
+static_assert(sizeof(mbvh::Leaf) == 8, "leaf is (first, count)");
+static_assert(sizeof(mbvh::Node2) == 64, "MBVH2 node is 64 bytes (Aila-Laine)");
+static_assert(sizeof(mbvh::Node4) == 128, "MBVH4 node is 128 bytes");
+static_assert(offsetof(mbvh::Node2, link) == 48, "MBVH2 links in the 4th row");
+static_assert(offsetof(mbvh::Node4, child) == 96, "MBVH4 children at byte 96");
+static_assert(offsetof(mbvh::Node4, parent) == 112, "MBVH4 parent at byte 112");
+static_assert(offsetof(mbvh::Node4, sib) == 116, "MBVH4 siblings at bytes 116-127");
+#endif
+
+#endif /* MBVH_LAYOUT_H */
