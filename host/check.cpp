@@ -31,6 +31,18 @@ std::vector<std::size_t> spread_indices(std::size_t n, std::size_t k) {
   return idx;
 }
 
+TieRule oracle_tie_rule(const Accel& acc, std::span<const Ray> rays) {
+  auto prim_to_tri = std::make_shared<std::vector<std::uint32_t>>(acc.scene_triangles(), UINT32_MAX);
+  for (std::size_t i = 0; i < acc.tris().size(); ++i) (*prim_to_tri)[tri_prim(acc.tris()[i])] = static_cast<std::uint32_t>(i);
+  return [&acc, rays, prim_to_tri](std::size_t ray, const Hit& a, const Hit& oracle) {
+    if (a.prim == MBVH_MISS_PRIM || oracle.prim == MBVH_MISS_PRIM || a.prim >= prim_to_tri->size()) return false;
+    RayPre r;
+    if (!prepare_ray(rays[ray], r)) return false;
+    const double t = plane_t_double(r, acc.tris()[(*prim_to_tri)[a.prim]]);
+    return ulp_distance(static_cast<float>(t), oracle.t) <= 4;
+  };
+}
+
 std::string CheckReport::table(std::span<const Ray> batch) const {
   std::string s;
   char line[512];
@@ -149,7 +161,8 @@ CheckReport run_check(const Accel& acc, std::span<const Ray> rays, const CheckOp
         if (any) o.push_back(r.out.occluded[i]);
         else h.push_back(r.out.hits[i]);
       }
-      Comparison c = any ? compare_occlusion_arrays(o, brute_occ, brute, rays, sub) : compare_hit_arrays(h, brute, sub);
+      Comparison c = any ? compare_occlusion_arrays(o, brute_occ, brute, rays, sub)
+                         : compare_hit_arrays(h, brute, sub, oracle_tie_rule(acc, rays));
       c.a = label(r);
       c.b = "brute force (double)";
       rep.comparisons.push_back(std::move(c));

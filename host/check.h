@@ -44,6 +44,11 @@ struct CheckReport {
 CheckReport run_check(const Accel& acc, std::span<const Ray> rays, const CheckOptions& opt,
                       const std::function<void(const std::string&)>& log = {});
 
+/// The oracle's tie rule for comparisons with brute_force (answer a, oracle b): a is a tie when
+/// its prim, evaluated in double on the same ray, lies at the oracle's distance within 4 ulp
+/// (coplanar overlapping triangles: equal t that float arithmetic cannot resolve).
+TieRule oracle_tie_rule(const Accel& acc, std::span<const Ray> rays);
+
 /// Indices of `k` rays spread evenly over n (all when k >= n).
 std::vector<std::size_t> spread_indices(std::size_t n, std::size_t k);
 

@@ -53,14 +53,17 @@ void Comparison::add(std::size_t ray, Verdict v) {
   }
 }
 
-Comparison compare_hit_arrays(std::span<const Hit> a, std::span<const Hit> b, std::span<const std::size_t> index) {
+Comparison compare_hit_arrays(std::span<const Hit> a, std::span<const Hit> b, std::span<const std::size_t> index,
+                              const TieRule& tie) {
   Comparison c;
   const std::size_t n = std::min(a.size(), b.size());
   for (std::size_t i = 0; i < n; ++i) {
     const std::size_t ray = index.empty() ? i : index[i];
     if (std::memcmp(&a[i], &b[i], sizeof(Hit)) == 0) ++c.bit_identical;
     if (a[i].prim == b[i].prim && a[i].prim != MBVH_MISS_PRIM) c.max_t_ulps = std::max(c.max_t_ulps, ulp_distance(a[i].t, b[i].t));
-    c.add(ray, compare_hits(a[i], b[i]));
+    Verdict v = compare_hits(a[i], b[i]);
+    if (v == Verdict::mismatch && tie && tie(ray, a[i], b[i])) v = Verdict::tie;
+    c.add(ray, v);
   }
   return c;
 }

@@ -2,6 +2,7 @@
 // with another prim, or a hit on a triangle's edge or vertex), or a genuine mismatch.
 #pragma once
 #include <cstdint>
+#include <functional>
 #include <span>
 #include <string>
 #include <vector>
@@ -39,7 +40,11 @@ struct Comparison {
   void add(std::size_t ray, Verdict v);
 };
 
-Comparison compare_hit_arrays(std::span<const Hit> a, std::span<const Hit> b, std::span<const std::size_t> index = {});
+/// Reclassifies a would-be mismatch (ray index, answer a, answer b) as a tie when it returns true.
+using TieRule = std::function<bool(std::size_t, const Hit&, const Hit&)>;
+
+Comparison compare_hit_arrays(std::span<const Hit> a, std::span<const Hit> b, std::span<const std::size_t> index = {},
+                              const TieRule& tie = {});
 Comparison compare_occlusion_arrays(std::span<const std::uint8_t> a, std::span<const std::uint8_t> b,
                                     std::span<const Hit> closest, std::span<const Ray> rays,
                                     std::span<const std::size_t> index = {});

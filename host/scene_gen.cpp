@@ -161,13 +161,14 @@ Scene hairball(std::uint64_t count, std::uint64_t seed) {
   return s;
 }
 
-// n triangles at exponentially growing distances (x_i = 1.5^i): every SAH split peels off one,
-// so an uncapped binary tree would be n deep.
+// n triangles at exponentially growing distances, x_i = 2^(40 i / n), each 0.1 x_i wide: SAH
+// splits peel off a few at a time, making the deepest trees binning allows. The range stays
+// within 2^40 so the watertight test's cubic products (~x^3) cannot overflow a float.
 Scene exponential(std::uint32_t n) {
   Scene s;
   for (std::uint32_t i = 0; i < n; ++i) {
-    const float x = std::pow(1.5f, static_cast<float>(i));
-    const float w = 0.25f * x;
+    const float x = std::exp2(40.0f * static_cast<float>(i) / static_cast<float>(n));
+    const float w = 0.1f * x;
     const std::uint32_t a = add(s, x, 0, 0), b = add(s, x + w, 0, 0), c = add(s, x, w, w);
     s.triangles.push_back({a, b, c});
   }

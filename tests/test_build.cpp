@@ -1,1 +1,233 @@
+// test_build.cpp — builder invariants: every triangle in exactly one leaf, boxes contain their
+// children, parent/sibling links consistent, depth within the bitstack's cap, the same bytes at
+// any thread count, degenerate triangles kept out.
 #include <catch2/catch.hpp>
+
+#include <algorithm>
+
+#include "host/accel.h"
+#include "host/error.h"
+#include "host/scene.h"
+#include "host/trace/trace.h"
+#include "tests/helpers.h"
+
+using namespace mbvh;
+
+namespace {
+
+bool contains(const Box& outer, const Box& inner) {
+  for (int a = 0; a < 3; ++a)
+    if (!(outer.lo[a] <= inner.lo[a] && inner.hi[a] <= outer.hi[a])) return false;
+  return true;
+}
+
+Box tri_box(const Tri& t) {
+  Box b;
+  b.grow(Vec3f{t.v0[0], t.v0[1], t.v0[2]});
+  b.grow(Vec3f{t.v1[0], t.v1[1], t.v1[2]});
+  b.grow(Vec3f{t.v2[0], t.v2[1], t.v2[2]});
+  return b;
+}
+
+Box leaf_tris_box(const Accel& acc, std::int32_t ref) {
+  const Leaf& l = acc.leaves()[static_cast<std::size_t>(~ref)];
+  Box b;
+  for (std::uint32_t i = l.first; i < l.first + l.count; ++i) b.grow(tri_box(acc.tris()[i]));
+  return b;
+}
+
+Box box4(const Node4& n, int s) {
+  Box b;
+  b.lo = {n.lo_x[s], n.lo_y[s], n.lo_z[s]};
+  b.hi = {n.hi_x[s], n.hi_y[s], n.hi_z[s]};
+  return b;
+}
+
+void check_invariants(const Scene& scene, const Accel& acc) {
+  // -- leaves partition the leaf-ordered triangles; every non-degenerate triangle once
+  std::size_t covered = 0;
+  for (const Leaf& l : acc.leaves()) {
+    REQUIRE(l.first == covered);
+    REQUIRE(l.count >= 1);
+    covered += l.count;
+  }
+  REQUIRE(covered == acc.tris().size());
+  std::vector<std::uint32_t> prims;
+  for (const Tri& t : acc.tris()) prims.push_back(tri_prim(t));
+  std::sort(prims.begin(), prims.end());
+  REQUIRE(std::adjacent_find(prims.begin(), prims.end()) == prims.end());
+  REQUIRE(prims.size() + acc.bvh2().degenerate == scene.triangles.size());
+  for (const Tri& t : acc.tris()) {  // the stored vertices are the file's, and not degenerate
+    const auto& f = scene.triangles[tri_prim(t)];
+    REQUIRE(t.v1[0] == scene.vertices[f[1]].x);
+    REQUIRE(t.v2[2] == scene.vertices[f[2]].z);
+  }
+
+  // -- MBVH2: boxes, links, depth
+  const Mbvh2& m2 = acc.mbvh2();
+  const Bvh2& b = acc.bvh2();
+  REQUIRE(m2.nodes.size() == b.nodes.size());
+  REQUIRE(m2.nodes[0].link[0] == MBVH_NONE);
+  std::vector<int> leaf_refs2(acc.leaves().size(), 0);
+  for (std::size_t i = 0; i < m2.nodes.size(); ++i) {
+    const Node2& n = m2.nodes[i];
+    for (int k = 0; k < 2; ++k) {
+      const std::int32_t c = n.link[2 + k];
+      if (c == MBVH_EMPTY) {
+        REQUIRE(i == 0);  // only a one-leaf root has an empty slot
+        continue;
+      }
+      const float* xy = k == 0 ? n.c0 : n.c1;
+      Box cb;
+      cb.lo = {xy[0], xy[2], n.zz[2 * k]};
+      cb.hi = {xy[1], xy[3], n.zz[2 * k + 1]};
+      if (c >= 0) {
+        const Node2& ch = m2.nodes[static_cast<std::size_t>(c)];
+        REQUIRE(ch.link[0] == static_cast<std::int32_t>(i));
+        REQUIRE(ch.link[1] == n.link[2 + (1 - k)]);
+        REQUIRE(contains(cb, b.nodes[static_cast<std::size_t>(c)].box));
+        for (int g = 0; g < 2; ++g)
+          if (ch.link[2 + g] != MBVH_EMPTY) REQUIRE(contains(cb, b.box(ch.link[2 + g])));
+      } else {
+        ++leaf_refs2[static_cast<std::size_t>(~c)];
+        REQUIRE(contains(cb, leaf_tris_box(acc, c)));
+      }
+    }
+  }
+  for (int r : leaf_refs2) REQUIRE(r == 1);
+  REQUIRE(m2.stats.depth <= MBVH_BINARY_DEPTH_CAP);
+  REQUIRE(m2.stats.depth <= MBVH_MBVH2_LEVEL_CAP);
+
+  // -- MBVH4: boxes, cyclic sibling links, depth
+  const Mbvh4& m4 = acc.mbvh4();
+  REQUIRE(m4.nodes[0].parent == MBVH_NONE);
+  std::vector<int> leaf_refs4(acc.leaves().size(), 0);
+  std::vector<int> inner_refs4(m4.nodes.size(), 0);
+  for (std::size_t i = 0; i < m4.nodes.size(); ++i) {
+    const Node4& n = m4.nodes[i];
+    for (int s = 0; s < 4; ++s) {
+      const std::int32_t c = n.child[s];
+      if (c == MBVH_EMPTY) {
+        REQUIRE(box4(n, s).empty());
+        continue;
+      }
+      if (c >= 0) {
+        ++inner_refs4[static_cast<std::size_t>(c)];
+        const Node4& ch = m4.nodes[static_cast<std::size_t>(c)];
+        REQUIRE(ch.parent == static_cast<std::int32_t>(i));
+        for (int k = 0; k < 3; ++k) REQUIRE(ch.sib[k] == n.child[(s + 1 + k) & 3]);
+        for (int g = 0; g < 4; ++g)
+          if (ch.child[g] != MBVH_EMPTY) REQUIRE(contains(box4(n, s), box4(ch, g)));
+      } else {
+        ++leaf_refs4[static_cast<std::size_t>(~c)];
+        REQUIRE(contains(box4(n, s), leaf_tris_box(acc, c)));
+      }
+    }
+  }
+  for (int r : leaf_refs4) REQUIRE(r == 1);
+  for (std::size_t i = 1; i < inner_refs4.size(); ++i) REQUIRE(inner_refs4[i] == 1);
+  REQUIRE(m4.stats.depth <= MBVH_MBVH4_LEVEL_CAP);
+  REQUIRE(m4.stats.bitstack_bits <= 63);
+  REQUIRE(m2.stats.leaves == m4.stats.leaves);
+}
+
+}  // namespace
+
+TEST_CASE("builder invariants on shared and generated scenes", "[build]") {
+  for (const std::string& spec : {mbvh_test::scene_path("cornell_box.obj.zst"), mbvh_test::scene_path("bun_zipper.ply.zst"),
+                                 mbvh_test::scene_path("conference.obj.zst"), std::string("gen:sphere:64"),
+                                 std::string("gen:soup:50000"), std::string("gen:hairball:200000"),
+                                 std::string("gen:exponential:200"), std::string("gen:cube:4")}) {
+    INFO(spec);
+    const Scene s = load_scene(spec);
+    const auto acc = Accel::build(s);
+    check_invariants(s, *acc);
+  }
+}
+
+TEST_CASE("the depth cap holds on a worst-case scene and the capped tree still traces exactly", "[build]") {
+  const Scene s = load_scene("gen:exponential:200");  // the deepest tree binned SAH makes
+  const auto natural = Accel::build(s);
+  const unsigned cap = 8;
+  REQUIRE(natural->binary_stats().depth > cap);
+  CHECK(natural->binary_stats().depth <= MBVH_BINARY_DEPTH_CAP);
+  BuildOptions capped_opt;
+  capped_opt.depth_cap = cap;
+  const auto acc = Accel::build(s, capped_opt);
+  CHECK(acc->binary_stats().depth == cap);
+  CHECK(acc->bvh2().forced_leaves >= 1);
+  CHECK(acc->bvh2().largest_leaf > capped_opt.max_leaf);
+  CHECK(acc->mbvh4().stats.depth <= cap);
+  check_invariants(s, *acc);
+  // rays along the row of triangles, each aimed at one of them
+  for (std::size_t i = 0; i < s.triangles.size(); i += 7) {
+    const Vec3f a = s.vertices[s.triangles[i][0]], b = s.vertices[s.triangles[i][1]], c = s.vertices[s.triangles[i][2]];
+    const Vec3f p{(a.x + b.x + c.x) / 3, (a.y + b.y + c.y) / 3, (a.z + b.z + c.z) / 3};
+    const float w = b.x - a.x;  // the triangle lies in the plane y = z: aim along its normal
+    const Ray r{p.x, p.y + w, p.z - w, 0.0f, 0.0f, -1.0f, 1.0f, INFINITY};
+    REQUIRE(brute_force(*acc, r).prim == i);
+    const Hit want = brute_force(*acc, r);
+    for (Layout l : {Layout::mbvh2, Layout::mbvh4})
+      for (Traversal t : {Traversal::stack, Traversal::bitstack}) {
+        TraceOptions o;
+        o.layout = l;
+        o.traversal = t;
+        const Hit h = trace_one(*acc, r, o);
+        REQUIRE(h.prim == want.prim);
+      }
+  }
+  // a tight cap on a real scene: depth within it, answers unchanged
+  BuildOptions tight;
+  tight.depth_cap = 6;
+  const Scene bunny = load_scene(mbvh_test::scene_path("bun_zipper.ply.zst"));
+  const auto capped = Accel::build(bunny, tight);
+  CHECK(capped->binary_stats().depth <= 6);
+  check_invariants(bunny, *capped);
+}
+
+TEST_CASE("the build is deterministic: the same bytes at any thread count", "[build]") {
+  const Scene s = load_scene("gen:hairball:400000");
+  std::uint64_t hashes[3];
+  std::vector<Node4> n4[3];
+  for (unsigned t = 1; t <= 3; ++t) {
+    BuildOptions o;
+    o.threads = t;
+    const auto acc = Accel::build(s, o);
+    hashes[t - 1] = acc->hash();
+    n4[t - 1] = acc->mbvh4().nodes;
+  }
+  CHECK(hashes[0] == hashes[1]);
+  CHECK(hashes[0] == hashes[2]);
+  REQUIRE(n4[0].size() == n4[1].size());
+  CHECK(std::memcmp(n4[0].data(), n4[1].data(), n4[0].size() * sizeof(Node4)) == 0);
+  const auto other = Accel::build(load_scene("gen:hairball:400000:2"));
+  CHECK(other->hash() != hashes[0]);
+}
+
+TEST_CASE("degenerate triangles never reach a leaf - empty scenes are an error", "[build]") {
+  Scene s;
+  s.name = "mixed";
+  s.vertices = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {2, 0, 0}, {5, 5, 5}};
+  s.triangles = {{0, 1, 3}, {0, 1, 2}, {4, 4, 4}, {0, 0, 1}};  // only prim 1 has area
+  const auto acc = Accel::build(s);
+  REQUIRE(acc->tris().size() == 1);
+  CHECK(tri_prim(acc->tris()[0]) == 1);
+  CHECK(acc->bvh2().degenerate == 3);
+  check_invariants(s, *acc);  // a one-leaf scene: root with one leaf and an empty slot
+  const Ray r{0.25f, 0.25f, 1.0f, 0.0f, 0.0f, 0.0f, -1.0f, INFINITY};
+  for (Layout l : {Layout::mbvh2, Layout::mbvh4})
+    for (Traversal t : {Traversal::stack, Traversal::bitstack}) {
+      TraceOptions o;
+      o.layout = l;
+      o.traversal = t;
+      CHECK(trace_one(*acc, r, o).prim == 1);
+    }
+  Scene degenerate;
+  degenerate.name = "flat";
+  degenerate.vertices = {{0, 0, 0}, {1, 1, 1}, {2, 2, 2}};
+  degenerate.triangles = {{0, 1, 2}};
+  CHECK_THROWS_WITH(Accel::build(degenerate), Catch::Contains("flat") && Catch::Contains("no non-degenerate"));
+  Scene empty;
+  empty.name = "empty";
+  CHECK_THROWS_AS(Accel::build(empty), Error);
+}

@@ -1,1 +1,107 @@
+// test_cli.cpp — the `mbvh` program as a user runs it: trace writes the exact formats and agrees
+// with the brute force, check/bench/info report, bad input gives a clear error and exit code.
 #include <catch2/catch.hpp>
+
+#include <cstring>
+#include <filesystem>
+#include <nlohmann/json.hpp>
+
+#include "host/check.h"
+#include "host/rays.h"
+#include "tests/helpers.h"
+
+using namespace mbvh;
+using mbvh_test::run_cli;
+using mbvh_test::TempDir;
+
+TEST_CASE("mbvh trace writes hits and occlusion that agree with the brute force", "[cli]") {
+  TempDir dir;
+  const std::string scene = mbvh_test::scene_path("sponza_dabrovic.obj.zst");
+  const std::string rays = dir.file("d.rays");
+  auto r = run_cli("rays " + scene + " --kind diffuse --count 3000 --seed 5 -o " + rays);
+  REQUIRE(r.code == 0);
+  REQUIRE(std::filesystem::file_size(rays) == 3000 * 32);
+  const Scene s = load_scene(scene);
+  const auto acc = Accel::build(s);
+  const std::vector<Ray> rv = read_rays(rays);
+  std::vector<Hit> brute(rv.size());
+  for (std::size_t i = 0; i < rv.size(); ++i) brute[i] = brute_force(*acc, rv[i]);
+  for (const char* layout : {"mbvh2", "mbvh4"})
+    for (const char* trav : {"stack", "bitstack"}) {
+      INFO(layout << "/" << trav);
+      const std::string hits = dir.file(std::string(layout) + trav + ".hits");
+      r = run_cli("trace " + scene + " --rays " + rays + " --backend cpu-scalar --layout " + layout + " --traversal " + trav +
+                  " -o " + hits);
+      REQUIRE(r.code == 0);
+      const auto hv = read_hits(hits);
+      REQUIRE(hv.size() == rv.size());
+      const Comparison c = compare_hit_arrays(hv, brute, {}, oracle_tie_rule(*acc, rv));
+      CHECK(c.mismatches == 0);
+      CHECK(c.equal + c.ties == rv.size());
+      const std::string occ = dir.file(std::string(layout) + trav + ".occ");
+      r = run_cli("trace " + scene + " --rays " + rays + " --layout " + layout + " --traversal " + trav +
+                  " --query any -o " + occ);
+      REQUIRE(r.code == 0);
+      const auto ov = read_occlusion(occ);
+      REQUIRE(ov.size() == rv.size());
+      std::vector<std::uint8_t> bo(rv.size());
+      for (std::size_t i = 0; i < rv.size(); ++i) bo[i] = brute[i].prim != MBVH_MISS_PRIM;
+      CHECK(compare_occlusion_arrays(ov, bo, brute, rv).mismatches == 0);
+    }
+}
+
+TEST_CASE("mbvh check info and bench report - bench writes JSON records", "[cli]") {
+  TempDir dir;
+  auto r = run_cli("check gen:sphere:64 --kinds primary,random --count 20000 --brute 500");
+  CHECK(r.code == 0);
+  CHECK_THAT(r.output, Catch::Contains("zero genuine mismatches") && Catch::Contains("brute force (double)"));
+  r = run_cli("info " + mbvh_test::scene_path("cornell_box.obj.zst"));
+  CHECK(r.code == 0);
+  CHECK_THAT(r.output, Catch::Contains("mbvh2") && Catch::Contains("mbvh4") && Catch::Contains("22.0x smaller"));
+  const std::string json = dir.file("b.json");
+  r = run_cli("bench gen:soup:20000 --count 5000 --kinds primary,random --json " + json);
+  INFO(r.output);
+  REQUIRE(r.code == 0);
+  CHECK_THAT(r.output, Catch::Contains("Mrays/s") && Catch::Contains("bitstack"));
+  const auto j = nlohmann::json::parse(std::ifstream(json));
+  REQUIRE(j["records"].size() == 2 * 2 * 2 * 2);
+  for (const auto& rec : j["records"]) {
+    for (const char* key : {"backend", "layout", "traversal", "query", "ray_kind", "rays", "threads", "mrays_per_s",
+                            "state_bytes_per_ray", "nodes_per_ray", "leaves_per_ray", "triangles_per_ray", "bvh_hash"})
+      CHECK(rec.contains(key));
+    CHECK(rec["mrays_per_s"].get<double>() > 0);
+    CHECK(rec["verify_mismatches"].get<int>() == 0);
+    CHECK(rec["state_bytes_per_ray"].get<int>() == (rec["traversal"] == "stack" ? 264 : 12));
+  }
+}
+
+TEST_CASE("mbvh gives clear errors and non-zero exit codes", "[cli]") {
+  TempDir dir;
+  auto r = run_cli("trace gen:sphere:16 --backend warp-drive -o " + dir.file("x.hits"));
+  CHECK(r.code != 0);
+  CHECK_THAT(r.output, Catch::Contains("unknown backend 'warp-drive'") && Catch::Contains("cpu-scalar"));
+  CHECK_FALSE(std::filesystem::exists(dir.file("x.hits")));
+  r = run_cli("trace gen:sphere:16 --backend vulkan");
+  CHECK(r.code != 0);
+  CHECK_THAT(r.output, Catch::Contains("backend 'vulkan' is not available"));
+  const std::string bad = dir.write("bad.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 4\n");
+  r = run_cli("info " + bad);
+  CHECK(r.code != 0);
+  CHECK_THAT(r.output, Catch::Contains("bad.obj:4:") && Catch::Contains("out of range"));
+  r = run_cli("trace gen:sphere:16 --layout mbvh3");
+  CHECK(r.code != 0);
+  CHECK_THAT(r.output, Catch::Contains("unknown layout 'mbvh3'"));
+  const std::string rays = dir.write("odd.rays", std::string(40, '\0'));
+  r = run_cli("trace gen:sphere:16 --rays " + rays + " -o " + dir.file("o.hits"));
+  CHECK(r.code != 0);
+  CHECK_THAT(r.output, Catch::Contains("odd.rays") && Catch::Contains("not a multiple"));
+  CHECK_FALSE(std::filesystem::exists(dir.file("o.hits")));
+  for (const char* cmd : {"info", "rays", "trace", "check", "bench", "devices"}) {
+    r = run_cli(std::string(cmd) + " --help");
+    CHECK(r.code == 0);
+    CHECK_THAT(r.output, Catch::Contains("Usage"));
+  }
+  r = run_cli("devices");
+  CHECK(r.code == 0);
+  CHECK_THAT(r.output, Catch::Contains("cpu-scalar") && Catch::Contains("ready"));
+}

@@ -1,1 +1,192 @@
+// test_traversal.cpp — the reference traversals on every shared scene and the generated ones,
+// 100K rays of each kind: stack and bitstack, MBVH2 and MBVH4, closest and any hit all agree
+// (twins bit for bit), and a spread subset of 2,000 rays per kind agrees with the
+// double-precision brute force except classified ties; stack and bitstack visit the same leaves
+// in the same order; invalid rays are defined misses.
 #include <catch2/catch.hpp>
+
+#include <cstring>
+
+#include "host/check.h"
+#include "host/rays.h"
+#include "tests/helpers.h"
+
+using namespace mbvh;
+
+namespace {
+
+constexpr std::size_t kRays = 100000;
+constexpr std::size_t kBrute = 2000;
+constexpr std::size_t kLeafOrderRays = 3000;
+
+void check_scene(const std::string& spec) {
+  const Scene scene = load_scene(spec);
+  const auto acc = Accel::build(scene);
+  for (RayKind kind : {RayKind::primary, RayKind::shadow, RayKind::diffuse, RayKind::random}) {
+    INFO(spec << ", " << to_string(kind) << " rays");
+    RayGenOptions ro;
+    ro.kind = kind;
+    ro.count = kRays;
+    const std::vector<Ray> rays = generate_rays(scene, *acc, ro);
+    REQUIRE(rays.size() == kRays);
+
+    // -- all variants against each other, any hit against closest hit, subset against brute force
+    CheckOptions co;
+    co.brute_rays = kBrute;
+    const CheckReport rep = run_check(*acc, rays, co);
+    INFO(rep.table(rays));
+    CHECK(rep.brute_rays == kBrute);
+    CHECK(rep.mismatches() == 0);
+    std::size_t hits = 0;
+
+    // -- twins are bit-identical: stack vs bitstack of one layout and query
+    for (Layout l : {Layout::mbvh2, Layout::mbvh4})
+      for (Query q : {Query::closest, Query::any}) {
+        TraceOutput out[2];
+        for (int t = 0; t < 2; ++t) {
+          TraceOptions o;
+          o.layout = l;
+          o.query = q;
+          o.traversal = t ? Traversal::bitstack : Traversal::stack;
+          trace_reference(*acc, rays, o, out[t], 0);
+        }
+        if (q == Query::closest) {
+          CHECK(std::memcmp(out[0].hits.data(), out[1].hits.data(), rays.size() * sizeof(Hit)) == 0);
+          for (const Hit& h : out[0].hits) hits += h.prim != MBVH_MISS_PRIM;
+        } else {
+          CHECK(out[0].occluded == out[1].occluded);
+        }
+      }
+    if (kind == RayKind::primary) CHECK(hits > 0);  // the camera sees the scene
+
+    // -- same leaves in the same order
+    for (std::size_t i : spread_indices(rays.size(), kLeafOrderRays))
+      for (Layout l : {Layout::mbvh2, Layout::mbvh4})
+        for (Query q : {Query::closest, Query::any}) {
+          std::vector<std::int32_t> log[2];
+          for (int t = 0; t < 2; ++t) {
+            TraceOptions o;
+            o.layout = l;
+            o.query = q;
+            o.traversal = t ? Traversal::bitstack : Traversal::stack;
+            trace_one(*acc, rays[i], o, nullptr, &log[t]);
+          }
+          REQUIRE(log[0] == log[1]);
+        }
+  }
+}
+
+}  // namespace
+
+TEST_CASE("traversal equivalence: Cornell box", "[traversal]") { check_scene(mbvh_test::scene_path("cornell_box.obj.zst")); }
+TEST_CASE("traversal equivalence: Cornell box (measured data)", "[traversal]") {
+  check_scene(mbvh_test::scene_path("cornell_box_original_data.obj.zst"));
+}
+TEST_CASE("traversal equivalence: Stanford bunny", "[traversal]") { check_scene(mbvh_test::scene_path("bun_zipper.ply.zst")); }
+TEST_CASE("traversal equivalence: Sibenik", "[traversal]") { check_scene(mbvh_test::scene_path("sibenik.obj.zst")); }
+TEST_CASE("traversal equivalence: Sponza", "[traversal]") { check_scene(mbvh_test::scene_path("sponza_dabrovic.obj.zst")); }
+TEST_CASE("traversal equivalence: conference room", "[traversal]") { check_scene(mbvh_test::scene_path("conference.obj.zst")); }
+TEST_CASE("traversal equivalence: closed sphere", "[traversal]") { check_scene("gen:sphere:256"); }
+TEST_CASE("traversal equivalence: closed cube", "[traversal]") { check_scene("gen:cube:24"); }
+TEST_CASE("traversal equivalence: triangle soup", "[traversal]") { check_scene("gen:soup:100000"); }
+TEST_CASE("traversal equivalence: hairball", "[traversal]") { check_scene("gen:hairball:300000"); }
+
+TEST_CASE("rays from inside a closed mesh never leak", "[traversal]") {
+  for (const char* spec : {"gen:sphere:200", "gen:cube:16"}) {
+    const Scene s = load_scene(spec);
+    const auto acc = Accel::build(s);
+    RayGenOptions ro;
+    ro.kind = RayKind::random;
+    ro.count = 50000;
+    std::vector<Ray> rays = generate_rays(s, *acc, ro);
+    for (Ray& r : rays) {  // origins squeezed into the middle of the mesh, directions kept
+      r.ox *= 0.4f;
+      r.oy *= 0.4f;
+      r.oz *= 0.4f;
+    }
+    for (Layout l : {Layout::mbvh2, Layout::mbvh4})
+      for (Traversal t : {Traversal::stack, Traversal::bitstack})
+        for (Query q : {Query::closest, Query::any}) {
+          TraceOptions o{l, t, q, false};
+          TraceOutput out;
+          trace_reference(*acc, rays, o, out, 0);
+          std::size_t leaks = 0;
+          for (std::size_t i = 0; i < rays.size(); ++i)
+            leaks += q == Query::any ? !out.occluded[i] : out.hits[i].prim == MBVH_MISS_PRIM;
+          INFO(spec << " " << to_string(l) << "/" << to_string(t) << "/" << to_string(q));
+          CHECK(leaks == 0);
+        }
+  }
+}
+
+TEST_CASE("invalid rays are defined misses - signed zeros and infinite tmax are valid", "[traversal]") {
+  const Scene s = load_scene("gen:cube:4");
+  const auto acc = Accel::build(s);
+  const float nan = NAN, inf = INFINITY;
+  const std::vector<Ray> invalid = {
+      {nan, 0, 0, 0, 1, 0, 0, inf}, {0, 0, 0, 0, nan, 0, 0, inf},  {0, 0, 0, nan, 1, 0, 0, inf},
+      {0, 0, 0, 0, 1, 0, 0, nan},   {0, 0, 0, 0, 0, 0, 0, inf},    {0, 0, 0, 0, -0.0f, 0, 0, inf},
+      {inf, 0, 0, 0, 1, 0, 0, inf}, {0, 0, 0, 0, inf, 0, 0, inf},  {0, 0, 0, 0, 1e-40f, 0, 0, inf},
+      {0, 0, 0, -1, 1, 0, 0, inf},  {0, 0, 0, 2, 1, 0, 0, 1},      {0, 0, 0, 0, 1, 0, 0, -inf},
+      {0, 0, 0, inf, 1, 0, 0, inf},
+  };
+  for (Layout l : {Layout::mbvh2, Layout::mbvh4})
+    for (Traversal t : {Traversal::stack, Traversal::bitstack})
+      for (Query q : {Query::closest, Query::any}) {
+        TraceOutput out;
+        trace_reference(*acc, invalid, TraceOptions{l, t, q, false}, out, 1);
+        CHECK(out.invalid == invalid.size());
+        for (std::size_t i = 0; i < invalid.size(); ++i) {
+          if (q == Query::any) CHECK(out.occluded[i] == 0);
+          else {
+            CHECK(out.hits[i].prim == MBVH_MISS_PRIM);
+            CHECK(std::isinf(out.hits[i].t));
+          }
+        }
+      }
+  for (const Ray& r : invalid) CHECK(brute_force(*acc, r).prim == MBVH_MISS_PRIM);
+  // axis-aligned rays with +0 and -0 components from the centre hit the cube at t = 1
+  const std::vector<Ray> valid = {{0, 0, 0, 0, 1, 0, -0.0f, inf},     {0, 0, 0, 0, -0.0f, -0.0f, -1, inf},
+                                  {0, 0, 0, -0.0f, 0, 1, 0, inf},     {0.5f, 0.5f, 0.5f, 0, -0.0f, 0, 1, 100}};
+  for (Layout l : {Layout::mbvh2, Layout::mbvh4})
+    for (Traversal t : {Traversal::stack, Traversal::bitstack}) {
+      TraceOutput out;
+      trace_reference(*acc, valid, TraceOptions{l, t, Query::closest, false}, out, 1);
+      CHECK(out.invalid == 0);
+      for (std::size_t i = 0; i < valid.size(); ++i) {
+        CHECK(out.hits[i].prim != MBVH_MISS_PRIM);
+        CHECK(out.hits[i].t == (i == 3 ? 0.5f : 1.0f));
+      }
+    }
+}
+
+TEST_CASE("statistics count work and stay out of the answers", "[traversal]") {
+  const Scene s = load_scene(mbvh_test::scene_path("bun_zipper.ply.zst"));
+  const auto acc = Accel::build(s);
+  RayGenOptions ro;
+  ro.count = 20000;
+  const std::vector<Ray> rays = generate_rays(s, *acc, ro);
+  for (Layout l : {Layout::mbvh2, Layout::mbvh4}) {
+    TraceOutput plain, counted, stack;
+    trace_reference(*acc, rays, TraceOptions{l, Traversal::bitstack, Query::closest, false}, plain, 0);
+    trace_reference(*acc, rays, TraceOptions{l, Traversal::bitstack, Query::closest, true}, counted, 0);
+    trace_reference(*acc, rays, TraceOptions{l, Traversal::stack, Query::closest, true}, stack, 0);
+    CHECK(std::memcmp(plain.hits.data(), counted.hits.data(), rays.size() * sizeof(Hit)) == 0);
+    REQUIRE(counted.stats.size() == rays.size());
+    double climbs = 0, nodes = 0;
+    for (std::size_t i = 0; i < rays.size(); ++i) {
+      CHECK(counted.stats[i].nodes == stack.stats[i].nodes);  // same nodes, same leaves
+      CHECK(counted.stats[i].leaves == stack.stats[i].leaves);
+      CHECK(counted.stats[i].tris == stack.stats[i].tris);
+      CHECK(stack.stats[i].climbs == 0);
+      CHECK(stack.stats[i].max_depth <= (l == Layout::mbvh2 ? MBVH_STACK2_ENTRIES : MBVH_STACK4_ENTRIES));
+      climbs += counted.stats[i].climbs;
+      nodes += counted.stats[i].nodes;
+    }
+    CHECK(climbs > 0);
+    CHECK(nodes > double(rays.size()));
+  }
+  CHECK(state_bytes_per_ray(Layout::mbvh2, Traversal::stack) == 264);
+  CHECK(state_bytes_per_ray(Layout::mbvh2, Traversal::bitstack) == 12);
+  CHECK(state_bytes_per_ray(Layout::mbvh2, Traversal::stack) / state_bytes_per_ray(Layout::mbvh2, Traversal::bitstack) == 22);
+}

@@ -222,7 +222,7 @@ Scene parse_ply(const std::string& name, const char* data, std::size_t size) {
     // every element needs at least 2 bytes in ascii ("0\n") or its fixed bytes in binary
     const std::size_t per = rd.ascii() ? 2 * std::max<std::size_t>(e.props.size(), 1) : std::max<std::size_t>(min_bytes, 1);
     if (e.count > rd.bytes_left() / per + (rd.ascii() ? 1 : 0))
-      fail_at(name, e.header_line, "element '" + e.name + "' claims " + std::to_string(e.count) +
+      fail_at(name, e.header_line, "truncated file: element '" + e.name + "' claims " + std::to_string(e.count) +
                                        " entries but the file has only " + std::to_string(rd.bytes_left()) + " bytes left");
     if (is_vertex) s.vertices.reserve(static_cast<std::size_t>(e.count));
     std::vector<std::uint32_t> face;

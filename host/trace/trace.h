@@ -50,8 +50,9 @@ void trace_reference(const Accel& acc, std::span<const Ray> rays, const TraceOpt
                      unsigned threads, const std::function<void(std::size_t)>& progress = {});
 
 /// Double-precision brute force over every triangle of the build (degenerate ones excluded:
-/// they have no area to hit): the closest hit in [tmin, tmax] with t > 0, ties to the smaller
-/// prim id; a miss for an invalid ray. Cost: one watertight test per triangle.
+/// they have no area to hit): the watertight inside test in double, t from the plane equation
+/// in double; the closest hit in [tmin, tmax] with t > 0, ties to the smaller prim id; a miss
+/// for an invalid ray. Cost: one test per triangle.
 Hit brute_force(const Accel& acc, const Ray& ray);
 
 /// True if the ray is valid (see prepare_ray).
