@@ -1,0 +1,159 @@
+// collapse.cpp — the MBVH2 and MBVH4 layouts made from the one binary BVH, with the parent and
+// sibling links the stackless bitstack traversal needs (Áfra & Szirmay-Kalos, "Stackless
+// Multi-BVH Traversal for CPU, MIC and GPU Ray Tracing", CGF 2014; TRAVERSAL.md §2).
+#include <algorithm>
+#include <chrono>
+
+#include "host/accel.h"
+#include "host/error.h"
+
+namespace mbvh {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+void set_box4(Node4& n, int s, const Box& b) {
+  n.lo_x[s] = b.lo.x; n.hi_x[s] = b.hi.x;
+  n.lo_y[s] = b.lo.y; n.hi_y[s] = b.hi.y;
+  n.lo_z[s] = b.lo.z; n.hi_z[s] = b.hi.z;
+}
+
+Box empty_box() { return Box(); }  // lo = +inf, hi = -inf: never hit (TRAVERSAL.md §2.1)
+
+double leaf_sah(const Bvh2& b, const std::vector<Leaf>& leaves, double root) {
+  double c = 0;
+  for (std::size_t i = 0; i < leaves.size(); ++i) c += double(leaves[i].count) * b.leaf_boxes[i].half_area() / root;
+  return c;
+}
+
+}  // namespace
+
+// MBVH2: the binary tree itself, both child boxes in the parent (Aila & Laine 2009).
+Mbvh2 make_mbvh2(const Bvh2& b, const std::vector<Leaf>& leaves) {
+  const auto t0 = Clock::now();
+  Mbvh2 out;
+  out.nodes.resize(b.nodes.size());
+  for (std::size_t i = 0; i < b.nodes.size(); ++i) {
+    const Bvh2::Node& s = b.nodes[i];
+    Node2& d = out.nodes[i];
+    const Box b0 = s.child[0] == MBVH_EMPTY ? empty_box() : b.box(s.child[0]);
+    const Box b1 = s.child[1] == MBVH_EMPTY ? empty_box() : b.box(s.child[1]);
+    d.c0[0] = b0.lo.x; d.c0[1] = b0.hi.x; d.c0[2] = b0.lo.y; d.c0[3] = b0.hi.y;
+    d.c1[0] = b1.lo.x; d.c1[1] = b1.hi.x; d.c1[2] = b1.lo.y; d.c1[3] = b1.hi.y;
+    d.zz[0] = b0.lo.z; d.zz[1] = b0.hi.z; d.zz[2] = b1.lo.z; d.zz[3] = b1.hi.z;
+    d.link[0] = s.parent;
+    d.link[1] = MBVH_NONE;
+    d.link[2] = s.child[0];
+    d.link[3] = s.child[1];
+  }
+  for (std::size_t i = 0; i < b.nodes.size(); ++i)
+    for (int k = 0; k < 2; ++k) {
+      const std::int32_t c = b.nodes[i].child[k];
+      if (c >= 0) out.nodes[static_cast<std::size_t>(c)].link[1] = b.nodes[i].child[1 - k];
+    }
+  LayoutStats& st = out.stats;
+  st.layout = "mbvh2";
+  st.nodes = out.nodes.size();
+  st.leaves = leaves.size();
+  st.depth = b.nodes[0].height;
+  const double root = b.nodes[0].box.half_area();
+  double cost = 0;
+  if (root > 0) {
+    for (const auto& n : b.nodes) cost += n.box.half_area() / root;
+    cost += leaf_sah(b, leaves, root);
+  }
+  st.sah_cost = cost;
+  st.bytes = out.nodes.size() * sizeof(Node2);
+  st.bitstack_bits = st.depth;
+  if (st.depth > MBVH_MBVH2_LEVEL_CAP) throw Error("internal: MBVH2 depth exceeds the 64-bit bitstack");
+  st.build_ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+  return out;
+}
+
+namespace {
+
+// Depth-aware greedy collapse. A 4-node at MBVH4 level L takes its binary node's two children and
+// repeatedly opens one inner child until it holds four: first any child that would break the
+// level cap (an inner child of binary height h at level L+1 needs L+1+ceil(h/2) <= cap, what
+// opening both grandchildren always achieves), else the child of largest surface area (the SAH
+// greedy of Wald et al. 2008). With the binary cap of 42 the root satisfies ceil(42/2) <= 21 and
+// the invariant carries down, so MBVH4 never exceeds 21 levels (63 bits of a 64-bit word).
+struct Collapser {
+  const Bvh2& b;
+  std::vector<Node4>& out;
+  unsigned max_level = 0;
+  double cost = 0, root_area = 1;
+
+  bool violates(std::int32_t ref, unsigned level) const {
+    if (ref < 0) return false;
+    const unsigned h = b.nodes[static_cast<std::size_t>(ref)].height;
+    return level + (h + 1) / 2 > MBVH_MBVH4_LEVEL_CAP;
+  }
+
+  std::int32_t emit(std::int32_t bref, std::int32_t parent, unsigned level) {
+    const Bvh2::Node& bn = b.nodes[static_cast<std::size_t>(bref)];
+    std::int32_t kids[4] = {bn.child[0], bn.child[1], MBVH_EMPTY, MBVH_EMPTY};
+    int count = bn.child[1] == MBVH_EMPTY ? 1 : 2;
+    while (count < 4) {
+      int pick = -1;
+      for (int k = 0; k < count; ++k)
+        if (violates(kids[k], level + 1) && (pick < 0 || b.box(kids[k]).half_area() > b.box(kids[pick]).half_area())) pick = k;
+      if (pick < 0)
+        for (int k = 0; k < count; ++k)
+          if (kids[k] >= 0 && (pick < 0 || b.box(kids[k]).half_area() > b.box(kids[pick]).half_area())) pick = k;
+      if (pick < 0) break;
+      const Bvh2::Node& open = b.nodes[static_cast<std::size_t>(kids[pick])];
+      for (int k = count; k > pick + 1; --k) kids[k] = kids[k - 1];
+      kids[pick] = open.child[0];
+      kids[pick + 1] = open.child[1];
+      ++count;
+    }
+    const std::int32_t self = static_cast<std::int32_t>(out.size());
+    out.emplace_back();
+    Box all;
+    for (int s = 0; s < 4; ++s) {
+      const Box bx = kids[s] == MBVH_EMPTY ? empty_box() : b.box(kids[s]);
+      all.grow(bx);
+      set_box4(out[static_cast<std::size_t>(self)], s, bx);
+    }
+    cost += all.half_area() / root_area;
+    out[static_cast<std::size_t>(self)].parent = parent;
+    for (int s = 0; s < 4; ++s) {
+      std::int32_t ref = kids[s];
+      if (ref >= 0) ref = emit(ref, self, level + 1);
+      else if (ref != MBVH_EMPTY) max_level = std::max(max_level, level + 1);
+      out[static_cast<std::size_t>(self)].child[s] = ref;
+    }
+    return self;
+  }
+};
+
+}  // namespace
+
+Mbvh4 make_mbvh4(const Bvh2& b, const std::vector<Leaf>& leaves) {
+  const auto t0 = Clock::now();
+  Mbvh4 out;
+  out.nodes.reserve(b.nodes.size() / 2 + 1);
+  Collapser c{b, out.nodes};
+  c.root_area = std::max(1e-30, static_cast<double>(b.nodes[0].box.half_area()));
+  c.emit(0, MBVH_NONE, 0);
+  // cyclic sibling links: sib[k] = parent.child[(slot + 1 + k) & 3]
+  out.nodes[0].sib[0] = out.nodes[0].sib[1] = out.nodes[0].sib[2] = MBVH_NONE;
+  for (const Node4& p : out.nodes)
+    for (int s = 0; s < 4; ++s)
+      if (p.child[s] >= 0)
+        for (int k = 0; k < 3; ++k) out.nodes[static_cast<std::size_t>(p.child[s])].sib[k] = p.child[(s + 1 + k) & 3];
+  LayoutStats& st = out.stats;
+  st.layout = "mbvh4";
+  st.nodes = out.nodes.size();
+  st.leaves = leaves.size();
+  st.depth = c.max_level;
+  st.sah_cost = c.cost + leaf_sah(b, leaves, c.root_area);
+  st.bytes = out.nodes.size() * sizeof(Node4);
+  st.bitstack_bits = 3 * st.depth;
+  if (st.depth > MBVH_MBVH4_LEVEL_CAP) throw Error("internal: MBVH4 depth exceeds the 64-bit bitstack");
+  st.build_ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+  return out;
+}
+
+}  // namespace mbvh
