@@ -3,6 +3,7 @@
 // all layouts, so a leaf reference means the same triangles everywhere.
 #pragma once
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <mutex>
 #include <string>
@@ -23,6 +24,7 @@ struct BuildOptions {
   unsigned bins = 32;           ///< SAH bins per axis
   unsigned depth_cap = MBVH_BINARY_DEPTH_CAP;  ///< binary leaf depth limit (root children: 1)
   float traversal_cost = 1.0f;  ///< SAH cost of one node visit, relative to one triangle test
+  std::function<void(double)> progress;  ///< if set, called with the fraction done (any thread)
 };
 
 /// Statistics of one layout (binary tree, MBVH2 or MBVH4).

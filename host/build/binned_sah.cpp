@@ -7,6 +7,7 @@
 // the remaining subtrees are built one per task. Every split decision is the same function of
 // the same inputs, so the bytes do not depend on the thread count.
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <cstring>
@@ -257,6 +258,10 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
       cents[i] = bx.center();
     }
   });
+  auto report = [&opt](double f) {
+    if (opt.progress) opt.progress(f);
+  };
+  report(0.05);
   std::vector<std::uint32_t> idx;
   idx.reserve(n);
   for (std::size_t i = 0; i < n; ++i)
@@ -302,10 +307,13 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
   for (std::size_t j = 0; j < jobs.size(); ++j) subtree_of[jobs[j]] = static_cast<std::int32_t>(j);
 
   // -- remaining subtrees, one per task
+  report(0.25);
+  std::atomic<std::size_t> built{0};
   parallel_for(jobs.size(), 1, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
     for (std::size_t j = b; j < e; ++j) {
       subtrees[j].push_back(upper[jobs[j]]);
       builder.build_subtree(subtrees[j]);
+      report(0.25 + 0.7 * static_cast<double>(++built) / static_cast<double>(jobs.size()));
     }
   });
 
@@ -352,6 +360,7 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
   h = hash_bytes(acc->tris_.data(), acc->tris_.size() * sizeof(Tri), h);
   acc->hash_ = h;
   st.build_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  report(1.0);
   return acc;
 }
 

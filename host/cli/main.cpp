@@ -69,7 +69,8 @@ Loaded load_and_build(const SceneArgs& a, bool verbose = true) {
   BuildOptions bo;
   bo.threads = a.threads;
   bo.max_leaf = a.max_leaf;
-  Progress p("building BVH", 1);
+  Progress p("building BVH", 1000);
+  bo.progress = [&p](double f) { p.update(static_cast<std::size_t>(f * 1000)); };
   l.acc = Accel::build(l.scene, bo);
   p.finish();
   if (verbose)
@@ -265,10 +266,24 @@ int main(int argc, char** argv) {
       const std::vector<Ray> r = get_rays(tr_r, l, tr_a.threads);
       std::fprintf(stderr, "backend: %s\n", backend->describe().c_str());
       backend->prepare(*l.acc, o);
+      // trace in batches so a long run shows progress; results are concatenated in ray order
       TraceOutput out;
-      const auto t0 = Clock::now();
-      backend->trace(*l.acc, r, o, out);
-      const double ms = ms_since(t0);
+      const std::size_t batch = std::size_t(1) << 20;
+      Progress p("tracing", r.size());
+      double ms = 0;
+      for (std::size_t b = 0; b < r.size(); b += batch) {
+        TraceOutput part;
+        const std::size_t n = std::min(batch, r.size() - b);
+        const auto t0 = Clock::now();
+        backend->trace(*l.acc, std::span<const Ray>(r).subspan(b, n), o, part);
+        ms += ms_since(t0);
+        out.hits.insert(out.hits.end(), part.hits.begin(), part.hits.end());
+        out.occluded.insert(out.occluded.end(), part.occluded.begin(), part.occluded.end());
+        out.stats.insert(out.stats.end(), part.stats.begin(), part.stats.end());
+        out.invalid += part.invalid;
+        p.update(b + n);
+      }
+      p.finish();
       std::size_t hits = 0;
       if (o.query == Query::any) for (auto v : out.occluded) hits += v;
       else for (const auto& h : out.hits) hits += h.prim != MBVH_MISS_PRIM;
