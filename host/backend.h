@@ -36,6 +36,15 @@ public:
   virtual std::size_t state_bytes(const TraceOptions& opt) const { return state_bytes_per_ray(opt.layout, opt.traversal); }
 };
 
+/// A set of traversal variants: every backend x layout x traversal x query combination.
+struct VariantGrid {
+  std::vector<std::string> backends{"cpu-scalar"};
+  std::vector<Layout> layouts{Layout::mbvh2, Layout::mbvh4};
+  std::vector<Traversal> traversals{Traversal::stack, Traversal::bitstack};
+  std::vector<Query> queries{Query::closest, Query::any};
+  std::size_t size() const { return backends.size() * layouts.size() * traversals.size() * queries.size(); }
+};
+
 using BackendFactory = std::function<std::unique_ptr<Backend>(const BackendOptions&)>;
 
 struct BackendInfo {

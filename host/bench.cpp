@@ -112,9 +112,9 @@ BenchReport run_bench(const Scene& scene, const Accel& acc, const BenchOptions& 
   BackendOptions bo;
   bo.threads = opt.threads;
   std::map<std::string, std::unique_ptr<Backend>> backends;
-  for (const auto& n : opt.backends) backends[n] = make_backend(n, bo);
+  for (const auto& n : opt.grid.backends) backends[n] = make_backend(n, bo);
   const unsigned passes = std::max(5u, opt.passes);
-  const std::size_t total = opt.kinds.size() * opt.queries.size() * opt.backends.size() * opt.layouts.size() * opt.traversals.size();
+  const std::size_t total = opt.kinds.size() * opt.grid.size();
   std::size_t done = 0;
   for (RayKind kind : opt.kinds) {
     RayGenOptions ro;
@@ -123,7 +123,7 @@ BenchReport run_bench(const Scene& scene, const Accel& acc, const BenchOptions& 
     ro.seed = opt.seed;
     ro.threads = opt.threads;
     const std::vector<Ray> rays = generate_rays(scene, acc, ro);
-    for (Query q : opt.queries) {
+    for (Query q : opt.grid.queries) {
       // the reference answer every timed result is verified against
       TraceOptions refo;
       refo.query = q;
@@ -133,9 +133,9 @@ BenchReport run_bench(const Scene& scene, const Accel& acc, const BenchOptions& 
       trace_reference(acc, rays, refo, ref, opt.threads);
       TraceOutput closest;
       if (q == Query::any) trace_reference(acc, rays, TraceOptions{}, closest, opt.threads);
-      for (const auto& bn : opt.backends)
-        for (Layout l : opt.layouts)
-          for (Traversal t : opt.traversals) {
+      for (const auto& bn : opt.grid.backends)
+        for (Layout l : opt.grid.layouts)
+          for (Traversal t : opt.grid.traversals) {
             Backend& b = *backends[bn];
             if (!b.supports(l, t)) continue;
             TraceOptions to;

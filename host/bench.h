@@ -7,16 +7,14 @@
 #include <vector>
 
 #include "host/accel.h"
+#include "host/backend.h"
 #include "host/rays.h"
 #include "host/trace/trace.h"
 
 namespace mbvh {
 
 struct BenchOptions {
-  std::vector<std::string> backends{"cpu-scalar"};
-  std::vector<Layout> layouts{Layout::mbvh2, Layout::mbvh4};
-  std::vector<Traversal> traversals{Traversal::stack, Traversal::bitstack};
-  std::vector<Query> queries{Query::closest, Query::any};
+  VariantGrid grid;
   std::vector<RayKind> kinds{RayKind::primary, RayKind::diffuse};
   std::size_t count = 100000;
   std::uint64_t seed = 1;

@@ -77,7 +77,7 @@ CheckReport run_check(const Accel& acc, std::span<const Ray> rays, const CheckOp
   BackendOptions bo;
   bo.threads = opt.threads;
   std::map<std::string, std::unique_ptr<Backend>> backends;
-  for (const auto& name : opt.backends) backends[name] = make_backend(name, bo);
+  for (const auto& name : opt.grid.backends) backends[name] = make_backend(name, bo);
 
   // -- run every variant
   struct Run {
@@ -85,10 +85,10 @@ CheckReport run_check(const Accel& acc, std::span<const Ray> rays, const CheckOp
     TraceOutput out;
   };
   std::vector<Run> runs;
-  for (Query q : opt.queries)
-    for (const auto& name : opt.backends)
-      for (Layout l : opt.layouts)
-        for (Traversal t : opt.traversals) {
+  for (Query q : opt.grid.queries)
+    for (const auto& name : opt.grid.backends)
+      for (Layout l : opt.grid.layouts)
+        for (Traversal t : opt.grid.traversals) {
           Run run;
           run.v.backend = name;
           run.v.opt.layout = l;

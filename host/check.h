@@ -8,16 +8,14 @@
 #include <vector>
 
 #include "host/accel.h"
+#include "host/backend.h"
 #include "host/compare.h"
 #include "host/trace/trace.h"
 
 namespace mbvh {
 
 struct CheckOptions {
-  std::vector<std::string> backends{"cpu-scalar"};
-  std::vector<Layout> layouts{Layout::mbvh2, Layout::mbvh4};
-  std::vector<Traversal> traversals{Traversal::stack, Traversal::bitstack};
-  std::vector<Query> queries{Query::closest, Query::any};
+  VariantGrid grid;
   std::size_t brute_rays = 2000;  ///< rays spread over the batch checked by brute force (SIZE_MAX: all)
   unsigned threads = 0;
 };

@@ -80,6 +80,26 @@ Loaded load_and_build(const SceneArgs& a, bool verbose = true) {
   return l;
 }
 
+// --backend, --layout, --traversal, --query as comma-separated lists (check and bench).
+struct GridArgs {
+  std::string backends = "cpu-scalar", layouts = "mbvh2,mbvh4", traversals = "stack,bitstack", queries = "closest,any";
+  void add(CLI::App* c) {
+    c->add_option("--backend", backends, "comma-separated backends (see `mbvh devices`)");
+    c->add_option("--layout", layouts, "comma-separated layouts: mbvh2, mbvh4");
+    c->add_option("--traversal", traversals, "comma-separated traversals: stack, bitstack");
+    c->add_option("--query", queries, "comma-separated queries: closest, any");
+  }
+  VariantGrid parse() const {
+    VariantGrid g;
+    g.backends = split_list(backends);
+    g.layouts = parse_list<Layout>(layouts, parse_layout);
+    g.traversals = parse_list<Traversal>(traversals, parse_traversal);
+    g.queries = parse_list<Query>(queries, parse_query);
+    for (const auto& b : g.backends) make_backend(b);  // fail early, naming the backend
+    return g;
+  }
+};
+
 struct RayArgs {
   std::string rays_file;
   std::string kind = "primary";
@@ -204,31 +224,25 @@ int main(int argc, char** argv) {
   // -- check
   SceneArgs ck_a;
   RayArgs ck_r;
-  std::string ck_backends = "cpu-scalar", ck_layouts = "mbvh2,mbvh4", ck_travs = "stack,bitstack",
-              ck_queries = "closest,any", ck_kinds = "", ck_brute = "2000";
+  GridArgs ck_g;
+  std::string ck_kinds = "", ck_brute = "2000";
   auto* check = app.add_subcommand("check", "cross-check backends x layouts x traversals ray by ray and against brute force");
   add_scene_args(check, ck_a);
   add_ray_args(check, ck_r, true);
-  check->add_option("--backend", ck_backends, "comma-separated backends");
-  check->add_option("--layout", ck_layouts, "comma-separated layouts");
-  check->add_option("--traversal", ck_travs, "comma-separated traversals");
-  check->add_option("--query", ck_queries, "comma-separated queries");
+  ck_g.add(check);
   check->add_option("--kinds", ck_kinds, "comma-separated generated ray kinds (default: --kind)");
   check->add_option("--brute", ck_brute, "rays checked by double-precision brute force, spread over the batch, or 'all'");
 
   // -- bench
   SceneArgs bn_a;
-  std::string bn_backends = "cpu-scalar", bn_layouts = "mbvh2,mbvh4", bn_travs = "stack,bitstack", bn_queries = "closest,any",
-              bn_kinds = "primary,diffuse", bn_json;
+  GridArgs bn_g;
+  std::string bn_kinds = "primary,diffuse", bn_json;
   std::size_t bn_count = 100000;
   unsigned bn_passes = 5;
   std::uint64_t bn_seed = 1;
   auto* bench = app.add_subcommand("bench", "Mrays/s, traversal state and work per ray, verified before timing");
   add_scene_args(bench, bn_a);
-  bench->add_option("--backend", bn_backends, "comma-separated backends");
-  bench->add_option("--layout", bn_layouts, "comma-separated layouts");
-  bench->add_option("--traversal", bn_travs, "comma-separated traversals");
-  bench->add_option("--query", bn_queries, "comma-separated queries");
+  bn_g.add(bench);
   bench->add_option("--kinds", bn_kinds, "comma-separated ray kinds");
   bench->add_option("--count", bn_count, "rays per kind");
   bench->add_option("--seed", bn_seed, "ray seed");
@@ -307,13 +321,9 @@ int main(int argc, char** argv) {
 
     if (*check) {
       CheckOptions co;
-      co.backends = split_list(ck_backends);
-      co.layouts = parse_list<Layout>(ck_layouts, parse_layout);
-      co.traversals = parse_list<Traversal>(ck_travs, parse_traversal);
-      co.queries = parse_list<Query>(ck_queries, parse_query);
+      co.grid = ck_g.parse();
       co.threads = ck_a.threads;
       co.brute_rays = ck_brute == "all" ? SIZE_MAX : std::stoull(ck_brute);
-      for (const auto& b : co.backends) make_backend(b);  // fail early, naming the backend
       Loaded l = load_and_build(ck_a);
       std::vector<std::string> kinds = ck_kinds.empty() ? std::vector<std::string>{ck_r.kind} : split_list(ck_kinds);
       if (!ck_r.rays_file.empty()) kinds = {"file"};
@@ -335,19 +345,14 @@ int main(int argc, char** argv) {
 
     if (*bench) {
       BenchOptions bo;
-      bo.backends = split_list(bn_backends);
-      bo.layouts = parse_list<Layout>(bn_layouts, parse_layout);
-      bo.traversals = parse_list<Traversal>(bn_travs, parse_traversal);
-      bo.queries = parse_list<Query>(bn_queries, parse_query);
+      bo.grid = bn_g.parse();
       bo.kinds = parse_list<RayKind>(bn_kinds, parse_ray_kind);
       bo.count = bn_count;
       bo.seed = bn_seed;
       bo.passes = bn_passes;
       bo.threads = bn_a.threads;
-      for (const auto& b : bo.backends) make_backend(b);
       Loaded l = load_and_build(bn_a);
-      Progress p("benchmarking", bo.kinds.size() * bo.queries.size() * bo.backends.size() * bo.layouts.size() *
-                                     bo.traversals.size());
+      Progress p("benchmarking", bo.kinds.size() * bo.grid.size());
       BenchReport rep = run_bench(l.scene, *l.acc, bo, [&p](std::size_t d, std::size_t) { p.update(d); });
       p.finish();
       std::printf("scene %s, %zu triangles, BVH hash %s\ncpu %s, %u threads\n\n%s", l.scene.name.c_str(),

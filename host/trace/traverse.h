@@ -91,6 +91,15 @@ inline unsigned test4(const Node4& n, const RayPre& r, float tcull, float d[4], 
   return mask;
 }
 
+// MBVH2 child entered first: any hit takes child 0 if hit; closest hit the nearer of two hit
+// children, ties to child 0.
+template <bool Any>
+inline int first_slot2(unsigned mask, const float d[2]) {
+  if constexpr (!Any)
+    if (mask == 3u) return d[1] < d[0] ? 1 : 0;
+  return (mask & 1u) ? 0 : 1;
+}
+
 // Slot entered first: any hit takes the lowest set slot; closest hit the smallest entry
 // distance, ties to the lower slot (identical in stack and bitstack code).
 template <bool Any>
@@ -123,9 +132,7 @@ inline Hit trace_mbvh2_stack(const TraceView& v, const RayPre& r, St& st) {
       float d[2];
       const unsigned m = detail::test2(n, r, tmax * kCullSlack, d, st);
       if (m) {
-        int k;
-        if constexpr (Any) k = (m & 1u) ? 0 : 1;
-        else k = m == 3u ? (d[1] < d[0] ? 1 : 0) : ((m & 1u) ? 0 : 1);
+        const int k = detail::first_slot2<Any>(m, d);
         if (m == 3u) {
           stack[sp++] = n.link[2 + (1 - k)];
           st.depth(sp);
@@ -156,9 +163,7 @@ inline Hit trace_mbvh2_bitstack(const TraceView& v, const RayPre& r, St& st) {
       float d[2];
       const unsigned m = detail::test2(n, r, tmax * kCullSlack, d, st);
       if (m) {
-        int k;
-        if constexpr (Any) k = (m & 1u) ? 0 : 1;
-        else k = m == 3u ? (d[1] < d[0] ? 1 : 0) : ((m & 1u) ? 0 : 1);
+        const int k = detail::first_slot2<Any>(m, d);
         bits = (bits << 1) | (m == 3u ? 1u : 0u);  // push
         if constexpr (St::on) st.depth(++level);
         par = cur;
