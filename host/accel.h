@@ -105,6 +105,12 @@ private:
 Mbvh2 make_mbvh2(const Bvh2& bvh, const std::vector<Leaf>& leaves);
 Mbvh4 make_mbvh4(const Bvh2& bvh, const std::vector<Leaf>& leaves);
 
+/// Structural checks of a layout: every reference in range, every inner node referenced once by
+/// a node of smaller index (so descent always terminates), every leaf once, parent and sibling
+/// links consistent. Throws Error naming the first broken node. O(nodes).
+void validate_layout(const Mbvh2& m, std::size_t leaf_count);
+void validate_layout(const Mbvh4& m, std::size_t leaf_count);
+
 /// FNV-1a over bytes, continuing from h.
 std::uint64_t hash_bytes(const void* p, std::size_t n, std::uint64_t h = 0xcbf29ce484222325ull);
 

@@ -1,6 +1,7 @@
 // check.cpp — the cross-check behind `mbvh check` and the equivalence tests.
 #include "host/check.h"
 
+#include <cmath>
 #include <cstdio>
 #include <map>
 #include <memory>
@@ -31,15 +32,67 @@ std::vector<std::size_t> spread_indices(std::size_t n, std::size_t k) {
   return idx;
 }
 
+namespace {
+
+double norm3(const double v[3]) { return std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]); }
+double max_abs3(const float v[3]) { return std::max(std::fabs(v[0]), std::max(std::fabs(v[1]), std::fabs(v[2]))); }
+
+// True where float and double may legitimately disagree about hitting triangle t:
+// - the ray lies in the triangle's plane within the rounding of its own direction (a direction
+//   built as a difference of floats of size |o| is only good to 2^-24 |o| / |d| radians);
+// - the ray crosses the plane within a few ulps (of the coordinates' size) of an edge line,
+//   measured as a distance (barycentrics cannot: on a needle b = 0.002 was 2e-9 from the edge)
+//   and widened by 1/cos, as the crossing point of a grazing float ray moves by ulps / cos.
+bool ill_conditioned(const RayPre& r, const Tri& t) {
+  const float* P[3] = {t.v0, t.v1, t.v2};
+  double e1[3], e2[3];
+  for (int k = 0; k < 3; ++k) {
+    e1[k] = double(P[1][k]) - P[0][k];
+    e2[k] = double(P[2][k]) - P[0][k];
+  }
+  const double n[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2], e1[0] * e2[1] - e1[1] * e2[0]};
+  const double d[3] = {r.d[0], r.d[1], r.d[2]};
+  const double nd = n[0] * d[0] + n[1] * d[1] + n[2] * d[2];
+  const double dlen = norm3(d);
+  const double cosine = std::fabs(nd) / (norm3(n) * dlen);
+  const double slack = 0x1p-20 + 8 * 0x1p-24 * (max_abs3(r.o) + max_abs3(r.d)) / dlen;
+  if (!(cosine > slack)) return true;
+  const double th = plane_t_double(r, t);
+  const double scale = std::max({max_abs3(r.o), max_abs3(P[0]), max_abs3(P[1]), max_abs3(P[2])});
+  const double p[3] = {r.o[0] + th * d[0], r.o[1] + th * d[1], r.o[2] + th * d[2]};
+  for (int k = 0; k < 3; ++k) {  // distance from p to the line through edge (P[k], P[k+1])
+    const float* a = P[k];
+    const float* b = P[(k + 1) % 3];
+    const double ab[3] = {double(b[0]) - a[0], double(b[1]) - a[1], double(b[2]) - a[2]};
+    const double ap[3] = {p[0] - a[0], p[1] - a[1], p[2] - a[2]};
+    const double c[3] = {ap[1] * ab[2] - ap[2] * ab[1], ap[2] * ab[0] - ap[0] * ab[2], ap[0] * ab[1] - ap[1] * ab[0]};
+    const double len = norm3(ab);
+    if (len > 0 && norm3(c) / len <= 16 * 0x1p-24 * scale / cosine) return true;
+  }
+  return false;
+}
+
+}  // namespace
+
 TieRule oracle_tie_rule(const Accel& acc, std::span<const Ray> rays) {
   auto prim_to_tri = std::make_shared<std::vector<std::uint32_t>>(acc.scene_triangles(), UINT32_MAX);
   for (std::size_t i = 0; i < acc.tris().size(); ++i) (*prim_to_tri)[tri_prim(acc.tris()[i])] = static_cast<std::uint32_t>(i);
-  return [&acc, rays, prim_to_tri](std::size_t ray, const Hit& a, const Hit& oracle) {
-    if (a.prim == MBVH_MISS_PRIM || oracle.prim == MBVH_MISS_PRIM || a.prim >= prim_to_tri->size()) return false;
+  auto tri_of = [&acc, prim_to_tri](const Hit& h) -> const Tri* {
+    if (h.prim == MBVH_MISS_PRIM || h.prim >= prim_to_tri->size() || (*prim_to_tri)[h.prim] == UINT32_MAX) return nullptr;
+    return &acc.tris()[(*prim_to_tri)[h.prim]];
+  };
+  return [rays, tri_of](std::size_t ray, const Hit& a, const Hit& oracle) {
+    const Ray& ray_in = rays[ray];
     RayPre r;
-    if (!prepare_ray(rays[ray], r)) return false;
-    const double t = plane_t_double(r, acc.tris()[(*prim_to_tri)[a.prim]]);
-    return ulp_distance(static_cast<float>(t), oracle.t) <= 4;
+    if (!prepare_ray(ray_in, r)) return false;
+    for (const Hit* h : {&a, &oracle})
+      if (const Tri* t = tri_of(*h); t && ill_conditioned(r, *t)) return true;
+    if (a.prim == MBVH_MISS_PRIM || oracle.prim == MBVH_MISS_PRIM) {  // a lone hit at the interval's ends
+      const Hit& h = a.prim == MBVH_MISS_PRIM ? oracle : a;
+      return ulp_distance(h.t, ray_in.tmin) <= 4 || ulp_distance(h.t, ray_in.tmax) <= 4;
+    }
+    const Tri* ta = tri_of(a);  // coplanar overlap: a's prim at the oracle's distance
+    return ta && ulp_distance(static_cast<float>(plane_t_double(r, *ta)), oracle.t) <= 4;
   };
 }
 
@@ -155,14 +208,16 @@ CheckReport run_check(const Accel& acc, std::span<const Ray> rays, const CheckOp
     }
     // against brute force, on the subset
     if (!sub.empty()) {
-      std::vector<Hit> h;
+      std::vector<Hit> h, float_closest;
       std::vector<std::uint8_t> o;
       for (std::size_t i : sub) {
         if (any) o.push_back(r.out.occluded[i]);
         else h.push_back(r.out.hits[i]);
+        if (any) float_closest.push_back(closest_for_any[i]);
       }
-      Comparison c = any ? compare_occlusion_arrays(o, brute_occ, brute, rays, sub)
-                         : compare_hit_arrays(h, brute, sub, oracle_tie_rule(acc, rays));
+      const TieRule tie = oracle_tie_rule(acc, rays);
+      Comparison c = any ? compare_occlusion_arrays(o, brute_occ, brute, rays, sub, float_closest, tie)
+                         : compare_hit_arrays(h, brute, sub, tie);
       c.a = label(r);
       c.b = "brute force (double)";
       rep.comparisons.push_back(std::move(c));

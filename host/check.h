@@ -42,9 +42,12 @@ struct CheckReport {
 CheckReport run_check(const Accel& acc, std::span<const Ray> rays, const CheckOptions& opt,
                       const std::function<void(const std::string&)>& log = {});
 
-/// The oracle's tie rule for comparisons with brute_force (answer a, oracle b): a is a tie when
-/// its prim, evaluated in double on the same ray, lies at the oracle's distance within 4 ulp
-/// (coplanar overlapping triangles: equal t that float arithmetic cannot resolve).
+/// The oracle's tie rule for comparisons with brute_force (answer a, oracle b): a tie when a's
+/// prim, evaluated in double on the same ray, lies at the oracle's distance within 4 ulp
+/// (coplanar overlapping triangles: equal t that float arithmetic cannot resolve), or when only
+/// one side hits, within 4 ulp of the ray's tmin or tmax (the closed interval's ends), or when
+/// either hit is ill-conditioned: the ray lies in the triangle's plane within the rounding of
+/// its own direction, or the hit point lies within 16 ulps (of the coordinates) of an edge.
 TieRule oracle_tie_rule(const Accel& acc, std::span<const Ray> rays);
 
 /// Indices of `k` rays spread evenly over n (all when k >= n).

@@ -70,13 +70,18 @@ Comparison compare_hit_arrays(std::span<const Hit> a, std::span<const Hit> b, st
 
 Comparison compare_occlusion_arrays(std::span<const std::uint8_t> a, std::span<const std::uint8_t> b,
                                     std::span<const Hit> closest, std::span<const Ray> rays,
-                                    std::span<const std::size_t> index) {
+                                    std::span<const std::size_t> index, std::span<const Hit> closest_alt,
+                                    const TieRule& tie) {
   Comparison c;
   const std::size_t n = std::min(a.size(), b.size());
   for (std::size_t i = 0; i < n; ++i) {
     const std::size_t ray = index.empty() ? i : index[i];
     if (a[i] == b[i]) ++c.bit_identical;
-    c.add(ray, compare_occlusion(a[i], b[i], closest[i], rays[ray]));
+    Verdict v = compare_occlusion(a[i], b[i], closest[i], rays[ray]);
+    if (v == Verdict::mismatch && !closest_alt.empty()) v = compare_occlusion(a[i], b[i], closest_alt[i], rays[ray]);
+    if (v == Verdict::mismatch && tie && tie(ray, closest_alt.empty() ? closest[i] : closest_alt[i], closest[i]))
+      v = Verdict::tie;
+    c.add(ray, v);
   }
   return c;
 }

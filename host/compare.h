@@ -45,8 +45,12 @@ using TieRule = std::function<bool(std::size_t, const Hit&, const Hit&)>;
 
 Comparison compare_hit_arrays(std::span<const Hit> a, std::span<const Hit> b, std::span<const std::size_t> index = {},
                               const TieRule& tie = {});
+/// `closest` (and, if given, `closest_alt`, e.g. a float answer next to the oracle's) are aligned
+/// with a and b; a difference is a tie if either closest hit makes it one. `rays` is the whole
+/// batch, indexed through `index`.
 Comparison compare_occlusion_arrays(std::span<const std::uint8_t> a, std::span<const std::uint8_t> b,
                                     std::span<const Hit> closest, std::span<const Ray> rays,
-                                    std::span<const std::size_t> index = {});
+                                    std::span<const std::size_t> index = {}, std::span<const Hit> closest_alt = {},
+                                    const TieRule& tie = {});
 
 }  // namespace mbvh

@@ -11,6 +11,7 @@
 
 #include "host/error.h"
 #include "host/random.h"
+#include "host/stress.h"
 #include "host/trace/trace.h"
 
 namespace mbvh {
@@ -23,14 +24,16 @@ const char* to_string(RayKind k) {
     case RayKind::shadow: return "shadow";
     case RayKind::diffuse: return "diffuse";
     case RayKind::random: return "random";
+    case RayKind::inside: return "inside";
+    case RayKind::special: return "special";
   }
   return "?";
 }
 
 RayKind parse_ray_kind(const std::string& s) {
-  for (RayKind k : {RayKind::primary, RayKind::shadow, RayKind::diffuse, RayKind::random})
+  for (RayKind k : {RayKind::primary, RayKind::shadow, RayKind::diffuse, RayKind::random, RayKind::inside, RayKind::special})
     if (s == to_string(k)) return k;
-  throw Error("unknown ray kind '" + s + "' (known: primary, shadow, diffuse, random)");
+  throw Error("unknown ray kind '" + s + "' (known: primary, shadow, diffuse, random, inside, special)");
 }
 
 namespace {
@@ -114,6 +117,14 @@ Ray spawn_ray(const Vec3f& p0, const Vec3f& p1, const Vec3f& p2, float u, float 
 std::vector<Ray> generate_rays(const Scene& scene, const Accel& acc, const RayGenOptions& opt) {
   const Box bounds = acc.bounds();
   const Camera cam = opt.has_camera ? opt.camera : default_camera(bounds);
+  if (opt.kind == RayKind::inside) {
+    const std::size_t features = opt.count / 2;
+    std::vector<Ray> r = feature_rays(scene, inside_point(scene), features, 0, opt.seed);
+    const std::vector<Ray> rest = feature_rays(scene, inside_point(scene), 0, opt.count - std::min(opt.count, r.size()), opt.seed);
+    r.insert(r.end(), rest.begin(), rest.end());
+    return r;
+  }
+  if (opt.kind == RayKind::special) return special_rays(scene, acc, opt.count, opt.seed);
   std::vector<Ray> rays;
   rays.reserve(opt.count);
   Rng rng(opt.seed * 4 + static_cast<std::uint64_t>(opt.kind));

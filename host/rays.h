@@ -11,7 +11,7 @@
 
 namespace mbvh {
 
-enum class RayKind { primary, shadow, diffuse, random };
+enum class RayKind { primary, shadow, diffuse, random, inside, special };
 const char* to_string(RayKind k);
 RayKind parse_ray_kind(const std::string& s);  ///< throws Error on an unknown name
 
@@ -33,7 +33,9 @@ struct RayGenOptions {
   unsigned threads = 0;
 };
 
-/// Generates `count` rays. Shadow and diffuse rays start at hit points of primary rays (traced
+/// Generates `count` rays (inside: up to count/2 aimed at vertices and edge midpoints of a closed
+/// generated mesh from inside_point, the rest random from there; special: stress.h's special
+/// rays, about `count`). Shadow and diffuse rays start at hit points of primary rays (traced
 /// with the reference traversal), offset by the hit point's rounding-error bound. Throws Error
 /// if the camera sees no geometry.
 std::vector<Ray> generate_rays(const Scene& scene, const Accel& acc, const RayGenOptions& opt);

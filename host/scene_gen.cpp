@@ -175,6 +175,112 @@ Scene exponential(std::uint32_t n) {
   return s;
 }
 
+// Closed torus (major radius 1, minor 0.35): `seg` segments around, seg/2 around the tube.
+Scene torus(std::uint32_t seg) {
+  Scene s;
+  const std::uint32_t tube = std::max<std::uint32_t>(3, seg / 2);
+  const double pi = std::numbers::pi;
+  for (std::uint32_t i = 0; i < seg; ++i)
+    for (std::uint32_t j = 0; j < tube; ++j) {
+      const double u = 2 * pi * i / seg, v = 2 * pi * j / tube, r = 1.0 + 0.35 * std::cos(v);
+      add(s, static_cast<float>(r * std::cos(u)), static_cast<float>(0.35 * std::sin(v)), static_cast<float>(r * std::sin(u)));
+    }
+  auto at = [&](std::uint32_t i, std::uint32_t j) { return (i % seg) * tube + (j % tube); };
+  for (std::uint32_t i = 0; i < seg; ++i)
+    for (std::uint32_t j = 0; j < tube; ++j) {
+      s.triangles.push_back({at(i, j), at(i + 1, j), at(i + 1, j + 1)});
+      s.triangles.push_back({at(i, j), at(i + 1, j + 1), at(i, j + 1)});
+    }
+  return s;
+}
+
+// Closed box [0, n]^3 of unit quads with integer coordinates and shared (indexed) vertices.
+Scene grid_box(std::uint32_t n) {
+  Scene s;
+  std::vector<std::int64_t> index(static_cast<std::size_t>(n + 1) * (n + 1) * (n + 1), -1);
+  auto vid = [&](std::uint32_t x, std::uint32_t y, std::uint32_t z) {
+    std::int64_t& v = index[(static_cast<std::size_t>(x) * (n + 1) + y) * (n + 1) + z];
+    if (v < 0) v = add(s, static_cast<float>(x), static_cast<float>(y), static_cast<float>(z));
+    return static_cast<std::uint32_t>(v);
+  };
+  for (int axis = 0; axis < 3; ++axis)
+    for (std::uint32_t side : {0u, n})
+      for (std::uint32_t i = 0; i < n; ++i)
+        for (std::uint32_t j = 0; j < n; ++j) {
+          std::uint32_t c[4][3];
+          const std::uint32_t di[4] = {0, 1, 1, 0}, dj[4] = {0, 0, 1, 1};
+          for (int k = 0; k < 4; ++k) {
+            c[k][axis] = side;
+            c[k][(axis + 1) % 3] = i + di[k];
+            c[k][(axis + 2) % 3] = j + dj[k];
+          }
+          std::uint32_t q[4];
+          for (int k = 0; k < 4; ++k) q[k] = vid(c[k][0], c[k][1], c[k][2]);
+          s.triangles.push_back({q[0], q[1], q[2]});
+          s.triangles.push_back({q[0], q[2], q[3]});
+        }
+  return s;
+}
+
+// A flat n x n grid in the plane z = 0 over [0, 1]^2: every box of its BVH has zero thickness.
+Scene plane(std::uint32_t n) {
+  Scene s;
+  for (std::uint32_t i = 0; i <= n; ++i)
+    for (std::uint32_t j = 0; j <= n; ++j)
+      add(s, static_cast<float>(i) / static_cast<float>(n), static_cast<float>(j) / static_cast<float>(n), 0.0f);
+  for (std::uint32_t i = 0; i < n; ++i)
+    for (std::uint32_t j = 0; j < n; ++j) {
+      const std::uint32_t a = i * (n + 1) + j, b = a + 1, c = a + (n + 1), d = c + 1;
+      s.triangles.push_back({a, c, d});
+      s.triangles.push_back({a, d, b});
+    }
+  return s;
+}
+
+// Needles (one edge 1e-4 of the others), slivers (a vertex 1e-6 off the opposite edge) and
+// exactly degenerate triangles (collinear or repeated vertices), mixed in the unit cube.
+Scene needles(std::uint64_t count, std::uint64_t seed) {
+  Scene s;
+  Rng rng(seed);
+  for (std::uint64_t i = 0; i < count; ++i) {
+    const float cx = rng.uniform(), cy = rng.uniform(), cz = rng.uniform();
+    const float ax = rng.uniform() - 0.5f, ay = rng.uniform() - 0.5f, az = rng.uniform() - 0.5f;
+    const float l = 0.2f * rng.uniform() + 0.01f;
+    const Vec3f a{cx, cy, cz}, b{cx + l * ax, cy + l * ay, cz + l * az};
+    Vec3f c;
+    switch (i % 4) {
+      case 0: c = {a.x + 1e-4f * l, a.y - 1e-4f * l, a.z + 2e-4f * l}; break;            // needle
+      case 1: c = {0.5f * (a.x + b.x), 0.5f * (a.y + b.y) + 1e-6f, 0.5f * (a.z + b.z)}; break;  // sliver
+      case 2: c = {a.x + 2 * l * ax, a.y + 2 * l * ay, a.z + 2 * l * az}; break;          // collinear (maybe)
+      default: c = b; break;                                                             // repeated vertex
+    }
+    const std::uint32_t ia = add(s, a.x, a.y, a.z), ib = add(s, b.x, b.y, b.z), ic = add(s, c.x, c.y, c.z);
+    s.triangles.push_back({ia, ib, ic});
+  }
+  return s;
+}
+
+// "@scale=S" and "@offset=O" modifiers: every coordinate becomes v * S + O.
+void transform(Scene& s, const std::string& mods, const std::string& spec) {
+  std::size_t a = 0;
+  while (a < mods.size()) {
+    std::size_t b = mods.find('@', a);
+    if (b == std::string::npos) b = mods.size();
+    const std::string m = mods.substr(a, b - a);
+    const std::size_t eq = m.find('=');
+    const std::string key = m.substr(0, eq);
+    float value = 0;
+    const char* vb = eq == std::string::npos ? nullptr : m.data() + eq + 1;
+    const auto r = vb ? std::from_chars(vb, m.data() + m.size(), value) : std::from_chars_result{nullptr, std::errc::invalid_argument};
+    if (!vb || r.ec != std::errc() || r.ptr != m.data() + m.size() || !std::isfinite(value) ||
+        (key != "scale" && key != "offset") || (key == "scale" && !(value > 0)))
+      throw Error("gen:" + spec + ": bad modifier '@" + m + "' (use @scale=S with S > 0 or @offset=O)");
+    for (Vec3f& v : s.vertices)
+      for (int k = 0; k < 3; ++k) v[k] = key == "scale" ? v[k] * value : v[k] + value;
+    a = b + 1;
+  }
+}
+
 }  // namespace
 
 std::string generator_help() {
@@ -182,10 +288,29 @@ std::string generator_help() {
          "gen:cube:N                   closed cube, N x N quads per face (default 16)\n"
          "gen:soup:COUNT[:SEED]        COUNT random triangles in the unit cube (default 100000)\n"
          "gen:hairball:COUNT[:SEED]    thin random tubes, exactly COUNT triangles (default 1000000)\n"
-         "gen:exponential:N            N exponentially spaced triangles (default 200), depth-cap worst case\n";
+         "gen:exponential:N            N exponentially spaced triangles (default 200), depth-cap worst case\n"
+         "gen:torus:SEGMENTS           closed torus, SEGMENTS around (default 64)\n"
+         "gen:grid:N                   closed box [0,N]^3 of unit quads with integer coordinates (default 8)\n"
+         "gen:plane:N                  flat N x N grid in z = 0 (default 32): zero-thickness boxes\n"
+         "gen:needles:COUNT[:SEED]     needles, slivers and degenerate triangles (default 10000)\n"
+         "any of them + @scale=S@offset=O   every coordinate becomes v * S + O (in that order)\n";
 }
 
-Scene generate_scene(const std::string& spec) {
+namespace {
+Scene generate_base(const std::string& spec);
+}  // namespace
+
+Scene generate_scene(const std::string& full_spec) {
+  const std::size_t at = full_spec.find('@');
+  const std::string spec = full_spec.substr(0, at);
+  Scene s = generate_base(spec);
+  if (at != std::string::npos) transform(s, full_spec.substr(at + 1), full_spec);
+  return s;
+}
+
+namespace {
+
+Scene generate_base(const std::string& spec) {
   const std::vector<std::string> p = split(spec, ':');
   const std::string& n = p[0];
   if (n == "sphere") return sphere(static_cast<std::uint32_t>(param(p, 1, 64, 3, 1u << 15, spec)));
@@ -194,7 +319,13 @@ Scene generate_scene(const std::string& spec) {
   if (n == "hairball")
     return hairball(param(p, 1, 1'000'000, 1, 400'000'000, spec), param(p, 2, 1, 0, UINT64_MAX, spec));
   if (n == "exponential") return exponential(static_cast<std::uint32_t>(param(p, 1, 200, 1, 200, spec)));
+  if (n == "torus") return torus(static_cast<std::uint32_t>(param(p, 1, 64, 3, 1u << 14, spec)));
+  if (n == "grid") return grid_box(static_cast<std::uint32_t>(param(p, 1, 8, 1, 1024, spec)));
+  if (n == "plane") return plane(static_cast<std::uint32_t>(param(p, 1, 32, 1, 4096, spec)));
+  if (n == "needles") return needles(param(p, 1, 10000, 1, 100'000'000, spec), param(p, 2, 1, 0, UINT64_MAX, spec));
   throw Error("gen:" + spec + ": unknown generator '" + n + "'; known generators:\n" + generator_help());
 }
+
+}  // namespace
 
 }  // namespace mbvh

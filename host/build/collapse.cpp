@@ -66,6 +66,7 @@ Mbvh2 make_mbvh2(const Bvh2& b, const std::vector<Leaf>& leaves) {
   st.bytes = out.nodes.size() * sizeof(Node2);
   st.bitstack_bits = st.depth;
   if (st.depth > MBVH_MBVH2_LEVEL_CAP) throw Error("internal: MBVH2 depth exceeds the 64-bit bitstack");
+  validate_layout(out, leaves.size());
   st.build_ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
   return out;
 }
@@ -152,8 +153,71 @@ Mbvh4 make_mbvh4(const Bvh2& b, const std::vector<Leaf>& leaves) {
   st.bytes = out.nodes.size() * sizeof(Node4);
   st.bitstack_bits = 3 * st.depth;
   if (st.depth > MBVH_MBVH4_LEVEL_CAP) throw Error("internal: MBVH4 depth exceeds the 64-bit bitstack");
+  validate_layout(out, leaves.size());
   st.build_ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
   return out;
+}
+
+namespace {
+
+[[noreturn]] void corrupt(const char* layout, std::size_t node, const std::string& what) {
+  throw Error(std::string("corrupt ") + layout + " layout: node " + std::to_string(node) + ": " + what);
+}
+
+// Checks child reference `c` of node `i`; counts references into `seen` / `leaf_seen`.
+void check_ref(const char* layout, std::size_t i, std::int32_t c, std::size_t nodes, std::size_t leaves,
+               std::vector<std::uint8_t>& seen, std::vector<std::uint8_t>& leaf_seen) {
+  if (c == MBVH_EMPTY) return;
+  if (c >= 0) {
+    const std::size_t ci = static_cast<std::size_t>(c);
+    if (ci <= i || ci >= nodes) corrupt(layout, i, "child " + std::to_string(c) + " is not a later node (a cycle or out of range)");
+    if (seen[ci]++) corrupt(layout, i, "node " + std::to_string(c) + " has two parents");
+  } else {
+    const std::size_t li = static_cast<std::size_t>(~c);
+    if (li >= leaves) corrupt(layout, i, "leaf " + std::to_string(li) + " out of range");
+    if (leaf_seen[li]++) corrupt(layout, i, "leaf " + std::to_string(li) + " referenced twice");
+  }
+}
+
+}  // namespace
+
+void validate_layout(const Mbvh2& m, std::size_t leaf_count) {
+  const std::size_t n = m.nodes.size();
+  if (n == 0) corrupt("MBVH2", 0, "no root");
+  if (m.nodes[0].link[0] != MBVH_NONE) corrupt("MBVH2", 0, "the root has a parent");
+  std::vector<std::uint8_t> seen(n, 0), leaf_seen(leaf_count, 0);
+  for (std::size_t i = 0; i < n; ++i)
+    for (int k = 0; k < 2; ++k) {
+      const std::int32_t c = m.nodes[i].link[2 + k];
+      check_ref("MBVH2", i, c, n, leaf_count, seen, leaf_seen);
+      if (c >= 0) {
+        const Node2& ch = m.nodes[static_cast<std::size_t>(c)];
+        if (ch.link[0] != static_cast<std::int32_t>(i) || ch.link[1] != m.nodes[i].link[2 + (1 - k)])
+          corrupt("MBVH2", static_cast<std::size_t>(c), "parent or sibling link does not match its parent");
+      }
+    }
+  for (std::size_t i = 1; i < n; ++i)
+    if (!seen[i]) corrupt("MBVH2", i, "unreachable");
+}
+
+void validate_layout(const Mbvh4& m, std::size_t leaf_count) {
+  const std::size_t n = m.nodes.size();
+  if (n == 0) corrupt("MBVH4", 0, "no root");
+  if (m.nodes[0].parent != MBVH_NONE) corrupt("MBVH4", 0, "the root has a parent");
+  std::vector<std::uint8_t> seen(n, 0), leaf_seen(leaf_count, 0);
+  for (std::size_t i = 0; i < n; ++i)
+    for (int s = 0; s < 4; ++s) {
+      const std::int32_t c = m.nodes[i].child[s];
+      check_ref("MBVH4", i, c, n, leaf_count, seen, leaf_seen);
+      if (c >= 0) {
+        const Node4& ch = m.nodes[static_cast<std::size_t>(c)];
+        bool ok = ch.parent == static_cast<std::int32_t>(i);
+        for (int k = 0; k < 3; ++k) ok = ok && ch.sib[k] == m.nodes[i].child[(s + 1 + k) & 3];
+        if (!ok) corrupt("MBVH4", static_cast<std::size_t>(c), "parent or sibling links do not match its parent");
+      }
+    }
+  for (std::size_t i = 1; i < n; ++i)
+    if (!seen[i]) corrupt("MBVH4", i, "unreachable");
 }
 
 }  // namespace mbvh

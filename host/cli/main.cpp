@@ -110,7 +110,7 @@ struct RayArgs {
 
 void add_ray_args(CLI::App* c, RayArgs& r, bool allow_file) {
   if (allow_file) c->add_option("--rays", r.rays_file, "ray file (32 bytes per ray) instead of generated rays");
-  c->add_option("--kind", r.kind, "generated ray kind: primary, shadow, diffuse, random");
+  c->add_option("--kind", r.kind, "generated ray kind: primary, shadow, diffuse, random, inside (closed generated meshes), special");
   c->add_option("--count", r.count, "number of generated rays");
   c->add_option("--seed", r.seed, "seed of the generated rays");
   c->add_option("--camera", r.camera, "eye x y z, target x y z [, fov degrees] (default: frames the scene)")

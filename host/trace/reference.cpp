@@ -39,8 +39,14 @@ namespace {
 
 TraceView view_of(const Accel& acc, Layout layout) {
   TraceView v;
-  if (layout == Layout::mbvh2) v.n2 = acc.mbvh2().nodes.data();
-  else v.n4 = acc.mbvh4().nodes.data();
+  if (layout == Layout::mbvh2) {
+    v.n2 = acc.mbvh2().nodes.data();
+    v.nodes = acc.mbvh2().nodes.size();
+  } else {
+    v.n4 = acc.mbvh4().nodes.data();
+    v.nodes = acc.mbvh4().nodes.size();
+  }
+  v.leaf_count = acc.leaves().size();
   v.leaves = acc.leaves().data();
   v.tris = acc.tris().data();
   return v;

@@ -4,6 +4,7 @@
 // statistics policy (NoStats compiles every counter away). Pseudocode: TRAVERSAL.md §4.
 #pragma once
 #include <bit>
+#include <stdexcept>
 #include <cstdint>
 #include <vector>
 
@@ -47,6 +48,24 @@ struct TraceView {
   const Node4* n4 = nullptr;
   const Leaf* leaves = nullptr;
   const Tri* tris = nullptr;
+  std::size_t nodes = 0, leaf_count = 0;  ///< sizes, for the termination guard
+};
+
+/// Termination guard of checked builds (Debug and sanitizer builds define
+/// MBVH_CHECK_TERMINATION): a tree traversal enters each node and leaf at most once and climbs
+/// at most once per node, so more loop steps than 2 * nodes + leaves + 2 mean a corrupt tree;
+/// it throws instead of looping. Release builds compile it away (validate_layout guards them).
+struct StepGuard {
+#ifdef MBVH_CHECK_TERMINATION
+  std::size_t left;
+  explicit StepGuard(const TraceView& v) : left(2 * v.nodes + v.leaf_count + 2) {}
+  void step() {
+    if (left-- == 0) throw std::runtime_error("traversal exceeded its step bound: the tree is corrupt");
+  }
+#else
+  explicit StepGuard(const TraceView&) {}
+  void step() {}
+#endif
 };
 
 namespace detail {
@@ -123,10 +142,12 @@ template <bool Any, class St>
 inline Hit trace_mbvh2_stack(const TraceView& v, const RayPre& r, St& st) {
   Hit best = miss_hit();
   float tmax = r.tmax;
+  StepGuard guard(v);
   std::int32_t stack[MBVH_STACK2_ENTRIES];
   unsigned sp = 0;
   std::int32_t cur = 0;
   for (;;) {
+    guard.step();
     if (cur >= 0) {
       const Node2& n = v.n2[cur];
       float d[2];
@@ -154,10 +175,12 @@ template <bool Any, class St>
 inline Hit trace_mbvh2_bitstack(const TraceView& v, const RayPre& r, St& st) {
   Hit best = miss_hit();
   float tmax = r.tmax;
+  StepGuard guard(v);
   std::int32_t cur = 0, par = MBVH_NONE, sib = MBVH_NONE;
   std::uint64_t bits = 0;
   unsigned level = 0;
   for (;;) {
+    guard.step();
     if (cur >= 0) {
       const Node2& n = v.n2[cur];
       float d[2];
@@ -177,6 +200,7 @@ inline Hit trace_mbvh2_bitstack(const TraceView& v, const RayPre& r, St& st) {
     // -- backtrack: climb to the deepest level with a pending sibling
     while ((bits & 1u) == 0) {
       if (bits == 0) return best;
+      guard.step();
       cur = par;
       par = v.n2[cur].link[0];
       sib = v.n2[cur].link[1];
@@ -197,10 +221,12 @@ template <bool Any, class St>
 inline Hit trace_mbvh4_stack(const TraceView& v, const RayPre& r, St& st) {
   Hit best = miss_hit();
   float tmax = r.tmax;
+  StepGuard guard(v);
   std::int32_t stack[MBVH_STACK4_ENTRIES];
   unsigned sp = 0;
   std::int32_t cur = 0;
   for (;;) {
+    guard.step();
     if (cur >= 0) {
       const Node4& n = v.n4[cur];
       float d[4];
@@ -230,11 +256,13 @@ template <bool Any, class St>
 inline Hit trace_mbvh4_bitstack(const TraceView& v, const RayPre& r, St& st) {
   Hit best = miss_hit();
   float tmax = r.tmax;
+  StepGuard guard(v);
   std::int32_t cur = 0, par = MBVH_NONE;
   std::int32_t sib[3] = {MBVH_NONE, MBVH_NONE, MBVH_NONE};
   std::uint64_t bits = 0;
   unsigned level = 0;
   for (;;) {
+    guard.step();
     if (cur >= 0) {
       const Node4& n = v.n4[cur];
       float d[4];
@@ -257,6 +285,7 @@ inline Hit trace_mbvh4_bitstack(const TraceView& v, const RayPre& r, St& st) {
       if (bits == 0) return best;
       code = bits & 7u;
       if (code != 0) break;
+      guard.step();
       cur = par;
       const Node4& p = v.n4[cur];
       par = p.parent;

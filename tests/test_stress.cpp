@@ -1,0 +1,183 @@
+// test_stress.cpp — the numerical stress suite, on every backend of this build x layout x
+// traversal x query: no leaks from closed meshes (rays from inside aimed exactly at shared
+// vertices and edges), zero genuine mismatches against the double-precision brute force on
+// special rays (axis-aligned with ±0, denormal directions, in-plane, along box faces, huge and
+// infinite tmax, tmin = tmax, invalid rays), at scales 1e-3 to 1e6 and offsets up to 1e6;
+// secondary rays never re-hit their source; adversarial trees cannot make a ray loop.
+#include <catch2/catch.hpp>
+
+#include <cstdio>
+
+#include "host/backend.h"
+#include "host/check.h"
+#include "host/error.h"
+#include "host/random.h"
+#include "host/rays.h"
+#include "host/stress.h"
+
+using namespace mbvh;
+
+namespace {
+
+// Every backend built into this binary; one that is built but cannot start fails the test.
+VariantGrid all_backends() {
+  VariantGrid g;
+  g.backends.clear();
+  for (const BackendInfo& b : list_backends())
+    if (b.make) {
+      INFO("backend " << b.name);
+      REQUIRE_NOTHROW(make_backend(b.name));
+      g.backends.push_back(b.name);
+    }
+  REQUIRE(!g.backends.empty());
+  return g;
+}
+
+const char* const kClosed[] = {"gen:sphere:96", "gen:torus:64", "gen:grid:12", "gen:cube:16"};
+const char* const kOpen[] = {"gen:plane:32", "gen:needles:20000", "gen:soup:20000"};
+// scales 1e-3 .. 1e6 and offsets up to 1e6
+const char* const kTransforms[] = {"", "@scale=1e-3", "@scale=1e3", "@scale=1e6", "@offset=1e3", "@offset=1e6",
+                                   "@scale=1e3@offset=1e6"};
+
+void require_clean(const Accel& acc, const std::vector<Ray>& rays, const VariantGrid& grid, const std::string& what) {
+  CheckOptions co;
+  co.grid = grid;
+  co.brute_rays = SIZE_MAX;
+  const CheckReport rep = run_check(acc, rays, co);
+  INFO(what << "\n" << rep.table(rays));
+  REQUIRE(rep.mismatches() == 0);
+}
+
+}  // namespace
+
+TEST_CASE("stress: rays from inside closed meshes aimed at shared vertices and edges never leak", "[stress]") {
+  const VariantGrid grid = all_backends();
+  for (const char* base : kClosed)
+    for (const char* tf : kTransforms) {
+      const std::string spec = std::string(base) + tf;
+      const Scene s = load_scene(spec);
+      const auto acc = Accel::build(s);
+      const std::vector<Ray> rays = feature_rays(s, inside_point(s), 3000, 1000, 7);
+      for (const auto& name : grid.backends) {
+        auto backend = make_backend(name);
+        for (Layout l : grid.layouts)
+          for (Traversal t : grid.traversals)
+            for (Query q : grid.queries) {
+              if (!backend->supports(l, t)) continue;
+              TraceOutput out;
+              backend->trace(*acc, rays, TraceOptions{l, t, q, false}, out);
+              std::size_t leaks = 0;
+              for (std::size_t i = 0; i < rays.size(); ++i)
+                leaks += q == Query::any ? out.occluded[i] == 0 : out.hits[i].prim == MBVH_MISS_PRIM;
+              INFO(spec << " " << name << "/" << to_string(l) << "/" << to_string(t) << "/" << to_string(q));
+              REQUIRE(leaks == 0);
+            }
+      }
+      require_clean(*acc, rays, grid, spec + ": inside rays");
+    }
+}
+
+TEST_CASE("stress: special rays agree with the brute force on every backend", "[stress]") {
+  const VariantGrid grid = all_backends();
+  std::vector<std::string> specs;
+  for (const char* base : kOpen)
+    for (const char* tf : kTransforms) specs.push_back(std::string(base) + tf);
+  for (const char* base : kClosed) specs.push_back(base);
+  for (const std::string& spec : specs) {
+    const Scene s = load_scene(spec);
+    const auto acc = Accel::build(s);
+    const std::vector<Ray> rays = special_rays(s, *acc, 4000, 3);
+    std::size_t invalid = 0;
+    for (const Ray& r : rays) invalid += !ray_valid(r);
+    REQUIRE(invalid >= 400);  // the invalid rays are there, and are checked to be misses
+    require_clean(*acc, rays, grid, spec + ": special rays");
+  }
+}
+
+TEST_CASE("stress: secondary rays spawned from surfaces never re-hit their source", "[stress]") {
+  const VariantGrid grid = all_backends();
+  for (const char* base : {"gen:sphere:96", "gen:torus:64", "gen:soup:20000"})
+    for (const char* tf : {"@scale=1e-3", "", "@scale=1e3", "@scale=1e6", "@offset=1e6"}) {
+      const std::string spec = std::string(base) + tf;
+      const Scene s = load_scene(spec);
+      const auto acc = Accel::build(s);
+      // random points on random triangles, leaving in uniformly random directions (both sides)
+      Rng rng(11);
+      const std::size_t n = 20000;
+      std::vector<Ray> spawned, naive;
+      std::vector<std::uint32_t> source;
+      for (std::size_t i = 0; i < n; ++i) {
+        const Tri& t = acc->tris()[static_cast<std::size_t>(rng.next() % acc->tris().size())];
+        float u = rng.uniform(), v = rng.uniform();
+        if (u + v > 1.0f) { u = 1.0f - u; v = 1.0f - v; }
+        const double z = 2 * rng.uniform_d() - 1, phi = 6.283185307179586 * rng.uniform_d(), r = std::sqrt(1 - z * z);
+        const Vec3f d{static_cast<float>(r * std::cos(phi)), static_cast<float>(r * std::sin(phi)), static_cast<float>(z)};
+        const Vec3f p0{t.v0[0], t.v0[1], t.v0[2]}, p1{t.v1[0], t.v1[1], t.v1[2]}, p2{t.v2[0], t.v2[1], t.v2[2]};
+        spawned.push_back(spawn_ray(p0, p1, p2, u, v, d, INFINITY));
+        const float b0 = 1.0f - u - v;  // naive: the computed point itself and a fixed epsilon
+        naive.push_back(Ray{b0 * p0.x + u * p1.x + v * p2.x, b0 * p0.y + u * p1.y + v * p2.y, b0 * p0.z + u * p1.z + v * p2.z,
+                            1e-4f, d.x, d.y, d.z, INFINITY});
+        source.push_back(tri_prim(t));
+      }
+      for (const auto& name : grid.backends) {
+        auto backend = make_backend(name);
+        for (Layout l : grid.layouts)
+          for (Traversal t : grid.traversals) {
+            if (!backend->supports(l, t)) continue;
+            TraceOutput out;
+            backend->trace(*acc, spawned, TraceOptions{l, t, Query::closest, false}, out);
+            std::size_t rehits = 0;
+            for (std::size_t i = 0; i < n; ++i) rehits += out.hits[i].prim == source[i];
+            INFO(spec << " " << name << "/" << to_string(l) << "/" << to_string(t));
+            REQUIRE(rehits == 0);
+          }
+      }
+      TraceOutput out;
+      trace_reference(*acc, naive, TraceOptions{}, out, 0);
+      std::size_t naive_rehits = 0;
+      for (std::size_t i = 0; i < n; ++i) naive_rehits += out.hits[i].prim == source[i];
+      std::printf("self-intersection %-26s spawn_ray: 0 of %zu re-hit; fixed epsilon 1e-4: %zu of %zu (%.2f%%)\n",
+                  spec.c_str(), n, naive_rehits, n, 100.0 * double(naive_rehits) / double(n));
+    }
+}
+
+TEST_CASE("stress: a corrupt or adversarial tree is refused and cannot make a ray loop", "[stress]") {
+  const Scene s = load_scene("gen:soup:2000");
+  const auto acc = Accel::build(s);
+  Mbvh4 m4 = acc->mbvh4();
+  Mbvh2 m2 = acc->mbvh2();
+  REQUIRE_NOTHROW(validate_layout(m4, acc->leaves().size()));
+  REQUIRE_NOTHROW(validate_layout(m2, acc->leaves().size()));
+  // a child pointing back at the root: a cycle
+  Mbvh4 cyclic4 = m4;
+  for (int k = 0; k < 4; ++k)
+    if (cyclic4.nodes[1].child[k] >= 0) { cyclic4.nodes[1].child[k] = 0; break; }
+  CHECK_THROWS_WITH(validate_layout(cyclic4, acc->leaves().size()), Catch::Contains("corrupt MBVH4") && Catch::Contains("cycle"));
+  Mbvh2 cyclic2 = m2;
+  cyclic2.nodes[1].link[2] = 1;  // a node that is its own child
+  CHECK_THROWS_WITH(validate_layout(cyclic2, acc->leaves().size()), Catch::Contains("corrupt MBVH2"));
+  Mbvh4 badleaf = m4;
+  badleaf.nodes[0].child[0] = ~static_cast<std::int32_t>(acc->leaves().size() + 5);
+  CHECK_THROWS_WITH(validate_layout(badleaf, acc->leaves().size()), Catch::Contains("out of range"));
+  Mbvh4 badlink = m4;
+  badlink.nodes[1].sib[0] = 12345;
+  CHECK_THROWS_WITH(validate_layout(badlink, acc->leaves().size()), Catch::Contains("sibling"));
+#ifdef MBVH_CHECK_TERMINATION
+  // checked builds also bound the steps of a traversal handed a cyclic tree directly
+  TraceView v;
+  v.n4 = cyclic4.nodes.data();
+  v.nodes = cyclic4.nodes.size();
+  v.leaves = acc->leaves().data();
+  v.leaf_count = acc->leaves().size();
+  v.tris = acc->tris().data();
+  RayPre r;
+  const Box b = acc->bounds();
+  const Vec3f c = b.center();
+  REQUIRE(prepare_ray(Ray{c.x, c.y, c.z, 0, 0.3f, 0.5f, 0.8f, INFINITY}, r));
+  NoStats st;
+  CHECK_THROWS_WITH((trace_mbvh4_stack<false>(v, r, st)), Catch::Contains("step bound"));
+  CHECK_THROWS_WITH((trace_mbvh4_bitstack<false>(v, r, st)), Catch::Contains("step bound"));
+#else
+  WARN("release build: the step bound is compiled out (validate_layout guards release builds)");
+#endif
+}
