@@ -196,6 +196,20 @@ std::vector<Ray> generate_rays(const Scene& scene, const Accel& acc, const RayGe
 // -- files
 namespace {
 
+void check_record_size(const std::string& name, const char* what, std::size_t size, std::size_t record) {
+  if (size % record != 0)
+    throw Error(name + ": size " + std::to_string(size) + " bytes is not a multiple of the " + std::to_string(record) +
+                "-byte " + what + " record");
+}
+
+template <class T>
+std::vector<T> records_from_bytes(const std::string& name, const char* what, const char* data, std::size_t size) {
+  check_record_size(name, what, size, sizeof(T));
+  std::vector<T> out(size / sizeof(T));
+  if (size) std::memcpy(out.data(), data, size);
+  return out;
+}
+
 template <class T>
 std::vector<T> read_records(const std::string& path, const char* what) {
   std::unique_ptr<FILE, int (*)(FILE*)> f(std::fopen(path.c_str(), "rb"), &std::fclose);
@@ -204,9 +218,7 @@ std::vector<T> read_records(const std::string& path, const char* what) {
   const long size = std::ftell(f.get());
   std::fseek(f.get(), 0, SEEK_SET);
   if (size < 0) throw Error(path + ": cannot determine the size of the " + what + " file");
-  if (static_cast<std::size_t>(size) % sizeof(T) != 0)
-    throw Error(path + ": size " + std::to_string(size) + " bytes is not a multiple of the " + std::to_string(sizeof(T)) +
-                "-byte " + what + " record");
+  check_record_size(path, what, static_cast<std::size_t>(size), sizeof(T));
   std::vector<T> out(static_cast<std::size_t>(size) / sizeof(T));
   if (!out.empty() && std::fread(out.data(), sizeof(T), out.size(), f.get()) != out.size())
     throw Error(path + ": read error in " + what + " file");
@@ -228,6 +240,9 @@ void write_bytes(const std::string& path, const void* data, std::size_t bytes) {
 }  // namespace
 
 std::vector<Ray> read_rays(const std::string& path) { return read_records<Ray>(path, "ray"); }
+std::vector<Ray> rays_from_bytes(const std::string& name, const char* data, std::size_t size) {
+  return records_from_bytes<Ray>(name, "ray", data, size);
+}
 std::vector<Hit> read_hits(const std::string& path) { return read_records<Hit>(path, "hit"); }
 std::vector<std::uint8_t> read_occlusion(const std::string& path) { return read_records<std::uint8_t>(path, "occlusion"); }
 void write_rays(const std::string& path, std::span<const Ray> r) { write_bytes(path, r.data(), r.size_bytes()); }

@@ -48,6 +48,8 @@ Ray spawn_ray(const Vec3f& p0, const Vec3f& p1, const Vec3f& p2, float u, float 
 /// Files (little-endian, no header): rays 32 B, hits 16 B, occlusion 1 B per ray. Writers go
 /// through a temporary file renamed on success, so no partial file is left behind.
 std::vector<Ray> read_rays(const std::string& path);
+/// The ray records in `size` bytes; throws Error (naming `name`) unless size is a multiple of 32.
+std::vector<Ray> rays_from_bytes(const std::string& name, const char* data, std::size_t size);
 void write_rays(const std::string& path, std::span<const Ray> rays);
 std::vector<Hit> read_hits(const std::string& path);
 void write_hits(const std::string& path, std::span<const Hit> hits);

@@ -52,6 +52,9 @@ Scene parse_ply(const std::string& name, const char* data, std::size_t size);
 
 /// Reads a whole file, transparently decompressing zstd (by magic number). Throws Error.
 std::vector<char> read_file(const std::string& path);
+/// Decompresses `data` if it starts with the zstd magic number, else returns it unchanged;
+/// `name` is used in error messages. Throws Error on a corrupt or truncated stream.
+std::vector<char> maybe_decompress(const std::string& name, std::vector<char> data);
 
 /// Builds a generated scene from "NAME:PARAMS" (the part after "gen:"). Throws Error.
 Scene generate_scene(const std::string& spec);

@@ -166,6 +166,15 @@ TEST_CASE("zstd files load directly - a truncated one is an error", "[loader][zs
   CHECK_THAT(error_of([&] { load_scene(unknown); }), Catch::Contains("unknown scene format"));
 }
 
+TEST_CASE("fuzzer-found inputs are clean errors (regressions)", "[loader][fuzz]") {
+  // zstd frames whose headers claim a huge content size: once a 16 GiB reserve (out of memory)
+  const unsigned char huge1[] = {0x28, 0xb5, 0x2f, 0xfd, 0xb5, 0xfd, 0x89, 0x28, 0x2f, 0x89};
+  const unsigned char huge2[] = {0x28, 0xb5, 0x2f, 0xfd, 0x90, 0x93, 0x86, 0x8f, 0x93, 0x86, 0xf5, 0x88, 0x1a, 0x6d};
+  for (const auto& bytes : {std::vector<char>(huge1, huge1 + sizeof huge1), std::vector<char>(huge2, huge2 + sizeof huge2)}) {
+    CHECK_THROWS_WITH(maybe_decompress("bomb.obj.zst", bytes), Catch::Contains("bomb.obj.zst") && Catch::Contains("zstd"));
+  }
+}
+
 TEST_CASE("generated scenes: closed sphere and cube exact counts clear errors", "[loader][gen]") {
   for (const char* spec : {"gen:sphere:48", "gen:cube:8"}) {
     INFO(spec);

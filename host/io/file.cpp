@@ -1,6 +1,7 @@
 // file.cpp — whole-file reads with transparent zstd decompression (libzstd streaming API).
 #include <zstd.h>
 
+#include <algorithm>
 #include <cstdio>
 #include <cstring>
 #include <memory>
@@ -38,9 +39,11 @@ std::vector<char> decompress(const std::string& path, const std::vector<char>& i
   if (!ds) fail_at(path, 0, "zstd: out of memory");
   ZSTD_initDStream(ds.get());
   std::vector<char> out;
-  unsigned long long hint = ZSTD_getFrameContentSize(in.data(), in.size());
-  if (hint != ZSTD_CONTENTSIZE_UNKNOWN && hint != ZSTD_CONTENTSIZE_ERROR && hint < (1ull << 34))
-    out.reserve(static_cast<std::size_t>(hint));
+  // The frame header's content size is only a hint: a corrupt header may claim terabytes (found
+  // by fuzzing), so reserve no more than a plausible ratio of the input; the vector grows past it.
+  const unsigned long long hint = ZSTD_getFrameContentSize(in.data(), in.size());
+  if (hint != ZSTD_CONTENTSIZE_UNKNOWN && hint != ZSTD_CONTENTSIZE_ERROR)
+    out.reserve(static_cast<std::size_t>(std::min<unsigned long long>(hint, 64ull * in.size() + (1u << 20))));
   ZSTD_inBuffer ib{in.data(), in.size(), 0};
   std::vector<char> chunk(ZSTD_DStreamOutSize());
   std::size_t ret = 0;
@@ -58,10 +61,11 @@ std::vector<char> decompress(const std::string& path, const std::vector<char>& i
 
 }  // namespace
 
-std::vector<char> read_file(const std::string& path) {
-  std::vector<char> raw = read_raw(path);
-  if (is_zstd(raw)) return decompress(path, raw);
-  return raw;
+std::vector<char> maybe_decompress(const std::string& name, std::vector<char> data) {
+  if (is_zstd(data)) return decompress(name, data);
+  return data;
 }
+
+std::vector<char> read_file(const std::string& path) { return maybe_decompress(path, read_raw(path)); }
 
 }  // namespace mbvh
