@@ -1,10 +1,11 @@
 #!/usr/bin/env bash
-# setup.sh — shared by scripts/demo and scripts/test: installs what is missing (Debian 12, as
-# root), then configures and builds mbvh in $MBVH_BUILD_DIR (default: build/).
+# setup.sh — sourced by scripts/demo and scripts/test. Installs what is missing (Debian 12, as
+# root) and defines mbvh_build DIR [CMAKE_ARGS...], which configures and builds mbvh in DIR.
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 BUILD="${MBVH_BUILD_DIR:-$ROOT/build}"
-PACKAGES=(build-essential cmake ninja-build pkg-config catch2 libzstd-dev nlohmann-json3-dev libcli11-dev zstd)
+PACKAGES=(build-essential cmake ninja-build pkg-config catch2 libzstd-dev nlohmann-json3-dev libcli11-dev zstd
+          ${MBVH_EXTRA_PACKAGES:-})
 
 missing=()
 for p in "${PACKAGES[@]}"; do
@@ -18,6 +19,10 @@ if ((${#missing[@]})); then
   DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
 fi
 
-echo "== configuring and building in $BUILD"
-cmake -S "$ROOT" -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=Release ${MBVH_CMAKE_ARGS:-} >/dev/null
-cmake --build "$BUILD" --parallel "$(nproc)"
+mbvh_build() {
+  local dir="$1"
+  shift
+  echo "== configuring and building in $dir $*"
+  cmake -S "$ROOT" -B "$dir" -G Ninja -DCMAKE_BUILD_TYPE=Release "$@" >/dev/null
+  cmake --build "$dir" --parallel "$(nproc)"
+}

@@ -62,9 +62,13 @@ struct StepGuard {
   void step() {
     if (left-- == 0) throw std::runtime_error("traversal exceeded its step bound: the tree is corrupt");
   }
+  void room(unsigned sp, unsigned need, unsigned capacity) {
+    if (sp + need > capacity) throw std::runtime_error("traversal stack overflow: the tree is deeper than its cap");
+  }
 #else
   explicit StepGuard(const TraceView&) {}
   void step() {}
+  void room(unsigned, unsigned, unsigned) {}
 #endif
 };
 
@@ -155,6 +159,7 @@ inline Hit trace_mbvh2_stack(const TraceView& v, const RayPre& r, St& st) {
       if (m) {
         const int k = detail::first_slot2<Any>(m, d);
         if (m == 3u) {
+          guard.room(sp, 1, MBVH_STACK2_ENTRIES);
           stack[sp++] = n.link[2 + (1 - k)];
           st.depth(sp);
         }
@@ -233,6 +238,7 @@ inline Hit trace_mbvh4_stack(const TraceView& v, const RayPre& r, St& st) {
       const unsigned m = detail::test4(n, r, tmax * kCullSlack, d, st);
       if (m) {
         const int i = detail::first_slot4<Any>(m, d);
+        guard.room(sp, 3, MBVH_STACK4_ENTRIES);
         for (int k = 2; k >= 0; --k) {
           const int s = (i + 1 + k) & 3;
           if ((m >> s) & 1u) stack[sp++] = n.child[s];
