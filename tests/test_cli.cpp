@@ -88,6 +88,21 @@ TEST_CASE("mbvh gives clear errors and non-zero exit codes", "[cli]") {
   r = run_cli("info " + bad);
   CHECK(r.code != 0);
   CHECK_THAT(r.output, Catch::Contains("bad.obj:4:") && Catch::Contains("out of range"));
+  // binary garbage, empty scenes and scenes of only degenerate triangles: clear errors, no crash
+  std::string garbage(4096, '\0');
+  for (std::size_t i = 0; i < garbage.size(); ++i) garbage[i] = static_cast<char>((i * 2654435761u) >> 13);
+  for (const char* name : {"garbage.obj", "garbage.ply", "garbage.obj.zst"}) {
+    r = run_cli("info " + dir.write(name, garbage));
+    INFO(r.output);
+    CHECK(r.code == 2);
+    CHECK_THAT(r.output, Catch::Contains(name) && Catch::Contains("error"));
+  }
+  r = run_cli("info " + dir.write("empty.obj", ""));
+  CHECK(r.code == 2);
+  CHECK_THAT(r.output, Catch::Contains("empty.obj") && Catch::Contains("no non-degenerate triangle"));
+  r = run_cli("info " + dir.write("flat.obj", "v 0 0 0\nv 1 1 1\nv 2 2 2\nf 1 2 3\nf 1 1 2\n"));
+  CHECK(r.code == 2);
+  CHECK_THAT(r.output, Catch::Contains("flat.obj") && Catch::Contains("2 degenerate"));
   r = run_cli("trace gen:sphere:16 --layout mbvh3");
   CHECK(r.code != 0);
   CHECK_THAT(r.output, Catch::Contains("unknown layout 'mbvh3'"));
