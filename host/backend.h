@@ -40,7 +40,8 @@ public:
 struct VariantGrid {
   std::vector<std::string> backends{"cpu-scalar"};
   std::vector<Layout> layouts{Layout::mbvh2, Layout::mbvh4};
-  std::vector<Traversal> traversals{Traversal::stack, Traversal::bitstack};
+  std::vector<Traversal> traversals{Traversal::stack, Traversal::bitstack, Traversal::stack_ordered,
+                                    Traversal::bitstack_retest};
   std::vector<Query> queries{Query::closest, Query::any};
   std::size_t size() const { return backends.size() * layouts.size() * traversals.size() * queries.size(); }
 };

@@ -41,8 +41,8 @@ bool BenchReport::verified() const {
 std::string BenchReport::table() const {
   std::string s;
   char line[512];
-  std::snprintf(line, sizeof line, "%-10s %-6s %-8s %-7s %-8s %9s %15s %8s %8s %7s %7s %7s %9s\n", "backend", "layout",
-                "travers.", "query", "rays", "Mrays/s", "(min-max)", "vs stack", "state B", "nodes", "leaves", "tris",
+  std::snprintf(line, sizeof line, "%-10s %-6s %-15s %-7s %-8s %9s %15s %8s %8s %7s %7s %7s %9s\n", "backend", "layout",
+                "traversal", "query", "rays", "Mrays/s", "(min-max)", "vs twin", "state B", "nodes", "leaves", "tris",
                 "verified");
   s += line;
   for (const auto& r : records) {
@@ -50,7 +50,7 @@ std::string BenchReport::table() const {
     if (r.ratio_vs_stack > 0) std::snprintf(ratio, sizeof ratio, "%.3fx", r.ratio_vs_stack);
     char spread[48];
     std::snprintf(spread, sizeof spread, "(%.2f-%.2f)", r.mrays_min, r.mrays_max);
-    std::snprintf(line, sizeof line, "%-10s %-6s %-8s %-7s %-8s %9.3f %15s %8s %8zu %7.1f %7.2f %7.1f %9s\n",
+    std::snprintf(line, sizeof line, "%-10s %-6s %-15s %-7s %-8s %9.3f %15s %8s %8zu %7.1f %7.2f %7.1f %9s\n",
                   r.backend.c_str(), r.layout.c_str(), r.traversal.c_str(), r.query.c_str(), r.ray_kind.c_str(),
                   r.mrays_per_s, spread, ratio, r.state_bytes_per_ray, r.nodes_per_ray, r.leaves_per_ray, r.tris_per_ray,
                   r.verify_mismatches ? "MISMATCH" : "yes");
@@ -180,7 +180,8 @@ BenchReport run_bench(const Scene& scene, const Accel& acc, const BenchOptions& 
             double n = 0, bt = 0, lf = 0, tr = 0, cl = 0, peak = 0;
             for (const RayStats& s : st.stats) {
               n += s.nodes; bt += s.box_tests; lf += s.leaves; tr += s.tris; cl += s.climbs;
-              peak += t == Traversal::stack ? 8.0 + 4.0 * s.max_depth : 12.0;
+              peak += t == Traversal::stack ? 8.0 + 4.0 * s.max_depth
+                      : t == Traversal::stack_ordered ? 8.0 + 8.0 * s.max_depth : 12.0;
             }
             const double k = rays.empty() ? 1.0 : static_cast<double>(rays.size());
             r.nodes_per_ray = n / k;
@@ -194,11 +195,11 @@ BenchReport run_bench(const Scene& scene, const Accel& acc, const BenchOptions& 
           }
     }
   }
-  // bitstack / stack ratios, side by side from the same run
+  // bitstack / stack-twin ratios, side by side from the same run
   for (auto& r : rep.records)
-    if (r.traversal == "bitstack")
+    if (const std::string twin = to_string(stack_twin(parse_traversal(r.traversal))); twin != r.traversal)
       for (const auto& s : rep.records)
-        if (s.traversal == "stack" && s.backend == r.backend && s.layout == r.layout && s.query == r.query &&
+        if (s.traversal == twin && s.backend == r.backend && s.layout == r.layout && s.query == r.query &&
             s.ray_kind == r.ray_kind && s.mrays_per_s > 0)
           r.ratio_vs_stack = r.mrays_per_s / s.mrays_per_s;
   return rep;

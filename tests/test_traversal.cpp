@@ -39,15 +39,18 @@ void check_scene(const std::string& spec) {
     CHECK(rep.mismatches() == 0);
     std::size_t hits = 0;
 
-    // -- twins are bit-identical: stack vs bitstack of one layout and query
-    for (Layout l : {Layout::mbvh2, Layout::mbvh4})
+    // -- twins are bit-identical: each bitstack and its stack twin, per layout and query
+    const std::pair<Layout, Traversal> bitstacks[] = {{Layout::mbvh2, Traversal::bitstack},
+                                                      {Layout::mbvh4, Traversal::bitstack},
+                                                      {Layout::mbvh4, Traversal::bitstack_retest}};
+    for (const auto& [l, bt] : bitstacks)
       for (Query q : {Query::closest, Query::any}) {
         TraceOutput out[2];
         for (int t = 0; t < 2; ++t) {
           TraceOptions o;
           o.layout = l;
           o.query = q;
-          o.traversal = t ? Traversal::bitstack : Traversal::stack;
+          o.traversal = t ? bt : stack_twin(bt);
           trace_reference(*acc, rays, o, out[t], 0);
         }
         if (q == Query::closest) {
@@ -61,14 +64,14 @@ void check_scene(const std::string& spec) {
 
     // -- same leaves in the same order
     for (std::size_t i : spread_indices(rays.size(), kLeafOrderRays))
-      for (Layout l : {Layout::mbvh2, Layout::mbvh4})
+      for (const auto& [l, bt] : bitstacks)
         for (Query q : {Query::closest, Query::any}) {
           std::vector<std::int32_t> log[2];
           for (int t = 0; t < 2; ++t) {
             TraceOptions o;
             o.layout = l;
             o.query = q;
-            o.traversal = t ? Traversal::bitstack : Traversal::stack;
+            o.traversal = t ? bt : stack_twin(bt);
             trace_one(*acc, rays[i], o, nullptr, &log[t]);
           }
           REQUIRE(log[0] == log[1]);
@@ -174,6 +177,21 @@ TEST_CASE("statistics count work and stay out of the answers", "[traversal]") {
     CHECK(std::memcmp(plain.hits.data(), counted.hits.data(), rays.size() * sizeof(Hit)) == 0);
     REQUIRE(counted.stats.size() == rays.size());
     double climbs = 0, nodes = 0;
+    if (l == Layout::mbvh4) {  // variant B against its ordered-stack twin: same work, plus re-tests
+      TraceOutput retest, ordered;
+      trace_reference(*acc, rays, TraceOptions{l, Traversal::bitstack_retest, Query::closest, true}, retest, 0);
+      trace_reference(*acc, rays, TraceOptions{l, Traversal::stack_ordered, Query::closest, true}, ordered, 0);
+      double retests = 0, leaves_b = 0, leaves_cyclic = 0;
+      for (std::size_t i = 0; i < rays.size(); ++i) {
+        CHECK(retest.stats[i].nodes == ordered.stats[i].nodes);
+        CHECK(retest.stats[i].leaves == ordered.stats[i].leaves);
+        retests += retest.stats[i].retests;
+        leaves_b += retest.stats[i].leaves;
+        leaves_cyclic += counted.stats[i].leaves;
+      }
+      CHECK(retests > 0);
+      CHECK(leaves_b <= leaves_cyclic);  // full distance order and culling never visit more leaves
+    }
     for (std::size_t i = 0; i < rays.size(); ++i) {
       CHECK(counted.stats[i].nodes == stack.stats[i].nodes);  // same nodes, same leaves
       CHECK(counted.stats[i].leaves == stack.stats[i].leaves);
@@ -189,4 +207,7 @@ TEST_CASE("statistics count work and stay out of the answers", "[traversal]") {
   CHECK(state_bytes_per_ray(Layout::mbvh2, Traversal::stack) == 264);
   CHECK(state_bytes_per_ray(Layout::mbvh2, Traversal::bitstack) == 12);
   CHECK(state_bytes_per_ray(Layout::mbvh2, Traversal::stack) / state_bytes_per_ray(Layout::mbvh2, Traversal::bitstack) == 22);
+  CHECK(state_bytes_per_ray(Layout::mbvh4, Traversal::stack_ordered) == 520);  // 64 (node, distance) entries
+  CHECK(state_bytes_per_ray(Layout::mbvh4, Traversal::bitstack_retest) == 12);
+  CHECK_FALSE(reference_supports(Layout::mbvh2, Traversal::bitstack_retest));
 }

@@ -15,7 +15,7 @@ public:
   std::string describe() const override {
     return "cpu-scalar: reference scalar traversals, " + std::to_string(threads_) + " thread(s)";
   }
-  bool supports(Layout, Traversal) const override { return true; }
+  bool supports(Layout l, Traversal t) const override { return reference_supports(l, t); }
   void prepare(const Accel& acc, const TraceOptions& opt) override {
     if (opt.layout == Layout::mbvh2) acc.mbvh2();
     else acc.mbvh4();

@@ -82,11 +82,13 @@ Loaded load_and_build(const SceneArgs& a, bool verbose = true) {
 
 // --backend, --layout, --traversal, --query as comma-separated lists (check and bench).
 struct GridArgs {
-  std::string backends = "cpu-scalar", layouts = "mbvh2,mbvh4", traversals = "stack,bitstack", queries = "closest,any";
+  std::string backends = "cpu-scalar", layouts = "mbvh2,mbvh4", traversals = "stack,bitstack,stack-ordered,bitstack-retest",
+              queries = "closest,any";
   void add(CLI::App* c) {
     c->add_option("--backend", backends, "comma-separated backends (see `mbvh devices`)");
     c->add_option("--layout", layouts, "comma-separated layouts: mbvh2, mbvh4");
-    c->add_option("--traversal", traversals, "comma-separated traversals: stack, bitstack");
+    c->add_option("--traversal", traversals,
+                  "comma-separated traversals: stack, bitstack, stack-ordered, bitstack-retest (MBVH4 only)");
     c->add_option("--query", queries, "comma-separated queries: closest, any");
   }
   VariantGrid parse() const {

@@ -10,7 +10,25 @@
 namespace mbvh {
 
 const char* to_string(Query q) { return q == Query::closest ? "closest" : "any"; }
-const char* to_string(Traversal t) { return t == Traversal::stack ? "stack" : "bitstack"; }
+const char* to_string(Traversal t) {
+  switch (t) {
+    case Traversal::stack: return "stack";
+    case Traversal::bitstack: return "bitstack";
+    case Traversal::stack_ordered: return "stack-ordered";
+    case Traversal::bitstack_retest: return "bitstack-retest";
+  }
+  return "?";
+}
+
+Traversal stack_twin(Traversal t) {
+  if (t == Traversal::bitstack) return Traversal::stack;
+  if (t == Traversal::bitstack_retest) return Traversal::stack_ordered;
+  return t;
+}
+
+bool reference_supports(Layout layout, Traversal traversal) {
+  return layout == Layout::mbvh4 || traversal == Traversal::stack || traversal == Traversal::bitstack;
+}
 
 Query parse_query(const std::string& s) {
   if (s == "closest") return Query::closest;
@@ -21,13 +39,16 @@ Query parse_query(const std::string& s) {
 Traversal parse_traversal(const std::string& s) {
   if (s == "stack") return Traversal::stack;
   if (s == "bitstack") return Traversal::bitstack;
-  throw Error("unknown traversal '" + s + "' (known: stack, bitstack)");
+  if (s == "stack-ordered") return Traversal::stack_ordered;
+  if (s == "bitstack-retest") return Traversal::bitstack_retest;
+  throw Error("unknown traversal '" + s + "' (known: stack, bitstack, stack-ordered, bitstack-retest)");
 }
 
 std::size_t state_bytes_per_ray(Layout layout, Traversal traversal) {
-  if (traversal == Traversal::bitstack) return 4 + 8;
+  if (traversal == Traversal::bitstack || traversal == Traversal::bitstack_retest) return 4 + 8;
   const std::size_t entries = layout == Layout::mbvh2 ? MBVH_STACK2_ENTRIES : MBVH_STACK4_ENTRIES;
-  return entries * 4 + 4 + 4;
+  const std::size_t entry = traversal == Traversal::stack_ordered ? 8 : 4;  // (node, distance) or node
+  return entries * entry + 4 + 4;
 }
 
 bool ray_valid(const Ray& ray) {
@@ -56,7 +77,13 @@ template <bool Any, class St>
 Hit dispatch(const TraceView& v, const RayPre& r, Layout l, Traversal t, St& st) {
   if (l == Layout::mbvh2)
     return t == Traversal::stack ? trace_mbvh2_stack<Any>(v, r, st) : trace_mbvh2_bitstack<Any>(v, r, st);
-  return t == Traversal::stack ? trace_mbvh4_stack<Any>(v, r, st) : trace_mbvh4_bitstack<Any>(v, r, st);
+  switch (t) {
+    case Traversal::stack: return trace_mbvh4_stack<Any>(v, r, st);
+    case Traversal::bitstack: return trace_mbvh4_bitstack<Any>(v, r, st);
+    case Traversal::stack_ordered: return trace_mbvh4_stack_ordered<Any>(v, r, st);
+    case Traversal::bitstack_retest: return trace_mbvh4_bitstack_retest<Any>(v, r, st);
+  }
+  return miss_hit();
 }
 
 template <bool Any, bool Stats>
@@ -82,8 +109,15 @@ void run_batch(const TraceView& v, std::span<const Ray> rays, std::size_t b, std
 
 }  // namespace
 
+static void require_supported(const TraceOptions& opt) {
+  if (!reference_supports(opt.layout, opt.traversal))
+    throw Error(std::string("traversal '") + to_string(opt.traversal) + "' is not defined for layout " + to_string(opt.layout) +
+                " (variant B and its ordered-stack twin are MBVH4 traversals)");
+}
+
 Hit trace_one(const Accel& acc, const Ray& ray, const TraceOptions& opt, RayStats* stats,
               std::vector<std::int32_t>* leaf_log) {
+  require_supported(opt);
   RayPre r;
   if (!prepare_ray(ray, r)) return miss_hit();
   const TraceView v = view_of(acc, opt.layout);
@@ -101,6 +135,7 @@ Hit trace_one(const Accel& acc, const Ray& ray, const TraceOptions& opt, RayStat
 
 void trace_reference(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out,
                      unsigned threads, const std::function<void(std::size_t)>& progress) {
+  require_supported(opt);
   const TraceView v = view_of(acc, opt.layout);
   const bool any = opt.query == Query::any;
   out.hits.assign(any ? 0 : rays.size(), miss_hit());

@@ -14,7 +14,14 @@
 namespace mbvh {
 
 enum class Query { closest, any };
-enum class Traversal { stack, bitstack };
+/// stack / bitstack: the skip-code bitstack of Áfra & Szirmay-Kalos and its stack twin (cyclic
+/// order after the nearest child); bitstack_retest / stack_ordered: variant B (parent re-test,
+/// full distance order, culling) and its Embree-like ordered stack twin, MBVH4 only.
+enum class Traversal { stack, bitstack, stack_ordered, bitstack_retest };
+/// The stack-based twin a bitstack traversal must reproduce (itself for stack traversals).
+Traversal stack_twin(Traversal t);
+/// Whether the reference traversals implement the pair (variant B and its twin: MBVH4 only).
+bool reference_supports(Layout layout, Traversal traversal);
 const char* to_string(Query q);
 const char* to_string(Traversal t);
 Query parse_query(const std::string& s);          ///< throws Error on an unknown name

@@ -19,6 +19,7 @@ struct RayStats {
   std::uint32_t leaves = 0;
   std::uint32_t tris = 0;       ///< triangle tests
   std::uint32_t climbs = 0;     ///< parent reads while backtracking (bitstack only)
+  std::uint32_t retests = 0;    ///< parent nodes re-tested on a sibling move (variant B only)
   std::uint32_t max_depth = 0;  ///< peak stack entries (stack) or bitstack levels (bitstack)
 };
 
@@ -28,6 +29,7 @@ struct NoStats {
   void leaf(std::int32_t) {}
   void tri() {}
   void climb() {}
+  void retest() {}
   void depth(unsigned) {}
 };
 
@@ -39,6 +41,7 @@ struct CountStats {
   void leaf(std::int32_t ref) { ++s.leaves; if (leaf_log) leaf_log->push_back(ref); }
   void tri() { ++s.tris; }
   void climb() { ++s.climbs; }
+  void retest() { ++s.retests; }
   void depth(unsigned d) { if (d > s.max_depth) s.max_depth = d; }
 };
 
@@ -52,13 +55,14 @@ struct TraceView {
 };
 
 /// Termination guard of checked builds (Debug and sanitizer builds define
-/// MBVH_CHECK_TERMINATION): a tree traversal enters each node and leaf at most once and climbs
-/// at most once per node, so more loop steps than 2 * nodes + leaves + 2 mean a corrupt tree;
-/// it throws instead of looping. Release builds compile it away (validate_layout guards them).
+/// MBVH_CHECK_TERMINATION): a tree traversal enters each node and leaf at most once, climbs at
+/// most once per node and makes at most one sibling move per entry, so more loop steps than
+/// 3 * nodes + 2 * leaves + 2 mean a corrupt tree; it throws instead of looping. Release builds
+/// compile it away (validate_layout guards them).
 struct StepGuard {
 #ifdef MBVH_CHECK_TERMINATION
   std::size_t left;
-  explicit StepGuard(const TraceView& v) : left(2 * v.nodes + v.leaf_count + 2) {}
+  explicit StepGuard(const TraceView& v) : left(3 * v.nodes + 2 * v.leaf_count + 2) {}
   void step() {
     if (left-- == 0) throw std::runtime_error("traversal exceeded its step bound: the tree is corrupt");
   }
@@ -105,13 +109,17 @@ inline unsigned test2(const Node2& n, const RayPre& r, float tcull, float d[2], 
   return (h0 ? 1u : 0u) | (h1 ? 2u : 0u);
 }
 
-template <class St>
-inline unsigned test4(const Node4& n, const RayPre& r, float tcull, float d[4], St& st) {
-  st.node(4);
+inline unsigned test4_boxes(const Node4& n, const RayPre& r, float tcull, float d[4]) {
   unsigned mask = 0;
   for (int s = 0; s < 4; ++s)
     if (box_test(r, n.lo_x[s], n.hi_x[s], n.lo_y[s], n.hi_y[s], n.lo_z[s], n.hi_z[s], tcull, d[s])) mask |= 1u << s;
   return mask;
+}
+
+template <class St>
+inline unsigned test4(const Node4& n, const RayPre& r, float tcull, float d[4], St& st) {
+  st.node(4);
+  return test4_boxes(n, r, tcull, d);
 }
 
 // MBVH2 child entered first: any hit takes child 0 if hit; closest hit the nearer of two hit
@@ -309,6 +317,133 @@ inline Hit trace_mbvh4_bitstack(const TraceView& v, const RayPre& r, St& st) {
     const std::int32_t R[4] = {sib[0], sib[1], sib[2], cur};
     cur = R[k];
     for (int j = 0; j < 3; ++j) sib[j] = R[(k + 1 + j) & 3];
+  }
+}
+
+namespace detail {
+
+// Nearest slot of `mask` by entry distance, ties to the lower slot (variant B and its twin order
+// every child by distance, for both queries).
+inline int nearest_slot4(unsigned mask, const float d[4]) {
+  int q = std::countr_zero(mask);
+  for (int s = q + 1; s < 4; ++s)
+    if (((mask >> s) & 1u) && d[s] < d[q]) q = s;
+  return q;
+}
+
+}  // namespace detail
+
+/// MBVH4, Embree-like ordered stack (TRAVERSAL.md §4.5, variant B's twin): hit children pushed
+/// with their entry distances, the nearest on top (1 hit: no push; 2 hits: push the farther;
+/// 3-4: push all and sort by (d, slot)); a popped entry beyond the current tmax * S is culled.
+template <bool Any, class St>
+inline Hit trace_mbvh4_stack_ordered(const TraceView& v, const RayPre& r, St& st) {
+  struct Entry {  // 8 bytes, as Embree's (node, distance) entries
+    std::int32_t node;
+    float d;
+  };
+  Hit best = miss_hit();
+  float tmax = r.tmax;
+  StepGuard guard(v);
+  Entry stack[MBVH_STACK4_ENTRIES];
+  unsigned sp = 0;
+  std::int32_t cur = 0;
+  for (;;) {
+    guard.step();
+    if (cur >= 0) {
+      const Node4& n = v.n4[cur];
+      float d[4];
+      const unsigned m = detail::test4(n, r, tmax * kCullSlack, d, st);
+      if (m) {
+        const int q = detail::nearest_slot4(m, d);
+        const unsigned others = m & ~(1u << q);
+        guard.room(sp, 3, MBVH_STACK4_ENTRIES);
+        const unsigned base = sp;
+        for (int s = 3; s >= 0; --s)  // pushed in reverse slot order, then a stable sort by
+          if ((others >> s) & 1u) stack[sp++] = Entry{n.child[s], d[s]};  // d: (d, slot), nearest on top
+        for (unsigned a = base + 1; a < sp; ++a)
+          for (unsigned b = a; b > base && stack[b - 1].d < stack[b].d; --b) std::swap(stack[b - 1], stack[b]);
+        st.depth(sp);
+        cur = n.child[q];
+        continue;
+      }
+    } else if (detail::visit_leaf<Any>(v, cur, r, tmax, best, st)) {
+      return best;
+    }
+    // -- pop, culling entries beyond the best hit
+    for (;;) {
+      if (sp == 0) return best;
+      const Entry e = stack[--sp];
+      if (e.d > tmax * kCullSlack) continue;
+      cur = e.node;
+      break;
+    }
+  }
+}
+
+/// MBVH4 bitstack, variant B (TRAVERSAL.md §3.4, §4.4; mbvh's extension of Áfra &
+/// Szirmay-Kalos 2014): the same skip codes, but each move to a sibling re-tests the parent's
+/// four boxes against the current tmax, takes the nearest pending child and drops those now
+/// beyond tmax — the visit sequence of the ordered, culling stack above.
+template <bool Any, class St>
+inline Hit trace_mbvh4_bitstack_retest(const TraceView& v, const RayPre& r, St& st) {
+  Hit best = miss_hit();
+  float tmax = r.tmax;
+  StepGuard guard(v);
+  std::int32_t cur = 0, par = MBVH_NONE;
+  int slot = -1;
+  std::uint64_t bits = 0;
+  unsigned level = 0;
+  for (;;) {
+    guard.step();
+    if (cur >= 0) {
+      const Node4& n = v.n4[cur];
+      float d[4];
+      const unsigned m = detail::test4(n, r, tmax * kCullSlack, d, st);
+      if (m) {
+        const int i = detail::nearest_slot4(m, d);
+        bits = (bits << 3) | detail::skip_code(m, i);  // push
+        if constexpr (St::on) st.depth(++level);
+        par = cur;
+        slot = i;
+        cur = n.child[i];
+        continue;
+      }
+    } else if (detail::visit_leaf<Any>(v, cur, r, tmax, best, st)) {
+      return best;
+    }
+    // -- backtrack: re-test the parent for the nearest live pending sibling, else climb
+    for (;;) {
+      guard.step();
+      if (bits == 0) return best;
+      const std::uint64_t code = bits & 7u;
+      if (code != 0) {
+        const Node4& p = v.n4[par];
+        float d[4];
+        st.retest();
+        const unsigned m = detail::test4_boxes(p, r, tmax * kCullSlack, d);
+        unsigned pending = 0;
+        for (int k = 0; k < 3; ++k)
+          if ((code >> k) & 1u) pending |= 1u << ((slot + 1 + k) & 3);
+        const unsigned live = pending & m;
+        if (live != 0) {
+          const int q = detail::nearest_slot4(live, d);
+          bits ^= code ^ detail::skip_code(live & ~(1u << q), q);
+          cur = p.child[q];
+          slot = q;
+          break;
+        }
+      }
+      cur = par;  // climb (also when every pending sibling was culled)
+      par = v.n4[cur].parent;
+      slot = -1;
+      if (par != MBVH_NONE)
+        for (int s = 0; s < 4; ++s)
+          if (v.n4[par].child[s] == cur) slot = s;
+      bits >>= 3;
+      st.climb();
+      if constexpr (St::on) --level;
+    }
   }
 }
 
