@@ -360,10 +360,12 @@ int main(int argc, char** argv) {
       std::printf("scene %s, %zu triangles, BVH hash %s\ncpu %s, %u threads\n\n%s", l.scene.name.c_str(),
                   l.scene.triangle_count(), rep.bvh_hash.c_str(), rep.cpu.c_str(), resolve_threads(bn_a.threads),
                   rep.table().c_str());
-      std::printf("\ntraversal state per ray: stack %zu B (MBVH2: 64 x int32 + sp + node; MBVH4: 1 + 3x21 entries), "
-                  "bitstack %zu B (node + 64-bit word): %.0fx smaller\n",
-                  state_bytes_per_ray(Layout::mbvh2, Traversal::stack), state_bytes_per_ray(Layout::mbvh2, Traversal::bitstack),
-                  double(state_bytes_per_ray(Layout::mbvh2, Traversal::stack)) / double(state_bytes_per_ray(Layout::mbvh2, Traversal::bitstack)));
+      const double bit = double(state_bytes_per_ray(Layout::mbvh4, Traversal::bitstack));
+      std::printf("\ntraversal state per ray: stack %zu B (64 x int32 + sp + node; MBVH4: 1 + 3x21 entries), ordered "
+                  "stack %zu B (64 x (node, distance)), bitstack %.0f B (node + 64-bit word): %.0fx and %.0fx smaller\n",
+                  state_bytes_per_ray(Layout::mbvh4, Traversal::stack), state_bytes_per_ray(Layout::mbvh4, Traversal::stack_ordered),
+                  bit, double(state_bytes_per_ray(Layout::mbvh4, Traversal::stack)) / bit,
+                  double(state_bytes_per_ray(Layout::mbvh4, Traversal::stack_ordered)) / bit);
       if (!bn_json.empty()) {
         std::ofstream f(bn_json);
         f << rep.json() << "\n";
