@@ -53,6 +53,9 @@ struct BackendInfo {
   std::string summary;
   BackendFactory make;        ///< empty when the backend is not built into this binary
   std::string unavailable;    ///< why it is not built (when `make` is empty)
+  /// If set and it returns a reason, this machine lacks the hardware the backend needs (e.g.
+  /// AVX-512): tests skip it and say why. Any other failure to start is an error.
+  std::function<std::string()> missing_hardware;
 };
 
 /// Adds a backend to the registry (a later registration of the same name replaces it).

@@ -14,24 +14,13 @@
 #include "host/random.h"
 #include "host/rays.h"
 #include "host/stress.h"
+#include "tests/backends.h"
 
 using namespace mbvh;
 
 namespace {
 
-// Every backend built into this binary; one that is built but cannot start fails the test.
-VariantGrid all_backends() {
-  VariantGrid g;
-  g.backends.clear();
-  for (const BackendInfo& b : list_backends())
-    if (b.make) {
-      INFO("backend " << b.name);
-      REQUIRE_NOTHROW(make_backend(b.name));
-      g.backends.push_back(b.name);
-    }
-  REQUIRE(!g.backends.empty());
-  return g;
-}
+using mbvh_test::all_backends;
 
 const char* const kClosed[] = {"gen:sphere:96", "gen:torus:64", "gen:grid:12", "gen:cube:16"};
 const char* const kOpen[] = {"gen:plane:32", "gen:needles:20000", "gen:soup:20000"};

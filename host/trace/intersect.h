@@ -2,6 +2,10 @@
 // (TRAVERSAL.md §4.1), the conservative NaN-safe slab test (Ize, "Robust BVH Ray Traversal",
 // JCGT 2013; §6) and the watertight ray/triangle test (Woop, Benthin & Wald, JCGT 2013; §7).
 // Compiled with -ffp-contract=off: the operation order here is the one every backend repeats.
+//
+// The functions live in an inline namespace named by MBVH_ISA_NS (default `ref`): a backend
+// that compiles these kernels again with other -m flags (backends/cpu, per ISA) defines its own
+// name, so inline code built for AVX-512 can never be merged into the portable reference.
 #pragma once
 #include <cmath>
 #include <cstdint>
@@ -24,6 +28,11 @@ struct RayPre {
   int kx, ky, kz;
   float sx, sy, sz;
 };
+
+#ifndef MBVH_ISA_NS
+#define MBVH_ISA_NS ref
+#endif
+inline namespace MBVH_ISA_NS {
 
 /// False for an invalid ray (NaN anywhere, infinite origin/direction/tmin, zero or subnormal
 /// direction, tmin < 0, tmin > tmax): such a ray is a defined miss. tmax may be +inf.
@@ -146,4 +155,5 @@ inline std::uint32_t tri_prim(const Tri& t) {
 
 inline Hit miss_hit() { return Hit{INFINITY, 0.0f, 0.0f, MBVH_MISS_PRIM}; }
 
+}  // namespace MBVH_ISA_NS
 }  // namespace mbvh

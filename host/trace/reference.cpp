@@ -5,6 +5,7 @@
 
 #include "host/error.h"
 #include "host/parallel.h"
+#include "host/trace/batch.h"
 #include "host/trace/trace.h"
 
 namespace mbvh {
@@ -56,59 +57,6 @@ bool ray_valid(const Ray& ray) {
   return prepare_ray(ray, p);
 }
 
-namespace {
-
-TraceView view_of(const Accel& acc, Layout layout) {
-  TraceView v;
-  if (layout == Layout::mbvh2) {
-    v.n2 = acc.mbvh2().nodes.data();
-    v.nodes = acc.mbvh2().nodes.size();
-  } else {
-    v.n4 = acc.mbvh4().nodes.data();
-    v.nodes = acc.mbvh4().nodes.size();
-  }
-  v.leaf_count = acc.leaves().size();
-  v.leaves = acc.leaves().data();
-  v.tris = acc.tris().data();
-  return v;
-}
-
-template <bool Any, class St>
-Hit dispatch(const TraceView& v, const RayPre& r, Layout l, Traversal t, St& st) {
-  if (l == Layout::mbvh2)
-    return t == Traversal::stack ? trace_mbvh2_stack<Any>(v, r, st) : trace_mbvh2_bitstack<Any>(v, r, st);
-  switch (t) {
-    case Traversal::stack: return trace_mbvh4_stack<Any>(v, r, st);
-    case Traversal::bitstack: return trace_mbvh4_bitstack<Any>(v, r, st);
-    case Traversal::stack_ordered: return trace_mbvh4_stack_ordered<Any>(v, r, st);
-    case Traversal::bitstack_retest: return trace_mbvh4_bitstack_retest<Any>(v, r, st);
-  }
-  return miss_hit();
-}
-
-template <bool Any, bool Stats>
-void run_batch(const TraceView& v, std::span<const Ray> rays, std::size_t b, std::size_t e, const TraceOptions& opt,
-               TraceOutput& out, std::size_t& invalid) {
-  for (std::size_t i = b; i < e; ++i) {
-    RayPre r;
-    Hit h = miss_hit();
-    if (!prepare_ray(rays[i], r)) {
-      ++invalid;
-    } else if constexpr (Stats) {
-      CountStats st;
-      h = dispatch<Any>(v, r, opt.layout, opt.traversal, st);
-      out.stats[i] = st.s;
-    } else {
-      NoStats st;
-      h = dispatch<Any>(v, r, opt.layout, opt.traversal, st);
-    }
-    if constexpr (Any) out.occluded[i] = h.prim != MBVH_MISS_PRIM ? 1 : 0;
-    else out.hits[i] = h;
-  }
-}
-
-}  // namespace
-
 static void require_supported(const TraceOptions& opt) {
   if (!reference_supports(opt.layout, opt.traversal))
     throw Error(std::string("traversal '") + to_string(opt.traversal) + "' is not defined for layout " + to_string(opt.layout) +
@@ -120,42 +68,23 @@ Hit trace_one(const Accel& acc, const Ray& ray, const TraceOptions& opt, RayStat
   require_supported(opt);
   RayPre r;
   if (!prepare_ray(ray, r)) return miss_hit();
-  const TraceView v = view_of(acc, opt.layout);
+  const TraceView v = trace_view(acc, opt.layout);
   const bool any = opt.query == Query::any;
   if (stats || leaf_log) {
     CountStats st;
     st.leaf_log = leaf_log;
-    const Hit h = any ? dispatch<true>(v, r, opt.layout, opt.traversal, st) : dispatch<false>(v, r, opt.layout, opt.traversal, st);
+    const Hit h = any ? dispatch<true, ScalarBox4>(v, r, opt.layout, opt.traversal, st) : dispatch<false, ScalarBox4>(v, r, opt.layout, opt.traversal, st);
     if (stats) *stats = st.s;
     return h;
   }
   NoStats st;
-  return any ? dispatch<true>(v, r, opt.layout, opt.traversal, st) : dispatch<false>(v, r, opt.layout, opt.traversal, st);
+  return any ? dispatch<true, ScalarBox4>(v, r, opt.layout, opt.traversal, st) : dispatch<false, ScalarBox4>(v, r, opt.layout, opt.traversal, st);
 }
 
 void trace_reference(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out,
                      unsigned threads, const std::function<void(std::size_t)>& progress) {
   require_supported(opt);
-  const TraceView v = view_of(acc, opt.layout);
-  const bool any = opt.query == Query::any;
-  out.hits.assign(any ? 0 : rays.size(), miss_hit());
-  out.occluded.assign(any ? rays.size() : 0, 0);
-  out.stats.assign(opt.stats ? rays.size() : 0, RayStats{});
-  std::atomic<std::size_t> invalid{0}, done{0};
-  parallel_for(rays.size(), 2048, threads, [&](std::size_t b, std::size_t e, unsigned worker) {
-    std::size_t inv = 0;
-    if (any) {
-      if (opt.stats) run_batch<true, true>(v, rays, b, e, opt, out, inv);
-      else run_batch<true, false>(v, rays, b, e, opt, out, inv);
-    } else {
-      if (opt.stats) run_batch<false, true>(v, rays, b, e, opt, out, inv);
-      else run_batch<false, false>(v, rays, b, e, opt, out, inv);
-    }
-    invalid += inv;
-    const std::size_t d = done += e - b;
-    if (progress && worker == 0) progress(d);
-  });
-  out.invalid = invalid;
+  trace_parallel<ScalarBox4>(acc, rays, opt, out, threads, progress);
 }
 
 Hit brute_force(const Accel& acc, const Ray& ray) {

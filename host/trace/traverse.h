@@ -23,6 +23,17 @@ struct RayStats {
   std::uint32_t max_depth = 0;  ///< peak stack entries (stack) or bitstack levels (bitstack)
 };
 
+/// What a traversal reads: one layout's nodes plus the shared leaves and triangles.
+struct TraceView {
+  const Node2* n2 = nullptr;
+  const Node4* n4 = nullptr;
+  const Leaf* leaves = nullptr;
+  const Tri* tris = nullptr;
+  std::size_t nodes = 0, leaf_count = 0;  ///< sizes, for the termination guard
+};
+
+inline namespace MBVH_ISA_NS {
+
 struct NoStats {
   static constexpr bool on = false;
   void node(unsigned) {}
@@ -43,15 +54,6 @@ struct CountStats {
   void climb() { ++s.climbs; }
   void retest() { ++s.retests; }
   void depth(unsigned d) { if (d > s.max_depth) s.max_depth = d; }
-};
-
-/// What a traversal reads: one layout's nodes plus the shared leaves and triangles.
-struct TraceView {
-  const Node2* n2 = nullptr;
-  const Node4* n4 = nullptr;
-  const Leaf* leaves = nullptr;
-  const Tri* tris = nullptr;
-  std::size_t nodes = 0, leaf_count = 0;  ///< sizes, for the termination guard
 };
 
 /// Termination guard of checked builds (Debug and sanitizer builds define
@@ -116,10 +118,10 @@ inline unsigned test4_boxes(const Node4& n, const RayPre& r, float tcull, float 
   return mask;
 }
 
-template <class St>
+template <class B4, class St>
 inline unsigned test4(const Node4& n, const RayPre& r, float tcull, float d[4], St& st) {
   st.node(4);
-  return test4_boxes(n, r, tcull, d);
+  return B4::test(n, r, tcull, d);
 }
 
 // MBVH2 child entered first: any hit takes child 0 if hit; closest hit the nearer of two hit
@@ -147,6 +149,13 @@ inline std::uint64_t skip_code(unsigned mask, int i) {  // rot(mask, i), TRAVERS
 }
 
 }  // namespace detail
+
+/// The MBVH4 four-box test as a policy: the reference tests the boxes one by one; SIMD backends
+/// pass a policy that tests all four slabs at once with the same operations in the same order
+/// (so every answer is bit-identical) and reuse these traversals unchanged.
+struct ScalarBox4 {
+  static unsigned test(const Node4& n, const RayPre& r, float tcull, float d[4]) { return detail::test4_boxes(n, r, tcull, d); }
+};
 
 /// MBVH2, stack-based (Aila–Laine order without postponed leaves): nearest child first, the far
 /// child pushed when both are hit.
@@ -230,7 +239,7 @@ inline Hit trace_mbvh2_bitstack(const TraceView& v, const RayPre& r, St& st) {
 
 /// MBVH4, stack-based twin of the skip-code traversal (TRAVERSAL.md §4.5): enter the nearest
 /// hit child, push the other hit children in reverse cyclic order so they pop in cyclic order.
-template <bool Any, class St>
+template <bool Any, class St, class B4 = ScalarBox4>
 inline Hit trace_mbvh4_stack(const TraceView& v, const RayPre& r, St& st) {
   Hit best = miss_hit();
   float tmax = r.tmax;
@@ -243,7 +252,7 @@ inline Hit trace_mbvh4_stack(const TraceView& v, const RayPre& r, St& st) {
     if (cur >= 0) {
       const Node4& n = v.n4[cur];
       float d[4];
-      const unsigned m = detail::test4(n, r, tmax * kCullSlack, d, st);
+      const unsigned m = detail::test4<B4>(n, r, tmax * kCullSlack, d, st);
       if (m) {
         const int i = detail::first_slot4<Any>(m, d);
         guard.room(sp, 3, MBVH_STACK4_ENTRIES);
@@ -266,7 +275,7 @@ inline Hit trace_mbvh4_stack(const TraceView& v, const RayPre& r, St& st) {
 /// MBVH4 bitstack with skip codes (TRAVERSAL.md §4.3): 3 bits per level, the code of a level
 /// marks which cyclic siblings of the current node are pending; siblings come from registers
 /// filled on descent, or from the record climbed to.
-template <bool Any, class St>
+template <bool Any, class St, class B4 = ScalarBox4>
 inline Hit trace_mbvh4_bitstack(const TraceView& v, const RayPre& r, St& st) {
   Hit best = miss_hit();
   float tmax = r.tmax;
@@ -280,7 +289,7 @@ inline Hit trace_mbvh4_bitstack(const TraceView& v, const RayPre& r, St& st) {
     if (cur >= 0) {
       const Node4& n = v.n4[cur];
       float d[4];
-      const unsigned m = detail::test4(n, r, tmax * kCullSlack, d, st);
+      const unsigned m = detail::test4<B4>(n, r, tmax * kCullSlack, d, st);
       if (m) {
         const int i = detail::first_slot4<Any>(m, d);
         bits = (bits << 3) | detail::skip_code(m, i);  // push
@@ -336,7 +345,7 @@ inline int nearest_slot4(unsigned mask, const float d[4]) {
 /// MBVH4, Embree-like ordered stack (TRAVERSAL.md §4.5, variant B's twin): hit children pushed
 /// with their entry distances, the nearest on top (1 hit: no push; 2 hits: push the farther;
 /// 3-4: push all and sort by (d, slot)); a popped entry beyond the current tmax * S is culled.
-template <bool Any, class St>
+template <bool Any, class St, class B4 = ScalarBox4>
 inline Hit trace_mbvh4_stack_ordered(const TraceView& v, const RayPre& r, St& st) {
   struct Entry {  // 8 bytes, as Embree's (node, distance) entries
     std::int32_t node;
@@ -353,7 +362,7 @@ inline Hit trace_mbvh4_stack_ordered(const TraceView& v, const RayPre& r, St& st
     if (cur >= 0) {
       const Node4& n = v.n4[cur];
       float d[4];
-      const unsigned m = detail::test4(n, r, tmax * kCullSlack, d, st);
+      const unsigned m = detail::test4<B4>(n, r, tmax * kCullSlack, d, st);
       if (m) {
         const int q = detail::nearest_slot4(m, d);
         const unsigned others = m & ~(1u << q);
@@ -385,7 +394,7 @@ inline Hit trace_mbvh4_stack_ordered(const TraceView& v, const RayPre& r, St& st
 /// Szirmay-Kalos 2014): the same skip codes, but each move to a sibling re-tests the parent's
 /// four boxes against the current tmax, takes the nearest pending child and drops those now
 /// beyond tmax — the visit sequence of the ordered, culling stack above.
-template <bool Any, class St>
+template <bool Any, class St, class B4 = ScalarBox4>
 inline Hit trace_mbvh4_bitstack_retest(const TraceView& v, const RayPre& r, St& st) {
   Hit best = miss_hit();
   float tmax = r.tmax;
@@ -399,7 +408,7 @@ inline Hit trace_mbvh4_bitstack_retest(const TraceView& v, const RayPre& r, St& 
     if (cur >= 0) {
       const Node4& n = v.n4[cur];
       float d[4];
-      const unsigned m = detail::test4(n, r, tmax * kCullSlack, d, st);
+      const unsigned m = detail::test4<B4>(n, r, tmax * kCullSlack, d, st);
       if (m) {
         const int i = detail::nearest_slot4(m, d);
         bits = (bits << 3) | detail::skip_code(m, i);  // push
@@ -421,7 +430,7 @@ inline Hit trace_mbvh4_bitstack_retest(const TraceView& v, const RayPre& r, St& 
         const Node4& p = v.n4[par];
         float d[4];
         st.retest();
-        const unsigned m = detail::test4_boxes(p, r, tmax * kCullSlack, d);
+        const unsigned m = B4::test(p, r, tmax * kCullSlack, d);
         unsigned pending = 0;
         for (int k = 0; k < 3; ++k)
           if ((code >> k) & 1u) pending |= 1u << ((slot + 1 + k) & 3);
@@ -447,4 +456,5 @@ inline Hit trace_mbvh4_bitstack_retest(const TraceView& v, const RayPre& r, St& 
   }
 }
 
+}  // namespace MBVH_ISA_NS
 }  // namespace mbvh

@@ -1,0 +1,72 @@
+// simd_backend.cpp — the `cpu` backends: `cpu-avx2` and `cpu-avx512` run the per-ISA kernels of
+// simd_kernels.cpp; `cpu` picks the best this machine has, chosen once from CPUID. Forcing an
+// ISA the machine lacks fails with a clear message.
+#include <thread>
+
+#include "backends/cpu/cpu_backends.h"
+#include "host/backend.h"
+#include "host/error.h"
+
+namespace mbvh {
+
+extern const CpuKernels cpu_kernels_avx2;
+extern const CpuKernels cpu_kernels_avx512;
+
+namespace {
+
+bool has_avx2() { return __builtin_cpu_supports("avx2"); }
+bool has_avx512() { return __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl"); }
+
+class SimdBackend final : public Backend {
+public:
+  SimdBackend(std::string name, const CpuKernels& k, const BackendOptions& o)
+      : name_(std::move(name)), kernels_(k), threads_(o.threads ? o.threads : std::max(1u, std::thread::hardware_concurrency())) {}
+  std::string name() const override { return name_; }
+  std::string describe() const override {
+    return name_ + ": " + kernels_.isa + " MBVH4 node tests (4 boxes at once), scalar watertight leaves, " +
+           std::to_string(threads_) + " thread(s)";
+  }
+  bool supports(Layout l, Traversal t) const override { return reference_supports(l, t); }
+  void prepare(const Accel& acc, const TraceOptions& opt) override {
+    if (opt.layout == Layout::mbvh2) acc.mbvh2();
+    else acc.mbvh4();
+  }
+  void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
+    if (!reference_supports(opt.layout, opt.traversal))
+      throw Error(name_ + ": traversal '" + to_string(opt.traversal) + "' is not defined for " + to_string(opt.layout));
+    prepare(acc, opt);
+    kernels_.trace(acc, rays, opt, out, threads_);
+  }
+
+private:
+  std::string name_;
+  const CpuKernels& kernels_;
+  unsigned threads_;
+};
+
+// Registers `name` running kernels `k` where `available()`; elsewhere it refuses to start, saying
+// `missing`, and tests skip it (missing hardware, not a failure).
+void add(const char* name, const char* summary, const CpuKernels& k, bool (*available)(), const char* missing) {
+  BackendInfo info;
+  info.name = name;
+  info.summary = summary;
+  info.make = [name, &k, available, missing](const BackendOptions& o) -> std::unique_ptr<Backend> {
+    if (!available()) throw Error(std::string("backend '") + name + "' cannot start: " + missing);
+    return std::make_unique<SimdBackend>(name, k, o);
+  };
+  info.missing_hardware = [available, missing] { return available() ? std::string() : std::string(missing); };
+  register_backend(std::move(info));
+}
+
+}  // namespace
+
+void register_cpu_simd_backends() {
+  add("cpu-avx2", "SIMD MBVH4 node tests, AVX2 build", cpu_kernels_avx2, &has_avx2, "this CPU has no AVX2");
+  add("cpu-avx512", "SIMD MBVH4 node tests, AVX-512 build", cpu_kernels_avx512, &has_avx512, "this CPU has no AVX-512F/VL");
+  const bool avx512 = has_avx512();
+  add("cpu", "SIMD MBVH4 node tests, the best ISA of this CPU (AVX-512, else AVX2)",
+      avx512 ? cpu_kernels_avx512 : cpu_kernels_avx2, avx512 ? &has_avx512 : &has_avx2,
+      "this CPU has neither AVX-512 nor AVX2 (use cpu-scalar)");
+}
+
+}  // namespace mbvh
