@@ -9,9 +9,9 @@ void register_builtin_backends() {
   register_cpu_scalar_backend();
   register_cpu_simd_backends();
   register_backend({"opencl", "16-wide MIC-style MBVH4 traversal on OpenCL (PoCL)", {},
-                    "the OpenCL backend is not implemented yet (issue: opencl backend)", {}});
+                    "the OpenCL backend is not implemented yet (issue: opencl backend)", {}, ""});
   register_backend({"vulkan", "GPU-style MBVH2 traversal in a GLSL compute shader (lavapipe)", {},
-                    "the Vulkan backend is not implemented yet (issue: vulkan backend)", {}});
+                    "the Vulkan backend is not implemented yet (issue: vulkan backend)", {}, ""});
 }
 
 }  // namespace mbvh

@@ -56,6 +56,9 @@ struct BackendInfo {
   /// If set and it returns a reason, this machine lacks the hardware the backend needs (e.g.
   /// AVX-512): tests skip it and say why. Any other failure to start is an error.
   std::function<std::string()> missing_hardware;
+  /// Set when this name is another backend under a second name (`cpu` = the best ISA build):
+  /// tests run the backend once, under its own name.
+  std::string alias_of;
 };
 
 /// Adds a backend to the registry (a later registration of the same name replaces it).

@@ -119,5 +119,8 @@ TEST_CASE("mbvh gives clear errors and non-zero exit codes", "[cli]") {
   }
   r = run_cli("devices");
   CHECK(r.code == 0);
-  CHECK_THAT(r.output, Catch::Contains("cpu-scalar") && Catch::Contains("ready"));
+  CHECK_THAT(r.output, Catch::Contains("cpu-scalar") && Catch::Contains("ready") && Catch::Contains("cpu-avx2"));
+  r = run_cli("trace gen:sphere:16 --count 1000 --backend cpu");  // the best ISA, named in the log
+  CHECK(r.code == 0);
+  CHECK_THAT(r.output, Catch::Contains("backend: cpu: avx"));
 }

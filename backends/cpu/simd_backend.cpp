@@ -46,9 +46,11 @@ private:
 
 // Registers `name` running kernels `k` where `available()`; elsewhere it refuses to start, saying
 // `missing`, and tests skip it (missing hardware, not a failure).
-void add(const char* name, const char* summary, const CpuKernels& k, bool (*available)(), const char* missing) {
+void add(const char* name, const char* summary, const CpuKernels& k, bool (*available)(), const char* missing,
+         const char* alias_of = "") {
   BackendInfo info;
   info.name = name;
+  info.alias_of = alias_of;
   info.summary = summary;
   info.make = [name, &k, available, missing](const BackendOptions& o) -> std::unique_ptr<Backend> {
     if (!available()) throw Error(std::string("backend '") + name + "' cannot start: " + missing);
@@ -66,7 +68,7 @@ void register_cpu_simd_backends() {
   const bool avx512 = has_avx512();
   add("cpu", "SIMD MBVH4 node tests, the best ISA of this CPU (AVX-512, else AVX2)",
       avx512 ? cpu_kernels_avx512 : cpu_kernels_avx2, avx512 ? &has_avx512 : &has_avx2,
-      "this CPU has neither AVX-512 nor AVX2 (use cpu-scalar)");
+      "this CPU has neither AVX-512 nor AVX2 (use cpu-scalar)", avx512 ? "cpu-avx512" : "cpu-avx2");
 }
 
 }  // namespace mbvh

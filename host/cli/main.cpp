@@ -387,7 +387,8 @@ int main(int argc, char** argv) {
         }
         try {
           auto be = b.make(BackendOptions{});
-          std::printf("%-12s ready: %s\n", b.name.c_str(), be->describe().c_str());
+          std::printf("%-12s ready: %s%s\n", b.name.c_str(), be->describe().c_str(),
+                      b.alias_of.empty() ? "" : (" (= " + b.alias_of + ")").c_str());
         } catch (const std::exception& e) {
           std::printf("%-12s cannot start: %s\n", b.name.c_str(), e.what());
         }
