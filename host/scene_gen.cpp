@@ -41,6 +41,16 @@ std::uint32_t add(Scene& s, float x, float y, float z) {
   return static_cast<std::uint32_t>(s.vertices.size() - 1);
 }
 
+// Two triangles per cell of an (n+1) x (n+1) vertex grid stored row by row from `base`.
+void add_grid_triangles(Scene& s, std::uint32_t base, std::uint32_t n) {
+  for (std::uint32_t i = 0; i < n; ++i)
+    for (std::uint32_t j = 0; j < n; ++j) {
+      const std::uint32_t a = base + i * (n + 1) + j, b = a + 1, c = a + (n + 1), d = c + 1;
+      s.triangles.push_back({a, b, d});
+      s.triangles.push_back({a, d, c});
+    }
+}
+
 // Closed UV sphere of radius 1: `seg` segments around, seg/2 rings, poles shared.
 Scene sphere(std::uint32_t seg) {
   Scene s;
@@ -83,12 +93,7 @@ Scene cube(std::uint32_t n) {
           p[(axis + 2) % 3] = g(j);
           s.vertices.push_back(p);
         }
-      for (std::uint32_t i = 0; i < n; ++i)
-        for (std::uint32_t j = 0; j < n; ++j) {
-          const std::uint32_t a = base + i * (n + 1) + j, b = a + 1, c = a + (n + 1), d = c + 1;
-          s.triangles.push_back({a, b, d});
-          s.triangles.push_back({a, d, c});
-        }
+      add_grid_triangles(s, base, n);
     }
   return s;
 }
@@ -228,12 +233,7 @@ Scene plane(std::uint32_t n) {
   for (std::uint32_t i = 0; i <= n; ++i)
     for (std::uint32_t j = 0; j <= n; ++j)
       add(s, static_cast<float>(i) / static_cast<float>(n), static_cast<float>(j) / static_cast<float>(n), 0.0f);
-  for (std::uint32_t i = 0; i < n; ++i)
-    for (std::uint32_t j = 0; j < n; ++j) {
-      const std::uint32_t a = i * (n + 1) + j, b = a + 1, c = a + (n + 1), d = c + 1;
-      s.triangles.push_back({a, c, d});
-      s.triangles.push_back({a, d, b});
-    }
+  add_grid_triangles(s, 0, n);
   return s;
 }
 
