@@ -190,6 +190,12 @@ CheckReport run_check(const Accel& acc, std::span<const Ray> rays, const CheckOp
   std::vector<std::uint8_t> brute_occ(brute.size());
   for (std::size_t i = 0; i < brute.size(); ++i) brute_occ[i] = brute[i].prim != MBVH_MISS_PRIM;
 
+  // the same for every variant: the oracle's tie rule and the float closest hits on the subset
+  const TieRule tie = sub.empty() ? TieRule{} : oracle_tie_rule(acc, rays);
+  std::vector<Hit> float_closest;
+  if (!closest_for_any.empty())
+    for (std::size_t i : sub) float_closest.push_back(closest_for_any[i]);
+
   for (const Run& r : runs) {
     const bool any = r.v.opt.query == Query::any;
     const Run* ref = any ? ref_any : ref_closest;
@@ -210,14 +216,12 @@ CheckReport run_check(const Accel& acc, std::span<const Ray> rays, const CheckOp
     }
     // against brute force, on the subset
     if (!sub.empty()) {
-      std::vector<Hit> h, float_closest;
+      std::vector<Hit> h;
       std::vector<std::uint8_t> o;
       for (std::size_t i : sub) {
         if (any) o.push_back(r.out.occluded[i]);
         else h.push_back(r.out.hits[i]);
-        if (any) float_closest.push_back(closest_for_any[i]);
       }
-      const TieRule tie = oracle_tie_rule(acc, rays);
       Comparison c = any ? compare_occlusion_arrays(o, brute_occ, brute, rays, sub, float_closest, tie)
                          : compare_hit_arrays(h, brute, sub, tie);
       c.a = label(r);

@@ -118,9 +118,9 @@ std::vector<Ray> generate_rays(const Scene& scene, const Accel& acc, const RayGe
   const Box bounds = acc.bounds();
   const Camera cam = opt.has_camera ? opt.camera : default_camera(bounds);
   if (opt.kind == RayKind::inside) {
-    const std::size_t features = opt.count / 2;
-    std::vector<Ray> r = feature_rays(scene, inside_point(scene), features, 0, opt.seed);
-    const std::vector<Ray> rest = feature_rays(scene, inside_point(scene), 0, opt.count - std::min(opt.count, r.size()), opt.seed);
+    const Vec3f inside = inside_point(scene);
+    std::vector<Ray> r = feature_rays(scene, inside, opt.count / 2, 0, opt.seed);
+    const std::vector<Ray> rest = feature_rays(scene, inside, 0, opt.count - std::min(opt.count, r.size()), opt.seed);
     r.insert(r.end(), rest.begin(), rest.end());
     return r;
   }
