@@ -2,16 +2,24 @@
 // not, with the reason, so `--backend NAME` can say why it cannot start.
 #include "backends/cpu/cpu_backends.h"
 #include "host/backend.h"
+#ifdef MBVH_HAVE_OPENCL
+#include "backends/opencl/opencl_backends.h"
+#endif
 
 namespace mbvh {
 
 void register_builtin_backends() {
   register_cpu_scalar_backend();
   register_cpu_simd_backends();
+#ifdef MBVH_HAVE_OPENCL
+  register_opencl_backends();
+#else
   register_backend({"opencl", "16-wide MIC-style MBVH4 traversal on OpenCL (PoCL)", {},
-                    "the OpenCL backend is not implemented yet (issue: opencl backend)", {}, ""});
+                    "this build has no OpenCL backend (configure with -DMBVH_OPENCL=ON and the OpenCL headers and ICD "
+                    "loader installed)", {}, "", {}});
+#endif
   register_backend({"vulkan", "GPU-style MBVH2 traversal in a GLSL compute shader (lavapipe)", {},
-                    "the Vulkan backend is not implemented yet (issue: vulkan backend)", {}, ""});
+                    "the Vulkan backend is not implemented yet (issue: vulkan backend)", {}, "", {}});
 }
 
 }  // namespace mbvh

@@ -66,6 +66,11 @@ struct Mbvh4 {
   LayoutStats stats;
 };
 
+/// The MBVH4 layout's 16-wide view (mbvh_layout.h, Node4W): same topology and references.
+struct Mbvh4Wide {
+  std::vector<Node4W> nodes;
+};
+
 /// An acceleration structure. Build once with Accel::build; layouts are made on first use
 /// (thread-safe) and kept.
 class Accel {
@@ -77,6 +82,7 @@ public:
   const Bvh2& bvh2() const { return bvh2_; }
   const Mbvh2& mbvh2() const;   ///< MBVH2 layout (Aila–Laine nodes with links), made on first use
   const Mbvh4& mbvh4() const;   ///< MBVH4 layout (depth-aware SAH-guided collapse), made on first use
+  const Mbvh4Wide& mbvh4_wide() const;  ///< its 16-wide view (OpenCL, TRAVERSAL.md §8), made on first use
   const std::vector<Tri>& tris() const { return tris_; }
   const std::vector<Leaf>& leaves() const { return leaves_; }
   const Box& bounds() const { return bounds_; }
@@ -96,14 +102,17 @@ private:
   std::size_t scene_triangles_ = 0;
   LayoutStats binary_stats_;
   std::uint64_t hash_ = 0;
-  mutable std::once_flag once2_, once4_;
+  mutable std::once_flag once2_, once4_, once4w_;
   mutable Mbvh2 mbvh2_;
   mutable Mbvh4 mbvh4_;
+  mutable Mbvh4Wide mbvh4w_;
 };
 
 /// Collapses a binary BVH into the layouts (host/build/collapse.cpp).
 Mbvh2 make_mbvh2(const Bvh2& bvh, const std::vector<Leaf>& leaves);
 Mbvh4 make_mbvh4(const Bvh2& bvh, const std::vector<Leaf>& leaves);
+/// Rewrites the MBVH4 SoA records as the 16-wide view (a permutation of each record's words).
+Mbvh4Wide make_mbvh4_wide(const Mbvh4& m);
 
 /// Structural checks of a layout: every reference in range, every inner node referenced once by
 /// a node of smaller index (so descent always terminates), every leaf once, parent and sibling

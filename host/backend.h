@@ -15,7 +15,8 @@ namespace mbvh {
 
 struct BackendOptions {
   unsigned threads = 0;     ///< CPU workers (0 = every hardware thread)
-  std::string device;       ///< device selector for GPU/OpenCL backends ("" = the backend's choice)
+  std::string cl_device;    ///< OpenCL device selector, `--cl-device` ("" = the backend's choice, printed)
+  std::string vk_device;    ///< Vulkan device selector, `--vk-device` ("" = the backend's choice, printed)
 };
 
 class Backend {
@@ -59,6 +60,8 @@ struct BackendInfo {
   /// Set when this name is another backend under a second name (`cpu` = the best ISA build):
   /// tests run the backend once, under its own name.
   std::string alias_of;
+  /// If set, lists the devices this backend can run on (one line each; `mbvh devices`).
+  std::function<std::vector<std::string>()> devices;
 };
 
 /// Adds a backend to the registry (a later registration of the same name replaces it).

@@ -109,7 +109,7 @@ BenchReport run_bench(const Scene& scene, const Accel& acc, const BenchOptions& 
   char hash[32];
   std::snprintf(hash, sizeof hash, "%016llx", static_cast<unsigned long long>(acc.hash()));
   rep.bvh_hash = hash;
-  BackendOptions bo;
+  BackendOptions bo = opt.backend;
   bo.threads = opt.threads;
   std::map<std::string, std::unique_ptr<Backend>> backends;
   for (const auto& n : opt.grid.backends) backends[n] = make_backend(n, bo);

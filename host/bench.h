@@ -20,6 +20,7 @@ struct BenchOptions {
   std::uint64_t seed = 1;
   unsigned passes = 5;
   unsigned threads = 0;
+  BackendOptions backend;  ///< device choices (threads come from `threads`)
 };
 
 struct BenchRecord {

@@ -127,7 +127,7 @@ CheckReport run_check(const Accel& acc, std::span<const Ray> rays, const CheckOp
   CheckReport rep;
   rep.rays = rays.size();
   for (const Ray& r : rays) rep.invalid += ray_valid(r) ? 0 : 1;
-  BackendOptions bo;
+  BackendOptions bo = opt.backend;
   bo.threads = opt.threads;
   std::map<std::string, std::unique_ptr<Backend>> backends;
   for (const auto& name : opt.grid.backends) backends[name] = make_backend(name, bo);

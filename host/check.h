@@ -18,6 +18,7 @@ struct CheckOptions {
   VariantGrid grid;
   std::size_t brute_rays = 2000;  ///< rays spread over the batch checked by brute force (SIZE_MAX: all)
   unsigned threads = 0;
+  BackendOptions backend;  ///< device choices (threads come from `threads`)
 };
 
 struct CheckVariant {

@@ -95,6 +95,16 @@ typedef struct Node4 {
   mbvh_int sib[3];
 } Node4;
 
+/* MBVH4 node, 128 bytes, 16-wide view (TRAVERSAL.md §2.4, §8): the SoA record's content as two
+ * 64-byte halves of four rows, one row per child slot s, references as int32 bits in the w
+ * lanes, so one 16-lane operation tests the four children's x, y and z slabs at once.
+ *   lo[s] = (child s lo.x, lo.y, lo.z, child[s])
+ *   hi[s] = (child s hi.x, hi.y, hi.z, link[s]),  link = (parent, sib[0], sib[1], sib[2]) */
+typedef struct Node4W {
+  mbvh_float lo[4][4];
+  mbvh_float hi[4][4];
+} Node4W;
+
 MBVH_NS_END
 #endif /* !GL_core_profile */
 
@@ -105,6 +115,7 @@ static_assert(sizeof(mbvh::Tri) == 48, "triangle is three 16-byte rows");
 static_assert(sizeof(mbvh::Leaf) == 8, "leaf is (first, count)");
 static_assert(sizeof(mbvh::Node2) == 64, "MBVH2 node is 64 bytes (Aila-Laine)");
 static_assert(sizeof(mbvh::Node4) == 128, "MBVH4 node is 128 bytes");
+static_assert(sizeof(mbvh::Node4W) == 128, "MBVH4 16-wide node is 128 bytes");
 static_assert(offsetof(mbvh::Node2, link) == 48, "MBVH2 links in the 4th row");
 static_assert(offsetof(mbvh::Node4, child) == 96, "MBVH4 children at byte 96");
 static_assert(offsetof(mbvh::Node4, parent) == 112, "MBVH4 parent at byte 112");

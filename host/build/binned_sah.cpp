@@ -374,4 +374,9 @@ const Mbvh4& Accel::mbvh4() const {
   return mbvh4_;
 }
 
+const Mbvh4Wide& Accel::mbvh4_wide() const {
+  std::call_once(once4w_, [this] { mbvh4w_ = make_mbvh4_wide(mbvh4()); });
+  return mbvh4w_;
+}
+
 }  // namespace mbvh

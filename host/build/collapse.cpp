@@ -2,6 +2,7 @@
 // sibling links the stackless bitstack traversal needs (Áfra & Szirmay-Kalos, "Stackless
 // Multi-BVH Traversal for CPU, MIC and GPU Ray Tracing", CGF 2014; TRAVERSAL.md §2).
 #include <algorithm>
+#include <cstring>
 #include <chrono>
 
 #include "host/accel.h"
@@ -198,6 +199,27 @@ void validate_layout(const Mbvh2& m, std::size_t leaf_count) {
     }
   for (std::size_t i = 1; i < n; ++i)
     if (!seen[i]) corrupt("MBVH2", i, "unreachable");
+}
+
+Mbvh4Wide make_mbvh4_wide(const Mbvh4& m) {
+  Mbvh4Wide w;
+  w.nodes.resize(m.nodes.size());
+  for (std::size_t i = 0; i < m.nodes.size(); ++i) {
+    const Node4& n = m.nodes[i];
+    Node4W& o = w.nodes[i];
+    const std::int32_t link[4] = {n.parent, n.sib[0], n.sib[1], n.sib[2]};
+    for (int s = 0; s < 4; ++s) {
+      o.lo[s][0] = n.lo_x[s];
+      o.lo[s][1] = n.lo_y[s];
+      o.lo[s][2] = n.lo_z[s];
+      std::memcpy(&o.lo[s][3], &n.child[s], 4);
+      o.hi[s][0] = n.hi_x[s];
+      o.hi[s][1] = n.hi_y[s];
+      o.hi[s][2] = n.hi_z[s];
+      std::memcpy(&o.hi[s][3], &link[s], 4);
+    }
+  }
+  return w;
 }
 
 void validate_layout(const Mbvh4& m, std::size_t leaf_count) {

@@ -80,8 +80,26 @@ Loaded load_and_build(const SceneArgs& a, bool verbose = true) {
   return l;
 }
 
+// --cl-device, --vk-device: which device the OpenCL and Vulkan backends use.
+struct DeviceArgs {
+  std::string cl_device, vk_device;
+  void add(CLI::App* c) {
+    c->add_option("--cl-device", cl_device,
+                  "OpenCL device: P:D (platform:device), N (index) or part of its name (see `mbvh devices`)");
+    c->add_option("--vk-device", vk_device, "Vulkan device: index or part of its name (see `mbvh devices`)");
+  }
+  BackendOptions options(unsigned threads) const {
+    BackendOptions o;
+    o.threads = threads;
+    o.cl_device = cl_device;
+    o.vk_device = vk_device;
+    return o;
+  }
+};
+
 // --backend, --layout, --traversal, --query as comma-separated lists (check and bench).
 struct GridArgs {
+  DeviceArgs dev;
   std::string backends = "cpu-scalar", layouts = "mbvh2,mbvh4", traversals = "stack,bitstack,stack-ordered,bitstack-retest",
               queries = "closest,any";
   void add(CLI::App* c) {
@@ -90,6 +108,7 @@ struct GridArgs {
     c->add_option("--traversal", traversals,
                   "comma-separated traversals: stack, bitstack, stack-ordered, bitstack-retest (MBVH4 only)");
     c->add_option("--query", queries, "comma-separated queries: closest, any");
+    dev.add(c);
   }
   VariantGrid parse() const {
     VariantGrid g;
@@ -97,7 +116,7 @@ struct GridArgs {
     g.layouts = parse_list<Layout>(layouts, parse_layout);
     g.traversals = parse_list<Traversal>(traversals, parse_traversal);
     g.queries = parse_list<Query>(queries, parse_query);
-    for (const auto& b : g.backends) make_backend(b);  // fail early, naming the backend
+    for (const auto& b : g.backends) make_backend(b, dev.options(0));  // fail early, naming the backend
     return g;
   }
 };
@@ -222,6 +241,8 @@ int main(int argc, char** argv) {
   trace->add_option("--query", tr_query, "closest (writes hits, 16 B/ray) or any (writes occlusion, 1 B/ray)");
   trace->add_option("-o,--output", tr_out, "output file");
   trace->add_flag("--stats", tr_stats, "also count work per ray (slower)");
+  DeviceArgs tr_dev;
+  tr_dev.add(trace);
 
   // -- check
   SceneArgs ck_a;
@@ -252,7 +273,9 @@ int main(int argc, char** argv) {
   bench->add_option("--json", bn_json, "write the records as JSON");
 
   // -- devices
-  auto* devices = app.add_subcommand("devices", "list the backends of this build and whether they can start");
+  auto* devices = app.add_subcommand("devices", "list the backends of this build, their devices and whether they can start");
+  DeviceArgs dv_dev;
+  dv_dev.add(devices);
 
   CLI11_PARSE(app, argc, argv);
   try {
@@ -273,8 +296,7 @@ int main(int argc, char** argv) {
       o.traversal = parse_traversal(tr_trav);
       o.query = parse_query(tr_query);
       o.stats = tr_stats;
-      BackendOptions bo;
-      bo.threads = tr_a.threads;
+      BackendOptions bo = tr_dev.options(tr_a.threads);
       auto backend = make_backend(tr_backend, bo);
       if (!backend->supports(o.layout, o.traversal))
         throw Error("backend '" + tr_backend + "' does not support " + tr_layout + "/" + tr_trav);
@@ -325,6 +347,7 @@ int main(int argc, char** argv) {
       CheckOptions co;
       co.grid = ck_g.parse();
       co.threads = ck_a.threads;
+      co.backend = ck_g.dev.options(ck_a.threads);
       co.brute_rays = ck_brute == "all" ? SIZE_MAX : std::stoull(ck_brute);
       Loaded l = load_and_build(ck_a);
       std::vector<std::string> kinds = ck_kinds.empty() ? std::vector<std::string>{ck_r.kind} : split_list(ck_kinds);
@@ -353,6 +376,7 @@ int main(int argc, char** argv) {
       bo.seed = bn_seed;
       bo.passes = bn_passes;
       bo.threads = bn_a.threads;
+      bo.backend = bn_g.dev.options(bn_a.threads);
       Loaded l = load_and_build(bn_a);
       Progress p("benchmarking", bo.kinds.size() * bo.grid.size());
       BenchReport rep = run_bench(l.scene, *l.acc, bo, [&p](std::size_t d, std::size_t) { p.update(d); });
@@ -386,9 +410,11 @@ int main(int argc, char** argv) {
           continue;
         }
         try {
-          auto be = b.make(BackendOptions{});
+          auto be = b.make(dv_dev.options(0));
           std::printf("%-12s ready: %s%s\n", b.name.c_str(), be->describe().c_str(),
                       b.alias_of.empty() ? "" : (" (= " + b.alias_of + ")").c_str());
+          if (b.devices && b.alias_of.empty())
+            for (const std::string& d : b.devices()) std::printf("%-12s   device %s\n", "", d.c_str());
         } catch (const std::exception& e) {
           std::printf("%-12s cannot start: %s\n", b.name.c_str(), e.what());
         }

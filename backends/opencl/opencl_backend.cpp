@@ -1,0 +1,262 @@
+// opencl_backend.cpp — the `opencl` backends: the 16-wide MIC path of TRAVERSAL.md §8 (MBVH4,
+// skip-code bitstack and its stack twin; Áfra & Szirmay-Kalos 2014) and the GPU-style MBVH2
+// traversal, as OpenCL C kernels (shaders/trace.cl, embedded at build time) on any OpenCL device;
+// PoCL here. `opencl-wide` tests a node's four children with one 16-lane operation,
+// `opencl-lane` with four scalar slab tests per work-item (the ray-per-lane mapping); `opencl` is
+// the faster of the two on this machine (README).
+//
+// Per build, the layout is uploaded once and reused across calls; rays go through in batches
+// that fit the device's CL_DEVICE_MAX_MEM_ALLOC_SIZE; programs are built on first use per
+// (statistics on/off, node test) and kept.
+#include <algorithm>
+#include <cstdio>
+#include <cstring>
+#include <map>
+#include <mutex>
+
+#include "backends/opencl/cl_runtime.h"
+#include "backends/opencl/opencl_backends.h"
+#include "host/backend.h"
+#include "host/error.h"
+#include "trace_cl.h"  // kTraceCl: shaders/trace.cl with mbvh_layout.h inlined (cmake/embed_cl.cmake)
+
+namespace mbvh {
+namespace {
+
+using cl::Buffer;
+using cl::check;
+
+constexpr std::size_t kLocalSize = 64;
+constexpr std::size_t kMaxBatch = std::size_t(1) << 21;  // rays per dispatch (64 MiB of rays)
+
+std::string mib(std::size_t bytes) {
+  char b[32];
+  std::snprintf(b, sizeof b, "%.1f MiB", double(bytes) / (1024.0 * 1024.0));
+  return b;
+}
+
+class OpenClBackend final : public Backend {
+public:
+  OpenClBackend(std::string name, bool wide, const BackendOptions& o) : name_(std::move(name)), wide_(wide) {
+    const std::vector<cl::DeviceEntry> devices = cl::list_devices();
+    dev_ = cl::choose_device(devices, o.cl_device);
+    std::fprintf(stderr, "%s: OpenCL device %s%s\n", name_.c_str(), dev_.describe().c_str(),
+                 o.cl_device.empty() && devices.size() > 1
+                     ? (" (chosen from " + std::to_string(devices.size()) + " devices; pick one with --cl-device)").c_str()
+                     : "");
+    // exactness needs correctly rounded float division and double for the watertight fallback
+    if (!(cl::device_value<cl_device_fp_config>(dev_.device, CL_DEVICE_SINGLE_FP_CONFIG) &
+          CL_FP_CORRECTLY_ROUNDED_DIVIDE_SQRT))
+      throw Error("OpenCL device " + dev_.device_name +
+                  " lacks correctly rounded float division (CL_FP_CORRECTLY_ROUNDED_DIVIDE_SQRT), which bit-exact "
+                  "answers need (TRAVERSAL.md §10.2)");
+    if (cl::device_value<cl_device_fp_config>(dev_.device, CL_DEVICE_DOUBLE_FP_CONFIG) == 0)
+      throw Error("OpenCL device " + dev_.device_name +
+                  " has no double precision (cl_khr_fp64), which the watertight test's exact fallback needs");
+    max_alloc_ = cl::device_value<cl_ulong>(dev_.device, CL_DEVICE_MAX_MEM_ALLOC_SIZE);
+    cl_int err = CL_SUCCESS;
+    ctx_ = cl::Context(clCreateContext(nullptr, 1, &dev_.device, nullptr, nullptr, &err));
+    check(err, "clCreateContext");
+    queue_ = cl::Queue(clCreateCommandQueue(ctx_.get(), dev_.device, 0, &err));
+    check(err, "clCreateCommandQueue");
+  }
+
+  std::string name() const override { return name_; }
+  std::string describe() const override {
+    return name_ + ": " + (wide_ ? "16-wide MBVH4 node test" : "ray-per-lane scalar MBVH4 node test") +
+           ", MBVH2 GPU-style; OpenCL device " + dev_.describe();
+  }
+  bool supports(Layout, Traversal t) const override { return t == Traversal::stack || t == Traversal::bitstack; }
+
+  void prepare(const Accel& acc, const TraceOptions& opt) override {
+    program(opt.stats);
+    if (&acc != acc_ || acc.hash() != hash_) {
+      n2_.reset();
+      n4_.reset();
+      leaves_ = upload("the leaf array", acc.leaves().data(), acc.leaves().size() * sizeof(Leaf));
+      tris_ = upload("the triangle array", acc.tris().data(), acc.tris().size() * sizeof(Tri));
+      acc_ = &acc;
+      hash_ = acc.hash();
+    }
+    if (opt.layout == Layout::mbvh2 && !n2_) {
+      const auto& n = acc.mbvh2().nodes;
+      n2_ = upload("the MBVH2 node array", n.data(), n.size() * sizeof(Node2));
+    }
+    if (opt.layout == Layout::mbvh4 && !n4_) {
+      const auto& n = acc.mbvh4_wide().nodes;
+      n4_ = upload("the MBVH4 node array", n.data(), n.size() * sizeof(Node4W));
+    }
+  }
+
+  void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
+    if (!supports(opt.layout, opt.traversal))
+      throw Error(name_ + ": traversal '" + std::string(to_string(opt.traversal)) + "' is not implemented (stack and bitstack are)");
+    prepare(acc, opt);
+    const bool any = opt.query == Query::any;
+    out.hits.assign(any ? 0 : rays.size(), Hit{});
+    out.occluded.assign(any ? rays.size() : 0, 0);
+    out.stats.assign(opt.stats ? rays.size() : 0, RayStats{});
+    out.invalid = 0;
+    if (rays.empty()) return;
+
+    const std::string kname = std::string(to_string(opt.layout)) + "_" + to_string(opt.traversal) + "_" + to_string(opt.query);
+    cl_kernel k = kernel(opt.stats, kname);
+    const std::size_t batch = std::min(rays.size(), max_batch());
+    ensure_batch_buffers(batch, opt.stats);
+    const cl_uint zero[2] = {0, 0};
+    check(clEnqueueWriteBuffer(queue_.get(), counters_.get(), CL_FALSE, 0, sizeof zero, zero, 0, nullptr, nullptr),
+          "clEnqueueWriteBuffer(counters)");
+    const cl_mem nodes = opt.layout == Layout::mbvh2 ? n2_.get() : n4_.get();
+    std::vector<cl_uint> stats;
+    for (std::size_t b = 0; b < rays.size(); b += batch) {
+      const std::size_t n = std::min(batch, rays.size() - b);
+      // in-order queue: the write completes before the kernel, the kernel before the reads
+      check(clEnqueueWriteBuffer(queue_.get(), rays_.get(), CL_FALSE, 0, n * sizeof(Ray), rays.data() + b, 0, nullptr,
+                                 nullptr),
+            "clEnqueueWriteBuffer(rays)");
+      const cl_uint count = static_cast<cl_uint>(n);
+      const cl_mem args[] = {nodes, leaves_.get(), tris_.get(), rays_.get()};
+      for (cl_uint i = 0; i < 4; ++i) check(clSetKernelArg(k, i, sizeof(cl_mem), &args[i]), "clSetKernelArg");
+      check(clSetKernelArg(k, 4, sizeof count, &count), "clSetKernelArg");
+      const cl_mem outs[] = {hits_.get(), occ_.get(), stats_.get(), counters_.get()};
+      for (cl_uint i = 0; i < 4; ++i) check(clSetKernelArg(k, 5 + i, sizeof(cl_mem), &outs[i]), "clSetKernelArg");
+      const std::size_t global = (n + kLocalSize - 1) / kLocalSize * kLocalSize;  // no non-uniform groups
+      check(clEnqueueNDRangeKernel(queue_.get(), k, 1, nullptr, &global, &kLocalSize, 0, nullptr, nullptr),
+            "clEnqueueNDRangeKernel");
+      if (any)
+        check(clEnqueueReadBuffer(queue_.get(), occ_.get(), CL_FALSE, 0, n, out.occluded.data() + b, 0, nullptr, nullptr),
+              "clEnqueueReadBuffer(occluded)");
+      else
+        check(clEnqueueReadBuffer(queue_.get(), hits_.get(), CL_FALSE, 0, n * sizeof(Hit), out.hits.data() + b, 0, nullptr,
+                                  nullptr),
+              "clEnqueueReadBuffer(hits)");
+      if (opt.stats) {
+        stats.resize(8 * n);
+        check(clEnqueueReadBuffer(queue_.get(), stats_.get(), CL_TRUE, 0, stats.size() * 4, stats.data(), 0, nullptr, nullptr),
+              "clEnqueueReadBuffer(stats)");
+        for (std::size_t i = 0; i < n; ++i) {
+          const cl_uint* s = &stats[8 * i];
+          out.stats[b + i] = RayStats{s[0], s[1], s[2], s[3], s[4], s[5], s[6]};
+        }
+      }
+      // the next batch rewrites the ray buffer: wait for this one (host memory stays valid)
+      check(clFinish(queue_.get()), "clFinish");
+    }
+    cl_uint counters[2];
+    check(clEnqueueReadBuffer(queue_.get(), counters_.get(), CL_TRUE, 0, sizeof counters, counters, 0, nullptr, nullptr),
+          "clEnqueueReadBuffer(counters)");
+    out.invalid = counters[0];
+    if (counters[1] != 0)
+      throw Error(name_ + ": " + std::to_string(counters[1]) + " rays overflowed the traversal stack: the tree is deeper "
+                  "than its cap (corrupt build)");
+  }
+
+private:
+  struct Built {
+    cl::Program program;
+    std::map<std::string, cl::Kernel> kernels;
+  };
+
+  std::size_t max_batch() const {
+    return std::max<std::size_t>(kLocalSize, std::min<std::size_t>(kMaxBatch, max_alloc_ / (8 * sizeof(cl_uint))));
+  }
+
+  Buffer upload(const std::string& what, const void* data, std::size_t bytes) {
+    if (bytes > max_alloc_)
+      throw Error(name_ + ": " + what + " (" + mib(bytes) + ") exceeds CL_DEVICE_MAX_MEM_ALLOC_SIZE (" + mib(max_alloc_) +
+                  ") of " + dev_.device_name + "; use a smaller scene or another device");
+    cl_int err = CL_SUCCESS;
+    Buffer b(clCreateBuffer(ctx_.get(), CL_MEM_READ_ONLY | CL_MEM_COPY_HOST_PTR, std::max<std::size_t>(bytes, 16),
+                            bytes ? const_cast<void*>(data) : zeros_, &err));
+    check(err, ("clCreateBuffer(" + what + ", " + mib(bytes) + ")").c_str());
+    return b;
+  }
+
+  Buffer device_buffer(std::size_t bytes, cl_mem_flags flags, const char* what) {
+    cl_int err = CL_SUCCESS;
+    Buffer b(clCreateBuffer(ctx_.get(), flags, std::max<std::size_t>(bytes, 16), nullptr, &err));
+    check(err, (std::string("clCreateBuffer(") + what + ", " + mib(bytes) + ")").c_str());
+    return b;
+  }
+
+  void ensure_batch_buffers(std::size_t n, bool stats) {
+    if (n > cap_) {
+      rays_ = device_buffer(n * sizeof(Ray), CL_MEM_READ_ONLY, "rays");
+      hits_ = device_buffer(n * sizeof(Hit), CL_MEM_WRITE_ONLY, "hits");
+      occ_ = device_buffer(n, CL_MEM_WRITE_ONLY, "occluded");
+      stats_.reset();
+      cap_ = n;
+    }
+    if (!stats_ || (stats && stats_cap_ < cap_)) {
+      stats_cap_ = stats ? cap_ : 0;
+      stats_ = device_buffer(stats_cap_ * 8 * sizeof(cl_uint), CL_MEM_WRITE_ONLY, "per-ray statistics");
+    }
+    if (!counters_) counters_ = device_buffer(2 * sizeof(cl_uint), CL_MEM_READ_WRITE, "counters");
+  }
+
+  Built& program(bool stats) {
+    Built& b = built_[stats ? 1 : 0];
+    if (!b.program) {
+      const std::string options = std::string("-cl-fp32-correctly-rounded-divide-sqrt -DMBVH_STATS=") + (stats ? "1" : "0") +
+                                  " -DMBVH_WIDE=" + (wide_ ? "1" : "0");
+      b.program = cl::build_program(ctx_.get(), dev_, kTraceCl, options);
+    }
+    return b;
+  }
+
+  cl_kernel kernel(bool stats, const std::string& name) {
+    Built& b = program(stats);
+    auto it = b.kernels.find(name);
+    if (it == b.kernels.end()) {
+      cl_int err = CL_SUCCESS;
+      cl::Kernel k(clCreateKernel(b.program.get(), name.c_str(), &err));
+      check(err, ("clCreateKernel(" + name + ")").c_str());
+      it = b.kernels.emplace(name, std::move(k)).first;
+    }
+    return it->second.get();
+  }
+
+  std::string name_;
+  bool wide_;
+  cl::DeviceEntry dev_;
+  cl_ulong max_alloc_ = 0;
+  cl::Context ctx_;
+  cl::Queue queue_;
+  Built built_[2];
+  const Accel* acc_ = nullptr;
+  std::uint64_t hash_ = 0;
+  Buffer n2_, n4_, leaves_, tris_;
+  std::size_t cap_ = 0, stats_cap_ = 0;
+  Buffer rays_, hits_, occ_, stats_, counters_;
+  alignas(16) unsigned char zeros_[16] = {};
+};
+
+std::vector<std::string> device_lines() {
+  const std::vector<cl::DeviceEntry> devices = cl::list_devices();
+  const cl::DeviceEntry& chosen = cl::choose_device(devices, "");
+  std::vector<std::string> lines;
+  for (const cl::DeviceEntry& d : devices) lines.push_back(d.describe() + (&d == &chosen ? "  [default]" : ""));
+  return lines;
+}
+
+void add(const char* name, const char* summary, bool wide, const char* alias_of = "") {
+  BackendInfo info;
+  info.name = name;
+  info.summary = summary;
+  info.alias_of = alias_of;
+  info.make = [name, wide](const BackendOptions& o) -> std::unique_ptr<Backend> {
+    return std::make_unique<OpenClBackend>(name, wide, o);
+  };
+  info.devices = &device_lines;
+  register_backend(std::move(info));
+}
+
+}  // namespace
+
+void register_opencl_backends() {
+  add("opencl", "MBVH4 (16-wide MIC path) and MBVH2 on OpenCL: the faster node test here", true, "opencl-wide");
+  add("opencl-wide", "OpenCL, MBVH4 node test as one 16-lane operation (TRAVERSAL.md §8)", true);
+  add("opencl-lane", "OpenCL, MBVH4 node test as four scalar slab tests per work-item (ray per lane)", false);
+}
+
+}  // namespace mbvh

@@ -1,0 +1,10 @@
+// opencl_backends.h — the OpenCL backends' registration entry point.
+#pragma once
+#include <string>
+
+namespace mbvh {
+
+/// Registers `opencl`, `opencl-wide` and `opencl-lane` (opencl_backend.cpp).
+void register_opencl_backends();
+
+}  // namespace mbvh
