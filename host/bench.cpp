@@ -160,7 +160,10 @@ BenchReport run_bench(const Scene& scene, const Accel& acc, const BenchOptions& 
             const Comparison c = q == Query::any ? compare_occlusion_arrays(out.occluded, ref.occluded, closest.hits, rays)
                                                  : compare_hit_arrays(out.hits, ref.hits);
             r.verify_mismatches = c.mismatches;
-            // -- time
+            // -- warm up for at least 0.25 s (JIT-compiled backends such as PoCL reach their speed
+            // only after a few dispatches), then time
+            for (auto w0 = Clock::now(); std::chrono::duration<double>(Clock::now() - w0).count() < 0.25;)
+              b.trace(acc, rays, to, out);
             std::vector<double> mr;
             for (unsigned p = 0; p < passes; ++p) {
               const auto t0 = Clock::now();

@@ -26,7 +26,7 @@ namespace {
 using cl::Buffer;
 using cl::check;
 
-constexpr std::size_t kLocalSize = 64;
+constexpr std::size_t kLocalSize = 64;  // PoCL: 8 to 1024 measured within noise
 constexpr std::size_t kMaxBatch = std::size_t(1) << 21;  // rays per dispatch (64 MiB of rays)
 
 std::string mib(std::size_t bytes) {
