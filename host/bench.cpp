@@ -41,7 +41,7 @@ bool BenchReport::verified() const {
 std::string BenchReport::table() const {
   std::string s;
   char line[512];
-  std::snprintf(line, sizeof line, "%-10s %-6s %-15s %-7s %-8s %9s %15s %8s %8s %7s %7s %7s %9s\n", "backend", "layout",
+  std::snprintf(line, sizeof line, "%-12s %-6s %-15s %-7s %-8s %9s %15s %8s %8s %7s %7s %7s %9s\n", "backend", "layout",
                 "traversal", "query", "rays", "Mrays/s", "(min-max)", "vs twin", "state B", "nodes", "leaves", "tris",
                 "verified");
   s += line;
@@ -50,7 +50,7 @@ std::string BenchReport::table() const {
     if (r.ratio_vs_stack > 0) std::snprintf(ratio, sizeof ratio, "%.3fx", r.ratio_vs_stack);
     char spread[48];
     std::snprintf(spread, sizeof spread, "(%.2f-%.2f)", r.mrays_min, r.mrays_max);
-    std::snprintf(line, sizeof line, "%-10s %-6s %-15s %-7s %-8s %9.3f %15s %8s %8zu %7.1f %7.2f %7.1f %9s\n",
+    std::snprintf(line, sizeof line, "%-12s %-6s %-15s %-7s %-8s %9.3f %15s %8s %8zu %7.1f %7.2f %7.1f %9s\n",
                   r.backend.c_str(), r.layout.c_str(), r.traversal.c_str(), r.query.c_str(), r.ray_kind.c_str(),
                   r.mrays_per_s, spread, ratio, r.state_bytes_per_ray, r.nodes_per_ray, r.leaves_per_ray, r.tris_per_ray,
                   r.verify_mismatches ? "MISMATCH" : "yes");

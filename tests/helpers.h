@@ -30,10 +30,11 @@ struct RunResult {
   std::string output;  // stdout and stderr
 };
 
-/// Runs the mbvh program with `args` (a shell fragment), capturing its output.
-inline RunResult run_cli(const std::string& args) {
+/// Runs the mbvh program with `args` (a shell fragment), capturing its output; `env` (e.g.
+/// "OCL_ICD_VENDORS=/x") is set for that run only.
+inline RunResult run_cli(const std::string& args, const std::string& env = "") {
   RunResult r;
-  const std::string cmd = std::string(MBVH_CLI_PATH) + " " + args + " 2>&1";
+  const std::string cmd = (env.empty() ? "" : "env " + env + " ") + std::string(MBVH_CLI_PATH) + " " + args + " 2>&1";
   FILE* p = popen(cmd.c_str(), "r");
   if (!p) return r;
   std::array<char, 4096> buf;

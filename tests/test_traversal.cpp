@@ -154,11 +154,14 @@ TEST_CASE("invalid rays are defined misses - signed zeros and infinite tmax are 
       {0, 0, 0, -1, 1, 0, 0, inf},  {0, 0, 0, 2, 1, 0, 0, 1},      {0, 0, 0, 0, 1, 0, 0, -inf},
       {0, 0, 0, inf, 1, 0, 0, inf},
   };
+  const VariantGrid grid = mbvh_test::all_backends();
+  for (const std::string& name : grid.backends)
   for (Layout l : {Layout::mbvh2, Layout::mbvh4})
     for (Traversal t : {Traversal::stack, Traversal::bitstack})
       for (Query q : {Query::closest, Query::any}) {
+        INFO(name << "/" << to_string(l) << "/" << to_string(t) << "/" << to_string(q));
         TraceOutput out;
-        trace_reference(*acc, invalid, TraceOptions{l, t, q, false}, out, 1);
+        make_backend(name)->trace(*acc, invalid, TraceOptions{l, t, q, false}, out);
         CHECK(out.invalid == invalid.size());
         for (std::size_t i = 0; i < invalid.size(); ++i) {
           if (q == Query::any) CHECK(out.occluded[i] == 0);
@@ -172,10 +175,12 @@ TEST_CASE("invalid rays are defined misses - signed zeros and infinite tmax are 
   // axis-aligned rays with +0 and -0 components from the centre hit the cube at t = 1
   const std::vector<Ray> valid = {{0, 0, 0, 0, 1, 0, -0.0f, inf},     {0, 0, 0, 0, -0.0f, -0.0f, -1, inf},
                                   {0, 0, 0, -0.0f, 0, 1, 0, inf},     {0.5f, 0.5f, 0.5f, 0, -0.0f, 0, 1, 100}};
+  for (const std::string& name : grid.backends)
   for (Layout l : {Layout::mbvh2, Layout::mbvh4})
     for (Traversal t : {Traversal::stack, Traversal::bitstack}) {
+      INFO(name << "/" << to_string(l) << "/" << to_string(t));
       TraceOutput out;
-      trace_reference(*acc, valid, TraceOptions{l, t, Query::closest, false}, out, 1);
+      make_backend(name)->trace(*acc, valid, TraceOptions{l, t, Query::closest, false}, out);
       CHECK(out.invalid == 0);
       for (std::size_t i = 0; i < valid.size(); ++i) {
         CHECK(out.hits[i].prim != MBVH_MISS_PRIM);
@@ -224,6 +229,28 @@ TEST_CASE("statistics count work and stay out of the answers", "[traversal]") {
     }
     CHECK(climbs > 0);
     CHECK(nodes > double(rays.size()));
+  }
+
+  // every backend counts the same work as the reference, ray by ray, and reports the same state
+  const VariantGrid grid = mbvh_test::all_backends();
+  for (const std::string& name : grid.backends) {
+    auto backend = make_backend(name);
+    for (Layout l : {Layout::mbvh2, Layout::mbvh4})
+      for (Traversal t : grid.traversals)
+        for (Query q : {Query::closest, Query::any}) {
+          if (!backend->supports(l, t)) continue;
+          INFO(name << "/" << to_string(l) << "/" << to_string(t) << "/" << to_string(q));
+          const TraceOptions o{l, t, q, true};
+          TraceOutput ref, got;
+          trace_reference(*acc, rays, o, ref, 0);
+          backend->trace(*acc, rays, o, got);
+          REQUIRE(got.stats.size() == rays.size());
+          std::size_t differ = 0;
+          for (std::size_t i = 0; i < rays.size(); ++i)
+            differ += std::memcmp(&ref.stats[i], &got.stats[i], sizeof(RayStats)) != 0;
+          CHECK(differ == 0);
+          CHECK(backend->state_bytes(o) == state_bytes_per_ray(l, t));
+        }
   }
   CHECK(state_bytes_per_ray(Layout::mbvh2, Traversal::stack) == 264);
   CHECK(state_bytes_per_ray(Layout::mbvh2, Traversal::bitstack) == 12);

@@ -13,6 +13,7 @@
 #include <cstring>
 #include <map>
 #include <mutex>
+#include <set>
 
 #include "backends/opencl/cl_runtime.h"
 #include "backends/opencl/opencl_backends.h"
@@ -40,10 +41,16 @@ public:
   OpenClBackend(std::string name, bool wide, const BackendOptions& o) : name_(std::move(name)), wide_(wide) {
     const std::vector<cl::DeviceEntry> devices = cl::list_devices();
     dev_ = cl::choose_device(devices, o.cl_device);
-    std::fprintf(stderr, "%s: OpenCL device %s%s\n", name_.c_str(), dev_.describe().c_str(),
-                 o.cl_device.empty() && devices.size() > 1
-                     ? (" (chosen from " + std::to_string(devices.size()) + " devices; pick one with --cl-device)").c_str()
-                     : "");
+    {  // say which device, once per backend and device in a process
+      static std::mutex m;
+      static std::set<std::string> said;
+      const std::lock_guard<std::mutex> lock(m);
+      if (said.insert(name_ + " " + dev_.id()).second)
+        std::fprintf(stderr, "%s: OpenCL device %s%s\n", name_.c_str(), dev_.describe().c_str(),
+                     o.cl_device.empty() && devices.size() > 1
+                         ? (" (chosen from " + std::to_string(devices.size()) + " devices; pick one with --cl-device)").c_str()
+                         : "");
+    }
     // exactness needs correctly rounded float division and double for the watertight fallback
     if (!(cl::device_value<cl_device_fp_config>(dev_.device, CL_DEVICE_SINGLE_FP_CONFIG) &
           CL_FP_CORRECTLY_ROUNDED_DIVIDE_SQRT))

@@ -1,0 +1,109 @@
+// test_opencl.cpp — what the OpenCL backends promise beyond the shared equivalence tests (which
+// run them on every scene, ray kind and variant): clear errors for a kernel that does not build,
+// a missing platform and an unknown --cl-device; the device choice; rays over several batches.
+#include <catch2/catch.hpp>
+
+#include <cstring>
+
+#include "backends/opencl/cl_runtime.h"
+#include "host/backend.h"
+#include "host/error.h"
+#include "host/rays.h"
+#include "tests/helpers.h"
+
+using namespace mbvh;
+
+TEST_CASE("opencl: a kernel that does not build reports the device - options and build log", "[opencl]") {
+  const std::vector<cl::DeviceEntry> devices = cl::list_devices();
+  const cl::DeviceEntry& dev = cl::choose_device(devices, "");
+  cl_int err = CL_SUCCESS;
+  cl::Context ctx(clCreateContext(nullptr, 1, &dev.device, nullptr, nullptr, &err));
+  REQUIRE(err == CL_SUCCESS);
+  std::string msg;
+  try {
+    cl::build_program(ctx.get(), dev, "kernel void broken(global int* x) { x[0] = undeclared_name; }\n",
+                      "-DMBVH_TEST_OPTION=7");
+  } catch (const Error& e) {
+    msg = e.what();
+  }
+  INFO(msg);
+  CHECK(msg.find("clBuildProgram failed: CL_BUILD_PROGRAM_FAILURE") != std::string::npos);
+  CHECK(msg.find("options: -DMBVH_TEST_OPTION=7") != std::string::npos);
+  CHECK(msg.find("build log:") != std::string::npos);
+  CHECK(msg.find("undeclared_name") != std::string::npos);  // the compiler's own diagnostic
+  CHECK(msg.find(dev.device_name) != std::string::npos);
+}
+
+TEST_CASE("opencl: no platform is a clear error - in devices and when tracing", "[opencl]") {
+  mbvh_test::TempDir empty;  // an ICD vendor directory with no driver in it
+  const std::string env = "OCL_ICD_VENDORS=" + empty.path.string();
+  const auto d = mbvh_test::run_cli("devices", env);
+  INFO(d.output);
+  CHECK(d.code == 0);
+  CHECK(d.output.find("opencl") != std::string::npos);
+  CHECK(d.output.find("cannot start: no OpenCL platform found") != std::string::npos);
+  CHECK(d.output.find("pocl-opencl-icd") != std::string::npos);
+  CHECK(d.output.find("cpu-scalar   ready") != std::string::npos);  // the other backends still work
+  const auto t = mbvh_test::run_cli("trace gen:cube:4 --count 10 --backend opencl", env);
+  INFO(t.output);
+  CHECK(t.code == 2);
+  CHECK(t.output.find("mbvh: error: no OpenCL platform found") != std::string::npos);
+}
+
+TEST_CASE("opencl: --cl-device chooses by index - platform:device or name - and lists the devices when nothing matches",
+          "[opencl]") {
+  // the choice rule on a made-up list: a GPU is preferred over the CPU when nothing is asked for
+  std::vector<cl::DeviceEntry> list(3);
+  const char* names[] = {"Some CPU", "Big GPU", "Other CPU"};
+  const cl_device_type types[] = {CL_DEVICE_TYPE_CPU, CL_DEVICE_TYPE_GPU, CL_DEVICE_TYPE_CPU};
+  for (unsigned i = 0; i < 3; ++i) {
+    list[i].platform_index = i / 2;
+    list[i].device_index = i % 2;
+    list[i].device_name = names[i];
+    list[i].platform_name = i < 2 ? "Vendor A" : "Vendor B";
+    list[i].type = types[i];
+  }
+  CHECK(&cl::choose_device(list, "") == &list[1]);
+  CHECK(&cl::choose_device(list, "1:0") == &list[2]);
+  CHECK(&cl::choose_device(list, "0") == &list[0]);
+  CHECK(&cl::choose_device(list, "other") == &list[2]);
+  CHECK(&cl::choose_device(list, "vendor b") == &list[2]);
+  CHECK_THROWS_WITH(cl::choose_device(list, "7:7"), Catch::Contains("no OpenCL device matches --cl-device '7:7'") &&
+                                                     Catch::Contains("1:0 Other CPU"));
+
+  // the real program: the choice is printed, and a wrong one is an error listing the devices
+  const auto ok = mbvh_test::run_cli("trace gen:cube:4 --count 100 --backend opencl --cl-device 0:0");
+  INFO(ok.output);
+  CHECK(ok.code == 0);
+  CHECK(ok.output.find("opencl: OpenCL device 0:0 ") != std::string::npos);
+  const auto bad = mbvh_test::run_cli("trace gen:cube:4 --count 100 --backend opencl --cl-device no-such-device");
+  INFO(bad.output);
+  CHECK(bad.code == 2);
+  CHECK(bad.output.find("no OpenCL device matches --cl-device 'no-such-device'; the devices are:") != std::string::npos);
+  CHECK(bad.output.find("\n  0:0 ") != std::string::npos);
+}
+
+TEST_CASE("opencl: rays over several dispatch batches come back in order", "[opencl]") {
+  const Scene s = load_scene("gen:sphere:16");
+  const auto acc = Accel::build(s);
+  RayGenOptions ro;
+  ro.kind = RayKind::random;
+  ro.count = (std::size_t(1) << 21) + 12345;  // one full batch of 2^21 rays and a partial one
+  const std::vector<Ray> rays = generate_rays(s, *acc, ro);
+  for (const char* name : {"opencl-wide", "opencl-lane"}) {
+    auto b = make_backend(name);
+    for (Query q : {Query::closest, Query::any}) {
+      INFO(name << " " << to_string(q));
+      const TraceOptions o{Layout::mbvh4, Traversal::bitstack, q, false};
+      TraceOutput ref, got;
+      trace_reference(*acc, rays, o, ref, 0);
+      b->trace(*acc, rays, o, got);
+      if (q == Query::closest) {
+        REQUIRE(got.hits.size() == rays.size());
+        CHECK(std::memcmp(ref.hits.data(), got.hits.data(), rays.size() * sizeof(Hit)) == 0);
+      } else {
+        CHECK(got.occluded == ref.occluded);
+      }
+    }
+  }
+}
