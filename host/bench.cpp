@@ -41,18 +41,20 @@ bool BenchReport::verified() const {
 std::string BenchReport::table() const {
   std::string s;
   char line[512];
-  std::snprintf(line, sizeof line, "%-12s %-6s %-15s %-7s %-8s %9s %15s %8s %8s %7s %7s %7s %9s\n", "backend", "layout",
-                "traversal", "query", "rays", "Mrays/s", "(min-max)", "vs twin", "state B", "nodes", "leaves", "tris",
-                "verified");
+  std::snprintf(line, sizeof line, "%-12s %-6s %-15s %-7s %-8s %9s %15s %8s %7s %8s %7s %7s %7s %9s\n", "backend",
+                "layout", "traversal", "query", "rays", "Mrays/s", "(min-max)", "vs twin", "vs cpu", "state B", "nodes",
+                "leaves", "tris", "verified");
   s += line;
   for (const auto& r : records) {
     char ratio[32] = "";
     if (r.ratio_vs_stack > 0) std::snprintf(ratio, sizeof ratio, "%.3fx", r.ratio_vs_stack);
+    char vcpu[32] = "";
+    if (r.ratio_vs_cpu > 0) std::snprintf(vcpu, sizeof vcpu, "%.2fx", r.ratio_vs_cpu);
     char spread[48];
     std::snprintf(spread, sizeof spread, "(%.2f-%.2f)", r.mrays_min, r.mrays_max);
-    std::snprintf(line, sizeof line, "%-12s %-6s %-15s %-7s %-8s %9.3f %15s %8s %8zu %7.1f %7.2f %7.1f %9s\n",
+    std::snprintf(line, sizeof line, "%-12s %-6s %-15s %-7s %-8s %9.3f %15s %8s %7s %8zu %7.1f %7.2f %7.1f %9s\n",
                   r.backend.c_str(), r.layout.c_str(), r.traversal.c_str(), r.query.c_str(), r.ray_kind.c_str(),
-                  r.mrays_per_s, spread, ratio, r.state_bytes_per_ray, r.nodes_per_ray, r.leaves_per_ray, r.tris_per_ray,
+                  r.mrays_per_s, spread, ratio, vcpu, r.state_bytes_per_ray, r.nodes_per_ray, r.leaves_per_ray, r.tris_per_ray,
                   r.verify_mismatches ? "MISMATCH" : "yes");
     s += line;
   }
@@ -90,6 +92,7 @@ std::string BenchReport::json() const {
                             {"climbs_per_ray", r.climbs_per_ray},
                             {"verify_mismatches", r.verify_mismatches},
                             {"bitstack_vs_stack", r.ratio_vs_stack},
+                            {"vs_cpu", r.ratio_vs_cpu},
                             {"bvh_hash", bvh_hash}});
   }
   return j.dump(2);
@@ -179,7 +182,7 @@ BenchReport run_bench(const Scene& scene, const Accel& acc, const BenchOptions& 
             TraceOptions so = to;
             so.stats = true;
             TraceOutput st;
-            trace_reference(acc, rays, so, st, opt.threads);
+            b.trace(acc, rays, so, st);  // the backend's own counters
             double n = 0, bt = 0, lf = 0, tr = 0, cl = 0, peak = 0;
             for (const RayStats& s : st.stats) {
               n += s.nodes; bt += s.box_tests; lf += s.leaves; tr += s.tris; cl += s.climbs;
@@ -205,6 +208,12 @@ BenchReport run_bench(const Scene& scene, const Accel& acc, const BenchOptions& 
         if (s.traversal == twin && s.backend == r.backend && s.layout == r.layout && s.query == r.query &&
             s.ray_kind == r.ray_kind && s.mrays_per_s > 0)
           r.ratio_vs_stack = r.mrays_per_s / s.mrays_per_s;
+  // each backend against the native `cpu` backend on the same variant and rays, when both ran
+  for (auto& r : rep.records)
+    for (const auto& s : rep.records)
+      if (s.backend == "cpu" && r.backend != "cpu" && s.layout == r.layout && s.traversal == r.traversal &&
+          s.query == r.query && s.ray_kind == r.ray_kind && s.mrays_per_s > 0)
+        r.ratio_vs_cpu = r.mrays_per_s / s.mrays_per_s;
   return rep;
 }
 

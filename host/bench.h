@@ -33,6 +33,7 @@ struct BenchRecord {
   double nodes_per_ray = 0, box_tests_per_ray = 0, leaves_per_ray = 0, tris_per_ray = 0, climbs_per_ray = 0;
   std::size_t verify_mismatches = 0;    ///< genuine mismatches against the reference
   double ratio_vs_stack = 0;            ///< Mrays/s of this record / its stack twin (bitstack rows)
+  double ratio_vs_cpu = 0;              ///< Mrays/s of this record / the `cpu` backend's on the same variant
 };
 
 struct BenchReport {

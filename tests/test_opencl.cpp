@@ -4,6 +4,8 @@
 #include <catch2/catch.hpp>
 
 #include <cstring>
+#include <fstream>
+#include <nlohmann/json.hpp>
 
 #include "backends/opencl/cl_runtime.h"
 #include "host/backend.h"
@@ -106,4 +108,27 @@ TEST_CASE("opencl: rays over several dispatch batches come back in order", "[ope
       }
     }
   }
+}
+
+TEST_CASE("opencl: mbvh bench times it beside cpu - verified - with its state and the ratio to cpu", "[opencl]") {
+  mbvh_test::TempDir dir;
+  const std::string json = dir.file("b.json");
+  const auto r = mbvh_test::run_cli("bench gen:soup:20000 --count 5000 --kinds primary --backend cpu,opencl "
+                                    "--traversal stack,bitstack --query closest,any --json " + json);
+  INFO(r.output);
+  REQUIRE(r.code == 0);
+  const auto j = nlohmann::json::parse(std::ifstream(json));
+  REQUIRE(j["records"].size() == 2 * 2 * 2 * 2);  // backends x layouts x traversals x queries
+  std::size_t opencl = 0;
+  for (const auto& rec : j["records"]) {
+    CHECK(rec["verify_mismatches"].get<int>() == 0);
+    CHECK(rec["state_bytes_per_ray"].get<int>() == (rec["traversal"] == "stack" ? 264 : 12));
+    CHECK(rec["nodes_per_ray"].get<double>() > 0);
+    if (rec["backend"] == "opencl") {
+      ++opencl;
+      CHECK(rec["vs_cpu"].get<double>() > 0);
+      CHECK(rec["device"].get<std::string>().find("OpenCL device") != std::string::npos);
+    }
+  }
+  CHECK(opencl == 8);
 }
