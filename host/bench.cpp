@@ -125,6 +125,8 @@ BenchReport run_bench(const Scene& scene, const Accel& acc, const BenchOptions& 
     ro.count = opt.count;
     ro.seed = opt.seed;
     ro.threads = opt.threads;
+    ro.has_camera = opt.has_camera;
+    ro.camera = opt.camera;
     const std::vector<Ray> rays = generate_rays(scene, acc, ro);
     for (Query q : opt.grid.queries) {
       // the reference answer every timed result is verified against

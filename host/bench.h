@@ -21,6 +21,8 @@ struct BenchOptions {
   unsigned passes = 5;
   unsigned threads = 0;
   BackendOptions backend;  ///< device choices (threads come from `threads`)
+  bool has_camera = false;  ///< primary rays (and the secondary rays built on them) from `camera`
+  Camera camera;
 };
 
 struct BenchRecord {

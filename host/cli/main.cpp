@@ -139,18 +139,21 @@ void add_ray_args(CLI::App* c, RayArgs& r, bool allow_file) {
       ->expected(6, 7);
 }
 
+void set_camera(const std::vector<float>& c, bool& has, Camera& cam) {
+  if (c.empty()) return;
+  has = true;
+  cam.eye = {c[0], c[1], c[2]};
+  cam.target = {c[3], c[4], c[5]};
+  if (c.size() == 7) cam.fov_deg = c[6];
+}
+
 RayGenOptions ray_gen(const RayArgs& r, const std::string& kind, unsigned threads) {
   RayGenOptions o;
   o.kind = parse_ray_kind(kind);
   o.count = r.count;
   o.seed = r.seed;
   o.threads = threads;
-  if (!r.camera.empty()) {
-    o.has_camera = true;
-    o.camera.eye = {r.camera[0], r.camera[1], r.camera[2]};
-    o.camera.target = {r.camera[3], r.camera[4], r.camera[5]};
-    if (r.camera.size() == 7) o.camera.fov_deg = r.camera[6];
-  }
+  set_camera(r.camera, o.has_camera, o.camera);
   return o;
 }
 
@@ -270,6 +273,10 @@ int main(int argc, char** argv) {
   bench->add_option("--count", bn_count, "rays per kind");
   bench->add_option("--seed", bn_seed, "ray seed");
   bench->add_option("--passes", bn_passes, "timed passes after the warm-up (at least 5)");
+  std::vector<float> bn_camera;
+  bench->add_option("--camera", bn_camera, "eye x y z, target x y z [, fov degrees] (default: frames the scene)")
+      ->delimiter(',')
+      ->expected(6, 7);
   bench->add_option("--json", bn_json, "write the records as JSON");
 
   // -- devices
@@ -377,6 +384,7 @@ int main(int argc, char** argv) {
       bo.passes = bn_passes;
       bo.threads = bn_a.threads;
       bo.backend = bn_g.dev.options(bn_a.threads);
+      set_camera(bn_camera, bo.has_camera, bo.camera);
       Loaded l = load_and_build(bn_a);
       Progress p("benchmarking", bo.kinds.size() * bo.grid.size());
       BenchReport rep = run_bench(l.scene, *l.acc, bo, [&p](std::size_t d, std::size_t) { p.update(d); });
