@@ -98,6 +98,17 @@ std::string BenchReport::json() const {
   return j.dump(2);
 }
 
+// Mrays/s of `r` over that of the record of `backend` / `traversal` on r's layout, query and
+// rays; 0 when that record was not run.
+static double speed_ratio(const std::vector<BenchRecord>& all, const BenchRecord& r, const std::string& backend,
+                          const std::string& traversal) {
+  for (const auto& s : all)
+    if (s.backend == backend && s.traversal == traversal && s.layout == r.layout && s.query == r.query &&
+        s.ray_kind == r.ray_kind && s.mrays_per_s > 0)
+      return r.mrays_per_s / s.mrays_per_s;
+  return 0;
+}
+
 BenchReport run_bench(const Scene& scene, const Accel& acc, const BenchOptions& opt,
                       const std::function<void(std::size_t, std::size_t)>& progress) {
   using Clock = std::chrono::steady_clock;
@@ -203,19 +214,12 @@ BenchReport run_bench(const Scene& scene, const Accel& acc, const BenchOptions& 
           }
     }
   }
-  // bitstack / stack-twin ratios, side by side from the same run
-  for (auto& r : rep.records)
+  // ratios side by side from the same run: bitstack / its stack twin, each backend / `cpu`
+  for (auto& r : rep.records) {
     if (const std::string twin = to_string(stack_twin(parse_traversal(r.traversal))); twin != r.traversal)
-      for (const auto& s : rep.records)
-        if (s.traversal == twin && s.backend == r.backend && s.layout == r.layout && s.query == r.query &&
-            s.ray_kind == r.ray_kind && s.mrays_per_s > 0)
-          r.ratio_vs_stack = r.mrays_per_s / s.mrays_per_s;
-  // each backend against the native `cpu` backend on the same variant and rays, when both ran
-  for (auto& r : rep.records)
-    for (const auto& s : rep.records)
-      if (s.backend == "cpu" && r.backend != "cpu" && s.layout == r.layout && s.traversal == r.traversal &&
-          s.query == r.query && s.ray_kind == r.ray_kind && s.mrays_per_s > 0)
-        r.ratio_vs_cpu = r.mrays_per_s / s.mrays_per_s;
+      r.ratio_vs_stack = speed_ratio(rep.records, r, r.backend, twin);
+    if (r.backend != "cpu") r.ratio_vs_cpu = speed_ratio(rep.records, r, "cpu", r.traversal);
+  }
   return rep;
 }
 

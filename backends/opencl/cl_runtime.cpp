@@ -83,22 +83,24 @@ void fail(const char* call, cl_int err, const std::string& what) {
               (what.empty() ? "" : ": " + what));
 }
 
-std::string device_string(cl_device_id d, cl_device_info what) {
+// A string query (clGetDeviceInfo, clGetPlatformInfo): size, then text, trailing NULs and blanks cut.
+template <class Object>
+static std::string info_string(cl_int(CL_API_CALL* get)(Object, cl_uint, std::size_t, void*, std::size_t*), Object o,
+                               cl_uint what, const char* call) {
   std::size_t n = 0;
-  check(clGetDeviceInfo(d, what, 0, nullptr, &n), "clGetDeviceInfo");
+  check(get(o, what, 0, nullptr, &n), call);
   std::string s(n, '\0');
-  check(clGetDeviceInfo(d, what, n, s.data(), nullptr), "clGetDeviceInfo");
+  check(get(o, what, n, s.data(), nullptr), call);
   while (!s.empty() && (s.back() == '\0' || s.back() == ' ')) s.pop_back();
   return s;
 }
 
+std::string device_string(cl_device_id d, cl_device_info what) {
+  return info_string(&clGetDeviceInfo, d, what, "clGetDeviceInfo");
+}
+
 static std::string platform_string(cl_platform_id p, cl_platform_info what) {
-  std::size_t n = 0;
-  check(clGetPlatformInfo(p, what, 0, nullptr, &n), "clGetPlatformInfo");
-  std::string s(n, '\0');
-  check(clGetPlatformInfo(p, what, n, s.data(), nullptr), "clGetPlatformInfo");
-  while (!s.empty() && (s.back() == '\0' || s.back() == ' ')) s.pop_back();
-  return s;
+  return info_string(&clGetPlatformInfo, p, what, "clGetPlatformInfo");
 }
 
 std::string DeviceEntry::id() const { return std::to_string(platform_index) + ":" + std::to_string(device_index); }
