@@ -5,6 +5,9 @@
 #ifdef MBVH_HAVE_OPENCL
 #include "backends/opencl/opencl_backends.h"
 #endif
+#ifdef MBVH_HAVE_VULKAN
+#include "backends/vulkan/vulkan_backends.h"
+#endif
 
 namespace mbvh {
 
@@ -18,8 +21,13 @@ void register_builtin_backends() {
                     "this build has no OpenCL backend (configure with -DMBVH_OPENCL=ON and the OpenCL headers and ICD "
                     "loader installed)", {}, "", {}});
 #endif
+#ifdef MBVH_HAVE_VULKAN
+  register_vulkan_backends();
+#else
   register_backend({"vulkan", "GPU-style MBVH2 traversal in a GLSL compute shader (lavapipe)", {},
-                    "the Vulkan backend is not implemented yet (issue: vulkan backend)", {}, "", {}});
+                    "this build has no Vulkan backend (configure with -DMBVH_VULKAN=ON and the Vulkan loader headers and "
+                    "glslangValidator installed)", {}, "", {}});
+#endif
 }
 
 }  // namespace mbvh

@@ -2,6 +2,7 @@
 // vulkan, embree) and the registry that makes them by name. host/ includes no backend header:
 // backends register themselves through register_builtin_backends() (backends/backends.cpp).
 #pragma once
+#include <cstddef>
 #include <functional>
 #include <memory>
 #include <span>
@@ -17,6 +18,10 @@ struct BackendOptions {
   unsigned threads = 0;     ///< CPU workers (0 = every hardware thread)
   std::string cl_device;    ///< OpenCL device selector, `--cl-device` ("" = the backend's choice, printed)
   std::string vk_device;    ///< Vulkan device selector, `--vk-device` ("" = the backend's choice, printed)
+  bool vk_validation = false;  ///< Khronos validation layer on, `--vk-validation` (also MBVH_VK_VALIDATION=1)
+  /// Caps a Vulkan storage-buffer binding below the device's maxStorageBufferRange (0 = no cap),
+  /// so the split-buffer path can be exercised on small scenes.
+  std::size_t vk_max_binding_bytes = 0;
 };
 
 class Backend {

@@ -2,7 +2,10 @@
  * rays, hits, triangles, leaves and the MBVH2 / MBVH4 nodes (TRAVERSAL.md §2).
  *
  * Rules (STYLE.md): rows of 16 bytes, integers in the 4th lane, no 3-vectors, bool, size_t or
- * pointers; every size is asserted on the host. A per-language prelude maps the scalar names.
+ * pointers; every size is asserted on the host. A per-language prelude maps the scalar names and
+ * the declaration macros: a 16-byte row MBVH_ROW(x) is `float x[4]` in C++ and OpenCL C and a
+ * `vec4` in GLSL (one 16-byte load; std430 gives both the same offsets), MBVH_STRUCT/MBVH_END
+ * spell `typedef struct T {...} T;` or GLSL's `struct T {...};`.
  *
  * Child reference (int32, TRAVERSAL.md §2.1):
  *   ref >= 0          index of an inner-node record
@@ -21,18 +24,33 @@
 typedef float mbvh_float;
 typedef std::int32_t mbvh_int;
 typedef std::uint32_t mbvh_uint;
+#define MBVH_STRUCT(T) typedef struct T
+#define MBVH_END(T) T;
+#define MBVH_ROW(x) mbvh_float x[4]
+#define MBVH_IROW(x) mbvh_int x[4]
+#define MBVH_ROWS(x, n) mbvh_float x[n][4]
 #elif defined(__OPENCL_VERSION__)
 #define MBVH_NS_BEGIN
 #define MBVH_NS_END
 typedef float mbvh_float;
 typedef int mbvh_int;
 typedef uint mbvh_uint;
+#define MBVH_STRUCT(T) typedef struct T
+#define MBVH_END(T) T;
+#define MBVH_ROW(x) mbvh_float x[4]
+#define MBVH_IROW(x) mbvh_int x[4]
+#define MBVH_ROWS(x, n) mbvh_float x[n][4]
 #elif defined(GL_core_profile)
 #define MBVH_NS_BEGIN
 #define MBVH_NS_END
 #define mbvh_float float
 #define mbvh_int int
 #define mbvh_uint uint
+#define MBVH_STRUCT(T) struct T
+#define MBVH_END(T) ;
+#define MBVH_ROW(x) vec4 x
+#define MBVH_IROW(x) ivec4 x
+#define MBVH_ROWS(x, n) vec4 x[n]
 #endif
 
 #define MBVH_NONE (-1)
@@ -49,64 +67,71 @@ typedef uint mbvh_uint;
 #define MBVH_STACK2_ENTRIES 64
 #define MBVH_STACK4_ENTRIES 64
 
-#if !defined(GL_core_profile)
+/* Storage-buffer bindings per split array on Vulkan (nodes, triangles): an array larger than a
+ * device's maxStorageBufferRange is bound as up to this many power-of-two chunks (TRAVERSAL.md §9). */
+#define MBVH_VK_CHUNK_BINDINGS 8
+
 MBVH_NS_BEGIN
 
 /* A ray as stored in a .rays file: 32 bytes, little-endian. */
-typedef struct Ray {
+MBVH_STRUCT(Ray) {
   mbvh_float ox, oy, oz, tmin;
   mbvh_float dx, dy, dz, tmax;
-} Ray;
+} MBVH_END(Ray)
 
 /* A closest-hit answer as stored in a .hits file: 16 bytes. Miss: prim = MBVH_MISS_PRIM,
  * t = +inf. u, v weight vertices 1 and 2: point = (1-u-v)*v0 + u*v1 + v*v2. */
-typedef struct Hit {
+MBVH_STRUCT(Hit) {
   mbvh_float t, u, v;
   mbvh_uint prim;
-} Hit;
+} MBVH_END(Hit)
 
 /* A triangle in leaf order: three vertices as rows; w of row 0 holds the file's prim id as bits. */
-typedef struct Tri {
-  mbvh_float v0[4]; /* x, y, z, prim id (uint bits) */
-  mbvh_float v1[4]; /* x, y, z, 0 */
-  mbvh_float v2[4]; /* x, y, z, 0 */
-} Tri;
+MBVH_STRUCT(Tri) {
+  MBVH_ROW(v0); /* x, y, z, prim id (uint bits) */
+  MBVH_ROW(v1); /* x, y, z, 0 */
+  MBVH_ROW(v2); /* x, y, z, 0 */
+} MBVH_END(Tri)
 
 /* A leaf: a range of the leaf-ordered triangle array. Leaves have no node record. */
-typedef struct Leaf {
+MBVH_STRUCT(Leaf) {
   mbvh_uint first, count;
-} Leaf;
+} MBVH_END(Leaf)
 
 /* MBVH2 node, 64 bytes (Aila & Laine 2009 layout; TRAVERSAL.md §2.2). parent/sibling are the
  * node's OWN links (sibling: the other child of the parent, possibly a leaf reference). */
-typedef struct Node2 {
-  mbvh_float c0[4]; /* child 0: lo.x, hi.x, lo.y, hi.y */
-  mbvh_float c1[4]; /* child 1: lo.x, hi.x, lo.y, hi.y */
-  mbvh_float zz[4]; /* c0.lo.z, c0.hi.z, c1.lo.z, c1.hi.z */
-  mbvh_int link[4]; /* parent, sibling, child0, child1 */
-} Node2;
+MBVH_STRUCT(Node2) {
+  MBVH_ROW(c0); /* child 0: lo.x, hi.x, lo.y, hi.y */
+  MBVH_ROW(c1); /* child 1: lo.x, hi.x, lo.y, hi.y */
+  MBVH_ROW(zz); /* c0.lo.z, c0.hi.z, c1.lo.z, c1.hi.z */
+  MBVH_IROW(link); /* parent, sibling, child0, child1 */
+} MBVH_END(Node2)
 
 /* MBVH4 node, 128 bytes, SoA view (TRAVERSAL.md §2.3). sib[k] = parent.child[(slot+1+k) & 3],
  * where slot is this node's position in its parent (cyclic order used by the skip codes). */
-typedef struct Node4 {
-  mbvh_float lo_x[4], hi_x[4], lo_y[4], hi_y[4], lo_z[4], hi_z[4];
-  mbvh_int child[4];
+MBVH_STRUCT(Node4) {
+  MBVH_ROW(lo_x);
+  MBVH_ROW(hi_x);
+  MBVH_ROW(lo_y);
+  MBVH_ROW(hi_y);
+  MBVH_ROW(lo_z);
+  MBVH_ROW(hi_z);
+  MBVH_IROW(child);
   mbvh_int parent;
   mbvh_int sib[3];
-} Node4;
+} MBVH_END(Node4)
 
 /* MBVH4 node, 128 bytes, 16-wide view (TRAVERSAL.md §2.4, §8): the SoA record's content as two
  * 64-byte halves of four rows, one row per child slot s, references as int32 bits in the w
  * lanes, so one 16-lane operation tests the four children's x, y and z slabs at once.
  *   lo[s] = (child s lo.x, lo.y, lo.z, child[s])
  *   hi[s] = (child s hi.x, hi.y, hi.z, link[s]),  link = (parent, sib[0], sib[1], sib[2]) */
-typedef struct Node4W {
-  mbvh_float lo[4][4];
-  mbvh_float hi[4][4];
-} Node4W;
+MBVH_STRUCT(Node4W) {
+  MBVH_ROWS(lo, 4);
+  MBVH_ROWS(hi, 4);
+} MBVH_END(Node4W)
 
 MBVH_NS_END
-#endif /* !GL_core_profile */
 
 #if defined(__cplusplus)
 static_assert(sizeof(mbvh::Ray) == 32, "ray file record is 32 bytes");

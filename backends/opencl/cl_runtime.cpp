@@ -1,5 +1,6 @@
 // cl_runtime.cpp — OpenCL errors, device discovery and choice, program builds (cl_runtime.h).
 #include "backends/opencl/cl_runtime.h"
+#include "host/device_choice.h"
 
 #include <algorithm>
 #include <cctype>
@@ -157,32 +158,12 @@ std::vector<DeviceEntry> list_devices() {
   return out;
 }
 
-static std::string lower(std::string s) {
-  for (char& c : s) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
-  return s;
-}
-
 const DeviceEntry& choose_device(const std::vector<DeviceEntry>& devices, const std::string& selector) {
-  if (selector.empty()) {
-    for (cl_device_type t : {cl_device_type(CL_DEVICE_TYPE_GPU), cl_device_type(CL_DEVICE_TYPE_ACCELERATOR)})
-      for (const DeviceEntry& d : devices)
-        if (d.type & t) return d;
-    return devices.front();
-  }
+  std::vector<DeviceCandidate> c;
   for (const DeviceEntry& d : devices)
-    if (d.id() == selector) return d;
-  if (std::all_of(selector.begin(), selector.end(), [](char c) { return std::isdigit(static_cast<unsigned char>(c)); })) {
-    const std::size_t n = std::stoul(selector);
-    if (n < devices.size()) return devices[n];
-  } else {
-    for (const DeviceEntry& d : devices)
-      if (lower(d.device_name).find(lower(selector)) != std::string::npos ||
-          lower(d.platform_name).find(lower(selector)) != std::string::npos)
-        return d;
-  }
-  std::string list;
-  for (const DeviceEntry& d : devices) list += "\n  " + d.describe();
-  throw Error("no OpenCL device matches --cl-device '" + selector + "'; the devices are:" + list);
+    c.push_back({d.id(), {d.device_name, d.platform_name},
+                 (d.type & CL_DEVICE_TYPE_GPU) ? 0 : (d.type & CL_DEVICE_TYPE_ACCELERATOR) ? 1 : 2, d.describe()});
+  return devices[choose_device_index(c, selector, "OpenCL", "--cl-device")];
 }
 
 Program build_program(cl_context ctx, const DeviceEntry& dev, const std::string& source, const std::string& options) {

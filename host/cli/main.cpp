@@ -80,19 +80,24 @@ Loaded load_and_build(const SceneArgs& a, bool verbose = true) {
   return l;
 }
 
-// --cl-device, --vk-device: which device the OpenCL and Vulkan backends use.
+// --cl-device, --vk-device: which device the OpenCL and Vulkan backends use; --vk-validation.
 struct DeviceArgs {
   std::string cl_device, vk_device;
+  bool vk_validation = false;
   void add(CLI::App* c) {
     c->add_option("--cl-device", cl_device,
                   "OpenCL device: P:D (platform:device), N (index) or part of its name (see `mbvh devices`)");
     c->add_option("--vk-device", vk_device, "Vulkan device: index or part of its name (see `mbvh devices`)");
+    c->add_flag("--vk-validation", vk_validation,
+                "Vulkan: enable the Khronos validation layer; any message it reports is an error "
+                "(also MBVH_VK_VALIDATION=1)");
   }
   BackendOptions options(unsigned threads) const {
     BackendOptions o;
     o.threads = threads;
     o.cl_device = cl_device;
     o.vk_device = vk_device;
+    o.vk_validation = vk_validation;
     return o;
   }
 };

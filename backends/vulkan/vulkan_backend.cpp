@@ -1,0 +1,564 @@
+// vulkan_backend.cpp — the `vulkan` backend: the GPU path of TRAVERSAL.md §9 (MBVH2, Aila & Laine
+// node, 1-bit-per-level bitstack of Áfra & Szirmay-Kalos 2014, and its stack-based twin) as a
+// GLSL compute shader (shaders/trace.comp, SPIR-V embedded at build time) on any Vulkan 1.2
+// device: lavapipe here, a real GPU where there is one. Headless: no window, no surface.
+//
+// Per build, the MBVH2 nodes, leaves and triangles are uploaded once (device-local memory, by a
+// staging copy where it is not host-visible) and reused across calls. Arrays over the device's
+// maxStorageBufferRange are bound as power-of-two chunks of one buffer (up to
+// MBVH_VK_CHUNK_BINDINGS descriptors each); rays go through in batches within the range, the
+// allocation limit and the work-group count. One pipeline per (traversal, query, statistics,
+// chunk counts), from specialization constants, made on first use and kept.
+#include <algorithm>
+#include <cstdio>
+#include <cstring>
+#include <map>
+#include <mutex>
+#include <set>
+#include <tuple>
+
+#include "backends/vulkan/vk_runtime.h"
+#include "backends/vulkan/vulkan_backends.h"
+#include "host/backend.h"
+#include "host/error.h"
+#include "trace_spv.h"  // kTraceSpv: shaders/trace.comp compiled by glslangValidator (CMakeLists.txt)
+
+namespace mbvh {
+namespace {
+
+using vk::check;
+
+constexpr std::uint32_t kLocalSize = 64;                   // lavapipe: 8 to 1024 measured within noise
+constexpr std::size_t kMaxBatch = std::size_t(1) << 21;    // rays per dispatch (64 MiB of rays)
+constexpr std::uint32_t kBindings = 8;                     // descriptor bindings 0..7 (trace.comp)
+constexpr std::uint32_t kChunks = MBVH_VK_CHUNK_BINDINGS;  // descriptors of bindings 6 and 7
+
+std::string mib(std::size_t bytes) {
+  char b[32];
+  std::snprintf(b, sizeof b, "%.1f MiB", double(bytes) / (1024.0 * 1024.0));
+  return b;
+}
+
+struct Buffer {
+  VkBuffer buffer = VK_NULL_HANDLE;
+  VkDeviceMemory memory = VK_NULL_HANDLE;
+  void* mapped = nullptr;
+  std::size_t size = 0;
+};
+
+/// A chunked array: one buffer, bound as `count` descriptors of 2^shift records each.
+struct Chunked {
+  Buffer buf;
+  std::uint32_t count = 1, shift = 0;
+  std::size_t chunk_bytes = 0;
+};
+
+class VulkanBackend final : public Backend {
+public:
+  explicit VulkanBackend(const BackendOptions& o)
+      : instance_(vk::validation_requested(o.vk_validation)), messages_at_start_(vk::validation_message_count()) {
+    try {
+      init(o);
+    } catch (...) {
+      release();
+      throw;
+    }
+  }
+
+  ~VulkanBackend() override {
+    release();
+    // messages raised while tearing down cannot be thrown; they are printed, and the tests
+    // check vk::validation_message_count() after every backend is gone
+    if (instance_.validation())
+      for (const std::string& m : vk::validation_messages(reported_)) std::fprintf(stderr, "%s\n", m.c_str());
+  }
+
+  std::string name() const override { return "vulkan"; }
+  std::string describe() const override {
+    return "vulkan: MBVH2 GPU-style traversal (GLSL compute, SPIR-V); Vulkan device " + dev_.describe() +
+           (instance_.validation() ? "; validation layer on" : "");
+  }
+  bool supports(Layout l, Traversal t) const override {
+    return l == Layout::mbvh2 && (t == Traversal::stack || t == Traversal::bitstack);
+  }
+
+  void prepare(const Accel& acc, const TraceOptions&) override {
+    if (&acc == acc_ && acc.hash() == hash_) return;
+    wait_idle();
+    destroy(nodes_.buf);
+    destroy(tris_.buf);
+    destroy(leaves_);
+    acc_ = nullptr;
+    const auto& n = acc.mbvh2().nodes;
+    nodes_ = upload_chunked("the MBVH2 node array", n.data(), n.size(), sizeof(Node2));
+    tris_ = upload_chunked("the triangle array", acc.tris().data(), acc.tris().size(), sizeof(Tri));
+    const std::size_t leaf_bytes = acc.leaves().size() * sizeof(Leaf);
+    if (leaf_bytes > range_)
+      throw Error("vulkan: the leaf array (" + mib(leaf_bytes) + ") exceeds maxStorageBufferRange (" + mib(range_) +
+                  ") of " + dev_.name + "; use a smaller scene or another device");
+    leaves_ = upload("the leaf array", acc.leaves().data(), leaf_bytes);
+    acc_ = &acc;
+    hash_ = acc.hash();
+    descriptors_dirty_ = true;
+    report_validation();
+  }
+
+  void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
+    if (!supports(opt.layout, opt.traversal))
+      throw Error("vulkan: " + std::string(to_string(opt.layout)) + " " + to_string(opt.traversal) +
+                  " traversal is not implemented (the GPU path is MBVH2 stack and bitstack)");
+    prepare(acc, opt);
+    const bool any = opt.query == Query::any;
+    out.hits.assign(any ? 0 : rays.size(), Hit{});
+    out.occluded.assign(any ? rays.size() : 0, 0);
+    out.stats.assign(opt.stats ? rays.size() : 0, RayStats{});
+    out.invalid = 0;
+    if (rays.empty()) return;
+
+    const VkPipeline pipe = pipeline(opt.traversal == Traversal::bitstack, any, opt.stats);
+    const std::size_t batch = std::min(rays.size(), max_batch_);
+    ensure_batch_buffers(batch);
+    if (descriptors_dirty_) write_descriptors();
+    std::memset(counters_.mapped, 0, 2 * sizeof(std::uint32_t));
+    for (std::size_t b = 0; b < rays.size(); b += batch) {
+      const std::size_t n = std::min(batch, rays.size() - b);
+      std::memcpy(rays_.mapped, rays.data() + b, n * sizeof(Ray));
+      run(pipe, static_cast<std::uint32_t>(n));
+      if (any) {
+        const auto* occ = static_cast<const std::uint32_t*>(occ_.mapped);
+        for (std::size_t i = 0; i < n; ++i) out.occluded[b + i] = static_cast<std::uint8_t>(occ[i]);
+      } else {
+        std::memcpy(out.hits.data() + b, hits_.mapped, n * sizeof(Hit));
+      }
+      if (opt.stats) {
+        const auto* s = static_cast<const std::uint32_t*>(stats_.mapped);
+        for (std::size_t i = 0; i < n; ++i, s += 8) out.stats[b + i] = RayStats{s[0], s[1], s[2], s[3], s[4], s[5], s[6]};
+      }
+    }
+    const auto* counters = static_cast<const std::uint32_t*>(counters_.mapped);
+    out.invalid = counters[0];
+    report_validation();
+    if (counters[1] != 0)
+      throw Error("vulkan: " + std::to_string(counters[1]) + " rays overflowed the traversal stack: the tree is deeper "
+                  "than its cap (corrupt build)");
+  }
+
+private:
+  void init(const BackendOptions& o) {
+    const std::vector<vk::DeviceEntry> devices = vk::list_devices(instance_.get());
+    dev_ = vk::choose_device(devices, o.vk_device);
+    {  // say which device, once per device in a process
+      static std::mutex m;
+      static std::set<unsigned> said;
+      const std::lock_guard<std::mutex> lock(m);
+      if (said.insert(dev_.index).second)
+        std::fprintf(stderr, "vulkan: Vulkan device %s%s\n", dev_.describe().c_str(),
+                     o.vk_device.empty() && devices.size() > 1
+                         ? (" (chosen from " + std::to_string(devices.size()) + " devices; pick one with --vk-device)").c_str()
+                         : "");
+    }
+    const VkPhysicalDevice pd = dev_.device;
+    if (dev_.api_version < VK_API_VERSION_1_2)
+      throw Error("Vulkan device " + dev_.name + " supports only Vulkan " + std::to_string(VK_API_VERSION_MAJOR(dev_.api_version)) +
+                  "." + std::to_string(VK_API_VERSION_MINOR(dev_.api_version)) + "; the backend needs 1.2");
+    VkPhysicalDeviceFeatures features{};
+    vkGetPhysicalDeviceFeatures(pd, &features);
+    if (!features.shaderInt64) throw Error("Vulkan device " + dev_.name + " lacks shaderInt64 (the 64-bit bitstack)");
+    if (!features.shaderFloat64)
+      throw Error("Vulkan device " + dev_.name +
+                  " lacks shaderFloat64 (the watertight test's exact fallback and correctly rounded division)");
+    VkPhysicalDeviceVulkan12Properties p12{};
+    p12.sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_VULKAN_1_2_PROPERTIES;
+    VkPhysicalDeviceVulkan11Properties p11{};
+    p11.sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_VULKAN_1_1_PROPERTIES;
+    p11.pNext = &p12;
+    VkPhysicalDeviceProperties2 props{};
+    props.sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_PROPERTIES_2;
+    props.pNext = &p11;
+    vkGetPhysicalDeviceProperties2(pd, &props);
+    if (!p12.shaderSignedZeroInfNanPreserveFloat32)
+      throw Error("Vulkan device " + dev_.name +
+                  " lacks shaderSignedZeroInfNanPreserveFloat32: without it -0, inf and NaN need not survive, and the "
+                  "answers would not be exact (TRAVERSAL.md §9)");
+    const VkPhysicalDeviceLimits& lim = props.properties.limits;
+    if (lim.maxPerStageDescriptorStorageBuffers < 6 + 2 * kChunks)
+      throw Error("Vulkan device " + dev_.name + " allows " + std::to_string(lim.maxPerStageDescriptorStorageBuffers) +
+                  " storage buffers per stage; the shader binds " + std::to_string(6 + 2 * kChunks));
+    range_ = lim.maxStorageBufferRange;
+    if (o.vk_max_binding_bytes) range_ = std::min<std::size_t>(range_, o.vk_max_binding_bytes);
+    max_alloc_ = p11.maxMemoryAllocationSize;
+    max_batch_ = std::min<std::size_t>({kMaxBatch, range_ / 32, max_alloc_ / 32,
+                                        std::size_t(lim.maxComputeWorkGroupCount[0]) * kLocalSize});
+    if (max_batch_ < kLocalSize) throw Error("Vulkan device " + dev_.name + ": storage-buffer range too small");
+    vkGetPhysicalDeviceMemoryProperties(pd, &memory_);
+
+    // a queue family with compute
+    std::uint32_t nq = 0;
+    vkGetPhysicalDeviceQueueFamilyProperties(pd, &nq, nullptr);
+    std::vector<VkQueueFamilyProperties> qf(nq);
+    vkGetPhysicalDeviceQueueFamilyProperties(pd, &nq, qf.data());
+    family_ = nq;
+    for (std::uint32_t i = 0; i < nq && family_ == nq; ++i)
+      if (qf[i].queueFlags & VK_QUEUE_COMPUTE_BIT) family_ = i;
+    if (family_ == nq) throw Error("Vulkan device " + dev_.name + " has no compute queue");
+
+    const float priority = 1.0f;
+    VkDeviceQueueCreateInfo qi{};
+    qi.sType = VK_STRUCTURE_TYPE_DEVICE_QUEUE_CREATE_INFO;
+    qi.queueFamilyIndex = family_;
+    qi.queueCount = 1;
+    qi.pQueuePriorities = &priority;
+    VkPhysicalDeviceFeatures enabled{};
+    enabled.shaderInt64 = VK_TRUE;
+    enabled.shaderFloat64 = VK_TRUE;
+    VkDeviceCreateInfo di{};
+    di.sType = VK_STRUCTURE_TYPE_DEVICE_CREATE_INFO;
+    di.queueCreateInfoCount = 1;
+    di.pQueueCreateInfos = &qi;
+    di.pEnabledFeatures = &enabled;
+    check(vkCreateDevice(pd, &di, nullptr, &device_), "vkCreateDevice");
+    vkGetDeviceQueue(device_, family_, 0, &queue_);
+
+    VkCommandPoolCreateInfo pi{};
+    pi.sType = VK_STRUCTURE_TYPE_COMMAND_POOL_CREATE_INFO;
+    pi.flags = VK_COMMAND_POOL_CREATE_RESET_COMMAND_BUFFER_BIT;
+    pi.queueFamilyIndex = family_;
+    check(vkCreateCommandPool(device_, &pi, nullptr, &pool_), "vkCreateCommandPool");
+    VkCommandBufferAllocateInfo ai{};
+    ai.sType = VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO;
+    ai.commandPool = pool_;
+    ai.level = VK_COMMAND_BUFFER_LEVEL_PRIMARY;
+    ai.commandBufferCount = 1;
+    check(vkAllocateCommandBuffers(device_, &ai, &cmd_), "vkAllocateCommandBuffers");
+    VkFenceCreateInfo fi{};
+    fi.sType = VK_STRUCTURE_TYPE_FENCE_CREATE_INFO;
+    check(vkCreateFence(device_, &fi, nullptr, &fence_), "vkCreateFence");
+
+    // descriptor layout: 0 rays, 1 hits, 2 occluded, 3 stats, 4 counters, 5 leaves, 6 node chunks, 7 triangle chunks
+    VkDescriptorSetLayoutBinding b[kBindings]{};
+    for (std::uint32_t i = 0; i < kBindings; ++i) {
+      b[i].binding = i;
+      b[i].descriptorType = VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
+      b[i].descriptorCount = i >= 6 ? kChunks : 1;
+      b[i].stageFlags = VK_SHADER_STAGE_COMPUTE_BIT;
+    }
+    VkDescriptorSetLayoutCreateInfo li{};
+    li.sType = VK_STRUCTURE_TYPE_DESCRIPTOR_SET_LAYOUT_CREATE_INFO;
+    li.bindingCount = kBindings;
+    li.pBindings = b;
+    check(vkCreateDescriptorSetLayout(device_, &li, nullptr, &set_layout_), "vkCreateDescriptorSetLayout");
+    VkPushConstantRange pcr{VK_SHADER_STAGE_COMPUTE_BIT, 0, sizeof(std::uint32_t)};
+    VkPipelineLayoutCreateInfo pli{};
+    pli.sType = VK_STRUCTURE_TYPE_PIPELINE_LAYOUT_CREATE_INFO;
+    pli.setLayoutCount = 1;
+    pli.pSetLayouts = &set_layout_;
+    pli.pushConstantRangeCount = 1;
+    pli.pPushConstantRanges = &pcr;
+    check(vkCreatePipelineLayout(device_, &pli, nullptr, &pipeline_layout_), "vkCreatePipelineLayout");
+    VkDescriptorPoolSize ps{VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 6 + 2 * kChunks};
+    VkDescriptorPoolCreateInfo dpi{};
+    dpi.sType = VK_STRUCTURE_TYPE_DESCRIPTOR_POOL_CREATE_INFO;
+    dpi.maxSets = 1;
+    dpi.poolSizeCount = 1;
+    dpi.pPoolSizes = &ps;
+    check(vkCreateDescriptorPool(device_, &dpi, nullptr, &descriptor_pool_), "vkCreateDescriptorPool");
+    VkDescriptorSetAllocateInfo dsi{};
+    dsi.sType = VK_STRUCTURE_TYPE_DESCRIPTOR_SET_ALLOCATE_INFO;
+    dsi.descriptorPool = descriptor_pool_;
+    dsi.descriptorSetCount = 1;
+    dsi.pSetLayouts = &set_layout_;
+    check(vkAllocateDescriptorSets(device_, &dsi, &set_), "vkAllocateDescriptorSets");
+    VkShaderModuleCreateInfo si{};
+    si.sType = VK_STRUCTURE_TYPE_SHADER_MODULE_CREATE_INFO;
+    si.codeSize = sizeof kTraceSpv;
+    si.pCode = kTraceSpv;
+    check(vkCreateShaderModule(device_, &si, nullptr, &shader_), "vkCreateShaderModule");
+    counters_ = make_buffer(2 * sizeof(std::uint32_t), VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, true, "counters");
+    report_validation();
+  }
+
+  void release() noexcept {
+    if (device_ == VK_NULL_HANDLE) return;
+    vkDeviceWaitIdle(device_);
+    for (Buffer* b : {&nodes_.buf, &tris_.buf, &leaves_, &rays_, &hits_, &occ_, &stats_, &counters_}) destroy(*b);
+    for (auto& [key, p] : pipelines_) vkDestroyPipeline(device_, p, nullptr);
+    pipelines_.clear();
+    if (shader_) vkDestroyShaderModule(device_, shader_, nullptr);
+    if (descriptor_pool_) vkDestroyDescriptorPool(device_, descriptor_pool_, nullptr);
+    if (pipeline_layout_) vkDestroyPipelineLayout(device_, pipeline_layout_, nullptr);
+    if (set_layout_) vkDestroyDescriptorSetLayout(device_, set_layout_, nullptr);
+    if (fence_) vkDestroyFence(device_, fence_, nullptr);
+    if (pool_) vkDestroyCommandPool(device_, pool_, nullptr);
+    vkDestroyDevice(device_, nullptr);
+    device_ = VK_NULL_HANDLE;
+  }
+
+  /// Throws Error with every validation message raised since the last report.
+  void report_validation() {
+    if (!instance_.validation()) return;
+    const std::vector<std::string> m = vk::validation_messages(reported_);
+    reported_ += m.size();
+    if (m.empty()) return;
+    std::string text = "vulkan: the validation layer reported " + std::to_string(m.size()) + " message(s):";
+    for (const std::string& s : m) text += "\n  " + s;
+    throw Error(text);
+  }
+
+  void wait_idle() {
+    if (device_) check(vkDeviceWaitIdle(device_), "vkDeviceWaitIdle");
+  }
+
+  std::uint32_t memory_type(std::uint32_t bits, VkMemoryPropertyFlags required, VkMemoryPropertyFlags preferred) const {
+    for (VkMemoryPropertyFlags want : {required | preferred, required})
+      for (std::uint32_t i = 0; i < memory_.memoryTypeCount; ++i)
+        if ((bits & (1u << i)) && (memory_.memoryTypes[i].propertyFlags & want) == want) return i;
+    throw Error("Vulkan device " + dev_.name + " has no memory type with the needed properties");
+  }
+
+  /// A buffer of `bytes`; `host` = mapped, host-visible and coherent (batch buffers), else
+  /// device-local where the device has it (the build's arrays).
+  Buffer make_buffer(std::size_t bytes, VkBufferUsageFlags usage, bool host, const std::string& what) {
+    if (bytes > max_alloc_)
+      throw Error("vulkan: " + what + " (" + mib(bytes) + ") exceeds maxMemoryAllocationSize (" + mib(max_alloc_) +
+                  ") of " + dev_.name + "; use a smaller scene or another device");
+    Buffer b;
+    b.size = std::max<std::size_t>(bytes, 16);
+    VkBufferCreateInfo bi{};
+    bi.sType = VK_STRUCTURE_TYPE_BUFFER_CREATE_INFO;
+    bi.size = b.size;
+    bi.usage = usage;
+    bi.sharingMode = VK_SHARING_MODE_EXCLUSIVE;
+    check(vkCreateBuffer(device_, &bi, nullptr, &b.buffer), ("vkCreateBuffer(" + what + ", " + mib(bytes) + ")").c_str());
+    VkMemoryRequirements req;
+    vkGetBufferMemoryRequirements(device_, b.buffer, &req);
+    VkMemoryAllocateInfo ai{};
+    ai.sType = VK_STRUCTURE_TYPE_MEMORY_ALLOCATE_INFO;
+    ai.allocationSize = req.size;
+    ai.memoryTypeIndex = host ? memory_type(req.memoryTypeBits,
+                                            VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT | VK_MEMORY_PROPERTY_HOST_COHERENT_BIT,
+                                            VK_MEMORY_PROPERTY_HOST_CACHED_BIT)
+                              : memory_type(req.memoryTypeBits, 0, VK_MEMORY_PROPERTY_DEVICE_LOCAL_BIT);
+    const VkResult r = vkAllocateMemory(device_, &ai, nullptr, &b.memory);
+    if (r != VK_SUCCESS) {
+      destroy(b);
+      vk::fail("vkAllocateMemory", r, what + ", " + mib(bytes));
+    }
+    check(vkBindBufferMemory(device_, b.buffer, b.memory, 0), "vkBindBufferMemory");
+    if (memory_.memoryTypes[ai.memoryTypeIndex].propertyFlags & VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT)
+      check(vkMapMemory(device_, b.memory, 0, VK_WHOLE_SIZE, 0, &b.mapped), "vkMapMemory");
+    return b;
+  }
+
+  void destroy(Buffer& b) noexcept {
+    if (b.mapped) vkUnmapMemory(device_, b.memory);
+    if (b.buffer) vkDestroyBuffer(device_, b.buffer, nullptr);
+    if (b.memory) vkFreeMemory(device_, b.memory, nullptr);
+    b = Buffer{};
+  }
+
+  /// The build's arrays: written through the mapping where the memory is host-visible (lavapipe),
+  /// else through a staging buffer and a copy.
+  Buffer upload(const std::string& what, const void* data, std::size_t bytes) {
+    Buffer b = make_buffer(bytes, VK_BUFFER_USAGE_STORAGE_BUFFER_BIT | VK_BUFFER_USAGE_TRANSFER_DST_BIT, false, what);
+    if (bytes == 0) return b;
+    if (b.mapped) {
+      std::memcpy(b.mapped, data, bytes);  // coherent or not, made visible by the next submit
+      if (!(memory_flags(b) & VK_MEMORY_PROPERTY_HOST_COHERENT_BIT)) {
+        VkMappedMemoryRange r{VK_STRUCTURE_TYPE_MAPPED_MEMORY_RANGE, nullptr, b.memory, 0, VK_WHOLE_SIZE};
+        check(vkFlushMappedMemoryRanges(device_, 1, &r), "vkFlushMappedMemoryRanges");
+      }
+      return b;
+    }
+    Buffer staging = make_buffer(bytes, VK_BUFFER_USAGE_TRANSFER_SRC_BIT, true, what + " (staging)");
+    std::memcpy(staging.mapped, data, bytes);
+    begin();
+    const VkBufferCopy region{0, 0, bytes};
+    vkCmdCopyBuffer(cmd_, staging.buffer, b.buffer, 1, &region);
+    // orders: the copy's writes before any later dispatch's shader reads of this array
+    barrier(VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
+            VK_ACCESS_SHADER_READ_BIT);
+    submit_and_wait();
+    destroy(staging);
+    return b;
+  }
+
+  VkMemoryPropertyFlags memory_flags(const Buffer& b) const {
+    VkMemoryRequirements req;
+    vkGetBufferMemoryRequirements(device_, b.buffer, &req);
+    for (std::uint32_t i = 0; i < memory_.memoryTypeCount; ++i)
+      if (req.memoryTypeBits & (1u << i)) return memory_.memoryTypes[i].propertyFlags;
+    return 0;
+  }
+
+  /// An array of `n` records split into power-of-two chunks that each fit one binding's range.
+  Chunked upload_chunked(const std::string& what, const void* data, std::size_t n, std::size_t record) {
+    Chunked c;
+    c.shift = 0;
+    while ((record << (c.shift + 1)) <= range_ && c.shift < 30) ++c.shift;
+    c.chunk_bytes = record << c.shift;
+    const std::size_t chunks = std::max<std::size_t>(1, (n + (std::size_t(1) << c.shift) - 1) >> c.shift);
+    if (chunks > kChunks)
+      throw Error("vulkan: " + what + " (" + mib(n * record) + ") needs " + std::to_string(chunks) + " bindings of " +
+                  mib(c.chunk_bytes) + " (maxStorageBufferRange " + mib(range_) + " of " + dev_.name + "); the shader has " +
+                  std::to_string(kChunks) + "; use a smaller scene or another device");
+    c.count = static_cast<std::uint32_t>(chunks);
+    c.buf = upload(what, data, n * record);
+    return c;
+  }
+
+  void ensure_batch_buffers(std::size_t n) {
+    if (n <= cap_) return;
+    wait_idle();
+    for (Buffer* b : {&rays_, &hits_, &occ_, &stats_}) destroy(*b);
+    const VkBufferUsageFlags u = VK_BUFFER_USAGE_STORAGE_BUFFER_BIT;
+    rays_ = make_buffer(n * sizeof(Ray), u, true, "rays");
+    hits_ = make_buffer(n * sizeof(Hit), u, true, "hits");
+    occ_ = make_buffer(n * sizeof(std::uint32_t), u, true, "occlusion flags");
+    stats_ = make_buffer(n * 8 * sizeof(std::uint32_t), u, true, "per-ray statistics");
+    cap_ = n;
+    descriptors_dirty_ = true;
+  }
+
+  void write_descriptors() {
+    std::vector<VkDescriptorBufferInfo> info;
+    info.reserve(6 + 2 * kChunks);
+    for (const Buffer* b : {&rays_, &hits_, &occ_, &stats_, &counters_, &leaves_})
+      info.push_back({b->buffer, 0, VK_WHOLE_SIZE});
+    for (const Chunked* c : {&nodes_, &tris_})
+      for (std::uint32_t k = 0; k < kChunks; ++k) {
+        // chunks past the array's end repeat chunk 0: bound, never read (the shader's switch)
+        const std::size_t off = k < c->count ? k * c->chunk_bytes : 0;
+        info.push_back({c->buf.buffer, off, std::min(c->chunk_bytes, c->buf.size - off)});
+      }
+    VkWriteDescriptorSet w[kBindings]{};
+    std::size_t at = 0;
+    for (std::uint32_t i = 0; i < kBindings; ++i) {
+      w[i].sType = VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET;
+      w[i].dstSet = set_;
+      w[i].dstBinding = i;
+      w[i].descriptorCount = i >= 6 ? kChunks : 1;
+      w[i].descriptorType = VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
+      w[i].pBufferInfo = &info[at];
+      at += w[i].descriptorCount;
+    }
+    vkUpdateDescriptorSets(device_, kBindings, w, 0, nullptr);
+    descriptors_dirty_ = false;
+  }
+
+  VkPipeline pipeline(bool bitstack, bool any, bool stats) {
+    const auto key = std::make_tuple(bitstack, any, stats, nodes_.count, tris_.count);
+    if (auto it = pipelines_.find(key); it != pipelines_.end()) return it->second;
+    struct Spec {
+      VkBool32 bitstack, any, stats;
+      std::uint32_t node_chunks, node_shift, tri_chunks, tri_shift, local;
+    } spec{bitstack, any, stats, nodes_.count, nodes_.shift, tris_.count, tris_.shift, kLocalSize};
+    VkSpecializationMapEntry e[8];
+    for (std::uint32_t i = 0; i < 8; ++i) e[i] = {i, i * 4u, 4};
+    VkSpecializationInfo si{8, e, sizeof spec, &spec};
+    VkComputePipelineCreateInfo ci{};
+    ci.sType = VK_STRUCTURE_TYPE_COMPUTE_PIPELINE_CREATE_INFO;
+    ci.stage.sType = VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO;
+    ci.stage.stage = VK_SHADER_STAGE_COMPUTE_BIT;
+    ci.stage.module = shader_;
+    ci.stage.pName = "main";
+    ci.stage.pSpecializationInfo = &si;
+    ci.layout = pipeline_layout_;
+    VkPipeline p = VK_NULL_HANDLE;
+    check(vkCreateComputePipelines(device_, VK_NULL_HANDLE, 1, &ci, nullptr, &p), "vkCreateComputePipelines");
+    pipelines_.emplace(key, p);
+    return p;
+  }
+
+  void begin() {
+    check(vkResetCommandBuffer(cmd_, 0), "vkResetCommandBuffer");
+    VkCommandBufferBeginInfo bi{};
+    bi.sType = VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO;
+    bi.flags = VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT;
+    check(vkBeginCommandBuffer(cmd_, &bi), "vkBeginCommandBuffer");
+  }
+
+  void barrier(VkPipelineStageFlags src_stage, VkAccessFlags src, VkPipelineStageFlags dst_stage, VkAccessFlags dst) {
+    VkMemoryBarrier mb{VK_STRUCTURE_TYPE_MEMORY_BARRIER, nullptr, src, dst};
+    vkCmdPipelineBarrier(cmd_, src_stage, dst_stage, 0, 1, &mb, 0, nullptr, 0, nullptr);
+  }
+
+  void submit_and_wait() {
+    check(vkEndCommandBuffer(cmd_), "vkEndCommandBuffer");
+    VkSubmitInfo si{};
+    si.sType = VK_STRUCTURE_TYPE_SUBMIT_INFO;
+    si.commandBufferCount = 1;
+    si.pCommandBuffers = &cmd_;
+    // the submit orders every host write made before it (rays, counters, mapped uploads) before
+    // the commands it submits (host write ordering guarantee)
+    check(vkQueueSubmit(queue_, 1, &si, fence_), "vkQueueSubmit");
+    // the fence orders the commands' completion before the host reads the mapped results
+    const VkResult r = vkWaitForFences(device_, 1, &fence_, VK_TRUE, UINT64_MAX);
+    if (r == VK_ERROR_DEVICE_LOST)
+      vk::fail("vkWaitForFences", r, "the device was lost during a dispatch of at most " + std::to_string(max_batch_) +
+                                         " rays (a driver timeout on a slow device?)");
+    check(r, "vkWaitForFences");
+    check(vkResetFences(device_, 1, &fence_), "vkResetFences");
+  }
+
+  /// One dispatch of `n` rays from the ray buffer.
+  void run(VkPipeline pipe, std::uint32_t n) {
+    begin();
+    vkCmdBindPipeline(cmd_, VK_PIPELINE_BIND_POINT_COMPUTE, pipe);
+    vkCmdBindDescriptorSets(cmd_, VK_PIPELINE_BIND_POINT_COMPUTE, pipeline_layout_, 0, 1, &set_, 0, nullptr);
+    vkCmdPushConstants(cmd_, pipeline_layout_, VK_SHADER_STAGE_COMPUTE_BIT, 0, sizeof n, &n);
+    vkCmdDispatch(cmd_, (n + kLocalSize - 1) / kLocalSize, 1, 1);
+    // orders: the shader's writes (hits, flags, statistics, counters) before the host reads them
+    barrier(VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, VK_ACCESS_SHADER_WRITE_BIT, VK_PIPELINE_STAGE_HOST_BIT,
+            VK_ACCESS_HOST_READ_BIT);
+    submit_and_wait();
+  }
+
+  vk::Instance instance_;
+  std::size_t messages_at_start_ = 0, reported_ = messages_at_start_;
+  vk::DeviceEntry dev_;
+  VkPhysicalDeviceMemoryProperties memory_{};
+  std::size_t range_ = 0, max_alloc_ = 0, max_batch_ = 0;
+  std::uint32_t family_ = 0;
+  VkDevice device_ = VK_NULL_HANDLE;
+  VkQueue queue_ = VK_NULL_HANDLE;
+  VkCommandPool pool_ = VK_NULL_HANDLE;
+  VkCommandBuffer cmd_ = VK_NULL_HANDLE;
+  VkFence fence_ = VK_NULL_HANDLE;
+  VkDescriptorSetLayout set_layout_ = VK_NULL_HANDLE;
+  VkPipelineLayout pipeline_layout_ = VK_NULL_HANDLE;
+  VkDescriptorPool descriptor_pool_ = VK_NULL_HANDLE;
+  VkDescriptorSet set_ = VK_NULL_HANDLE;
+  VkShaderModule shader_ = VK_NULL_HANDLE;
+  std::map<std::tuple<bool, bool, bool, std::uint32_t, std::uint32_t>, VkPipeline> pipelines_;
+  bool descriptors_dirty_ = true;
+  const Accel* acc_ = nullptr;
+  std::uint64_t hash_ = 0;
+  Chunked nodes_, tris_;
+  Buffer leaves_;
+  std::size_t cap_ = 0;
+  Buffer rays_, hits_, occ_, stats_, counters_;
+};
+
+std::vector<std::string> device_lines() {
+  const vk::Instance instance(vk::validation_requested(false));
+  const std::vector<vk::DeviceEntry> devices = vk::list_devices(instance.get());
+  const vk::DeviceEntry& chosen = vk::choose_device(devices, "");
+  std::vector<std::string> lines;
+  for (const vk::DeviceEntry& d : devices) lines.push_back(d.describe() + (&d == &chosen ? "  [default]" : ""));
+  return lines;
+}
+
+}  // namespace
+
+std::size_t vulkan_validation_message_count() { return vk::validation_message_count(); }
+
+void register_vulkan_backends() {
+  BackendInfo info;
+  info.name = "vulkan";
+  info.summary = "GPU-style MBVH2 stack and bitstack traversal in a GLSL compute shader (lavapipe here)";
+  info.make = [](const BackendOptions& o) -> std::unique_ptr<Backend> { return std::make_unique<VulkanBackend>(o); };
+  info.devices = &device_lines;
+  register_backend(std::move(info));
+}
+
+}  // namespace mbvh

@@ -1,0 +1,338 @@
+/* trace.comp — the Vulkan backend's compute shader: the GPU path of TRAVERSAL.md §9, one
+ * invocation per ray over the MBVH2 layout (Aila & Laine 2009 node, both child boxes in one
+ * 64-byte record), with the 1-bit-per-level bitstack of Áfra & Szirmay-Kalos ("Stackless
+ * Multi-BVH Traversal for CPU, MIC and GPU Ray Tracing", CGF 2014) in a 64-bit word, and its
+ * stack-based twin with a fixed-size local stack; closest and any hit.
+ *
+ * Every operation repeats host/trace/intersect.h and host/trace/traverse.h in the same order
+ * (TRAVERSAL.md §10), so answers are bit-identical to cpu-scalar's:
+ *  - `precise` on every float expression (SPIR-V NoContraction: no FMA is formed);
+ *  - SignedZeroInfNanPreserve for 32-bit floats (declared below), so -0, inf and NaN survive;
+ *  - compare-and-select instead of min/max in the slab test, where a NaN must yield the
+ *    other operand as in the reference;
+ *  - GLSL division is only 2.5 ulp, so every float quotient is taken in double and rounded
+ *    once to float: a float quotient is never within 2^-49 (relative) of a float rounding
+ *    boundary, far more than double division's error, so the result is the correctly
+ *    rounded float quotient on any device (lavapipe's float division is exact too).
+ *
+ * Specialization constants pick the variant (one pipeline per traversal x query x statistics x
+ * chunk counts); the node and triangle arrays are bound as up to MBVH_VK_CHUNK_BINDINGS chunks of
+ * 2^SHIFT records each, so arrays over a device's maxStorageBufferRange still fit.
+ */
+#version 460
+#extension GL_GOOGLE_include_directive : require
+#extension GL_ARB_gpu_shader_int64 : require
+#extension GL_EXT_spirv_intrinsics : require
+
+#include "mbvh_layout.h"
+
+/* SPIR-V ExecutionMode SignedZeroInfNanPreserve (4461) for 32-bit floats, capability 4466 */
+spirv_execution_mode(capabilities = [4466], 4461, 32);
+
+layout(constant_id = 0) const bool BITSTACK = true; /* false: the stack twin */
+layout(constant_id = 1) const bool ANY = false;     /* any hit (occlusion) instead of closest */
+layout(constant_id = 2) const bool STATS = false;   /* per-ray counters */
+layout(constant_id = 3) const uint NODE_CHUNKS = 1;
+layout(constant_id = 4) const uint NODE_SHIFT = 21;
+layout(constant_id = 5) const uint TRI_CHUNKS = 1;
+layout(constant_id = 6) const uint TRI_SHIFT = 21;
+layout(local_size_x_id = 7) in;
+
+layout(push_constant) uniform Push {
+  uint count; /* rays in this dispatch */
+} pc;
+
+layout(std430, set = 0, binding = 0) readonly buffer RayBuf { Ray rays[]; };
+layout(std430, set = 0, binding = 1) writeonly buffer HitBuf { Hit hits[]; };
+layout(std430, set = 0, binding = 2) writeonly buffer OccBuf { uint occluded[]; };
+layout(std430, set = 0, binding = 3) writeonly buffer StatBuf { uint stats[]; };
+/* counters[0]: invalid rays (defined misses); counters[1]: rays whose stack would overflow */
+layout(std430, set = 0, binding = 4) buffer CounterBuf { uint counters[]; };
+layout(std430, set = 0, binding = 5) readonly buffer LeafBuf { Leaf leaves[]; };
+layout(std430, set = 0, binding = 6) readonly buffer NodeChunk { Node2 n[]; } nodes[MBVH_VK_CHUNK_BINDINGS];
+layout(std430, set = 0, binding = 7) readonly buffer TriChunk { Tri t[]; } tris[MBVH_VK_CHUNK_BINDINGS];
+
+/* Record i of a chunked array: chunk i >> SHIFT, offset i & (2^SHIFT - 1). Constant indices into
+ * the block array need no descriptor-indexing feature; with one chunk the switch folds away. */
+#define CHUNKED(BLOCKS, MEMBER, CHUNKS, SHIFT, I, SUFFIX)                                          \
+  if (CHUNKS == 1u) return BLOCKS[0].MEMBER[I] SUFFIX;                                             \
+  const uint c = uint(I) >> SHIFT, o = uint(I) & ((1u << SHIFT) - 1u);                             \
+  switch (c) {                                                                                     \
+    case 0u: return BLOCKS[0].MEMBER[o] SUFFIX;                                                    \
+    case 1u: return BLOCKS[1].MEMBER[o] SUFFIX;                                                    \
+    case 2u: return BLOCKS[2].MEMBER[o] SUFFIX;                                                    \
+    case 3u: return BLOCKS[3].MEMBER[o] SUFFIX;                                                    \
+    case 4u: return BLOCKS[4].MEMBER[o] SUFFIX;                                                    \
+    case 5u: return BLOCKS[5].MEMBER[o] SUFFIX;                                                    \
+    case 6u: return BLOCKS[6].MEMBER[o] SUFFIX;                                                    \
+    default: return BLOCKS[7].MEMBER[o] SUFFIX;                                                    \
+  }
+
+Node2 node(int i) { CHUNKED(nodes, n, NODE_CHUNKS, NODE_SHIFT, i, ) }
+ivec4 node_links(int i) { CHUNKED(nodes, n, NODE_CHUNKS, NODE_SHIFT, i, .link) }
+Tri tri_at(uint i) { CHUNKED(tris, t, TRI_CHUNKS, TRI_SHIFT, i, ) }
+
+/* constants by their bits (exact; glslang folds no bit casts into constants) */
+#define FAR_FACTOR uintBitsToFloat(0x3F800004u)     /* 1 + 2^-21 */
+#define CULL_SLACK uintBitsToFloat(0x3F800003u)     /* 1 + 3 * 2^-23 */
+#define FLT_MIN_NORMAL uintBitsToFloat(0x00800000u) /* smallest normal float */
+#define INF uintBitsToFloat(0x7F800000u)
+
+struct RayPre {
+  vec3 o, d, inv, invf;
+  bvec3 neg;
+  float tmin, tmax;
+  int kx, ky, kz;
+  float sx, sy, sz;
+};
+
+/* Per-ray counters, host RayStats order: nodes, box_tests, leaves, tris, climbs, retests, depth */
+uint st_nodes = 0u, st_boxes = 0u, st_leaves = 0u, st_tris = 0u, st_climbs = 0u, st_depth = 0u;
+
+/* a / b correctly rounded (see the header comment) */
+float div_rn(float a, float b) { return float(double(a) / double(b)); }
+
+bool finite(float x) { return !isinf(x) && !isnan(x); }
+
+/* §4.1 ray set-up, host prepare_ray */
+bool prepare_ray(Ray r, out RayPre p) {
+  p.o = vec3(0.0); p.d = vec3(0.0); p.inv = vec3(0.0); p.invf = vec3(0.0); p.neg = bvec3(false);
+  p.tmin = 0.0; p.tmax = 0.0; p.kx = 0; p.ky = 0; p.kz = 0; p.sx = 0.0; p.sy = 0.0; p.sz = 0.0;
+  if (!finite(r.ox) || !finite(r.oy) || !finite(r.oz) || !finite(r.tmin) || !finite(r.dx) || !finite(r.dy) ||
+      !finite(r.dz) || isnan(r.tmax))
+    return false;
+  if (!(r.tmin >= 0.0) || !(r.tmin <= r.tmax)) return false;
+  const vec3 ad = abs(vec3(r.dx, r.dy, r.dz));
+  int kz = 0;
+  if (ad[1] > ad[kz]) kz = 1;
+  if (ad[2] > ad[kz]) kz = 2;
+  if (!(ad[kz] >= FLT_MIN_NORMAL) || isinf(ad[kz])) return false;
+  p.o = vec3(r.ox, r.oy, r.oz);
+  p.d = vec3(r.dx, r.dy, r.dz);
+  precise float tmin0 = r.tmin + 0.0; /* -0 becomes +0 */
+  p.tmin = tmin0;
+  p.tmax = r.tmax;
+  for (int a = 0; a < 3; ++a) {
+    precise float inv = div_rn(1.0, p.d[a]);
+    precise float invf = inv * FAR_FACTOR;
+    p.inv[a] = inv;
+    p.neg[a] = (floatBitsToUint(p.d[a]) & 0x80000000u) != 0u;
+    p.invf[a] = invf;
+  }
+  p.kz = kz;
+  p.kx = (kz + 1) % 3;
+  p.ky = (p.kx + 1) % 3;
+  if (p.d[kz] < 0.0) { const int t = p.kx; p.kx = p.ky; p.ky = t; }
+  p.sx = div_rn(p.d[p.kx], p.d[p.kz]);
+  p.sy = div_rn(p.d[p.ky], p.d[p.kz]);
+  p.sz = div_rn(1.0, p.d[p.kz]);
+  return true;
+}
+
+float max_nan(float a, float b) { return a > b ? a : b; } /* NaN in a yields b */
+float min_nan(float a, float b) { return a < b ? a : b; }
+
+/* §6 conservative slab test, host box_test */
+bool box_test(RayPre r, float lox, float hix, float loy, float hiy, float loz, float hiz, float tcull,
+              out float entry) {
+  const float nx = r.neg.x ? hix : lox, fx = r.neg.x ? lox : hix;
+  const float ny = r.neg.y ? hiy : loy, fy = r.neg.y ? loy : hiy;
+  const float nz = r.neg.z ? hiz : loz, fz = r.neg.z ? loz : hiz;
+  precise float tnx = (nx - r.o.x) * r.inv.x, tfx = (fx - r.o.x) * r.invf.x;
+  precise float tny = (ny - r.o.y) * r.inv.y, tfy = (fy - r.o.y) * r.invf.y;
+  precise float tnz = (nz - r.o.z) * r.inv.z, tfz = (fz - r.o.z) * r.invf.z;
+  const float te = max_nan(tnz, max_nan(tny, max_nan(tnx, r.tmin)));
+  const float tx = min_nan(tfz, min_nan(tfy, min_nan(tfx, tcull)));
+  entry = te;
+  return te <= tx;
+}
+
+double plane_t_double(RayPre r, Tri tri) {
+  precise dvec3 e1 = dvec3(tri.v1.xyz) - dvec3(tri.v0.xyz);
+  precise dvec3 e2 = dvec3(tri.v2.xyz) - dvec3(tri.v0.xyz);
+  precise dvec3 n = dvec3(e1.y * e2.z - e1.z * e2.y, e1.z * e2.x - e1.x * e2.z, e1.x * e2.y - e1.y * e2.x);
+  precise dvec3 w = dvec3(tri.v0.xyz) - dvec3(r.o);
+  precise double nd = n.x * double(r.d.x) + n.y * double(r.d.y) + n.z * double(r.d.z);
+  precise double q = (n.x * w.x + n.y * w.y + n.z * w.z) / nd;
+  return q;
+}
+
+/* §7 watertight test (Woop, Benthin & Wald 2013), host tri_test */
+bool tri_test(RayPre r, Tri tri, float tmax, out float t_out, out float u_out, out float v_out) {
+  t_out = 0.0; u_out = 0.0; v_out = 0.0;
+  precise float X[3], Y[3], Z[3];
+  for (int i = 0; i < 3; ++i) {
+    const vec4 P = i == 0 ? tri.v0 : i == 1 ? tri.v1 : tri.v2;
+    precise float ax = P[r.kx] - r.o[r.kx];
+    precise float ay = P[r.ky] - r.o[r.ky];
+    precise float az = P[r.kz] - r.o[r.kz];
+    X[i] = ax - r.sx * az;
+    Y[i] = ay - r.sy * az;
+    Z[i] = r.sz * az;
+  }
+  precise float U = X[2] * Y[1] - Y[2] * X[1];
+  precise float V = X[0] * Y[2] - Y[0] * X[2];
+  precise float W = X[1] * Y[0] - Y[1] * X[0];
+  if (U == 0.0 || V == 0.0 || W == 0.0) {
+    precise double Ud = double(X[2]) * double(Y[1]) - double(Y[2]) * double(X[1]);
+    precise double Vd = double(X[0]) * double(Y[2]) - double(Y[0]) * double(X[2]);
+    precise double Wd = double(X[1]) * double(Y[0]) - double(Y[1]) * double(X[0]);
+    U = float(Ud);
+    V = float(Vd);
+    W = float(Wd);
+  }
+  if ((U < 0.0 || V < 0.0 || W < 0.0) && (U > 0.0 || V > 0.0 || W > 0.0)) return false;
+  precise float det = U + V + W;
+  if (det == 0.0) return false;
+  precise float T = U * Z[0] + V * Z[1] + W * Z[2];
+  const float t = div_rn(T, det);
+  if (!(t >= r.tmin && t <= tmax)) return false;
+  const float u = uintBitsToFloat(0x33800000u); /* 2^-24 */
+  const float g2 = div_rn(2.0 * u, 1.0 - 2.0 * u), g3 = div_rn(3.0 * u, 1.0 - 3.0 * u),
+              g5 = div_rn(5.0 * u, 1.0 - 5.0 * u);
+  const float maxZt = max(abs(Z[0]), max(abs(Z[1]), abs(Z[2])));
+  const float maxXt = max(abs(X[0]), max(abs(X[1]), abs(X[2])));
+  const float maxYt = max(abs(Y[0]), max(abs(Y[1]), abs(Y[2])));
+  const float maxE = max(abs(U), max(abs(V), abs(W)));
+  precise float dz = g3 * maxZt;
+  precise float dx = g5 * (maxXt + maxZt);
+  precise float dy = g5 * (maxYt + maxZt);
+  precise float de = 2.0 * (g2 * maxXt * maxYt + dy * maxXt + dx * maxYt);
+  precise float dt = 3.0 * (g3 * maxE * maxZt + de * maxZt + dz * maxE) * abs(div_rn(1.0, det));
+  if (t <= dt && !(plane_t_double(r, tri) > 0.0)) return false;
+  t_out = t;
+  u_out = div_rn(V, det);
+  v_out = div_rn(W, det);
+  return true;
+}
+
+Hit miss_hit() { return Hit(INF, 0.0, 0.0, MBVH_MISS_PRIM); }
+
+/* LEAF (§4): closest hit keeps the smallest (t, prim) and shrinks tmax; any hit stops (true). */
+bool visit_leaf(int ref, RayPre r, inout float tmax, inout Hit best) {
+  const Leaf l = leaves[~ref];
+  if (STATS) ++st_leaves;
+  for (uint i = l.first; i < l.first + l.count; ++i) {
+    if (STATS) ++st_tris;
+    const Tri tri = tri_at(i);
+    float t, u, w;
+    if (tri_test(r, tri, tmax, t, u, w)) {
+      const uint prim = floatBitsToUint(tri.v0.w);
+      if (ANY) {
+        best = Hit(t, u, w, prim);
+        return true;
+      }
+      if (t < best.t || prim < best.prim) {
+        best = Hit(t, u, w, prim);
+        tmax = t;
+      }
+    }
+  }
+  return false;
+}
+
+/* both child boxes of an MBVH2 node: hit mask (bit k = child k) and entry distances */
+uint test2(Node2 n, RayPre r, float tcull, out float d0, out float d1) {
+  if (STATS) { ++st_nodes; st_boxes += 2u; }
+  const bool h0 = box_test(r, n.c0.x, n.c0.y, n.c0.z, n.c0.w, n.zz.x, n.zz.y, tcull, d0);
+  const bool h1 = box_test(r, n.c1.x, n.c1.y, n.c1.z, n.c1.w, n.zz.z, n.zz.w, tcull, d1);
+  return (h0 ? 1u : 0u) | (h1 ? 2u : 0u);
+}
+
+/* child entered first: any hit the lower hit child; closest hit the nearer, ties to child 0 */
+int first_slot2(uint m, float d0, float d1) {
+  if (!ANY && m == 3u) return d1 < d0 ? 1 : 0;
+  return (m & 1u) != 0u ? 0 : 1;
+}
+
+/* MBVH2 bitstack (§4.2), host trace_mbvh2_bitstack: one bit per level, set where the other child
+ * is still to visit; backtracking climbs through the parent links and swaps to the sibling. */
+Hit trace_bitstack(RayPre r) {
+  Hit best = miss_hit();
+  float tmax = r.tmax;
+  int cur = 0, par = MBVH_NONE, sib = MBVH_NONE;
+  uint64_t bits = 0ul;
+  uint level = 0u;
+  for (;;) {
+    if (cur >= 0) {
+      const Node2 n = node(cur);
+      float d0, d1;
+      precise float tcull = tmax * CULL_SLACK;
+      const uint m = test2(n, r, tcull, d0, d1);
+      if (m != 0u) {
+        const int k = first_slot2(m, d0, d1);
+        bits = (bits << 1) | (m == 3u ? 1ul : 0ul);
+        if (STATS) { ++level; st_depth = max(st_depth, level); }
+        par = cur;
+        sib = n.link[2 + (1 - k)];
+        cur = n.link[2 + k];
+        continue;
+      }
+    } else if (visit_leaf(cur, r, tmax, best)) {
+      return best;
+    }
+    while ((bits & 1ul) == 0ul) {
+      if (bits == 0ul) return best;
+      cur = par;
+      const ivec4 l = node_links(cur);
+      par = l.x;
+      sib = l.y;
+      bits >>= 1;
+      if (STATS) { ++st_climbs; --level; }
+    }
+    bits ^= 1ul;
+    const int t = cur;
+    cur = sib;
+    sib = t;
+  }
+}
+
+/* the stack-based twin (§4.5): the farther hit child pushed, one entry per level */
+Hit trace_stack(RayPre r) {
+  Hit best = miss_hit();
+  float tmax = r.tmax;
+  int stack[MBVH_STACK2_ENTRIES];
+  uint sp = 0u;
+  int cur = 0;
+  for (;;) {
+    if (cur >= 0) {
+      const Node2 n = node(cur);
+      float d0, d1;
+      precise float tcull = tmax * CULL_SLACK;
+      const uint m = test2(n, r, tcull, d0, d1);
+      if (m != 0u) {
+        const int k = first_slot2(m, d0, d1);
+        if (m == 3u) {
+          if (sp + 1u > MBVH_STACK2_ENTRIES) { /* flag the ray rather than overflow */
+            atomicAdd(counters[1], 1u);
+            return miss_hit();
+          }
+          stack[sp++] = n.link[2 + (1 - k)];
+          if (STATS) st_depth = max(st_depth, sp);
+        }
+        cur = n.link[2 + k];
+        continue;
+      }
+    } else if (visit_leaf(cur, r, tmax, best)) {
+      return best;
+    }
+    if (sp == 0u) return best;
+    cur = stack[--sp];
+  }
+}
+
+void main() {
+  const uint gid = gl_GlobalInvocationID.x;
+  if (gid >= pc.count) return;
+  RayPre r;
+  Hit h = miss_hit();
+  if (prepare_ray(rays[gid], r)) h = BITSTACK ? trace_bitstack(r) : trace_stack(r);
+  else atomicAdd(counters[0], 1u);
+  if (ANY) occluded[gid] = h.prim != MBVH_MISS_PRIM ? 1u : 0u;
+  else hits[gid] = h;
+  if (STATS) {
+    const uint s = 8u * gid;
+    stats[s + 0u] = st_nodes; stats[s + 1u] = st_boxes; stats[s + 2u] = st_leaves; stats[s + 3u] = st_tris;
+    stats[s + 4u] = st_climbs; stats[s + 5u] = 0u; stats[s + 6u] = st_depth; stats[s + 7u] = 0u;
+  }
+}
