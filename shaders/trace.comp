@@ -84,7 +84,12 @@ struct RayPre {
   float tmin, tmax;
   int kx, ky, kz;
   float sx, sy, sz;
+  vec3 ok; /* o[kx], o[ky], o[kz] */
 };
+
+/* (v[kx], v[ky], v[kz]) by selects: a per-lane index into a vector would go through memory */
+float pick(vec3 v, int k) { return k == 0 ? v.x : k == 1 ? v.y : v.z; }
+vec3 permute(RayPre r, vec3 v) { return vec3(pick(v, r.kx), pick(v, r.ky), pick(v, r.kz)); }
 
 /* Per-ray counters, host RayStats order: nodes, box_tests, leaves, tris, climbs, retests, depth */
 uint st_nodes = 0u, st_boxes = 0u, st_leaves = 0u, st_tris = 0u, st_climbs = 0u, st_depth = 0u;
@@ -98,6 +103,7 @@ bool finite(float x) { return !isinf(x) && !isnan(x); }
 bool prepare_ray(Ray r, out RayPre p) {
   p.o = vec3(0.0); p.d = vec3(0.0); p.inv = vec3(0.0); p.invf = vec3(0.0); p.neg = bvec3(false);
   p.tmin = 0.0; p.tmax = 0.0; p.kx = 0; p.ky = 0; p.kz = 0; p.sx = 0.0; p.sy = 0.0; p.sz = 0.0;
+  p.ok = vec3(0.0);
   if (!finite(r.ox) || !finite(r.oy) || !finite(r.oz) || !finite(r.tmin) || !finite(r.dx) || !finite(r.dy) ||
       !finite(r.dz) || isnan(r.tmax))
     return false;
@@ -126,6 +132,7 @@ bool prepare_ray(Ray r, out RayPre p) {
   p.sx = div_rn(p.d[p.kx], p.d[p.kz]);
   p.sy = div_rn(p.d[p.ky], p.d[p.kz]);
   p.sz = div_rn(1.0, p.d[p.kz]);
+  p.ok = permute(p, p.o);
   return true;
 }
 
@@ -162,10 +169,10 @@ bool tri_test(RayPre r, Tri tri, float tmax, out float t_out, out float u_out, o
   t_out = 0.0; u_out = 0.0; v_out = 0.0;
   precise float X[3], Y[3], Z[3];
   for (int i = 0; i < 3; ++i) {
-    const vec4 P = i == 0 ? tri.v0 : i == 1 ? tri.v1 : tri.v2;
-    precise float ax = P[r.kx] - r.o[r.kx];
-    precise float ay = P[r.ky] - r.o[r.ky];
-    precise float az = P[r.kz] - r.o[r.kz];
+    const vec3 P = permute(r, i == 0 ? tri.v0.xyz : i == 1 ? tri.v1.xyz : tri.v2.xyz);
+    precise float ax = P.x - r.ok.x;
+    precise float ay = P.y - r.ok.y;
+    precise float az = P.z - r.ok.z;
     X[i] = ax - r.sx * az;
     Y[i] = ay - r.sy * az;
     Z[i] = r.sz * az;
