@@ -15,9 +15,14 @@
  *    boundary, far more than double division's error, so the result is the correctly
  *    rounded float quotient on any device (lavapipe's float division is exact too).
  *
+ * Loops are "while-while" (Aila & Laine, "Understanding the Efficiency of Ray Traversal on
+ * GPUs", HPG 2009): a lane descends through inner nodes until it reaches a leaf, so the lanes of a
+ * subgroup test their leaves together (1.4-1.5x faster than one node-or-leaf step per iteration).
+ *
  * Specialization constants pick the variant (one pipeline per traversal x query x statistics x
  * chunk counts); the node and triangle arrays are bound as up to MBVH_VK_CHUNK_BINDINGS chunks of
- * 2^SHIFT records each, so arrays over a device's maxStorageBufferRange still fit.
+ * 2^SHIFT records each, so arrays over a device's maxTexelBufferElements or
+ * maxStorageBufferRange still fit.
  */
 #version 460
 #extension GL_GOOGLE_include_directive : require
@@ -49,28 +54,41 @@ layout(std430, set = 0, binding = 3) writeonly buffer StatBuf { uint stats[]; };
 /* counters[0]: invalid rays (defined misses); counters[1]: rays whose stack would overflow */
 layout(std430, set = 0, binding = 4) buffer CounterBuf { uint counters[]; };
 layout(std430, set = 0, binding = 5) readonly buffer LeafBuf { Leaf leaves[]; };
-layout(std430, set = 0, binding = 6) readonly buffer NodeChunk { Node2 n[]; } nodes[MBVH_VK_CHUNK_BINDINGS];
+/* MBVH2 nodes as a uniform texel buffer of RGBA32UI texels, four per node (Aila & Laine 2009 fetch
+ * their nodes through the texture path too): on lavapipe a texel fetch gathers all lanes at once,
+ * where a storage-buffer load with a per-lane address loops over the lanes (1.45x faster
+ * traversal, README). Integer texels carry the float bits unchanged. */
+layout(set = 0, binding = 6) uniform usamplerBuffer nodeTex[MBVH_VK_CHUNK_BINDINGS];
 layout(std430, set = 0, binding = 7) readonly buffer TriChunk { Tri t[]; } tris[MBVH_VK_CHUNK_BINDINGS];
 
-/* Record i of a chunked array: chunk i >> SHIFT, offset i & (2^SHIFT - 1). Constant indices into
- * the block array need no descriptor-indexing feature; with one chunk the switch folds away. */
-#define CHUNKED(BLOCKS, MEMBER, CHUNKS, SHIFT, I, SUFFIX)                                          \
-  if (CHUNKS == 1u) return BLOCKS[0].MEMBER[I] SUFFIX;                                             \
-  const uint c = uint(I) >> SHIFT, o = uint(I) & ((1u << SHIFT) - 1u);                             \
-  switch (c) {                                                                                     \
-    case 0u: return BLOCKS[0].MEMBER[o] SUFFIX;                                                    \
-    case 1u: return BLOCKS[1].MEMBER[o] SUFFIX;                                                    \
-    case 2u: return BLOCKS[2].MEMBER[o] SUFFIX;                                                    \
-    case 3u: return BLOCKS[3].MEMBER[o] SUFFIX;                                                    \
-    case 4u: return BLOCKS[4].MEMBER[o] SUFFIX;                                                    \
-    case 5u: return BLOCKS[5].MEMBER[o] SUFFIX;                                                    \
-    case 6u: return BLOCKS[6].MEMBER[o] SUFFIX;                                                    \
-    default: return BLOCKS[7].MEMBER[o] SUFFIX;                                                    \
+/* Record i of a chunked array: chunk i >> SHIFT, record i & (2^SHIFT - 1) in it, read by
+ * FETCH(chunk, record). Constant indices into the binding arrays need no descriptor-indexing
+ * feature; with one chunk (a specialization constant) the switch folds away. */
+#define CHUNKED(FETCH, CHUNKS, SHIFT, I)                                                             \
+  if (CHUNKS == 1u) return FETCH(0, uint(I));                                                      \
+  const uint o = uint(I) & ((1u << SHIFT) - 1u);                                                   \
+  switch (uint(I) >> SHIFT) {                                                                      \
+    case 0u: return FETCH(0, o);                                                                   \
+    case 1u: return FETCH(1, o);                                                                   \
+    case 2u: return FETCH(2, o);                                                                   \
+    case 3u: return FETCH(3, o);                                                                   \
+    case 4u: return FETCH(4, o);                                                                   \
+    case 5u: return FETCH(5, o);                                                                   \
+    case 6u: return FETCH(6, o);                                                                   \
+    default: return FETCH(7, o);                                                                   \
   }
 
-Node2 node(int i) { CHUNKED(nodes, n, NODE_CHUNKS, NODE_SHIFT, i, ) }
-ivec4 node_links(int i) { CHUNKED(nodes, n, NODE_CHUNKS, NODE_SHIFT, i, .link) }
-Tri tri_at(uint i) { CHUNKED(tris, t, TRI_CHUNKS, TRI_SHIFT, i, ) }
+Node2 node_texels(usamplerBuffer t, uint o) {
+  const int k = 4 * int(o);
+  return Node2(uintBitsToFloat(texelFetch(t, k)), uintBitsToFloat(texelFetch(t, k + 1)),
+               uintBitsToFloat(texelFetch(t, k + 2)), ivec4(texelFetch(t, k + 3)));
+}
+#define NODE_FETCH(k, o) node_texels(nodeTex[k], o)
+#define LINK_FETCH(k, o) ivec4(texelFetch(nodeTex[k], 4 * int(o) + 3))
+#define TRI_FETCH(k, o) tris[k].t[o]
+Node2 node(int i) { CHUNKED(NODE_FETCH, NODE_CHUNKS, NODE_SHIFT, i) }
+ivec4 node_links(int i) { CHUNKED(LINK_FETCH, NODE_CHUNKS, NODE_SHIFT, i) } /* parent, sibling, child0, child1 */
+Tri tri_at(uint i) { CHUNKED(TRI_FETCH, TRI_CHUNKS, TRI_SHIFT, i) }
 
 /* constants by their bits (exact; glslang folds no bit casts into constants) */
 #define FAR_FACTOR uintBitsToFloat(0x3F800004u)     /* 1 + 2^-21 */
@@ -254,6 +272,24 @@ int first_slot2(uint m, float d0, float d1) {
 
 /* MBVH2 bitstack (§4.2), host trace_mbvh2_bitstack: one bit per level, set where the other child
  * is still to visit; backtracking climbs through the parent links and swaps to the sibling. */
+/* backtracking (§4.2): climb while the level's bit is 0, then swap to the sibling; false when done */
+bool backtrack2(inout int cur, inout int par, inout int sib, inout uint64_t bits, inout uint level) {
+  while ((bits & 1ul) == 0ul) {
+    if (bits == 0ul) return false;
+    cur = par;
+    const ivec4 l = node_links(cur);
+    par = l.x;
+    sib = l.y;
+    bits >>= 1;
+    if (STATS) { ++st_climbs; --level; }
+  }
+  bits ^= 1ul;
+  const int t = cur;
+  cur = sib;
+  sib = t;
+  return true;
+}
+
 Hit trace_bitstack(RayPre r) {
   Hit best = miss_hit();
   float tmax = r.tmax;
@@ -261,7 +297,7 @@ Hit trace_bitstack(RayPre r) {
   uint64_t bits = 0ul;
   uint level = 0u;
   for (;;) {
-    if (cur >= 0) {
+    while (cur >= 0) {
       const Node2 n = node(cur);
       float d0, d1;
       precise float tcull = tmax * CULL_SLACK;
@@ -273,24 +309,12 @@ Hit trace_bitstack(RayPre r) {
         par = cur;
         sib = n.link[2 + (1 - k)];
         cur = n.link[2 + k];
-        continue;
+      } else if (!backtrack2(cur, par, sib, bits, level)) {
+        return best;
       }
-    } else if (visit_leaf(cur, r, tmax, best)) {
-      return best;
     }
-    while ((bits & 1ul) == 0ul) {
-      if (bits == 0ul) return best;
-      cur = par;
-      const ivec4 l = node_links(cur);
-      par = l.x;
-      sib = l.y;
-      bits >>= 1;
-      if (STATS) { ++st_climbs; --level; }
-    }
-    bits ^= 1ul;
-    const int t = cur;
-    cur = sib;
-    sib = t;
+    if (visit_leaf(cur, r, tmax, best)) return best;
+    if (!backtrack2(cur, par, sib, bits, level)) return best;
   }
 }
 
@@ -302,7 +326,7 @@ Hit trace_stack(RayPre r) {
   uint sp = 0u;
   int cur = 0;
   for (;;) {
-    if (cur >= 0) {
+    while (cur >= 0) {
       const Node2 n = node(cur);
       float d0, d1;
       precise float tcull = tmax * CULL_SLACK;
@@ -318,11 +342,12 @@ Hit trace_stack(RayPre r) {
           if (STATS) st_depth = max(st_depth, sp);
         }
         cur = n.link[2 + k];
-        continue;
+      } else {
+        if (sp == 0u) return best;
+        cur = stack[--sp];
       }
-    } else if (visit_leaf(cur, r, tmax, best)) {
-      return best;
     }
+    if (visit_leaf(cur, r, tmax, best)) return best;
     if (sp == 0u) return best;
     cur = stack[--sp];
   }

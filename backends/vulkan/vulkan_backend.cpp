@@ -4,10 +4,11 @@
 // device: lavapipe here, a real GPU where there is one. Headless: no window, no surface.
 //
 // Per build, the MBVH2 nodes, leaves and triangles are uploaded once (device-local memory, by a
-// staging copy where it is not host-visible) and reused across calls. Arrays over the device's
-// maxStorageBufferRange are bound as power-of-two chunks of one buffer (up to
-// MBVH_VK_CHUNK_BINDINGS descriptors each); rays go through in batches within the range, the
-// allocation limit and the work-group count. One pipeline per (traversal, query, statistics,
+// staging copy where it is not host-visible) and reused across calls. The nodes are read as a
+// uniform texel buffer (RGBA32UI; shaders/trace.comp says why), the rest as std430 storage
+// buffers. An array over the device's maxTexelBufferElements or maxStorageBufferRange is bound
+// as power-of-two chunks of one buffer (up to MBVH_VK_CHUNK_BINDINGS descriptors each); rays go
+// through in batches within the range, the allocation limit and the work-group count. One pipeline per (traversal, query, statistics,
 // chunk counts), from specialization constants, made on first use and kept.
 #include <algorithm>
 #include <cstdio>
@@ -46,11 +47,13 @@ struct Buffer {
   std::size_t size = 0;
 };
 
-/// A chunked array: one buffer, bound as `count` descriptors of 2^shift records each.
+/// A chunked array: one buffer, bound as `count` descriptors of 2^shift records each (texel
+/// arrays: one buffer view per chunk).
 struct Chunked {
   Buffer buf;
   std::uint32_t count = 1, shift = 0;
   std::size_t chunk_bytes = 0;
+  std::vector<VkBufferView> views;
 };
 
 class VulkanBackend final : public Backend {
@@ -85,13 +88,13 @@ public:
   void prepare(const Accel& acc, const TraceOptions&) override {
     if (&acc == acc_ && acc.hash() == hash_) return;
     wait_idle();
-    destroy(nodes_.buf);
-    destroy(tris_.buf);
+    destroy(nodes_);
+    destroy(tris_);
     destroy(leaves_);
     acc_ = nullptr;
     const auto& n = acc.mbvh2().nodes;
-    nodes_ = upload_chunked("the MBVH2 node array", n.data(), n.size(), sizeof(Node2));
-    tris_ = upload_chunked("the triangle array", acc.tris().data(), acc.tris().size(), sizeof(Tri));
+    nodes_ = upload_chunked("the MBVH2 node array", n.data(), n.size(), sizeof(Node2), texel_range_, true);
+    tris_ = upload_chunked("the triangle array", acc.tris().data(), acc.tris().size(), sizeof(Tri), range_, false);
     const std::size_t leaf_bytes = acc.leaves().size() * sizeof(Leaf);
     if (leaf_bytes > range_)
       throw Error("vulkan: the leaf array (" + mib(leaf_bytes) + ") exceeds maxStorageBufferRange (" + mib(range_) +
@@ -181,11 +184,22 @@ private:
                   " lacks shaderSignedZeroInfNanPreserveFloat32: without it -0, inf and NaN need not survive, and the "
                   "answers would not be exact (TRAVERSAL.md §9)");
     const VkPhysicalDeviceLimits& lim = props.properties.limits;
-    if (lim.maxPerStageDescriptorStorageBuffers < 6 + 2 * kChunks)
+    if (lim.maxPerStageDescriptorStorageBuffers < 6 + kChunks || lim.maxPerStageDescriptorSampledImages < kChunks)
       throw Error("Vulkan device " + dev_.name + " allows " + std::to_string(lim.maxPerStageDescriptorStorageBuffers) +
-                  " storage buffers per stage; the shader binds " + std::to_string(6 + 2 * kChunks));
+                  " storage buffers and " + std::to_string(lim.maxPerStageDescriptorSampledImages) +
+                  " sampled images per stage; the shader binds " + std::to_string(6 + kChunks) + " and " +
+                  std::to_string(kChunks));
+    VkFormatProperties fp;
+    vkGetPhysicalDeviceFormatProperties(pd, VK_FORMAT_R32G32B32A32_UINT, &fp);
+    if (!(fp.bufferFeatures & VK_FORMAT_FEATURE_UNIFORM_TEXEL_BUFFER_BIT))
+      throw Error("Vulkan device " + dev_.name + " cannot read R32G32B32A32_UINT uniform texel buffers (the node array)");
     range_ = lim.maxStorageBufferRange;
-    if (o.vk_max_binding_bytes) range_ = std::min<std::size_t>(range_, o.vk_max_binding_bytes);
+    texel_range_ = std::size_t(lim.maxTexelBufferElements) * 16;
+    if (o.vk_max_binding_bytes) {
+      range_ = std::min<std::size_t>(range_, o.vk_max_binding_bytes);
+      texel_range_ = std::min<std::size_t>(texel_range_, o.vk_max_binding_bytes);
+    }
+    texel_align_ = lim.minTexelBufferOffsetAlignment;
     max_alloc_ = p11.maxMemoryAllocationSize;
     max_batch_ = std::min<std::size_t>({kMaxBatch, range_ / 32, max_alloc_ / 32,
                                         std::size_t(lim.maxComputeWorkGroupCount[0]) * kLocalSize});
@@ -234,11 +248,12 @@ private:
     fi.sType = VK_STRUCTURE_TYPE_FENCE_CREATE_INFO;
     check(vkCreateFence(device_, &fi, nullptr, &fence_), "vkCreateFence");
 
-    // descriptor layout: 0 rays, 1 hits, 2 occluded, 3 stats, 4 counters, 5 leaves, 6 node chunks, 7 triangle chunks
+    // descriptor layout: 0 rays, 1 hits, 2 occluded, 3 stats, 4 counters, 5 leaves (storage buffers),
+    // 6 node chunks (uniform texel buffers), 7 triangle chunks (storage buffers)
     VkDescriptorSetLayoutBinding b[kBindings]{};
     for (std::uint32_t i = 0; i < kBindings; ++i) {
       b[i].binding = i;
-      b[i].descriptorType = VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
+      b[i].descriptorType = i == 6 ? VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER : VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
       b[i].descriptorCount = i >= 6 ? kChunks : 1;
       b[i].stageFlags = VK_SHADER_STAGE_COMPUTE_BIT;
     }
@@ -255,12 +270,13 @@ private:
     pli.pushConstantRangeCount = 1;
     pli.pPushConstantRanges = &pcr;
     check(vkCreatePipelineLayout(device_, &pli, nullptr, &pipeline_layout_), "vkCreatePipelineLayout");
-    VkDescriptorPoolSize ps{VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 6 + 2 * kChunks};
+    const VkDescriptorPoolSize ps[2] = {{VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 6 + kChunks},
+                                        {VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER, kChunks}};
     VkDescriptorPoolCreateInfo dpi{};
     dpi.sType = VK_STRUCTURE_TYPE_DESCRIPTOR_POOL_CREATE_INFO;
     dpi.maxSets = 1;
-    dpi.poolSizeCount = 1;
-    dpi.pPoolSizes = &ps;
+    dpi.poolSizeCount = 2;
+    dpi.pPoolSizes = ps;
     check(vkCreateDescriptorPool(device_, &dpi, nullptr, &descriptor_pool_), "vkCreateDescriptorPool");
     VkDescriptorSetAllocateInfo dsi{};
     dsi.sType = VK_STRUCTURE_TYPE_DESCRIPTOR_SET_ALLOCATE_INFO;
@@ -280,7 +296,9 @@ private:
   void release() noexcept {
     if (device_ == VK_NULL_HANDLE) return;
     vkDeviceWaitIdle(device_);
-    for (Buffer* b : {&nodes_.buf, &tris_.buf, &leaves_, &rays_, &hits_, &occ_, &stats_, &counters_}) destroy(*b);
+    destroy(nodes_);
+    destroy(tris_);
+    for (Buffer* b : {&leaves_, &rays_, &hits_, &occ_, &stats_, &counters_}) destroy(*b);
     for (auto& [key, p] : pipelines_) vkDestroyPipeline(device_, p, nullptr);
     pipelines_.clear();
     if (shader_) vkDestroyShaderModule(device_, shader_, nullptr);
@@ -349,6 +367,12 @@ private:
     return b;
   }
 
+  void destroy(Chunked& c) noexcept {
+    for (VkBufferView v : c.views) vkDestroyBufferView(device_, v, nullptr);
+    destroy(c.buf);
+    c = Chunked{};
+  }
+
   void destroy(Buffer& b) noexcept {
     if (b.mapped) vkUnmapMemory(device_, b.memory);
     if (b.buffer) vkDestroyBuffer(device_, b.buffer, nullptr);
@@ -359,7 +383,10 @@ private:
   /// The build's arrays: written through the mapping where the memory is host-visible (lavapipe),
   /// else through a staging buffer and a copy.
   Buffer upload(const std::string& what, const void* data, std::size_t bytes) {
-    Buffer b = make_buffer(bytes, VK_BUFFER_USAGE_STORAGE_BUFFER_BIT | VK_BUFFER_USAGE_TRANSFER_DST_BIT, false, what);
+    Buffer b = make_buffer(bytes,
+                           VK_BUFFER_USAGE_STORAGE_BUFFER_BIT | VK_BUFFER_USAGE_UNIFORM_TEXEL_BUFFER_BIT |
+                               VK_BUFFER_USAGE_TRANSFER_DST_BIT,
+                           false, what);
     if (bytes == 0) return b;
     if (b.mapped) {
       std::memcpy(b.mapped, data, bytes);  // coherent or not, made visible by the next submit
@@ -390,19 +417,40 @@ private:
     return 0;
   }
 
-  /// An array of `n` records split into power-of-two chunks that each fit one binding's range.
-  Chunked upload_chunked(const std::string& what, const void* data, std::size_t n, std::size_t record) {
+  /// An array of `n` records split into power-of-two chunks that each fit one binding's `range`
+  /// (texel arrays: RGBA32UI buffer views, one per chunk).
+  Chunked upload_chunked(const std::string& what, const void* data, std::size_t n, std::size_t record,
+                         std::size_t range, bool texels) {
     Chunked c;
     c.shift = 0;
-    while ((record << (c.shift + 1)) <= range_ && c.shift < 30) ++c.shift;
+    while ((record << (c.shift + 1)) <= range && c.shift < 30) ++c.shift;
     c.chunk_bytes = record << c.shift;
+    if (c.chunk_bytes > range || (texels && c.chunk_bytes % texel_align_ != 0))
+      throw Error("vulkan: " + what + ": one record does not fit a binding of " + dev_.name);
     const std::size_t chunks = std::max<std::size_t>(1, (n + (std::size_t(1) << c.shift) - 1) >> c.shift);
+    const char* limit = texels ? "maxTexelBufferElements" : "maxStorageBufferRange";
     if (chunks > kChunks)
       throw Error("vulkan: " + what + " (" + mib(n * record) + ") needs " + std::to_string(chunks) + " bindings of " +
-                  mib(c.chunk_bytes) + " (maxStorageBufferRange " + mib(range_) + " of " + dev_.name + "); the shader has " +
+                  mib(c.chunk_bytes) + " (" + limit + " " + mib(range) + " of " + dev_.name + "); the shader has " +
                   std::to_string(kChunks) + "; use a smaller scene or another device");
     c.count = static_cast<std::uint32_t>(chunks);
     c.buf = upload(what, data, n * record);
+    if (texels)
+      for (std::uint32_t k = 0; k < c.count; ++k) {
+        VkBufferViewCreateInfo vi{};
+        vi.sType = VK_STRUCTURE_TYPE_BUFFER_VIEW_CREATE_INFO;
+        vi.buffer = c.buf.buffer;
+        vi.format = VK_FORMAT_R32G32B32A32_UINT;
+        vi.offset = k * c.chunk_bytes;
+        vi.range = std::min(c.chunk_bytes, c.buf.size - vi.offset);
+        VkBufferView v = VK_NULL_HANDLE;
+        const VkResult r = vkCreateBufferView(device_, &vi, nullptr, &v);
+        if (r != VK_SUCCESS) {
+          destroy(c);
+          vk::fail("vkCreateBufferView", r, what + ", chunk " + std::to_string(k));
+        }
+        c.views.push_back(v);
+      }
     return c;
   }
 
@@ -420,16 +468,18 @@ private:
   }
 
   void write_descriptors() {
+    // chunks past an array's end repeat chunk 0: bound, never read (the shader's switch)
     std::vector<VkDescriptorBufferInfo> info;
     info.reserve(6 + 2 * kChunks);
     for (const Buffer* b : {&rays_, &hits_, &occ_, &stats_, &counters_, &leaves_})
       info.push_back({b->buffer, 0, VK_WHOLE_SIZE});
-    for (const Chunked* c : {&nodes_, &tris_})
-      for (std::uint32_t k = 0; k < kChunks; ++k) {
-        // chunks past the array's end repeat chunk 0: bound, never read (the shader's switch)
-        const std::size_t off = k < c->count ? k * c->chunk_bytes : 0;
-        info.push_back({c->buf.buffer, off, std::min(c->chunk_bytes, c->buf.size - off)});
-      }
+    info.push_back({});  // binding 6 is texel views
+    for (std::uint32_t k = 0; k < kChunks; ++k) {
+      const std::size_t off = k < tris_.count ? k * tris_.chunk_bytes : 0;
+      info.push_back({tris_.buf.buffer, off, std::min(tris_.chunk_bytes, tris_.buf.size - off)});
+    }
+    VkBufferView views[kChunks];
+    for (std::uint32_t k = 0; k < kChunks; ++k) views[k] = nodes_.views[k < nodes_.count ? k : 0];
     VkWriteDescriptorSet w[kBindings]{};
     std::size_t at = 0;
     for (std::uint32_t i = 0; i < kBindings; ++i) {
@@ -437,6 +487,12 @@ private:
       w[i].dstSet = set_;
       w[i].dstBinding = i;
       w[i].descriptorCount = i >= 6 ? kChunks : 1;
+      if (i == 6) {
+        w[i].descriptorType = VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER;
+        w[i].pTexelBufferView = views;
+        at += 1;
+        continue;
+      }
       w[i].descriptorType = VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
       w[i].pBufferInfo = &info[at];
       at += w[i].descriptorCount;
@@ -517,7 +573,7 @@ private:
   std::size_t messages_at_start_ = 0, reported_ = messages_at_start_;
   vk::DeviceEntry dev_;
   VkPhysicalDeviceMemoryProperties memory_{};
-  std::size_t range_ = 0, max_alloc_ = 0, max_batch_ = 0;
+  std::size_t range_ = 0, texel_range_ = 0, texel_align_ = 16, max_alloc_ = 0, max_batch_ = 0;
   std::uint32_t family_ = 0;
   VkDevice device_ = VK_NULL_HANDLE;
   VkQueue queue_ = VK_NULL_HANDLE;
