@@ -19,14 +19,14 @@ void register_builtin_backends() {
 #else
   register_backend({"opencl", "16-wide MIC-style MBVH4 traversal on OpenCL (PoCL)", {},
                     "this build has no OpenCL backend (configure with -DMBVH_OPENCL=ON and the OpenCL headers and ICD "
-                    "loader installed)", {}, "", {}});
+                    "loader installed)", {}, "", {}, {}});
 #endif
 #ifdef MBVH_HAVE_VULKAN
   register_vulkan_backends();
 #else
   register_backend({"vulkan", "GPU-style MBVH2 traversal in a GLSL compute shader (lavapipe)", {},
                     "this build has no Vulkan backend (configure with -DMBVH_VULKAN=ON and the Vulkan loader headers and "
-                    "glslangValidator installed)", {}, "", {}});
+                    "glslangValidator installed)", {}, "", {}, {}});
 #endif
 }
 

@@ -67,6 +67,9 @@ struct BackendInfo {
   std::string alias_of;
   /// If set, lists the devices this backend can run on (one line each; `mbvh devices`).
   std::function<std::vector<std::string>()> devices;
+  /// If set, takes the problems the backend's diagnostics raised where they could not be thrown
+  /// (Vulkan validation messages while tearing down); the CLI and the tests fail on any.
+  std::function<std::vector<std::string>()> pending_problems;
 };
 
 /// Adds a backend to the registry (a later registration of the same name replaces it).

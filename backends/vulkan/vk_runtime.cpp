@@ -4,6 +4,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <mutex>
+#include <utility>
 
 #include "host/device_choice.h"
 #include "host/error.h"
@@ -81,15 +82,9 @@ const char* const kLayer = "VK_LAYER_KHRONOS_validation";
 
 }  // namespace
 
-std::size_t validation_message_count() {
+std::vector<std::string> take_validation_messages() {
   const std::lock_guard<std::mutex> lock(g_messages_mutex);
-  return g_messages.size();
-}
-
-std::vector<std::string> validation_messages(std::size_t from) {
-  const std::lock_guard<std::mutex> lock(g_messages_mutex);
-  if (from >= g_messages.size()) return {};
-  return {g_messages.begin() + static_cast<std::ptrdiff_t>(from), g_messages.end()};
+  return std::exchange(g_messages, {});
 }
 
 Instance::Instance(bool validation) : validation_(validation) {
@@ -120,11 +115,15 @@ Instance::Instance(bool validation) : validation_(validation) {
     ci.pNext = &mi;  // instance creation and destruction are checked too
   }
   const VkResult r = vkCreateInstance(&ci, nullptr, &instance_);
-  if (r == VK_ERROR_INCOMPATIBLE_DRIVER)
+  if (r != VK_SUCCESS) {  // what the loader said through the messenger belongs to this error
+    std::string said;
+    for (const std::string& m : take_validation_messages()) said += "\n  " + m;
     fail("vkCreateInstance", r,
-         "no Vulkan driver found: install one, e.g. Debian's mesa-vulkan-drivers (lavapipe; scripts/demo and "
-         "scripts/test do)");
-  check(r, "vkCreateInstance");
+         (r == VK_ERROR_INCOMPATIBLE_DRIVER ? "no Vulkan driver found: install one, e.g. Debian's mesa-vulkan-drivers "
+                                              "(lavapipe; scripts/demo and scripts/test do)"
+                                            : std::string("")) +
+             said);
+  }
   if (validation_) {
     auto create = reinterpret_cast<PFN_vkCreateDebugUtilsMessengerEXT>(
         vkGetInstanceProcAddr(instance_, "vkCreateDebugUtilsMessengerEXT"));

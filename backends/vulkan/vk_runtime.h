@@ -22,9 +22,9 @@ inline void check(VkResult r, const char* call) {
 /// environment (the tests set it).
 bool validation_requested(bool flag);
 
-/// Validation-layer messages (warnings and errors) seen so far in this process, in order.
-std::size_t validation_message_count();
-std::vector<std::string> validation_messages(std::size_t from = 0);
+/// Takes (and clears) the validation-layer warnings and errors raised in this process since the
+/// last take, in order.
+std::vector<std::string> take_validation_messages();
 
 /// The VkInstance, with VK_LAYER_KHRONOS_validation and a debug messenger that records every
 /// warning and error (instance creation and destruction included) when `validation` is set.

@@ -214,7 +214,7 @@ int cmd_info(const SceneArgs& a, const std::string& json_path) {
 
 }  // namespace
 
-int main(int argc, char** argv) {
+static int run(int argc, char** argv) {
   CLI::App app{"mbvh — one MBVH2/MBVH4 build, stackless bitstack traversal on several backends"};
   app.require_subcommand(1);
   app.set_help_all_flag("--help-all", "help for every command");
@@ -244,7 +244,7 @@ int main(int argc, char** argv) {
   add_scene_args(trace, tr_a);
   add_ray_args(trace, tr_r, true);
   trace->add_option("--backend", tr_backend, "backend (see `mbvh devices`)");
-  trace->add_option("--layout", tr_layout, "mbvh2 or mbvh4");
+  trace->add_option("--layout", tr_layout, "mbvh2 or mbvh4 (default: mbvh4, or mbvh2 where the backend has only that)");
   trace->add_option("--traversal", tr_trav, "stack or bitstack");
   trace->add_option("--query", tr_query, "closest (writes hits, 16 B/ray) or any (writes occlusion, 1 B/ray)");
   trace->add_option("-o,--output", tr_out, "output file");
@@ -310,6 +310,12 @@ int main(int argc, char** argv) {
       o.stats = tr_stats;
       BackendOptions bo = tr_dev.options(tr_a.threads);
       auto backend = make_backend(tr_backend, bo);
+      // the default layout is the backend's own where it has no MBVH4 traversal (vulkan: MBVH2)
+      if (trace->count("--layout") == 0 && !backend->supports(o.layout, o.traversal) &&
+          backend->supports(Layout::mbvh2, o.traversal)) {
+        o.layout = Layout::mbvh2;
+        tr_layout = "mbvh2";
+      }
       if (!backend->supports(o.layout, o.traversal))
         throw Error("backend '" + tr_backend + "' does not support " + tr_layout + "/" + tr_trav);
       Loaded l = load_and_build(tr_a);
@@ -439,4 +445,17 @@ int main(int argc, char** argv) {
     return 2;
   }
   return 0;
+}
+
+int main(int argc, char** argv) {
+  int rc = run(argc, argv);
+  // problems a backend's diagnostics raised where they could not throw (Vulkan validation
+  // messages while tearing down): the run fails
+  for (const BackendInfo& b : list_backends())
+    if (b.pending_problems)
+      if (const std::vector<std::string> p = b.pending_problems(); !p.empty()) {
+        for (const std::string& m : p) std::fprintf(stderr, "mbvh: error: %s: %s\n", b.name.c_str(), m.c_str());
+        if (rc == 0) rc = 2;
+      }
+  return rc;
 }

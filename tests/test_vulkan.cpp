@@ -1,0 +1,207 @@
+// test_vulkan.cpp — what the Vulkan backend promises beyond the shared equivalence tests (which
+// run it on every scene, ray kind and variant, with the validation layer on: CMakeLists.txt sets
+// MBVH_VK_VALIDATION=1 for every test): the layer's messages are caught; arrays split over
+// several bindings (a scene over lavapipe's 128 MiB maxStorageBufferRange, and small scenes with
+// the binding range capped) and rays over several batches give cpu-scalar's answers; clear
+// errors for a missing driver and an unknown --vk-device; bench records beside cpu.
+#include <catch2/catch.hpp>
+
+#include <cstring>
+#include <fstream>
+#include <nlohmann/json.hpp>
+
+#include "backends/vulkan/vk_runtime.h"
+#include "host/backend.h"
+#include "host/error.h"
+#include "host/rays.h"
+#include "tests/helpers.h"
+
+using namespace mbvh;
+
+namespace {
+
+// every variant the backend has, bit for bit against the reference
+void check_against_reference(Backend& b, const Accel& acc, const std::vector<Ray>& rays) {
+  for (Traversal t : {Traversal::stack, Traversal::bitstack})
+    for (Query q : {Query::closest, Query::any}) {
+      INFO(to_string(t) << " " << to_string(q));
+      const TraceOptions o{Layout::mbvh2, t, q, false};
+      TraceOutput ref, got;
+      trace_reference(acc, rays, o, ref, 0);
+      b.trace(acc, rays, o, got);
+      if (q == Query::closest) {
+        REQUIRE(got.hits.size() == rays.size());
+        CHECK(std::memcmp(ref.hits.data(), got.hits.data(), rays.size() * sizeof(Hit)) == 0);
+      } else {
+        CHECK(got.occluded == ref.occluded);
+      }
+    }
+}
+
+}  // namespace
+
+TEST_CASE("vulkan: the validation layer is on in the tests and its messages are caught", "[vulkan]") {
+  REQUIRE(vk::validation_requested(false));  // MBVH_VK_VALIDATION=1 from CMakeLists.txt
+  CHECK(vk::take_validation_messages().empty());
+  {  // a buffer left alive when its device is destroyed: a validation error the layer must report
+    vk::Instance instance(true);
+    const std::vector<vk::DeviceEntry> devices = vk::list_devices(instance.get());
+    const float priority = 1.0f;
+    VkDeviceQueueCreateInfo qi{};
+    qi.sType = VK_STRUCTURE_TYPE_DEVICE_QUEUE_CREATE_INFO;
+    qi.queueCount = 1;
+    qi.pQueuePriorities = &priority;
+    VkDeviceCreateInfo di{};
+    di.sType = VK_STRUCTURE_TYPE_DEVICE_CREATE_INFO;
+    di.queueCreateInfoCount = 1;
+    di.pQueueCreateInfos = &qi;
+    VkDevice device = VK_NULL_HANDLE;
+    REQUIRE(vkCreateDevice(devices.front().device, &di, nullptr, &device) == VK_SUCCESS);
+    VkBufferCreateInfo bi{};
+    bi.sType = VK_STRUCTURE_TYPE_BUFFER_CREATE_INFO;
+    bi.size = 256;
+    bi.usage = VK_BUFFER_USAGE_STORAGE_BUFFER_BIT;
+    VkBuffer buffer = VK_NULL_HANDLE;
+    REQUIRE(vkCreateBuffer(device, &bi, nullptr, &buffer) == VK_SUCCESS);
+    vkDestroyDevice(device, nullptr);
+  }
+  const std::vector<std::string> m = vk::take_validation_messages();
+  std::string all;
+  for (const std::string& s : m) all += s + "\n";
+  INFO(all);
+  CHECK(all.find("VUID-vkDestroyDevice-device-00378") != std::string::npos);
+
+  // and a clean run of the backend raises none
+  const Scene s = load_scene("gen:sphere:16");
+  const auto acc = Accel::build(s);
+  RayGenOptions ro;
+  ro.count = 1000;
+  const std::vector<Ray> rays = generate_rays(s, *acc, ro);
+  {
+    auto b = make_backend("vulkan");
+    check_against_reference(*b, *acc, rays);
+  }
+  const std::vector<std::string> after = vk::take_validation_messages();
+  CHECK(after.empty());
+}
+
+TEST_CASE("vulkan: arrays over the binding range are split - rays over several batches come back in order",
+          "[vulkan]") {
+  // capped binding range: nodes and triangles each in several chunks, rays in many batches
+  const Scene s = load_scene("gen:soup:20000");
+  const auto acc = Accel::build(s);
+  RayGenOptions ro;
+  ro.kind = RayKind::random;
+  ro.count = 50000;
+  const std::vector<Ray> rays = generate_rays(s, *acc, ro);
+  BackendOptions bo;
+  bo.vk_max_binding_bytes = 256 * 1024;
+  auto b = make_backend("vulkan", bo);
+  b->prepare(*acc, TraceOptions{});
+  const std::string d = b->describe();
+  INFO(d);
+  // 256 KiB = 4096 nodes of 64 B; 5461 triangles of 48 B, rounded down to 4096; 8192 rays of 32 B
+  const std::size_t node_chunks = (acc->mbvh2().nodes.size() + 4095) / 4096, tri_chunks = (acc->tris().size() + 4095) / 4096;
+  REQUIRE(node_chunks > 1);
+  REQUIRE(tri_chunks > 1);
+  CHECK(d.find("nodes in " + std::to_string(node_chunks) + " texel binding(s) of 0.2 MiB") != std::string::npos);
+  CHECK(d.find("triangles in " + std::to_string(tri_chunks) + " storage binding(s) of 0.2 MiB") != std::string::npos);
+  CHECK(d.find("batches of 8192 rays") != std::string::npos);
+  check_against_reference(*b, *acc, rays);
+
+  // more chunks than the shader has bindings: a clear error naming the array and the limit
+  BackendOptions tiny;
+  tiny.vk_max_binding_bytes = 16 * 1024;
+  auto t = make_backend("vulkan", tiny);
+  CHECK_THROWS_WITH(t->prepare(*acc, TraceOptions{}),
+                    Catch::Contains("the MBVH2 node array") && Catch::Contains("bindings of") &&
+                        Catch::Contains("the shader has 8"));
+}
+
+TEST_CASE("vulkan: a scene whose node and triangle arrays exceed 128 MiB traces exactly", "[vulkan][large]") {
+  // 3M triangles: 144 MB of triangles and about 136 MB of MBVH2 nodes, over lavapipe's 128 MiB
+  // maxStorageBufferRange: the triangles are split over two storage bindings
+  const Scene s = load_scene("gen:soup:3000000");
+  const auto acc = Accel::build(s);
+  REQUIRE(acc->tris().size() * sizeof(Tri) > (std::size_t(128) << 20));
+  REQUIRE(acc->mbvh2().nodes.size() * sizeof(Node2) > (std::size_t(128) << 20));
+  RayGenOptions ro;
+  ro.kind = RayKind::random;
+  ro.count = 20000;
+  const std::vector<Ray> rays = generate_rays(s, *acc, ro);
+  auto b = make_backend("vulkan");
+  b->prepare(*acc, TraceOptions{});
+  INFO(b->describe());
+  CHECK(b->describe().find("triangles in 2 storage binding(s)") != std::string::npos);
+  check_against_reference(*b, *acc, rays);
+}
+
+TEST_CASE("vulkan: no driver is a clear error - in devices and when tracing", "[vulkan]") {
+  mbvh_test::TempDir dir;
+  const std::string env = "VK_ICD_FILENAMES=" + dir.file("none.json") + " VK_DRIVER_FILES=" + dir.file("none.json");
+  const auto d = mbvh_test::run_cli("devices", env);
+  INFO(d.output);
+  CHECK(d.code == 0);
+  CHECK(d.output.find("vulkan       cannot start:") != std::string::npos);
+  CHECK(d.output.find("mesa-vulkan-drivers") != std::string::npos);
+  CHECK(d.output.find("cpu-scalar   ready") != std::string::npos);  // the other backends still work
+  const auto t = mbvh_test::run_cli("trace gen:cube:4 --count 10 --backend vulkan", env);
+  INFO(t.output);
+  CHECK(t.code == 2);
+  CHECK(t.output.find("mesa-vulkan-drivers") != std::string::npos);
+}
+
+TEST_CASE("vulkan: --vk-device chooses by index or name - prints the choice - and lists the devices when nothing "
+          "matches",
+          "[vulkan]") {
+  std::vector<vk::DeviceEntry> list(3);
+  const char* names[] = {"llvmpipe", "Big GPU", "Small GPU"};
+  const VkPhysicalDeviceType types[] = {VK_PHYSICAL_DEVICE_TYPE_CPU, VK_PHYSICAL_DEVICE_TYPE_DISCRETE_GPU,
+                                        VK_PHYSICAL_DEVICE_TYPE_INTEGRATED_GPU};
+  for (unsigned i = 0; i < 3; ++i) {
+    list[i].index = i;
+    list[i].name = names[i];
+    list[i].type = types[i];
+  }
+  CHECK(&vk::choose_device(list, "") == &list[1]);  // a discrete GPU first
+  list[1].type = VK_PHYSICAL_DEVICE_TYPE_CPU;
+  CHECK(&vk::choose_device(list, "") == &list[2]);  // then an integrated one
+  CHECK(&vk::choose_device(list, "0") == &list[0]);
+  CHECK(&vk::choose_device(list, "small") == &list[2]);
+  CHECK_THROWS_WITH(vk::choose_device(list, "7"),
+                    Catch::Contains("no Vulkan device matches --vk-device '7'") && Catch::Contains("2 Small GPU"));
+
+  const auto ok = mbvh_test::run_cli("trace gen:cube:4 --count 100 --backend vulkan --vk-device llvmpipe");
+  INFO(ok.output);
+  CHECK(ok.code == 0);
+  CHECK(ok.output.find("vulkan: Vulkan device 0 llvmpipe") != std::string::npos);
+  CHECK(ok.output.find("error") == std::string::npos);  // no validation message either
+  const auto bad = mbvh_test::run_cli("trace gen:cube:4 --count 100 --backend vulkan --vk-device no-such-device");
+  INFO(bad.output);
+  CHECK(bad.code == 2);
+  CHECK(bad.output.find("no Vulkan device matches --vk-device 'no-such-device'; the devices are:") != std::string::npos);
+  CHECK(bad.output.find("\n  0 llvmpipe") != std::string::npos);
+}
+
+TEST_CASE("vulkan: mbvh bench times it beside cpu - verified - with its state and the ratio to cpu", "[vulkan]") {
+  mbvh_test::TempDir dir;
+  const std::string json = dir.file("b.json");
+  const auto r = mbvh_test::run_cli("bench gen:soup:20000 --count 5000 --kinds primary --backend cpu,vulkan "
+                                    "--layout mbvh2 --traversal stack,bitstack --query closest,any --json " + json);
+  INFO(r.output);
+  REQUIRE(r.code == 0);
+  const auto j = nlohmann::json::parse(std::ifstream(json));
+  REQUIRE(j["records"].size() == 2 * 2 * 2);  // backends x traversals x queries
+  std::size_t vulkan = 0;
+  for (const auto& rec : j["records"]) {
+    CHECK(rec["verify_mismatches"].get<int>() == 0);
+    CHECK(rec["state_bytes_per_ray"].get<int>() == (rec["traversal"] == "stack" ? 264 : 12));
+    if (rec["backend"] == "vulkan") {
+      ++vulkan;
+      CHECK(rec["vs_cpu"].get<double>() > 0);
+      CHECK(rec["device"].get<std::string>().find("Vulkan device") != std::string::npos);
+      CHECK(rec["device"].get<std::string>().find("validation layer on") != std::string::npos);
+    }
+  }
+  CHECK(vulkan == 4);
+}
