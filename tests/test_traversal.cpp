@@ -162,6 +162,7 @@ TEST_CASE("invalid rays are defined misses - signed zeros and infinite tmax are 
     auto backend = make_backend(name);
     for (Layout l : {Layout::mbvh2, Layout::mbvh4})
       for (Traversal t : {Traversal::stack, Traversal::bitstack}) {
+        if (!backend->supports(l, t)) continue;
         for (Query q : {Query::closest, Query::any}) {
           INFO(name << "/" << to_string(l) << "/" << to_string(t) << "/" << to_string(q));
           TraceOutput out;
