@@ -6,8 +6,12 @@
 #include <catch2/catch.hpp>
 
 #include <cstdio>
+#include <cstring>
+#include <fstream>
+#include <nlohmann/json.hpp>
 
 #include "host/backend.h"
+#include "tests/helpers.h"
 
 namespace mbvh_test {
 
@@ -32,6 +36,71 @@ inline mbvh::VariantGrid all_backends() {
   }
   REQUIRE(!g.backends.empty());
   return g;
+}
+
+/// The device flag of a device backend, through the real program: `--FLAG GOOD` traces and
+/// prints PRINTED (the choice); a name that matches nothing fails with an error that lists the
+/// devices, LISTED among them.
+inline void check_device_flag(const std::string& backend, const std::string& flag, const std::string& good,
+                              const std::string& printed, const std::string& api, const std::string& listed) {
+  const auto ok = run_cli("trace gen:cube:4 --count 100 --backend " + backend + " " + flag + " " + good);
+  INFO(ok.output);
+  CHECK(ok.code == 0);
+  CHECK(ok.output.find(printed) != std::string::npos);
+  CHECK(ok.output.find("error") == std::string::npos);
+  const auto bad = run_cli("trace gen:cube:4 --count 100 --backend " + backend + " " + flag + " no-such-device");
+  INFO(bad.output);
+  CHECK(bad.code == 2);
+  CHECK(bad.output.find("no " + api + " device matches " + flag + " 'no-such-device'; the devices are:") !=
+        std::string::npos);
+  CHECK(bad.output.find(listed) != std::string::npos);
+}
+
+/// `backend` gives the reference's bytes on `rays` for each traversal of `layout`, closest and any hit.
+inline void check_against_reference(mbvh::Backend& backend, const mbvh::Accel& acc, const std::vector<mbvh::Ray>& rays,
+                                    mbvh::Layout layout, std::initializer_list<mbvh::Traversal> traversals) {
+  using namespace mbvh;
+  for (Traversal t : traversals)
+    for (Query q : {Query::closest, Query::any}) {
+      INFO(backend.name() << " " << to_string(layout) << " " << to_string(t) << " " << to_string(q));
+      const TraceOptions o{layout, t, q, false};
+      TraceOutput ref, got;
+      trace_reference(acc, rays, o, ref, 0);
+      backend.trace(acc, rays, o, got);
+      if (q == Query::closest) {
+        REQUIRE(got.hits.size() == rays.size());
+        CHECK(std::memcmp(ref.hits.data(), got.hits.data(), rays.size() * sizeof(Hit)) == 0);
+      } else {
+        CHECK(got.occluded == ref.occluded);
+      }
+    }
+}
+
+/// `mbvh bench --backend cpu,BACKEND ARGS --json`: `records` records, all verified, with the
+/// traversal state, and BACKEND's (`expected` of them) with a ratio to cpu and a device line
+/// containing each of `device_words`.
+inline void check_bench_beside_cpu(const std::string& backend, const std::string& args, std::size_t records,
+                                   std::size_t expected, std::initializer_list<const char*> device_words) {
+  TempDir dir;
+  const std::string json = dir.file("b.json");
+  const auto r = run_cli("bench gen:soup:20000 --count 5000 --kinds primary --backend cpu," + backend + " " + args +
+                         " --query closest,any --json " + json);
+  INFO(r.output);
+  REQUIRE(r.code == 0);
+  const auto j = nlohmann::json::parse(std::ifstream(json));
+  REQUIRE(j["records"].size() == records);
+  std::size_t mine = 0;
+  for (const auto& rec : j["records"]) {
+    CHECK(rec["verify_mismatches"].get<int>() == 0);
+    CHECK(rec["state_bytes_per_ray"].get<int>() == (rec["traversal"] == "stack" ? 264 : 12));
+    CHECK(rec["nodes_per_ray"].get<double>() > 0);
+    if (rec["backend"] == backend) {
+      ++mine;
+      CHECK(rec["vs_cpu"].get<double>() > 0);
+      for (const char* w : device_words) CHECK(rec["device"].get<std::string>().find(w) != std::string::npos);
+    }
+  }
+  CHECK(mine == expected);
 }
 
 }  // namespace mbvh_test

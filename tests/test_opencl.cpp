@@ -11,7 +11,7 @@
 #include "host/backend.h"
 #include "host/error.h"
 #include "host/rays.h"
-#include "tests/helpers.h"
+#include "tests/backends.h"
 
 using namespace mbvh;
 
@@ -74,15 +74,7 @@ TEST_CASE("opencl: --cl-device chooses by index - platform:device or name - and 
                                                      Catch::Contains("1:0 Other CPU"));
 
   // the real program: the choice is printed, and a wrong one is an error listing the devices
-  const auto ok = mbvh_test::run_cli("trace gen:cube:4 --count 100 --backend opencl --cl-device 0:0");
-  INFO(ok.output);
-  CHECK(ok.code == 0);
-  CHECK(ok.output.find("opencl: OpenCL device 0:0 ") != std::string::npos);
-  const auto bad = mbvh_test::run_cli("trace gen:cube:4 --count 100 --backend opencl --cl-device no-such-device");
-  INFO(bad.output);
-  CHECK(bad.code == 2);
-  CHECK(bad.output.find("no OpenCL device matches --cl-device 'no-such-device'; the devices are:") != std::string::npos);
-  CHECK(bad.output.find("\n  0:0 ") != std::string::npos);
+  mbvh_test::check_device_flag("opencl", "--cl-device", "0:0", "opencl: OpenCL device 0:0 ", "OpenCL", "\n  0:0 ");
 }
 
 TEST_CASE("opencl: rays over several dispatch batches come back in order", "[opencl]") {
@@ -94,41 +86,11 @@ TEST_CASE("opencl: rays over several dispatch batches come back in order", "[ope
   const std::vector<Ray> rays = generate_rays(s, *acc, ro);
   for (const char* name : {"opencl-wide", "opencl-lane"}) {
     auto b = make_backend(name);
-    for (Query q : {Query::closest, Query::any}) {
-      INFO(name << " " << to_string(q));
-      const TraceOptions o{Layout::mbvh4, Traversal::bitstack, q, false};
-      TraceOutput ref, got;
-      trace_reference(*acc, rays, o, ref, 0);
-      b->trace(*acc, rays, o, got);
-      if (q == Query::closest) {
-        REQUIRE(got.hits.size() == rays.size());
-        CHECK(std::memcmp(ref.hits.data(), got.hits.data(), rays.size() * sizeof(Hit)) == 0);
-      } else {
-        CHECK(got.occluded == ref.occluded);
-      }
-    }
+    mbvh_test::check_against_reference(*b, *acc, rays, Layout::mbvh4, {Traversal::bitstack});
   }
 }
 
 TEST_CASE("opencl: mbvh bench times it beside cpu - verified - with its state and the ratio to cpu", "[opencl]") {
-  mbvh_test::TempDir dir;
-  const std::string json = dir.file("b.json");
-  const auto r = mbvh_test::run_cli("bench gen:soup:20000 --count 5000 --kinds primary --backend cpu,opencl "
-                                    "--traversal stack,bitstack --query closest,any --json " + json);
-  INFO(r.output);
-  REQUIRE(r.code == 0);
-  const auto j = nlohmann::json::parse(std::ifstream(json));
-  REQUIRE(j["records"].size() == 2 * 2 * 2 * 2);  // backends x layouts x traversals x queries
-  std::size_t opencl = 0;
-  for (const auto& rec : j["records"]) {
-    CHECK(rec["verify_mismatches"].get<int>() == 0);
-    CHECK(rec["state_bytes_per_ray"].get<int>() == (rec["traversal"] == "stack" ? 264 : 12));
-    CHECK(rec["nodes_per_ray"].get<double>() > 0);
-    if (rec["backend"] == "opencl") {
-      ++opencl;
-      CHECK(rec["vs_cpu"].get<double>() > 0);
-      CHECK(rec["device"].get<std::string>().find("OpenCL device") != std::string::npos);
-    }
-  }
-  CHECK(opencl == 8);
+  // backends x layouts x traversals x queries
+  mbvh_test::check_bench_beside_cpu("opencl", "--traversal stack,bitstack", 2 * 2 * 2 * 2, 8, {"OpenCL device"});
 }

@@ -14,7 +14,7 @@
 #include "host/backend.h"
 #include "host/error.h"
 #include "host/rays.h"
-#include "tests/helpers.h"
+#include "tests/backends.h"
 
 using namespace mbvh;
 
@@ -22,20 +22,7 @@ namespace {
 
 // every variant the backend has, bit for bit against the reference
 void check_against_reference(Backend& b, const Accel& acc, const std::vector<Ray>& rays) {
-  for (Traversal t : {Traversal::stack, Traversal::bitstack})
-    for (Query q : {Query::closest, Query::any}) {
-      INFO(to_string(t) << " " << to_string(q));
-      const TraceOptions o{Layout::mbvh2, t, q, false};
-      TraceOutput ref, got;
-      trace_reference(acc, rays, o, ref, 0);
-      b.trace(acc, rays, o, got);
-      if (q == Query::closest) {
-        REQUIRE(got.hits.size() == rays.size());
-        CHECK(std::memcmp(ref.hits.data(), got.hits.data(), rays.size() * sizeof(Hit)) == 0);
-      } else {
-        CHECK(got.occluded == ref.occluded);
-      }
-    }
+  mbvh_test::check_against_reference(b, acc, rays, Layout::mbvh2, {Traversal::stack, Traversal::bitstack});
 }
 
 }  // namespace
@@ -172,37 +159,13 @@ TEST_CASE("vulkan: --vk-device chooses by index or name - prints the choice - an
   CHECK_THROWS_WITH(vk::choose_device(list, "7"),
                     Catch::Contains("no Vulkan device matches --vk-device '7'") && Catch::Contains("2 Small GPU"));
 
-  const auto ok = mbvh_test::run_cli("trace gen:cube:4 --count 100 --backend vulkan --vk-device llvmpipe");
-  INFO(ok.output);
-  CHECK(ok.code == 0);
-  CHECK(ok.output.find("vulkan: Vulkan device 0 llvmpipe") != std::string::npos);
-  CHECK(ok.output.find("error") == std::string::npos);  // no validation message either
-  const auto bad = mbvh_test::run_cli("trace gen:cube:4 --count 100 --backend vulkan --vk-device no-such-device");
-  INFO(bad.output);
-  CHECK(bad.code == 2);
-  CHECK(bad.output.find("no Vulkan device matches --vk-device 'no-such-device'; the devices are:") != std::string::npos);
-  CHECK(bad.output.find("\n  0 llvmpipe") != std::string::npos);
+  // the real program: the choice is printed (and no validation message), a wrong one lists the devices
+  mbvh_test::check_device_flag("vulkan", "--vk-device", "llvmpipe", "vulkan: Vulkan device 0 llvmpipe", "Vulkan",
+                               "\n  0 llvmpipe");
 }
 
 TEST_CASE("vulkan: mbvh bench times it beside cpu - verified - with its state and the ratio to cpu", "[vulkan]") {
-  mbvh_test::TempDir dir;
-  const std::string json = dir.file("b.json");
-  const auto r = mbvh_test::run_cli("bench gen:soup:20000 --count 5000 --kinds primary --backend cpu,vulkan "
-                                    "--layout mbvh2 --traversal stack,bitstack --query closest,any --json " + json);
-  INFO(r.output);
-  REQUIRE(r.code == 0);
-  const auto j = nlohmann::json::parse(std::ifstream(json));
-  REQUIRE(j["records"].size() == 2 * 2 * 2);  // backends x traversals x queries
-  std::size_t vulkan = 0;
-  for (const auto& rec : j["records"]) {
-    CHECK(rec["verify_mismatches"].get<int>() == 0);
-    CHECK(rec["state_bytes_per_ray"].get<int>() == (rec["traversal"] == "stack" ? 264 : 12));
-    if (rec["backend"] == "vulkan") {
-      ++vulkan;
-      CHECK(rec["vs_cpu"].get<double>() > 0);
-      CHECK(rec["device"].get<std::string>().find("Vulkan device") != std::string::npos);
-      CHECK(rec["device"].get<std::string>().find("validation layer on") != std::string::npos);
-    }
-  }
-  CHECK(vulkan == 4);
+  // backends x traversals x queries
+  mbvh_test::check_bench_beside_cpu("vulkan", "--layout mbvh2 --traversal stack,bitstack", 2 * 2 * 2, 4,
+                                    {"Vulkan device", "validation layer on"});
 }

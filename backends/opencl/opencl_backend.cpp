@@ -100,10 +100,7 @@ public:
       throw Error(name_ + ": traversal '" + std::string(to_string(opt.traversal)) + "' is not implemented (stack and bitstack are)");
     prepare(acc, opt);
     const bool any = opt.query == Query::any;
-    out.hits.assign(any ? 0 : rays.size(), Hit{});
-    out.occluded.assign(any ? rays.size() : 0, 0);
-    out.stats.assign(opt.stats ? rays.size() : 0, RayStats{});
-    out.invalid = 0;
+    out.reset(rays.size(), opt);
     if (rays.empty()) return;
 
     const std::string kname = std::string(to_string(opt.layout)) + "_" + to_string(opt.traversal) + "_" + to_string(opt.query);

@@ -113,10 +113,7 @@ public:
                   " traversal is not implemented (the GPU path is MBVH2 stack and bitstack)");
     prepare(acc, opt);
     const bool any = opt.query == Query::any;
-    out.hits.assign(any ? 0 : rays.size(), Hit{});
-    out.occluded.assign(any ? rays.size() : 0, 0);
-    out.stats.assign(opt.stats ? rays.size() : 0, RayStats{});
-    out.invalid = 0;
+    out.reset(rays.size(), opt);
     if (rays.empty()) return;
 
     const VkPipeline pipe = pipeline(opt.traversal == Traversal::bitstack, any, opt.stats);

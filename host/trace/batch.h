@@ -70,9 +70,7 @@ inline void trace_parallel(const Accel& acc, std::span<const Ray> rays, const Tr
                            unsigned threads, const std::function<void(std::size_t)>& progress = {}) {
   const TraceView v = trace_view(acc, opt.layout);
   const bool any = opt.query == Query::any;
-  out.hits.assign(any ? 0 : rays.size(), miss_hit());
-  out.occluded.assign(any ? rays.size() : 0, 0);
-  out.stats.assign(opt.stats ? rays.size() : 0, RayStats{});
+  out.reset(rays.size(), opt);
   std::atomic<std::size_t> invalid{0}, done{0};
   parallel_for(rays.size(), 2048, threads, [&](std::size_t b, std::size_t e, unsigned worker) {
     std::size_t inv = 0;

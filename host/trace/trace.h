@@ -40,6 +40,16 @@ struct TraceOutput {
   std::vector<std::uint8_t> occluded;
   std::vector<RayStats> stats;  ///< per ray, only when TraceOptions::stats
   std::size_t invalid = 0;      ///< rays rejected as invalid (defined misses)
+
+  /// Sized for `n` rays of these options (hits or occlusion flags, statistics if asked), all
+  /// misses, no invalid rays: what every backend starts a trace from.
+  void reset(std::size_t n, const TraceOptions& opt) {
+    const bool any = opt.query == Query::any;
+    hits.assign(any ? 0 : n, miss_hit());
+    occluded.assign(any ? n : 0, 0);
+    stats.assign(opt.stats ? n : 0, RayStats{});
+    invalid = 0;
+  }
 };
 
 /// Bytes of traversal state one ray needs in the given layout and traversal (TRAVERSAL.md §5):
