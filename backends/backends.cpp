@@ -8,6 +8,9 @@
 #ifdef MBVH_HAVE_VULKAN
 #include "backends/vulkan/vulkan_backends.h"
 #endif
+#ifdef MBVH_HAVE_EMBREE
+#include "backends/embree/embree_backends.h"
+#endif
 
 namespace mbvh {
 
@@ -27,6 +30,12 @@ void register_builtin_backends() {
   register_backend({"vulkan", "GPU-style MBVH2 traversal in a GLSL compute shader (lavapipe)", {},
                     "this build has no Vulkan backend (configure with -DMBVH_VULKAN=ON and the Vulkan loader headers and "
                     "glslangValidator installed)", {}, "", {}, {}});
+#endif
+#ifdef MBVH_HAVE_EMBREE
+  register_embree_backend();
+#else
+  register_backend({"embree", "peer: Embree 3 robust single-ray queries", {},
+                    "this build has no Embree peer (install Debian's libembree-dev and reconfigure)", {}, "", {}, {}});
 #endif
 }
 

@@ -38,6 +38,9 @@ public:
   virtual void prepare(const Accel& acc, const TraceOptions& opt) = 0;
   /// Traces `rays`, filling `out` in ray order (TraceOutput). Throws Error on failure.
   virtual void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) = 0;
+  /// A peer library (embree): its own BVH and triangle test, so its answers agree with
+  /// cpu-scalar's up to classified ties (not bit for bit), and it has no per-ray counters.
+  virtual bool peer() const { return false; }
   /// Bytes of traversal state per ray for these options (TRAVERSAL.md §5).
   virtual std::size_t state_bytes(const TraceOptions& opt) const { return state_bytes_per_ray(opt.layout, opt.traversal); }
 };

@@ -7,6 +7,7 @@ BUILD="${MBVH_BUILD_DIR:-$ROOT/build}"
 PACKAGES=(build-essential cmake ninja-build pkg-config catch2 libzstd-dev nlohmann-json3-dev libcli11-dev zstd
           ocl-icd-opencl-dev opencl-headers pocl-opencl-icd
           libvulkan-dev mesa-vulkan-drivers glslang-tools vulkan-validationlayers
+          libembree-dev
           ${MBVH_EXTRA_PACKAGES:-})
 
 missing=()
