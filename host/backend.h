@@ -38,6 +38,9 @@ public:
   virtual void prepare(const Accel& acc, const TraceOptions& opt) = 0;
   /// Traces `rays`, filling `out` in ray order (TraceOutput). Throws Error on failure.
   virtual void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) = 0;
+  /// The instruction set the traversal runs on a CPU backend ("scalar", "avx2", "avx512"); ""
+  /// for a device backend or a library that picks its own (the device line says more).
+  virtual std::string isa() const { return ""; }
   /// A peer library (embree): its own BVH and triangle test, so its answers agree with
   /// cpu-scalar's up to classified ties (not bit for bit), and it has no per-ray counters.
   virtual bool peer() const { return false; }

@@ -72,6 +72,7 @@ std::string BenchReport::json() const {
   for (const auto& r : records) {
     j["records"].push_back({{"scene", r.scene},
                             {"backend", r.backend},
+                            {"isa", r.isa},
                             {"device", r.device},
                             {"layout", r.layout},
                             {"traversal", r.traversal},
@@ -162,6 +163,7 @@ BenchReport run_bench(const Scene& scene, const Accel& acc, const BenchOptions& 
             r.scene = scene.name;
             r.backend = bn;
             r.device = b.describe();
+            r.isa = b.isa();
             r.layout = to_string(l);
             r.traversal = to_string(t);
             r.query = to_string(q);

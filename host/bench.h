@@ -26,7 +26,7 @@ struct BenchOptions {
 };
 
 struct BenchRecord {
-  std::string scene, backend, device, layout, traversal, query, ray_kind;
+  std::string scene, backend, isa, device, layout, traversal, query, ray_kind;
   std::size_t rays = 0;
   unsigned threads = 0, passes = 0;
   double mrays_per_s = 0, mrays_min = 0, mrays_max = 0;  ///< median and spread over the passes

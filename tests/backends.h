@@ -94,6 +94,7 @@ inline void check_bench_beside_cpu(const std::string& backend, const std::string
     CHECK(rec["verify_mismatches"].get<int>() == 0);
     CHECK(rec["state_bytes_per_ray"].get<int>() == (rec["traversal"] == "stack" ? 264 : 12));
     CHECK(rec["nodes_per_ray"].get<double>() > 0);
+    if (rec["backend"] == "cpu") CHECK((rec["isa"] == "avx512" || rec["isa"] == "avx2"));  // the best this CPU has
     if (rec["backend"] == backend) {
       ++mine;
       CHECK(rec["vs_cpu"].get<double>() > 0);

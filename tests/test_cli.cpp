@@ -66,9 +66,11 @@ TEST_CASE("mbvh check info and bench report - bench writes JSON records", "[cli]
   const auto j = nlohmann::json::parse(std::ifstream(json));
   REQUIRE(j["records"].size() == 2 * 2 * (2 + 4));  // kinds x queries x (MBVH2: 2 traversals, MBVH4: 4)
   for (const auto& rec : j["records"]) {
-    for (const char* key : {"backend", "layout", "traversal", "query", "ray_kind", "rays", "threads", "mrays_per_s",
-                            "state_bytes_per_ray", "nodes_per_ray", "leaves_per_ray", "triangles_per_ray", "bvh_hash"})
+    for (const char* key : {"backend", "isa", "layout", "traversal", "query", "ray_kind", "rays", "threads",
+                            "mrays_per_s", "state_bytes_per_ray", "nodes_per_ray", "leaves_per_ray", "triangles_per_ray",
+                            "bvh_hash"})
       CHECK(rec.contains(key));
+    CHECK(rec["isa"] == "scalar");  // the default backend, cpu-scalar
     CHECK(rec["mrays_per_s"].get<double>() > 0);
     CHECK(rec["verify_mismatches"].get<int>() == 0);
     const int want = rec["traversal"] == "stack" ? 264 : rec["traversal"] == "stack-ordered" ? 520 : 12;

@@ -15,6 +15,7 @@ public:
   std::string describe() const override {
     return "cpu-scalar: reference scalar traversals, " + std::to_string(threads_) + " thread(s)";
   }
+  std::string isa() const override { return "scalar"; }
   bool supports(Layout l, Traversal t) const override { return reference_supports(l, t); }
   void prepare(const Accel& acc, const TraceOptions& opt) override {
     if (opt.layout == Layout::mbvh2) acc.mbvh2();

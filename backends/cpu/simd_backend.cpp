@@ -26,6 +26,7 @@ public:
     return name_ + ": " + kernels_.isa + " MBVH4 node tests (4 boxes at once), scalar watertight leaves, " +
            std::to_string(threads_) + " thread(s)";
   }
+  std::string isa() const override { return kernels_.isa; }
   bool supports(Layout l, Traversal t) const override { return reference_supports(l, t); }
   void prepare(const Accel& acc, const TraceOptions& opt) override {
     if (opt.layout == Layout::mbvh2) acc.mbvh2();
