@@ -1,5 +1,6 @@
 // bench.cpp — `mbvh bench`: verify, warm up, time, report medians (DESIGN.md, benchmark protocol).
 #include "host/bench.h"
+#include "host/check.h"
 
 #include <sys/utsname.h>
 
@@ -140,6 +141,7 @@ BenchReport run_bench(const Scene& scene, const Accel& acc, const BenchOptions& 
     ro.has_camera = opt.has_camera;
     ro.camera = opt.camera;
     const std::vector<Ray> rays = generate_rays(scene, acc, ro);
+    const TieRule settle = oracle_settlement(acc, rays);  // differences the tie rules leave open (a peer's)
     for (Query q : opt.grid.queries) {
       // the reference answer every timed result is verified against
       TraceOptions refo;
@@ -176,7 +178,7 @@ BenchReport run_bench(const Scene& scene, const Accel& acc, const BenchOptions& 
             TraceOutput out;
             b.trace(acc, rays, to, out);
             const Comparison c = q == Query::any ? compare_occlusion_arrays(out.occluded, ref.occluded, closest.hits, rays)
-                                                 : compare_hit_arrays(out.hits, ref.hits);
+                                                 : compare_hit_arrays(out.hits, ref.hits, {}, settle);
             r.verify_mismatches = c.mismatches;
             // -- warm up for at least 0.25 s (JIT-compiled backends such as PoCL reach their speed
             // only after a few dispatches), then time

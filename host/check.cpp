@@ -97,6 +97,16 @@ TieRule oracle_tie_rule(const Accel& acc, std::span<const Ray> rays) {
   };
 }
 
+TieRule oracle_settlement(const Accel& acc, std::span<const Ray> rays) {
+  const TieRule oracle = oracle_tie_rule(acc, rays);
+  return [&acc, rays, oracle](std::size_t ray, const Hit& a, const Hit& b) {
+    const Hit o = brute_force(acc, rays[ray]);
+    for (const Hit* h : {&a, &b})
+      if (compare_hits(*h, o) == Verdict::mismatch && !oracle(ray, *h, o)) return false;
+    return true;
+  };
+}
+
 std::string CheckReport::table(std::span<const Ray> batch) const {
   std::string s;
   char line[512];
@@ -202,12 +212,7 @@ CheckReport run_check(const Accel& acc, std::span<const Ray> rays, const CheckOp
   // with it, both are legitimate (e.g. a ray starting on a surface: a hit at t = tmin or none), so
   // the difference is a tie. Bit-exact backends never get here; a peer library (embree) does.
   const TieRule oracle = oracle_tie_rule(acc, rays);
-  const TieRule settle_hits = [&](std::size_t ray, const Hit& a, const Hit& b) {
-    const Hit o = brute_force(acc, rays[ray]);
-    for (const Hit* h : {&a, &b})
-      if (compare_hits(*h, o) == Verdict::mismatch && !oracle(ray, *h, o)) return false;
-    return true;
-  };
+  const TieRule settle_hits = oracle_settlement(acc, rays);
   // An occlusion flag is legitimate if it agrees with the oracle, if the oracle's hit is on an edge
   // or at the interval's ends, or if it reports a hit and the same variant's own closest hit is
   // legitimate (e.g. a hit at t = tmin the oracle does not count).

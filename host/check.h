@@ -51,6 +51,9 @@ CheckReport run_check(const Accel& acc, std::span<const Ray> rays, const CheckOp
 /// either hit is ill-conditioned: the ray lies in the triangle's plane within the rounding of
 /// its own direction, or the hit point lies within 16 ulps (of the coordinates) of an edge.
 TieRule oracle_tie_rule(const Accel& acc, std::span<const Ray> rays);
+/// For two float answers that differ beyond the tie rules: brute-forces the ray and returns true
+/// (a tie) when each answer equals the oracle's or is a tie with it (both are legitimate).
+TieRule oracle_settlement(const Accel& acc, std::span<const Ray> rays);
 
 /// Indices of `k` rays spread evenly over n (all when k >= n).
 std::vector<std::size_t> spread_indices(std::size_t n, std::size_t k);
