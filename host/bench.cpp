@@ -141,7 +141,7 @@ BenchReport run_bench(const Scene& scene, const Accel& acc, const BenchOptions& 
     ro.has_camera = opt.has_camera;
     ro.camera = opt.camera;
     const std::vector<Ray> rays = generate_rays(scene, acc, ro);
-    const TieRule settle = oracle_settlement(acc, rays);  // differences the tie rules leave open (a peer's)
+    const TieRule settle = oracle_settlement(acc, rays, oracle_tie_rule(acc, rays));  // differences the tie rules leave open (a peer's)
     for (Query q : opt.grid.queries) {
       // the reference answer every timed result is verified against
       TraceOptions refo;

@@ -97,9 +97,8 @@ TieRule oracle_tie_rule(const Accel& acc, std::span<const Ray> rays) {
   };
 }
 
-TieRule oracle_settlement(const Accel& acc, std::span<const Ray> rays) {
-  const TieRule oracle = oracle_tie_rule(acc, rays);
-  return [&acc, rays, oracle](std::size_t ray, const Hit& a, const Hit& b) {
+TieRule oracle_settlement(const Accel& acc, std::span<const Ray> rays, TieRule oracle) {
+  return [&acc, rays, oracle = std::move(oracle)](std::size_t ray, const Hit& a, const Hit& b) {
     const Hit o = brute_force(acc, rays[ray]);
     for (const Hit* h : {&a, &b})
       if (compare_hits(*h, o) == Verdict::mismatch && !oracle(ray, *h, o)) return false;
@@ -202,7 +201,7 @@ CheckReport run_check(const Accel& acc, std::span<const Ray> rays, const CheckOp
   for (std::size_t i = 0; i < brute.size(); ++i) brute_occ[i] = brute[i].prim != MBVH_MISS_PRIM;
 
   // the same for every variant: the oracle's tie rule and the float closest hits on the subset
-  const TieRule tie = sub.empty() ? TieRule{} : oracle_tie_rule(acc, rays);
+  const TieRule oracle = oracle_tie_rule(acc, rays);
   std::vector<Hit> float_closest;
   if (!closest_for_any.empty())
     for (std::size_t i : sub) float_closest.push_back(closest_for_any[i]);
@@ -211,8 +210,7 @@ CheckReport run_check(const Accel& acc, std::span<const Ray> rays, const CheckOp
   // oracle, computed for that ray: when each answer equals the brute force's or is a classified tie
   // with it, both are legitimate (e.g. a ray starting on a surface: a hit at t = tmin or none), so
   // the difference is a tie. Bit-exact backends never get here; a peer library (embree) does.
-  const TieRule oracle = oracle_tie_rule(acc, rays);
-  const TieRule settle_hits = oracle_settlement(acc, rays);
+  const TieRule settle_hits = oracle_settlement(acc, rays, oracle);
   // An occlusion flag is legitimate if it agrees with the oracle, if the oracle's hit is on an edge
   // or at the interval's ends, or if it reports a hit and the same variant's own closest hit is
   // legitimate (e.g. a hit at t = tmin the oracle does not count).
@@ -270,10 +268,10 @@ CheckReport run_check(const Accel& acc, std::span<const Ray> rays, const CheckOp
       }
       const std::vector<Hit>* own = any ? own_closest(r) : nullptr;
       const TieRule any_tie = [&, own](std::size_t ray, const Hit& fc, const Hit& oracle_hit) {
-        return (tie && tie(ray, fc, oracle_hit)) || occlusion_legit(r.out.occluded[ray], own, ray, oracle_hit);
+        return oracle(ray, fc, oracle_hit) || occlusion_legit(r.out.occluded[ray], own, ray, oracle_hit);
       };
       Comparison c = any ? compare_occlusion_arrays(o, brute_occ, brute, rays, sub, float_closest, any_tie)
-                         : compare_hit_arrays(h, brute, sub, tie);
+                         : compare_hit_arrays(h, brute, sub, oracle);
       c.a = label(r);
       c.b = "brute force (double)";
       rep.comparisons.push_back(std::move(c));

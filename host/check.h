@@ -52,8 +52,9 @@ CheckReport run_check(const Accel& acc, std::span<const Ray> rays, const CheckOp
 /// its own direction, or the hit point lies within 16 ulps (of the coordinates) of an edge.
 TieRule oracle_tie_rule(const Accel& acc, std::span<const Ray> rays);
 /// For two float answers that differ beyond the tie rules: brute-forces the ray and returns true
-/// (a tie) when each answer equals the oracle's or is a tie with it (both are legitimate).
-TieRule oracle_settlement(const Accel& acc, std::span<const Ray> rays);
+/// (a tie) when each answer equals the oracle's or is a tie with it under `oracle` (the rule
+/// oracle_tie_rule made for the same rays): both are legitimate.
+TieRule oracle_settlement(const Accel& acc, std::span<const Ray> rays, TieRule oracle);
 
 /// Indices of `k` rays spread evenly over n (all when k >= n).
 std::vector<std::size_t> spread_indices(std::size_t n, std::size_t k);

@@ -92,7 +92,7 @@ public:
     prepare(acc, opt);
     const bool any = opt.query == Query::any;
     out.reset(rays.size(), opt);
-    std::vector<std::size_t> invalid(resolve_threads(threads_), 0);
+    std::vector<std::size_t> invalid(threads_, 0);  // per worker
     parallel_for(rays.size(), 2048, threads_, [&](std::size_t b, std::size_t e, unsigned worker) {
       RTCIntersectContext ctx;
       rtcInitIntersectContext(&ctx);

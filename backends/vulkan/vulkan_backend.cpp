@@ -44,6 +44,7 @@ struct Buffer {
   VkBuffer buffer = VK_NULL_HANDLE;
   VkDeviceMemory memory = VK_NULL_HANDLE;
   void* mapped = nullptr;
+  VkMemoryPropertyFlags flags = 0;  ///< of the memory type it was allocated from
   std::size_t size = 0;
 };
 
@@ -359,7 +360,8 @@ private:
       vk::fail("vkAllocateMemory", r, what + ", " + mib(bytes));
     }
     check(vkBindBufferMemory(device_, b.buffer, b.memory, 0), "vkBindBufferMemory");
-    if (memory_.memoryTypes[ai.memoryTypeIndex].propertyFlags & VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT)
+    b.flags = memory_.memoryTypes[ai.memoryTypeIndex].propertyFlags;
+    if (b.flags & VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT)
       check(vkMapMemory(device_, b.memory, 0, VK_WHOLE_SIZE, 0, &b.mapped), "vkMapMemory");
     return b;
   }
@@ -387,7 +389,7 @@ private:
     if (bytes == 0) return b;
     if (b.mapped) {
       std::memcpy(b.mapped, data, bytes);  // coherent or not, made visible by the next submit
-      if (!(memory_flags(b) & VK_MEMORY_PROPERTY_HOST_COHERENT_BIT)) {
+      if (!(b.flags & VK_MEMORY_PROPERTY_HOST_COHERENT_BIT)) {
         VkMappedMemoryRange r{VK_STRUCTURE_TYPE_MAPPED_MEMORY_RANGE, nullptr, b.memory, 0, VK_WHOLE_SIZE};
         check(vkFlushMappedMemoryRanges(device_, 1, &r), "vkFlushMappedMemoryRanges");
       }
@@ -404,14 +406,6 @@ private:
     submit_and_wait();
     destroy(staging);
     return b;
-  }
-
-  VkMemoryPropertyFlags memory_flags(const Buffer& b) const {
-    VkMemoryRequirements req;
-    vkGetBufferMemoryRequirements(device_, b.buffer, &req);
-    for (std::uint32_t i = 0; i < memory_.memoryTypeCount; ++i)
-      if (req.memoryTypeBits & (1u << i)) return memory_.memoryTypes[i].propertyFlags;
-    return 0;
   }
 
   /// An array of `n` records split into power-of-two chunks that each fit one binding's `range`
