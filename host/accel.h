@@ -6,6 +6,7 @@
 #include <functional>
 #include <memory>
 #include <mutex>
+#include <new>
 #include <string>
 #include <vector>
 
@@ -13,6 +14,23 @@
 #include "shaders/mbvh_layout.h"
 
 namespace mbvh {
+
+/// Allocator of cache-line (64-byte) aligned arrays: a 128-byte MBVH4 node then spans two cache
+/// lines, not three, and a leaf's triangles start on a line.
+template <class T>
+struct CacheAligned {
+  using value_type = T;
+  static constexpr std::align_val_t align{64};
+  CacheAligned() = default;
+  template <class U>
+  CacheAligned(const CacheAligned<U>&) {}
+  T* allocate(std::size_t n) { return static_cast<T*>(::operator new(n * sizeof(T), align)); }
+  void deallocate(T* p, std::size_t) { ::operator delete(p, align); }
+  template <class U>
+  bool operator==(const CacheAligned<U>&) const { return true; }
+};
+template <class T>
+using AlignedVector = std::vector<T, CacheAligned<T>>;
 
 enum class Layout { mbvh2, mbvh4 };
 const char* to_string(Layout l);
@@ -57,18 +75,26 @@ struct Bvh2 {
 };
 
 struct Mbvh2 {
-  std::vector<Node2> nodes;
+  AlignedVector<Node2> nodes;
   LayoutStats stats;
 };
 
 struct Mbvh4 {
-  std::vector<Node4> nodes;
+  AlignedVector<Node4> nodes;
   LayoutStats stats;
 };
 
 /// The MBVH4 layout's 16-wide view (mbvh_layout.h, Node4W): same topology and references.
 struct Mbvh4Wide {
-  std::vector<Node4W> nodes;
+  AlignedVector<Node4W> nodes;
+};
+
+/// The leaves' triangles as 4-wide SoA packs (mbvh_layout.h, Tri4) for SIMD leaf tests:
+/// leaves[i] = (first pack, triangle count) of leaf i, its triangles those of Accel::leaves()[i]
+/// in the same order.
+struct TriPacks {
+  AlignedVector<Tri4> packs;
+  std::vector<Leaf> leaves;
 };
 
 /// An acceleration structure. Build once with Accel::build; layouts are made on first use
@@ -83,7 +109,8 @@ public:
   const Mbvh2& mbvh2() const;   ///< MBVH2 layout (Aila–Laine nodes with links), made on first use
   const Mbvh4& mbvh4() const;   ///< MBVH4 layout (depth-aware SAH-guided collapse), made on first use
   const Mbvh4Wide& mbvh4_wide() const;  ///< its 16-wide view (OpenCL, TRAVERSAL.md §8), made on first use
-  const std::vector<Tri>& tris() const { return tris_; }
+  const TriPacks& tri_packs() const;  ///< the leaves as SIMD packs, made on first use
+  const AlignedVector<Tri>& tris() const { return tris_; }
   const std::vector<Leaf>& leaves() const { return leaves_; }
   const Box& bounds() const { return bounds_; }
   std::size_t scene_triangles() const { return scene_triangles_; }
@@ -96,16 +123,17 @@ private:
   Accel() = default;
   BuildOptions opt_;
   Bvh2 bvh2_;
-  std::vector<Tri> tris_;
+  AlignedVector<Tri> tris_;
   std::vector<Leaf> leaves_;
   Box bounds_;
   std::size_t scene_triangles_ = 0;
   LayoutStats binary_stats_;
   std::uint64_t hash_ = 0;
-  mutable std::once_flag once2_, once4_, once4w_;
+  mutable std::once_flag once2_, once4_, once4w_, oncep_;
   mutable Mbvh2 mbvh2_;
   mutable Mbvh4 mbvh4_;
   mutable Mbvh4Wide mbvh4w_;
+  mutable TriPacks packs_;
 };
 
 /// Collapses a binary BVH into the layouts (host/build/collapse.cpp).
@@ -113,6 +141,8 @@ Mbvh2 make_mbvh2(const Bvh2& bvh, const std::vector<Leaf>& leaves);
 Mbvh4 make_mbvh4(const Bvh2& bvh, const std::vector<Leaf>& leaves);
 /// Rewrites the MBVH4 SoA records as the 16-wide view (a permutation of each record's words).
 Mbvh4Wide make_mbvh4_wide(const Mbvh4& m);
+/// Packs each leaf's triangles four at a time (SoA), in leaf order.
+TriPacks make_tri_packs(const AlignedVector<Tri>& tris, const std::vector<Leaf>& leaves);
 
 /// Structural checks of a layout: every reference in range, every inner node referenced once by
 /// a node of smaller index (so descent always terminates), every leaf once, parent and sibling

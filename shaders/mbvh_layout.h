@@ -131,6 +131,15 @@ MBVH_STRUCT(Node4W) {
   MBVH_ROWS(hi, 4);
 } MBVH_END(Node4W)
 
+/* Four triangles of one leaf, SoA, for the cpu backend's SIMD leaf test (backends/cpu): row
+ * 3 * i + a holds axis a of vertex i for the four lanes, prim their prim ids. A leaf of n
+ * triangles has ceil(n / 4) packs in leaf order; lanes past its end have NaN vertices and prim
+ * MBVH_MISS_PRIM. 160 bytes. */
+MBVH_STRUCT(Tri4) {
+  MBVH_ROWS(v, 9);
+  mbvh_uint prim[4];
+} MBVH_END(Tri4)
+
 MBVH_NS_END
 
 #if defined(__cplusplus)
@@ -141,6 +150,7 @@ static_assert(sizeof(mbvh::Leaf) == 8, "leaf is (first, count)");
 static_assert(sizeof(mbvh::Node2) == 64, "MBVH2 node is 64 bytes (Aila-Laine)");
 static_assert(sizeof(mbvh::Node4) == 128, "MBVH4 node is 128 bytes");
 static_assert(sizeof(mbvh::Node4W) == 128, "MBVH4 16-wide node is 128 bytes");
+static_assert(sizeof(mbvh::Tri4) == 160, "SIMD leaf pack is ten 16-byte rows");
 static_assert(offsetof(mbvh::Node2, link) == 48, "MBVH2 links in the 4th row");
 static_assert(offsetof(mbvh::Node4, child) == 96, "MBVH4 children at byte 96");
 static_assert(offsetof(mbvh::Node4, parent) == 112, "MBVH4 parent at byte 112");

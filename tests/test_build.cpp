@@ -188,7 +188,7 @@ TEST_CASE("the depth cap holds on a worst-case scene and the capped tree still t
 TEST_CASE("the build is deterministic: the same bytes at any thread count", "[build]") {
   const Scene s = load_scene("gen:hairball:400000");
   std::uint64_t hashes[3];
-  std::vector<Node4> n4[3];
+  AlignedVector<Node4> n4[3];
   for (unsigned t = 1; t <= 3; ++t) {
     BuildOptions o;
     o.threads = t;

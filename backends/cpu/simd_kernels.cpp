@@ -6,8 +6,9 @@
 // the portable code too (a crash on a CPU without it). The MBVH4 node test checks the
 // four children's x, y and z slabs at once (SSE-width vectors, VEX/EVEX-encoded); everything
 // else is the reference traversal code (traverse.h) — the same operations in the same order, so
-// the answers are bit-identical to cpu-scalar's. Áfra & Szirmay-Kalos 2014 for the traversals,
-// Ize 2013 for the conservative slab test.
+// the answers are bit-identical to cpu-scalar's. Leaves are tested four triangles at a time from
+// SoA packs (Accel::tri_packs). Áfra & Szirmay-Kalos 2014 for the traversals, Ize 2013 for the
+// conservative slab test, Woop, Benthin & Wald 2013 for the watertight triangle test.
 #include <immintrin.h>
 
 #include <atomic>
@@ -19,31 +20,44 @@
 #include <stdexcept>
 #include <vector>
 
-#include "backends/cpu/cpu_backends.h"
+#include "host/accel.h"
 #include "host/parallel.h"
-#include "host/trace/trace.h"  // shared types and declarations, at the baseline ISA
+#include "host/trace/view.h"  // plain records, at the baseline ISA
 
 #ifndef MBVH_CPU_ISA
 #error "compile with -DMBVH_CPU_ISA=avx2|avx512, -DMBVH_CPU_ISA_ID=1|2 and -DMBVH_ISA_NS=<the ISA>"
 #endif
 
-// -- from here on, functions are compiled for the ISA
+// MBVH_ISA_BEGIN ... MBVH_ISA_END: functions defined between them are compiled for the ISA.
+#if MBVH_CPU_ISA_ID == 2
+#define MBVH_ISA_TARGET "avx2,avx512f,avx512vl,avx512dq,avx512bw"
+#else
+#define MBVH_ISA_TARGET "avx2"
+#endif
+#define MBVH_PRAGMA(x) _Pragma(#x)
 #if defined(__clang__)
-#if MBVH_CPU_ISA_ID == 2
-#pragma clang attribute push(__attribute__((target("avx2,avx512f,avx512vl,avx512dq,avx512bw"))), apply_to = function)
+#define MBVH_ISA_PUSH(t) MBVH_PRAGMA(clang attribute push(__attribute__((target(t))), apply_to = function))
+#define MBVH_ISA_END _Pragma("clang attribute pop")
 #else
-#pragma clang attribute push(__attribute__((target("avx2"))), apply_to = function)
+#define MBVH_ISA_PUSH(t) _Pragma("GCC push_options") MBVH_PRAGMA(GCC target(t))
+#define MBVH_ISA_END _Pragma("GCC pop_options")
 #endif
-#else
-#pragma GCC push_options
-#if MBVH_CPU_ISA_ID == 2
-#pragma GCC target("avx2,avx512f,avx512vl,avx512dq,avx512bw")
-#else
-#pragma GCC target("avx2")
-#endif
-#endif
+#define MBVH_ISA_BEGIN MBVH_ISA_PUSH(MBVH_ISA_TARGET)
 
-#include "host/trace/batch.h"  // the kernels, in namespace mbvh::MBVH_ISA_NS
+// -- from here on, functions are compiled for the ISA
+MBVH_ISA_BEGIN
+
+// The kernels (namespace mbvh::MBVH_ISA_NS) are included first, under the ISA: the traversal
+// templates must be defined here, not at the baseline ISA (a template is compiled with the
+// target of its definition; the box test and leaves could then not be inlined into it).
+#include "host/trace/intersect.h"
+#include "host/trace/traverse.h"
+MBVH_ISA_END
+// -- trace.h's shared declarations (and TraceOutput::reset) at the baseline ISA
+#include "backends/cpu/cpu_backends.h"
+#include "host/trace/trace.h"
+MBVH_ISA_BEGIN
+#include "host/trace/batch.h"  // the batch driver, in namespace mbvh::MBVH_ISA_NS
 #define MBVH_STR2(x) #x
 #define MBVH_STR(x) MBVH_STR2(x)
 
@@ -51,48 +65,153 @@ namespace mbvh {
 inline namespace MBVH_ISA_NS {
 namespace {
 
+inline unsigned mask4(__m128 m) { return static_cast<unsigned>(_mm_movemask_ps(m)); }
+
 /// Four slab tests in one pass: (plane - o) * inv per axis, the NaN-discarding max/min chain of
 /// box_test (maxps/minps return their second operand on NaN, exactly like max_nan/min_nan), and
 /// an ordered <= compare.
-struct SimdBox4 {
-  static unsigned test(const Node4& n, const RayPre& r, float tcull, float d[4]) {
-    const __m128 lox = _mm_loadu_ps(n.lo_x), hix = _mm_loadu_ps(n.hi_x);
-    const __m128 loy = _mm_loadu_ps(n.lo_y), hiy = _mm_loadu_ps(n.hi_y);
-    const __m128 loz = _mm_loadu_ps(n.lo_z), hiz = _mm_loadu_ps(n.hi_z);
-    const __m128 nx = r.neg[0] ? hix : lox, fx = r.neg[0] ? lox : hix;
-    const __m128 ny = r.neg[1] ? hiy : loy, fy = r.neg[1] ? loy : hiy;
-    const __m128 nz = r.neg[2] ? hiz : loz, fz = r.neg[2] ? loz : hiz;
-    const __m128 ox = _mm_set1_ps(r.o[0]), oy = _mm_set1_ps(r.o[1]), oz = _mm_set1_ps(r.o[2]);
-    const __m128 tnx = _mm_mul_ps(_mm_sub_ps(nx, ox), _mm_set1_ps(r.inv[0]));
-    const __m128 tny = _mm_mul_ps(_mm_sub_ps(ny, oy), _mm_set1_ps(r.inv[1]));
-    const __m128 tnz = _mm_mul_ps(_mm_sub_ps(nz, oz), _mm_set1_ps(r.inv[2]));
-    const __m128 tfx = _mm_mul_ps(_mm_sub_ps(fx, ox), _mm_set1_ps(r.inv_far[0]));
-    const __m128 tfy = _mm_mul_ps(_mm_sub_ps(fy, oy), _mm_set1_ps(r.inv_far[1]));
-    const __m128 tfz = _mm_mul_ps(_mm_sub_ps(fz, oz), _mm_set1_ps(r.inv_far[2]));
-    const __m128 te = _mm_max_ps(tnz, _mm_max_ps(tny, _mm_max_ps(tnx, _mm_set1_ps(r.tmin))));
-    const __m128 tx = _mm_min_ps(tfz, _mm_min_ps(tfy, _mm_min_ps(tfx, _mm_set1_ps(tcull))));
-    _mm_storeu_ps(d, te);
+[[gnu::always_inline]] inline unsigned box4_test(const Node4& n, const RayPre& r, float tcull, float d[4]) {
+  const __m128 lox = _mm_loadu_ps(n.lo_x), hix = _mm_loadu_ps(n.hi_x);
+  const __m128 loy = _mm_loadu_ps(n.lo_y), hiy = _mm_loadu_ps(n.hi_y);
+  const __m128 loz = _mm_loadu_ps(n.lo_z), hiz = _mm_loadu_ps(n.hi_z);
+  const __m128 nx = r.neg[0] ? hix : lox, fx = r.neg[0] ? lox : hix;
+  const __m128 ny = r.neg[1] ? hiy : loy, fy = r.neg[1] ? loy : hiy;
+  const __m128 nz = r.neg[2] ? hiz : loz, fz = r.neg[2] ? loz : hiz;
+  const __m128 ox = _mm_set1_ps(r.o[0]), oy = _mm_set1_ps(r.o[1]), oz = _mm_set1_ps(r.o[2]);
+  const __m128 tnx = _mm_mul_ps(_mm_sub_ps(nx, ox), _mm_set1_ps(r.inv[0]));
+  const __m128 tny = _mm_mul_ps(_mm_sub_ps(ny, oy), _mm_set1_ps(r.inv[1]));
+  const __m128 tnz = _mm_mul_ps(_mm_sub_ps(nz, oz), _mm_set1_ps(r.inv[2]));
+  const __m128 tfx = _mm_mul_ps(_mm_sub_ps(fx, ox), _mm_set1_ps(r.inv_far[0]));
+  const __m128 tfy = _mm_mul_ps(_mm_sub_ps(fy, oy), _mm_set1_ps(r.inv_far[1]));
+  const __m128 tfz = _mm_mul_ps(_mm_sub_ps(fz, oz), _mm_set1_ps(r.inv_far[2]));
+  const __m128 te = _mm_max_ps(tnz, _mm_max_ps(tny, _mm_max_ps(tnx, _mm_set1_ps(r.tmin))));
+  const __m128 tx = _mm_min_ps(tfz, _mm_min_ps(tfy, _mm_min_ps(tfx, _mm_set1_ps(tcull))));
+  _mm_storeu_ps(d, te);
 #if MBVH_CPU_ISA_ID == 2
-    return static_cast<unsigned>(_mm_cmp_ps_mask(te, tx, _CMP_LE_OQ));
+  return static_cast<unsigned>(_mm_cmp_ps_mask(te, tx, _CMP_LE_OQ));
 #else
-    return static_cast<unsigned>(_mm_movemask_ps(_mm_cmp_ps(te, tx, _CMP_LE_OQ)));
+  return mask4(_mm_cmp_ps(te, tx, _CMP_LE_OQ));
 #endif
+}
+
+/// Four triangles of a pack at once: tri_test (intersect.h) lane by lane, the same operations in
+/// the same order (Woop, Benthin & Wald 2013, watertight; pbrt-v3's error bound on t). Returns the
+/// lanes of `valid` that hit within [tmin, tmax], with t, u, v; the lanes this cannot settle in
+/// float — an edge function exactly 0 (settled in double) or t within its error bound of 0
+/// (settled by the plane distance in double) — go to `fallback` for the scalar test, a rare case.
+[[gnu::always_inline]] inline unsigned tri4_test(const Tri4& p, const RayPre& r, unsigned valid, float tmax, float t_out[4],
+                                                 float u_out[4], float v_out[4], unsigned& fallback) {
+  const __m128 ox = _mm_set1_ps(r.o[r.kx]), oy = _mm_set1_ps(r.o[r.ky]), oz = _mm_set1_ps(r.o[r.kz]);
+  const __m128 sx = _mm_set1_ps(r.sx), sy = _mm_set1_ps(r.sy), sz = _mm_set1_ps(r.sz);
+  __m128 X[3], Y[3], Z[3];
+  for (int i = 0; i < 3; ++i) {
+    const __m128 ax = _mm_sub_ps(_mm_load_ps(p.v[3 * i + r.kx]), ox);
+    const __m128 ay = _mm_sub_ps(_mm_load_ps(p.v[3 * i + r.ky]), oy);
+    const __m128 az = _mm_sub_ps(_mm_load_ps(p.v[3 * i + r.kz]), oz);
+    X[i] = _mm_sub_ps(ax, _mm_mul_ps(sx, az));
+    Y[i] = _mm_sub_ps(ay, _mm_mul_ps(sy, az));
+    Z[i] = _mm_mul_ps(sz, az);
+  }
+  const __m128 U = _mm_sub_ps(_mm_mul_ps(X[2], Y[1]), _mm_mul_ps(Y[2], X[1]));
+  const __m128 V = _mm_sub_ps(_mm_mul_ps(X[0], Y[2]), _mm_mul_ps(Y[0], X[2]));
+  const __m128 W = _mm_sub_ps(_mm_mul_ps(X[1], Y[0]), _mm_mul_ps(Y[1], X[0]));
+  const __m128 zero = _mm_setzero_ps();
+  const unsigned exact0 =
+      mask4(_mm_or_ps(_mm_cmpeq_ps(U, zero), _mm_or_ps(_mm_cmpeq_ps(V, zero), _mm_cmpeq_ps(W, zero))));
+  const __m128 neg = _mm_or_ps(_mm_cmplt_ps(U, zero), _mm_or_ps(_mm_cmplt_ps(V, zero), _mm_cmplt_ps(W, zero)));
+  const __m128 pos = _mm_or_ps(_mm_cmpgt_ps(U, zero), _mm_or_ps(_mm_cmpgt_ps(V, zero), _mm_cmpgt_ps(W, zero)));
+  const __m128 det = _mm_add_ps(_mm_add_ps(U, V), W);
+  const __m128 T = _mm_add_ps(_mm_add_ps(_mm_mul_ps(U, Z[0]), _mm_mul_ps(V, Z[1])), _mm_mul_ps(W, Z[2]));
+  const __m128 t = _mm_div_ps(T, det);
+  const __m128 in = _mm_and_ps(_mm_cmp_ps(t, _mm_set1_ps(r.tmin), _CMP_GE_OQ), _mm_cmp_ps(t, _mm_set1_ps(tmax), _CMP_LE_OQ));
+  const __m128 ok = _mm_andnot_ps(_mm_and_ps(neg, pos), _mm_and_ps(in, _mm_cmp_ps(det, zero, _CMP_NEQ_UQ)));
+  const unsigned cand = valid & ~exact0 & mask4(ok);
+  fallback = valid & exact0;
+  if (cand == 0) return 0;
+  // conservative t > 0 (pbrt-v3), as tri_test: std::fmax and maxps agree here (no NaN in a
+  // candidate lane's inputs: a NaN there makes t NaN)
+  constexpr float u = 0x1p-24f;
+  constexpr float g2 = 2 * u / (1 - 2 * u), g3 = 3 * u / (1 - 3 * u), g5 = 5 * u / (1 - 5 * u);
+  const __m128 sign = _mm_set1_ps(-0.0f);
+  auto absmax3 = [&](const __m128 a[3]) {
+    return _mm_max_ps(_mm_andnot_ps(sign, a[0]), _mm_max_ps(_mm_andnot_ps(sign, a[1]), _mm_andnot_ps(sign, a[2])));
+  };
+  const __m128 maxZt = absmax3(Z), maxXt = absmax3(X), maxYt = absmax3(Y);
+  const __m128 maxE = _mm_max_ps(_mm_andnot_ps(sign, U), _mm_max_ps(_mm_andnot_ps(sign, V), _mm_andnot_ps(sign, W)));
+  const __m128 dz = _mm_mul_ps(_mm_set1_ps(g3), maxZt);
+  const __m128 dx = _mm_mul_ps(_mm_set1_ps(g5), _mm_add_ps(maxXt, maxZt));
+  const __m128 dy = _mm_mul_ps(_mm_set1_ps(g5), _mm_add_ps(maxYt, maxZt));
+  const __m128 de = _mm_mul_ps(
+      _mm_set1_ps(2.0f), _mm_add_ps(_mm_add_ps(_mm_mul_ps(_mm_mul_ps(_mm_set1_ps(g2), maxXt), maxYt), _mm_mul_ps(dy, maxXt)),
+                                    _mm_mul_ps(dx, maxYt)));
+  const __m128 sum = _mm_add_ps(_mm_add_ps(_mm_mul_ps(_mm_mul_ps(_mm_set1_ps(g3), maxE), maxZt), _mm_mul_ps(de, maxZt)),
+                                _mm_mul_ps(dz, maxE));
+  const __m128 dt =
+      _mm_mul_ps(_mm_mul_ps(_mm_set1_ps(3.0f), sum), _mm_andnot_ps(sign, _mm_div_ps(_mm_set1_ps(1.0f), det)));
+  const unsigned sure = cand & mask4(_mm_cmp_ps(t, dt, _CMP_GT_OQ));
+  fallback |= cand & ~sure;
+  _mm_storeu_ps(t_out, t);
+  _mm_storeu_ps(u_out, _mm_div_ps(V, det));
+  _mm_storeu_ps(v_out, _mm_div_ps(W, det));
+  return sure;
+}
+
+/// The cpu backend's kernels: four boxes and four triangles per test (the leaves as Tri4 packs).
+/// A leaf's answer is the reference's: any hit takes the first hit triangle in leaf order,
+/// closest hit the smallest (t, prim) — what the sequential loop of visit_leaf keeps, as tmax
+/// only shrinks to the best hit's t. With statistics on, the scalar leaf counts the work.
+struct SimdKernels {
+  static constexpr bool uses_packs = true;
+  [[gnu::always_inline]] static unsigned test(const Node4& n, const RayPre& r, float tcull, float d[4]) {
+    return box4_test(n, r, tcull, d);
+  }
+  template <bool Any, class St>
+  [[gnu::always_inline]] static bool leaf(const TraceView& v, std::int32_t ref, const RayPre& r, float& tmax, Hit& best,
+                                          St& st) {
+    if constexpr (St::on) {
+      return detail::visit_leaf<Any>(v, ref, r, tmax, best, st);
+    } else {
+      const Leaf l = v.leaf4[~ref];
+      const Tri4* p = v.tri4 + l.first;
+      for (std::uint32_t k = 0; k < l.count; k += 4, ++p) {
+        const unsigned valid = l.count - k >= 4 ? 0xFu : (1u << (l.count - k)) - 1u;
+        float t[4], u[4], w[4];
+        unsigned fallback;
+        unsigned hit = tri4_test(*p, r, valid, tmax, t, u, w, fallback);
+        for (unsigned f = fallback; f != 0; f &= f - 1) {
+          const int lane = std::countr_zero(f);
+          if (tri_test(r, v.tris[v.leaves[~ref].first + k + static_cast<unsigned>(lane)], tmax, t[lane], u[lane], w[lane]))
+            hit |= 1u << lane;
+        }
+        if (hit == 0) continue;
+        int q = std::countr_zero(hit);
+        if constexpr (Any) {
+          best = Hit{t[q], u[q], w[q], p->prim[q]};
+          return true;
+        }
+        for (unsigned o = hit & (hit - 1); o != 0; o &= o - 1) {
+          const int s = std::countr_zero(o);
+          if (t[s] < t[q] || (t[s] == t[q] && p->prim[s] < p->prim[q])) q = s;
+        }
+        if (t[q] < best.t || p->prim[q] < best.prim) {  // t[q] <= best.t, as in visit_leaf
+          best = Hit{t[q], u[q], w[q], p->prim[q]};
+          tmax = t[q];
+        }
+      }
+      return false;
+    }
   }
 };
 
 void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out, unsigned threads) {
-  trace_parallel<SimdBox4>(acc, rays, opt, out, threads);
+  trace_parallel<SimdKernels>(acc, rays, opt, out, threads);
 }
 
 }  // namespace
 }  // namespace MBVH_ISA_NS
 }  // namespace mbvh
 
-#if defined(__clang__)
-#pragma clang attribute pop
-#else
-#pragma GCC pop_options
-#endif
+MBVH_ISA_END
 
 namespace mbvh {
 extern const CpuKernels MBVH_CPU_KERNELS_NAME;

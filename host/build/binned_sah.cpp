@@ -374,6 +374,11 @@ const Mbvh4& Accel::mbvh4() const {
   return mbvh4_;
 }
 
+const TriPacks& Accel::tri_packs() const {
+  std::call_once(oncep_, [this] { packs_ = make_tri_packs(tris_, leaves_); });
+  return packs_;
+}
+
 const Mbvh4Wide& Accel::mbvh4_wide() const {
   std::call_once(once4w_, [this] { mbvh4w_ = make_mbvh4_wide(mbvh4()); });
   return mbvh4w_;

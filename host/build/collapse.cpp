@@ -3,6 +3,7 @@
 // Multi-BVH Traversal for CPU, MIC and GPU Ray Tracing", CGF 2014; TRAVERSAL.md §2).
 #include <algorithm>
 #include <cstring>
+#include <limits>
 #include <chrono>
 
 #include "host/accel.h"
@@ -82,7 +83,7 @@ namespace {
 // the invariant carries down, so MBVH4 never exceeds 21 levels (63 bits of a 64-bit word).
 struct Collapser {
   const Bvh2& b;
-  std::vector<Node4>& out;
+  AlignedVector<Node4>& out;
   unsigned max_level = 0;
   double cost = 0, root_area = 1;
 
@@ -220,6 +221,32 @@ Mbvh4Wide make_mbvh4_wide(const Mbvh4& m) {
     }
   }
   return w;
+}
+
+TriPacks make_tri_packs(const AlignedVector<Tri>& tris, const std::vector<Leaf>& leaves) {
+  TriPacks p;
+  p.leaves.reserve(leaves.size());
+  std::size_t total = 0;
+  for (const Leaf& l : leaves) total += (l.count + 3) / 4;
+  Tri4 empty;
+  for (auto& row : empty.v)
+    for (float& x : row) x = std::numeric_limits<float>::quiet_NaN();
+  for (auto& id : empty.prim) id = MBVH_MISS_PRIM;
+  p.packs.assign(total, empty);
+  std::size_t next = 0;
+  for (const Leaf& l : leaves) {
+    p.leaves.push_back(Leaf{static_cast<std::uint32_t>(next), l.count});
+    for (std::uint32_t k = 0; k < l.count; ++k) {
+      const Tri& t = tris[l.first + k];
+      Tri4& o = p.packs[next + k / 4];
+      const float* vert[3] = {t.v0, t.v1, t.v2};
+      for (int i = 0; i < 3; ++i)
+        for (int a = 0; a < 3; ++a) o.v[3 * i + a][k % 4] = vert[i][a];
+      std::memcpy(&o.prim[k % 4], &t.v0[3], 4);
+    }
+    next += (l.count + 3) / 4;
+  }
+  return p;
 }
 
 void validate_layout(const Mbvh4& m, std::size_t leaf_count) {

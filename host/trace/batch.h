@@ -1,6 +1,6 @@
 // batch.h — the multi-threaded batch driver shared by the reference (cpu-scalar) and the SIMD
 // cpu backends: validate each ray, dispatch to the traversal chosen at run time, fill the
-// outputs in ray order. Templated on the MBVH4 box-test policy (traverse.h); lives in the ISA
+// outputs in ray order. Templated on the kernel policy (box test and leaf visit, traverse.h); lives in the ISA
 // namespace like the kernels it calls.
 #pragma once
 #include <atomic>
@@ -14,8 +14,9 @@
 namespace mbvh {
 inline namespace MBVH_ISA_NS {
 
-/// The view of `layout` a traversal reads (makes the layout on first use).
-inline TraceView trace_view(const Accel& acc, Layout layout) {
+/// The view of `layout` a traversal reads (makes the layout on first use); with the SIMD leaf
+/// packs when `packs` (a kernel policy's `uses_packs`).
+inline TraceView trace_view(const Accel& acc, Layout layout, bool packs = false) {
   TraceView v;
   if (layout == Layout::mbvh2) {
     v.n2 = acc.mbvh2().nodes.data();
@@ -27,23 +28,27 @@ inline TraceView trace_view(const Accel& acc, Layout layout) {
   v.leaf_count = acc.leaves().size();
   v.leaves = acc.leaves().data();
   v.tris = acc.tris().data();
+  if (packs) {
+    v.tri4 = acc.tri_packs().packs.data();
+    v.leaf4 = acc.tri_packs().leaves.data();
+  }
   return v;
 }
 
-template <bool Any, class B4, class St>
+template <bool Any, class K, class St>
 inline Hit dispatch(const TraceView& v, const RayPre& r, Layout l, Traversal t, St& st) {
   if (l == Layout::mbvh2)
-    return t == Traversal::stack ? trace_mbvh2_stack<Any>(v, r, st) : trace_mbvh2_bitstack<Any>(v, r, st);
+    return t == Traversal::stack ? trace_mbvh2_stack<Any, St, K>(v, r, st) : trace_mbvh2_bitstack<Any, St, K>(v, r, st);
   switch (t) {
-    case Traversal::stack: return trace_mbvh4_stack<Any, St, B4>(v, r, st);
-    case Traversal::bitstack: return trace_mbvh4_bitstack<Any, St, B4>(v, r, st);
-    case Traversal::stack_ordered: return trace_mbvh4_stack_ordered<Any, St, B4>(v, r, st);
-    case Traversal::bitstack_retest: return trace_mbvh4_bitstack_retest<Any, St, B4>(v, r, st);
+    case Traversal::stack: return trace_mbvh4_stack<Any, St, K>(v, r, st);
+    case Traversal::bitstack: return trace_mbvh4_bitstack<Any, St, K>(v, r, st);
+    case Traversal::stack_ordered: return trace_mbvh4_stack_ordered<Any, St, K>(v, r, st);
+    case Traversal::bitstack_retest: return trace_mbvh4_bitstack_retest<Any, St, K>(v, r, st);
   }
   return miss_hit();
 }
 
-template <bool Any, bool Stats, class B4>
+template <bool Any, bool Stats, class K>
 inline void run_batch(const TraceView& v, std::span<const Ray> rays, std::size_t b, std::size_t e,
                       const TraceOptions& opt, TraceOutput& out, std::size_t& invalid) {
   for (std::size_t i = b; i < e; ++i) {
@@ -53,11 +58,11 @@ inline void run_batch(const TraceView& v, std::span<const Ray> rays, std::size_t
       ++invalid;
     } else if constexpr (Stats) {
       CountStats st;
-      h = dispatch<Any, B4>(v, r, opt.layout, opt.traversal, st);
+      h = dispatch<Any, K>(v, r, opt.layout, opt.traversal, st);
       out.stats[i] = st.s;
     } else {
       NoStats st;
-      h = dispatch<Any, B4>(v, r, opt.layout, opt.traversal, st);
+      h = dispatch<Any, K>(v, r, opt.layout, opt.traversal, st);
     }
     if constexpr (Any) out.occluded[i] = h.prim != MBVH_MISS_PRIM ? 1 : 0;
     else out.hits[i] = h;
@@ -65,21 +70,21 @@ inline void run_batch(const TraceView& v, std::span<const Ray> rays, std::size_t
 }
 
 /// Traces `rays` on `threads` workers (0 = all) in chunks of 2048 rays; no per-ray allocation.
-template <class B4>
+template <class K>
 inline void trace_parallel(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out,
                            unsigned threads, const std::function<void(std::size_t)>& progress = {}) {
-  const TraceView v = trace_view(acc, opt.layout);
+  const TraceView v = trace_view(acc, opt.layout, K::uses_packs);
   const bool any = opt.query == Query::any;
   out.reset(rays.size(), opt);
   std::atomic<std::size_t> invalid{0}, done{0};
   parallel_for(rays.size(), 2048, threads, [&](std::size_t b, std::size_t e, unsigned worker) {
     std::size_t inv = 0;
     if (any) {
-      if (opt.stats) run_batch<true, true, B4>(v, rays, b, e, opt, out, inv);
-      else run_batch<true, false, B4>(v, rays, b, e, opt, out, inv);
+      if (opt.stats) run_batch<true, true, K>(v, rays, b, e, opt, out, inv);
+      else run_batch<true, false, K>(v, rays, b, e, opt, out, inv);
     } else {
-      if (opt.stats) run_batch<false, true, B4>(v, rays, b, e, opt, out, inv);
-      else run_batch<false, false, B4>(v, rays, b, e, opt, out, inv);
+      if (opt.stats) run_batch<false, true, K>(v, rays, b, e, opt, out, inv);
+      else run_batch<false, false, K>(v, rays, b, e, opt, out, inv);
     }
     invalid += inv;
     const std::size_t d = done += e - b;

@@ -73,18 +73,18 @@ Hit trace_one(const Accel& acc, const Ray& ray, const TraceOptions& opt, RayStat
   if (stats || leaf_log) {
     CountStats st;
     st.leaf_log = leaf_log;
-    const Hit h = any ? dispatch<true, ScalarBox4>(v, r, opt.layout, opt.traversal, st) : dispatch<false, ScalarBox4>(v, r, opt.layout, opt.traversal, st);
+    const Hit h = any ? dispatch<true, ScalarKernels>(v, r, opt.layout, opt.traversal, st) : dispatch<false, ScalarKernels>(v, r, opt.layout, opt.traversal, st);
     if (stats) *stats = st.s;
     return h;
   }
   NoStats st;
-  return any ? dispatch<true, ScalarBox4>(v, r, opt.layout, opt.traversal, st) : dispatch<false, ScalarBox4>(v, r, opt.layout, opt.traversal, st);
+  return any ? dispatch<true, ScalarKernels>(v, r, opt.layout, opt.traversal, st) : dispatch<false, ScalarKernels>(v, r, opt.layout, opt.traversal, st);
 }
 
 void trace_reference(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out,
                      unsigned threads, const std::function<void(std::size_t)>& progress) {
   require_supported(opt);
-  trace_parallel<ScalarBox4>(acc, rays, opt, out, threads, progress);
+  trace_parallel<ScalarKernels>(acc, rays, opt, out, threads, progress);
 }
 
 Hit brute_force(const Accel& acc, const Ray& ray) {

@@ -2,6 +2,7 @@
 // reference entry points: the scalar traversals over ray batches and the double-precision
 // brute force that serves as the oracle.
 #pragma once
+#include <cmath>
 #include <cstdint>
 #include <functional>
 #include <span>
@@ -45,7 +46,7 @@ struct TraceOutput {
   /// misses, no invalid rays: what every backend starts a trace from.
   void reset(std::size_t n, const TraceOptions& opt) {
     const bool any = opt.query == Query::any;
-    hits.assign(any ? 0 : n, miss_hit());
+    hits.assign(any ? 0 : n, Hit{INFINITY, 0.0f, 0.0f, MBVH_MISS_PRIM});  // miss_hit(), spelled out: no ISA code here
     occluded.assign(any ? n : 0, 0);
     stats.assign(opt.stats ? n : 0, RayStats{});
     invalid = 0;

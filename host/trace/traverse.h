@@ -9,28 +9,9 @@
 #include <vector>
 
 #include "host/trace/intersect.h"
+#include "host/trace/view.h"
 
 namespace mbvh {
-
-/// Per-ray work counters.
-struct RayStats {
-  std::uint32_t nodes = 0;      ///< inner-node records visited
-  std::uint32_t box_tests = 0;  ///< child boxes tested (2 per MBVH2 node, 4 per MBVH4 node)
-  std::uint32_t leaves = 0;
-  std::uint32_t tris = 0;       ///< triangle tests
-  std::uint32_t climbs = 0;     ///< parent reads while backtracking (bitstack only)
-  std::uint32_t retests = 0;    ///< parent nodes re-tested on a sibling move (variant B only)
-  std::uint32_t max_depth = 0;  ///< peak stack entries (stack) or bitstack levels (bitstack)
-};
-
-/// What a traversal reads: one layout's nodes plus the shared leaves and triangles.
-struct TraceView {
-  const Node2* n2 = nullptr;
-  const Node4* n4 = nullptr;
-  const Leaf* leaves = nullptr;
-  const Tri* tris = nullptr;
-  std::size_t nodes = 0, leaf_count = 0;  ///< sizes, for the termination guard
-};
 
 inline namespace MBVH_ISA_NS {
 
@@ -118,10 +99,10 @@ inline unsigned test4_boxes(const Node4& n, const RayPre& r, float tcull, float 
   return mask;
 }
 
-template <class B4, class St>
+template <class K, class St>
 inline unsigned test4(const Node4& n, const RayPre& r, float tcull, float d[4], St& st) {
   st.node(4);
-  return B4::test(n, r, tcull, d);
+  return K::test(n, r, tcull, d);
 }
 
 // MBVH2 child entered first: any hit takes child 0 if hit; closest hit the nearer of two hit
@@ -150,16 +131,23 @@ inline std::uint64_t skip_code(unsigned mask, int i) {  // rot(mask, i), TRAVERS
 
 }  // namespace detail
 
-/// The MBVH4 four-box test as a policy: the reference tests the boxes one by one; SIMD backends
-/// pass a policy that tests all four slabs at once with the same operations in the same order
-/// (so every answer is bit-identical) and reuse these traversals unchanged.
-struct ScalarBox4 {
+/// The kernels a traversal calls, as a policy: the MBVH4 four-box test and the leaf visit. The
+/// reference tests boxes and triangles one by one; the SIMD cpu backends pass a policy that tests
+/// all four slabs at once and four triangles at once with the same operations in the same order
+/// and the same choice among hits (so every answer is bit-identical), and reuse these traversals
+/// unchanged.
+struct ScalarKernels {
+  static constexpr bool uses_packs = false;
   static unsigned test(const Node4& n, const RayPre& r, float tcull, float d[4]) { return detail::test4_boxes(n, r, tcull, d); }
+  template <bool Any, class St>
+  static bool leaf(const TraceView& v, std::int32_t ref, const RayPre& r, float& tmax, Hit& best, St& st) {
+    return detail::visit_leaf<Any>(v, ref, r, tmax, best, st);
+  }
 };
 
 /// MBVH2, stack-based (Aila–Laine order without postponed leaves): nearest child first, the far
 /// child pushed when both are hit.
-template <bool Any, class St>
+template <bool Any, class St, class K = ScalarKernels>
 inline Hit trace_mbvh2_stack(const TraceView& v, const RayPre& r, St& st) {
   Hit best = miss_hit();
   float tmax = r.tmax;
@@ -183,7 +171,7 @@ inline Hit trace_mbvh2_stack(const TraceView& v, const RayPre& r, St& st) {
         cur = n.link[2 + k];
         continue;
       }
-    } else if (detail::visit_leaf<Any>(v, cur, r, tmax, best, st)) {
+    } else if (K::template leaf<Any>(v, cur, r, tmax, best, st)) {
       return best;
     }
     if (sp == 0) return best;
@@ -193,7 +181,7 @@ inline Hit trace_mbvh2_stack(const TraceView& v, const RayPre& r, St& st) {
 
 /// MBVH2 bitstack (TRAVERSAL.md §4.2): one bit per level, 1 = the sibling is still pending;
 /// backtracking climbs parent links to the deepest pending level and moves to the sibling.
-template <bool Any, class St>
+template <bool Any, class St, class K = ScalarKernels>
 inline Hit trace_mbvh2_bitstack(const TraceView& v, const RayPre& r, St& st) {
   Hit best = miss_hit();
   float tmax = r.tmax;
@@ -216,7 +204,7 @@ inline Hit trace_mbvh2_bitstack(const TraceView& v, const RayPre& r, St& st) {
         cur = n.link[2 + k];
         continue;
       }
-    } else if (detail::visit_leaf<Any>(v, cur, r, tmax, best, st)) {
+    } else if (K::template leaf<Any>(v, cur, r, tmax, best, st)) {
       return best;
     }
     // -- backtrack: climb to the deepest level with a pending sibling
@@ -239,7 +227,7 @@ inline Hit trace_mbvh2_bitstack(const TraceView& v, const RayPre& r, St& st) {
 
 /// MBVH4, stack-based twin of the skip-code traversal (TRAVERSAL.md §4.5): enter the nearest
 /// hit child, push the other hit children in reverse cyclic order so they pop in cyclic order.
-template <bool Any, class St, class B4 = ScalarBox4>
+template <bool Any, class St, class K = ScalarKernels>
 inline Hit trace_mbvh4_stack(const TraceView& v, const RayPre& r, St& st) {
   Hit best = miss_hit();
   float tmax = r.tmax;
@@ -252,7 +240,7 @@ inline Hit trace_mbvh4_stack(const TraceView& v, const RayPre& r, St& st) {
     if (cur >= 0) {
       const Node4& n = v.n4[cur];
       float d[4];
-      const unsigned m = detail::test4<B4>(n, r, tmax * kCullSlack, d, st);
+      const unsigned m = detail::test4<K>(n, r, tmax * kCullSlack, d, st);
       if (m) {
         const int i = detail::first_slot4<Any>(m, d);
         guard.room(sp, 3, MBVH_STACK4_ENTRIES);
@@ -264,7 +252,7 @@ inline Hit trace_mbvh4_stack(const TraceView& v, const RayPre& r, St& st) {
         cur = n.child[i];
         continue;
       }
-    } else if (detail::visit_leaf<Any>(v, cur, r, tmax, best, st)) {
+    } else if (K::template leaf<Any>(v, cur, r, tmax, best, st)) {
       return best;
     }
     if (sp == 0) return best;
@@ -275,7 +263,7 @@ inline Hit trace_mbvh4_stack(const TraceView& v, const RayPre& r, St& st) {
 /// MBVH4 bitstack with skip codes (TRAVERSAL.md §4.3): 3 bits per level, the code of a level
 /// marks which cyclic siblings of the current node are pending; siblings come from registers
 /// filled on descent, or from the record climbed to.
-template <bool Any, class St, class B4 = ScalarBox4>
+template <bool Any, class St, class K = ScalarKernels>
 inline Hit trace_mbvh4_bitstack(const TraceView& v, const RayPre& r, St& st) {
   Hit best = miss_hit();
   float tmax = r.tmax;
@@ -289,7 +277,7 @@ inline Hit trace_mbvh4_bitstack(const TraceView& v, const RayPre& r, St& st) {
     if (cur >= 0) {
       const Node4& n = v.n4[cur];
       float d[4];
-      const unsigned m = detail::test4<B4>(n, r, tmax * kCullSlack, d, st);
+      const unsigned m = detail::test4<K>(n, r, tmax * kCullSlack, d, st);
       if (m) {
         const int i = detail::first_slot4<Any>(m, d);
         bits = (bits << 3) | detail::skip_code(m, i);  // push
@@ -299,7 +287,7 @@ inline Hit trace_mbvh4_bitstack(const TraceView& v, const RayPre& r, St& st) {
         cur = n.child[i];
         continue;
       }
-    } else if (detail::visit_leaf<Any>(v, cur, r, tmax, best, st)) {
+    } else if (K::template leaf<Any>(v, cur, r, tmax, best, st)) {
       return best;
     }
     // -- backtrack: climb while the current level has no pending sibling
@@ -345,7 +333,7 @@ inline int nearest_slot4(unsigned mask, const float d[4]) {
 /// MBVH4, Embree-like ordered stack (TRAVERSAL.md §4.5, variant B's twin): hit children pushed
 /// with their entry distances, the nearest on top (1 hit: no push; 2 hits: push the farther;
 /// 3-4: push all and sort by (d, slot)); a popped entry beyond the current tmax * S is culled.
-template <bool Any, class St, class B4 = ScalarBox4>
+template <bool Any, class St, class K = ScalarKernels>
 inline Hit trace_mbvh4_stack_ordered(const TraceView& v, const RayPre& r, St& st) {
   struct Entry {  // 8 bytes, as Embree's (node, distance) entries
     std::int32_t node;
@@ -362,7 +350,7 @@ inline Hit trace_mbvh4_stack_ordered(const TraceView& v, const RayPre& r, St& st
     if (cur >= 0) {
       const Node4& n = v.n4[cur];
       float d[4];
-      const unsigned m = detail::test4<B4>(n, r, tmax * kCullSlack, d, st);
+      const unsigned m = detail::test4<K>(n, r, tmax * kCullSlack, d, st);
       if (m) {
         const int q = detail::nearest_slot4(m, d);
         const unsigned others = m & ~(1u << q);
@@ -376,7 +364,7 @@ inline Hit trace_mbvh4_stack_ordered(const TraceView& v, const RayPre& r, St& st
         cur = n.child[q];
         continue;
       }
-    } else if (detail::visit_leaf<Any>(v, cur, r, tmax, best, st)) {
+    } else if (K::template leaf<Any>(v, cur, r, tmax, best, st)) {
       return best;
     }
     // -- pop, culling entries beyond the best hit
@@ -394,7 +382,7 @@ inline Hit trace_mbvh4_stack_ordered(const TraceView& v, const RayPre& r, St& st
 /// Szirmay-Kalos 2014): the same skip codes, but each move to a sibling re-tests the parent's
 /// four boxes against the current tmax, takes the nearest pending child and drops those now
 /// beyond tmax — the visit sequence of the ordered, culling stack above.
-template <bool Any, class St, class B4 = ScalarBox4>
+template <bool Any, class St, class K = ScalarKernels>
 inline Hit trace_mbvh4_bitstack_retest(const TraceView& v, const RayPre& r, St& st) {
   Hit best = miss_hit();
   float tmax = r.tmax;
@@ -408,7 +396,7 @@ inline Hit trace_mbvh4_bitstack_retest(const TraceView& v, const RayPre& r, St& 
     if (cur >= 0) {
       const Node4& n = v.n4[cur];
       float d[4];
-      const unsigned m = detail::test4<B4>(n, r, tmax * kCullSlack, d, st);
+      const unsigned m = detail::test4<K>(n, r, tmax * kCullSlack, d, st);
       if (m) {
         const int i = detail::nearest_slot4(m, d);
         bits = (bits << 3) | detail::skip_code(m, i);  // push
@@ -418,7 +406,7 @@ inline Hit trace_mbvh4_bitstack_retest(const TraceView& v, const RayPre& r, St& 
         cur = n.child[i];
         continue;
       }
-    } else if (detail::visit_leaf<Any>(v, cur, r, tmax, best, st)) {
+    } else if (K::template leaf<Any>(v, cur, r, tmax, best, st)) {
       return best;
     }
     // -- backtrack: re-test the parent for the nearest live pending sibling, else climb
@@ -430,7 +418,7 @@ inline Hit trace_mbvh4_bitstack_retest(const TraceView& v, const RayPre& r, St& 
         const Node4& p = v.n4[par];
         float d[4];
         st.retest();
-        const unsigned m = B4::test(p, r, tmax * kCullSlack, d);
+        const unsigned m = K::test(p, r, tmax * kCullSlack, d);
         unsigned pending = 0;
         for (int k = 0; k < 3; ++k)
           if ((code >> k) & 1u) pending |= 1u << ((slot + 1 + k) & 3);
