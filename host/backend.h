@@ -51,7 +51,7 @@ public:
 /// A set of traversal variants: every backend x layout x traversal x query combination.
 struct VariantGrid {
   std::vector<std::string> backends{"cpu-scalar"};
-  std::vector<Layout> layouts{Layout::mbvh2, Layout::mbvh4};
+  std::vector<Layout> layouts{Layout::mbvh2, Layout::mbvh4, Layout::mbvh8};
   std::vector<Traversal> traversals{Traversal::stack, Traversal::bitstack, Traversal::stack_ordered,
                                     Traversal::bitstack_retest};
   std::vector<Query> queries{Query::closest, Query::any};

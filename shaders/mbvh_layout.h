@@ -63,9 +63,13 @@ typedef uint mbvh_uint;
 #define MBVH_BINARY_DEPTH_CAP 42
 #define MBVH_MBVH2_LEVEL_CAP 64
 #define MBVH_MBVH4_LEVEL_CAP 21
+/* MBVH8 (stack-based only): three binary levels per level, ceil(42/3) = 14 levels. */
+#define MBVH_MBVH8_LEVEL_CAP 14
 /* Stack capacities of the stack-based twins: one entry per level (MBVH2), 1 + 3 * levels (MBVH4). */
 #define MBVH_STACK2_ENTRIES 64
 #define MBVH_STACK4_ENTRIES 64
+/* MBVH8 ordered stack: 1 + 7 * 14 = 99 entries at most. */
+#define MBVH_STACK8_ENTRIES 128
 
 /* Storage-buffer bindings per split array on Vulkan (nodes, triangles): an array larger than a
  * device's maxStorageBufferRange is bound as up to this many power-of-two chunks (TRAVERSAL.md §9). */
@@ -131,6 +135,21 @@ MBVH_STRUCT(Node4W) {
   MBVH_ROWS(hi, 4);
 } MBVH_END(Node4W)
 
+/* MBVH8 node, 256 bytes (thesis ch. 3: 8-wide AVX single-ray traversal): the eight children's
+ * slabs SoA, one 32-byte row per plane, then the references; empty slots as in MBVH4. Only the
+ * cpu backends trace it (stack-based, no sibling links). */
+MBVH_STRUCT(Node8) {
+  mbvh_float lo_x[8];
+  mbvh_float hi_x[8];
+  mbvh_float lo_y[8];
+  mbvh_float hi_y[8];
+  mbvh_float lo_z[8];
+  mbvh_float hi_z[8];
+  mbvh_int child[8];
+  mbvh_int parent;
+  mbvh_int pad[7];
+} MBVH_END(Node8)
+
 /* Four triangles of one leaf, SoA, for the cpu backend's SIMD leaf test (backends/cpu): row
  * 3 * i + a holds axis a of vertex i for the four lanes, prim their prim ids. A leaf of n
  * triangles has ceil(n / 4) packs in leaf order; lanes past its end have NaN vertices and prim
@@ -150,6 +169,7 @@ static_assert(sizeof(mbvh::Leaf) == 8, "leaf is (first, count)");
 static_assert(sizeof(mbvh::Node2) == 64, "MBVH2 node is 64 bytes (Aila-Laine)");
 static_assert(sizeof(mbvh::Node4) == 128, "MBVH4 node is 128 bytes");
 static_assert(sizeof(mbvh::Node4W) == 128, "MBVH4 16-wide node is 128 bytes");
+static_assert(sizeof(mbvh::Node8) == 256, "MBVH8 node is 256 bytes");
 static_assert(sizeof(mbvh::Tri4) == 160, "SIMD leaf pack is ten 16-byte rows");
 static_assert(offsetof(mbvh::Node2, link) == 48, "MBVH2 links in the 4th row");
 static_assert(offsetof(mbvh::Node4, child) == 96, "MBVH4 children at byte 96");

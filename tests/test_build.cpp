@@ -4,6 +4,7 @@
 #include <catch2/catch.hpp>
 
 #include <algorithm>
+#include <cmath>
 
 #include "host/accel.h"
 #include "host/error.h"
@@ -36,7 +37,8 @@ Box leaf_tris_box(const Accel& acc, std::int32_t ref) {
   return b;
 }
 
-Box box4(const Node4& n, int s) {
+template <class N>  // Node4 or Node8
+Box box4(const N& n, int s) {
   Box b;
   b.lo = {n.lo_x[s], n.lo_y[s], n.lo_z[s]};
   b.hi = {n.hi_x[s], n.hi_y[s], n.hi_z[s]};
@@ -129,6 +131,52 @@ void check_invariants(const Scene& scene, const Accel& acc) {
   REQUIRE(m4.stats.depth <= MBVH_MBVH4_LEVEL_CAP);
   REQUIRE(m4.stats.bitstack_bits <= 63);
   REQUIRE(m2.stats.leaves == m4.stats.leaves);
+
+  // -- MBVH8: boxes, parents, every leaf once, depth within the stack's reach
+  const Mbvh8& m8 = acc.mbvh8();
+  REQUIRE(m8.nodes[0].parent == MBVH_NONE);
+  std::vector<int> leaf_refs8(acc.leaves().size(), 0);
+  for (std::size_t i = 0; i < m8.nodes.size(); ++i) {
+    const Node8& n = m8.nodes[i];
+    for (int s = 0; s < 8; ++s) {
+      const std::int32_t c = n.child[s];
+      if (c == MBVH_EMPTY) {
+        REQUIRE(box4(n, s).empty());
+      } else if (c >= 0) {
+        const Node8& ch = m8.nodes[static_cast<std::size_t>(c)];
+        REQUIRE(ch.parent == static_cast<std::int32_t>(i));
+        for (int g = 0; g < 8; ++g)
+          if (ch.child[g] != MBVH_EMPTY) REQUIRE(contains(box4(n, s), box4(ch, g)));
+      } else {
+        ++leaf_refs8[static_cast<std::size_t>(~c)];
+        REQUIRE(contains(box4(n, s), leaf_tris_box(acc, c)));
+      }
+    }
+  }
+  for (int r : leaf_refs8) REQUIRE(r == 1);
+  REQUIRE(m8.stats.depth <= MBVH_MBVH8_LEVEL_CAP);
+  REQUIRE(1 + 7 * m8.stats.depth <= MBVH_STACK8_ENTRIES);
+
+  // -- SIMD leaf packs: each leaf's triangles, in order, four to a pack, padding lanes empty
+  const TriPacks& packs = acc.tri_packs();
+  REQUIRE(packs.leaves.size() == acc.leaves().size());
+  for (std::size_t i = 0; i < packs.leaves.size(); ++i) {
+    const Leaf& l = acc.leaves()[i];
+    REQUIRE(packs.leaves[i].count == l.count);
+    for (std::uint32_t k = 0; k < (l.count + 3) / 4 * 4; ++k) {
+      const Tri4& p = packs.packs[packs.leaves[i].first + k / 4];
+      if (k >= l.count) {
+        REQUIRE(p.prim[k % 4] == MBVH_MISS_PRIM);
+        REQUIRE(std::isnan(p.v[0][k % 4]));
+        continue;
+      }
+      const Tri& t = acc.tris()[l.first + k];
+      REQUIRE(p.prim[k % 4] == tri_prim(t));
+      const float* vert[3] = {t.v0, t.v1, t.v2};
+      for (int v = 0; v < 3; ++v)
+        for (int a = 0; a < 3; ++a) REQUIRE(p.v[3 * v + a][k % 4] == vert[v][a]);
+    }
+  }
 }
 
 }  // namespace
@@ -158,6 +206,7 @@ TEST_CASE("the depth cap holds on a worst-case scene and the capped tree still t
   CHECK(acc->bvh2().forced_leaves >= 1);
   CHECK(acc->bvh2().largest_leaf > capped_opt.max_leaf);
   CHECK(acc->mbvh4().stats.depth <= cap);
+  CHECK(acc->mbvh8().stats.depth <= MBVH_MBVH8_LEVEL_CAP);
   check_invariants(s, *acc);
   // rays along the row of triangles, each aimed at one of them
   for (std::size_t i = 0; i < s.triangles.size(); i += 7) {
@@ -167,8 +216,9 @@ TEST_CASE("the depth cap holds on a worst-case scene and the capped tree still t
     const Ray r{p.x, p.y + w, p.z - w, 0.0f, 0.0f, -1.0f, 1.0f, INFINITY};
     REQUIRE(brute_force(*acc, r).prim == i);
     const Hit want = brute_force(*acc, r);
-    for (Layout l : {Layout::mbvh2, Layout::mbvh4})
-      for (Traversal t : {Traversal::stack, Traversal::bitstack}) {
+    for (Layout l : {Layout::mbvh2, Layout::mbvh4, Layout::mbvh8})
+      for (Traversal t : {Traversal::stack, Traversal::bitstack, Traversal::stack_ordered}) {
+        if (!reference_supports(l, t)) continue;
         TraceOptions o;
         o.layout = l;
         o.traversal = t;
@@ -215,8 +265,9 @@ TEST_CASE("degenerate triangles never reach a leaf - empty scenes are an error",
   CHECK(acc->bvh2().degenerate == 3);
   check_invariants(s, *acc);  // a one-leaf scene: root with one leaf and an empty slot
   const Ray r{0.25f, 0.25f, 1.0f, 0.0f, 0.0f, 0.0f, -1.0f, INFINITY};
-  for (Layout l : {Layout::mbvh2, Layout::mbvh4})
-    for (Traversal t : {Traversal::stack, Traversal::bitstack}) {
+  for (Layout l : {Layout::mbvh2, Layout::mbvh4, Layout::mbvh8})
+    for (Traversal t : {Traversal::stack, Traversal::bitstack, Traversal::stack_ordered}) {
+      if (!reference_supports(l, t)) continue;
       TraceOptions o;
       o.layout = l;
       o.traversal = t;

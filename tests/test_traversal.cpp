@@ -265,4 +265,7 @@ TEST_CASE("statistics count work and stay out of the answers", "[traversal]") {
   CHECK(state_bytes_per_ray(Layout::mbvh4, Traversal::stack_ordered) == 520);  // 64 (node, distance) entries
   CHECK(state_bytes_per_ray(Layout::mbvh4, Traversal::bitstack_retest) == 12);
   CHECK_FALSE(reference_supports(Layout::mbvh2, Traversal::bitstack_retest));
+  CHECK(state_bytes_per_ray(Layout::mbvh8, Traversal::stack_ordered) == 1032);  // 128 (node, distance) entries
+  CHECK(reference_supports(Layout::mbvh8, Traversal::stack_ordered));
+  CHECK_FALSE(reference_supports(Layout::mbvh8, Traversal::bitstack));  // no 7-bit skip codes: stack-based only
 }

@@ -18,8 +18,7 @@ public:
   std::string isa() const override { return "scalar"; }
   bool supports(Layout l, Traversal t) const override { return reference_supports(l, t); }
   void prepare(const Accel& acc, const TraceOptions& opt) override {
-    if (opt.layout == Layout::mbvh2) acc.mbvh2();
-    else acc.mbvh4();
+    acc.make_layout(opt.layout);
   }
   void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
     prepare(acc, opt);

@@ -94,6 +94,31 @@ inline unsigned mask4(__m128 m) { return static_cast<unsigned>(_mm_movemask_ps(m
 #endif
 }
 
+/// Eight slab tests in one pass (MBVH8): box4_test on 256-bit vectors.
+[[gnu::always_inline]] inline unsigned box8_test(const Node8& n, const RayPre& r, float tcull, float d[8]) {
+  const __m256 lox = _mm256_load_ps(n.lo_x), hix = _mm256_load_ps(n.hi_x);
+  const __m256 loy = _mm256_load_ps(n.lo_y), hiy = _mm256_load_ps(n.hi_y);
+  const __m256 loz = _mm256_load_ps(n.lo_z), hiz = _mm256_load_ps(n.hi_z);
+  const __m256 nx = r.neg[0] ? hix : lox, fx = r.neg[0] ? lox : hix;
+  const __m256 ny = r.neg[1] ? hiy : loy, fy = r.neg[1] ? loy : hiy;
+  const __m256 nz = r.neg[2] ? hiz : loz, fz = r.neg[2] ? loz : hiz;
+  const __m256 ox = _mm256_set1_ps(r.o[0]), oy = _mm256_set1_ps(r.o[1]), oz = _mm256_set1_ps(r.o[2]);
+  const __m256 tnx = _mm256_mul_ps(_mm256_sub_ps(nx, ox), _mm256_set1_ps(r.inv[0]));
+  const __m256 tny = _mm256_mul_ps(_mm256_sub_ps(ny, oy), _mm256_set1_ps(r.inv[1]));
+  const __m256 tnz = _mm256_mul_ps(_mm256_sub_ps(nz, oz), _mm256_set1_ps(r.inv[2]));
+  const __m256 tfx = _mm256_mul_ps(_mm256_sub_ps(fx, ox), _mm256_set1_ps(r.inv_far[0]));
+  const __m256 tfy = _mm256_mul_ps(_mm256_sub_ps(fy, oy), _mm256_set1_ps(r.inv_far[1]));
+  const __m256 tfz = _mm256_mul_ps(_mm256_sub_ps(fz, oz), _mm256_set1_ps(r.inv_far[2]));
+  const __m256 te = _mm256_max_ps(tnz, _mm256_max_ps(tny, _mm256_max_ps(tnx, _mm256_set1_ps(r.tmin))));
+  const __m256 tx = _mm256_min_ps(tfz, _mm256_min_ps(tfy, _mm256_min_ps(tfx, _mm256_set1_ps(tcull))));
+  _mm256_storeu_ps(d, te);
+#if MBVH_CPU_ISA_ID == 2
+  return static_cast<unsigned>(_mm256_cmp_ps_mask(te, tx, _CMP_LE_OQ));
+#else
+  return static_cast<unsigned>(_mm256_movemask_ps(_mm256_cmp_ps(te, tx, _CMP_LE_OQ)));
+#endif
+}
+
 /// Four triangles of a pack at once: tri_test (intersect.h) lane by lane, the same operations in
 /// the same order (Woop, Benthin & Wald 2013, watertight; pbrt-v3's error bound on t). Returns the
 /// lanes of `valid` that hit within [tmin, tmax], with t, u, v; the lanes this cannot settle in
@@ -164,6 +189,9 @@ struct SimdKernels {
   static constexpr bool uses_packs = true;
   [[gnu::always_inline]] static unsigned test(const Node4& n, const RayPre& r, float tcull, float d[4]) {
     return box4_test(n, r, tcull, d);
+  }
+  [[gnu::always_inline]] static unsigned test(const Node8& n, const RayPre& r, float tcull, float d[8]) {
+    return box8_test(n, r, tcull, d);
   }
   template <bool Any, class St>
   [[gnu::always_inline]] static bool leaf(const TraceView& v, std::int32_t ref, const RayPre& r, float& tmax, Hit& best,

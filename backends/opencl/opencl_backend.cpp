@@ -73,7 +73,9 @@ public:
     return name_ + ": " + (wide_ ? "16-wide MBVH4 node test" : "ray-per-lane scalar MBVH4 node test") +
            ", MBVH2 GPU-style; OpenCL device " + dev_.describe();
   }
-  bool supports(Layout, Traversal t) const override { return t == Traversal::stack || t == Traversal::bitstack; }
+  bool supports(Layout l, Traversal t) const override {
+    return l != Layout::mbvh8 && (t == Traversal::stack || t == Traversal::bitstack);
+  }
 
   void prepare(const Accel& acc, const TraceOptions& opt) override {
     program(opt.stats);

@@ -18,12 +18,13 @@
 
 namespace mbvh {
 
-const char* to_string(Layout l) { return l == Layout::mbvh2 ? "mbvh2" : "mbvh4"; }
+const char* to_string(Layout l) { return l == Layout::mbvh2 ? "mbvh2" : l == Layout::mbvh4 ? "mbvh4" : "mbvh8"; }
 
 Layout parse_layout(const std::string& s) {
   if (s == "mbvh2") return Layout::mbvh2;
   if (s == "mbvh4") return Layout::mbvh4;
-  throw Error("unknown layout '" + s + "' (known: mbvh2, mbvh4)");
+  if (s == "mbvh8") return Layout::mbvh8;
+  throw Error("unknown layout '" + s + "' (known: mbvh2, mbvh4, mbvh8)");
 }
 
 std::uint64_t hash_bytes(const void* p, std::size_t n, std::uint64_t h) {
@@ -54,6 +55,12 @@ class Builder {
 public:
   Builder(const BuildOptions& opt, std::vector<Box>& boxes, std::vector<Vec3f>& cents, std::vector<std::uint32_t>& idx)
       : opt_(opt), boxes_(boxes), cents_(cents), idx_(idx), bins_(std::clamp(opt.bins, 2u, kMaxBins)) {}
+
+  // SAH price of testing `n` triangles: blocks of leaf_block.
+  float blocks(std::uint32_t n) const {
+    const std::uint32_t b = std::max(opt_.leaf_block, 1u);
+    return static_cast<float>((n + b - 1) / b);
+  }
 
   // Splits node n (in `arena`) into two children appended to `arena`, or marks it a leaf.
   void split(std::vector<TmpNode>& arena, std::size_t n, bool parallel_binning) {
@@ -127,7 +134,7 @@ public:
         acc.grow(bins[a][k - 1].box);
         cnt += bins[a][k - 1].count;
         if (cnt == 0 || right_count[k] == 0) continue;
-        const float cost = acc.half_area() * static_cast<float>(cnt) + right_area[k] * static_cast<float>(right_count[k]);
+        const float cost = acc.half_area() * blocks(cnt) + right_area[k] * blocks(right_count[k]);
         if (cost < best_cost) {
           best_cost = cost;
           best_axis = a;
@@ -136,7 +143,7 @@ public:
       }
     }
     const float area = node.box.half_area();
-    const float leaf_cost = static_cast<float>(count);
+    const float leaf_cost = blocks(count);
     const float split_cost = opt_.traversal_cost + (area > 0 ? best_cost / area : 0.0f);
     std::uint32_t mid;
     if (best_axis < 0) {
@@ -367,6 +374,17 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
 const Mbvh2& Accel::mbvh2() const {
   std::call_once(once2_, [this] { mbvh2_ = make_mbvh2(bvh2_, leaves_); });
   return mbvh2_;
+}
+
+void Accel::make_layout(Layout l) const {
+  if (l == Layout::mbvh2) mbvh2();
+  else if (l == Layout::mbvh4) mbvh4();
+  else mbvh8();
+}
+
+const Mbvh8& Accel::mbvh8() const {
+  std::call_once(once8_, [this] { mbvh8_ = make_mbvh8(bvh2_, leaves_); });
+  return mbvh8_;
 }
 
 const Mbvh4& Accel::mbvh4() const {

@@ -14,12 +14,6 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
-void set_box4(Node4& n, int s, const Box& b) {
-  n.lo_x[s] = b.lo.x; n.hi_x[s] = b.hi.x;
-  n.lo_y[s] = b.lo.y; n.hi_y[s] = b.hi.y;
-  n.lo_z[s] = b.lo.z; n.hi_z[s] = b.hi.z;
-}
-
 Box empty_box() { return Box(); }  // lo = +inf, hi = -inf: never hit (TRAVERSAL.md §2.1)
 
 double leaf_sah(const Bvh2& b, const std::vector<Leaf>& leaves, double root) {
@@ -75,29 +69,40 @@ Mbvh2 make_mbvh2(const Bvh2& b, const std::vector<Leaf>& leaves) {
 
 namespace {
 
-// Depth-aware greedy collapse. A 4-node at MBVH4 level L takes its binary node's two children and
-// repeatedly opens one inner child until it holds four: first any child that would break the
-// level cap (an inner child of binary height h at level L+1 needs L+1+ceil(h/2) <= cap, what
-// opening both grandchildren always achieves), else the child of largest surface area (the SAH
-// greedy of Wald et al. 2008). With the binary cap of 42 the root satisfies ceil(42/2) <= 21 and
-// the invariant carries down, so MBVH4 never exceeds 21 levels (63 bits of a 64-bit word).
+// Depth-aware greedy collapse into W-wide nodes (W = 4: MBVH4, W = 8: MBVH8). A node at level L
+// takes its binary node's two children and repeatedly opens one inner child until it holds W:
+// first any child that would break the level cap (an inner child of binary height h at level L+1
+// needs L+1+ceil(h/B) <= cap, B = log2(W) binary levels per level, what opening every descendant
+// B levels down achieves), else the child of largest surface area (the SAH greedy of Wald et al.
+// 2008). With the binary cap of 42 the root satisfies ceil(42/B) <= cap and the invariant carries
+// down: MBVH4 never exceeds 21 levels (63 bits of a 64-bit word), MBVH8 never 14.
+template <class N, int W, int B, unsigned Cap>
 struct Collapser {
   const Bvh2& b;
-  AlignedVector<Node4>& out;
+  AlignedVector<N>& out;
   unsigned max_level = 0;
   double cost = 0, root_area = 1;
 
   bool violates(std::int32_t ref, unsigned level) const {
     if (ref < 0) return false;
     const unsigned h = b.nodes[static_cast<std::size_t>(ref)].height;
-    return level + (h + 1) / 2 > MBVH_MBVH4_LEVEL_CAP;
+    return level + (h + B - 1) / B > Cap;
+  }
+
+  static void set_box(N& n, int s, const Box& bx) {
+    n.lo_x[s] = bx.lo.x; n.hi_x[s] = bx.hi.x;
+    n.lo_y[s] = bx.lo.y; n.hi_y[s] = bx.hi.y;
+    n.lo_z[s] = bx.lo.z; n.hi_z[s] = bx.hi.z;
   }
 
   std::int32_t emit(std::int32_t bref, std::int32_t parent, unsigned level) {
     const Bvh2::Node& bn = b.nodes[static_cast<std::size_t>(bref)];
-    std::int32_t kids[4] = {bn.child[0], bn.child[1], MBVH_EMPTY, MBVH_EMPTY};
+    std::int32_t kids[W];
+    for (int k = 0; k < W; ++k) kids[k] = MBVH_EMPTY;
+    kids[0] = bn.child[0];
+    kids[1] = bn.child[1];
     int count = bn.child[1] == MBVH_EMPTY ? 1 : 2;
-    while (count < 4) {
+    while (count < W) {
       int pick = -1;
       for (int k = 0; k < count; ++k)
         if (violates(kids[k], level + 1) && (pick < 0 || b.box(kids[k]).half_area() > b.box(kids[pick]).half_area())) pick = k;
@@ -114,14 +119,14 @@ struct Collapser {
     const std::int32_t self = static_cast<std::int32_t>(out.size());
     out.emplace_back();
     Box all;
-    for (int s = 0; s < 4; ++s) {
+    for (int s = 0; s < W; ++s) {
       const Box bx = kids[s] == MBVH_EMPTY ? empty_box() : b.box(kids[s]);
       all.grow(bx);
-      set_box4(out[static_cast<std::size_t>(self)], s, bx);
+      set_box(out[static_cast<std::size_t>(self)], s, bx);
     }
     cost += all.half_area() / root_area;
     out[static_cast<std::size_t>(self)].parent = parent;
-    for (int s = 0; s < 4; ++s) {
+    for (int s = 0; s < W; ++s) {
       std::int32_t ref = kids[s];
       if (ref >= 0) ref = emit(ref, self, level + 1);
       else if (ref != MBVH_EMPTY) max_level = std::max(max_level, level + 1);
@@ -131,32 +136,51 @@ struct Collapser {
   }
 };
 
+// Collapses `b` into `out` (nodes and stats of a W-wide layout named `name`).
+template <int W, int B, unsigned Cap, class M>
+void collapse(const Bvh2& b, const std::vector<Leaf>& leaves, const char* name, M& out) {
+  using N = typename decltype(out.nodes)::value_type;
+  out.nodes.reserve(b.nodes.size() / (W / 2) + 1);
+  Collapser<N, W, B, Cap> c{b, out.nodes};
+  c.root_area = std::max(1e-30, static_cast<double>(b.nodes[0].box.half_area()));
+  c.emit(0, MBVH_NONE, 0);
+  LayoutStats& st = out.stats;
+  st.layout = name;
+  st.nodes = out.nodes.size();
+  st.leaves = leaves.size();
+  st.depth = c.max_level;
+  st.sah_cost = c.cost + leaf_sah(b, leaves, c.root_area);
+  st.bytes = out.nodes.size() * sizeof(N);
+  if (st.depth > Cap) throw Error(std::string("internal: ") + name + " depth exceeds its level cap");
+}
+
 }  // namespace
 
 Mbvh4 make_mbvh4(const Bvh2& b, const std::vector<Leaf>& leaves) {
   const auto t0 = Clock::now();
   Mbvh4 out;
-  out.nodes.reserve(b.nodes.size() / 2 + 1);
-  Collapser c{b, out.nodes};
-  c.root_area = std::max(1e-30, static_cast<double>(b.nodes[0].box.half_area()));
-  c.emit(0, MBVH_NONE, 0);
+  collapse<4, 2, MBVH_MBVH4_LEVEL_CAP>(b, leaves, "mbvh4", out);
   // cyclic sibling links: sib[k] = parent.child[(slot + 1 + k) & 3]
   out.nodes[0].sib[0] = out.nodes[0].sib[1] = out.nodes[0].sib[2] = MBVH_NONE;
   for (const Node4& p : out.nodes)
     for (int s = 0; s < 4; ++s)
       if (p.child[s] >= 0)
         for (int k = 0; k < 3; ++k) out.nodes[static_cast<std::size_t>(p.child[s])].sib[k] = p.child[(s + 1 + k) & 3];
-  LayoutStats& st = out.stats;
-  st.layout = "mbvh4";
-  st.nodes = out.nodes.size();
-  st.leaves = leaves.size();
-  st.depth = c.max_level;
-  st.sah_cost = c.cost + leaf_sah(b, leaves, c.root_area);
-  st.bytes = out.nodes.size() * sizeof(Node4);
-  st.bitstack_bits = 3 * st.depth;
-  if (st.depth > MBVH_MBVH4_LEVEL_CAP) throw Error("internal: MBVH4 depth exceeds the 64-bit bitstack");
+  out.stats.bitstack_bits = 3 * out.stats.depth;
   validate_layout(out, leaves.size());
-  st.build_ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+  out.stats.build_ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+  return out;
+}
+
+Mbvh8 make_mbvh8(const Bvh2& b, const std::vector<Leaf>& leaves) {
+  const auto t0 = Clock::now();
+  Mbvh8 out;
+  collapse<8, 3, MBVH_MBVH8_LEVEL_CAP>(b, leaves, "mbvh8", out);
+  for (Node8& n : out.nodes)
+    for (std::int32_t& p : n.pad) p = 0;
+  out.stats.bitstack_bits = 0;  // stack-based only (a 7-bit skip code per level would need 98 bits)
+  validate_layout(out, leaves.size());
+  out.stats.build_ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
   return out;
 }
 
@@ -249,24 +273,41 @@ TriPacks make_tri_packs(const AlignedVector<Tri>& tris, const std::vector<Leaf>&
   return p;
 }
 
-void validate_layout(const Mbvh4& m, std::size_t leaf_count) {
-  const std::size_t n = m.nodes.size();
-  if (n == 0) corrupt("MBVH4", 0, "no root");
-  if (m.nodes[0].parent != MBVH_NONE) corrupt("MBVH4", 0, "the root has a parent");
+namespace {
+
+// The checks of a W-wide layout; `links_ok(child, parent node, slot)` checks a child's own links.
+template <int W, class N, class LinksOk>
+void validate_wide(const AlignedVector<N>& nodes, const char* name, std::size_t leaf_count, LinksOk links_ok) {
+  const std::size_t n = nodes.size();
+  if (n == 0) corrupt(name, 0, "no root");
+  if (nodes[0].parent != MBVH_NONE) corrupt(name, 0, "the root has a parent");
   std::vector<std::uint8_t> seen(n, 0), leaf_seen(leaf_count, 0);
   for (std::size_t i = 0; i < n; ++i)
-    for (int s = 0; s < 4; ++s) {
-      const std::int32_t c = m.nodes[i].child[s];
-      check_ref("MBVH4", i, c, n, leaf_count, seen, leaf_seen);
+    for (int s = 0; s < W; ++s) {
+      const std::int32_t c = nodes[i].child[s];
+      check_ref(name, i, c, n, leaf_count, seen, leaf_seen);
       if (c >= 0) {
-        const Node4& ch = m.nodes[static_cast<std::size_t>(c)];
-        bool ok = ch.parent == static_cast<std::int32_t>(i);
-        for (int k = 0; k < 3; ++k) ok = ok && ch.sib[k] == m.nodes[i].child[(s + 1 + k) & 3];
-        if (!ok) corrupt("MBVH4", static_cast<std::size_t>(c), "parent or sibling links do not match its parent");
+        const N& ch = nodes[static_cast<std::size_t>(c)];
+        if (ch.parent != static_cast<std::int32_t>(i) || !links_ok(ch, nodes[i], s))
+          corrupt(name, static_cast<std::size_t>(c), "parent or sibling links do not match its parent");
       }
     }
   for (std::size_t i = 1; i < n; ++i)
-    if (!seen[i]) corrupt("MBVH4", i, "unreachable");
+    if (!seen[i]) corrupt(name, i, "unreachable");
+}
+
+}  // namespace
+
+void validate_layout(const Mbvh4& m, std::size_t leaf_count) {
+  validate_wide<4>(m.nodes, "MBVH4", leaf_count, [](const Node4& ch, const Node4& p, int s) {
+    for (int k = 0; k < 3; ++k)
+      if (ch.sib[k] != p.child[(s + 1 + k) & 3]) return false;
+    return true;
+  });
+}
+
+void validate_layout(const Mbvh8& m, std::size_t leaf_count) {
+  validate_wide<8>(m.nodes, "MBVH8", leaf_count, [](const Node8&, const Node8&, int) { return true; });
 }
 
 }  // namespace mbvh

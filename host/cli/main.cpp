@@ -46,13 +46,15 @@ std::vector<T> parse_list(const std::string& s, F parse) {
 struct SceneArgs {
   std::string scene;
   unsigned threads = 0;
-  unsigned max_leaf = 8;
+  unsigned max_leaf = BuildOptions{}.max_leaf;
+  unsigned leaf_block = BuildOptions{}.leaf_block;
 };
 
 void add_scene_args(CLI::App* c, SceneArgs& a) {
   c->add_option("scene", a.scene, "scene file (.obj/.ply, optionally .zst) or gen:NAME:PARAMS")->required();
   c->add_option("--threads", a.threads, "worker threads (0 = all hardware threads)");
   c->add_option("--max-leaf", a.max_leaf, "largest leaf the SAH may choose");
+  c->add_option("--leaf-block", a.leaf_block, "triangles the SAH prices as one leaf test (4: SIMD leaves)");
 }
 
 struct Loaded {
@@ -69,6 +71,7 @@ Loaded load_and_build(const SceneArgs& a, bool verbose = true) {
   BuildOptions bo;
   bo.threads = a.threads;
   bo.max_leaf = a.max_leaf;
+  bo.leaf_block = a.leaf_block;
   Progress p("building BVH", 1000);
   bo.progress = [&p](double f) { p.update(static_cast<std::size_t>(f * 1000)); };
   l.acc = Accel::build(l.scene, bo);
@@ -105,13 +108,13 @@ struct DeviceArgs {
 // --backend, --layout, --traversal, --query as comma-separated lists (check and bench).
 struct GridArgs {
   DeviceArgs dev;
-  std::string backends = "cpu-scalar", layouts = "mbvh2,mbvh4", traversals = "stack,bitstack,stack-ordered,bitstack-retest",
+  std::string backends = "cpu-scalar", layouts = "mbvh2,mbvh4,mbvh8", traversals = "stack,bitstack,stack-ordered,bitstack-retest",
               queries = "closest,any";
   void add(CLI::App* c) {
     c->add_option("--backend", backends, "comma-separated backends (see `mbvh devices`)");
-    c->add_option("--layout", layouts, "comma-separated layouts: mbvh2, mbvh4");
+    c->add_option("--layout", layouts, "comma-separated layouts: mbvh2, mbvh4, mbvh8 (stack-ordered only)");
     c->add_option("--traversal", traversals,
-                  "comma-separated traversals: stack, bitstack, stack-ordered, bitstack-retest (MBVH4 only)");
+                  "comma-separated traversals: stack, bitstack, stack-ordered, bitstack-retest (the last two MBVH4/8)");
     c->add_option("--query", queries, "comma-separated queries: closest, any");
     dev.add(c);
   }
@@ -180,8 +183,8 @@ int cmd_info(const SceneArgs& a, const std::string& json_path) {
   std::printf("triangles  %zu (%zu degenerate, kept out of leaves), %zu vertices, loaded in %.1f ms\n",
               l.scene.triangle_count(), acc.bvh2().degenerate, l.scene.vertices.size(), l.load_ms);
   std::printf("bounds     (%g, %g, %g) .. (%g, %g, %g)\n", b.lo.x, b.lo.y, b.lo.z, b.hi.x, b.hi.y, b.hi.z);
-  std::printf("build      binned SAH, %u bins, max leaf %u, depth cap %u, %u threads; hash %016llx\n",
-              acc.options().bins, acc.options().max_leaf, acc.options().depth_cap,
+  std::printf("build      binned SAH, %u bins, max leaf %u, leaf block %u, depth cap %u, %u threads; hash %016llx\n",
+              acc.options().bins, acc.options().max_leaf, acc.options().leaf_block, acc.options().depth_cap,
               static_cast<unsigned>(resolve_threads(a.threads)), static_cast<unsigned long long>(acc.hash()));
   std::printf("leaves     largest %zu triangles, %zu forced by the depth cap or equal centroids\n\n",
               acc.bvh2().largest_leaf, acc.bvh2().forced_leaves);
@@ -191,8 +194,10 @@ int cmd_info(const SceneArgs& a, const std::string& json_path) {
   print_stats_row(bs, 0, 0);
   const LayoutStats s2 = acc.mbvh2().stats;
   const LayoutStats s4 = acc.mbvh4().stats;
+  const LayoutStats s8 = acc.mbvh8().stats;
   print_stats_row(s2, state_bytes_per_ray(Layout::mbvh2, Traversal::stack), state_bytes_per_ray(Layout::mbvh2, Traversal::bitstack));
   print_stats_row(s4, state_bytes_per_ray(Layout::mbvh4, Traversal::stack), state_bytes_per_ray(Layout::mbvh4, Traversal::bitstack));
+  print_stats_row(s8, state_bytes_per_ray(Layout::mbvh8, Traversal::stack_ordered), 0);
   std::printf("\ntraversal state per ray: stack %zu B, bitstack %zu B (%.1fx smaller)\n",
               state_bytes_per_ray(Layout::mbvh2, Traversal::stack), state_bytes_per_ray(Layout::mbvh2, Traversal::bitstack),
               double(state_bytes_per_ray(Layout::mbvh2, Traversal::stack)) / double(state_bytes_per_ray(Layout::mbvh2, Traversal::bitstack)));
@@ -203,7 +208,7 @@ int cmd_info(const SceneArgs& a, const std::string& json_path) {
     char h[32];
     std::snprintf(h, sizeof h, "%016llx", static_cast<unsigned long long>(acc.hash()));
     j["hash"] = h;
-    for (const LayoutStats* s : {&bs, &s2, &s4})
+    for (const LayoutStats* s : {&bs, &s2, &s4, &s8})
       j["layouts"].push_back({{"layout", s->layout}, {"nodes", s->nodes}, {"leaves", s->leaves}, {"depth", s->depth},
                               {"bitstack_bits", s->bitstack_bits}, {"sah_cost", s->sah_cost}, {"bytes", s->bytes},
                               {"build_ms", s->build_ms}});
@@ -244,8 +249,8 @@ static int run(int argc, char** argv) {
   add_scene_args(trace, tr_a);
   add_ray_args(trace, tr_r, true);
   trace->add_option("--backend", tr_backend, "backend (see `mbvh devices`)");
-  trace->add_option("--layout", tr_layout, "mbvh2 or mbvh4 (default: mbvh4, or mbvh2 where the backend has only that)");
-  trace->add_option("--traversal", tr_trav, "stack or bitstack");
+  trace->add_option("--layout", tr_layout, "mbvh2, mbvh4 or mbvh8 (default: mbvh4, or mbvh2 where the backend has only that)");
+  trace->add_option("--traversal", tr_trav, "stack, bitstack, stack-ordered or bitstack-retest (MBVH8: stack-ordered)");
   trace->add_option("--query", tr_query, "closest (writes hits, 16 B/ray) or any (writes occlusion, 1 B/ray)");
   trace->add_option("-o,--output", tr_out, "output file");
   trace->add_flag("--stats", tr_stats, "also count work per ray (slower)");

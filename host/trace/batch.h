@@ -21,9 +21,12 @@ inline TraceView trace_view(const Accel& acc, Layout layout, bool packs = false)
   if (layout == Layout::mbvh2) {
     v.n2 = acc.mbvh2().nodes.data();
     v.nodes = acc.mbvh2().nodes.size();
-  } else {
+  } else if (layout == Layout::mbvh4) {
     v.n4 = acc.mbvh4().nodes.data();
     v.nodes = acc.mbvh4().nodes.size();
+  } else {
+    v.n8 = acc.mbvh8().nodes.data();
+    v.nodes = acc.mbvh8().nodes.size();
   }
   v.leaf_count = acc.leaves().size();
   v.leaves = acc.leaves().data();
@@ -39,6 +42,8 @@ template <bool Any, class K, class St>
 inline Hit dispatch(const TraceView& v, const RayPre& r, Layout l, Traversal t, St& st) {
   if (l == Layout::mbvh2)
     return t == Traversal::stack ? trace_mbvh2_stack<Any, St, K>(v, r, st) : trace_mbvh2_bitstack<Any, St, K>(v, r, st);
+  if (l == Layout::mbvh8)
+    return t == Traversal::stack_ordered ? trace_mbvh4_stack_ordered<Any, St, K, Node8>(v, r, st) : miss_hit();
   switch (t) {
     case Traversal::stack: return trace_mbvh4_stack<Any, St, K>(v, r, st);
     case Traversal::bitstack: return trace_mbvh4_bitstack<Any, St, K>(v, r, st);

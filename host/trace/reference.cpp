@@ -28,6 +28,7 @@ Traversal stack_twin(Traversal t) {
 }
 
 bool reference_supports(Layout layout, Traversal traversal) {
+  if (layout == Layout::mbvh8) return traversal == Traversal::stack_ordered;  // stack-based only
   return layout == Layout::mbvh4 || traversal == Traversal::stack || traversal == Traversal::bitstack;
 }
 
@@ -47,7 +48,9 @@ Traversal parse_traversal(const std::string& s) {
 
 std::size_t state_bytes_per_ray(Layout layout, Traversal traversal) {
   if (traversal == Traversal::bitstack || traversal == Traversal::bitstack_retest) return 4 + 8;
-  const std::size_t entries = layout == Layout::mbvh2 ? MBVH_STACK2_ENTRIES : MBVH_STACK4_ENTRIES;
+  const std::size_t entries = layout == Layout::mbvh2   ? MBVH_STACK2_ENTRIES
+                              : layout == Layout::mbvh4 ? MBVH_STACK4_ENTRIES
+                                                        : MBVH_STACK8_ENTRIES;
   const std::size_t entry = traversal == Traversal::stack_ordered ? 8 : 4;  // (node, distance) or node
   return entries * entry + 4 + 4;
 }

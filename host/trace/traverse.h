@@ -6,6 +6,7 @@
 #include <bit>
 #include <stdexcept>
 #include <cstdint>
+#include <utility>
 #include <vector>
 
 #include "host/trace/intersect.h"
@@ -99,9 +100,20 @@ inline unsigned test4_boxes(const Node4& n, const RayPre& r, float tcull, float 
   return mask;
 }
 
-template <class K, class St>
-inline unsigned test4(const Node4& n, const RayPre& r, float tcull, float d[4], St& st) {
-  st.node(4);
+inline unsigned test8_boxes(const Node8& n, const RayPre& r, float tcull, float d[8]) {
+  unsigned mask = 0;
+  for (int s = 0; s < 8; ++s)
+    if (box_test(r, n.lo_x[s], n.hi_x[s], n.lo_y[s], n.hi_y[s], n.lo_z[s], n.hi_z[s], tcull, d[s])) mask |= 1u << s;
+  return mask;
+}
+
+/// Children per node of a wide layout.
+template <class N>
+constexpr int width() { return sizeof(N::child) / sizeof(N::child[0]); }
+
+template <class K, class N, class St>
+inline unsigned test4(const N& n, const RayPre& r, float tcull, float* d, St& st) {
+  st.node(width<N>());
   return K::test(n, r, tcull, d);
 }
 
@@ -139,6 +151,7 @@ inline std::uint64_t skip_code(unsigned mask, int i) {  // rot(mask, i), TRAVERS
 struct ScalarKernels {
   static constexpr bool uses_packs = false;
   static unsigned test(const Node4& n, const RayPre& r, float tcull, float d[4]) { return detail::test4_boxes(n, r, tcull, d); }
+  static unsigned test(const Node8& n, const RayPre& r, float tcull, float d[8]) { return detail::test8_boxes(n, r, tcull, d); }
   template <bool Any, class St>
   static bool leaf(const TraceView& v, std::int32_t ref, const RayPre& r, float& tmax, Hit& best, St& st) {
     return detail::visit_leaf<Any>(v, ref, r, tmax, best, st);
@@ -321,45 +334,73 @@ namespace detail {
 
 // Nearest slot of `mask` by entry distance, ties to the lower slot (variant B and its twin order
 // every child by distance, for both queries).
-inline int nearest_slot4(unsigned mask, const float d[4]) {
+template <int W = 4>
+inline int nearest_slot4(unsigned mask, const float* d) {
   int q = std::countr_zero(mask);
-  for (int s = q + 1; s < 4; ++s)
+  for (int s = q + 1; s < W; ++s)
     if (((mask >> s) & 1u) && d[s] < d[q]) q = s;
   return q;
 }
 
+template <class N> const N* nodes_of(const TraceView& v);
+template <> inline const Node4* nodes_of<Node4>(const TraceView& v) { return v.n4; }
+template <> inline const Node8* nodes_of<Node8>(const TraceView& v) { return v.n8; }
+
 }  // namespace detail
 
-/// MBVH4, Embree-like ordered stack (TRAVERSAL.md §4.5, variant B's twin): hit children pushed
-/// with their entry distances, the nearest on top (1 hit: no push; 2 hits: push the farther;
-/// 3-4: push all and sort by (d, slot)); a popped entry beyond the current tmax * S is culled.
-template <bool Any, class St, class K = ScalarKernels>
+/// MBVH4 and MBVH8, Embree-like ordered stack (TRAVERSAL.md §4.5, variant B's twin; for MBVH8
+/// the 8-wide single-ray traversal of Áfra's thesis, ch. 3): hit children pushed with their entry
+/// distances, the nearest entered, the rest popped nearest first — sorting specialised by the
+/// number of hits: 1: no push; 2: push the farther; 3: two pushes, one compare; 4-8: push all
+/// and insertion-sort by (d, slot). A popped entry beyond the current tmax * S is culled.
+template <bool Any, class St, class K = ScalarKernels, class N = Node4>
 inline Hit trace_mbvh4_stack_ordered(const TraceView& v, const RayPre& r, St& st) {
   struct Entry {  // 8 bytes, as Embree's (node, distance) entries
     std::int32_t node;
     float d;
   };
+  constexpr int W = detail::width<N>();
+  constexpr unsigned kEntries = W == 4 ? MBVH_STACK4_ENTRIES : MBVH_STACK8_ENTRIES;
+  const N* nodes = detail::nodes_of<N>(v);
   Hit best = miss_hit();
   float tmax = r.tmax;
   StepGuard guard(v);
-  Entry stack[MBVH_STACK4_ENTRIES];
+  Entry stack[kEntries];
   unsigned sp = 0;
   std::int32_t cur = 0;
   for (;;) {
     guard.step();
     if (cur >= 0) {
-      const Node4& n = v.n4[cur];
-      float d[4];
+      const N& n = nodes[cur];
+      float d[W];
       const unsigned m = detail::test4<K>(n, r, tmax * kCullSlack, d, st);
       if (m) {
-        const int q = detail::nearest_slot4(m, d);
-        const unsigned others = m & ~(1u << q);
-        guard.room(sp, 3, MBVH_STACK4_ENTRIES);
-        const unsigned base = sp;
-        for (int s = 3; s >= 0; --s)  // pushed in reverse slot order, then a stable sort by
-          if ((others >> s) & 1u) stack[sp++] = Entry{n.child[s], d[s]};  // d: (d, slot), nearest on top
-        for (unsigned a = base + 1; a < sp; ++a)
-          for (unsigned b = a; b > base && stack[b - 1].d < stack[b].d; --b) std::swap(stack[b - 1], stack[b]);
+        const int q = detail::nearest_slot4<W>(m, d);
+        unsigned others = m & ~(1u << q);
+        guard.room(sp, W - 1, kEntries);
+        if (others != 0) {
+          const int a = 31 - std::countl_zero(others);  // highest slot first (deepest on ties)
+          others &= ~(1u << a);
+          if (others == 0) {
+            stack[sp++] = Entry{n.child[a], d[a]};
+          } else if ((others & (others - 1)) == 0) {
+            const int b = std::countr_zero(others);  // b < a: pop b first unless d[a] < d[b]
+            if (d[a] < d[b]) {
+              stack[sp++] = Entry{n.child[b], d[b]};
+              stack[sp++] = Entry{n.child[a], d[a]};
+            } else {
+              stack[sp++] = Entry{n.child[a], d[a]};
+              stack[sp++] = Entry{n.child[b], d[b]};
+            }
+          } else {
+            const unsigned base = sp;
+            stack[sp++] = Entry{n.child[a], d[a]};
+            for (int s = a - 1; s >= 0; --s)  // reverse slot order, then a stable sort by d
+              if ((others >> s) & 1u) stack[sp++] = Entry{n.child[s], d[s]};
+            for (unsigned i = base + 1; i < sp; ++i)
+              for (unsigned j = i; j > base && stack[j - 1].d < stack[j].d; --j) std::swap(stack[j - 1], stack[j]);
+          }
+        }
         st.depth(sp);
         cur = n.child[q];
         continue;

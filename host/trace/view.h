@@ -24,6 +24,7 @@ struct RayStats {
 struct TraceView {
   const Node2* n2 = nullptr;
   const Node4* n4 = nullptr;
+  const Node8* n8 = nullptr;
   const Leaf* leaves = nullptr;
   const Tri* tris = nullptr;
   const Tri4* tri4 = nullptr;   ///< SIMD leaf packs (Accel::tri_packs), where a kernel uses them
