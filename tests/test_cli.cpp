@@ -57,14 +57,14 @@ TEST_CASE("mbvh check info and bench report - bench writes JSON records", "[cli]
   CHECK_THAT(r.output, Catch::Contains("zero genuine mismatches") && Catch::Contains("brute force (double)"));
   r = run_cli("info " + mbvh_test::scene_path("cornell_box.obj.zst"));
   CHECK(r.code == 0);
-  CHECK_THAT(r.output, Catch::Contains("mbvh2") && Catch::Contains("mbvh4") && Catch::Contains("22.0x smaller"));
+  CHECK_THAT(r.output, Catch::Contains("mbvh2") && Catch::Contains("mbvh4") && Catch::Contains("mbvh8") && Catch::Contains("22.0x smaller"));
   const std::string json = dir.file("b.json");
   r = run_cli("bench gen:soup:20000 --count 5000 --kinds primary,random --json " + json);
   INFO(r.output);
   REQUIRE(r.code == 0);
   CHECK_THAT(r.output, Catch::Contains("Mrays/s") && Catch::Contains("bitstack"));
   const auto j = nlohmann::json::parse(std::ifstream(json));
-  REQUIRE(j["records"].size() == 2 * 2 * (2 + 4));  // kinds x queries x (MBVH2: 2 traversals, MBVH4: 4)
+  REQUIRE(j["records"].size() == 2 * 2 * (2 + 4 + 1));  // kinds x queries x (MBVH2: 2 traversals, MBVH4: 4, MBVH8: 1)
   for (const auto& rec : j["records"]) {
     for (const char* key : {"backend", "isa", "layout", "traversal", "query", "ray_kind", "rays", "threads",
                             "mrays_per_s", "state_bytes_per_ray", "nodes_per_ray", "leaves_per_ray", "triangles_per_ray",
