@@ -73,7 +73,9 @@ TEST_CASE("mbvh check info and bench report - bench writes JSON records", "[cli]
     CHECK(rec["isa"] == "scalar");  // the default backend, cpu-scalar
     CHECK(rec["mrays_per_s"].get<double>() > 0);
     CHECK(rec["verify_mismatches"].get<int>() == 0);
-    const int want = rec["traversal"] == "stack" ? 264 : rec["traversal"] == "stack-ordered" ? 520 : 12;
+    const int want = rec["traversal"] == "stack" ? 264
+                     : rec["traversal"] == "stack-ordered" ? (rec["layout"] == "mbvh8" ? 1032 : 520)
+                                                           : 12;
     CHECK(rec["state_bytes_per_ray"].get<int>() == want);
   }
 }
