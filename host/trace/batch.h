@@ -61,6 +61,7 @@ inline void run_batch(const TraceView& v, std::span<const Ray> rays, std::size_t
     Hit h = miss_hit();
     if (!prepare_ray(rays[i], r)) {
       ++invalid;
+      if constexpr (Stats) out.stats[i] = RayStats{};
     } else if constexpr (Stats) {
       CountStats st;
       h = dispatch<Any, K>(v, r, opt.layout, opt.traversal, st);
@@ -80,7 +81,7 @@ inline void trace_parallel(const Accel& acc, std::span<const Ray> rays, const Tr
                            unsigned threads, const std::function<void(std::size_t)>& progress = {}) {
   const TraceView v = trace_view(acc, opt.layout, K::uses_packs);
   const bool any = opt.query == Query::any;
-  out.reset(rays.size(), opt);
+  out.resize_for(rays.size(), opt);  // every ray's entries are written below
   std::atomic<std::size_t> invalid{0}, done{0};
   parallel_for(rays.size(), 2048, threads, [&](std::size_t b, std::size_t e, unsigned worker) {
     std::size_t inv = 0;

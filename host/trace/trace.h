@@ -51,6 +51,17 @@ struct TraceOutput {
     stats.assign(opt.stats ? n : 0, RayStats{});
     invalid = 0;
   }
+
+  /// As reset, for a backend that writes every ray's answer (and statistics, when asked) itself:
+  /// sizes the arrays without filling them, so no serial pass over the output precedes a parallel
+  /// trace (a reused output is not touched at all). Contents are unspecified until written.
+  void resize_for(std::size_t n, const TraceOptions& opt) {
+    const bool any = opt.query == Query::any;
+    hits.resize(any ? 0 : n);
+    occluded.resize(any ? n : 0);
+    stats.resize(opt.stats ? n : 0);
+    invalid = 0;
+  }
 };
 
 /// Bytes of traversal state one ray needs in the given layout and traversal (TRAVERSAL.md §5):
