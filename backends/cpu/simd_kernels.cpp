@@ -71,12 +71,12 @@ inline unsigned mask4(__m128 m) { return static_cast<unsigned>(_mm_movemask_ps(m
 /// box_test (maxps/minps return their second operand on NaN, exactly like max_nan/min_nan), and
 /// an ordered <= compare.
 [[gnu::always_inline]] inline unsigned box4_test(const Node4& n, const RayPre& r, float tcull, float d[4]) {
-  const __m128 lox = _mm_loadu_ps(n.lo_x), hix = _mm_loadu_ps(n.hi_x);
-  const __m128 loy = _mm_loadu_ps(n.lo_y), hiy = _mm_loadu_ps(n.hi_y);
-  const __m128 loz = _mm_loadu_ps(n.lo_z), hiz = _mm_loadu_ps(n.hi_z);
-  const __m128 nx = r.neg[0] ? hix : lox, fx = r.neg[0] ? lox : hix;
-  const __m128 ny = r.neg[1] ? hiy : loy, fy = r.neg[1] ? loy : hiy;
-  const __m128 nz = r.neg[2] ? hiz : loz, fz = r.neg[2] ? loz : hiz;
+  // near and far planes by address (Embree's nearX/farX offsets): lo and hi rows are 16 bytes apart
+  const float* p = n.lo_x;
+  const int sx = r.neg[0] * 4, sy = 8 + r.neg[1] * 4, sz = 16 + r.neg[2] * 4;
+  const __m128 nx = _mm_load_ps(p + sx), fx = _mm_load_ps(p + (sx ^ 4));
+  const __m128 ny = _mm_load_ps(p + sy), fy = _mm_load_ps(p + (sy ^ 4));
+  const __m128 nz = _mm_load_ps(p + sz), fz = _mm_load_ps(p + (sz ^ 4));
   const __m128 ox = _mm_set1_ps(r.o[0]), oy = _mm_set1_ps(r.o[1]), oz = _mm_set1_ps(r.o[2]);
   const __m128 tnx = _mm_mul_ps(_mm_sub_ps(nx, ox), _mm_set1_ps(r.inv[0]));
   const __m128 tny = _mm_mul_ps(_mm_sub_ps(ny, oy), _mm_set1_ps(r.inv[1]));
@@ -96,12 +96,12 @@ inline unsigned mask4(__m128 m) { return static_cast<unsigned>(_mm_movemask_ps(m
 
 /// Eight slab tests in one pass (MBVH8): box4_test on 256-bit vectors.
 [[gnu::always_inline]] inline unsigned box8_test(const Node8& n, const RayPre& r, float tcull, float d[8]) {
-  const __m256 lox = _mm256_load_ps(n.lo_x), hix = _mm256_load_ps(n.hi_x);
-  const __m256 loy = _mm256_load_ps(n.lo_y), hiy = _mm256_load_ps(n.hi_y);
-  const __m256 loz = _mm256_load_ps(n.lo_z), hiz = _mm256_load_ps(n.hi_z);
-  const __m256 nx = r.neg[0] ? hix : lox, fx = r.neg[0] ? lox : hix;
-  const __m256 ny = r.neg[1] ? hiy : loy, fy = r.neg[1] ? loy : hiy;
-  const __m256 nz = r.neg[2] ? hiz : loz, fz = r.neg[2] ? loz : hiz;
+  // near and far planes by address (Embree's nearX/farX offsets): lo and hi rows are 32 bytes apart
+  const float* p = n.lo_x;
+  const int sx = r.neg[0] * 8, sy = 16 + r.neg[1] * 8, sz = 32 + r.neg[2] * 8;
+  const __m256 nx = _mm256_load_ps(p + sx), fx = _mm256_load_ps(p + (sx ^ 8));
+  const __m256 ny = _mm256_load_ps(p + sy), fy = _mm256_load_ps(p + (sy ^ 8));
+  const __m256 nz = _mm256_load_ps(p + sz), fz = _mm256_load_ps(p + (sz ^ 8));
   const __m256 ox = _mm256_set1_ps(r.o[0]), oy = _mm256_set1_ps(r.o[1]), oz = _mm256_set1_ps(r.o[2]);
   const __m256 tnx = _mm256_mul_ps(_mm256_sub_ps(nx, ox), _mm256_set1_ps(r.inv[0]));
   const __m256 tny = _mm256_mul_ps(_mm256_sub_ps(ny, oy), _mm256_set1_ps(r.inv[1]));
@@ -193,6 +193,26 @@ struct SimdKernels {
   [[gnu::always_inline]] static unsigned test(const Node8& n, const RayPre& r, float tcull, float d[8]) {
     return box8_test(n, r, tcull, d);
   }
+  /// The nearest hit slot without a branch per slot: misses set to +inf, a horizontal min, the
+  /// lowest slot equal to it (entry distances are never NaN: the max chain starts at tmin).
+  template <int W>
+  [[gnu::always_inline]] static int nearest(unsigned mask, const float* d) {
+    if ((mask & (mask - 1)) == 0) return std::countr_zero(mask);
+    if constexpr (W == 8) {
+      const __m256 inf = _mm256_set1_ps(INFINITY);
+      const __m256 bits = _mm256_castsi256_ps(_mm256_and_si256(_mm256_set1_epi32(static_cast<int>(mask)),
+                                                               _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128)));
+      const __m256 v = _mm256_blendv_ps(_mm256_loadu_ps(d), inf, _mm256_cmp_ps(bits, _mm256_setzero_ps(), _CMP_EQ_OQ));
+      __m256 m = _mm256_min_ps(v, _mm256_permute_ps(v, 0xB1));
+      m = _mm256_min_ps(m, _mm256_permute_ps(m, 0x4E));
+      m = _mm256_min_ps(m, _mm256_permute2f128_ps(m, m, 0x01));
+      const unsigned eq = static_cast<unsigned>(_mm256_movemask_ps(_mm256_cmp_ps(v, m, _CMP_EQ_OQ))) & mask;
+      return std::countr_zero(eq);
+    } else {
+      return detail::nearest_slot4<W>(mask, d);
+    }
+  }
+
   template <bool Any, class St>
   [[gnu::always_inline]] static bool leaf(const TraceView& v, std::int32_t ref, const RayPre& r, float& tmax, Hit& best,
                                           St& st) {

@@ -137,6 +137,16 @@ inline int first_slot4(unsigned mask, const float d[4]) {
   return i;
 }
 
+// Nearest slot of `mask` by entry distance, ties to the lower slot (variant B and its twin order
+// every child by distance, for both queries).
+template <int W = 4>
+inline int nearest_slot4(unsigned mask, const float* d) {
+  int q = std::countr_zero(mask);
+  for (int s = q + 1; s < W; ++s)
+    if (((mask >> s) & 1u) && d[s] < d[q]) q = s;
+  return q;
+}
+
 inline std::uint64_t skip_code(unsigned mask, int i) {  // rot(mask, i), TRAVERSAL.md §3.3
   return ((mask >> (i + 1)) | (mask << (3 - i))) & 7u;
 }
@@ -156,6 +166,9 @@ struct ScalarKernels {
   static bool leaf(const TraceView& v, std::int32_t ref, const RayPre& r, float& tmax, Hit& best, St& st) {
     return detail::visit_leaf<Any>(v, ref, r, tmax, best, st);
   }
+  /// The slot of `mask` with the smallest entry distance, ties to the lower slot.
+  template <int W>
+  static int nearest(unsigned mask, const float* d) { return detail::nearest_slot4<W>(mask, d); }
 };
 
 /// MBVH2, stack-based (Aila–Laine order without postponed leaves): nearest child first, the far
@@ -332,15 +345,6 @@ inline Hit trace_mbvh4_bitstack(const TraceView& v, const RayPre& r, St& st) {
 
 namespace detail {
 
-// Nearest slot of `mask` by entry distance, ties to the lower slot (variant B and its twin order
-// every child by distance, for both queries).
-template <int W = 4>
-inline int nearest_slot4(unsigned mask, const float* d) {
-  int q = std::countr_zero(mask);
-  for (int s = q + 1; s < W; ++s)
-    if (((mask >> s) & 1u) && d[s] < d[q]) q = s;
-  return q;
-}
 
 template <class N> const N* nodes_of(const TraceView& v);
 template <> inline const Node4* nodes_of<Node4>(const TraceView& v) { return v.n4; }
@@ -375,7 +379,7 @@ inline Hit trace_mbvh4_stack_ordered(const TraceView& v, const RayPre& r, St& st
       float d[W];
       const unsigned m = detail::test4<K>(n, r, tmax * kCullSlack, d, st);
       if (m) {
-        const int q = detail::nearest_slot4<W>(m, d);
+        const int q = K::template nearest<W>(m, d);
         unsigned others = m & ~(1u << q);
         guard.room(sp, W - 1, kEntries);
         if (others != 0) {
