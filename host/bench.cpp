@@ -42,9 +42,11 @@ bool BenchReport::verified() const {
 std::string BenchReport::table() const {
   std::string s;
   char line[512];
-  std::snprintf(line, sizeof line, "%-12s %-6s %-15s %-7s %-8s %9s %15s %8s %7s %8s %7s %7s %7s %9s\n", "backend",
+  bool scaled = false;
+  for (const auto& r : records) scaled = scaled || r.thread_scaling > 0;
+  std::snprintf(line, sizeof line, "%-12s %-6s %-15s %-7s %-8s %9s %15s %8s %7s %8s %7s %7s %7s %9s%s\n", "backend",
                 "layout", "traversal", "query", "rays", "Mrays/s", "(min-max)", "vs twin", "vs cpu", "state B", "nodes",
-                "leaves", "tris", "verified");
+                "leaves", "tris", "verified", scaled ? "  1 thr   x/1thr" : "");
   s += line;
   for (const auto& r : records) {
     char ratio[32] = "";
@@ -58,6 +60,11 @@ std::string BenchReport::table() const {
                   r.mrays_per_s, spread, ratio, vcpu, r.state_bytes_per_ray, r.nodes_per_ray, r.leaves_per_ray, r.tris_per_ray,
                   r.verify_mismatches ? "MISMATCH" : "yes");
     s += line;
+    if (scaled) {
+      s.pop_back();
+      std::snprintf(line, sizeof line, " %8.3f %7.2fx\n", r.mrays_one_thread, r.thread_scaling);
+      s += line;
+    }
   }
   return s;
 }
@@ -95,6 +102,8 @@ std::string BenchReport::json() const {
                             {"verify_mismatches", r.verify_mismatches},
                             {"bitstack_vs_stack", r.ratio_vs_stack},
                             {"vs_cpu", r.ratio_vs_cpu},
+                            {"mrays_per_s_1_thread", r.mrays_one_thread},
+                            {"thread_scaling", r.thread_scaling},
                             {"bvh_hash", bvh_hash}});
   }
   return j.dump(2);
@@ -127,8 +136,14 @@ BenchReport run_bench(const Scene& scene, const Accel& acc, const BenchOptions& 
   rep.bvh_hash = hash;
   BackendOptions bo = opt.backend;
   bo.threads = opt.threads;
-  std::map<std::string, std::unique_ptr<Backend>> backends;
+  std::map<std::string, std::unique_ptr<Backend>> backends, single;  // single: one thread (--scaling)
   for (const auto& n : opt.grid.backends) backends[n] = make_backend(n, bo);
+  const bool scaling = opt.scaling && resolve_threads(opt.threads) > 1;
+  if (scaling) {
+    BackendOptions one = bo;
+    one.threads = 1;
+    for (const auto& n : opt.grid.backends) single[n] = make_backend(n, one);
+  }
   const unsigned passes = std::max(5u, opt.passes);
   const std::size_t total = opt.kinds.size() * opt.grid.size();
   std::size_t done = 0;
@@ -184,17 +199,26 @@ BenchReport run_bench(const Scene& scene, const Accel& acc, const BenchOptions& 
             // only after a few dispatches), then time
             for (auto w0 = Clock::now(); std::chrono::duration<double>(Clock::now() - w0).count() < 0.25;)
               b.trace(acc, rays, to, out);
-            std::vector<double> mr;
-            for (unsigned p = 0; p < passes; ++p) {
+            const auto timed = [&](Backend& be) {
               const auto t0 = Clock::now();
-              b.trace(acc, rays, to, out);
-              const double s = std::chrono::duration<double>(Clock::now() - t0).count();
-              mr.push_back(static_cast<double>(rays.size()) / s * 1e-6);
+              be.trace(acc, rays, to, out);
+              return static_cast<double>(rays.size()) / std::chrono::duration<double>(Clock::now() - t0).count() * 1e-6;
+            };
+            std::vector<double> mr, m1;
+            if (scaling) single[bn]->trace(acc, rays, to, out);  // its warm-up
+            for (unsigned p = 0; p < passes; ++p) {
+              mr.push_back(timed(b));
+              if (scaling) m1.push_back(timed(*single[bn]));
             }
             std::sort(mr.begin(), mr.end());
             r.mrays_per_s = mr[mr.size() / 2];
             r.mrays_min = mr.front();
             r.mrays_max = mr.back();
+            if (scaling) {
+              std::sort(m1.begin(), m1.end());
+              r.mrays_one_thread = m1[m1.size() / 2];
+              r.thread_scaling = r.mrays_per_s / r.mrays_one_thread;
+            }
             // -- work per ray (a separate pass with counters)
             TraceOptions so = to;
             so.stats = true;

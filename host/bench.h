@@ -21,6 +21,9 @@ struct BenchOptions {
   unsigned passes = 5;
   unsigned threads = 0;
   BackendOptions backend;  ///< device choices (threads come from `threads`)
+  /// Also time every variant on one thread, each 1-thread pass right after an N-thread pass (a
+  /// ratio taken side by side, not across runs): BenchRecord::thread_scaling.
+  bool scaling = false;
   bool has_camera = false;  ///< primary rays (and the secondary rays built on them) from `camera`
   Camera camera;
 };
@@ -36,6 +39,8 @@ struct BenchRecord {
   std::size_t verify_mismatches = 0;    ///< genuine mismatches against the reference
   double ratio_vs_stack = 0;            ///< Mrays/s of this record / its stack twin (bitstack rows)
   double ratio_vs_cpu = 0;              ///< Mrays/s of this record / the `cpu` backend's on the same variant
+  double mrays_one_thread = 0;          ///< with BenchOptions::scaling: the median on one thread
+  double thread_scaling = 0;            ///< mrays_per_s / mrays_one_thread (0: not measured)
 };
 
 struct BenchReport {

@@ -288,6 +288,9 @@ static int run(int argc, char** argv) {
       ->delimiter(',')
       ->expected(6, 7);
   bench->add_option("--json", bn_json, "write the records as JSON");
+  bool bn_scaling = false;
+  bench->add_flag("--scaling", bn_scaling,
+                  "also time each variant on 1 thread, passes interleaved with the N-thread ones (thread scaling)");
 
   // -- devices
   auto* devices = app.add_subcommand("devices", "list the backends of this build, their devices and whether they can start");
@@ -398,6 +401,7 @@ static int run(int argc, char** argv) {
       bo.count = bn_count;
       bo.seed = bn_seed;
       bo.passes = bn_passes;
+      bo.scaling = bn_scaling;
       bo.threads = bn_a.threads;
       bo.backend = bn_g.dev.options(bn_a.threads);
       set_camera(bn_camera, bo.has_camera, bo.camera);
@@ -410,10 +414,12 @@ static int run(int argc, char** argv) {
                   rep.table().c_str());
       const double bit = double(state_bytes_per_ray(Layout::mbvh4, Traversal::bitstack));
       std::printf("\ntraversal state per ray: stack %zu B (64 x int32 + sp + node; MBVH4: 1 + 3x21 entries), ordered "
-                  "stack %zu B (64 x (node, distance)), bitstack %.0f B (node + 64-bit word): %.0fx and %.0fx smaller\n",
+                  "stack %zu B (64 x (node, distance)), bitstack %.0f B (node + 64-bit word): %.0fx and %.0fx smaller; "
+                  "MBVH8 ordered stack %zu B (128 entries)\n",
                   state_bytes_per_ray(Layout::mbvh4, Traversal::stack), state_bytes_per_ray(Layout::mbvh4, Traversal::stack_ordered),
                   bit, double(state_bytes_per_ray(Layout::mbvh4, Traversal::stack)) / bit,
-                  double(state_bytes_per_ray(Layout::mbvh4, Traversal::stack_ordered)) / bit);
+                  double(state_bytes_per_ray(Layout::mbvh4, Traversal::stack_ordered)) / bit,
+                  state_bytes_per_ray(Layout::mbvh8, Traversal::stack_ordered));
       if (!bn_json.empty()) {
         std::ofstream f(bn_json);
         f << rep.json() << "\n";
