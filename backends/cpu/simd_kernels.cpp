@@ -121,11 +121,12 @@ inline unsigned mask4(__m128 m) { return static_cast<unsigned>(_mm_movemask_ps(m
 
 /// Four triangles of a pack at once: tri_test (intersect.h) lane by lane, the same operations in
 /// the same order (Woop, Benthin & Wald 2013, watertight; pbrt-v3's error bound on t). Returns the
-/// lanes of `valid` that hit within [tmin, tmax], with t, u, v; the lanes this cannot settle in
+/// lanes of `valid` that hit within [tmin, tmax], with t and the barycentrics' numerators and
+/// denominator (u = V / det, v = W / det: divided for the chosen lane only); the lanes this cannot settle in
 /// float — an edge function exactly 0 (settled in double) or t within its error bound of 0
 /// (settled by the plane distance in double) — go to `fallback` for the scalar test, a rare case.
 [[gnu::always_inline]] inline unsigned tri4_test(const Tri4& p, const RayPre& r, unsigned valid, float tmax, float t_out[4],
-                                                 float u_out[4], float v_out[4], unsigned& fallback) {
+                                                 float V_out[4], float W_out[4], float det_out[4], unsigned& fallback) {
   const __m128 ox = _mm_set1_ps(r.o[r.kx]), oy = _mm_set1_ps(r.o[r.ky]), oz = _mm_set1_ps(r.o[r.kz]);
   const __m128 sx = _mm_set1_ps(r.sx), sy = _mm_set1_ps(r.sy), sz = _mm_set1_ps(r.sz);
   __m128 X[3], Y[3], Z[3];
@@ -176,8 +177,9 @@ inline unsigned mask4(__m128 m) { return static_cast<unsigned>(_mm_movemask_ps(m
   const unsigned sure = cand & mask4(_mm_cmp_ps(t, dt, _CMP_GT_OQ));
   fallback |= cand & ~sure;
   _mm_storeu_ps(t_out, t);
-  _mm_storeu_ps(u_out, _mm_div_ps(V, det));
-  _mm_storeu_ps(v_out, _mm_div_ps(W, det));
+  _mm_storeu_ps(V_out, V);
+  _mm_storeu_ps(W_out, W);
+  _mm_storeu_ps(det_out, det);
   return sure;
 }
 
@@ -223,18 +225,20 @@ struct SimdKernels {
       const Tri4* p = v.tri4 + l.first;
       for (std::uint32_t k = 0; k < l.count; k += 4, ++p) {
         const unsigned valid = l.count - k >= 4 ? 0xFu : (1u << (l.count - k)) - 1u;
-        float t[4], u[4], w[4];
+        float t[4], u[4], w[4], det[4];
         unsigned fallback;
-        unsigned hit = tri4_test(*p, r, valid, tmax, t, u, w, fallback);
+        unsigned hit = tri4_test(*p, r, valid, tmax, t, u, w, det, fallback);
         for (unsigned f = fallback; f != 0; f &= f - 1) {
           const int lane = std::countr_zero(f);
-          if (tri_test(r, v.tris[v.leaves[~ref].first + k + static_cast<unsigned>(lane)], tmax, t[lane], u[lane], w[lane]))
+          if (tri_test(r, v.tris[v.leaves[~ref].first + k + static_cast<unsigned>(lane)], tmax, t[lane], u[lane], w[lane])) {
             hit |= 1u << lane;
+            det[lane] = 1.0f;  // u, w are the quotients already (x / 1 is exact)
+          }
         }
         if (hit == 0) continue;
         int q = std::countr_zero(hit);
         if constexpr (Any) {
-          best = Hit{t[q], u[q], w[q], p->prim[q]};
+          best = Hit{t[q], u[q] / det[q], w[q] / det[q], p->prim[q]};
           return true;
         }
         for (unsigned o = hit & (hit - 1); o != 0; o &= o - 1) {
@@ -242,7 +246,7 @@ struct SimdKernels {
           if (t[s] < t[q] || (t[s] == t[q] && p->prim[s] < p->prim[q])) q = s;
         }
         if (t[q] < best.t || p->prim[q] < best.prim) {  // t[q] <= best.t, as in visit_leaf
-          best = Hit{t[q], u[q], w[q], p->prim[q]};
+          best = Hit{t[q], u[q] / det[q], w[q] / det[q], p->prim[q]};
           tmax = t[q];
         }
       }
