@@ -6,7 +6,7 @@
 # thread too, its passes interleaved with the 2-thread ones, so the 1-to-2-thread ratio is taken
 # side by side. Writes one JSON per scene to OUT (default bench/out) and prints the Markdown
 # tables of bench/cpu_table.py.
-#   bench/cpu_vs_embree.sh [OUT] [RAYS]      (about 10 minutes on 2 cores with RAYS=1000000)
+#   bench/cpu_vs_embree.sh [OUT] [RAYS]      (about 4 minutes on 2 cores with RAYS=1000000)
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 OUT="${1:-$ROOT/bench/out}"
