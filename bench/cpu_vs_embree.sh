@@ -6,11 +6,13 @@
 # thread too, its passes interleaved with the 2-thread ones, so the 1-to-2-thread ratio is taken
 # side by side. Writes one JSON per scene to OUT (default bench/out) and prints the Markdown
 # tables of bench/cpu_table.py.
-#   bench/cpu_vs_embree.sh [OUT] [RAYS]      (about 4 minutes on 2 cores with RAYS=1000000)
+#   bench/cpu_vs_embree.sh [OUT] [RAYS] [LEAF_BLOCK]   (about 4 minutes on 2 cores with RAYS=1000000;
+#   LEAF_BLOCK: the build's --leaf-block, default 1)
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 OUT="${1:-$ROOT/bench/out}"
 RAYS="${2:-1000000}"
+LEAF_BLOCK="${3:-1}"
 MBVH="${MBVH:-$ROOT/build/mbvh}"
 SCENES="$ROOT/../shared/scenes"
 mkdir -p "$OUT"
@@ -19,7 +21,7 @@ while IFS='|' read -r name file camera; do
   # shellcheck disable=SC2086
   "$MBVH" bench "$SCENES/$file" --backend cpu,embree --layout mbvh4,mbvh8 \
     --traversal stack,bitstack,stack-ordered --query closest --kinds primary,diffuse,shadow \
-    --count "$RAYS" --threads 2 --scaling $camera --json "$OUT/$name.json" >&2
+    --count "$RAYS" --threads 2 --scaling --leaf-block "$LEAF_BLOCK" $camera --json "$OUT/$name.json" >&2
 done <<'SCENES'
 bunny|bun_zipper.ply.zst|
 conference|conference.obj.zst|--camera 0,300,0,1000,200,0

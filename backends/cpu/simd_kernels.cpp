@@ -1,14 +1,15 @@
 // simd_kernels.cpp — the cpu backend's kernels, compiled once per ISA from this one source
 // (CMake: mbvh_cpu_avx2, mbvh_cpu_avx512), each in its own inline namespace (MBVH_ISA_NS).
-// The ISA is switched on with a target pragma around our own kernels only, after every shared
-// header has been included at the baseline ISA: TU-wide -mavx512f would also compile the std and
-// host inline functions this file instantiates, and the linker may keep those AVX-512 copies for
-// the portable code too (a crash on a CPU without it). The MBVH4 node test checks the
-// four children's x, y and z slabs at once (SSE-width vectors, VEX/EVEX-encoded); everything
-// else is the reference traversal code (traverse.h) — the same operations in the same order, so
-// the answers are bit-identical to cpu-scalar's. Leaves are tested four triangles at a time from
-// SoA packs (Accel::tri_packs). Áfra & Szirmay-Kalos 2014 for the traversals, Ize 2013 for the
-// conservative slab test, Woop, Benthin & Wald 2013 for the watertight triangle test.
+// The ISA is switched on with a target pragma around the ISA-namespaced code only (intersect.h,
+// traverse.h, batch.h and this file's kernels); the std and host headers are included before it
+// at the baseline ISA: TU-wide -mavx512f would also compile the std and host inline functions
+// this file instantiates, and the linker may keep those AVX-512 copies for the portable code too
+// (a crash on a CPU without it). The kernel policy (SimdKernels) tests an MBVH4 node's four boxes
+// or an MBVH8 node's eight at once and a leaf's triangles four at a time from SoA packs
+// (Accel::tri_packs); the traversals are the reference's (traverse.h) — the same operations in
+// the same order, so the answers are bit-identical to cpu-scalar's. Áfra & Szirmay-Kalos 2014
+// for the traversals (Áfra's thesis, ch. 3, for 8-wide MBVH8), Ize 2013 for the conservative slab
+// test, Woop, Benthin & Wald 2013 for the watertight triangle test.
 #include <immintrin.h>
 
 #include <atomic>
@@ -67,56 +68,63 @@ namespace {
 
 inline unsigned mask4(__m128 m) { return static_cast<unsigned>(_mm_movemask_ps(m)); }
 
-/// Four slab tests in one pass: (plane - o) * inv per axis, the NaN-discarding max/min chain of
-/// box_test (maxps/minps return their second operand on NaN, exactly like max_nan/min_nan), and
-/// an ordered <= compare.
-[[gnu::always_inline]] inline unsigned box4_test(const Node4& n, const RayPre& r, float tcull, float d[4]) {
-  // near and far planes by address (Embree's nearX/farX offsets): lo and hi rows are 16 bytes apart
-  const float* p = n.lo_x;
-  const int sx = r.neg[0] * 4, sy = 8 + r.neg[1] * 4, sz = 16 + r.neg[2] * 4;
-  const __m128 nx = _mm_load_ps(p + sx), fx = _mm_load_ps(p + (sx ^ 4));
-  const __m128 ny = _mm_load_ps(p + sy), fy = _mm_load_ps(p + (sy ^ 4));
-  const __m128 nz = _mm_load_ps(p + sz), fz = _mm_load_ps(p + (sz ^ 4));
-  const __m128 ox = _mm_set1_ps(r.o[0]), oy = _mm_set1_ps(r.o[1]), oz = _mm_set1_ps(r.o[2]);
-  const __m128 tnx = _mm_mul_ps(_mm_sub_ps(nx, ox), _mm_set1_ps(r.inv[0]));
-  const __m128 tny = _mm_mul_ps(_mm_sub_ps(ny, oy), _mm_set1_ps(r.inv[1]));
-  const __m128 tnz = _mm_mul_ps(_mm_sub_ps(nz, oz), _mm_set1_ps(r.inv[2]));
-  const __m128 tfx = _mm_mul_ps(_mm_sub_ps(fx, ox), _mm_set1_ps(r.inv_far[0]));
-  const __m128 tfy = _mm_mul_ps(_mm_sub_ps(fy, oy), _mm_set1_ps(r.inv_far[1]));
-  const __m128 tfz = _mm_mul_ps(_mm_sub_ps(fz, oz), _mm_set1_ps(r.inv_far[2]));
-  const __m128 te = _mm_max_ps(tnz, _mm_max_ps(tny, _mm_max_ps(tnx, _mm_set1_ps(r.tmin))));
-  const __m128 tx = _mm_min_ps(tfz, _mm_min_ps(tfy, _mm_min_ps(tfx, _mm_set1_ps(tcull))));
-  _mm_storeu_ps(d, te);
+/// 4 and 8 lanes of float: the operations the box test needs.
+struct F4 {
+  using V = __m128;
+  static V load(const float* p) { return _mm_load_ps(p); }
+  static V set1(float x) { return _mm_set1_ps(x); }
+  static V sub(V a, V b) { return _mm_sub_ps(a, b); }
+  static V mul(V a, V b) { return _mm_mul_ps(a, b); }
+  static V max(V a, V b) { return _mm_max_ps(a, b); }
+  static V min(V a, V b) { return _mm_min_ps(a, b); }
+  static void store(float* d, V v) { _mm_storeu_ps(d, v); }
 #if MBVH_CPU_ISA_ID == 2
-  return static_cast<unsigned>(_mm_cmp_ps_mask(te, tx, _CMP_LE_OQ));
+  static unsigned le(V a, V b) { return static_cast<unsigned>(_mm_cmp_ps_mask(a, b, _CMP_LE_OQ)); }
 #else
-  return mask4(_mm_cmp_ps(te, tx, _CMP_LE_OQ));
+  static unsigned le(V a, V b) { return mask4(_mm_cmp_ps(a, b, _CMP_LE_OQ)); }
 #endif
-}
+};
+struct F8 {
+  using V = __m256;
+  static V load(const float* p) { return _mm256_load_ps(p); }
+  static V set1(float x) { return _mm256_set1_ps(x); }
+  static V sub(V a, V b) { return _mm256_sub_ps(a, b); }
+  static V mul(V a, V b) { return _mm256_mul_ps(a, b); }
+  static V max(V a, V b) { return _mm256_max_ps(a, b); }
+  static V min(V a, V b) { return _mm256_min_ps(a, b); }
+  static void store(float* d, V v) { _mm256_storeu_ps(d, v); }
+#if MBVH_CPU_ISA_ID == 2
+  static unsigned le(V a, V b) { return static_cast<unsigned>(_mm256_cmp_ps_mask(a, b, _CMP_LE_OQ)); }
+#else
+  static unsigned le(V a, V b) { return static_cast<unsigned>(_mm256_movemask_ps(_mm256_cmp_ps(a, b, _CMP_LE_OQ))); }
+#endif
+};
 
-/// Eight slab tests in one pass (MBVH8): box4_test on 256-bit vectors.
-[[gnu::always_inline]] inline unsigned box8_test(const Node8& n, const RayPre& r, float tcull, float d[8]) {
-  // near and far planes by address (Embree's nearX/farX offsets): lo and hi rows are 32 bytes apart
+/// A wide node's W slab tests in one pass (W = 4: MBVH4, 8: MBVH8): (plane - o) * inv per axis,
+/// the NaN-discarding max/min chain of box_test (maxps/minps return their second operand on NaN,
+/// exactly like max_nan/min_nan), and an ordered <= compare.
+template <class F, class N>
+[[gnu::always_inline]] inline unsigned box_test_wide(const N& n, const RayPre& r, float tcull, float* d) {
+  constexpr int W = detail::width<N>();
+  using V = typename F::V;
+  // near and far planes by address (Embree's nearX/farX offsets): rows lo_x, hi_x, lo_y, ... are
+  // W floats apart
   const float* p = n.lo_x;
-  const int sx = r.neg[0] * 8, sy = 16 + r.neg[1] * 8, sz = 32 + r.neg[2] * 8;
-  const __m256 nx = _mm256_load_ps(p + sx), fx = _mm256_load_ps(p + (sx ^ 8));
-  const __m256 ny = _mm256_load_ps(p + sy), fy = _mm256_load_ps(p + (sy ^ 8));
-  const __m256 nz = _mm256_load_ps(p + sz), fz = _mm256_load_ps(p + (sz ^ 8));
-  const __m256 ox = _mm256_set1_ps(r.o[0]), oy = _mm256_set1_ps(r.o[1]), oz = _mm256_set1_ps(r.o[2]);
-  const __m256 tnx = _mm256_mul_ps(_mm256_sub_ps(nx, ox), _mm256_set1_ps(r.inv[0]));
-  const __m256 tny = _mm256_mul_ps(_mm256_sub_ps(ny, oy), _mm256_set1_ps(r.inv[1]));
-  const __m256 tnz = _mm256_mul_ps(_mm256_sub_ps(nz, oz), _mm256_set1_ps(r.inv[2]));
-  const __m256 tfx = _mm256_mul_ps(_mm256_sub_ps(fx, ox), _mm256_set1_ps(r.inv_far[0]));
-  const __m256 tfy = _mm256_mul_ps(_mm256_sub_ps(fy, oy), _mm256_set1_ps(r.inv_far[1]));
-  const __m256 tfz = _mm256_mul_ps(_mm256_sub_ps(fz, oz), _mm256_set1_ps(r.inv_far[2]));
-  const __m256 te = _mm256_max_ps(tnz, _mm256_max_ps(tny, _mm256_max_ps(tnx, _mm256_set1_ps(r.tmin))));
-  const __m256 tx = _mm256_min_ps(tfz, _mm256_min_ps(tfy, _mm256_min_ps(tfx, _mm256_set1_ps(tcull))));
-  _mm256_storeu_ps(d, te);
-#if MBVH_CPU_ISA_ID == 2
-  return static_cast<unsigned>(_mm256_cmp_ps_mask(te, tx, _CMP_LE_OQ));
-#else
-  return static_cast<unsigned>(_mm256_movemask_ps(_mm256_cmp_ps(te, tx, _CMP_LE_OQ)));
-#endif
+  const int sx = r.neg[0] * W, sy = 2 * W + r.neg[1] * W, sz = 4 * W + r.neg[2] * W;
+  const V nx = F::load(p + sx), fx = F::load(p + (sx ^ W));
+  const V ny = F::load(p + sy), fy = F::load(p + (sy ^ W));
+  const V nz = F::load(p + sz), fz = F::load(p + (sz ^ W));
+  const V ox = F::set1(r.o[0]), oy = F::set1(r.o[1]), oz = F::set1(r.o[2]);
+  const V tnx = F::mul(F::sub(nx, ox), F::set1(r.inv[0]));
+  const V tny = F::mul(F::sub(ny, oy), F::set1(r.inv[1]));
+  const V tnz = F::mul(F::sub(nz, oz), F::set1(r.inv[2]));
+  const V tfx = F::mul(F::sub(fx, ox), F::set1(r.inv_far[0]));
+  const V tfy = F::mul(F::sub(fy, oy), F::set1(r.inv_far[1]));
+  const V tfz = F::mul(F::sub(fz, oz), F::set1(r.inv_far[2]));
+  const V te = F::max(tnz, F::max(tny, F::max(tnx, F::set1(r.tmin))));
+  const V tx = F::min(tfz, F::min(tfy, F::min(tfx, F::set1(tcull))));
+  F::store(d, te);
+  return F::le(te, tx);
 }
 
 /// Four triangles of a pack at once: tri_test (intersect.h) lane by lane, the same operations in
@@ -190,10 +198,10 @@ inline unsigned mask4(__m128 m) { return static_cast<unsigned>(_mm_movemask_ps(m
 struct SimdKernels {
   static constexpr bool uses_packs = true;
   [[gnu::always_inline]] static unsigned test(const Node4& n, const RayPre& r, float tcull, float d[4]) {
-    return box4_test(n, r, tcull, d);
+    return box_test_wide<F4>(n, r, tcull, d);
   }
   [[gnu::always_inline]] static unsigned test(const Node8& n, const RayPre& r, float tcull, float d[8]) {
-    return box8_test(n, r, tcull, d);
+    return box_test_wide<F8>(n, r, tcull, d);
   }
   /// The nearest hit slot without a branch per slot: misses set to +inf, a horizontal min, the
   /// lowest slot equal to it (entry distances are never NaN: the max chain starts at tmin).
