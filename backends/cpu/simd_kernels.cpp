@@ -219,7 +219,7 @@ struct SimdKernels {
       const unsigned eq = static_cast<unsigned>(_mm256_movemask_ps(_mm256_cmp_ps(v, m, _CMP_EQ_OQ))) & mask;
       return std::countr_zero(eq);
     } else {
-      return detail::nearest_slot4<W>(mask, d);
+      return detail::nearest_slot<W>(mask, d);
     }
   }
 

@@ -43,11 +43,11 @@ inline Hit dispatch(const TraceView& v, const RayPre& r, Layout l, Traversal t, 
   if (l == Layout::mbvh2)
     return t == Traversal::stack ? trace_mbvh2_stack<Any, St, K>(v, r, st) : trace_mbvh2_bitstack<Any, St, K>(v, r, st);
   if (l == Layout::mbvh8)
-    return t == Traversal::stack_ordered ? trace_mbvh4_stack_ordered<Any, St, K, Node8>(v, r, st) : miss_hit();
+    return t == Traversal::stack_ordered ? trace_wide_stack_ordered<Any, St, K, Node8>(v, r, st) : miss_hit();
   switch (t) {
     case Traversal::stack: return trace_mbvh4_stack<Any, St, K>(v, r, st);
     case Traversal::bitstack: return trace_mbvh4_bitstack<Any, St, K>(v, r, st);
-    case Traversal::stack_ordered: return trace_mbvh4_stack_ordered<Any, St, K>(v, r, st);
+    case Traversal::stack_ordered: return trace_wide_stack_ordered<Any, St, K>(v, r, st);
     case Traversal::bitstack_retest: return trace_mbvh4_bitstack_retest<Any, St, K>(v, r, st);
   }
   return miss_hit();

@@ -112,7 +112,7 @@ template <class N>
 constexpr int width() { return sizeof(N::child) / sizeof(N::child[0]); }
 
 template <class K, class N, class St>
-inline unsigned test4(const N& n, const RayPre& r, float tcull, float* d, St& st) {
+inline unsigned test_node(const N& n, const RayPre& r, float tcull, float* d, St& st) {
   st.node(width<N>());
   return K::test(n, r, tcull, d);
 }
@@ -140,7 +140,7 @@ inline int first_slot4(unsigned mask, const float d[4]) {
 // Nearest slot of `mask` by entry distance, ties to the lower slot (variant B and its twin order
 // every child by distance, for both queries).
 template <int W = 4>
-inline int nearest_slot4(unsigned mask, const float* d) {
+inline int nearest_slot(unsigned mask, const float* d) {
   int q = std::countr_zero(mask);
   for (int s = q + 1; s < W; ++s)
     if (((mask >> s) & 1u) && d[s] < d[q]) q = s;
@@ -168,7 +168,7 @@ struct ScalarKernels {
   }
   /// The slot of `mask` with the smallest entry distance, ties to the lower slot.
   template <int W>
-  static int nearest(unsigned mask, const float* d) { return detail::nearest_slot4<W>(mask, d); }
+  static int nearest(unsigned mask, const float* d) { return detail::nearest_slot<W>(mask, d); }
 };
 
 /// MBVH2, stack-based (Aila–Laine order without postponed leaves): nearest child first, the far
@@ -266,7 +266,7 @@ inline Hit trace_mbvh4_stack(const TraceView& v, const RayPre& r, St& st) {
     if (cur >= 0) {
       const Node4& n = v.n4[cur];
       float d[4];
-      const unsigned m = detail::test4<K>(n, r, tmax * kCullSlack, d, st);
+      const unsigned m = detail::test_node<K>(n, r, tmax * kCullSlack, d, st);
       if (m) {
         const int i = detail::first_slot4<Any>(m, d);
         guard.room(sp, 3, MBVH_STACK4_ENTRIES);
@@ -303,7 +303,7 @@ inline Hit trace_mbvh4_bitstack(const TraceView& v, const RayPre& r, St& st) {
     if (cur >= 0) {
       const Node4& n = v.n4[cur];
       float d[4];
-      const unsigned m = detail::test4<K>(n, r, tmax * kCullSlack, d, st);
+      const unsigned m = detail::test_node<K>(n, r, tmax * kCullSlack, d, st);
       if (m) {
         const int i = detail::first_slot4<Any>(m, d);
         bits = (bits << 3) | detail::skip_code(m, i);  // push
@@ -358,7 +358,7 @@ template <> inline const Node8* nodes_of<Node8>(const TraceView& v) { return v.n
 /// number of hits: 1: no push; 2: push the farther; 3: two pushes, one compare; 4-8: push all
 /// and insertion-sort by (d, slot). A popped entry beyond the current tmax * S is culled.
 template <bool Any, class St, class K = ScalarKernels, class N = Node4>
-inline Hit trace_mbvh4_stack_ordered(const TraceView& v, const RayPre& r, St& st) {
+inline Hit trace_wide_stack_ordered(const TraceView& v, const RayPre& r, St& st) {
   struct Entry {  // 8 bytes, as Embree's (node, distance) entries
     std::int32_t node;
     float d;
@@ -377,7 +377,7 @@ inline Hit trace_mbvh4_stack_ordered(const TraceView& v, const RayPre& r, St& st
     if (cur >= 0) {
       const N& n = nodes[cur];
       float d[W];
-      const unsigned m = detail::test4<K>(n, r, tmax * kCullSlack, d, st);
+      const unsigned m = detail::test_node<K>(n, r, tmax * kCullSlack, d, st);
       if (m) {
         const int q = K::template nearest<W>(m, d);
         unsigned others = m & ~(1u << q);
@@ -441,9 +441,9 @@ inline Hit trace_mbvh4_bitstack_retest(const TraceView& v, const RayPre& r, St& 
     if (cur >= 0) {
       const Node4& n = v.n4[cur];
       float d[4];
-      const unsigned m = detail::test4<K>(n, r, tmax * kCullSlack, d, st);
+      const unsigned m = detail::test_node<K>(n, r, tmax * kCullSlack, d, st);
       if (m) {
-        const int i = detail::nearest_slot4(m, d);
+        const int i = detail::nearest_slot(m, d);
         bits = (bits << 3) | detail::skip_code(m, i);  // push
         if constexpr (St::on) st.depth(++level);
         par = cur;
@@ -469,7 +469,7 @@ inline Hit trace_mbvh4_bitstack_retest(const TraceView& v, const RayPre& r, St& 
           if ((code >> k) & 1u) pending |= 1u << ((slot + 1 + k) & 3);
         const unsigned live = pending & m;
         if (live != 0) {
-          const int q = detail::nearest_slot4(live, d);
+          const int q = detail::nearest_slot(live, d);
           bits ^= code ^ detail::skip_code(live & ~(1u << q), q);
           cur = p.child[q];
           slot = q;
