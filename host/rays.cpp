@@ -55,15 +55,32 @@ Ray make_ray(const Vec3f& o, V3 d, float tmax) {
   return Ray{o.x, o.y, o.z, 0.0f, df.x, df.y, df.z, tmax};
 }
 
-// Primary ray through image position (px, py) in [0,1)^2.
-Ray camera_ray(const Camera& c, double px, double py) {
+}  // namespace
+
+Ray camera_ray(const Camera& c, double px, double py, double aspect) {
   const V3 eye = d3(c.eye);
   const V3 fwd = normalize(d3(c.target) - eye);
   const V3 right = normalize(cross(fwd, d3(c.up)));
   const V3 up = cross(right, fwd);
   const double h = std::tan(c.fov_deg * std::numbers::pi / 360.0);
-  const V3 d = normalize(fwd + right * ((2 * px - 1) * h) + up * ((1 - 2 * py) * h));
+  const V3 d = normalize(fwd + right * ((2 * px - 1) * h * aspect) + up * ((1 - 2 * py) * h));
   return make_ray(c.eye, d, INFINITY);
+}
+
+namespace {
+
+// In double: the normal facing against `in`, and a cosine-weighted direction about it.
+V3 facing_normal_d(const Vec3f& a, const Vec3f& b, const Vec3f& c, V3 in) {
+  V3 n = normalize(cross(d3(b) - d3(a), d3(c) - d3(a)));
+  if (dot(n, in) > 0) n = n * -1.0;
+  return n;
+}
+
+V3 cosine_direction_d(V3 n, double r1, double r2) {
+  const V3 t1 = normalize(std::fabs(n.x) > 0.5 ? cross(n, V3{0, 1, 0}) : cross(n, V3{1, 0, 0}));
+  const V3 t2 = cross(n, t1);
+  const double rr = std::sqrt(r1), phi = 2 * std::numbers::pi * r2;
+  return normalize(t1 * (rr * std::cos(phi)) + t2 * (rr * std::sin(phi)) + n * std::sqrt(std::max(0.0, 1 - r1)));
 }
 
 void tri_vertices(const Scene& s, std::uint32_t prim, Vec3f& a, Vec3f& b, Vec3f& c) {
@@ -74,6 +91,12 @@ void tri_vertices(const Scene& s, std::uint32_t prim, Vec3f& a, Vec3f& b, Vec3f&
 }
 
 }  // namespace
+
+Vec3f facing_normal(const Vec3f& a, const Vec3f& b, const Vec3f& c, const Vec3f& incoming) {
+  return f3(facing_normal_d(a, b, c, d3(incoming)));
+}
+
+Vec3f cosine_direction(const Vec3f& n, double r1, double r2) { return f3(cosine_direction_d(d3(n), r1, r2)); }
 
 Camera default_camera(const Box& b) {
   Camera c;
@@ -176,14 +199,8 @@ std::vector<Ray> generate_rays(const Scene& scene, const Accel& acc, const RayGe
         rays.push_back(spawn_ray(a, b, c, h.u, h.v, f3(to * (1.0 / dist)), static_cast<float>(dist)));
       } else {
         // cosine-weighted direction about the normal facing the incoming ray
-        V3 n = normalize(cross(d3(b) - d3(a), d3(c) - d3(a)));
-        const V3 in{prim[i].dx, prim[i].dy, prim[i].dz};
-        if (dot(n, in) > 0) n = n * -1.0;
-        const V3 t1 = normalize(std::fabs(n.x) > 0.5 ? cross(n, V3{0, 1, 0}) : cross(n, V3{1, 0, 0}));
-        const V3 t2 = cross(n, t1);
-        const double rr = std::sqrt(r1), phi = 2 * std::numbers::pi * r2;
-        const V3 d = normalize(t1 * (rr * std::cos(phi)) + t2 * (rr * std::sin(phi)) + n * std::sqrt(std::max(0.0, 1 - r1)));
-        rays.push_back(spawn_ray(a, b, c, h.u, h.v, f3(d), INFINITY));
+        const V3 n = facing_normal_d(a, b, c, V3{prim[i].dx, prim[i].dy, prim[i].dz});
+        rays.push_back(spawn_ray(a, b, c, h.u, h.v, f3(cosine_direction_d(n, r1, r2)), INFINITY));
       }
     }
     tried += batch;
@@ -225,6 +242,8 @@ std::vector<T> read_records(const std::string& path, const char* what) {
   return out;
 }
 
+}  // namespace
+
 void write_bytes(const std::string& path, const void* data, std::size_t bytes) {
   const std::string tmp = path + ".partial";
   FILE* f = std::fopen(tmp.c_str(), "wb");
@@ -236,8 +255,6 @@ void write_bytes(const std::string& path, const void* data, std::size_t bytes) {
     throw Error(path + ": write failed: " + std::strerror(errno));
   }
 }
-
-}  // namespace
 
 std::vector<Ray> read_rays(const std::string& path) { return read_records<Ray>(path, "ray"); }
 std::vector<Ray> rays_from_bytes(const std::string& name, const char* data, std::size_t size) {

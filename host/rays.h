@@ -23,6 +23,13 @@ struct Camera {
 Camera default_camera(const Box& bounds);
 /// The point light of shadow rays: near the top of the box, centred.
 Vec3f default_light(const Box& bounds);
+/// The primary ray through image position (px, py) in [0,1)^2 (y down), from the eye, tmax = inf.
+/// `aspect` (width / height) widens the horizontal field; the vertical one is fov_deg.
+Ray camera_ray(const Camera& c, double px, double py, double aspect = 1.0);
+/// Unit geometric normal of triangle (a, b, c), flipped to face against `incoming`.
+Vec3f facing_normal(const Vec3f& a, const Vec3f& b, const Vec3f& c, const Vec3f& incoming);
+/// Cosine-weighted direction about unit normal n from two uniform numbers in [0, 1).
+Vec3f cosine_direction(const Vec3f& n, double r1, double r2);
 
 struct RayGenOptions {
   RayKind kind = RayKind::primary;
@@ -48,6 +55,8 @@ Ray spawn_ray(const Vec3f& p0, const Vec3f& p1, const Vec3f& p2, float u, float 
 /// Files (little-endian, no header): rays 32 B, hits 16 B, occlusion 1 B per ray. Writers go
 /// through a temporary file renamed on success, so no partial file is left behind.
 std::vector<Ray> read_rays(const std::string& path);
+/// Writes `bytes` bytes to `path` through `path`.partial, renamed on success (Error otherwise).
+void write_bytes(const std::string& path, const void* data, std::size_t bytes);
 /// The ray records in `size` bytes; throws Error (naming `name`) unless size is a multiple of 32.
 std::vector<Ray> rays_from_bytes(const std::string& name, const char* data, std::size_t size);
 void write_rays(const std::string& path, std::span<const Ray> rays);

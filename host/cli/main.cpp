@@ -14,6 +14,7 @@
 #include "host/parallel.h"
 #include "host/progress.h"
 #include "host/rays.h"
+#include "host/render.h"
 
 using namespace mbvh;
 
@@ -81,6 +82,12 @@ Loaded load_and_build(const SceneArgs& a, bool verbose = true) {
                  l.scene.triangle_count(), l.load_ms, l.acc->binary_stats().build_ms,
                  static_cast<unsigned long long>(l.acc->hash()));
   return l;
+}
+
+// The layout used when --layout is not given: MBVH4, or MBVH2 where the backend has no MBVH4
+// traversal of that kind (vulkan).
+Layout default_layout(const Backend& b, Traversal t) {
+  return !b.supports(Layout::mbvh4, t) && b.supports(Layout::mbvh2, t) ? Layout::mbvh2 : Layout::mbvh4;
 }
 
 // --cl-device, --vk-device: which device the OpenCL and Vulkan backends use; --vk-validation.
@@ -293,6 +300,29 @@ static int run(int argc, char** argv) {
                   "also time each variant on 1 thread, passes interleaved with the N-thread ones (thread scaling)");
 
   // -- devices
+  // -- render
+  SceneArgs rn_a;
+  DeviceArgs rn_dev;
+  std::string rn_backend = "cpu", rn_layout = "mbvh4", rn_trav = "bitstack", rn_mode = "path", rn_out;
+  RenderOptions rn_o;
+  std::vector<float> rn_camera;
+  auto* render_cmd = app.add_subcommand("render", "render an image on a backend: 8-bounce diffuse path tracing, AO or normals");
+  add_scene_args(render_cmd, rn_a);
+  render_cmd->add_option("--backend", rn_backend, "backend (see `mbvh devices`)");
+  render_cmd->add_option("--layout", rn_layout, "mbvh2, mbvh4 or mbvh8 (default: mbvh4, or mbvh2 where the backend has only that)");
+  render_cmd->add_option("--traversal", rn_trav, "stack, bitstack, stack-ordered or bitstack-retest");
+  render_cmd->add_option("--mode", rn_mode, "path (8-bounce diffuse, point light and sky), ao or normals");
+  render_cmd->add_option("--spp", rn_o.spp, "samples per pixel");
+  render_cmd->add_option("--bounces", rn_o.bounces, "path mode: diffuse bounces after the primary hit");
+  render_cmd->add_option("--width", rn_o.width, "image width");
+  render_cmd->add_option("--height", rn_o.height, "image height");
+  render_cmd->add_option("--seed", rn_o.seed, "seed of every random number of the image");
+  render_cmd->add_option("--camera", rn_camera, "eye x y z, target x y z [, fov degrees] (default: frames the scene)")
+      ->delimiter(',')
+      ->expected(6, 7);
+  render_cmd->add_option("-o,--output", rn_out, "PNG file")->required();
+  rn_dev.add(render_cmd);
+
   auto* devices = app.add_subcommand("devices", "list the backends of this build, their devices and whether they can start");
   DeviceArgs dv_dev;
   dv_dev.add(devices);
@@ -310,6 +340,27 @@ static int run(int argc, char** argv) {
       return 0;
     }
 
+    if (*render_cmd) {
+      rn_o.mode = parse_render_mode(rn_mode);
+      rn_o.traversal = parse_traversal(rn_trav);
+      rn_o.threads = rn_a.threads;
+      set_camera(rn_camera, rn_o.has_camera, rn_o.camera);
+      auto backend = make_backend(rn_backend, rn_dev.options(rn_a.threads));
+      rn_o.layout = render_cmd->count("--layout") ? parse_layout(rn_layout) : default_layout(*backend, rn_o.traversal);
+      Loaded l = load_and_build(rn_a);
+      std::fprintf(stderr, "backend: %s\n", backend->describe().c_str());
+      backend->prepare(*l.acc, TraceOptions{rn_o.layout, rn_o.traversal, Query::closest, false});
+      Progress p("rendering", rn_o.spp);
+      const RenderResult res = render(l.scene, *l.acc, *backend, rn_o, [&p](unsigned d, unsigned) { p.update(d); });
+      p.finish();
+      write_png(rn_out, res.width, res.height, to_srgb8(res.rgb));
+      std::printf("rendered %ux%u, %u spp, %s (%s/%s) on %s: %zu rays over all bounces, %.3f Mrays/s in traversal "
+                  "(%.2f s), %.2f s in all\nwrote %s\n",
+                  res.width, res.height, rn_o.spp, to_string(rn_o.mode), to_string(rn_o.layout), to_string(rn_o.traversal),
+                  rn_backend.c_str(), res.rays, res.mrays_per_s(), res.trace_seconds, res.total_seconds, rn_out.c_str());
+      return 0;
+    }
+
     if (*trace) {
       TraceOptions o;
       o.layout = parse_layout(tr_layout);
@@ -318,11 +369,9 @@ static int run(int argc, char** argv) {
       o.stats = tr_stats;
       BackendOptions bo = tr_dev.options(tr_a.threads);
       auto backend = make_backend(tr_backend, bo);
-      // the default layout is the backend's own where it has no MBVH4 traversal (vulkan: MBVH2)
-      if (trace->count("--layout") == 0 && !backend->supports(o.layout, o.traversal) &&
-          backend->supports(Layout::mbvh2, o.traversal)) {
-        o.layout = Layout::mbvh2;
-        tr_layout = "mbvh2";
+      if (trace->count("--layout") == 0) {
+        o.layout = default_layout(*backend, o.traversal);
+        tr_layout = to_string(o.layout);
       }
       if (!backend->supports(o.layout, o.traversal))
         throw Error("backend '" + tr_backend + "' does not support " + tr_layout + "/" + tr_trav);
