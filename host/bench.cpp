@@ -109,6 +109,30 @@ std::string BenchReport::json() const {
   return j.dump(2);
 }
 
+std::string BenchReport::csv() const {
+  // the JSON records flattened: one header line (the record's keys, then the run's machine,
+  // cpu, compiler and flags), one line per record; strings quoted, quotes doubled
+  const nlohmann::json j = nlohmann::json::parse(json());
+  auto cell = [](const nlohmann::json& v) {
+    if (!v.is_string()) return v.dump();
+    std::string s = "\"";
+    for (char c : v.get<std::string>()) s += c == '"' ? std::string("\"\"") : std::string(1, c);
+    return s + "\"";
+  };
+  std::string out;
+  if (j["records"].empty()) return out;
+  std::vector<std::string> keys;
+  for (const auto& [k, v] : j["records"][0].items()) keys.push_back(k);
+  const char* run_keys[] = {"machine", "cpu", "compiler", "flags"};
+  for (const auto& k : keys) out += k + ",";
+  for (const char* k : run_keys) out += std::string(k) + (k == run_keys[3] ? "\n" : ",");
+  for (const auto& r : j["records"]) {
+    for (const auto& k : keys) out += cell(r[k]) + ",";
+    for (const char* k : run_keys) out += cell(j[k]) + (k == run_keys[3] ? "\n" : ",");
+  }
+  return out;
+}
+
 // Mrays/s of `r` over that of the record of `backend` / `traversal` on r's layout, query and
 // rays; 0 when that record was not run.
 static double speed_ratio(const std::vector<BenchRecord>& all, const BenchRecord& r, const std::string& backend,

@@ -49,6 +49,7 @@ struct BenchReport {
   std::vector<BenchRecord> records;
   std::string table() const;
   std::string json() const;
+  std::string csv() const;  ///< the JSON records as CSV: a header line, one line per record
   bool verified() const;
 };
 

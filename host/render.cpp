@@ -90,7 +90,7 @@ public:
     light_ = default_light(acc.bounds());
     const Vec3f e = acc.bounds().extent();
     diag2_ = e.x * e.x + e.y * e.y + e.z * e.z;
-    light_power_ = 0.25f * diag2_;  // bright enough at a distance of half the scene's diagonal
+    light_power_ = 0.08f * diag2_;  // lights the scene at about half its diagonal
     ao_radius_ = 0.1f * std::sqrt(diag2_);
   }
 

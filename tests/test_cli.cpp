@@ -59,7 +59,8 @@ TEST_CASE("mbvh check info and bench report - bench writes JSON records", "[cli]
   CHECK(r.code == 0);
   CHECK_THAT(r.output, Catch::Contains("mbvh2") && Catch::Contains("mbvh4") && Catch::Contains("mbvh8") && Catch::Contains("22.0x smaller"));
   const std::string json = dir.file("b.json");
-  r = run_cli("bench gen:soup:20000 --count 5000 --kinds primary,random --json " + json);
+  const std::string csv = dir.file("b.csv");
+  r = run_cli("bench gen:soup:20000 --count 5000 --kinds primary,random --json " + json + " --csv " + csv);
   INFO(r.output);
   REQUIRE(r.code == 0);
   CHECK_THAT(r.output, Catch::Contains("Mrays/s") && Catch::Contains("bitstack"));
@@ -78,6 +79,17 @@ TEST_CASE("mbvh check info and bench report - bench writes JSON records", "[cli]
                                                            : 12;
     CHECK(rec["state_bytes_per_ray"].get<int>() == want);
   }
+  // the CSV holds the same records: a header naming the fields, then one line per record
+  std::ifstream cf(csv);
+  std::string header, line;
+  REQUIRE(std::getline(cf, header));
+  CHECK_THAT(header, Catch::Contains("backend,") && Catch::Contains("mrays_per_s,") && Catch::Contains("machine,"));
+  std::size_t lines = 0;
+  while (std::getline(cf, line)) {
+    ++lines;
+    CHECK(line.find("\"cpu-scalar\"") != std::string::npos);
+  }
+  CHECK(lines == j["records"].size());
 }
 
 TEST_CASE("mbvh gives clear errors and non-zero exit codes", "[cli]") {

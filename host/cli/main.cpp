@@ -295,6 +295,8 @@ static int run(int argc, char** argv) {
       ->delimiter(',')
       ->expected(6, 7);
   bench->add_option("--json", bn_json, "write the records as JSON");
+  std::string bn_csv;
+  bench->add_option("--csv", bn_csv, "write the records as CSV (one line per record)");
   bool bn_scaling = false;
   bench->add_flag("--scaling", bn_scaling,
                   "also time each variant on 1 thread, passes interleaved with the N-thread ones (thread scaling)");
@@ -469,11 +471,10 @@ static int run(int argc, char** argv) {
                   bit, double(state_bytes_per_ray(Layout::mbvh4, Traversal::stack)) / bit,
                   double(state_bytes_per_ray(Layout::mbvh4, Traversal::stack_ordered)) / bit,
                   state_bytes_per_ray(Layout::mbvh8, Traversal::stack_ordered));
-      if (!bn_json.empty()) {
-        std::ofstream f(bn_json);
-        f << rep.json() << "\n";
-        if (!f) throw Error(bn_json + ": cannot write the JSON file");
-        std::printf("wrote %s\n", bn_json.c_str());
+      for (const auto& [path, text] : {std::pair{bn_json, rep.json() + "\n"}, std::pair{bn_csv, rep.csv()}}) {
+        if (path.empty()) continue;
+        write_bytes(path, text.data(), text.size());
+        std::printf("wrote %s\n", path.c_str());
       }
       if (!rep.verified()) {
         std::fprintf(stderr, "error: some timed results did not match the reference (see 'verified')\n");
