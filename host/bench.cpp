@@ -5,6 +5,7 @@
 #include <sys/utsname.h>
 
 #include <algorithm>
+#include <bit>
 #include <chrono>
 #include <cstdio>
 #include <fstream>
@@ -104,6 +105,11 @@ std::string BenchReport::json() const {
                             {"vs_cpu", r.ratio_vs_cpu},
                             {"mrays_per_s_1_thread", r.mrays_one_thread},
                             {"thread_scaling", r.thread_scaling},
+                            {"histograms", {{"buckets", "0: none; k >= 1: [2^(k-1), 2^k)"},
+                                            {"nodes", r.hist_nodes},
+                                            {"leaves", r.hist_leaves},
+                                            {"triangles", r.hist_tris},
+                                            {"climbs", r.hist_climbs}}},
                             {"bvh_hash", bvh_hash}});
   }
   return j.dump(2);
@@ -122,7 +128,8 @@ std::string BenchReport::csv() const {
   std::string out;
   if (j["records"].empty()) return out;
   std::vector<std::string> keys;
-  for (const auto& [k, v] : j["records"][0].items()) keys.push_back(k);
+  for (const auto& [k, v] : j["records"][0].items())
+    if (!v.is_structured()) keys.push_back(k);  // the histograms stay in the JSON
   const char* run_keys[] = {"machine", "cpu", "compiler", "flags"};
   for (const auto& k : keys) out += k + ",";
   for (const char* k : run_keys) out += std::string(k) + (k == run_keys[3] ? "\n" : ",");
@@ -249,8 +256,17 @@ BenchReport run_bench(const Scene& scene, const Accel& acc, const BenchOptions& 
             TraceOutput st;
             b.trace(acc, rays, so, st);  // the backend's own counters
             double n = 0, bt = 0, lf = 0, tr = 0, cl = 0, peak = 0;
+            const auto count = [](std::vector<std::uint64_t>& h, std::uint32_t v) {
+              const std::size_t k = static_cast<std::size_t>(std::bit_width(v));  // 0 -> 0, [2^(k-1), 2^k) -> k
+              if (h.size() <= k) h.resize(k + 1, 0);
+              ++h[k];
+            };
             for (const RayStats& s : st.stats) {
               n += s.nodes; bt += s.box_tests; lf += s.leaves; tr += s.tris; cl += s.climbs;
+              count(r.hist_nodes, s.nodes);
+              count(r.hist_leaves, s.leaves);
+              count(r.hist_tris, s.tris);
+              count(r.hist_climbs, s.climbs);
               peak += t == Traversal::stack ? 8.0 + 4.0 * s.max_depth
                       : t == Traversal::stack_ordered ? 8.0 + 8.0 * s.max_depth : 12.0;
             }

@@ -36,6 +36,9 @@ struct BenchRecord {
   std::size_t state_bytes_per_ray = 0;
   double peak_state_bytes_per_ray = 0;  ///< mean over rays of the state actually used
   double nodes_per_ray = 0, box_tests_per_ray = 0, leaves_per_ray = 0, tris_per_ray = 0, climbs_per_ray = 0;
+  /// Histograms of the work per ray, power-of-two buckets: bucket 0 counts rays with 0, bucket
+  /// k >= 1 rays with [2^(k-1), 2^k) (trailing empty buckets dropped).
+  std::vector<std::uint64_t> hist_nodes, hist_leaves, hist_tris, hist_climbs;
   std::size_t verify_mismatches = 0;    ///< genuine mismatches against the reference
   double ratio_vs_stack = 0;            ///< Mrays/s of this record / its stack twin (bitstack rows)
   double ratio_vs_cpu = 0;              ///< Mrays/s of this record / the `cpu` backend's on the same variant

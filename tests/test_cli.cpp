@@ -2,6 +2,7 @@
 // with the brute force, check/bench/info report, bad input gives a clear error and exit code.
 #include <catch2/catch.hpp>
 
+#include <cmath>
 #include <cstring>
 #include <filesystem>
 #include <nlohmann/json.hpp>
@@ -78,6 +79,14 @@ TEST_CASE("mbvh check info and bench report - bench writes JSON records", "[cli]
                      : rec["traversal"] == "stack-ordered" ? (rec["layout"] == "mbvh8" ? 1032 : 520)
                                                            : 12;
     CHECK(rec["state_bytes_per_ray"].get<int>() == want);
+    // work histograms: every ray in one bucket of each; the nodes' mean lies within the buckets
+    for (const char* h : {"nodes", "leaves", "triangles", "climbs"}) {
+      std::uint64_t rays = 0;
+      for (const auto& c : rec["histograms"][h]) rays += c.get<std::uint64_t>();
+      CHECK(rays == rec["rays"].get<std::uint64_t>());
+    }
+    const auto& hn = rec["histograms"]["nodes"];
+    CHECK(rec["nodes_per_ray"].get<double>() < std::ldexp(1.0, static_cast<int>(hn.size()) - 1));
   }
   // the CSV holds the same records: a header naming the fields, then one line per record
   std::ifstream cf(csv);
