@@ -23,7 +23,7 @@ public:
       : name_(std::move(name)), kernels_(k), threads_(o.threads ? o.threads : std::max(1u, std::thread::hardware_concurrency())) {}
   std::string name() const override { return name_; }
   std::string describe() const override {
-    return name_ + ": " + kernels_.isa + " MBVH4 node tests (4 boxes at once), scalar watertight leaves, " +
+    return name_ + ": " + kernels_.isa + " node tests (MBVH4: 4 boxes, MBVH8: 8 at once), 4-wide SIMD leaves, " +
            std::to_string(threads_) + " thread(s)";
   }
   std::string isa() const override { return kernels_.isa; }
@@ -63,10 +63,11 @@ void add(const char* name, const char* summary, const CpuKernels& k, bool (*avai
 }  // namespace
 
 void register_cpu_simd_backends() {
-  add("cpu-avx2", "SIMD MBVH4 node tests, AVX2 build", cpu_kernels_avx2, &has_avx2, "this CPU has no AVX2");
-  add("cpu-avx512", "SIMD MBVH4 node tests, AVX-512 build", cpu_kernels_avx512, &has_avx512, "this CPU has no AVX-512F/VL");
+  add("cpu-avx2", "SIMD MBVH4/MBVH8 node tests and leaves, AVX2 build", cpu_kernels_avx2, &has_avx2, "this CPU has no AVX2");
+  add("cpu-avx512", "SIMD MBVH4/MBVH8 node tests and leaves, AVX-512 build", cpu_kernels_avx512, &has_avx512,
+      "this CPU has no AVX-512F/VL");
   const bool avx512 = has_avx512();
-  add("cpu", "SIMD MBVH4 node tests, the best ISA of this CPU (AVX-512, else AVX2)",
+  add("cpu", "SIMD MBVH4/MBVH8 node tests and leaves, the best ISA of this CPU (AVX-512, else AVX2)",
       avx512 ? cpu_kernels_avx512 : cpu_kernels_avx2, avx512 ? &has_avx512 : &has_avx2,
       "this CPU has neither AVX-512 nor AVX2 (use cpu-scalar)", avx512 ? "cpu-avx512" : "cpu-avx2");
 }

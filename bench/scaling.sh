@@ -1,0 +1,28 @@
+#!/usr/bin/env bash
+# scaling.sh — issue 6's scaling benchmark: build time and time per ray against triangle count
+# on the generated hairball (gen:hairball:N, thin random tubes), N from 10K to 10M, on every
+# backend this build has (each with its default layout and the bitstack; Embree with its
+# stack), 100K diffuse rays (seed 1), every result verified first. Writes OUT/info-N.json and
+# OUT/bench-N.json and draws OUT/scaling.png (bench/plots.py).
+#   bench/scaling.sh [OUT] [MAX_TRIANGLES]     (about 6 minutes on 2 cores up to 10M)
+set -euo pipefail
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+OUT="${1:-$ROOT/bench/out/scaling}"
+MAX="${2:-10000000}"
+MBVH="${MBVH:-$ROOT/build/mbvh}"
+mkdir -p "$OUT"
+# every backend that is ready here, aliases and the second ISA / OpenCL mapping left out
+BACKENDS=$("$MBVH" devices 2>/dev/null | awk '$2 == "ready:" && !/\(= / {print $1}' |
+  grep -v -e '^cpu-avx2$' -e '^opencl-lane$' | paste -sd, -)
+# Debian's python3 (with Debian's python3-matplotlib), not another one earlier on PATH
+PY="${PYTHON:-$( [ -x /usr/bin/python3 ] && echo /usr/bin/python3 || echo python3)}"
+"$PY" -c "import matplotlib" 2>/dev/null || { echo "installing python3-matplotlib (apt-get)" >&2;
+  DEBIAN_FRONTEND=noninteractive apt-get install -y -qq python3-matplotlib > /dev/null; }
+echo "backends: $BACKENDS" >&2
+for n in 10000 30000 100000 300000 1000000 3000000 10000000; do
+  [ "$n" -le "$MAX" ] || break
+  "$MBVH" info "gen:hairball:$n" --json "$OUT/info-$n.json" > /dev/null
+  "$MBVH" bench "gen:hairball:$n" --backend "$BACKENDS" --layout mbvh2,mbvh4 --traversal bitstack,stack \
+    --query closest --kinds diffuse --count 100000 --json "$OUT/bench-$n.json" >&2
+done
+"$PY" "$ROOT/bench/plots.py" scaling "$OUT"
