@@ -20,6 +20,17 @@ def backend_label(r):
     return f'{r["backend"]} {r["layout"]} {r["traversal"]}'
 
 
+def loglog(ax, xlabel, ylabel, title):
+    """Log-log axes with a grid and a legend."""
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7)
+
+
 def scaling(directory):
     sizes = sorted(int(os.path.basename(p)[len("bench-"):-len(".json")]) for p in glob.glob(f"{directory}/bench-*.json"))
     if not sizes:
@@ -58,24 +69,12 @@ def scaling(directory):
     for l in labels:
         xs = sorted(series[l])
         a.plot(xs, [series[l][x] for x in xs], marker="o", label=l)
-    a.set_xscale("log")
-    a.set_yscale("log")
-    a.set_xlabel("triangles (gen:hairball)")
-    a.set_ylabel("ns per ray (diffuse, closest hit)")
-    a.set_title("time per ray")
-    a.grid(True, which="both", alpha=0.3)
-    a.legend(fontsize=7)
+    loglog(a, "triangles (gen:hairball)", "ns per ray (diffuse, closest hit)", "time per ray")
     for layout in ("binary", "mbvh2", "mbvh4", "mbvh8"):
         ys = [build[n].get(layout) for n in sizes]
         if all(y is not None for y in ys):
             b.plot(sizes, ys, marker="o", label="SAH build" if layout == "binary" else f"{layout} collapse")
-    b.set_xscale("log")
-    b.set_yscale("log")
-    b.set_xlabel("triangles (gen:hairball)")
-    b.set_ylabel("ms")
-    b.set_title("build time")
-    b.grid(True, which="both", alpha=0.3)
-    b.legend(fontsize=7)
+    loglog(b, "triangles (gen:hairball)", "ms", "build time")
     fig.tight_layout()
     out = f"{directory}/scaling.png"
     fig.savefig(out, dpi=100)
