@@ -120,8 +120,8 @@ public:
   const Mbvh2& mbvh2() const;   ///< MBVH2 layout (Aila–Laine nodes with links), made on first use
   const Mbvh4& mbvh4() const;   ///< MBVH4 layout (depth-aware SAH-guided collapse), made on first use
   const Mbvh8& mbvh8() const;   ///< MBVH8 layout (the same collapse, eight wide), made on first use
-  const Mbvh4Wide& mbvh4_wide() const;
-  void make_layout(Layout l) const;  ///< makes layout `l` now (the accessor above), not on first trace  ///< its 16-wide view (OpenCL, TRAVERSAL.md §8), made on first use
+  const Mbvh4Wide& mbvh4_wide() const;  ///< its 16-wide view (OpenCL, TRAVERSAL.md §8), made on first use
+  void make_layout(Layout l) const;  ///< makes layout `l` now (its accessor above), not on first trace
   const TriPacks& tri_packs() const;  ///< the leaves as SIMD packs, made on first use
   const AlignedVector<Tri>& tris() const { return tris_; }
   const std::vector<Leaf>& leaves() const { return leaves_; }

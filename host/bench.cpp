@@ -70,15 +70,17 @@ std::string BenchReport::table() const {
   return s;
 }
 
-std::string BenchReport::json() const {
+// The report as a JSON document: what --json writes and --csv flattens.
+static nlohmann::json report_json(const BenchReport& rep) {
+  const std::string& bvh_hash = rep.bvh_hash;
   nlohmann::json j;
-  j["machine"] = machine;
-  j["cpu"] = cpu;
-  j["compiler"] = compiler;
-  j["flags"] = flags;
+  j["machine"] = rep.machine;
+  j["cpu"] = rep.cpu;
+  j["compiler"] = rep.compiler;
+  j["flags"] = rep.flags;
   j["bvh_hash"] = bvh_hash;
   j["records"] = nlohmann::json::array();
-  for (const auto& r : records) {
+  for (const auto& r : rep.records) {
     j["records"].push_back({{"scene", r.scene},
                             {"backend", r.backend},
                             {"isa", r.isa},
@@ -112,13 +114,15 @@ std::string BenchReport::json() const {
                                             {"climbs", r.hist_climbs}}},
                             {"bvh_hash", bvh_hash}});
   }
-  return j.dump(2);
+  return j;
 }
+
+std::string BenchReport::json() const { return report_json(*this).dump(2); }
 
 std::string BenchReport::csv() const {
   // the JSON records flattened: one header line (the record's keys, then the run's machine,
   // cpu, compiler and flags), one line per record; strings quoted, quotes doubled
-  const nlohmann::json j = nlohmann::json::parse(json());
+  const nlohmann::json j = report_json(*this);
   auto cell = [](const nlohmann::json& v) {
     if (!v.is_string()) return v.dump();
     std::string s = "\"";

@@ -83,12 +83,6 @@ V3 cosine_direction_d(V3 n, double r1, double r2) {
   return normalize(t1 * (rr * std::cos(phi)) + t2 * (rr * std::sin(phi)) + n * std::sqrt(std::max(0.0, 1 - r1)));
 }
 
-void tri_vertices(const Scene& s, std::uint32_t prim, Vec3f& a, Vec3f& b, Vec3f& c) {
-  const auto& t = s.triangles[prim];
-  a = s.vertices[t[0]];
-  b = s.vertices[t[1]];
-  c = s.vertices[t[2]];
-}
 
 }  // namespace
 
@@ -97,6 +91,13 @@ Vec3f facing_normal(const Vec3f& a, const Vec3f& b, const Vec3f& c, const Vec3f&
 }
 
 Vec3f cosine_direction(const Vec3f& n, double r1, double r2) { return f3(cosine_direction_d(d3(n), r1, r2)); }
+
+void tri_vertices(const Scene& s, std::uint32_t prim, Vec3f& a, Vec3f& b, Vec3f& c) {
+  const auto& t = s.triangles[prim];
+  a = s.vertices[t[0]];
+  b = s.vertices[t[1]];
+  c = s.vertices[t[2]];
+}
 
 Camera default_camera(const Box& b) {
   Camera c;

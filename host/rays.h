@@ -28,6 +28,8 @@ Vec3f default_light(const Box& bounds);
 Ray camera_ray(const Camera& c, double px, double py, double aspect = 1.0);
 /// Unit geometric normal of triangle (a, b, c), flipped to face against `incoming`.
 Vec3f facing_normal(const Vec3f& a, const Vec3f& b, const Vec3f& c, const Vec3f& incoming);
+/// The vertices of the scene's triangle `prim` (a file prim id, as in Hit::prim).
+void tri_vertices(const Scene& s, std::uint32_t prim, Vec3f& a, Vec3f& b, Vec3f& c);
 /// Cosine-weighted direction about unit normal n from two uniform numbers in [0, 1).
 Vec3f cosine_direction(const Vec3f& n, double r1, double r2);
 

@@ -67,10 +67,7 @@ struct Surface {
 
 Surface surface(const Scene& s, const Ray& ray, const Hit& h) {
   Surface f;
-  const auto& t = s.triangles[h.prim];
-  f.a = s.vertices[t[0]];
-  f.b = s.vertices[t[1]];
-  f.c = s.vertices[t[2]];
+  tri_vertices(s, h.prim, f.a, f.b, f.c);
   f.n = facing_normal(f.a, f.b, f.c, Vec3f{ray.dx, ray.dy, ray.dz});
   const float b0 = 1.0f - h.u - h.v;
   for (int k = 0; k < 3; ++k) f.p[k] = b0 * f.a[k] + h.u * f.b[k] + h.v * f.c[k];
@@ -176,7 +173,10 @@ private:
         const Hit& h = hits.hits[i];
         if (h.prim == MBVH_MISS_PRIM) {
           if (opt_.mode == RenderMode::ao) add(p.pixel, Rgb{1, 1, 1});
-          else add(p.pixel, Rgb{p.thr.r * sky(rays[i]).r, p.thr.g * sky(rays[i]).g, p.thr.b * sky(rays[i]).b});
+          else {
+            const Rgb s = sky(rays[i]);
+            add(p.pixel, Rgb{p.thr.r * s.r, p.thr.g * s.g, p.thr.b * s.b});
+          }
           return;
         }
         const Surface f = surface(scene_, rays[i], h);

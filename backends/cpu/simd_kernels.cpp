@@ -105,7 +105,7 @@ struct F8 {
 /// exactly like max_nan/min_nan), and an ordered <= compare.
 template <class F, class N>
 [[gnu::always_inline]] inline unsigned box_test_wide(const N& n, const RayPre& r, float tcull, float* d) {
-  constexpr int W = detail::width<N>();
+  constexpr int W = node_width<N>();
   using V = typename F::V;
   // near and far planes by address (Embree's nearX/farX offsets): rows lo_x, hi_x, lo_y, ... are
   // W floats apart

@@ -2,11 +2,13 @@
 // sibling links the stackless bitstack traversal needs (Áfra & Szirmay-Kalos, "Stackless
 // Multi-BVH Traversal for CPU, MIC and GPU Ray Tracing", CGF 2014; TRAVERSAL.md §2).
 #include <algorithm>
+#include <bit>
 #include <cstring>
 #include <limits>
 #include <chrono>
 
 #include "host/accel.h"
+#include "host/trace/view.h"
 #include "host/error.h"
 
 namespace mbvh {
@@ -76,8 +78,10 @@ namespace {
 // B levels down achieves), else the child of largest surface area (the SAH greedy of Wald et al.
 // 2008). With the binary cap of 42 the root satisfies ceil(42/B) <= cap and the invariant carries
 // down: MBVH4 never exceeds 21 levels (63 bits of a 64-bit word), MBVH8 never 14.
-template <class N, int W, int B, unsigned Cap>
+template <class N, unsigned Cap>
 struct Collapser {
+  static constexpr int W = node_width<N>();
+  static constexpr unsigned B = static_cast<unsigned>(std::countr_zero(static_cast<unsigned>(W)));  // log2(W)
   const Bvh2& b;
   AlignedVector<N>& out;
   unsigned max_level = 0;
@@ -136,12 +140,13 @@ struct Collapser {
   }
 };
 
-// Collapses `b` into `out` (nodes and stats of a W-wide layout named `name`).
-template <int W, int B, unsigned Cap, class M>
+// Collapses `b` into `out` (nodes and stats of a wide layout named `name`; nodes are
+// value-initialised, so unused words are zero).
+template <unsigned Cap, class M>
 void collapse(const Bvh2& b, const std::vector<Leaf>& leaves, const char* name, M& out) {
   using N = typename decltype(out.nodes)::value_type;
-  out.nodes.reserve(b.nodes.size() / (W / 2) + 1);
-  Collapser<N, W, B, Cap> c{b, out.nodes};
+  out.nodes.reserve(b.nodes.size() / (node_width<N>() / 2) + 1);
+  Collapser<N, Cap> c{b, out.nodes};
   c.root_area = std::max(1e-30, static_cast<double>(b.nodes[0].box.half_area()));
   c.emit(0, MBVH_NONE, 0);
   LayoutStats& st = out.stats;
@@ -159,7 +164,7 @@ void collapse(const Bvh2& b, const std::vector<Leaf>& leaves, const char* name, 
 Mbvh4 make_mbvh4(const Bvh2& b, const std::vector<Leaf>& leaves) {
   const auto t0 = Clock::now();
   Mbvh4 out;
-  collapse<4, 2, MBVH_MBVH4_LEVEL_CAP>(b, leaves, "mbvh4", out);
+  collapse<MBVH_MBVH4_LEVEL_CAP>(b, leaves, "mbvh4", out);
   // cyclic sibling links: sib[k] = parent.child[(slot + 1 + k) & 3]
   out.nodes[0].sib[0] = out.nodes[0].sib[1] = out.nodes[0].sib[2] = MBVH_NONE;
   for (const Node4& p : out.nodes)
@@ -175,9 +180,7 @@ Mbvh4 make_mbvh4(const Bvh2& b, const std::vector<Leaf>& leaves) {
 Mbvh8 make_mbvh8(const Bvh2& b, const std::vector<Leaf>& leaves) {
   const auto t0 = Clock::now();
   Mbvh8 out;
-  collapse<8, 3, MBVH_MBVH8_LEVEL_CAP>(b, leaves, "mbvh8", out);
-  for (Node8& n : out.nodes)
-    for (std::int32_t& p : n.pad) p = 0;
+  collapse<MBVH_MBVH8_LEVEL_CAP>(b, leaves, "mbvh8", out);
   out.stats.bitstack_bits = 0;  // stack-based only (a 7-bit skip code per level would need 98 bits)
   validate_layout(out, leaves.size());
   out.stats.build_ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
@@ -276,14 +279,14 @@ TriPacks make_tri_packs(const AlignedVector<Tri>& tris, const std::vector<Leaf>&
 namespace {
 
 // The checks of a W-wide layout; `links_ok(child, parent node, slot)` checks a child's own links.
-template <int W, class N, class LinksOk>
+template <class N, class LinksOk>
 void validate_wide(const AlignedVector<N>& nodes, const char* name, std::size_t leaf_count, LinksOk links_ok) {
   const std::size_t n = nodes.size();
   if (n == 0) corrupt(name, 0, "no root");
   if (nodes[0].parent != MBVH_NONE) corrupt(name, 0, "the root has a parent");
   std::vector<std::uint8_t> seen(n, 0), leaf_seen(leaf_count, 0);
   for (std::size_t i = 0; i < n; ++i)
-    for (int s = 0; s < W; ++s) {
+    for (int s = 0; s < node_width<N>(); ++s) {
       const std::int32_t c = nodes[i].child[s];
       check_ref(name, i, c, n, leaf_count, seen, leaf_seen);
       if (c >= 0) {
@@ -299,7 +302,7 @@ void validate_wide(const AlignedVector<N>& nodes, const char* name, std::size_t 
 }  // namespace
 
 void validate_layout(const Mbvh4& m, std::size_t leaf_count) {
-  validate_wide<4>(m.nodes, "MBVH4", leaf_count, [](const Node4& ch, const Node4& p, int s) {
+  validate_wide(m.nodes, "MBVH4", leaf_count, [](const Node4& ch, const Node4& p, int s) {
     for (int k = 0; k < 3; ++k)
       if (ch.sib[k] != p.child[(s + 1 + k) & 3]) return false;
     return true;
@@ -307,7 +310,7 @@ void validate_layout(const Mbvh4& m, std::size_t leaf_count) {
 }
 
 void validate_layout(const Mbvh8& m, std::size_t leaf_count) {
-  validate_wide<8>(m.nodes, "MBVH8", leaf_count, [](const Node8&, const Node8&, int) { return true; });
+  validate_wide(m.nodes, "MBVH8", leaf_count, [](const Node8&, const Node8&, int) { return true; });
 }
 
 }  // namespace mbvh

@@ -301,7 +301,6 @@ static int run(int argc, char** argv) {
   bench->add_flag("--scaling", bn_scaling,
                   "also time each variant on 1 thread, passes interleaved with the N-thread ones (thread scaling)");
 
-  // -- devices
   // -- render
   SceneArgs rn_a;
   DeviceArgs rn_dev;
@@ -325,6 +324,7 @@ static int run(int argc, char** argv) {
   render_cmd->add_option("-o,--output", rn_out, "PNG file")->required();
   rn_dev.add(render_cmd);
 
+  // -- devices
   auto* devices = app.add_subcommand("devices", "list the backends of this build, their devices and whether they can start");
   DeviceArgs dv_dev;
   dv_dev.add(devices);

@@ -93,27 +93,18 @@ inline unsigned test2(const Node2& n, const RayPre& r, float tcull, float d[2], 
   return (h0 ? 1u : 0u) | (h1 ? 2u : 0u);
 }
 
-inline unsigned test4_boxes(const Node4& n, const RayPre& r, float tcull, float d[4]) {
-  unsigned mask = 0;
-  for (int s = 0; s < 4; ++s)
-    if (box_test(r, n.lo_x[s], n.hi_x[s], n.lo_y[s], n.hi_y[s], n.lo_z[s], n.hi_z[s], tcull, d[s])) mask |= 1u << s;
-  return mask;
-}
-
-inline unsigned test8_boxes(const Node8& n, const RayPre& r, float tcull, float d[8]) {
-  unsigned mask = 0;
-  for (int s = 0; s < 8; ++s)
-    if (box_test(r, n.lo_x[s], n.hi_x[s], n.lo_y[s], n.hi_y[s], n.lo_z[s], n.hi_z[s], tcull, d[s])) mask |= 1u << s;
-  return mask;
-}
-
-/// Children per node of a wide layout.
+// A wide node's boxes one by one (the reference's MBVH4 and MBVH8 node test).
 template <class N>
-constexpr int width() { return sizeof(N::child) / sizeof(N::child[0]); }
+inline unsigned test_boxes(const N& n, const RayPre& r, float tcull, float* d) {
+  unsigned mask = 0;
+  for (int s = 0; s < node_width<N>(); ++s)
+    if (box_test(r, n.lo_x[s], n.hi_x[s], n.lo_y[s], n.hi_y[s], n.lo_z[s], n.hi_z[s], tcull, d[s])) mask |= 1u << s;
+  return mask;
+}
 
 template <class K, class N, class St>
 inline unsigned test_node(const N& n, const RayPre& r, float tcull, float* d, St& st) {
-  st.node(width<N>());
+  st.node(node_width<N>());
   return K::test(n, r, tcull, d);
 }
 
@@ -160,8 +151,8 @@ inline std::uint64_t skip_code(unsigned mask, int i) {  // rot(mask, i), TRAVERS
 /// unchanged.
 struct ScalarKernels {
   static constexpr bool uses_packs = false;
-  static unsigned test(const Node4& n, const RayPre& r, float tcull, float d[4]) { return detail::test4_boxes(n, r, tcull, d); }
-  static unsigned test(const Node8& n, const RayPre& r, float tcull, float d[8]) { return detail::test8_boxes(n, r, tcull, d); }
+  template <class N>
+  static unsigned test(const N& n, const RayPre& r, float tcull, float* d) { return detail::test_boxes(n, r, tcull, d); }
   template <bool Any, class St>
   static bool leaf(const TraceView& v, std::int32_t ref, const RayPre& r, float& tmax, Hit& best, St& st) {
     return detail::visit_leaf<Any>(v, ref, r, tmax, best, st);
@@ -363,7 +354,7 @@ inline Hit trace_wide_stack_ordered(const TraceView& v, const RayPre& r, St& st)
     std::int32_t node;
     float d;
   };
-  constexpr int W = detail::width<N>();
+  constexpr int W = node_width<N>();
   constexpr unsigned kEntries = W == 4 ? MBVH_STACK4_ENTRIES : MBVH_STACK8_ENTRIES;
   const N* nodes = detail::nodes_of<N>(v);
   Hit best = miss_hit();

@@ -9,6 +9,10 @@
 
 namespace mbvh {
 
+/// Children per node of a wide layout (Node4: 4, Node8: 8).
+template <class N>
+constexpr int node_width() { return sizeof(N::child) / sizeof(N::child[0]); }
+
 /// Per-ray work counters.
 struct RayStats {
   std::uint32_t nodes = 0;      ///< inner-node records visited
