@@ -33,6 +33,9 @@ public:
   virtual std::string describe() const = 0;
   /// Whether this backend implements the layout / traversal pair.
   virtual bool supports(Layout layout, Traversal traversal) const = 0;
+  /// Whether this backend implements the accuracy mode (TraceOptions::precision); mbvh's own
+  /// backends implement all three, a peer library only its own robust queries.
+  virtual bool supports_precision(Precision p) const { return p == Precision::robust; }
   /// Makes the backend ready to trace `acc` with these options (uploads only the layout needed;
   /// repeated calls with the same build are free). Called by trace() if not done before.
   virtual void prepare(const Accel& acc, const TraceOptions& opt) = 0;
@@ -55,7 +58,10 @@ struct VariantGrid {
   std::vector<Traversal> traversals{Traversal::stack, Traversal::bitstack, Traversal::stack_ordered,
                                     Traversal::bitstack_retest};
   std::vector<Query> queries{Query::closest, Query::any};
-  std::size_t size() const { return backends.size() * layouts.size() * traversals.size() * queries.size(); }
+  std::vector<Precision> precisions{Precision::robust};
+  std::size_t size() const {
+    return backends.size() * layouts.size() * traversals.size() * queries.size() * precisions.size();
+  }
 };
 
 using BackendFactory = std::function<std::unique_ptr<Backend>(const BackendOptions&)>;

@@ -36,7 +36,7 @@ std::string cpu_model() {
 
 bool BenchReport::verified() const {
   for (const auto& r : records)
-    if (r.verify_mismatches) return false;
+    if (!r.verified) return false;
   return true;
 }
 
@@ -45,9 +45,11 @@ std::string BenchReport::table() const {
   char line[512];
   bool scaled = false;
   for (const auto& r : records) scaled = scaled || r.thread_scaling > 0;
-  std::snprintf(line, sizeof line, "%-12s %-6s %-15s %-7s %-8s %9s %15s %8s %7s %8s %7s %7s %7s %9s%s\n", "backend",
-                "layout", "traversal", "query", "rays", "Mrays/s", "(min-max)", "vs twin", "vs cpu", "state B", "nodes",
-                "leaves", "tris", "verified", scaled ? "  1 thr   x/1thr" : "");
+  bool errors = false;
+  for (const auto& r : records) errors = errors || r.error_rays > 0;
+  std::snprintf(line, sizeof line, "%-12s %-6s %-15s %-7s %-8s %-6s %9s %15s %8s %7s %8s %7s %7s %7s %9s%s%s\n", "backend",
+                "layout", "traversal", "query", "rays", "prec", "Mrays/s", "(min-max)", "vs twin", "vs cpu", "state B", "nodes",
+                "leaves", "tris", "verified", errors ? "  genuine  wrong/checked  leaks" : "", scaled ? "  1 thr   x/1thr" : "");
   s += line;
   for (const auto& r : records) {
     char ratio[32] = "";
@@ -56,11 +58,17 @@ std::string BenchReport::table() const {
     if (r.ratio_vs_cpu > 0) std::snprintf(vcpu, sizeof vcpu, "%.2fx", r.ratio_vs_cpu);
     char spread[48];
     std::snprintf(spread, sizeof spread, "(%.2f-%.2f)", r.mrays_min, r.mrays_max);
-    std::snprintf(line, sizeof line, "%-12s %-6s %-15s %-7s %-8s %9.3f %15s %8s %7s %8zu %7.1f %7.2f %7.1f %9s\n",
+    std::snprintf(line, sizeof line, "%-12s %-6s %-15s %-7s %-8s %-6s %9.3f %15s %8s %7s %8zu %7.1f %7.2f %7.1f %9s\n",
                   r.backend.c_str(), r.layout.c_str(), r.traversal.c_str(), r.query.c_str(), r.ray_kind.c_str(),
-                  r.mrays_per_s, spread, ratio, vcpu, r.state_bytes_per_ray, r.nodes_per_ray, r.leaves_per_ray, r.tris_per_ray,
-                  r.verify_mismatches ? "MISMATCH" : "yes");
+                  r.precision.c_str(), r.mrays_per_s, spread, ratio, vcpu, r.state_bytes_per_ray, r.nodes_per_ray,
+                  r.leaves_per_ray, r.tris_per_ray,
+                  !r.verified ? "MISMATCH" : r.verify_mismatches ? "differs" : "yes");
     s += line;
+    if (errors) {
+      s.pop_back();
+      std::snprintf(line, sizeof line, "  %7zu %6zu/%-6zu %6zu\n", r.error_mismatches, r.wrong_answers, r.error_rays, r.leaks);
+      s += line;
+    }
     if (scaled) {
       s.pop_back();
       std::snprintf(line, sizeof line, " %8.3f %7.2fx\n", r.mrays_one_thread, r.thread_scaling);
@@ -89,6 +97,7 @@ static nlohmann::json report_json(const BenchReport& rep) {
                             {"traversal", r.traversal},
                             {"query", r.query},
                             {"ray_kind", r.ray_kind},
+                            {"precision", r.precision},
                             {"rays", r.rays},
                             {"threads", r.threads},
                             {"passes", r.passes},
@@ -103,6 +112,12 @@ static nlohmann::json report_json(const BenchReport& rep) {
                             {"triangles_per_ray", r.tris_per_ray},
                             {"climbs_per_ray", r.climbs_per_ray},
                             {"verify_mismatches", r.verify_mismatches},
+                            {"verified", r.verified},
+                            {"error_rays", r.error_rays},
+                            {"error_mismatches", r.error_mismatches},
+                            {"error_rate", r.error_rays ? double(r.error_mismatches) / double(r.error_rays) : 0.0},
+                            {"wrong_answers", r.wrong_answers},
+                            {"leaks", r.leaks},
                             {"bitstack_vs_stack", r.ratio_vs_stack},
                             {"vs_cpu", r.ratio_vs_cpu},
                             {"mrays_per_s_1_thread", r.mrays_one_thread},
@@ -150,7 +165,7 @@ static double speed_ratio(const std::vector<BenchRecord>& all, const BenchRecord
                           const std::string& traversal) {
   for (const auto& s : all)
     if (s.backend == backend && s.traversal == traversal && s.layout == r.layout && s.query == r.query &&
-        s.ray_kind == r.ray_kind && s.mrays_per_s > 0)
+        s.ray_kind == r.ray_kind && s.precision == r.precision && s.mrays_per_s > 0)
       return r.mrays_per_s / s.mrays_per_s;
   return 0;
 }
@@ -191,7 +206,15 @@ BenchReport run_bench(const Scene& scene, const Accel& acc, const BenchOptions& 
     ro.has_camera = opt.has_camera;
     ro.camera = opt.camera;
     const std::vector<Ray> rays = generate_rays(scene, acc, ro);
-    const TieRule settle = oracle_settlement(acc, rays, oracle_tie_rule(acc, rays));  // differences the tie rules leave open (a peer's)
+    const TieRule oracle = oracle_tie_rule(acc, rays);
+    const TieRule settle = oracle_settlement(acc, rays, oracle);  // differences the tie rules leave open (a peer's)
+    // the double-precision brute force on a spread subset, once per kind (BenchOptions::error_rays)
+    const std::vector<std::size_t> sub = spread_indices(rays.size(), opt.error_rays);
+    const auto in_plane = in_plane_rule(acc);
+    std::vector<Hit> brute(sub.size());
+    parallel_for(sub.size(), 16, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
+      for (std::size_t i = b; i < e; ++i) brute[i] = brute_force(acc, rays[sub[i]]);
+    });
     for (Query q : opt.grid.queries) {
       // the reference answer every timed result is verified against
       TraceOptions refo;
@@ -202,15 +225,17 @@ BenchReport run_bench(const Scene& scene, const Accel& acc, const BenchOptions& 
       trace_reference(acc, rays, refo, ref, opt.threads);
       TraceOutput closest;
       if (q == Query::any) trace_reference(acc, rays, TraceOptions{}, closest, opt.threads);
+      for (Precision pr : opt.grid.precisions)
       for (const auto& bn : opt.grid.backends)
         for (Layout l : opt.grid.layouts)
           for (Traversal t : opt.grid.traversals) {
             Backend& b = *backends[bn];
-            if (!b.supports(l, t)) continue;
+            if (!b.supports(l, t) || !b.supports_precision(pr)) continue;
             TraceOptions to;
             to.layout = l;
             to.traversal = t;
             to.query = q;
+            to.precision = pr;
             BenchRecord r;
             r.scene = scene.name;
             r.backend = bn;
@@ -220,6 +245,7 @@ BenchReport run_bench(const Scene& scene, const Accel& acc, const BenchOptions& 
             r.traversal = to_string(t);
             r.query = to_string(q);
             r.ray_kind = to_string(kind);
+            r.precision = to_string(pr);
             r.rays = rays.size();
             r.threads = resolve_threads(opt.threads);
             r.passes = passes;
@@ -230,6 +256,20 @@ BenchReport run_bench(const Scene& scene, const Accel& acc, const BenchOptions& 
             const Comparison c = q == Query::any ? compare_occlusion_arrays(out.occluded, ref.occluded, closest.hits, rays)
                                                  : compare_hit_arrays(out.hits, ref.hits, {}, settle);
             r.verify_mismatches = c.mismatches;
+            r.verified = c.mismatches == 0 || pr == Precision::fast;
+            if (q == Query::closest) {
+              // -- error against the brute force on the subset, and leaks out of a closed mesh
+              r.error_rays = sub.size();
+              std::vector<Hit> h;
+              for (std::size_t i : sub) h.push_back(out.hits[i]);
+              r.error_mismatches = compare_hit_arrays(h, brute, sub, oracle).mismatches;
+              for (std::size_t k = 0; k < sub.size(); ++k)
+                r.wrong_answers += wrong_answer(h[k], brute[k], rays[sub[k]]) && !in_plane(rays[sub[k]], h[k]) &&
+                                   !in_plane(rays[sub[k]], brute[k]);
+              if (kind == RayKind::inside)
+                for (std::size_t i = 0; i < rays.size(); ++i)
+                  r.leaks += out.hits[i].prim == MBVH_MISS_PRIM && ray_valid(rays[i]);
+            }
             // -- warm up for at least 0.25 s (JIT-compiled backends such as PoCL reach their speed
             // only after a few dispatches), then time
             for (auto w0 = Clock::now(); std::chrono::duration<double>(Clock::now() - w0).count() < 0.25;)

@@ -24,12 +24,15 @@ struct BenchOptions {
   /// Also time every variant on one thread, each 1-thread pass right after an N-thread pass (a
   /// ratio taken side by side, not across runs): BenchRecord::thread_scaling.
   bool scaling = false;
+  /// Rays per kind (spread over the batch) whose closest hits are also compared with the
+  /// double-precision brute force: BenchRecord::error_* (0: none).
+  std::size_t error_rays = 0;
   bool has_camera = false;  ///< primary rays (and the secondary rays built on them) from `camera`
   Camera camera;
 };
 
 struct BenchRecord {
-  std::string scene, backend, isa, device, layout, traversal, query, ray_kind;
+  std::string scene, backend, isa, device, layout, traversal, query, ray_kind, precision;
   std::size_t rays = 0;
   unsigned threads = 0, passes = 0;
   double mrays_per_s = 0, mrays_min = 0, mrays_max = 0;  ///< median and spread over the passes
@@ -39,7 +42,17 @@ struct BenchRecord {
   /// Histograms of the work per ray, power-of-two buckets: bucket 0 counts rays with 0, bucket
   /// k >= 1 rays with [2^(k-1), 2^k) (trailing empty buckets dropped).
   std::vector<std::uint64_t> hist_nodes, hist_leaves, hist_tris, hist_climbs;
-  std::size_t verify_mismatches = 0;    ///< genuine mismatches against the reference
+  std::size_t verify_mismatches = 0;    ///< genuine mismatches against the reference (robust, all rays)
+  /// Whether the timed result passed verification: no genuine mismatch, except in the fast mode,
+  /// whose mismatches are its measured error (reported, not a failure).
+  bool verified = false;
+  std::size_t error_rays = 0;           ///< closest hits compared with the brute force (BenchOptions::error_rays)
+  std::size_t error_mismatches = 0;     ///< of those, genuine mismatches (compare.h's tie rules, as `mbvh check`)
+  /// of those, wrong answers by compare.h's stricter wrong_answer (a miss beside an edge counts),
+  /// rays lying in a hit triangle's plane left out (check.h in_plane_rule)
+  std::size_t wrong_answers = 0;
+  /// `inside` rays (from inside a closed mesh: every one must hit) that missed: leaks.
+  std::size_t leaks = 0;
   double ratio_vs_stack = 0;            ///< Mrays/s of this record / its stack twin (bitstack rows)
   double ratio_vs_cpu = 0;              ///< Mrays/s of this record / the `cpu` backend's on the same variant
   double mrays_one_thread = 0;          ///< with BenchOptions::scaling: the median on one thread

@@ -13,7 +13,8 @@
 namespace mbvh {
 
 std::string CheckVariant::label() const {
-  return backend + "/" + to_string(opt.layout) + "/" + to_string(opt.traversal) + "/" + to_string(opt.query);
+  return backend + "/" + to_string(opt.layout) + "/" + to_string(opt.traversal) + "/" + to_string(opt.query) +
+         (opt.precision == Precision::robust ? "" : std::string("/") + to_string(opt.precision));
 }
 
 std::size_t CheckReport::mismatches() const {
@@ -43,7 +44,9 @@ double max_abs3(const float v[3]) { return std::max(std::fabs(v[0]), std::max(st
 // - the ray crosses the plane within a few ulps (of the coordinates' size) of an edge line,
 //   measured as a distance (barycentrics cannot: on a needle b = 0.002 was 2e-9 from the edge)
 //   and widened by 1/cos, as the crossing point of a grazing float ray moves by ulps / cos.
-bool ill_conditioned(const RayPre& r, const Tri& t) {
+// |cos| of the angle between the ray and the triangle's normal, and whether the ray lies in the
+// plane within the rounding of its own direction (the first case below).
+bool in_plane(const RayPre& r, const Tri& t, double& cosine) {
   const float* P[3] = {t.v0, t.v1, t.v2};
   double e1[3], e2[3];
   for (int k = 0; k < 3; ++k) {
@@ -54,9 +57,16 @@ bool ill_conditioned(const RayPre& r, const Tri& t) {
   const double d[3] = {r.d[0], r.d[1], r.d[2]};
   const double nd = n[0] * d[0] + n[1] * d[1] + n[2] * d[2];
   const double dlen = norm3(d);
-  const double cosine = std::fabs(nd) / (norm3(n) * dlen);
+  cosine = std::fabs(nd) / (norm3(n) * dlen);
   const double slack = 0x1p-20 + 8 * 0x1p-24 * (max_abs3(r.o) + max_abs3(r.d)) / dlen;
-  if (!(cosine > slack)) return true;
+  return !(cosine > slack);
+}
+
+bool ill_conditioned(const RayPre& r, const Tri& t) {
+  const float* P[3] = {t.v0, t.v1, t.v2};
+  double cosine = 0;
+  if (in_plane(r, t, cosine)) return true;
+  const double d[3] = {r.d[0], r.d[1], r.d[2]};
   const double th = plane_t_double(r, t);
   const double scale = std::max({max_abs3(r.o), max_abs3(P[0]), max_abs3(P[1]), max_abs3(P[2])});
   const double p[3] = {r.o[0] + th * d[0], r.o[1] + th * d[1], r.o[2] + th * d[2]};
@@ -72,15 +82,30 @@ bool ill_conditioned(const RayPre& r, const Tri& t) {
   return false;
 }
 
-}  // namespace
 
-TieRule oracle_tie_rule(const Accel& acc, std::span<const Ray> rays) {
+// The build's triangle of a hit (null for a miss or an unknown prim).
+std::function<const Tri*(const Hit&)> tri_lookup(const Accel& acc) {
   auto prim_to_tri = std::make_shared<std::vector<std::uint32_t>>(acc.scene_triangles(), UINT32_MAX);
   for (std::size_t i = 0; i < acc.tris().size(); ++i) (*prim_to_tri)[tri_prim(acc.tris()[i])] = static_cast<std::uint32_t>(i);
-  auto tri_of = [&acc, prim_to_tri](const Hit& h) -> const Tri* {
+  return [&acc, prim_to_tri](const Hit& h) -> const Tri* {
     if (h.prim == MBVH_MISS_PRIM || h.prim >= prim_to_tri->size() || (*prim_to_tri)[h.prim] == UINT32_MAX) return nullptr;
     return &acc.tris()[(*prim_to_tri)[h.prim]];
   };
+}
+
+}  // namespace
+
+std::function<bool(const Ray&, const Hit&)> in_plane_rule(const Accel& acc) {
+  return [tri_of = tri_lookup(acc)](const Ray& ray, const Hit& h) {
+    RayPre r;
+    double cosine = 0;
+    const Tri* t = tri_of(h);
+    return t && prepare_ray(ray, r) && in_plane(r, *t, cosine);
+  };
+}
+
+TieRule oracle_tie_rule(const Accel& acc, std::span<const Ray> rays) {
+  auto tri_of = tri_lookup(acc);
   return [rays, tri_of](std::size_t ray, const Hit& a, const Hit& oracle) {
     const Ray& ray_in = rays[ray];
     RayPre r;
@@ -149,6 +174,7 @@ CheckReport run_check(const Accel& acc, std::span<const Ray> rays, const CheckOp
   };
   std::vector<Run> runs;
   for (Query q : opt.grid.queries)
+    for (Precision pr : opt.grid.precisions)
     for (const auto& name : opt.grid.backends)
       for (Layout l : opt.grid.layouts)
         for (Traversal t : opt.grid.traversals) {
@@ -157,8 +183,9 @@ CheckReport run_check(const Accel& acc, std::span<const Ray> rays, const CheckOp
           run.v.opt.layout = l;
           run.v.opt.traversal = t;
           run.v.opt.query = q;
+          run.v.opt.precision = pr;
           Backend& b = *backends[name];
-          if (!b.supports(l, t)) continue;  // e.g. variant B on MBVH2
+          if (!b.supports(l, t) || !b.supports_precision(pr)) continue;  // e.g. variant B on MBVH2
           if (log) log("tracing " + run.v.label());
           b.trace(acc, rays, run.v.opt, run.out);
           runs.push_back(std::move(run));
@@ -217,7 +244,7 @@ CheckReport run_check(const Accel& acc, std::span<const Ray> rays, const CheckOp
   auto own_closest = [&](const Run& r) -> const std::vector<Hit>* {
     for (const Run& c : runs)
       if (c.v.opt.query == Query::closest && c.v.backend == r.v.backend && c.v.opt.layout == r.v.opt.layout &&
-          c.v.opt.traversal == r.v.opt.traversal)
+          c.v.opt.traversal == r.v.opt.traversal && c.v.opt.precision == r.v.opt.precision)
         return &c.out.hits;
     return nullptr;
   };

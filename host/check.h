@@ -51,6 +51,10 @@ CheckReport run_check(const Accel& acc, std::span<const Ray> rays, const CheckOp
 /// either hit is ill-conditioned: the ray lies in the triangle's plane within the rounding of
 /// its own direction, or the hit point lies within 16 ulps (of the coordinates) of an edge.
 TieRule oracle_tie_rule(const Accel& acc, std::span<const Ray> rays);
+/// True when hit `h` lies on a triangle whose plane holds `ray` within the rounding of the ray's
+/// own direction: hit and miss are both right there (the run-time-vs-error benchmark skips such
+/// answers; a leak through an edge is not one of them).
+std::function<bool(const Ray&, const Hit&)> in_plane_rule(const Accel& acc);
 /// For two float answers that differ beyond the tie rules: brute-forces the ray and returns true
 /// (a tie) when each answer equals the oracle's or is a tie with it under `oracle` (the rule
 /// oracle_tie_rule made for the same rays): both are legitimate.

@@ -43,6 +43,16 @@ Verdict compare_occlusion(std::uint8_t a, std::uint8_t b, const Hit& closest, co
   return Verdict::mismatch;
 }
 
+bool wrong_answer(const Hit& a, const Hit& o, const Ray& ray) {
+  const bool ha = a.prim != MBVH_MISS_PRIM, ho = o.prim != MBVH_MISS_PRIM;
+  if (ha != ho) {
+    const float t = ha ? a.t : o.t;
+    return !(ulp_distance(t, ray.tmax) <= 4 || ulp_distance(t, ray.tmin) <= 4);
+  }
+  if (!ha || a.prim == o.prim) return false;
+  return std::fabs(a.t - o.t) > 0x1p-10f * std::max(std::fabs(a.t), std::fabs(o.t));
+}
+
 void Comparison::add(std::size_t ray, Verdict v) {
   ++rays;
   if (v == Verdict::equal) ++equal;

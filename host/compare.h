@@ -30,6 +30,14 @@ Verdict compare_hits(const Hit& a, const Hit& b);
 /// a difference is a tie when that hit is on an edge or within 4 ulp of tmin/tmax.
 Verdict compare_occlusion(std::uint8_t a, std::uint8_t b, const Hit& closest, const Ray& ray);
 
+/// The run-time-vs-error benchmark's verdict on answer `a` against the oracle's `o` for `ray`:
+/// stricter than compare_hits, which forgives any miss next to an edge. Wrong when one hits and the
+/// other does not (unless the hit lies within 4 ulp of tmin or tmax, the interval's closed ends) —
+/// a ray leaking through a shared edge is wrong; or when both hit at distances more than 2^-10
+/// apart relative to the distance (another surface). Another prim at the same distance (the
+/// neighbour across a shared edge, coplanar triangles) is right.
+bool wrong_answer(const Hit& a, const Hit& o, const Ray& ray);
+
 /// Counts over a batch, with the first few genuine mismatches.
 struct Comparison {
   std::string a, b;                 ///< what was compared, for reports

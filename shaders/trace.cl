@@ -13,10 +13,19 @@
  * -cl-fp32-correctly-rounded-divide-sqrt), compare-and-select instead of fmin/fmax in the slab
  * tests, so every answer is bit-identical to cpu-scalar's.
  *
- * Build options: -DMBVH_STATS=0|1 (per-ray counters; 0 compiles them out), -DMBVH_WIDE=0|1.
+ * Build options: -DMBVH_STATS=0|1 (per-ray counters; 0 compiles them out), -DMBVH_WIDE=0|1,
+ * -DMBVH_FAST=0|1 (the `fast` accuracy mode: no far-plane widening, Möller–Trumbore triangles,
+ * contraction allowed; built with -cl-mad-enable and without correctly rounded division).
  * The layout header is inlined here when the source is embedded (CMake: embed_cl.cmake).
  */
+#ifndef MBVH_FAST
+#define MBVH_FAST 0
+#endif
+#if MBVH_FAST
+#pragma OPENCL FP_CONTRACT ON
+#else
 #pragma OPENCL FP_CONTRACT OFF
+#endif
 #pragma OPENCL EXTENSION cl_khr_fp64 : enable
 
 #include "mbvh_layout.h"
@@ -73,7 +82,7 @@ static bool prepare_ray(const Ray r, RayPre* p) {
   for (int a = 0; a < 3; ++a) {
     p->inv[a] = 1.0f / p->d[a];
     p->neg[a] = signbit(p->d[a]) ? 1 : 0;
-    p->invf[a] = p->inv[a] * FAR_FACTOR;
+    p->invf[a] = MBVH_FAST ? p->inv[a] : p->inv[a] * FAR_FACTOR; /* fast: host relax_ray */
   }
   p->kz = kz;
   p->kx = (kz + 1) % 3;
@@ -156,6 +165,26 @@ static bool tri_test(const RayPre* r, global const Tri* tri, float tmax, float* 
   return true;
 }
 
+/* the `fast` mode: Möller & Trumbore 1997, host tri_test_mt */
+static bool tri_test_mt(const RayPre* r, global const Tri* tri, float tmax, float* t_out, float* u_out, float* v_out) {
+  const float3 v0 = vload3(0, tri->v0), d = vload3(0, r->d), o = vload3(0, r->o);
+  const float3 e1 = vload3(0, tri->v1) - v0, e2 = vload3(0, tri->v2) - v0;
+  const float3 p = cross(d, e2);
+  const float det = dot(e1, p);
+  const float3 s = o - v0;
+  const float3 q = cross(s, e1);
+  const float un = dot(s, p), vn = dot(d, q);
+  if (det > 0.0f ? !(un >= 0.0f && vn >= 0.0f && un + vn <= det) : !(det < 0.0f && un <= 0.0f && vn <= 0.0f && un + vn >= det))
+    return false;
+  const float inv = 1.0f / det;
+  const float t = dot(e2, q) * inv;
+  if (!(t >= r->tmin && t <= tmax)) return false;
+  *t_out = t;
+  *u_out = un * inv;
+  *v_out = vn * inv;
+  return true;
+}
+
 static Hit miss_hit(void) {
   Hit h;
   h.t = INFINITY; h.u = 0.0f; h.v = 0.0f; h.prim = MBVH_MISS_PRIM;
@@ -170,7 +199,11 @@ static bool visit_leaf(global const Leaf* leaves, global const Tri* tris, int re
   for (uint i = l.first; i < l.first + l.count; ++i) {
     STAT(++st->tris;)
     float t, u, w;
+#if MBVH_FAST
+    if (tri_test_mt(r, &tris[i], *tmax, &t, &u, &w)) {
+#else
     if (tri_test(r, &tris[i], *tmax, &t, &u, &w)) {
+#endif
       const uint prim = as_uint(tris[i].v0[3]);
       if (any) {
         best->t = t; best->u = u; best->v = w; best->prim = prim;

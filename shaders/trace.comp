@@ -42,6 +42,7 @@ layout(constant_id = 4) const uint NODE_SHIFT = 21;
 layout(constant_id = 5) const uint TRI_CHUNKS = 1;
 layout(constant_id = 6) const uint TRI_SHIFT = 21;
 layout(local_size_x_id = 7) in;
+layout(constant_id = 8) const bool FAST = false;    /* the `fast` accuracy mode (host relax_ray, tri_test_mt) */
 
 layout(push_constant) uniform Push {
   uint count; /* rays in this dispatch */
@@ -141,7 +142,7 @@ bool prepare_ray(Ray r, out RayPre p) {
     precise float invf = inv * FAR_FACTOR;
     p.inv[a] = inv;
     p.neg[a] = (floatBitsToUint(p.d[a]) & 0x80000000u) != 0u;
-    p.invf[a] = invf;
+    p.invf[a] = FAST ? inv : invf;
   }
   p.kz = kz;
   p.kx = (kz + 1) % 3;
@@ -231,6 +232,27 @@ bool tri_test(RayPre r, Tri tri, float tmax, out float t_out, out float u_out, o
   return true;
 }
 
+/* the `fast` mode: Möller & Trumbore 1997, host tri_test_mt; not `precise` (contraction allowed)
+ * and the division the device's own */
+bool tri_test_mt(RayPre r, Tri tri, float tmax, out float t_out, out float u_out, out float v_out) {
+  t_out = 0.0; u_out = 0.0; v_out = 0.0;
+  const vec3 e1 = tri.v1.xyz - tri.v0.xyz, e2 = tri.v2.xyz - tri.v0.xyz;
+  const vec3 p = cross(r.d, e2);
+  const float det = dot(e1, p);
+  const vec3 s = r.o - tri.v0.xyz;
+  const vec3 q = cross(s, e1);
+  const float un = dot(s, p), vn = dot(r.d, q);
+  if (det > 0.0 ? !(un >= 0.0 && vn >= 0.0 && un + vn <= det) : !(det < 0.0 && un <= 0.0 && vn <= 0.0 && un + vn >= det))
+    return false;
+  const float inv = 1.0 / det;
+  const float t = dot(e2, q) * inv;
+  if (!(t >= r.tmin && t <= tmax)) return false;
+  t_out = t;
+  u_out = un * inv;
+  v_out = vn * inv;
+  return true;
+}
+
 Hit miss_hit() { return Hit(INF, 0.0, 0.0, MBVH_MISS_PRIM); }
 
 /* LEAF (§4): closest hit keeps the smallest (t, prim) and shrinks tmax; any hit stops (true). */
@@ -241,7 +263,10 @@ bool visit_leaf(int ref, RayPre r, inout float tmax, inout Hit best) {
     if (STATS) ++st_tris;
     const Tri tri = tri_at(i);
     float t, u, w;
-    if (tri_test(r, tri, tmax, t, u, w)) {
+    bool h;
+    if (FAST) h = tri_test_mt(r, tri, tmax, t, u, w);
+    else h = tri_test(r, tri, tmax, t, u, w);
+    if (h) {
       const uint prim = floatBitsToUint(tri.v0.w);
       if (ANY) {
         best = Hit(t, u, w, prim);

@@ -17,6 +17,7 @@ public:
   }
   std::string isa() const override { return "scalar"; }
   bool supports(Layout l, Traversal t) const override { return reference_supports(l, t); }
+  bool supports_precision(Precision) const override { return true; }
   void prepare(const Accel& acc, const TraceOptions& opt) override {
     acc.make_layout(opt.layout);
   }

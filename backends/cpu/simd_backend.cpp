@@ -14,7 +14,7 @@ extern const CpuKernels cpu_kernels_avx512;
 
 namespace {
 
-bool has_avx2() { return __builtin_cpu_supports("avx2"); }
+bool has_avx2() { return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma"); }
 bool has_avx512() { return __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl"); }
 
 class SimdBackend final : public Backend {
@@ -28,6 +28,7 @@ public:
   }
   std::string isa() const override { return kernels_.isa; }
   bool supports(Layout l, Traversal t) const override { return reference_supports(l, t); }
+  bool supports_precision(Precision) const override { return true; }
   void prepare(const Accel& acc, const TraceOptions& opt) override {
     acc.make_layout(opt.layout);
   }

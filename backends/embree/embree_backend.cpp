@@ -89,6 +89,9 @@ public:
   void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
     if (!supports(opt.layout, opt.traversal))
       throw Error("embree: answers only as mbvh4/stack (its own BVH and traversal)");
+    if (!supports_precision(opt.precision))
+      throw Error(std::string("embree: precision '") + to_string(opt.precision) +
+                  "' is not available (Embree's robust mode is its only one: --precision robust)");
     prepare(acc, opt);
     const bool any = opt.query == Query::any;
     out.reset(rays.size(), opt);

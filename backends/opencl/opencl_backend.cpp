@@ -76,9 +76,10 @@ public:
   bool supports(Layout l, Traversal t) const override {
     return l != Layout::mbvh8 && (t == Traversal::stack || t == Traversal::bitstack);
   }
+  bool supports_precision(Precision) const override { return true; }
 
   void prepare(const Accel& acc, const TraceOptions& opt) override {
-    program(opt.stats);
+    program(opt.stats, opt.precision == Precision::fast);
     if (&acc != acc_ || acc.hash() != hash_) {
       n2_.reset();
       n4_.reset();
@@ -106,7 +107,7 @@ public:
     if (rays.empty()) return;
 
     const std::string kname = std::string(to_string(opt.layout)) + "_" + to_string(opt.traversal) + "_" + to_string(opt.query);
-    cl_kernel k = kernel(opt.stats, kname);
+    cl_kernel k = kernel(opt.stats, opt.precision == Precision::fast, kname);
     const std::size_t batch = std::min(rays.size(), max_batch());
     ensure_batch_buffers(batch, opt.stats);
     const cl_uint zero[2] = {0, 0};
@@ -200,18 +201,20 @@ private:
     if (!counters_) counters_ = device_buffer(2 * sizeof(cl_uint), CL_MEM_READ_WRITE, "counters");
   }
 
-  Built& program(bool stats) {
-    Built& b = built_[stats ? 1 : 0];
+  // fast: the `fast` accuracy mode (MBVH_FAST: relaxed box test, Möller–Trumbore with mad and the
+  // device's default division precision); otherwise correctly rounded division, no contraction
+  Built& program(bool stats, bool fast) {
+    Built& b = built_[(stats ? 1 : 0) + (fast ? 2 : 0)];
     if (!b.program) {
-      const std::string options = std::string("-cl-fp32-correctly-rounded-divide-sqrt -DMBVH_STATS=") + (stats ? "1" : "0") +
-                                  " -DMBVH_WIDE=" + (wide_ ? "1" : "0");
+      const std::string options = std::string(fast ? "-cl-mad-enable -DMBVH_FAST=1" : "-cl-fp32-correctly-rounded-divide-sqrt") +
+                                  " -DMBVH_STATS=" + (stats ? "1" : "0") + " -DMBVH_WIDE=" + (wide_ ? "1" : "0");
       b.program = cl::build_program(ctx_.get(), dev_, kTraceCl, options);
     }
     return b;
   }
 
-  cl_kernel kernel(bool stats, const std::string& name) {
-    Built& b = program(stats);
+  cl_kernel kernel(bool stats, bool fast, const std::string& name) {
+    Built& b = program(stats, fast);
     auto it = b.kernels.find(name);
     if (it == b.kernels.end()) {
       cl_int err = CL_SUCCESS;
@@ -228,7 +231,7 @@ private:
   cl_ulong max_alloc_ = 0;
   cl::Context ctx_;
   cl::Queue queue_;
-  Built built_[2];
+  Built built_[4];  // [stats + 2 * fast]
   const Accel* acc_ = nullptr;
   std::uint64_t hash_ = 0;
   Buffer n2_, n4_, leaves_, tris_;

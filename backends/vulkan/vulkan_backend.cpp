@@ -86,6 +86,7 @@ public:
   bool supports(Layout l, Traversal t) const override {
     return l == Layout::mbvh2 && (t == Traversal::stack || t == Traversal::bitstack);
   }
+  bool supports_precision(Precision) const override { return true; }
 
   void prepare(const Accel& acc, const TraceOptions&) override {
     if (&acc == acc_ && acc.hash() == hash_) return;
@@ -117,7 +118,7 @@ public:
     out.reset(rays.size(), opt);
     if (rays.empty()) return;
 
-    const VkPipeline pipe = pipeline(opt.traversal == Traversal::bitstack, any, opt.stats);
+    const VkPipeline pipe = pipeline(opt.traversal == Traversal::bitstack, any, opt.stats, opt.precision == Precision::fast);
     const std::size_t batch = std::min(rays.size(), max_batch_);
     ensure_batch_buffers(batch);
     if (descriptors_dirty_) write_descriptors();
@@ -492,16 +493,17 @@ private:
     descriptors_dirty_ = false;
   }
 
-  VkPipeline pipeline(bool bitstack, bool any, bool stats) {
-    const auto key = std::make_tuple(bitstack, any, stats, nodes_.count, tris_.count);
+  VkPipeline pipeline(bool bitstack, bool any, bool stats, bool fast) {
+    const auto key = std::make_tuple(bitstack, any, stats, fast, nodes_.count, tris_.count);
     if (auto it = pipelines_.find(key); it != pipelines_.end()) return it->second;
     struct Spec {
       VkBool32 bitstack, any, stats;
       std::uint32_t node_chunks, node_shift, tri_chunks, tri_shift, local;
-    } spec{bitstack, any, stats, nodes_.count, nodes_.shift, tris_.count, tris_.shift, kLocalSize};
-    VkSpecializationMapEntry e[8];
-    for (std::uint32_t i = 0; i < 8; ++i) e[i] = {i, i * 4u, 4};
-    VkSpecializationInfo si{8, e, sizeof spec, &spec};
+      VkBool32 fast;
+    } spec{bitstack, any, stats, nodes_.count, nodes_.shift, tris_.count, tris_.shift, kLocalSize, fast};
+    VkSpecializationMapEntry e[9];  // constant_id i at offset 4 i
+    for (std::uint32_t i = 0; i < 9; ++i) e[i] = {i, i * 4u, 4};
+    VkSpecializationInfo si{9, e, sizeof spec, &spec};
     VkComputePipelineCreateInfo ci{};
     ci.sType = VK_STRUCTURE_TYPE_COMPUTE_PIPELINE_CREATE_INFO;
     ci.stage.sType = VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO;
@@ -575,7 +577,7 @@ private:
   VkDescriptorPool descriptor_pool_ = VK_NULL_HANDLE;
   VkDescriptorSet set_ = VK_NULL_HANDLE;
   VkShaderModule shader_ = VK_NULL_HANDLE;
-  std::map<std::tuple<bool, bool, bool, std::uint32_t, std::uint32_t>, VkPipeline> pipelines_;
+  std::map<std::tuple<bool, bool, bool, bool, std::uint32_t, std::uint32_t>, VkPipeline> pipelines_;
   bool descriptors_dirty_ = true;
   const Accel* acc_ = nullptr;
   std::uint64_t hash_ = 0;

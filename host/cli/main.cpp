@@ -116,13 +116,16 @@ struct DeviceArgs {
 struct GridArgs {
   DeviceArgs dev;
   std::string backends = "cpu-scalar", layouts = "mbvh2,mbvh4,mbvh8", traversals = "stack,bitstack,stack-ordered,bitstack-retest",
-              queries = "closest,any";
+              queries = "closest,any", precisions = "robust";
   void add(CLI::App* c) {
     c->add_option("--backend", backends, "comma-separated backends (see `mbvh devices`)");
     c->add_option("--layout", layouts, "comma-separated layouts: mbvh2, mbvh4, mbvh8 (stack-ordered only)");
     c->add_option("--traversal", traversals,
                   "comma-separated traversals: stack, bitstack, stack-ordered, bitstack-retest (the last two MBVH4/8)");
     c->add_option("--query", queries, "comma-separated queries: closest, any");
+    c->add_option("--precision", precisions,
+                  "comma-separated accuracy modes: robust (default), exact (the same kernels, refused by embree), fast "
+                  "(non-conservative boxes, Moller-Trumbore)");
     dev.add(c);
   }
   VariantGrid parse() const {
@@ -131,6 +134,7 @@ struct GridArgs {
     g.layouts = parse_list<Layout>(layouts, parse_layout);
     g.traversals = parse_list<Traversal>(traversals, parse_traversal);
     g.queries = parse_list<Query>(queries, parse_query);
+    g.precisions = parse_list<Precision>(precisions, parse_precision);
     for (const auto& b : g.backends) make_backend(b, dev.options(0));  // fail early, naming the backend
     return g;
   }
@@ -288,6 +292,10 @@ static int run(int argc, char** argv) {
   bn_g.add(bench);
   bench->add_option("--kinds", bn_kinds, "comma-separated ray kinds");
   bench->add_option("--count", bn_count, "rays per kind");
+  std::size_t bn_error = 0;
+  bench->add_option("--error-rays", bn_error,
+                    "rays per kind whose closest hits are also compared with the double-precision brute force "
+                    "(error_rate in the records; inside rays also count leaks)");
   bench->add_option("--seed", bn_seed, "ray seed");
   bench->add_option("--passes", bn_passes, "timed passes after the warm-up (at least 5)");
   std::vector<float> bn_camera;
@@ -450,6 +458,7 @@ static int run(int argc, char** argv) {
       bo.grid = bn_g.parse();
       bo.kinds = parse_list<RayKind>(bn_kinds, parse_ray_kind);
       bo.count = bn_count;
+      bo.error_rays = bn_error;
       bo.seed = bn_seed;
       bo.passes = bn_passes;
       bo.scaling = bn_scaling;

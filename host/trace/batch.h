@@ -63,10 +63,12 @@ inline void run_batch(const TraceView& v, std::span<const Ray> rays, std::size_t
       ++invalid;
       if constexpr (Stats) out.stats[i] = RayStats{};
     } else if constexpr (Stats) {
+      if constexpr (K::fast) relax_ray(r);
       CountStats st;
       h = dispatch<Any, K>(v, r, opt.layout, opt.traversal, st);
       out.stats[i] = st.s;
     } else {
+      if constexpr (K::fast) relax_ray(r);
       NoStats st;
       h = dispatch<Any, K>(v, r, opt.layout, opt.traversal, st);
     }
@@ -76,6 +78,7 @@ inline void run_batch(const TraceView& v, std::span<const Ray> rays, std::size_t
 }
 
 /// Traces `rays` on `threads` workers (0 = all) in chunks of 2048 rays; no per-ray allocation.
+/// K: the kernel policy of TraceOptions::precision (the caller picks it).
 template <class K>
 inline void trace_parallel(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out,
                            unsigned threads, const std::function<void(std::size_t)>& progress = {}) {

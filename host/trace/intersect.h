@@ -147,6 +147,38 @@ inline bool tri_test(const RayPre& r, const Tri& tri, float tmax, float& t_out, 
   return true;
 }
 
+/// The `fast` accuracy mode's triangle test: Möller & Trumbore, "Fast, Minimum Storage Ray/Triangle
+/// Intersection", JGT 1997 — edges and determinant from the untransformed vertices, one reciprocal
+/// of the determinant, no watertightness (a ray through a shared edge may miss both triangles)
+/// and no error bound on t (a secondary ray may re-hit its own surface). Two-sided; u, v weight
+/// vertices 1 and 2 as tri_test's.
+inline bool tri_test_mt(const RayPre& r, const Tri& tri, float tmax, float& t_out, float& u_out, float& v_out) {
+  const float e1[3] = {tri.v1[0] - tri.v0[0], tri.v1[1] - tri.v0[1], tri.v1[2] - tri.v0[2]};
+  const float e2[3] = {tri.v2[0] - tri.v0[0], tri.v2[1] - tri.v0[1], tri.v2[2] - tri.v0[2]};
+  const float p[3] = {r.d[1] * e2[2] - r.d[2] * e2[1], r.d[2] * e2[0] - r.d[0] * e2[2], r.d[0] * e2[1] - r.d[1] * e2[0]};
+  const float det = e1[0] * p[0] + e1[1] * p[1] + e1[2] * p[2];
+  const float s[3] = {r.o[0] - tri.v0[0], r.o[1] - tri.v0[1], r.o[2] - tri.v0[2]};
+  const float q[3] = {s[1] * e1[2] - s[2] * e1[1], s[2] * e1[0] - s[0] * e1[2], s[0] * e1[1] - s[1] * e1[0]};
+  // the inside test on the numerators, the division deferred to candidates
+  const float un = s[0] * p[0] + s[1] * p[1] + s[2] * p[2];
+  const float vn = r.d[0] * q[0] + r.d[1] * q[1] + r.d[2] * q[2];
+  if (det > 0.0f ? !(un >= 0.0f && vn >= 0.0f && un + vn <= det) : !(det < 0.0f && un <= 0.0f && vn <= 0.0f && un + vn >= det))
+    return false;
+  const float inv = 1.0f / det;
+  const float t = (e2[0] * q[0] + e2[1] * q[1] + e2[2] * q[2]) * inv;
+  if (!(t >= r.tmin && t <= tmax)) return false;
+  t_out = t;
+  u_out = un * inv;
+  v_out = vn * inv;
+  return true;
+}
+
+/// The `fast` mode's box test: the slab test without the far-plane widening (Ize 2013 shows it
+/// can cull a box the ray enters by one rounding), what most renderers ship.
+inline void relax_ray(RayPre& r) {
+  for (int a = 0; a < 3; ++a) r.inv_far[a] = r.inv[a];
+}
+
 inline std::uint32_t tri_prim(const Tri& t) {
   std::uint32_t id;
   std::memcpy(&id, &t.v0[3], 4);

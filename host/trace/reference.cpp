@@ -10,6 +10,22 @@
 
 namespace mbvh {
 
+const char* to_string(Precision p) {
+  switch (p) {
+    case Precision::robust: return "robust";
+    case Precision::exact: return "exact";
+    case Precision::fast: return "fast";
+  }
+  return "?";
+}
+
+Precision parse_precision(const std::string& s) {
+  if (s == "robust") return Precision::robust;
+  if (s == "exact") return Precision::exact;
+  if (s == "fast") return Precision::fast;
+  throw Error("unknown precision '" + s + "' (known: robust, exact, fast)");
+}
+
 const char* to_string(Query q) { return q == Query::closest ? "closest" : "any"; }
 const char* to_string(Traversal t) {
   switch (t) {
@@ -66,28 +82,37 @@ static void require_supported(const TraceOptions& opt) {
                 " (variant B and its ordered-stack twin are MBVH4 traversals)");
 }
 
+template <class K>
+static Hit trace_one_with(const TraceView& v, RayPre& r, const TraceOptions& opt, RayStats* stats,
+                          std::vector<std::int32_t>* leaf_log) {
+  if constexpr (K::fast) relax_ray(r);
+  const bool any = opt.query == Query::any;
+  if (stats || leaf_log) {
+    CountStats st;
+    st.leaf_log = leaf_log;
+    const Hit h = any ? dispatch<true, K>(v, r, opt.layout, opt.traversal, st) : dispatch<false, K>(v, r, opt.layout, opt.traversal, st);
+    if (stats) *stats = st.s;
+    return h;
+  }
+  NoStats st;
+  return any ? dispatch<true, K>(v, r, opt.layout, opt.traversal, st) : dispatch<false, K>(v, r, opt.layout, opt.traversal, st);
+}
+
 Hit trace_one(const Accel& acc, const Ray& ray, const TraceOptions& opt, RayStats* stats,
               std::vector<std::int32_t>* leaf_log) {
   require_supported(opt);
   RayPre r;
   if (!prepare_ray(ray, r)) return miss_hit();
   const TraceView v = trace_view(acc, opt.layout);
-  const bool any = opt.query == Query::any;
-  if (stats || leaf_log) {
-    CountStats st;
-    st.leaf_log = leaf_log;
-    const Hit h = any ? dispatch<true, ScalarKernels>(v, r, opt.layout, opt.traversal, st) : dispatch<false, ScalarKernels>(v, r, opt.layout, opt.traversal, st);
-    if (stats) *stats = st.s;
-    return h;
-  }
-  NoStats st;
-  return any ? dispatch<true, ScalarKernels>(v, r, opt.layout, opt.traversal, st) : dispatch<false, ScalarKernels>(v, r, opt.layout, opt.traversal, st);
+  return opt.precision == Precision::fast ? trace_one_with<ScalarKernelsT<true>>(v, r, opt, stats, leaf_log)
+                                          : trace_one_with<ScalarKernels>(v, r, opt, stats, leaf_log);
 }
 
 void trace_reference(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out,
                      unsigned threads, const std::function<void(std::size_t)>& progress) {
   require_supported(opt);
-  trace_parallel<ScalarKernels>(acc, rays, opt, out, threads, progress);
+  if (opt.precision == Precision::fast) trace_parallel<ScalarKernelsT<true>>(acc, rays, opt, out, threads, progress);
+  else trace_parallel<ScalarKernels>(acc, rays, opt, out, threads, progress);
 }
 
 Hit brute_force(const Accel& acc, const Ray& ray) {

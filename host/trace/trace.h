@@ -23,6 +23,16 @@ enum class Traversal { stack, bitstack, stack_ordered, bitstack_retest };
 Traversal stack_twin(Traversal t);
 /// Whether the reference traversals implement the pair (variant B and its twin: MBVH4 only).
 bool reference_supports(Layout layout, Traversal traversal);
+/// Accuracy mode (the run-time-vs-error benchmark). robust, the default: the conservative slab
+/// test (Ize 2013) and the watertight triangle test (Woop et al. 2013). exact: answers bit-identical
+/// on every backend, no FMA contraction, correctly rounded division — which robust already is in
+/// mbvh (the same kernels; a separate name so a user can require it, and a backend that cannot
+/// promise it, embree, refuses it). fast: the slab test without its far-plane widening and
+/// Möller–Trumbore triangles (with FMA and an approximate reciprocal where the backend has them):
+/// not bit-identical across backends, and it may leak through shared edges.
+enum class Precision { robust, exact, fast };
+const char* to_string(Precision p);
+Precision parse_precision(const std::string& s);  ///< throws Error on an unknown name
 const char* to_string(Query q);
 const char* to_string(Traversal t);
 Query parse_query(const std::string& s);          ///< throws Error on an unknown name
@@ -33,6 +43,7 @@ struct TraceOptions {
   Traversal traversal = Traversal::bitstack;
   Query query = Query::closest;
   bool stats = false;  ///< fill TraceOutput::stats (costs time; off compiles counters away)
+  Precision precision = Precision::robust;  ///< accuracy mode
 };
 
 /// Results in ray order. Closest hit fills `hits`; any hit fills `occluded` (1 = occluded).

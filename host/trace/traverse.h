@@ -63,14 +63,15 @@ struct StepGuard {
 namespace detail {
 
 // LEAF (§4): closest hit keeps the smallest (t, prim) and shrinks tmax; any hit stops.
-template <bool Any, class St>
+// Fast: Möller–Trumbore instead of the watertight test (the `fast` accuracy mode).
+template <bool Any, class St, bool Fast = false>
 inline bool visit_leaf(const TraceView& v, std::int32_t ref, const RayPre& r, float& tmax, Hit& best, St& st) {
   const Leaf l = v.leaves[~ref];
   st.leaf(ref);
   for (std::uint32_t i = l.first; i < l.first + l.count; ++i) {
     st.tri();
     float t, u, w;
-    if (tri_test(r, v.tris[i], tmax, t, u, w)) {
+    if (Fast ? tri_test_mt(r, v.tris[i], tmax, t, u, w) : tri_test(r, v.tris[i], tmax, t, u, w)) {
       const std::uint32_t prim = tri_prim(v.tris[i]);
       if constexpr (Any) {
         best = Hit{t, u, w, prim};
@@ -148,19 +149,22 @@ inline std::uint64_t skip_code(unsigned mask, int i) {  // rot(mask, i), TRAVERS
 /// reference tests boxes and triangles one by one; the SIMD cpu backends pass a policy that tests
 /// all four slabs at once and four triangles at once with the same operations in the same order
 /// and the same choice among hits (so every answer is bit-identical), and reuse these traversals
-/// unchanged.
-struct ScalarKernels {
+/// unchanged. Fast: the `fast` accuracy mode (relax_ray's box test, Möller–Trumbore triangles).
+template <bool Fast>
+struct ScalarKernelsT {
   static constexpr bool uses_packs = false;
+  static constexpr bool fast = Fast;
   template <class N>
   static unsigned test(const N& n, const RayPre& r, float tcull, float* d) { return detail::test_boxes(n, r, tcull, d); }
   template <bool Any, class St>
   static bool leaf(const TraceView& v, std::int32_t ref, const RayPre& r, float& tmax, Hit& best, St& st) {
-    return detail::visit_leaf<Any>(v, ref, r, tmax, best, st);
+    return detail::visit_leaf<Any, St, Fast>(v, ref, r, tmax, best, st);
   }
   /// The slot of `mask` with the smallest entry distance, ties to the lower slot.
   template <int W>
   static int nearest(unsigned mask, const float* d) { return detail::nearest_slot<W>(mask, d); }
 };
+using ScalarKernels = ScalarKernelsT<false>;
 
 /// MBVH2, stack-based (Aila–Laine order without postponed leaves): nearest child first, the far
 /// child pushed when both are hit.
