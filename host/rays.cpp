@@ -1,5 +1,6 @@
 // rays.cpp — ray generators and the exact ray / hit / occlusion file formats.
 #include "host/rays.h"
+#include "host/render.h"
 
 #include <algorithm>
 #include <bit>
@@ -26,14 +27,16 @@ const char* to_string(RayKind k) {
     case RayKind::random: return "random";
     case RayKind::inside: return "inside";
     case RayKind::special: return "special";
+    case RayKind::path: return "path";
   }
   return "?";
 }
 
 RayKind parse_ray_kind(const std::string& s) {
-  for (RayKind k : {RayKind::primary, RayKind::shadow, RayKind::diffuse, RayKind::random, RayKind::inside, RayKind::special})
+  for (RayKind k : {RayKind::primary, RayKind::shadow, RayKind::diffuse, RayKind::random, RayKind::inside, RayKind::special,
+                    RayKind::path})
     if (s == to_string(k)) return k;
-  throw Error("unknown ray kind '" + s + "' (known: primary, shadow, diffuse, random, inside, special)");
+  throw Error("unknown ray kind '" + s + "' (known: primary, shadow, diffuse, random, inside, special, path)");
 }
 
 namespace {
@@ -149,6 +152,8 @@ std::vector<Ray> generate_rays(const Scene& scene, const Accel& acc, const RayGe
     return r;
   }
   if (opt.kind == RayKind::special) return special_rays(scene, acc, opt.count, opt.seed);
+  if (opt.kind == RayKind::path)
+    return path_tracer_rays(scene, acc, opt.count, opt.seed, opt.has_camera ? &opt.camera : nullptr, opt.threads);
   std::vector<Ray> rays;
   rays.reserve(opt.count);
   Rng rng(opt.seed * 4 + static_cast<std::uint64_t>(opt.kind));

@@ -11,7 +11,8 @@
 
 namespace mbvh {
 
-enum class RayKind { primary, shadow, diffuse, random, inside, special };
+/// path: the rays of the path tracer's bounces (render.h path_tracer_rays), the thesis' workload.
+enum class RayKind { primary, shadow, diffuse, random, inside, special, path };
 const char* to_string(RayKind k);
 RayKind parse_ray_kind(const std::string& s);  ///< throws Error on an unknown name
 

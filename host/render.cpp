@@ -8,6 +8,7 @@
 #include <array>
 #include <chrono>
 #include <cmath>
+#include <fstream>
 #include <numbers>
 
 #include "host/error.h"
@@ -80,6 +81,10 @@ public:
       : scene_(scene), acc_(acc), backend_(backend), opt_(opt) {
     if (opt.width == 0 || opt.height == 0) throw Error("render: the image is empty (width and height must be > 0)");
     if (opt.spp == 0) throw Error("render: --spp must be at least 1");
+    if (opt.reference && opt.reference->size() != static_cast<std::size_t>(opt.width) * opt.height * 3)
+      throw Error("render: the reference image is not " + std::to_string(opt.width) + "x" + std::to_string(opt.height));
+    if (!backend.supports_precision(opt.precision))
+      throw Error("render: backend '" + backend.name() + "' has no '" + to_string(opt.precision) + "' precision");
     if (!backend.supports(opt.layout, opt.traversal))
       throw Error("render: backend '" + backend.name() + "' has no " + to_string(opt.layout) + "/" +
                   to_string(opt.traversal) + " traversal");
@@ -97,12 +102,21 @@ public:
     res_.height = opt_.height;
     const std::size_t pixels = static_cast<std::size_t>(opt_.width) * opt_.height;
     res_.rgb.assign(pixels * 3, 0.0f);
+    double excluded = 0;  // seconds spent on the error curve
     for (unsigned s = 0; s < opt_.spp; ++s) {
       sample_pass(s);
+      if (opt_.reference) {
+        const auto c0 = std::chrono::steady_clock::now();
+        const double elapsed = std::chrono::duration<double>(c0 - t0).count() - excluded;
+        std::vector<float> mean(res_.rgb);
+        for (float& v : mean) v /= static_cast<float>(s + 1);
+        res_.curve.push_back(CurvePoint{s + 1, res_.trace_seconds, elapsed, rmse(mean, *opt_.reference)});
+        excluded += std::chrono::duration<double>(std::chrono::steady_clock::now() - c0).count();
+      }
       if (progress) progress(s + 1, opt_.spp);
     }
     for (float& v : res_.rgb) v /= static_cast<float>(opt_.spp);
-    res_.total_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    res_.total_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count() - excluded;
     return std::move(res_);
   }
 
@@ -112,6 +126,8 @@ private:
     o.layout = opt_.layout;
     o.traversal = opt_.traversal;
     o.query = q;
+    o.precision = opt_.precision;
+    if (opt_.capture && q == Query::closest) opt_.capture->insert(opt_.capture->end(), rays.begin(), rays.end());
     const auto t0 = std::chrono::steady_clock::now();
     backend_.trace(acc_, rays, o, out);
     res_.trace_seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
@@ -267,6 +283,83 @@ void chunk(std::vector<std::uint8_t>& o, const char* type, const std::vector<std
 }
 
 }  // namespace
+
+namespace {
+
+// The reference traversals as a Backend, for path_tracer_rays (host/ knows no backend).
+class ReferenceTracer final : public Backend {
+public:
+  explicit ReferenceTracer(unsigned threads) : threads_(threads) {}
+  std::string name() const override { return "reference"; }
+  std::string describe() const override { return "the scalar reference traversals"; }
+  bool supports(Layout l, Traversal t) const override { return reference_supports(l, t); }
+  void prepare(const Accel&, const TraceOptions&) override {}
+  void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
+    trace_reference(acc, rays, opt, out, threads_);
+  }
+
+private:
+  unsigned threads_;
+};
+
+}  // namespace
+
+std::vector<Ray> path_tracer_rays(const Scene& scene, const Accel& acc, std::size_t count, std::uint64_t seed,
+                                  const Camera* camera, unsigned threads) {
+  ReferenceTracer tracer(threads);
+  std::vector<Ray> rays;
+  RenderOptions o;
+  // about 3 closest-hit rays per pixel over the bounces (the count is measured below anyway)
+  o.width = o.height = std::max(1u, static_cast<unsigned>(std::sqrt(static_cast<double>(std::max<std::size_t>(count, 1)) / 3.0)));
+  o.spp = 1;
+  o.threads = threads;
+  o.capture = &rays;
+  o.has_camera = camera != nullptr;
+  if (camera) o.camera = *camera;
+  for (std::uint64_t pass = 0; rays.size() < std::max<std::size_t>(count, 1); ++pass) {
+    o.seed = seed + pass;
+    render(scene, acc, tracer, o);
+  }
+  rays.resize(std::max<std::size_t>(count, 1));
+  return rays;
+}
+
+double rmse(const std::vector<float>& a, const std::vector<float>& b) {
+  if (a.size() != b.size()) throw Error("rmse: images of different sizes");
+  double sum = 0;
+  for (std::size_t i = 0; i < a.size(); ++i) sum += (double(a[i]) - b[i]) * (double(a[i]) - b[i]);
+  return a.empty() ? 0.0 : std::sqrt(sum / static_cast<double>(a.size()));
+}
+
+void write_pfm(const std::string& path, unsigned width, unsigned height, const std::vector<float>& rgb) {
+  if (rgb.size() != std::size_t(width) * height * 3) throw Error(path + ": PFM size does not match the image");
+  const std::string header = "PF\n" + std::to_string(width) + " " + std::to_string(height) + "\n-1.0\n";
+  std::vector<char> bytes(header.begin(), header.end());
+  for (unsigned y = height; y-- > 0;) {  // bottom row first
+    const char* row = reinterpret_cast<const char*>(rgb.data() + std::size_t(y) * width * 3);
+    bytes.insert(bytes.end(), row, row + std::size_t(width) * 12);
+  }
+  write_bytes(path, bytes.data(), bytes.size());
+}
+
+std::vector<float> read_pfm(const std::string& path, unsigned& width, unsigned& height) {
+  std::ifstream f(path, std::ios::binary);
+  if (!f) throw Error(path + ": cannot open the PFM file");
+  std::string magic;
+  double scale = 0;
+  long long w = 0, h = 0;
+  f >> magic >> w >> h >> scale;
+  if (!f || magic != "PF" || w <= 0 || h <= 0 || w > 65536 || h > 65536 || !(scale < 0))
+    throw Error(path + ": not a little-endian RGB PFM (expected 'PF', width, height, a negative scale)");
+  f.get();  // the single whitespace after the scale
+  width = static_cast<unsigned>(w);
+  height = static_cast<unsigned>(h);
+  std::vector<float> rgb(std::size_t(width) * height * 3);
+  for (unsigned y = height; y-- > 0;)
+    if (!f.read(reinterpret_cast<char*>(rgb.data() + std::size_t(y) * width * 3), std::streamsize(width) * 12))
+      throw Error(path + ": PFM data ends early (row " + std::to_string(height - 1 - y) + " of " + std::to_string(height) + ")");
+  return rgb;
+}
 
 RenderResult render(const Scene& scene, const Accel& acc, Backend& backend, const RenderOptions& opt,
                     const std::function<void(unsigned, unsigned)>& progress) {

@@ -29,6 +29,20 @@ struct RenderOptions {
   Layout layout = Layout::mbvh4;
   Traversal traversal = Traversal::bitstack;
   unsigned threads = 0;   ///< host shading threads (0 = all)
+  Precision precision = Precision::robust;  ///< the backend's accuracy mode
+  /// If set (width x height x 3 linear floats), the RMSE of the running mean against it after
+  /// every sample pass: RenderResult::curve (image error against time).
+  const std::vector<float>* reference = nullptr;
+  /// If set, every closest-hit ray the renderer traces (all bounces, in order) is appended: the
+  /// `path` ray kind of the benchmark.
+  std::vector<Ray>* capture = nullptr;
+};
+
+/// One point of the image-error-against-time curve.
+struct CurvePoint {
+  unsigned spp = 0;
+  double trace_seconds = 0, total_seconds = 0;  ///< so far, the RMSE computation left out
+  double rmse = 0;                              ///< of the mean of `spp` samples against the reference
 };
 
 struct RenderResult {
@@ -37,6 +51,7 @@ struct RenderResult {
   std::size_t rays = 0;            ///< rays traced over all bounces (closest and shadow/AO rays)
   double trace_seconds = 0;        ///< time inside Backend::trace
   double total_seconds = 0;        ///< the whole render, shading and ray generation included
+  std::vector<CurvePoint> curve;   ///< with RenderOptions::reference: one point per sample pass
   double mrays_per_s() const { return trace_seconds > 0 ? static_cast<double>(rays) / trace_seconds * 1e-6 : 0; }
 };
 
@@ -49,6 +64,17 @@ struct RenderResult {
 RenderResult render(const Scene& scene, const Accel& acc, Backend& backend, const RenderOptions& opt,
                     const std::function<void(unsigned, unsigned)>& progress = {});
 
+/// The rays of the path tracer's bounces (closest-hit continuation rays of every bounce, primary
+/// rays included) from 1-spp renders with the reference traversal, about `count` of them (at least
+/// 1): the thesis' workload as a benchmark ray kind. Deterministic by seed.
+std::vector<Ray> path_tracer_rays(const Scene& scene, const Accel& acc, std::size_t count, std::uint64_t seed,
+                                  const Camera* camera, unsigned threads);
+/// Root-mean-square difference of two images of the same size (linear values).
+double rmse(const std::vector<float>& a, const std::vector<float>& b);
+/// Portable float map (PFM, "PF", little-endian, rows bottom to top as the format says): the
+/// linear image without loss, for references. Throws Error naming the path on failure.
+void write_pfm(const std::string& path, unsigned width, unsigned height, const std::vector<float>& rgb);
+std::vector<float> read_pfm(const std::string& path, unsigned& width, unsigned& height);
 /// 8-bit sRGB of linear radiance (clamped to [0, 1]), 3 bytes per pixel.
 std::vector<std::uint8_t> to_srgb8(const std::vector<float>& rgb);
 

@@ -150,7 +150,7 @@ struct RayArgs {
 
 void add_ray_args(CLI::App* c, RayArgs& r, bool allow_file) {
   if (allow_file) c->add_option("--rays", r.rays_file, "ray file (32 bytes per ray) instead of generated rays");
-  c->add_option("--kind", r.kind, "generated ray kind: primary, shadow, diffuse, random, inside (closed generated meshes), special");
+  c->add_option("--kind", r.kind, "generated ray kind: primary, shadow, diffuse, random, inside (closed generated meshes), special, path (the path tracer's bounces)");
   c->add_option("--count", r.count, "number of generated rays");
   c->add_option("--seed", r.seed, "seed of the generated rays");
   c->add_option("--camera", r.camera, "eye x y z, target x y z [, fov degrees] (default: frames the scene)")
@@ -265,6 +265,8 @@ static int run(int argc, char** argv) {
   trace->add_option("--query", tr_query, "closest (writes hits, 16 B/ray) or any (writes occlusion, 1 B/ray)");
   trace->add_option("-o,--output", tr_out, "output file");
   trace->add_flag("--stats", tr_stats, "also count work per ray (slower)");
+  std::string tr_precision = "robust";
+  trace->add_option("--precision", tr_precision, "accuracy mode: robust (default), exact or fast");
   DeviceArgs tr_dev;
   tr_dev.add(trace);
 
@@ -330,6 +332,12 @@ static int run(int argc, char** argv) {
       ->delimiter(',')
       ->expected(6, 7);
   render_cmd->add_option("-o,--output", rn_out, "PNG file")->required();
+  std::string rn_precision = "robust", rn_pfm, rn_reference, rn_curve;
+  render_cmd->add_option("--precision", rn_precision, "accuracy mode: robust (default), exact or fast");
+  render_cmd->add_option("--pfm", rn_pfm, "also write the linear image as PFM (a reference for --reference)");
+  render_cmd->add_option("--reference", rn_reference,
+                         "PFM of the same size: report the RMSE against it after every sample pass");
+  render_cmd->add_option("--curve", rn_curve, "with --reference: write the RMSE-against-time curve as JSON");
   rn_dev.add(render_cmd);
 
   // -- devices
@@ -354,20 +362,46 @@ static int run(int argc, char** argv) {
       rn_o.mode = parse_render_mode(rn_mode);
       rn_o.traversal = parse_traversal(rn_trav);
       rn_o.threads = rn_a.threads;
+      rn_o.precision = parse_precision(rn_precision);
       set_camera(rn_camera, rn_o.has_camera, rn_o.camera);
+      std::vector<float> reference;
+      if (!rn_reference.empty()) {
+        unsigned w = 0, h = 0;
+        reference = read_pfm(rn_reference, w, h);
+        if (w != rn_o.width || h != rn_o.height)
+          throw Error(rn_reference + ": the reference is " + std::to_string(w) + "x" + std::to_string(h) + ", the image " +
+                      std::to_string(rn_o.width) + "x" + std::to_string(rn_o.height));
+        rn_o.reference = &reference;
+      } else if (!rn_curve.empty()) {
+        throw Error("--curve needs --reference (the converged image the curve measures against)");
+      }
       auto backend = make_backend(rn_backend, rn_dev.options(rn_a.threads));
       rn_o.layout = render_cmd->count("--layout") ? parse_layout(rn_layout) : default_layout(*backend, rn_o.traversal);
       Loaded l = load_and_build(rn_a);
       std::fprintf(stderr, "backend: %s\n", backend->describe().c_str());
-      backend->prepare(*l.acc, TraceOptions{rn_o.layout, rn_o.traversal, Query::closest, false});
+      backend->prepare(*l.acc, TraceOptions{rn_o.layout, rn_o.traversal, Query::closest, false, rn_o.precision});
       Progress p("rendering", rn_o.spp);
       const RenderResult res = render(l.scene, *l.acc, *backend, rn_o, [&p](unsigned d, unsigned) { p.update(d); });
       p.finish();
       write_png(rn_out, res.width, res.height, to_srgb8(res.rgb));
+      if (!rn_pfm.empty()) write_pfm(rn_pfm, res.width, res.height, res.rgb);
+      if (!rn_curve.empty()) {
+        nlohmann::json j{{"backend", rn_backend},       {"device", backend->describe()}, {"precision", rn_precision},
+                         {"scene", l.scene.name},        {"width", res.width},            {"height", res.height},
+                         {"rays", res.rays},             {"mrays_per_s", res.mrays_per_s()}, {"points", nlohmann::json::array()}};
+        for (const CurvePoint& c : res.curve)
+          j["points"].push_back(
+              {{"spp", c.spp}, {"trace_seconds", c.trace_seconds}, {"total_seconds", c.total_seconds}, {"rmse", c.rmse}});
+        const std::string text = j.dump(1) + "\n";
+        write_bytes(rn_curve, text.data(), text.size());
+      }
       std::printf("rendered %ux%u, %u spp, %s (%s/%s) on %s: %zu rays over all bounces, %.3f Mrays/s in traversal "
                   "(%.2f s), %.2f s in all\nwrote %s\n",
                   res.width, res.height, rn_o.spp, to_string(rn_o.mode), to_string(rn_o.layout), to_string(rn_o.traversal),
                   rn_backend.c_str(), res.rays, res.mrays_per_s(), res.trace_seconds, res.total_seconds, rn_out.c_str());
+      if (!res.curve.empty())
+        std::printf("RMSE against %s: %.5f after 1 spp, %.5f after %u spp\n", rn_reference.c_str(), res.curve.front().rmse,
+                    res.curve.back().rmse, res.curve.back().spp);
       return 0;
     }
 
@@ -377,6 +411,7 @@ static int run(int argc, char** argv) {
       o.traversal = parse_traversal(tr_trav);
       o.query = parse_query(tr_query);
       o.stats = tr_stats;
+      o.precision = parse_precision(tr_precision);
       BackendOptions bo = tr_dev.options(tr_a.threads);
       auto backend = make_backend(tr_backend, bo);
       if (trace->count("--layout") == 0) {
@@ -385,6 +420,8 @@ static int run(int argc, char** argv) {
       }
       if (!backend->supports(o.layout, o.traversal))
         throw Error("backend '" + tr_backend + "' does not support " + tr_layout + "/" + tr_trav);
+      if (!backend->supports_precision(o.precision))
+        throw Error("backend '" + tr_backend + "' does not support precision '" + tr_precision + "'");
       Loaded l = load_and_build(tr_a);
       const std::vector<Ray> r = get_rays(tr_r, l, tr_a.threads);
       std::fprintf(stderr, "backend: %s\n", backend->describe().c_str());
