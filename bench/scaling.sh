@@ -4,11 +4,12 @@
 # backend this build has (each with its default layout and the bitstack; Embree with its
 # stack), 100K diffuse rays (seed 1), every result verified first. Writes OUT/info-N.json and
 # OUT/bench-N.json and draws OUT/scaling.png (bench/plots.py).
-#   bench/scaling.sh [OUT] [MAX_TRIANGLES]     (about 6 minutes on 2 cores up to 10M)
+#   bench/scaling.sh [OUT] [MAX_TRIANGLES] [RAYS]    (about 3 minutes on 2 cores up to 10M, 100K rays)
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 OUT="${1:-$ROOT/bench/out/scaling}"
 MAX="${2:-10000000}"
+RAYS="${3:-100000}"
 MBVH="${MBVH:-$ROOT/build/mbvh}"
 mkdir -p "$OUT"
 # every backend that is ready here, aliases and the second ISA / OpenCL mapping left out
@@ -23,6 +24,6 @@ for n in 10000 30000 100000 300000 1000000 3000000 10000000; do
   [ "$n" -le "$MAX" ] || break
   "$MBVH" info "gen:hairball:$n" --json "$OUT/info-$n.json" > /dev/null
   "$MBVH" bench "gen:hairball:$n" --backend "$BACKENDS" --layout mbvh2,mbvh4 --traversal bitstack,stack \
-    --query closest --kinds diffuse --count 100000 --json "$OUT/bench-$n.json" >&2
+    --query closest --kinds diffuse --count "$RAYS" --json "$OUT/bench-$n.json" >&2
 done
 "$PY" "$ROOT/bench/plots.py" scaling "$OUT"

@@ -272,7 +272,7 @@ BenchReport run_bench(const Scene& scene, const Accel& acc, const BenchOptions& 
             }
             // -- warm up for at least 0.25 s (JIT-compiled backends such as PoCL reach their speed
             // only after a few dispatches), then time
-            for (auto w0 = Clock::now(); std::chrono::duration<double>(Clock::now() - w0).count() < 0.25;)
+            for (auto w0 = Clock::now(); std::chrono::duration<double>(Clock::now() - w0).count() < opt.warmup_seconds;)
               b.trace(acc, rays, to, out);
             const auto timed = [&](Backend& be) {
               const auto t0 = Clock::now();

@@ -19,6 +19,7 @@ struct BenchOptions {
   std::size_t count = 100000;
   std::uint64_t seed = 1;
   unsigned passes = 5;
+  double warmup_seconds = 0.25;  ///< untimed passes before the timed ones, at least one
   unsigned threads = 0;
   BackendOptions backend;  ///< device choices (threads come from `threads`)
   /// Also time every variant on one thread, each 1-thread pass right after an N-thread pass (a

@@ -112,13 +112,30 @@ struct DeviceArgs {
   }
 };
 
+// `--backend all`: every backend built into this binary whose hardware this machine has, each
+// once (a backend another name stands for, cpu-avx512 under `cpu`, only under that name). A
+// backend that is built but fails to start is an error, not left out.
+std::vector<std::string> all_backends() {
+  std::vector<std::string> names, aliased;
+  const auto infos = list_backends();
+  for (const auto& b : infos)
+    if (!b.alias_of.empty()) aliased.push_back(b.alias_of);
+  for (const auto& b : infos) {
+    if (!b.make || (b.missing_hardware && !b.missing_hardware().empty())) continue;
+    if (std::find(aliased.begin(), aliased.end(), b.name) != aliased.end()) continue;
+    names.push_back(b.name);
+  }
+  return names;
+}
+
 // --backend, --layout, --traversal, --query as comma-separated lists (check and bench).
 struct GridArgs {
   DeviceArgs dev;
   std::string backends = "cpu-scalar", layouts = "mbvh2,mbvh4,mbvh8", traversals = "stack,bitstack,stack-ordered,bitstack-retest",
               queries = "closest,any", precisions = "robust";
   void add(CLI::App* c) {
-    c->add_option("--backend", backends, "comma-separated backends (see `mbvh devices`)");
+    c->add_option("--backend", backends,
+                  "comma-separated backends (see `mbvh devices`), or 'all': every backend this machine runs, once each");
     c->add_option("--layout", layouts, "comma-separated layouts: mbvh2, mbvh4, mbvh8 (stack-ordered only)");
     c->add_option("--traversal", traversals,
                   "comma-separated traversals: stack, bitstack, stack-ordered, bitstack-retest (the last two MBVH4/8)");
@@ -130,7 +147,7 @@ struct GridArgs {
   }
   VariantGrid parse() const {
     VariantGrid g;
-    g.backends = split_list(backends);
+    g.backends = backends == "all" ? all_backends() : split_list(backends);
     g.layouts = parse_list<Layout>(layouts, parse_layout);
     g.traversals = parse_list<Traversal>(traversals, parse_traversal);
     g.queries = parse_list<Query>(queries, parse_query);
@@ -300,6 +317,8 @@ static int run(int argc, char** argv) {
                     "(error_rate in the records; inside rays also count leaks)");
   bench->add_option("--seed", bn_seed, "ray seed");
   bench->add_option("--passes", bn_passes, "timed passes after the warm-up (at least 5)");
+  double bn_warmup = 0.25;
+  bench->add_option("--warmup", bn_warmup, "seconds of untimed passes before the timed ones (after the verifying pass)");
   std::vector<float> bn_camera;
   bench->add_option("--camera", bn_camera, "eye x y z, target x y z [, fov degrees] (default: frames the scene)")
       ->delimiter(',')
@@ -376,6 +395,9 @@ static int run(int argc, char** argv) {
         throw Error("--curve needs --reference (the converged image the curve measures against)");
       }
       auto backend = make_backend(rn_backend, rn_dev.options(rn_a.threads));
+      // a backend without a bitstack (embree) renders with its stack unless --traversal says otherwise
+      if (!render_cmd->count("--traversal") && !backend->supports(default_layout(*backend, rn_o.traversal), rn_o.traversal))
+        rn_o.traversal = Traversal::stack;
       rn_o.layout = render_cmd->count("--layout") ? parse_layout(rn_layout) : default_layout(*backend, rn_o.traversal);
       Loaded l = load_and_build(rn_a);
       std::fprintf(stderr, "backend: %s\n", backend->describe().c_str());
@@ -498,6 +520,7 @@ static int run(int argc, char** argv) {
       bo.error_rays = bn_error;
       bo.seed = bn_seed;
       bo.passes = bn_passes;
+      bo.warmup_seconds = bn_warmup;
       bo.scaling = bn_scaling;
       bo.threads = bn_a.threads;
       bo.backend = bn_g.dev.options(bn_a.threads);

@@ -1,0 +1,101 @@
+#!/usr/bin/env bash
+# all.sh — issue 6's benchmarks in one command: every table and plot of the README, from real runs
+# on the shared scenes, on every backend this machine runs (`mbvh bench --backend all`: a backend
+# added later is in every table without a change here).
+#   1. speed and traversal state: bunny, conference, Sibenik, Sponza × primary, diffuse and the
+#      path tracer's bounces (closest hit) and shadow rays (any hit) × every layout and traversal;
+#   2. run time against error: robust, exact and fast on every backend that has them — genuine
+#      mismatches and wrong answers against the double-precision brute force on primary, diffuse,
+#      shadow and grazing/edge-aimed (special) rays of the bunny, and leaks of rays shot from
+#      inside a closed sphere at its vertices and edges;
+#   3. image error against time: RMSE of each backend's Sponza render against a high-sample
+#      reference as samples accumulate;
+#   4. scaling: the generated hairball from 10K to 10M triangles (bench/scaling.sh).
+# Then bench/plots.py draws OUT/pareto.png, OUT/rmse.png, OUT/scaling/scaling.png and writes the
+# Markdown tables to OUT/tables.md, and bench/plots.py check verifies the JSON (every backend ×
+# traversal record present, every timed result verified).
+#   bench/all.sh [--quick] [OUT]    (OUT default bench/out; about 15 minutes on 2 cores, --quick:
+#                                    tiny counts, one scene, for CI, about a minute)
+set -euo pipefail
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+QUICK=0
+if [ "${1:-}" = "--quick" ]; then QUICK=1; shift; fi
+OUT="${1:-$ROOT/bench/out}"
+MBVH="${MBVH:-$ROOT/build/mbvh}"
+SCENES="$ROOT/../shared/scenes"
+# Debian's python3 (with Debian's python3-matplotlib), not another one earlier on PATH
+PY="${PYTHON:-$( [ -x /usr/bin/python3 ] && echo /usr/bin/python3 || echo python3)}"
+"$PY" -c "import matplotlib" 2>/dev/null || { echo "installing python3-matplotlib (apt-get)" >&2;
+  DEBIAN_FRONTEND=noninteractive apt-get install -y -qq python3-matplotlib > /dev/null; }
+mkdir -p "$OUT/speed" "$OUT/error" "$OUT/render" "$OUT/scaling"
+# the backends `mbvh bench --backend all` runs: every ready one, a name another stands for
+# (cpu-avx512 under `cpu`) only under that name
+ready_backends() {
+  "$MBVH" devices 2>/dev/null | awk '$2 == "ready:" { n[++k] = $1; if (match($0, /\(= [^)]*\)/)) t[substr($0, RSTART + 3, RLENGTH - 4)] = 1 }
+    END { for (i = 1; i <= k; i++) if (!(n[i] in t)) print n[i] }'
+}
+start=$SECONDS
+log() { echo "== [$((SECONDS - start)) s] $*" >&2; }
+
+if [ "$QUICK" = 1 ]; then
+  RAYS=4000; ERROR_RAYS=200; WARMUP=0; SPP=4; W=48; H=32; REF_SPP=16; INSIDE=gen:sphere:24
+  SCENE_LIST="bunny|bun_zipper.ply.zst|"
+else
+  RAYS=100000; ERROR_RAYS=2000; WARMUP=0.25; SPP=32; W=160; H=120; REF_SPP=256; INSIDE=gen:sphere:256
+  SCENE_LIST="bunny|bun_zipper.ply.zst|
+conference|conference.obj.zst|--camera 0,300,0,1000,200,0
+sibenik|sibenik.obj.zst|--camera -14,-9,0,10,-6,0
+sponza|sponza_dabrovic.obj.zst|--camera -10,4,0,10,5,0"
+fi
+COMMON=(--backend all --count "$RAYS" --warmup "$WARMUP")
+
+# -- 1. speed and traversal state
+while IFS='|' read -r name file camera; do
+  log "speed: $name"
+  # shellcheck disable=SC2086
+  "$MBVH" bench "$SCENES/$file" $camera "${COMMON[@]}" --layout mbvh2,mbvh4,mbvh8 \
+    --traversal stack,bitstack,stack-ordered,bitstack-retest --query closest --kinds primary,diffuse,path \
+    --json "$OUT/speed/$name-closest.json" > "$OUT/speed/$name-closest.txt"
+  # shellcheck disable=SC2086
+  "$MBVH" bench "$SCENES/$file" $camera "${COMMON[@]}" --layout mbvh2,mbvh4,mbvh8 \
+    --traversal stack,bitstack,stack-ordered,bitstack-retest --query any --kinds shadow \
+    --json "$OUT/speed/$name-any.json" > "$OUT/speed/$name-any.txt"
+done <<< "$SCENE_LIST"
+
+# -- 2. run time against error (each backend's GPU/MIC-style layout and traversal: mbvh4 where it
+#       has it, else mbvh2; the bitstack, Embree's stack)
+log "error: bunny"
+"$MBVH" bench "$SCENES/bun_zipper.ply.zst" "${COMMON[@]}" --layout mbvh2,mbvh4 --traversal stack,bitstack \
+  --query closest --precision robust,exact,fast --kinds primary,diffuse,shadow,special --error-rays "$ERROR_RAYS" \
+  --json "$OUT/error/bunny.json" > "$OUT/error/bunny.txt"
+log "error: leaks out of $INSIDE"
+"$MBVH" bench "$INSIDE" "${COMMON[@]}" --layout mbvh2,mbvh4 --traversal stack,bitstack \
+  --query closest --precision robust,exact,fast --kinds inside --error-rays "$ERROR_RAYS" \
+  --json "$OUT/error/inside.json" > "$OUT/error/inside.txt"
+
+# -- 3. image error against time (Sponza; the bunny in --quick)
+if [ "$QUICK" = 1 ]; then RSCENE="$SCENES/bun_zipper.ply.zst"; RCAM=(); else
+  RSCENE="$SCENES/sponza_dabrovic.obj.zst"; RCAM=(--camera -10,4,0,10,5,0); fi
+log "render: reference, $REF_SPP spp on cpu"
+"$MBVH" render "$RSCENE" "${RCAM[@]}" --backend cpu --spp "$REF_SPP" --width "$W" --height "$H" --seed 99 \
+  -o "$OUT/render/reference.png" --pfm "$OUT/render/reference.pfm" > /dev/null 2>&1
+for b in $(ready_backends); do
+  for p in robust fast; do
+    [ "$p" = fast ] && [ "$b" = embree ] && continue
+    log "render: $b $p"
+    "$MBVH" render "$RSCENE" "${RCAM[@]}" --backend "$b" --precision "$p" --spp "$SPP" --width "$W" --height "$H" \
+      -o "$OUT/render/$b-$p.png" --reference "$OUT/render/reference.pfm" --curve "$OUT/render/$b-$p.json" > "$OUT/render/$b-$p.txt" 2>&1 || { cat "$OUT/render/$b-$p.txt" >&2; exit 1; }
+  done
+done
+
+# -- 4. scaling
+log "scaling"
+if [ "$QUICK" = 1 ]; then MAXTRI=30000; SRAYS=4000; else MAXTRI=10000000; SRAYS=100000; fi
+PYTHON="$PY" MBVH="$MBVH" bash "$ROOT/bench/scaling.sh" "$OUT/scaling" "$MAXTRI" "$SRAYS" > "$OUT/scaling/table.md" 2> "$OUT/scaling/log.txt" ||
+  { tail -20 "$OUT/scaling/log.txt" >&2; exit 1; }
+
+# -- plots, tables, checks
+log "plots and tables"
+"$PY" "$ROOT/bench/plots.py" all "$OUT" > "$OUT/tables.md"
+"$PY" "$ROOT/bench/plots.py" check "$OUT" "$(ready_backends | paste -sd, -)"
+log "done: $OUT/tables.md, $OUT/pareto.png, $OUT/rmse.png, $OUT/scaling/scaling.png"
