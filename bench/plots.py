@@ -196,10 +196,10 @@ def error_points(directory):
         p["checked"] += r["error_rays"]
         p["genuine"] += r["error_mismatches"]
         p["wrong"] += r["wrong_answers"]
-    # one layout and traversal per backend: its bitstack on MBVH4, else MBVH2, else its stack (Embree)
+    # one layout and traversal per backend: MBVH4 before MBVH2, the bitstack before the stack
     best = {}
     for (b, pr, l, t) in pts:
-        rank = {("mbvh4", "bitstack"): 0, ("mbvh2", "bitstack"): 1}.get((l, t), 2)
+        rank = {("mbvh4", "bitstack"): 0, ("mbvh2", "bitstack"): 1, ("mbvh4", "stack"): 2}.get((l, t), 3)
         if (b, pr) not in best or rank < best[(b, pr)][0]:
             best[(b, pr)] = (rank, l, t)
     return {(b, pr, l, t): pts[(b, pr, l, t)] for (b, pr), (_, l, t) in best.items()}

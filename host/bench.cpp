@@ -231,6 +231,10 @@ BenchReport run_bench(const Scene& scene, const Accel& acc, const BenchOptions& 
           for (Traversal t : opt.grid.traversals) {
             Backend& b = *backends[bn];
             if (!b.supports(l, t) || !b.supports_precision(pr)) continue;
+            if (opt.first_layout &&
+                std::any_of(opt.grid.layouts.begin(), std::find(opt.grid.layouts.begin(), opt.grid.layouts.end(), l),
+                            [&](Layout e) { return b.supports(e, t); }))
+              continue;  // an earlier layout of the list was run
             TraceOptions to;
             to.layout = l;
             to.traversal = t;

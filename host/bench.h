@@ -28,6 +28,9 @@ struct BenchOptions {
   /// Rays per kind (spread over the batch) whose closest hits are also compared with the
   /// double-precision brute force: BenchRecord::error_* (0: none).
   std::size_t error_rays = 0;
+  /// Per backend and traversal, only the first layout of grid.layouts the backend has (e.g.
+  /// mbvh4,mbvh2: MBVH4 where there is one, else MBVH2).
+  bool first_layout = false;
   bool has_camera = false;  ///< primary rays (and the secondary rays built on them) from `camera`
   Camera camera;
 };

@@ -318,6 +318,9 @@ static int run(int argc, char** argv) {
   bench->add_option("--seed", bn_seed, "ray seed");
   bench->add_option("--passes", bn_passes, "timed passes after the warm-up (at least 5)");
   double bn_warmup = 0.25;
+  bool bn_first_layout = false;
+  bench->add_flag("--first-layout", bn_first_layout,
+                  "per backend and traversal, only the first layout of --layout it has (mbvh4,mbvh2: MBVH4, else MBVH2)");
   bench->add_option("--warmup", bn_warmup, "seconds of untimed passes before the timed ones (after the verifying pass)");
   std::vector<float> bn_camera;
   bench->add_option("--camera", bn_camera, "eye x y z, target x y z [, fov degrees] (default: frames the scene)")
@@ -521,6 +524,7 @@ static int run(int argc, char** argv) {
       bo.seed = bn_seed;
       bo.passes = bn_passes;
       bo.warmup_seconds = bn_warmup;
+      bo.first_layout = bn_first_layout;
       bo.scaling = bn_scaling;
       bo.threads = bn_a.threads;
       bo.backend = bn_g.dev.options(bn_a.threads);
