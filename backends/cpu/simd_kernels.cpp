@@ -281,9 +281,9 @@ struct SimdKernelsT {
       for (std::uint32_t k = 0; k < l.count; k += 4, ++p) {
         const unsigned valid = l.count - k >= 4 ? 0xFu : (1u << (l.count - k)) - 1u;
         float t[4], u[4], w[4], det[4];
-        unsigned fallback = 0;
-        unsigned hit = Fast ? tri4_test_mt(*p, r, valid, tmax, t, u, w, det)
-                            : tri4_test(*p, r, valid, tmax, t, u, w, det, fallback);
+        unsigned fallback = 0, hit;
+        if constexpr (Fast) hit = tri4_test_mt(*p, r, valid, tmax, t, u, w, det);
+        else hit = tri4_test(*p, r, valid, tmax, t, u, w, det, fallback);
         for (unsigned f = fallback; f != 0; f &= f - 1) {
           const int lane = std::countr_zero(f);
           if (tri_test(r, v.tris[v.leaves[~ref].first + k + static_cast<unsigned>(lane)], tmax, t[lane], u[lane], w[lane])) {

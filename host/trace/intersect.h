@@ -36,7 +36,7 @@ inline namespace MBVH_ISA_NS {
 
 /// False for an invalid ray (NaN anywhere, infinite origin/direction/tmin, zero or subnormal
 /// direction, tmin < 0, tmin > tmax): such a ray is a defined miss. tmax may be +inf.
-inline bool prepare_ray(const Ray& r, RayPre& p) {
+[[gnu::always_inline]] inline bool prepare_ray(const Ray& r, RayPre& p) {
   const float v[8] = {r.ox, r.oy, r.oz, r.tmin, r.dx, r.dy, r.dz, r.tmax};
   for (int i = 0; i < 7; ++i)
     if (!std::isfinite(v[i])) return false;

@@ -71,7 +71,10 @@ inline bool visit_leaf(const TraceView& v, std::int32_t ref, const RayPre& r, fl
   for (std::uint32_t i = l.first; i < l.first + l.count; ++i) {
     st.tri();
     float t, u, w;
-    if (Fast ? tri_test_mt(r, v.tris[i], tmax, t, u, w) : tri_test(r, v.tris[i], tmax, t, u, w)) {
+    bool hit;
+    if constexpr (Fast) hit = tri_test_mt(r, v.tris[i], tmax, t, u, w);
+    else hit = tri_test(r, v.tris[i], tmax, t, u, w);
+    if (hit) {
       const std::uint32_t prim = tri_prim(v.tris[i]);
       if constexpr (Any) {
         best = Hit{t, u, w, prim};
@@ -96,7 +99,7 @@ inline unsigned test2(const Node2& n, const RayPre& r, float tcull, float d[2], 
 
 // A wide node's boxes one by one (the reference's MBVH4 and MBVH8 node test).
 template <class N>
-inline unsigned test_boxes(const N& n, const RayPre& r, float tcull, float* d) {
+[[gnu::always_inline]] inline unsigned test_boxes(const N& n, const RayPre& r, float tcull, float* d) {
   unsigned mask = 0;
   for (int s = 0; s < node_width<N>(); ++s)
     if (box_test(r, n.lo_x[s], n.hi_x[s], n.lo_y[s], n.hi_y[s], n.lo_z[s], n.hi_z[s], tcull, d[s])) mask |= 1u << s;
@@ -155,9 +158,11 @@ struct ScalarKernelsT {
   static constexpr bool uses_packs = false;
   static constexpr bool fast = Fast;
   template <class N>
-  static unsigned test(const N& n, const RayPre& r, float tcull, float* d) { return detail::test_boxes(n, r, tcull, d); }
+  [[gnu::always_inline]] static unsigned test(const N& n, const RayPre& r, float tcull, float* d) {
+    return detail::test_boxes(n, r, tcull, d);
+  }
   template <bool Any, class St>
-  static bool leaf(const TraceView& v, std::int32_t ref, const RayPre& r, float& tmax, Hit& best, St& st) {
+  [[gnu::always_inline]] static bool leaf(const TraceView& v, std::int32_t ref, const RayPre& r, float& tmax, Hit& best, St& st) {
     return detail::visit_leaf<Any, St, Fast>(v, ref, r, tmax, best, st);
   }
   /// The slot of `mask` with the smallest entry distance, ties to the lower slot.
