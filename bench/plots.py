@@ -152,19 +152,22 @@ def speed_tables(directory):
     # traversal state: capacity and the measured high-water mark, against the bitstack's 12 bytes,
     # with the work per ray (Sponza's path rays, or the last scene's)
     pick = "sponza" if "sponza" in scenes else scenes[-1]
-    print(f"#### Traversal state and work per ray ({pick}, the path tracer's bounce rays, cpu-scalar's counters "
-          "for every backend's traversal are the same; listed per backend)\n")
-    print("| backend | layout | traversal | state B/ray (capacity) | × bitstack | high-water B/ray (mean) | "
-          "nodes | box tests | leaves | triangles | climbs |")
+    print(f"#### Traversal state and work per ray ({pick}, the path tracer's bounce rays; each backend counts "
+          "its own work, and backends that share a traversal count the same)\n")
+    print("| layout | traversal | state B/ray (capacity) | × bitstack | high-water B/ray (mean) | "
+          "nodes | box tests | leaves | triangles | climbs | backends |")
     print("|---" * 11 + "|")
+    groups = {}
     for r in recs:
         if scene_name(r) != pick or r["ray_kind"] != "path" or not r["state_bytes_per_ray"]:
             continue
-        bit = 12.0
-        print(f"| {r['backend']} | {r['layout']} | {r['traversal']} | {r['state_bytes_per_ray']} | "
-              f"{r['state_bytes_per_ray'] / bit:.0f}× | {r['peak_state_bytes_per_ray']:.1f} | {r['nodes_per_ray']:.1f} | "
-              f"{r['box_tests_per_ray']:.1f} | {r['leaves_per_ray']:.2f} | {r['triangles_per_ray']:.1f} | "
-              f"{r['climbs_per_ray']:.2f} |")
+        key = (r["layout"], r["traversal"], r["state_bytes_per_ray"], round(r["peak_state_bytes_per_ray"], 1),
+               round(r["nodes_per_ray"], 1), round(r["box_tests_per_ray"], 1), round(r["leaves_per_ray"], 2),
+               round(r["triangles_per_ray"], 1), round(r["climbs_per_ray"], 2))
+        groups.setdefault(key, []).append(r["backend"])
+    for (l, t, st, peak, n, bt, lf, tr, cl), names in groups.items():
+        print(f"| {l} | {t} | {st} | {st / 12.0:.0f}× | {peak:.1f} | {n:.1f} | {bt:.1f} | {lf:.2f} | {tr:.1f} | {cl:.2f} | "
+              f"{', '.join(names)} |")
     print()
     # bitstack vs stack: time of the bitstack / time of its stack twin - 1, over scenes and kinds
     print("#### Bitstack vs stack: extra time of the bitstack over its stack twin (same backend, layout, "

@@ -71,7 +71,7 @@ inline float min_nan(float a, float b) { return a < b ? a : b; }
 
 /// Conservative slab test of one box against [tmin, tcull], tcull = tmax * kCullSlack.
 /// Returns hit and the entry distance (>= tmin).
-inline bool box_test(const RayPre& r, float lox, float hix, float loy, float hiy, float loz, float hiz, float tcull,
+[[gnu::always_inline]] inline bool box_test(const RayPre& r, float lox, float hix, float loy, float hiy, float loz, float hiz, float tcull,
                      float& entry) {
   const float nx = r.neg[0] ? hix : lox, fx = r.neg[0] ? lox : hix;
   const float ny = r.neg[1] ? hiy : loy, fy = r.neg[1] ? loy : hiy;
@@ -99,7 +99,7 @@ inline double plane_t_double(const RayPre& r, const Tri& tri) {
 /// Watertight two-sided ray/triangle test; accepts t in [tmin, tmax] whose sign is certain: t
 /// above the pbrt-v3 error bound δt, or a positive plane distance in double. On a hit writes t
 /// and the barycentrics of vertices 1 and 2 (u, v).
-inline bool tri_test(const RayPre& r, const Tri& tri, float tmax, float& t_out, float& u_out, float& v_out) {
+[[gnu::always_inline]] inline bool tri_test(const RayPre& r, const Tri& tri, float tmax, float& t_out, float& u_out, float& v_out) {
   const float* P[3] = {tri.v0, tri.v1, tri.v2};
   float X[3], Y[3], Z[3];
   for (int i = 0; i < 3; ++i) {
@@ -152,7 +152,7 @@ inline bool tri_test(const RayPre& r, const Tri& tri, float tmax, float& t_out, 
 /// of the determinant, no watertightness (a ray through a shared edge may miss both triangles)
 /// and no error bound on t (a secondary ray may re-hit its own surface). Two-sided; u, v weight
 /// vertices 1 and 2 as tri_test's.
-inline bool tri_test_mt(const RayPre& r, const Tri& tri, float tmax, float& t_out, float& u_out, float& v_out) {
+[[gnu::always_inline]] inline bool tri_test_mt(const RayPre& r, const Tri& tri, float tmax, float& t_out, float& u_out, float& v_out) {
   const float e1[3] = {tri.v1[0] - tri.v0[0], tri.v1[1] - tri.v0[1], tri.v1[2] - tri.v0[2]};
   const float e2[3] = {tri.v2[0] - tri.v0[0], tri.v2[1] - tri.v0[1], tri.v2[2] - tri.v0[2]};
   const float p[3] = {r.d[1] * e2[2] - r.d[2] * e2[1], r.d[2] * e2[0] - r.d[0] * e2[2], r.d[0] * e2[1] - r.d[1] * e2[0]};

@@ -65,7 +65,7 @@ namespace detail {
 // LEAF (§4): closest hit keeps the smallest (t, prim) and shrinks tmax; any hit stops.
 // Fast: Möller–Trumbore instead of the watertight test (the `fast` accuracy mode).
 template <bool Any, class St, bool Fast = false>
-inline bool visit_leaf(const TraceView& v, std::int32_t ref, const RayPre& r, float& tmax, Hit& best, St& st) {
+[[gnu::always_inline]] inline bool visit_leaf(const TraceView& v, std::int32_t ref, const RayPre& r, float& tmax, Hit& best, St& st) {
   const Leaf l = v.leaves[~ref];
   st.leaf(ref);
   for (std::uint32_t i = l.first; i < l.first + l.count; ++i) {
@@ -90,7 +90,7 @@ inline bool visit_leaf(const TraceView& v, std::int32_t ref, const RayPre& r, fl
 }
 
 template <class St>
-inline unsigned test2(const Node2& n, const RayPre& r, float tcull, float d[2], St& st) {
+[[gnu::always_inline]] inline unsigned test2(const Node2& n, const RayPre& r, float tcull, float d[2], St& st) {
   st.node(2);
   const bool h0 = box_test(r, n.c0[0], n.c0[1], n.c0[2], n.c0[3], n.zz[0], n.zz[1], tcull, d[0]);
   const bool h1 = box_test(r, n.c1[0], n.c1[1], n.c1[2], n.c1[3], n.zz[2], n.zz[3], tcull, d[1]);
@@ -107,7 +107,7 @@ template <class N>
 }
 
 template <class K, class N, class St>
-inline unsigned test_node(const N& n, const RayPre& r, float tcull, float* d, St& st) {
+[[gnu::always_inline]] inline unsigned test_node(const N& n, const RayPre& r, float tcull, float* d, St& st) {
   st.node(node_width<N>());
   return K::test(n, r, tcull, d);
 }
