@@ -191,11 +191,11 @@ def error_points(directory):
     for r in records(f"{directory}/error/*.json"):
         key = (r["backend"], r["precision"], r["layout"], r["traversal"])
         p = pts.setdefault(key, {"ns": [], "checked": 0, "genuine": 0, "wrong": 0, "leaks": 0, "inside": 0})
-        if r["ray_kind"] == "inside":
+        if r["ray_kind"] == "inside":  # every inside ray is checked (a miss is a leak): not sampled again
             p["leaks"] += r["leaks"]
             p["inside"] += r["rays"]
-        else:
-            p["ns"].append(1e3 / r["mrays_per_s"])
+            continue
+        p["ns"].append(1e3 / r["mrays_per_s"])
         p["checked"] += r["error_rays"]
         p["genuine"] += r["error_mismatches"]
         p["wrong"] += r["wrong_answers"]
