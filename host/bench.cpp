@@ -274,8 +274,8 @@ BenchReport run_bench(const Scene& scene, const Accel& acc, const BenchOptions& 
                 for (std::size_t i = 0; i < rays.size(); ++i)
                   r.leaks += out.hits[i].prim == MBVH_MISS_PRIM && ray_valid(rays[i]);
             }
-            // -- warm up for at least 0.25 s (JIT-compiled backends such as PoCL reach their speed
-            // only after a few dispatches), then time
+            // -- warm up for BenchOptions::warmup_seconds, 0.25 s by default (JIT-compiled backends
+            // such as PoCL reach their speed only after a few dispatches), then time
             for (auto w0 = Clock::now(); std::chrono::duration<double>(Clock::now() - w0).count() < opt.warmup_seconds;)
               b.trace(acc, rays, to, out);
             const auto timed = [&](Backend& be) {
