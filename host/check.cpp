@@ -38,14 +38,8 @@ namespace {
 double norm3(const double v[3]) { return std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]); }
 double max_abs3(const float v[3]) { return std::max(std::fabs(v[0]), std::max(std::fabs(v[1]), std::fabs(v[2]))); }
 
-// True where float and double may legitimately disagree about hitting triangle t:
-// - the ray lies in the triangle's plane within the rounding of its own direction (a direction
-//   built as a difference of floats of size |o| is only good to 2^-24 |o| / |d| radians);
-// - the ray crosses the plane within a few ulps (of the coordinates' size) of an edge line,
-//   measured as a distance (barycentrics cannot: on a needle b = 0.002 was 2e-9 from the edge)
-//   and widened by 1/cos, as the crossing point of a grazing float ray moves by ulps / cos.
 // |cos| of the angle between the ray and the triangle's normal, and whether the ray lies in the
-// plane within the rounding of its own direction (the first case below).
+// plane within the rounding of its own direction (the first case of ill_conditioned).
 bool in_plane(const RayPre& r, const Tri& t, double& cosine) {
   const float* P[3] = {t.v0, t.v1, t.v2};
   double e1[3], e2[3];
@@ -62,6 +56,12 @@ bool in_plane(const RayPre& r, const Tri& t, double& cosine) {
   return !(cosine > slack);
 }
 
+// True where float and double may legitimately disagree about hitting triangle t:
+// - the ray lies in the triangle's plane within the rounding of its own direction (a direction
+//   built as a difference of floats of size |o| is only good to 2^-24 |o| / |d| radians);
+// - the ray crosses the plane within a few ulps (of the coordinates' size) of an edge line,
+//   measured as a distance (barycentrics cannot: on a needle b = 0.002 was 2e-9 from the edge)
+//   and widened by 1/cos, as the crossing point of a grazing float ray moves by ulps / cos.
 bool ill_conditioned(const RayPre& r, const Tri& t) {
   const float* P[3] = {t.v0, t.v1, t.v2};
   double cosine = 0;
