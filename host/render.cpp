@@ -284,29 +284,11 @@ void chunk(std::vector<std::uint8_t>& o, const char* type, const std::vector<std
 
 }  // namespace
 
-namespace {
-
-// The reference traversals as a Backend, for path_tracer_rays (host/ knows no backend).
-class ReferenceTracer final : public Backend {
-public:
-  explicit ReferenceTracer(unsigned threads) : threads_(threads) {}
-  std::string name() const override { return "reference"; }
-  std::string describe() const override { return "the scalar reference traversals"; }
-  bool supports(Layout l, Traversal t) const override { return reference_supports(l, t); }
-  void prepare(const Accel&, const TraceOptions&) override {}
-  void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
-    trace_reference(acc, rays, opt, out, threads_);
-  }
-
-private:
-  unsigned threads_;
-};
-
-}  // namespace
-
 std::vector<Ray> path_tracer_rays(const Scene& scene, const Accel& acc, std::size_t count, std::uint64_t seed,
                                   const Camera* camera, unsigned threads) {
-  ReferenceTracer tracer(threads);
+  BackendOptions bo;
+  bo.threads = threads;
+  const auto tracer = make_backend("cpu-scalar", bo);  // the reference traversals
   std::vector<Ray> rays;
   RenderOptions o;
   // about 3 closest-hit rays per pixel over the bounces (the count is measured below anyway)
@@ -318,7 +300,7 @@ std::vector<Ray> path_tracer_rays(const Scene& scene, const Accel& acc, std::siz
   if (camera) o.camera = *camera;
   for (std::uint64_t pass = 0; rays.size() < std::max<std::size_t>(count, 1); ++pass) {
     o.seed = seed + pass;
-    render(scene, acc, tracer, o);
+    render(scene, acc, *tracer, o);
   }
   rays.resize(std::max<std::size_t>(count, 1));
   return rays;

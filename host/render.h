@@ -65,7 +65,7 @@ RenderResult render(const Scene& scene, const Accel& acc, Backend& backend, cons
                     const std::function<void(unsigned, unsigned)>& progress = {});
 
 /// The rays of the path tracer's bounces (closest-hit continuation rays of every bounce, primary
-/// rays included) from 1-spp renders with the reference traversal, about `count` of them (at least
+/// rays included) from 1-spp renders with the reference traversal (cpu-scalar), about `count` of them (at least
 /// 1): the thesis' workload as a benchmark ray kind. Deterministic by seed.
 std::vector<Ray> path_tracer_rays(const Scene& scene, const Accel& acc, std::size_t count, std::uint64_t seed,
                                   const Camera* camera, unsigned threads);
