@@ -47,9 +47,6 @@ struct BenchRecord {
   /// k >= 1 rays with [2^(k-1), 2^k) (trailing empty buckets dropped).
   std::vector<std::uint64_t> hist_nodes, hist_leaves, hist_tris, hist_climbs;
   std::size_t verify_mismatches = 0;    ///< genuine mismatches against the reference (robust, all rays)
-  /// Whether the timed result passed verification: no genuine mismatch, except in the fast mode,
-  /// whose mismatches are its measured error (reported, not a failure).
-  bool verified = false;
   std::size_t error_rays = 0;           ///< closest hits compared with the brute force (BenchOptions::error_rays)
   std::size_t error_mismatches = 0;     ///< of those, genuine mismatches (compare.h's tie rules, as `mbvh check`)
   /// of those, wrong answers by compare.h's stricter wrong_answer (a miss beside an edge counts),
@@ -61,6 +58,9 @@ struct BenchRecord {
   double ratio_vs_cpu = 0;              ///< Mrays/s of this record / the `cpu` backend's on the same variant
   double mrays_one_thread = 0;          ///< with BenchOptions::scaling: the median on one thread
   double thread_scaling = 0;            ///< mrays_per_s / mrays_one_thread (0: not measured)
+  /// Whether the timed result passed verification: no genuine mismatch, except in the fast mode,
+  /// whose mismatches are its measured error (reported, not a failure).
+  bool verified() const { return verify_mismatches == 0 || precision == to_string(Precision::fast); }
 };
 
 struct BenchReport {
