@@ -23,10 +23,7 @@ if [ "${1:-}" = "--quick" ]; then QUICK=1; shift; fi
 OUT="${1:-$ROOT/bench/out}"
 MBVH="${MBVH:-$ROOT/build/mbvh}"
 SCENES="$ROOT/../shared/scenes"
-# Debian's python3 (with Debian's python3-matplotlib), not another one earlier on PATH
-PY="${PYTHON:-$( [ -x /usr/bin/python3 ] && echo /usr/bin/python3 || echo python3)}"
-"$PY" -c "import matplotlib" 2>/dev/null || { echo "installing python3-matplotlib (apt-get)" >&2;
-  DEBIAN_FRONTEND=noninteractive apt-get install -y -qq python3-matplotlib > /dev/null; }
+source "$ROOT/bench/python.sh"  # PY: Debian's python3 with python3-matplotlib
 mkdir -p "$OUT/speed" "$OUT/error" "$OUT/render" "$OUT/scaling"
 # the backends `mbvh bench --backend all` runs: every ready one, a name another stands for
 # (cpu-avx512 under `cpu`) only under that name

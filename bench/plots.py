@@ -65,12 +65,7 @@ def scaling(directory):
     for n in sizes:
         cells = [f"{series[l][n]:.0f}" if n in series[l] else "–" for l in labels]
         print(f"| {n:,} | {build[n].get('binary', 0):.0f} | {build[n].get('mbvh4', 0):.1f} | " + " | ".join(cells) + " |")
-    try:
-        import matplotlib
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        sys.exit("plots.py: python3-matplotlib is missing (apt-get install python3-matplotlib)")
+    plt = pyplot()
     fig, (a, b) = plt.subplots(1, 2, figsize=(12, 4.5))
     for l in labels:
         xs = sorted(series[l])

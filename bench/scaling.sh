@@ -15,10 +15,7 @@ mkdir -p "$OUT"
 # every backend that is ready here, aliases and the second ISA / OpenCL mapping left out
 BACKENDS=$("$MBVH" devices 2>/dev/null | awk '$2 == "ready:" && !/\(= / {print $1}' |
   grep -v -e '^cpu-avx2$' -e '^opencl-lane$' | paste -sd, -)
-# Debian's python3 (with Debian's python3-matplotlib), not another one earlier on PATH
-PY="${PYTHON:-$( [ -x /usr/bin/python3 ] && echo /usr/bin/python3 || echo python3)}"
-"$PY" -c "import matplotlib" 2>/dev/null || { echo "installing python3-matplotlib (apt-get)" >&2;
-  DEBIAN_FRONTEND=noninteractive apt-get install -y -qq python3-matplotlib > /dev/null; }
+source "$ROOT/bench/python.sh"  # PY: Debian's python3 with python3-matplotlib
 echo "backends: $BACKENDS" >&2
 for n in 10000 30000 100000 300000 1000000 3000000 10000000; do
   [ "$n" -le "$MAX" ] || break
