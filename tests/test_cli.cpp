@@ -153,3 +153,20 @@ TEST_CASE("mbvh gives clear errors and non-zero exit codes", "[cli]") {
   CHECK(r.code == 0);
   CHECK_THAT(r.output, Catch::Contains("backend: cpu: avx"));
 }
+
+TEST_CASE("MBVH_CPU_ISA=avx2 runs the cpu backend as an AVX2-only machine would - a bad value is a clear error",
+          "[cli]") {
+  const auto capped = run_cli("devices", "MBVH_CPU_ISA=avx2");
+  INFO(capped.output);
+  REQUIRE(capped.code == 0);
+  CHECK(capped.output.find("(= cpu-avx2)") != std::string::npos);
+  CHECK(capped.output.find("cpu-avx512   cannot start") != std::string::npos);
+  TempDir dir;
+  const auto traced = run_cli("trace gen:cube:4 --count 200 --backend cpu -o " + dir.file("h"), "MBVH_CPU_ISA=avx2");
+  INFO(traced.output);
+  CHECK(traced.output.find("cpu: avx2 node tests") != std::string::npos);
+  const auto bad = run_cli("trace gen:cube:4 --count 200 --backend cpu", "MBVH_CPU_ISA=sse4");
+  INFO(bad.output);
+  CHECK(bad.code == 2);
+  CHECK(bad.output.find("MBVH_CPU_ISA=sse4 is not an ISA: set avx2 or avx512") != std::string::npos);
+}

@@ -1,6 +1,9 @@
 // simd_backend.cpp — the `cpu` backends: `cpu-avx2` and `cpu-avx512` run the per-ISA kernels of
 // simd_kernels.cpp; `cpu` picks the best this machine has, chosen once from CPUID. Forcing an
-// ISA the machine lacks fails with a clear message.
+// ISA the machine lacks fails with a clear message. MBVH_CPU_ISA=avx2 caps the ISA (as Embree's
+// `isa=` setting does): the AVX-512 kernels then count as absent, as on an AVX2-only machine.
+#include <cstdlib>
+#include <cstring>
 #include <thread>
 
 #include "backends/cpu/cpu_backends.h"
@@ -14,8 +17,23 @@ extern const CpuKernels cpu_kernels_avx512;
 
 namespace {
 
-bool has_avx2() { return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma"); }
-bool has_avx512() { return __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl"); }
+// MBVH_CPU_ISA: unset or empty = the best this CPU has; avx2 = no AVX-512; avx512 = as unset. Any
+// other value stops every SIMD backend with a message naming it (registration cannot throw).
+enum class IsaCap { best, avx2, invalid };
+IsaCap isa_cap() {
+  const char* cap = std::getenv("MBVH_CPU_ISA");
+  if (!cap || !*cap || std::strcmp(cap, "avx512") == 0) return IsaCap::best;
+  return std::strcmp(cap, "avx2") == 0 ? IsaCap::avx2 : IsaCap::invalid;
+}
+std::string invalid_cap_message() {
+  return std::string("MBVH_CPU_ISA=") + std::getenv("MBVH_CPU_ISA") +
+         " is not an ISA: set avx2 or avx512, or unset it for the best this CPU has";
+}
+
+bool has_avx2() { return isa_cap() != IsaCap::invalid && __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma"); }
+bool has_avx512() {
+  return isa_cap() == IsaCap::best && __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl");
+}
 
 class SimdBackend final : public Backend {
 public:
@@ -47,7 +65,7 @@ private:
 
 // Registers `name` running kernels `k` where `available()`; elsewhere it refuses to start, saying
 // `missing`, and tests skip it (missing hardware, not a failure).
-void add(const char* name, const char* summary, const CpuKernels& k, bool (*available)(), const char* missing,
+void add(const char* name, const char* summary, const CpuKernels& k, bool (*available)(), std::string missing,
          const char* alias_of = "") {
   BackendInfo info;
   info.name = name;
@@ -64,13 +82,18 @@ void add(const char* name, const char* summary, const CpuKernels& k, bool (*avai
 }  // namespace
 
 void register_cpu_simd_backends() {
-  add("cpu-avx2", "SIMD MBVH4/MBVH8 node tests and leaves, AVX2 build", cpu_kernels_avx2, &has_avx2, "this CPU has no AVX2");
+  const IsaCap cap = isa_cap();
+  const auto why = [cap](const char* missing) {
+    return cap == IsaCap::invalid ? invalid_cap_message() : std::string(missing);
+  };
+  add("cpu-avx2", "SIMD MBVH4/MBVH8 node tests and leaves, AVX2 build", cpu_kernels_avx2, &has_avx2,
+      why("this CPU has no AVX2"));
   add("cpu-avx512", "SIMD MBVH4/MBVH8 node tests and leaves, AVX-512 build", cpu_kernels_avx512, &has_avx512,
-      "this CPU has no AVX-512F/VL");
+      why(cap == IsaCap::avx2 ? "AVX-512 is turned off by MBVH_CPU_ISA=avx2" : "this CPU has no AVX-512F/VL"));
   const bool avx512 = has_avx512();
   add("cpu", "SIMD MBVH4/MBVH8 node tests and leaves, the best ISA of this CPU (AVX-512, else AVX2)",
       avx512 ? cpu_kernels_avx512 : cpu_kernels_avx2, avx512 ? &has_avx512 : &has_avx2,
-      "this CPU has neither AVX-512 nor AVX2 (use cpu-scalar)", avx512 ? "cpu-avx512" : "cpu-avx2");
+      why("this CPU has neither AVX-512 nor AVX2 (use cpu-scalar)"), avx512 ? "cpu-avx512" : "cpu-avx2");
 }
 
 }  // namespace mbvh
