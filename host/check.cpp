@@ -39,7 +39,12 @@ double norm3(const double v[3]) { return std::sqrt(v[0] * v[0] + v[1] * v[1] + v
 double max_abs3(const float v[3]) { return std::max(std::fabs(v[0]), std::max(std::fabs(v[1]), std::fabs(v[2]))); }
 
 // |cos| of the angle between the ray and the triangle's normal, and whether the ray lies in the
-// plane within the rounding of its own direction (the first case of ill_conditioned).
+// plane within the rounding of its own direction (the first case of ill_conditioned). A
+// direction built as a difference of float points of size |o| (a camera target, a light, a hit
+// point), L apart, is good to about 2^-24 |o| / L radians; L is at least the distance from the
+// origin to the triangle's nearest vertex, so that distance bounds the slack. (Dividing by |d|
+// instead, as this did before, made every ray of a scene at 1e30 "in plane": lost hits became
+// ties.)
 bool in_plane(const RayPre& r, const Tri& t, double& cosine) {
   const float* P[3] = {t.v0, t.v1, t.v2};
   double e1[3], e2[3];
@@ -52,7 +57,12 @@ bool in_plane(const RayPre& r, const Tri& t, double& cosine) {
   const double nd = n[0] * d[0] + n[1] * d[1] + n[2] * d[2];
   const double dlen = norm3(d);
   cosine = std::fabs(nd) / (norm3(n) * dlen);
-  const double slack = 0x1p-20 + 8 * 0x1p-24 * (max_abs3(r.o) + max_abs3(r.d)) / dlen;
+  double near = INFINITY;
+  for (const float* p : P) {
+    const double w[3] = {double(p[0]) - r.o[0], double(p[1]) - r.o[1], double(p[2]) - r.o[2]};
+    near = std::min(near, norm3(w));
+  }
+  const double slack = 0x1p-20 + 8 * 0x1p-24 * (max_abs3(r.o) / near + 1.0);
   return !(cosine > slack);
 }
 

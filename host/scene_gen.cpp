@@ -276,7 +276,11 @@ void transform(Scene& s, const std::string& mods, const std::string& spec) {
         (key != "scale" && key != "offset") || (key == "scale" && !(value > 0)))
       throw Error("gen:" + spec + ": bad modifier '@" + m + "' (use @scale=S with S > 0 or @offset=O)");
     for (Vec3f& v : s.vertices)
-      for (int k = 0; k < 3; ++k) v[k] = key == "scale" ? v[k] * value : v[k] + value;
+      for (int k = 0; k < 3; ++k) {
+        v[k] = key == "scale" ? v[k] * value : v[k] + value;
+        if (!std::isfinite(v[k]))
+          throw Error("gen:" + spec + ": '@" + m + "' takes a coordinate beyond the float range (" + std::to_string(v[k]) + ")");
+      }
     a = b + 1;
   }
 }

@@ -10,6 +10,7 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <cstring>
 
 #include "host/accel.h"
@@ -230,6 +231,43 @@ double sah_of_binary(const Bvh2& b, const std::vector<Leaf>& leaves, float ct) {
   return cost;
 }
 
+// The scene's non-degenerate triangles must lie in the exactly traced range (accel.h): a
+// coordinate beyond ±kMaxCoordinate is named with its triangle; a scene whose largest magnitude
+// is below kMinSceneScale is refused as a whole.
+void check_traceable_range(const Scene& scene, const std::vector<Box>& boxes, const std::vector<std::uint32_t>& idx) {
+  auto mag = [](const Box& b) {
+    return std::max({std::fabs(b.lo.x), std::fabs(b.lo.y), std::fabs(b.lo.z), std::fabs(b.hi.x), std::fabs(b.hi.y),
+                     std::fabs(b.hi.z)});
+  };
+  float largest = 0;
+  for (std::uint32_t i : idx) {
+    const float m = mag(boxes[i]);
+    if (m > kMaxCoordinate) {
+      for (std::uint32_t v : scene.triangles[i]) {
+        const Vec3f& p = scene.vertices[v];
+        for (float c : {p.x, p.y, p.z})
+          if (std::fabs(c) > kMaxCoordinate) {
+            char buf[256];
+            std::snprintf(buf, sizeof buf,
+                          ": coordinate %.9g of vertex %u (triangle %u) is beyond +-2^40 (%.3g), the range mbvh traces "
+                          "exactly (float products of three coordinates would overflow); rescale the scene",
+                          double(c), v, i, double(kMaxCoordinate));
+            throw Error(scene.name + buf);
+          }
+      }
+    }
+    largest = std::max(largest, m);
+  }
+  if (largest < kMinSceneScale) {
+    char buf[256];
+    std::snprintf(buf, sizeof buf,
+                  ": the largest coordinate magnitude is %.9g, below 2^-36 (%.3g), the smallest scene scale mbvh traces "
+                  "exactly (float products of three coordinates would underflow); rescale the scene",
+                  double(largest), double(kMinSceneScale));
+    throw Error(scene.name + buf);
+  }
+}
+
 }  // namespace
 
 std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_in) {
@@ -278,6 +316,7 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
     throw Error(scene.name + ": the scene has no non-degenerate triangle (" + std::to_string(n) + " triangles, " +
                 std::to_string(acc->bvh2_.degenerate) + " degenerate)");
   if (idx.size() > 0x7FFFFFF0u) throw Error(scene.name + ": too many triangles for 32-bit references");
+  check_traceable_range(scene, boxes, idx);
 
   // -- top of the tree, breadth-first, with parallel binning
   Builder builder(opt, boxes, cents, idx);
