@@ -79,9 +79,16 @@ def scene_name(path):
     return os.path.basename(path) if os.sep in path else path
 
 
+def run_backends(step, backends):
+    """The backends a step ran: the one its name ends with (check-SCENE-B, a bench retried per
+    backend: bench-SCENE-QUERY-B), else all of them."""
+    mine = [b for b in backends if step.endswith("-" + b)]
+    return mine or backends
+
+
 def bench_cells(runs, backends, layouts, traversals, step_status):
-    """Rows of the speed table: one per record, and one "not supported" row per requested
-    backend x layout a passed step has no record of."""
+    """Rows of the speed table: one per record, one "not supported" row per backend x layout a
+    passed step has no record of, one "cannot start" row per backend `mbvh devices` found unready."""
     rows = []
     for run in runs:
         if "records" not in run:
@@ -90,6 +97,11 @@ def bench_cells(runs, backends, layouts, traversals, step_status):
         status = step_status.get(run["step"], "?")
         scene = scene_name(recs[0]["scene"]) if recs else run["step"]
         for b in backends:
+            if step_status.get("start-" + b, "0") != "0":
+                rows.append((scene, b, "", "", "", "", "cannot start (devices.txt)", "", "", "", ""))
+                continue
+            if b not in run_backends(run["step"], backends):
+                continue
             for l in layouts:
                 mine = [r for r in recs if r["backend"] == b and r["layout"] == l]
                 if not mine:
@@ -124,18 +136,20 @@ def summary(args):
     md += ["- bench `%s`: %s" % (b, d) for b, d in sorted(devs.items())]
     md += ["", "## Steps", "", "| step | status | seconds |", "|---|---|---|"]
     md += ["| %s | %s | %d |" % (n, "passed" if s == "0" else "skipped (time budget)" if s == "skipped" else
-                                 "stopped at the time budget" if s in ("124", "137") else "FAILED (exit %s)" % s, t)
+                                 "stopped at the time budget" if s in ("124", "137") else
+                                 "FAILED (exit %s)" % s if s.isdigit() else "FAILED (%s)" % s, t)
            for n, s, t in st]
     md += ["", "## Check: genuine mismatches against the first `cpu` variant and the brute force", "",
-           "| scene | ray kind | rays | variants | comparisons | genuine mismatches | bit-identical to the reference |",
-           "|---|---|---|---|---|---|---|"]
+           "| scene | backend | ray kind | rays | variants | comparisons | genuine mismatches | bit-identical to the reference |",
+           "|---|---|---|---|---|---|---|---|"]
     for run in merged["check"]:
         for k in run.get("kinds", []):
             variants = sorted({c["a"] for c in k["comparisons"]})
             ref = [c for c in k["comparisons"] if "brute" not in c["b"] and "occluded" not in c["b"]]
             exact = sum(1 for c in ref if c["bit_identical"] == c["rays"])
-            md.append("| %s | %s | %d | %d | %d | %d | %d of %d |" % (scene_name(run["scene"]), k["kind"], k["rays"], len(variants),
-                                                                    len(k["comparisons"]), k["mismatches"], exact, len(ref)))
+            md.append("| %s | %s | %s | %d | %d | %d | %d | %d of %d |" % (
+                scene_name(run["scene"]), ",".join(run_backends(run["step"], backends)), k["kind"], k["rays"],
+                len(variants), len(k["comparisons"]), k["mismatches"], exact, len(ref)))
     md += ["", "## Bench: Mrays/s (median of the timed passes), verified before timing", "",
            "| scene | backend | layout | traversal | query | ray kind | Mrays/s | min–max | bitstack / stack | / cpu | verified |",
            "|---|---|---|---|---|---|---|---|---|---|---|"]
@@ -156,6 +170,7 @@ def verify(args):
             problems.append("step %s: %s" % (n, s.strip()))
     if not check:
         problems.append("no check ran")
+    checked = {}  # scene -> backends checked
     for run in check:
         if "kinds" not in run:
             problems.append("%s: %s" % (run["step"], run.get("error", "no result")))
@@ -163,13 +178,14 @@ def verify(args):
         for k in run["kinds"]:
             if k["mismatches"]:
                 problems.append("%s %s: %d genuine mismatches" % (run["step"], k["kind"], k["mismatches"]))
-            ran = {c["a"].split("/")[0] for c in k["comparisons"]}
-            problems += ["%s %s: backend %s was not checked" % (run["step"], k["kind"], b) for b in backends if b not in ran]
+            checked.setdefault(run["scene"], set()).update(c["a"].split("/")[0] for c in k["comparisons"])
+    for scene, ran in checked.items():
+        problems += ["check %s: backend %s was not checked" % (scene_name(scene), b) for b in backends if b not in ran]
     if not bench:
         problems.append("no bench ran")
     for run in bench:
         recs = run.get("records", [])
-        for b in backends:
+        for b in run_backends(run["step"], backends):
             if not any(r["backend"] == b for r in recs):
                 problems.append("%s: no record of backend %s" % (run["step"], b))
         problems += ["%s: %s/%s/%s/%s/%s not verified" % (run["step"], r["backend"], r["layout"], r["traversal"],
