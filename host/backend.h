@@ -18,6 +18,10 @@ struct BackendOptions {
   unsigned threads = 0;     ///< CPU workers (0 = every hardware thread)
   std::string cl_device;    ///< OpenCL device selector, `--cl-device` ("" = the backend's choice, printed)
   std::string vk_device;    ///< Vulkan device selector, `--vk-device` ("" = the backend's choice, printed)
+  /// OpenCL work mapping, `--cl-mapping`: "" or "auto" = by the device's type, "cpu" (the 16-wide
+  /// node test, fixed work-groups) or "gpu" (the scalar node test, work-groups sized from the
+  /// kernel's preferred multiple); forcing "gpu" on a CPU device tests the GPU mapping here.
+  std::string cl_mapping;
   bool vk_validation = false;  ///< Khronos validation layer on, `--vk-validation` (also MBVH_VK_VALIDATION=1)
   /// Caps a Vulkan storage-buffer binding below the device's maxStorageBufferRange (0 = no cap),
   /// so the split-buffer path can be exercised on small scenes.

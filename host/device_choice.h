@@ -16,11 +16,13 @@ struct DeviceCandidate {
   std::vector<std::string> names;  ///< matched case-insensitively by a name selector
   int rank = 0;                    ///< default choice: the lowest rank, first listed among equals
   std::string line;                ///< the line `mbvh devices` prints
+  std::vector<std::string> types;  ///< kind words a selector may name ("gpu", "cpu", ...), lower case
 };
 
 /// The index of the device `selector` names: "" = the default (lowest rank); the id; "N" = the
-/// N-th device listed; anything else = the first device one of whose names contains it
-/// (case-insensitive). Throws Error listing the devices when nothing matches.
+/// N-th device listed; a kind word ("gpu", "cpu", ...: one of DeviceCandidate::types) = the
+/// lowest-ranked device of that kind; anything else = the first device one of whose names
+/// contains it (case-insensitive). Throws Error listing the devices when nothing matches.
 inline std::size_t choose_device_index(const std::vector<DeviceCandidate>& devices, const std::string& selector,
                                        const std::string& api, const std::string& flag) {
   if (devices.empty()) throw Error("no " + api + " device");
@@ -42,6 +44,12 @@ inline std::size_t choose_device_index(const std::vector<DeviceCandidate>& devic
       if (n < devices.size()) return n;
     }
   } else {
+    std::size_t typed = devices.size();
+    for (std::size_t i = 0; i < devices.size(); ++i)
+      if (std::find(devices[i].types.begin(), devices[i].types.end(), lower(selector)) != devices[i].types.end() &&
+          (typed == devices.size() || devices[i].rank < devices[typed].rank))
+        typed = i;
+    if (typed < devices.size()) return typed;
     for (std::size_t i = 0; i < devices.size(); ++i)
       for (const std::string& name : devices[i].names)
         if (lower(name).find(lower(selector)) != std::string::npos) return i;

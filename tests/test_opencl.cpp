@@ -1,6 +1,7 @@
 // test_opencl.cpp — what the OpenCL backends promise beyond the shared equivalence tests (which
 // run them on every scene, ray kind and variant): clear errors for a kernel that does not build,
-// a missing platform and an unknown --cl-device; the device choice; rays over several batches.
+// a missing platform and an unknown --cl-device; the device choice; the GPU mapping (forced on
+// this CPU device); rays over several batches.
 #include <catch2/catch.hpp>
 
 #include <cstring>
@@ -70,11 +71,53 @@ TEST_CASE("opencl: --cl-device chooses by index - platform:device or name - and 
   CHECK(&cl::choose_device(list, "0") == &list[0]);
   CHECK(&cl::choose_device(list, "other") == &list[2]);
   CHECK(&cl::choose_device(list, "vendor b") == &list[2]);
+  CHECK(&cl::choose_device(list, "gpu") == &list[1]);  // by type, case-insensitive
+  CHECK(&cl::choose_device(list, "CPU") == &list[0]);
+  CHECK_THROWS_WITH(cl::choose_device(list, "accelerator"), Catch::Contains("no OpenCL device matches"));
   CHECK_THROWS_WITH(cl::choose_device(list, "7:7"), Catch::Contains("no OpenCL device matches --cl-device '7:7'") &&
                                                      Catch::Contains("1:0 Other CPU"));
 
   // the real program: the choice is printed, and a wrong one is an error listing the devices
   mbvh_test::check_device_flag("opencl", "--cl-device", "0:0", "opencl: OpenCL device 0:0 ", "OpenCL", "\n  0:0 ");
+}
+
+TEST_CASE("opencl: the GPU mapping - ray per lane, work-groups from the kernel's preferred multiple - gives the "
+          "reference's bytes",
+          "[opencl]") {
+  // --cl-mapping gpu forces on this CPU device what a GPU device gets by default: `opencl` takes
+  // the scalar node test and sizes its work-groups from the kernel (a partial last group too)
+  BackendOptions o;
+  o.cl_mapping = "gpu";
+  auto gpu = make_backend("opencl", o);
+  CHECK(gpu->describe().find("ray-per-lane scalar MBVH4 node test") != std::string::npos);
+  CHECK(gpu->describe().find("GPU mapping") != std::string::npos);
+  o.cl_mapping = "cpu";
+  CHECK(make_backend("opencl", o)->describe().find("16-wide MBVH4 node test, MBVH2 GPU-style; CPU mapping") !=
+        std::string::npos);
+  o.cl_mapping = "gpu";
+  CHECK(make_backend("opencl-wide", o)->describe().find("16-wide MBVH4 node test, MBVH2 GPU-style; GPU mapping") !=
+        std::string::npos);  // a named node test keeps it; the work-groups follow the mapping
+  o.cl_mapping = "simd";
+  CHECK_THROWS_WITH(make_backend("opencl", o), Catch::Contains("--cl-mapping 'simd': expected auto, cpu or gpu"));
+
+  const Scene s = load_scene(mbvh_test::scene_path("bun_zipper.ply.zst"));
+  const auto acc = Accel::build(s);
+  for (RayKind kind : {RayKind::primary, RayKind::diffuse, RayKind::random}) {
+    RayGenOptions ro;
+    ro.kind = kind;
+    ro.count = 20000 + 37;  // not a multiple of any work-group size
+    const std::vector<Ray> rays = generate_rays(s, *acc, ro);
+    for (Layout l : {Layout::mbvh2, Layout::mbvh4})
+      mbvh_test::check_against_reference(*gpu, *acc, rays, l, {Traversal::stack, Traversal::bitstack});
+  }
+
+  // the real program: --cl-device by type, the mapping said
+  const auto r = mbvh_test::run_cli("trace gen:cube:4 --count 1000 --backend opencl --cl-device cpu --cl-mapping gpu");
+  INFO(r.output);
+  CHECK(r.code == 0);
+  CHECK(r.output.find("opencl: OpenCL device 0:0 ") != std::string::npos);
+  CHECK(r.output.find("; GPU mapping") != std::string::npos);
+  CHECK(r.output.find("opencl: GPU mapping: ") != std::string::npos);  // the work-group size, from the kernel
 }
 
 TEST_CASE("opencl: rays over several dispatch batches come back in order", "[opencl]") {

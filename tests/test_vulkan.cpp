@@ -159,12 +159,27 @@ TEST_CASE("vulkan: --vk-device chooses by index or name - prints the choice - an
   CHECK(&vk::choose_device(list, "") == &list[2]);  // then an integrated one
   CHECK(&vk::choose_device(list, "0") == &list[0]);
   CHECK(&vk::choose_device(list, "small") == &list[2]);
+  CHECK(&vk::choose_device(list, "gpu") == &list[2]);  // by type: the best-ranked GPU (list[1] is a CPU now)
+  CHECK(&vk::choose_device(list, "CPU") == &list[0]);
+  list[1].type = VK_PHYSICAL_DEVICE_TYPE_DISCRETE_GPU;
+  CHECK(&vk::choose_device(list, "gpu") == &list[1]);
+  CHECK(&vk::choose_device(list, "integrated gpu") == &list[2]);
   CHECK_THROWS_WITH(vk::choose_device(list, "7"),
                     Catch::Contains("no Vulkan device matches --vk-device '7'") && Catch::Contains("2 Small GPU"));
 
   // the real program: the choice is printed (and no validation message), a wrong one lists the devices
   mbvh_test::check_device_flag("vulkan", "--vk-device", "llvmpipe", "vulkan: Vulkan device 0 llvmpipe", "Vulkan",
                                "\n  0 llvmpipe");
+}
+
+TEST_CASE("vulkan: mbvh devices says whether each device offers VK_KHR_ray_query", "[vulkan]") {
+  const auto d = mbvh_test::run_cli("devices");
+  INFO(d.output);
+  REQUIRE(d.code == 0);
+  // lavapipe (Mesa 22.3) has no ray queries; a device line says so either way
+  CHECK(d.output.find("llvmpipe") != std::string::npos);
+  CHECK(d.output.find("(cpu; llvmpipe") != std::string::npos);
+  CHECK(d.output.find(", no VK_KHR_ray_query") != std::string::npos);
 }
 
 TEST_CASE("vulkan: mbvh bench times it beside cpu - verified - with its state and the ratio to cpu", "[vulkan]") {

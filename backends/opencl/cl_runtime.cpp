@@ -162,7 +162,8 @@ const DeviceEntry& choose_device(const std::vector<DeviceEntry>& devices, const 
   std::vector<DeviceCandidate> c;
   for (const DeviceEntry& d : devices)
     c.push_back({d.id(), {d.device_name, d.platform_name},
-                 (d.type & CL_DEVICE_TYPE_GPU) ? 0 : (d.type & CL_DEVICE_TYPE_ACCELERATOR) ? 1 : 2, d.describe()});
+                 (d.type & CL_DEVICE_TYPE_GPU) ? 0 : (d.type & CL_DEVICE_TYPE_ACCELERATOR) ? 1 : 2, d.describe(),
+                 {d.type_name()}});
   return devices[choose_device_index(c, selector, "OpenCL", "--cl-device")];
 }
 

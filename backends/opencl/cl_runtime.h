@@ -72,8 +72,9 @@ std::vector<DeviceEntry> list_devices();
 
 /// The device `selector` names: "" = the only device, else the first GPU, else the first
 /// accelerator, else the first device (the choice is reported by the caller, never silent);
-/// "P:D" = platform P, device D; "N" = the N-th device listed; anything else = the first device
-/// whose device or platform name contains it (case-insensitive). Throws Error listing the
+/// "P:D" = platform P, device D; "N" = the N-th device listed; "gpu", "cpu", "accelerator" = the
+/// first device of that type; anything else = the first device whose device or platform name
+/// contains it (case-insensitive). Throws Error listing the
 /// devices when nothing matches.
 const DeviceEntry& choose_device(const std::vector<DeviceEntry>& devices, const std::string& selector);
 

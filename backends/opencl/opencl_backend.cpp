@@ -2,8 +2,13 @@
 // skip-code bitstack and its stack twin; Áfra & Szirmay-Kalos 2014) and the GPU-style MBVH2
 // traversal, as OpenCL C kernels (shaders/trace.cl, embedded at build time) on any OpenCL device;
 // PoCL here. `opencl-wide` tests a node's four children with one 16-lane operation,
-// `opencl-lane` with four scalar slab tests per work-item (the ray-per-lane mapping); `opencl` is
-// the faster of the two on this machine (README).
+// `opencl-lane` with four scalar slab tests per work-item (the ray-per-lane mapping); `opencl`
+// takes the one that suits the device (Mapping below): the 16-wide test on a CPU device, where it
+// is the faster of the two (README), the scalar test on a GPU, whose lanes are the rays.
+//
+// Every kernel runs one ray per work-item. The mapping also sizes the work-groups: fixed on a CPU
+// (PoCL: any size measured within noise), from the kernel's preferred multiple on a GPU (a warp
+// or wavefront), so full groups of rays share a SIMT unit.
 //
 // Per build, the layout is uploaded once and reused across calls; rays go through in batches
 // that fit the device's CL_DEVICE_MAX_MEM_ALLOC_SIZE; programs are built on first use per
@@ -27,7 +32,9 @@ namespace {
 using cl::Buffer;
 using cl::check;
 
-constexpr std::size_t kLocalSize = 64;  // PoCL: 8 to 1024 measured within noise
+constexpr std::size_t kCpuLocalSize = 64;   // PoCL: 8 to 1024 measured within noise
+constexpr std::size_t kGpuLocalTarget = 128;  // rays per GPU work-group: 4 warps of 32, 2 wavefronts of 64
+constexpr std::size_t kMaxLocalSize = 1024;   // the largest work-group either mapping asks for
 constexpr std::size_t kMaxBatch = std::size_t(1) << 21;  // rays per dispatch (64 MiB of rays)
 
 std::string mib(std::size_t bytes) {
@@ -36,20 +43,48 @@ std::string mib(std::size_t bytes) {
   return b;
 }
 
+// The node test a backend name asks for: its own (`opencl-wide`, `opencl-lane`) or the device's.
+enum class NodeTest { by_device, wide, lane };
+
+// How the kernels map onto the device: which node test, and how work-groups are sized.
+struct Mapping {
+  bool gpu = false;   // work-groups from the kernel's preferred multiple (else kCpuLocalSize)
+  bool wide = true;   // the 16-lane node test (MBVH_WIDE=1)
+
+  // `forced`: BackendOptions::cl_mapping ("", "auto", "cpu" or "gpu")
+  static Mapping choose(const cl::DeviceEntry& dev, NodeTest test, const std::string& forced) {
+    if (!forced.empty() && forced != "auto" && forced != "cpu" && forced != "gpu")
+      throw Error("--cl-mapping '" + forced + "': expected auto, cpu or gpu");
+    Mapping m;
+    m.gpu = forced == "gpu" || ((forced.empty() || forced == "auto") && (dev.type & CL_DEVICE_TYPE_GPU) != 0);
+    m.wide = test == NodeTest::wide || (test == NodeTest::by_device && !m.gpu);
+    return m;
+  }
+  std::string describe() const {
+    return std::string(wide ? "16-wide MBVH4 node test" : "ray-per-lane scalar MBVH4 node test") +
+           ", MBVH2 GPU-style; " +
+           (gpu ? "GPU mapping (one ray per work-item, " + std::to_string(kGpuLocalTarget) +
+                      " per work-group in multiples of the kernel's preferred size)"
+                : "CPU mapping (one ray per work-item, " + std::to_string(kCpuLocalSize) + " per work-group)");
+  }
+};
+
 class OpenClBackend final : public Backend {
 public:
-  OpenClBackend(std::string name, bool wide, const BackendOptions& o) : name_(std::move(name)), wide_(wide) {
+  OpenClBackend(std::string name, NodeTest test, const BackendOptions& o) : name_(std::move(name)) {
     const std::vector<cl::DeviceEntry> devices = cl::list_devices();
     dev_ = cl::choose_device(devices, o.cl_device);
+    map_ = Mapping::choose(dev_, test, o.cl_mapping);
     {  // say which device, once per backend and device in a process
       static std::mutex m;
       static std::set<std::string> said;
       const std::lock_guard<std::mutex> lock(m);
       if (said.insert(name_ + " " + dev_.id()).second)
-        std::fprintf(stderr, "%s: OpenCL device %s%s\n", name_.c_str(), dev_.describe().c_str(),
+        std::fprintf(stderr, "%s: OpenCL device %s%s; %s\n", name_.c_str(), dev_.describe().c_str(),
                      o.cl_device.empty() && devices.size() > 1
                          ? (" (chosen from " + std::to_string(devices.size()) + " devices; pick one with --cl-device)").c_str()
-                         : "");
+                         : "",
+                     map_.gpu ? "GPU mapping" : "CPU mapping");
     }
     // exactness needs correctly rounded float division and double for the watertight fallback
     if (!(cl::device_value<cl_device_fp_config>(dev_.device, CL_DEVICE_SINGLE_FP_CONFIG) &
@@ -70,8 +105,7 @@ public:
 
   std::string name() const override { return name_; }
   std::string describe() const override {
-    return name_ + ": " + (wide_ ? "16-wide MBVH4 node test" : "ray-per-lane scalar MBVH4 node test") +
-           ", MBVH2 GPU-style; OpenCL device " + dev_.describe();
+    return name_ + ": " + map_.describe() + "; OpenCL device " + dev_.describe();
   }
   bool supports(Layout l, Traversal t) const override {
     return l != Layout::mbvh8 && (t == Traversal::stack || t == Traversal::bitstack);
@@ -107,7 +141,9 @@ public:
     if (rays.empty()) return;
 
     const std::string kname = std::string(to_string(opt.layout)) + "_" + to_string(opt.traversal) + "_" + to_string(opt.query);
-    cl_kernel k = kernel(opt.stats, opt.precision == Precision::fast, kname);
+    const Kernel& kern = kernel(opt.stats, opt.precision == Precision::fast, kname);
+    cl_kernel k = kern.kernel.get();
+    const std::size_t local = kern.local;
     const std::size_t batch = std::min(rays.size(), max_batch());
     ensure_batch_buffers(batch, opt.stats);
     const cl_uint zero[2] = {0, 0};
@@ -127,8 +163,8 @@ public:
       check(clSetKernelArg(k, 4, sizeof count, &count), "clSetKernelArg");
       const cl_mem outs[] = {hits_.get(), occ_.get(), stats_.get(), counters_.get()};
       for (cl_uint i = 0; i < 4; ++i) check(clSetKernelArg(k, 5 + i, sizeof(cl_mem), &outs[i]), "clSetKernelArg");
-      const std::size_t global = (n + kLocalSize - 1) / kLocalSize * kLocalSize;  // no non-uniform groups
-      check(clEnqueueNDRangeKernel(queue_.get(), k, 1, nullptr, &global, &kLocalSize, 0, nullptr, nullptr),
+      const std::size_t global = (n + local - 1) / local * local;  // no non-uniform groups
+      check(clEnqueueNDRangeKernel(queue_.get(), k, 1, nullptr, &global, &local, 0, nullptr, nullptr),
             "clEnqueueNDRangeKernel");
       if (any)
         check(clEnqueueReadBuffer(queue_.get(), occ_.get(), CL_FALSE, 0, n, out.occluded.data() + b, 0, nullptr, nullptr),
@@ -159,13 +195,17 @@ public:
   }
 
 private:
+  struct Kernel {
+    cl::Kernel kernel;
+    std::size_t local = kCpuLocalSize;  // work-items per work-group (Mapping)
+  };
   struct Built {
     cl::Program program;
-    std::map<std::string, cl::Kernel> kernels;
+    std::map<std::string, Kernel> kernels;
   };
 
   std::size_t max_batch() const {
-    return std::max<std::size_t>(kLocalSize, std::min<std::size_t>(kMaxBatch, max_alloc_ / (8 * sizeof(cl_uint))));
+    return std::max<std::size_t>(kMaxLocalSize, std::min<std::size_t>(kMaxBatch, max_alloc_ / (8 * sizeof(cl_uint))));
   }
 
   Buffer upload(const std::string& what, const void* data, std::size_t bytes) {
@@ -207,27 +247,51 @@ private:
     Built& b = built_[(stats ? 1 : 0) + (fast ? 2 : 0)];
     if (!b.program) {
       const std::string options = std::string(fast ? "-cl-mad-enable -DMBVH_FAST=1" : "-cl-fp32-correctly-rounded-divide-sqrt") +
-                                  " -DMBVH_STATS=" + (stats ? "1" : "0") + " -DMBVH_WIDE=" + (wide_ ? "1" : "0");
+                                  " -DMBVH_STATS=" + (stats ? "1" : "0") + " -DMBVH_WIDE=" + (map_.wide ? "1" : "0");
       b.program = cl::build_program(ctx_.get(), dev_, kTraceCl, options);
     }
     return b;
   }
 
-  cl_kernel kernel(bool stats, bool fast, const std::string& name) {
+  const Kernel& kernel(bool stats, bool fast, const std::string& name) {
     Built& b = program(stats, fast);
     auto it = b.kernels.find(name);
     if (it == b.kernels.end()) {
       cl_int err = CL_SUCCESS;
-      cl::Kernel k(clCreateKernel(b.program.get(), name.c_str(), &err));
+      Kernel k{cl::Kernel(clCreateKernel(b.program.get(), name.c_str(), &err))};
       check(err, ("clCreateKernel(" + name + ")").c_str());
+      if (map_.gpu) k.local = gpu_local_size(k.kernel.get(), name);
       it = b.kernels.emplace(name, std::move(k)).first;
     }
-    return it->second.get();
+    return it->second;
+  }
+
+  // GPU mapping: kGpuLocalTarget rounded up to the kernel's preferred work-group multiple (the
+  // warp or wavefront), then down to what the kernel can launch (its registers and private
+  // memory bound CL_KERNEL_WORK_GROUP_SIZE); said once per backend and device.
+  std::size_t gpu_local_size(cl_kernel k, const std::string& name) const {
+    std::size_t multiple = 0, most = 0;
+    check(clGetKernelWorkGroupInfo(k, dev_.device, CL_KERNEL_PREFERRED_WORK_GROUP_SIZE_MULTIPLE, sizeof multiple,
+                                   &multiple, nullptr),
+          "clGetKernelWorkGroupInfo(CL_KERNEL_PREFERRED_WORK_GROUP_SIZE_MULTIPLE)");
+    check(clGetKernelWorkGroupInfo(k, dev_.device, CL_KERNEL_WORK_GROUP_SIZE, sizeof most, &most, nullptr),
+          "clGetKernelWorkGroupInfo(CL_KERNEL_WORK_GROUP_SIZE)");
+    multiple = std::max<std::size_t>(multiple, 1);
+    most = std::min(std::max<std::size_t>(most, 1), kMaxLocalSize);
+    std::size_t local = (kGpuLocalTarget + multiple - 1) / multiple * multiple;
+    if (local > most) local = most >= multiple ? most / multiple * multiple : most;
+    static std::mutex m;
+    static std::set<std::string> said;
+    const std::lock_guard<std::mutex> lock(m);
+    if (said.insert(name_ + " " + dev_.id() + " " + std::to_string(local)).second)
+      std::fprintf(stderr, "%s: GPU mapping: %zu work-items per work-group (%s: preferred multiple %zu, at most %zu)\n",
+                   name_.c_str(), local, name.c_str(), multiple, most);
+    return local;
   }
 
   std::string name_;
-  bool wide_;
   cl::DeviceEntry dev_;
+  Mapping map_;
   cl_ulong max_alloc_ = 0;
   cl::Context ctx_;
   cl::Queue queue_;
@@ -248,13 +312,13 @@ std::vector<std::string> device_lines() {
   return lines;
 }
 
-void add(const char* name, const char* summary, bool wide, const char* alias_of = "") {
+void add(const char* name, const char* summary, NodeTest test, const char* alias_of = "") {
   BackendInfo info;
   info.name = name;
   info.summary = summary;
   info.alias_of = alias_of;
-  info.make = [name, wide](const BackendOptions& o) -> std::unique_ptr<Backend> {
-    return std::make_unique<OpenClBackend>(name, wide, o);
+  info.make = [name, test](const BackendOptions& o) -> std::unique_ptr<Backend> {
+    return std::make_unique<OpenClBackend>(name, test, o);
   };
   info.devices = &device_lines;
   register_backend(std::move(info));
@@ -263,9 +327,12 @@ void add(const char* name, const char* summary, bool wide, const char* alias_of 
 }  // namespace
 
 void register_opencl_backends() {
-  add("opencl", "MBVH4 (16-wide MIC path) and MBVH2 on OpenCL: the faster node test here", true, "opencl-wide");
-  add("opencl-wide", "OpenCL, MBVH4 node test as one 16-lane operation (TRAVERSAL.md §8)", true);
-  add("opencl-lane", "OpenCL, MBVH4 node test as four scalar slab tests per work-item (ray per lane)", false);
+  // `opencl` is opencl-wide on a CPU device (PoCL here), where tests run it under that name; on a
+  // GPU it takes the lane test (Mapping)
+  add("opencl", "MBVH4 and MBVH2 on OpenCL, mapped for the device: the 16-wide MIC path on a CPU, ray per lane on a GPU",
+      NodeTest::by_device, "opencl-wide");
+  add("opencl-wide", "OpenCL, MBVH4 node test as one 16-lane operation (TRAVERSAL.md §8)", NodeTest::wide);
+  add("opencl-lane", "OpenCL, MBVH4 node test as four scalar slab tests per work-item (ray per lane)", NodeTest::lane);
 }
 
 }  // namespace mbvh

@@ -4,6 +4,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <mutex>
+#include <string_view>
 #include <utility>
 
 #if defined(__SANITIZE_ADDRESS__)
@@ -222,6 +223,12 @@ std::vector<DeviceEntry> list_devices(VkInstance instance) {
     e.api_version = base.apiVersion;
     e.driver_name = driver.driverName[0] ? driver.driverName : "driver";
     e.driver_info = driver.driverInfo;
+    std::uint32_t next = 0;
+    check(vkEnumerateDeviceExtensionProperties(pds[i], nullptr, &next, nullptr), "vkEnumerateDeviceExtensionProperties");
+    std::vector<VkExtensionProperties> exts(next);
+    check(vkEnumerateDeviceExtensionProperties(pds[i], nullptr, &next, exts.data()), "vkEnumerateDeviceExtensionProperties");
+    for (const VkExtensionProperties& x : exts)
+      e.ray_query = e.ray_query || std::string_view(x.extensionName) == VK_KHR_RAY_QUERY_EXTENSION_NAME;
     out.push_back(std::move(e));
   }
   return out;
@@ -234,7 +241,9 @@ const DeviceEntry& choose_device(const std::vector<DeviceEntry>& devices, const 
                      : d.type == VK_PHYSICAL_DEVICE_TYPE_INTEGRATED_GPU ? 1
                      : d.type == VK_PHYSICAL_DEVICE_TYPE_VIRTUAL_GPU    ? 2
                                                                         : 3;
-    c.push_back({std::to_string(d.index), {d.name, d.driver_name}, rank, d.describe()});
+    std::vector<std::string> types{d.type_name()};
+    if (rank <= 2) types.push_back("gpu");
+    c.push_back({std::to_string(d.index), {d.name, d.driver_name}, rank, d.describe(), types});
   }
   return devices[choose_device_index(c, selector, "Vulkan", "--vk-device")];
 }

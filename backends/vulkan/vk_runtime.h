@@ -51,6 +51,9 @@ struct DeviceEntry {
   std::string name, driver_name, driver_info;
   VkPhysicalDeviceType type = VK_PHYSICAL_DEVICE_TYPE_OTHER;
   std::uint32_t api_version = 0;
+  /// The device offers VK_KHR_ray_query (hardware ray tracing from compute shaders; mbvh does
+  /// not use it, `mbvh devices` reports it for comparisons with its own traversal).
+  bool ray_query = false;
   std::string type_name() const;  ///< "discrete gpu", "integrated gpu", "cpu", ...
   std::string describe() const;   ///< "0 NAME (cpu; DRIVER DRIVER_INFO, Vulkan 1.3.230)"
 };
@@ -59,7 +62,8 @@ struct DeviceEntry {
 std::vector<DeviceEntry> list_devices(VkInstance instance);
 
 /// The device `selector` names (host/device_choice.h): "" = a discrete GPU if there is one, then
-/// an integrated or virtual GPU, then the first device; "N" = the N-th; else a part of its name.
+/// an integrated or virtual GPU, then the first device; "N" = the N-th; "gpu" = the first of
+/// those GPUs, "cpu" = the first CPU device (lavapipe); else a part of its name.
 const DeviceEntry& choose_device(const std::vector<DeviceEntry>& devices, const std::string& selector);
 
 }  // namespace mbvh::vk

@@ -592,7 +592,9 @@ std::vector<std::string> device_lines() {
   const std::vector<vk::DeviceEntry> devices = vk::list_devices(instance.get());
   const vk::DeviceEntry& chosen = vk::choose_device(devices, "");
   std::vector<std::string> lines;
-  for (const vk::DeviceEntry& d : devices) lines.push_back(d.describe() + (&d == &chosen ? "  [default]" : ""));
+  for (const vk::DeviceEntry& d : devices)
+    lines.push_back(d.describe() + (d.ray_query ? ", VK_KHR_ray_query" : ", no VK_KHR_ray_query") +
+                    (&d == &chosen ? "  [default]" : ""));
   return lines;
 }
 

@@ -90,14 +90,22 @@ Layout default_layout(const Backend& b, Traversal t) {
   return !b.supports(Layout::mbvh4, t) && b.supports(Layout::mbvh2, t) ? Layout::mbvh2 : Layout::mbvh4;
 }
 
-// --cl-device, --vk-device: which device the OpenCL and Vulkan backends use; --vk-validation.
+// --cl-device, --vk-device: which device the OpenCL and Vulkan backends use; --cl-mapping;
+// --vk-validation.
 struct DeviceArgs {
-  std::string cl_device, vk_device;
+  std::string cl_device, vk_device, cl_mapping = "auto";
   bool vk_validation = false;
   void add(CLI::App* c) {
     c->add_option("--cl-device", cl_device,
-                  "OpenCL device: P:D (platform:device), N (index) or part of its name (see `mbvh devices`)");
-    c->add_option("--vk-device", vk_device, "Vulkan device: index or part of its name (see `mbvh devices`)");
+                  "OpenCL device: P:D (platform:device), N (index), gpu, cpu or accelerator (the first of that type) or "
+                  "part of its name (see `mbvh devices`; default: a GPU if there is one)");
+    c->add_option("--cl-mapping", cl_mapping,
+                  "OpenCL work mapping: auto (by device type), cpu (16-wide node test) or gpu (ray per lane, "
+                  "work-groups from the kernel's preferred multiple); forcing gpu on a CPU device tests that mapping")
+        ->check(CLI::IsMember({"auto", "cpu", "gpu"}));
+    c->add_option("--vk-device", vk_device,
+                  "Vulkan device: index, gpu or cpu (the first of that type) or part of its name (see `mbvh devices`; "
+                  "default: a discrete GPU if there is one)");
     c->add_flag("--vk-validation", vk_validation,
                 "Vulkan: enable the Khronos validation layer; any message it reports is an error "
                 "(also MBVH_VK_VALIDATION=1)");
@@ -106,6 +114,7 @@ struct DeviceArgs {
     BackendOptions o;
     o.threads = threads;
     o.cl_device = cl_device;
+    o.cl_mapping = cl_mapping;
     o.vk_device = vk_device;
     o.vk_validation = vk_validation;
     return o;
@@ -245,6 +254,27 @@ int cmd_info(const SceneArgs& a, const std::string& json_path) {
   return 0;
 }
 
+// One ray kind of `mbvh check --json`: the rays, and every comparison with its counts (labels
+// "backend/layout/traversal/query", as the table).
+nlohmann::json check_json(const CheckReport& rep, const std::string& kind) {
+  nlohmann::json k{{"kind", kind},
+                   {"rays", rep.rays},
+                   {"invalid", rep.invalid},
+                   {"brute_rays", rep.brute_rays},
+                   {"mismatches", rep.mismatches()},
+                   {"comparisons", nlohmann::json::array()}};
+  for (const Comparison& c : rep.comparisons)
+    k["comparisons"].push_back({{"a", c.a},
+                                {"b", c.b},
+                                {"rays", c.rays},
+                                {"equal", c.equal},
+                                {"ties", c.ties},
+                                {"mismatches", c.mismatches},
+                                {"bit_identical", c.bit_identical},
+                                {"max_t_ulps", c.max_t_ulps}});
+  return k;
+}
+
 }  // namespace
 
 static int run(int argc, char** argv) {
@@ -291,13 +321,14 @@ static int run(int argc, char** argv) {
   SceneArgs ck_a;
   RayArgs ck_r;
   GridArgs ck_g;
-  std::string ck_kinds = "", ck_brute = "2000";
+  std::string ck_kinds = "", ck_brute = "2000", ck_json;
   auto* check = app.add_subcommand("check", "cross-check backends x layouts x traversals ray by ray and against brute force");
   add_scene_args(check, ck_a);
   add_ray_args(check, ck_r, true);
   ck_g.add(check);
   check->add_option("--kinds", ck_kinds, "comma-separated generated ray kinds (default: --kind)");
   check->add_option("--brute", ck_brute, "rays checked by double-precision brute force, spread over the batch, or 'all'");
+  check->add_option("--json", ck_json, "also write every comparison as JSON (per ray kind: rays, invalid, pairs)");
 
   // -- bench
   SceneArgs bn_a;
@@ -500,6 +531,7 @@ static int run(int argc, char** argv) {
       std::vector<std::string> kinds = ck_kinds.empty() ? std::vector<std::string>{ck_r.kind} : split_list(ck_kinds);
       if (!ck_r.rays_file.empty()) kinds = {"file"};
       std::size_t genuine = 0;
+      nlohmann::json j{{"scene", l.scene.name}, {"kinds", nlohmann::json::array()}};
       for (const auto& k : kinds) {
         const std::vector<Ray> r = k == "file" ? read_rays(ck_r.rays_file)
                                                : generate_rays(l.scene, *l.acc, ray_gen(ck_r, k, ck_a.threads));
@@ -511,6 +543,12 @@ static int run(int argc, char** argv) {
         std::printf("== %s: %s rays\n%s\n", l.scene.name.c_str(), k == "file" ? ck_r.rays_file.c_str() : k.c_str(),
                     rep.table(r).c_str());
         genuine += rep.mismatches();
+        j["kinds"].push_back(check_json(rep, k));
+      }
+      if (!ck_json.empty()) {
+        j["mismatches"] = genuine;
+        const std::string text = j.dump(1) + "\n";
+        write_bytes(ck_json, text.data(), text.size());
       }
       return genuine ? 1 : 0;
     }
