@@ -6,6 +6,7 @@
 #include <catch2/catch.hpp>
 
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <fstream>
 #include <nlohmann/json.hpp>
@@ -15,11 +16,24 @@
 
 namespace mbvh_test {
 
+/// MBVH_TEST_BACKENDS (comma-separated names), when set, narrows the tests to those backends:
+/// scripts/test reruns the cpu backend's tests with AVX-512 turned off that way.
+inline bool backend_selected(const std::string& name) {
+  const char* only = std::getenv("MBVH_TEST_BACKENDS");
+  if (!only || !*only) return true;
+  const std::string list = std::string(",") + only + ",";
+  return list.find("," + name + ",") != std::string::npos;
+}
+
 inline mbvh::VariantGrid all_backends() {
   mbvh::VariantGrid g;
   g.backends.clear();
   for (const mbvh::BackendInfo& b : mbvh::list_backends()) {
     if (!b.make) continue;
+    if (!backend_selected(b.name)) {
+      std::printf("backend %s left out: not in MBVH_TEST_BACKENDS\n", b.name.c_str());
+      continue;
+    }
     if (!b.alias_of.empty()) {
       std::printf("backend %s is %s here: tested under that name\n", b.name.c_str(), b.alias_of.c_str());
       continue;
