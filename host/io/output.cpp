@@ -15,6 +15,7 @@
 #include <filesystem>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <vector>
 
 #include "host/error.h"
@@ -98,6 +99,12 @@ const char* kind_of(mode_t m) {
   return "not a regular file";
 }
 
+// The directory a file is in ("." for a bare name).
+std::string directory_of(const std::string& path) {
+  const std::filesystem::path p(path);
+  return p.has_parent_path() ? p.parent_path().string() : std::string(".");
+}
+
 // The file a target names: the path to replace (a symlink's final target) and, if it exists, its stat.
 struct Resolved {
   std::string path;
@@ -128,8 +135,7 @@ Resolved resolve(const OutputTarget& t) {
     return r;
   }
   if (errno != ENOENT) throw Error(where + ": cannot inspect the output: " + std::strerror(errno));
-  std::string dir = std::filesystem::path(t.path).parent_path().string();
-  if (dir.empty()) dir = ".";
+  const std::string dir = directory_of(t.path);
   struct stat ds {};
   if (::stat(dir.c_str(), &ds) != 0)
     throw Error(where + ": cannot write into directory " + dir + ": " + std::strerror(errno));
@@ -163,10 +169,8 @@ int write_all(int fd, const void* data, std::size_t size) {
 class Staged {
 public:
   Staged(const OutputTarget& t, const Resolved& r) : where_(label(t)), target_(r.path) {
-    const std::filesystem::path p(r.path);
-    std::string dir = p.parent_path().string();
-    if (dir.empty()) dir = ".";
-    std::string tmpl = dir + "/." + p.filename().string().substr(0, 200) + ".XXXXXX.partial";
+    const std::string dir = directory_of(r.path);
+    std::string tmpl = dir + "/." + std::filesystem::path(r.path).filename().string().substr(0, 200) + ".XXXXXX.partial";
     install_cleanup_handlers();
     {
       CleanupSignalsBlocked blocked;
@@ -175,13 +179,7 @@ public:
       temp_ = tmpl;
       claim_slot();
     }
-    // keep the replaced file's owner (where permitted: root) and mode; a new file gets the umask's
-    if (r.exists && (r.st.st_uid != ::geteuid() || r.st.st_gid != ::getegid()) &&
-        ::fchown(fd_, r.st.st_uid, r.st.st_gid) != 0) {
-      // not permitted: the new file is ours, as with any program that replaces a file
-    }
-    const mode_t mode = r.exists ? (r.st.st_mode & 07777) : (0666 & ~g_umask);
-    if (::fchmod(fd_, mode) != 0) fail("cannot set the mode of the temporary file");
+    if (r.exists) replaced_ = r.st;
   }
   Staged(const Staged&) = delete;
   Staged& operator=(const Staged&) = delete;
@@ -191,8 +189,16 @@ public:
     release_slot();
   }
 
-  /// Writes, syncs and closes the temporary; throws Error on any failure.
+  /// Gives the temporary the replaced file's mode and owner (or the umask's mode), writes, syncs
+  /// and closes it; throws Error on any failure.
   void write(const void* data, std::size_t size) {
+    // the owner where permitted (root); otherwise the new file is ours, as with any program that
+    // replaces a file
+    if (replaced_ && (replaced_->st_uid != ::geteuid() || replaced_->st_gid != ::getegid()) &&
+        ::fchown(fd_, replaced_->st_uid, replaced_->st_gid) != 0) {
+    }
+    if (::fchmod(fd_, replaced_ ? (replaced_->st_mode & 07777) : (0666 & ~g_umask)) != 0)
+      fail("cannot set the mode of the temporary file");
     if (const int e = write_all(fd_, data, size)) {
       errno = e;
       fail("write failed");
@@ -246,6 +252,7 @@ private:
   std::string where_, target_, temp_;
   int fd_ = -1, slot_ = -1;
   bool renamed_ = false;
+  std::optional<struct stat> replaced_;  // the file this output replaces, if it exists
   struct stat written_ {};
 };
 
