@@ -233,7 +233,7 @@ std::vector<Ray> get_rays(const RayArgs& r, const Loaded& l, unsigned threads) {
 
 void print_stats_row(const LayoutStats& s, std::size_t state_stack, std::size_t state_bit) {
   say("%-7s %9zu %9zu %6u %9u %10.2f %12zu %9.1f %10zu %10zu\n", s.layout.c_str(), s.nodes, s.leaves, s.depth,
-              s.bitstack_bits, s.sah_cost, s.bytes, s.build_ms, state_stack, state_bit);
+      s.bitstack_bits, s.sah_cost, s.bytes, s.build_ms, state_stack, state_bit);
 }
 
 int cmd_info(const SceneArgs& a, const std::string& json_path) {
@@ -243,15 +243,15 @@ int cmd_info(const SceneArgs& a, const std::string& json_path) {
   const Box b = acc.bounds();
   say("scene      %s\n", l.scene.name.c_str());
   say("triangles  %zu (%zu degenerate, kept out of leaves), %zu vertices, loaded in %.1f ms\n",
-              l.scene.triangle_count(), acc.bvh2().degenerate, l.scene.vertices.size(), l.load_ms);
+      l.scene.triangle_count(), acc.bvh2().degenerate, l.scene.vertices.size(), l.load_ms);
   say("bounds     (%g, %g, %g) .. (%g, %g, %g)\n", b.lo.x, b.lo.y, b.lo.z, b.hi.x, b.hi.y, b.hi.z);
   say("build      binned SAH, %u bins, max leaf %u, leaf block %u, depth cap %u, %u threads; hash %016llx\n",
-              acc.options().bins, acc.options().max_leaf, acc.options().leaf_block, acc.options().depth_cap,
-              static_cast<unsigned>(resolve_threads(a.threads)), static_cast<unsigned long long>(acc.hash()));
+      acc.options().bins, acc.options().max_leaf, acc.options().leaf_block, acc.options().depth_cap,
+      static_cast<unsigned>(resolve_threads(a.threads)), static_cast<unsigned long long>(acc.hash()));
   say("leaves     largest %zu triangles, %zu forced by the depth cap or equal centroids\n\n",
-              acc.bvh2().largest_leaf, acc.bvh2().forced_leaves);
+      acc.bvh2().largest_leaf, acc.bvh2().forced_leaves);
   say("%-7s %9s %9s %6s %9s %10s %12s %9s %10s %10s\n", "layout", "nodes", "leaves", "depth", "bits", "SAH cost",
-              "bytes", "build ms", "stack B/r", "bitstk B/r");
+      "bytes", "build ms", "stack B/r", "bitstk B/r");
   const LayoutStats& bs = acc.binary_stats();
   print_stats_row(bs, 0, 0);
   const LayoutStats s2 = acc.mbvh2().stats;
@@ -261,8 +261,8 @@ int cmd_info(const SceneArgs& a, const std::string& json_path) {
   print_stats_row(s4, state_bytes_per_ray(Layout::mbvh4, Traversal::stack), state_bytes_per_ray(Layout::mbvh4, Traversal::bitstack));
   print_stats_row(s8, state_bytes_per_ray(Layout::mbvh8, Traversal::stack_ordered), 0);
   say("\ntraversal state per ray: stack %zu B, bitstack %zu B (%.1fx smaller)\n",
-              state_bytes_per_ray(Layout::mbvh2, Traversal::stack), state_bytes_per_ray(Layout::mbvh2, Traversal::bitstack),
-              double(state_bytes_per_ray(Layout::mbvh2, Traversal::stack)) / double(state_bytes_per_ray(Layout::mbvh2, Traversal::bitstack)));
+      state_bytes_per_ray(Layout::mbvh2, Traversal::stack), state_bytes_per_ray(Layout::mbvh2, Traversal::bitstack),
+      double(state_bytes_per_ray(Layout::mbvh2, Traversal::stack)) / double(state_bytes_per_ray(Layout::mbvh2, Traversal::bitstack)));
   if (!json_path.empty()) {
     nlohmann::json j;
     j["scene"] = l.scene.name;
@@ -468,12 +468,12 @@ static int run(int argc, char** argv) {
       }
       write_outputs(writes);
       say("rendered %ux%u, %u spp, %s (%s/%s) on %s: %zu rays over all bounces, %.3f Mrays/s in traversal "
-                  "(%.2f s), %.2f s in all\nwrote %s\n",
-                  res.width, res.height, rn_o.spp, to_string(rn_o.mode), to_string(rn_o.layout), to_string(rn_o.traversal),
-                  rn_backend.c_str(), res.rays, res.mrays_per_s(), res.trace_seconds, res.total_seconds, shown(rn_out).c_str());
+          "(%.2f s), %.2f s in all\nwrote %s\n",
+          res.width, res.height, rn_o.spp, to_string(rn_o.mode), to_string(rn_o.layout), to_string(rn_o.traversal),
+          rn_backend.c_str(), res.rays, res.mrays_per_s(), res.trace_seconds, res.total_seconds, shown(rn_out).c_str());
       if (!res.curve.empty())
         say("RMSE against %s: %.5f after 1 spp, %.5f after %u spp\n", rn_reference.c_str(), res.curve.front().rmse,
-                    res.curve.back().rmse, res.curve.back().spp);
+            res.curve.back().rmse, res.curve.back().spp);
       return 0;
     }
 
@@ -522,14 +522,14 @@ static int run(int argc, char** argv) {
       if (o.query == Query::any) for (auto v : out.occluded) hits += v;
       else for (const auto& h : out.hits) hits += h.prim != MBVH_MISS_PRIM;
       say("traced %zu rays (%s/%s/%s) in %.1f ms: %.3f Mrays/s; %zu %s, %zu invalid\n", r.size(), tr_layout.c_str(),
-                  tr_trav.c_str(), tr_query.c_str(), ms, ms > 0 ? static_cast<double>(r.size()) / ms * 1e-3 : 0.0, hits,
-                  o.query == Query::any ? "occluded" : "hits", out.invalid);
+          tr_trav.c_str(), tr_query.c_str(), ms, ms > 0 ? static_cast<double>(r.size()) / ms * 1e-3 : 0.0, hits,
+          o.query == Query::any ? "occluded" : "hits", out.invalid);
       if (tr_stats && !out.stats.empty()) {
         double n = 0, lf = 0, t = 0, c = 0;
         for (const auto& s : out.stats) { n += s.nodes; lf += s.leaves; t += s.tris; c += s.climbs; }
         const double k = static_cast<double>(out.stats.size());
         say("per ray: %.2f nodes, %.2f leaves, %.2f triangles, %.2f climbs; state %zu B\n", n / k, lf / k, t / k,
-                    c / k, backend->state_bytes(o));
+            c / k, backend->state_bytes(o));
       }
       if (!tr_out.empty()) {
         if (o.query == Query::any) write_bytes_to(hits_to, out.occluded.data(), out.occluded.size());
@@ -558,7 +558,7 @@ static int run(int argc, char** argv) {
         });
         if (tty) std::fprintf(stderr, "\r%72s\r", "");
         say("== %s: %s rays\n%s\n", l.scene.name.c_str(), k == "file" ? ck_r.rays_file.c_str() : k.c_str(),
-                    rep.table(r).c_str());
+            rep.table(r).c_str());
         genuine += rep.mismatches();
       }
       return genuine ? 1 : 0;
@@ -585,16 +585,16 @@ static int run(int argc, char** argv) {
       BenchReport rep = run_bench(l.scene, *l.acc, bo, [&p](std::size_t d, std::size_t) { p.update(d); });
       p.finish();
       say("scene %s, %zu triangles, BVH hash %s\ncpu %s, %u threads\n\n%s", l.scene.name.c_str(),
-                  l.scene.triangle_count(), rep.bvh_hash.c_str(), rep.cpu.c_str(), resolve_threads(bn_a.threads),
-                  rep.table().c_str());
+          l.scene.triangle_count(), rep.bvh_hash.c_str(), rep.cpu.c_str(), resolve_threads(bn_a.threads),
+          rep.table().c_str());
       const double bit = double(state_bytes_per_ray(Layout::mbvh4, Traversal::bitstack));
       say("\ntraversal state per ray: stack %zu B (64 x int32 + sp + node; MBVH4: 1 + 3x21 entries), ordered "
-                  "stack %zu B (64 x (node, distance)), bitstack %.0f B (node + 64-bit word): %.0fx and %.0fx smaller; "
-                  "MBVH8 ordered stack %zu B (128 entries)\n",
-                  state_bytes_per_ray(Layout::mbvh4, Traversal::stack), state_bytes_per_ray(Layout::mbvh4, Traversal::stack_ordered),
-                  bit, double(state_bytes_per_ray(Layout::mbvh4, Traversal::stack)) / bit,
-                  double(state_bytes_per_ray(Layout::mbvh4, Traversal::stack_ordered)) / bit,
-                  state_bytes_per_ray(Layout::mbvh8, Traversal::stack_ordered));
+          "stack %zu B (64 x (node, distance)), bitstack %.0f B (node + 64-bit word): %.0fx and %.0fx smaller; "
+          "MBVH8 ordered stack %zu B (128 entries)\n",
+          state_bytes_per_ray(Layout::mbvh4, Traversal::stack), state_bytes_per_ray(Layout::mbvh4, Traversal::stack_ordered),
+          bit, double(state_bytes_per_ray(Layout::mbvh4, Traversal::stack)) / bit,
+          double(state_bytes_per_ray(Layout::mbvh4, Traversal::stack_ordered)) / bit,
+          state_bytes_per_ray(Layout::mbvh8, Traversal::stack_ordered));
       const std::string json = rep.json() + "\n", csv = rep.csv();
       std::vector<OutputWrite> writes;
       if (!bn_json.empty()) writes.push_back({outs[0], json.data(), json.size()});
@@ -617,7 +617,7 @@ static int run(int argc, char** argv) {
         try {
           auto be = b.make(dv_dev.options(0));
           say("%-12s ready: %s%s\n", b.name.c_str(), be->describe().c_str(),
-                      b.alias_of.empty() ? "" : (" (= " + b.alias_of + ")").c_str());
+              b.alias_of.empty() ? "" : (" (= " + b.alias_of + ")").c_str());
           if (b.devices && b.alias_of.empty())
             for (const std::string& d : b.devices()) say("%-12s   device %s\n", "", d.c_str());
         } catch (const std::exception& e) {
