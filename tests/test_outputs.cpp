@@ -1,7 +1,8 @@
 // test_outputs.cpp — outputs never destroy anything: only regular files are replaced (never a
 // FIFO, socket, directory or device node), symlinks are followed, the mode is kept, temporaries are
 // unique and removed on errors and on SIGTERM, an output may not be an input, concurrent writers
-// leave one complete file, write errors fail the run, and `-o -` is standard output.
+// leave one complete file, write errors fail the run, and `-o -` is standard output. (Test names
+// avoid ';', ',' and a leading '-': ctest passes them to Catch2 as a list item and an argument.)
 #include <catch2/catch.hpp>
 
 #include <fcntl.h>
@@ -67,7 +68,7 @@ mbvh_test::RunResult run_sh(const std::string& script) {
 
 }  // namespace
 
-TEST_CASE("outputs replace only regular files: FIFO, socket, directory and device node are refused", "[outputs]") {
+TEST_CASE("outputs replace only regular files: FIFO socket directory and device node are refused", "[outputs]") {
   TempDir dir;
   const std::vector<Hit> hits = {{1.5f, 0.25f, 0.5f, 7}};
   const std::string fifo = dir.file("fifo"), sock = dir.file("sock"), sub = dir.file("sub"), dev = dir.file("null");
@@ -126,7 +127,7 @@ TEST_CASE("a symlinked output replaces the regular file it names and keeps the l
   CHECK(names_in(dir) == std::set<std::string>{"real", "link.hits", "dangling.hits", "fifo.hits"});
 }
 
-TEST_CASE("a replaced output keeps its mode; temporaries are unique and touch no other file", "[outputs]") {
+TEST_CASE("a replaced output keeps its mode and its temporaries are unique and touch no other file", "[outputs]") {
   TempDir dir;
   const std::vector<Hit> hits = {{1.5f, 0.25f, 0.5f, 7}};
   const std::string out = dir.write("h.hits", "old");
@@ -180,7 +181,7 @@ TEST_CASE("an output that is also an input is refused before any work", "[output
   CHECK_FALSE(std::filesystem::exists(dir.file("b.png")));
 }
 
-TEST_CASE("-o - writes to standard output, the report to standard error", "[outputs][cli]") {
+TEST_CASE("standard output: -o - writes the output there and the report to standard error", "[outputs][cli]") {
   TempDir dir;
   const std::string file = dir.file("f.rays");
   REQUIRE(run_cli("rays gen:sphere:16 --count 700 --seed 3 -o " + file).code == 0);
