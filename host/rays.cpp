@@ -11,6 +11,7 @@
 #include <numbers>
 
 #include "host/error.h"
+#include "host/io/output.h"
 #include "host/random.h"
 #include "host/stress.h"
 #include "host/trace/trace.h"
@@ -251,15 +252,8 @@ std::vector<T> read_records(const std::string& path, const char* what) {
 }  // namespace
 
 void write_bytes(const std::string& path, const void* data, std::size_t bytes) {
-  const std::string tmp = path + ".partial";
-  FILE* f = std::fopen(tmp.c_str(), "wb");
-  if (!f) throw Error(path + ": cannot create output file: " + std::strerror(errno));
-  const bool ok = (bytes == 0 || std::fwrite(data, 1, bytes, f) == bytes);
-  const bool closed = std::fclose(f) == 0;
-  if (!ok || !closed || std::rename(tmp.c_str(), path.c_str()) != 0) {
-    std::remove(tmp.c_str());
-    throw Error(path + ": write failed: " + std::strerror(errno));
-  }
+  const OutputWrite out{{"", path, false}, data, bytes};
+  write_outputs(std::span(&out, 1));
 }
 
 std::vector<Ray> read_rays(const std::string& path) { return read_records<Ray>(path, "ray"); }

@@ -56,9 +56,10 @@ std::vector<Ray> generate_rays(const Scene& scene, const Accel& acc, const RayGe
 Ray spawn_ray(const Vec3f& p0, const Vec3f& p1, const Vec3f& p2, float u, float v, const Vec3f& dir, float tmax);
 
 /// Files (little-endian, no header): rays 32 B, hits 16 B, occlusion 1 B per ray. Writers go
-/// through a temporary file renamed on success, so no partial file is left behind.
+/// through write_outputs (io/output.h): a unique temporary renamed on success, regular files only.
 std::vector<Ray> read_rays(const std::string& path);
-/// Writes `bytes` bytes to `path` through `path`.partial, renamed on success (Error otherwise).
+/// Writes `bytes` bytes to `path` ("-": standard output) as write_outputs does: a unique temporary
+/// beside it renamed on success; refuses anything but a regular file; Error on any failure.
 void write_bytes(const std::string& path, const void* data, std::size_t bytes);
 /// The ray records in `size` bytes; throws Error (naming `name`) unless size is a multiple of 32.
 std::vector<Ray> rays_from_bytes(const std::string& name, const char* data, std::size_t size);

@@ -313,14 +313,19 @@ double rmse(const std::vector<float>& a, const std::vector<float>& b) {
   return a.empty() ? 0.0 : std::sqrt(sum / static_cast<double>(a.size()));
 }
 
-void write_pfm(const std::string& path, unsigned width, unsigned height, const std::vector<float>& rgb) {
-  if (rgb.size() != std::size_t(width) * height * 3) throw Error(path + ": PFM size does not match the image");
+std::vector<char> pfm_bytes(const std::string& name, unsigned width, unsigned height, const std::vector<float>& rgb) {
+  if (rgb.size() != std::size_t(width) * height * 3) throw Error(name + ": PFM size does not match the image");
   const std::string header = "PF\n" + std::to_string(width) + " " + std::to_string(height) + "\n-1.0\n";
   std::vector<char> bytes(header.begin(), header.end());
   for (unsigned y = height; y-- > 0;) {  // bottom row first
     const char* row = reinterpret_cast<const char*>(rgb.data() + std::size_t(y) * width * 3);
     bytes.insert(bytes.end(), row, row + std::size_t(width) * 12);
   }
+  return bytes;
+}
+
+void write_pfm(const std::string& path, unsigned width, unsigned height, const std::vector<float>& rgb) {
+  const std::vector<char> bytes = pfm_bytes(path, width, height, rgb);
   write_bytes(path, bytes.data(), bytes.size());
 }
 
@@ -359,9 +364,10 @@ std::vector<std::uint8_t> to_srgb8(const std::vector<float>& rgb) {
   return out;
 }
 
-void write_png(const std::string& path, unsigned width, unsigned height, const std::vector<std::uint8_t>& rgb8) {
+std::vector<std::uint8_t> png_bytes(const std::string& name, unsigned width, unsigned height,
+                                    const std::vector<std::uint8_t>& rgb8) {
   if (width == 0 || height == 0 || rgb8.size() != std::size_t(width) * height * 3)
-    throw Error(path + ": cannot write a PNG of " + std::to_string(width) + "x" + std::to_string(height) + " from " +
+    throw Error(name + ": cannot write a PNG of " + std::to_string(width) + "x" + std::to_string(height) + " from " +
                 std::to_string(rgb8.size()) + " bytes");
   std::vector<std::uint8_t> raw;  // scanlines, each with filter byte 0
   raw.reserve((std::size_t(width) * 3 + 1) * height);
@@ -397,6 +403,11 @@ void write_png(const std::string& path, unsigned width, unsigned height, const s
   chunk(png, "IHDR", ihdr);
   chunk(png, "IDAT", z);
   chunk(png, "IEND", {});
+  return png;
+}
+
+void write_png(const std::string& path, unsigned width, unsigned height, const std::vector<std::uint8_t>& rgb8) {
+  const std::vector<std::uint8_t> png = png_bytes(path, width, height, rgb8);
   write_bytes(path, png.data(), png.size());
 }
 

@@ -2,6 +2,7 @@
 #pragma once
 #include <array>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <string>
@@ -25,17 +26,22 @@ struct TempDir {
   }
 };
 
+/// The mbvh program the CLI tests run: MBVH_CLI_PATH, or the environment's MBVH_TEST_CLI (to run
+/// the same tests against another build, e.g. an older one).
+inline std::string cli_path() {
+  const char* other = std::getenv("MBVH_TEST_CLI");
+  return other && *other ? other : MBVH_CLI_PATH;
+}
+
 struct RunResult {
   int code = -1;
   std::string output;  // stdout and stderr
 };
 
-/// Runs the mbvh program with `args` (a shell fragment), capturing its output; `env` (e.g.
-/// "OCL_ICD_VENDORS=/x") is set for that run only.
-inline RunResult run_cli(const std::string& args, const std::string& env = "") {
+/// Runs a shell command line, capturing its standard output and standard error.
+inline RunResult run_shell(const std::string& command) {
   RunResult r;
-  const std::string cmd = (env.empty() ? "" : "env " + env + " ") + std::string(MBVH_CLI_PATH) + " " + args + " 2>&1";
-  FILE* p = popen(cmd.c_str(), "r");
+  FILE* p = popen((command + " 2>&1").c_str(), "r");
   if (!p) return r;
   std::array<char, 4096> buf;
   std::size_t n;
@@ -43,6 +49,12 @@ inline RunResult run_cli(const std::string& args, const std::string& env = "") {
   const int status = pclose(p);
   r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
   return r;
+}
+
+/// Runs the mbvh program with `args` (a shell fragment), capturing its output; `env` (e.g.
+/// "OCL_ICD_VENDORS=/x") is set for that run only.
+inline RunResult run_cli(const std::string& args, const std::string& env = "") {
+  return run_shell((env.empty() ? "" : "env " + env + " ") + cli_path() + " " + args);
 }
 
 }  // namespace mbvh_test

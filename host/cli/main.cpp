@@ -1,9 +1,10 @@
-// main.cpp — the `mbvh` program: info, rays, trace, check, bench, devices.
+// main.cpp — the `mbvh` program: info, rays, trace, check, bench, render, devices.
 #include <CLI/CLI.hpp>
 
 #include <chrono>
+#include <cstdarg>
 #include <cstdio>
-#include <fstream>
+#include <cstring>
 #include <iostream>
 #include <nlohmann/json.hpp>
 
@@ -11,6 +12,7 @@
 #include "host/bench.h"
 #include "host/check.h"
 #include "host/error.h"
+#include "host/io/output.h"
 #include "host/parallel.h"
 #include "host/progress.h"
 #include "host/rays.h"
@@ -21,6 +23,37 @@ using namespace mbvh;
 namespace {
 
 using Clock = std::chrono::steady_clock;
+
+// The report (tables, "wrote ..."): standard output, or standard error while an output goes to
+// standard output ('-'), so the two never mix.
+FILE* g_report = stdout;
+
+__attribute__((format(printf, 1, 2))) void say(const char* format, ...) {
+  va_list args;
+  va_start(args, format);
+  std::vfprintf(g_report, format, args);
+  va_end(args);
+}
+
+// Checks a command's outputs against each other and its inputs before any work (check_outputs),
+// and sends the report to standard error if one of them is '-'. Empty paths are options not given;
+// a generated scene (gen:...) is no input file.
+void prepare_outputs(std::vector<OutputTarget> outputs, std::vector<InputFile> inputs) {
+  std::erase_if(outputs, [](const OutputTarget& o) { return o.path.empty(); });
+  std::erase_if(inputs, [](const InputFile& i) { return i.path.empty() || i.path.rfind("gen:", 0) == 0; });
+  check_outputs(outputs, inputs);
+  for (const OutputTarget& o : outputs)
+    if (o.path == "-") g_report = stderr;
+}
+
+// Writes one output (write_outputs).
+void write_bytes_to(const OutputTarget& to, const void* data, std::size_t size) {
+  const OutputWrite w{to, data, size};
+  write_outputs(std::span(&w, 1));
+}
+
+// How the report names an output.
+std::string shown(const std::string& path) { return path == "-" ? "standard output" : path; }
 
 double ms_since(Clock::time_point t0) { return std::chrono::duration<double, std::milli>(Clock::now() - t0).count(); }
 
@@ -208,25 +241,26 @@ std::vector<Ray> get_rays(const RayArgs& r, const Loaded& l, unsigned threads) {
 }
 
 void print_stats_row(const LayoutStats& s, std::size_t state_stack, std::size_t state_bit) {
-  std::printf("%-7s %9zu %9zu %6u %9u %10.2f %12zu %9.1f %10zu %10zu\n", s.layout.c_str(), s.nodes, s.leaves, s.depth,
-              s.bitstack_bits, s.sah_cost, s.bytes, s.build_ms, state_stack, state_bit);
+  say("%-7s %9zu %9zu %6u %9u %10.2f %12zu %9.1f %10zu %10zu\n", s.layout.c_str(), s.nodes, s.leaves, s.depth,
+      s.bitstack_bits, s.sah_cost, s.bytes, s.build_ms, state_stack, state_bit);
 }
 
 int cmd_info(const SceneArgs& a, const std::string& json_path) {
+  prepare_outputs({{"--json", json_path, true}}, {{"scene", a.scene}});
   Loaded l = load_and_build(a, false);
   const Accel& acc = *l.acc;
   const Box b = acc.bounds();
-  std::printf("scene      %s\n", l.scene.name.c_str());
-  std::printf("triangles  %zu (%zu degenerate, kept out of leaves), %zu vertices, loaded in %.1f ms\n",
-              l.scene.triangle_count(), acc.bvh2().degenerate, l.scene.vertices.size(), l.load_ms);
-  std::printf("bounds     (%g, %g, %g) .. (%g, %g, %g)\n", b.lo.x, b.lo.y, b.lo.z, b.hi.x, b.hi.y, b.hi.z);
-  std::printf("build      binned SAH, %u bins, max leaf %u, leaf block %u, depth cap %u, %u threads; hash %016llx\n",
-              acc.options().bins, acc.options().max_leaf, acc.options().leaf_block, acc.options().depth_cap,
-              static_cast<unsigned>(resolve_threads(a.threads)), static_cast<unsigned long long>(acc.hash()));
-  std::printf("leaves     largest %zu triangles, %zu forced by the depth cap or equal centroids\n\n",
-              acc.bvh2().largest_leaf, acc.bvh2().forced_leaves);
-  std::printf("%-7s %9s %9s %6s %9s %10s %12s %9s %10s %10s\n", "layout", "nodes", "leaves", "depth", "bits", "SAH cost",
-              "bytes", "build ms", "stack B/r", "bitstk B/r");
+  say("scene      %s\n", l.scene.name.c_str());
+  say("triangles  %zu (%zu degenerate, kept out of leaves), %zu vertices, loaded in %.1f ms\n",
+      l.scene.triangle_count(), acc.bvh2().degenerate, l.scene.vertices.size(), l.load_ms);
+  say("bounds     (%g, %g, %g) .. (%g, %g, %g)\n", b.lo.x, b.lo.y, b.lo.z, b.hi.x, b.hi.y, b.hi.z);
+  say("build      binned SAH, %u bins, max leaf %u, leaf block %u, depth cap %u, %u threads; hash %016llx\n",
+      acc.options().bins, acc.options().max_leaf, acc.options().leaf_block, acc.options().depth_cap,
+      static_cast<unsigned>(resolve_threads(a.threads)), static_cast<unsigned long long>(acc.hash()));
+  say("leaves     largest %zu triangles, %zu forced by the depth cap or equal centroids\n\n",
+      acc.bvh2().largest_leaf, acc.bvh2().forced_leaves);
+  say("%-7s %9s %9s %6s %9s %10s %12s %9s %10s %10s\n", "layout", "nodes", "leaves", "depth", "bits", "SAH cost",
+      "bytes", "build ms", "stack B/r", "bitstk B/r");
   const LayoutStats& bs = acc.binary_stats();
   print_stats_row(bs, 0, 0);
   const LayoutStats s2 = acc.mbvh2().stats;
@@ -235,9 +269,9 @@ int cmd_info(const SceneArgs& a, const std::string& json_path) {
   print_stats_row(s2, state_bytes_per_ray(Layout::mbvh2, Traversal::stack), state_bytes_per_ray(Layout::mbvh2, Traversal::bitstack));
   print_stats_row(s4, state_bytes_per_ray(Layout::mbvh4, Traversal::stack), state_bytes_per_ray(Layout::mbvh4, Traversal::bitstack));
   print_stats_row(s8, state_bytes_per_ray(Layout::mbvh8, Traversal::stack_ordered), 0);
-  std::printf("\ntraversal state per ray: stack %zu B, bitstack %zu B (%.1fx smaller)\n",
-              state_bytes_per_ray(Layout::mbvh2, Traversal::stack), state_bytes_per_ray(Layout::mbvh2, Traversal::bitstack),
-              double(state_bytes_per_ray(Layout::mbvh2, Traversal::stack)) / double(state_bytes_per_ray(Layout::mbvh2, Traversal::bitstack)));
+  say("\ntraversal state per ray: stack %zu B, bitstack %zu B (%.1fx smaller)\n",
+      state_bytes_per_ray(Layout::mbvh2, Traversal::stack), state_bytes_per_ray(Layout::mbvh2, Traversal::bitstack),
+      double(state_bytes_per_ray(Layout::mbvh2, Traversal::stack)) / double(state_bytes_per_ray(Layout::mbvh2, Traversal::bitstack)));
   if (!json_path.empty()) {
     nlohmann::json j;
     j["scene"] = l.scene.name;
@@ -249,7 +283,8 @@ int cmd_info(const SceneArgs& a, const std::string& json_path) {
       j["layouts"].push_back({{"layout", s->layout}, {"nodes", s->nodes}, {"leaves", s->leaves}, {"depth", s->depth},
                               {"bitstack_bits", s->bitstack_bits}, {"sah_cost", s->sah_cost}, {"bytes", s->bytes},
                               {"build_ms", s->build_ms}});
-    std::ofstream(json_path) << j.dump(2) << "\n";
+    const std::string text = j.dump(2) + "\n";
+    write_bytes_to({"--json", json_path, true}, text.data(), text.size());
   }
   return 0;
 }
@@ -287,7 +322,7 @@ static int run(int argc, char** argv) {
   std::string info_json;
   auto* info = app.add_subcommand("info", "scene and per-layout build statistics");
   add_scene_args(info, info_a);
-  info->add_option("--json", info_json, "also write the statistics as JSON");
+  info->add_option("--json", info_json, "also write the statistics as JSON ('-': standard output)");
 
   // -- rays
   SceneArgs rays_a;
@@ -296,7 +331,7 @@ static int run(int argc, char** argv) {
   auto* rays = app.add_subcommand("rays", "generate a ray file (32 bytes per ray)");
   add_scene_args(rays, rays_a);
   add_ray_args(rays, rays_r, false);
-  rays->add_option("-o,--output", rays_out, "output ray file")->required();
+  rays->add_option("-o,--output", rays_out, "output ray file ('-': standard output)")->required();
 
   // -- trace
   SceneArgs tr_a;
@@ -310,7 +345,7 @@ static int run(int argc, char** argv) {
   trace->add_option("--layout", tr_layout, "mbvh2, mbvh4 or mbvh8 (default: mbvh4, or mbvh2 where the backend has only that)");
   trace->add_option("--traversal", tr_trav, "stack, bitstack, stack-ordered or bitstack-retest (MBVH8: stack-ordered)");
   trace->add_option("--query", tr_query, "closest (writes hits, 16 B/ray) or any (writes occlusion, 1 B/ray)");
-  trace->add_option("-o,--output", tr_out, "output file");
+  trace->add_option("-o,--output", tr_out, "output file ('-': standard output)");
   trace->add_flag("--stats", tr_stats, "also count work per ray (slower)");
   std::string tr_precision = "robust";
   trace->add_option("--precision", tr_precision, "accuracy mode: robust (default), exact or fast");
@@ -357,9 +392,9 @@ static int run(int argc, char** argv) {
   bench->add_option("--camera", bn_camera, "eye x y z, target x y z [, fov degrees] (default: frames the scene)")
       ->delimiter(',')
       ->expected(6, 7);
-  bench->add_option("--json", bn_json, "write the records as JSON");
+  bench->add_option("--json", bn_json, "write the records as JSON ('-': standard output)");
   std::string bn_csv;
-  bench->add_option("--csv", bn_csv, "write the records as CSV (one line per record)");
+  bench->add_option("--csv", bn_csv, "write the records as CSV, one line per record ('-': standard output)");
   bool bn_scaling = false;
   bench->add_flag("--scaling", bn_scaling,
                   "also time each variant on 1 thread, passes interleaved with the N-thread ones (thread scaling)");
@@ -384,7 +419,7 @@ static int run(int argc, char** argv) {
   render_cmd->add_option("--camera", rn_camera, "eye x y z, target x y z [, fov degrees] (default: frames the scene)")
       ->delimiter(',')
       ->expected(6, 7);
-  render_cmd->add_option("-o,--output", rn_out, "PNG file")->required();
+  render_cmd->add_option("-o,--output", rn_out, "PNG file ('-': standard output, not a terminal)")->required();
   std::string rn_precision = "robust", rn_pfm, rn_reference, rn_curve;
   render_cmd->add_option("--precision", rn_precision, "accuracy mode: robust (default), exact or fast");
   render_cmd->add_option("--pfm", rn_pfm, "also write the linear image as PFM (a reference for --reference)");
@@ -403,15 +438,19 @@ static int run(int argc, char** argv) {
     if (*info) return cmd_info(info_a, info_json);
 
     if (*rays) {
+      const OutputTarget out{"-o", rays_out};
+      prepare_outputs({out}, {{"scene", rays_a.scene}});
       Loaded l = load_and_build(rays_a);
       const std::vector<Ray> r = generate_rays(l.scene, *l.acc, ray_gen(rays_r, rays_r.kind, rays_a.threads));
-      write_rays(rays_out, r);
-      std::printf("wrote %zu %s rays (seed %llu) to %s\n", r.size(), rays_r.kind.c_str(),
-                  static_cast<unsigned long long>(rays_r.seed), rays_out.c_str());
+      write_bytes_to(out, r.data(), r.size() * sizeof(Ray));
+      say("wrote %zu %s rays (seed %llu) to %s\n", r.size(), rays_r.kind.c_str(),
+          static_cast<unsigned long long>(rays_r.seed), shown(rays_out).c_str());
       return 0;
     }
 
     if (*render_cmd) {
+      const std::vector<OutputTarget> outs{{"-o", rn_out}, {"--pfm", rn_pfm}, {"--curve", rn_curve, true}};
+      prepare_outputs(outs, {{"scene", rn_a.scene}, {"--reference", rn_reference}});
       rn_o.mode = parse_render_mode(rn_mode);
       rn_o.traversal = parse_traversal(rn_trav);
       rn_o.threads = rn_a.threads;
@@ -439,8 +478,15 @@ static int run(int argc, char** argv) {
       Progress p("rendering", rn_o.spp);
       const RenderResult res = render(l.scene, *l.acc, *backend, rn_o, [&p](unsigned d, unsigned) { p.update(d); });
       p.finish();
-      write_png(rn_out, res.width, res.height, to_srgb8(res.rgb));
-      if (!rn_pfm.empty()) write_pfm(rn_pfm, res.width, res.height, res.rgb);
+      // all outputs or none: the PNG is not left behind when the PFM or the curve cannot be written
+      const std::vector<std::uint8_t> png = png_bytes(rn_out, res.width, res.height, to_srgb8(res.rgb));
+      std::vector<OutputWrite> writes{{outs[0], png.data(), png.size()}};
+      std::vector<char> pfm;
+      if (!rn_pfm.empty()) {
+        pfm = pfm_bytes(rn_pfm, res.width, res.height, res.rgb);
+        writes.push_back({outs[1], pfm.data(), pfm.size()});
+      }
+      std::string curve;
       if (!rn_curve.empty()) {
         nlohmann::json j{{"backend", rn_backend},       {"device", backend->describe()}, {"precision", rn_precision},
                          {"scene", l.scene.name},        {"width", res.width},            {"height", res.height},
@@ -448,20 +494,23 @@ static int run(int argc, char** argv) {
         for (const CurvePoint& c : res.curve)
           j["points"].push_back(
               {{"spp", c.spp}, {"trace_seconds", c.trace_seconds}, {"total_seconds", c.total_seconds}, {"rmse", c.rmse}});
-        const std::string text = j.dump(1) + "\n";
-        write_bytes(rn_curve, text.data(), text.size());
+        curve = j.dump(1) + "\n";
+        writes.push_back({outs[2], curve.data(), curve.size()});
       }
-      std::printf("rendered %ux%u, %u spp, %s (%s/%s) on %s: %zu rays over all bounces, %.3f Mrays/s in traversal "
-                  "(%.2f s), %.2f s in all\nwrote %s\n",
-                  res.width, res.height, rn_o.spp, to_string(rn_o.mode), to_string(rn_o.layout), to_string(rn_o.traversal),
-                  rn_backend.c_str(), res.rays, res.mrays_per_s(), res.trace_seconds, res.total_seconds, rn_out.c_str());
+      write_outputs(writes);
+      say("rendered %ux%u, %u spp, %s (%s/%s) on %s: %zu rays over all bounces, %.3f Mrays/s in traversal "
+          "(%.2f s), %.2f s in all\nwrote %s\n",
+          res.width, res.height, rn_o.spp, to_string(rn_o.mode), to_string(rn_o.layout), to_string(rn_o.traversal),
+          rn_backend.c_str(), res.rays, res.mrays_per_s(), res.trace_seconds, res.total_seconds, shown(rn_out).c_str());
       if (!res.curve.empty())
-        std::printf("RMSE against %s: %.5f after 1 spp, %.5f after %u spp\n", rn_reference.c_str(), res.curve.front().rmse,
-                    res.curve.back().rmse, res.curve.back().spp);
+        say("RMSE against %s: %.5f after 1 spp, %.5f after %u spp\n", rn_reference.c_str(), res.curve.front().rmse,
+            res.curve.back().rmse, res.curve.back().spp);
       return 0;
     }
 
     if (*trace) {
+      const OutputTarget hits_to{"-o", tr_out};
+      prepare_outputs({hits_to}, {{"scene", tr_a.scene}, {"--rays", tr_r.rays_file}});
       TraceOptions o;
       o.layout = parse_layout(tr_layout);
       o.traversal = parse_traversal(tr_trav);
@@ -503,20 +552,20 @@ static int run(int argc, char** argv) {
       std::size_t hits = 0;
       if (o.query == Query::any) for (auto v : out.occluded) hits += v;
       else for (const auto& h : out.hits) hits += h.prim != MBVH_MISS_PRIM;
-      std::printf("traced %zu rays (%s/%s/%s) in %.1f ms: %.3f Mrays/s; %zu %s, %zu invalid\n", r.size(), tr_layout.c_str(),
-                  tr_trav.c_str(), tr_query.c_str(), ms, ms > 0 ? static_cast<double>(r.size()) / ms * 1e-3 : 0.0, hits,
-                  o.query == Query::any ? "occluded" : "hits", out.invalid);
+      say("traced %zu rays (%s/%s/%s) in %.1f ms: %.3f Mrays/s; %zu %s, %zu invalid\n", r.size(), tr_layout.c_str(),
+          tr_trav.c_str(), tr_query.c_str(), ms, ms > 0 ? static_cast<double>(r.size()) / ms * 1e-3 : 0.0, hits,
+          o.query == Query::any ? "occluded" : "hits", out.invalid);
       if (tr_stats && !out.stats.empty()) {
         double n = 0, lf = 0, t = 0, c = 0;
         for (const auto& s : out.stats) { n += s.nodes; lf += s.leaves; t += s.tris; c += s.climbs; }
         const double k = static_cast<double>(out.stats.size());
-        std::printf("per ray: %.2f nodes, %.2f leaves, %.2f triangles, %.2f climbs; state %zu B\n", n / k, lf / k, t / k,
-                    c / k, backend->state_bytes(o));
+        say("per ray: %.2f nodes, %.2f leaves, %.2f triangles, %.2f climbs; state %zu B\n", n / k, lf / k, t / k,
+            c / k, backend->state_bytes(o));
       }
       if (!tr_out.empty()) {
-        if (o.query == Query::any) write_occlusion(tr_out, out.occluded);
-        else write_hits(tr_out, out.hits);
-        std::printf("wrote %s\n", tr_out.c_str());
+        if (o.query == Query::any) write_bytes_to(hits_to, out.occluded.data(), out.occluded.size());
+        else write_bytes_to(hits_to, out.hits.data(), out.hits.size() * sizeof(Hit));
+        say("wrote %s\n", shown(tr_out).c_str());
       }
       return 0;
     }
@@ -540,8 +589,8 @@ static int run(int argc, char** argv) {
           if (tty) std::fprintf(stderr, "\r%-72.72s\r", s.c_str());
         });
         if (tty) std::fprintf(stderr, "\r%72s\r", "");
-        std::printf("== %s: %s rays\n%s\n", l.scene.name.c_str(), k == "file" ? ck_r.rays_file.c_str() : k.c_str(),
-                    rep.table(r).c_str());
+        say("== %s: %s rays\n%s\n", l.scene.name.c_str(), k == "file" ? ck_r.rays_file.c_str() : k.c_str(),
+            rep.table(r).c_str());
         genuine += rep.mismatches();
         j["kinds"].push_back(check_json(rep, k));
       }
@@ -554,6 +603,8 @@ static int run(int argc, char** argv) {
     }
 
     if (*bench) {
+      const std::vector<OutputTarget> outs{{"--json", bn_json, true}, {"--csv", bn_csv, true}};
+      prepare_outputs(outs, {{"scene", bn_a.scene}});
       BenchOptions bo;
       bo.grid = bn_g.parse();
       bo.kinds = parse_list<RayKind>(bn_kinds, parse_ray_kind);
@@ -571,22 +622,23 @@ static int run(int argc, char** argv) {
       Progress p("benchmarking", bo.kinds.size() * bo.grid.size());
       BenchReport rep = run_bench(l.scene, *l.acc, bo, [&p](std::size_t d, std::size_t) { p.update(d); });
       p.finish();
-      std::printf("scene %s, %zu triangles, BVH hash %s\ncpu %s, %u threads\n\n%s", l.scene.name.c_str(),
-                  l.scene.triangle_count(), rep.bvh_hash.c_str(), rep.cpu.c_str(), resolve_threads(bn_a.threads),
-                  rep.table().c_str());
+      say("scene %s, %zu triangles, BVH hash %s\ncpu %s, %u threads\n\n%s", l.scene.name.c_str(),
+          l.scene.triangle_count(), rep.bvh_hash.c_str(), rep.cpu.c_str(), resolve_threads(bn_a.threads),
+          rep.table().c_str());
       const double bit = double(state_bytes_per_ray(Layout::mbvh4, Traversal::bitstack));
-      std::printf("\ntraversal state per ray: stack %zu B (64 x int32 + sp + node; MBVH4: 1 + 3x21 entries), ordered "
-                  "stack %zu B (64 x (node, distance)), bitstack %.0f B (node + 64-bit word): %.0fx and %.0fx smaller; "
-                  "MBVH8 ordered stack %zu B (128 entries)\n",
-                  state_bytes_per_ray(Layout::mbvh4, Traversal::stack), state_bytes_per_ray(Layout::mbvh4, Traversal::stack_ordered),
-                  bit, double(state_bytes_per_ray(Layout::mbvh4, Traversal::stack)) / bit,
-                  double(state_bytes_per_ray(Layout::mbvh4, Traversal::stack_ordered)) / bit,
-                  state_bytes_per_ray(Layout::mbvh8, Traversal::stack_ordered));
-      for (const auto& [path, text] : {std::pair{bn_json, rep.json() + "\n"}, std::pair{bn_csv, rep.csv()}}) {
-        if (path.empty()) continue;
-        write_bytes(path, text.data(), text.size());
-        std::printf("wrote %s\n", path.c_str());
-      }
+      say("\ntraversal state per ray: stack %zu B (64 x int32 + sp + node; MBVH4: 1 + 3x21 entries), ordered "
+          "stack %zu B (64 x (node, distance)), bitstack %.0f B (node + 64-bit word): %.0fx and %.0fx smaller; "
+          "MBVH8 ordered stack %zu B (128 entries)\n",
+          state_bytes_per_ray(Layout::mbvh4, Traversal::stack), state_bytes_per_ray(Layout::mbvh4, Traversal::stack_ordered),
+          bit, double(state_bytes_per_ray(Layout::mbvh4, Traversal::stack)) / bit,
+          double(state_bytes_per_ray(Layout::mbvh4, Traversal::stack_ordered)) / bit,
+          state_bytes_per_ray(Layout::mbvh8, Traversal::stack_ordered));
+      const std::string json = rep.json() + "\n", csv = rep.csv();
+      std::vector<OutputWrite> writes;
+      if (!bn_json.empty()) writes.push_back({outs[0], json.data(), json.size()});
+      if (!bn_csv.empty()) writes.push_back({outs[1], csv.data(), csv.size()});
+      write_outputs(writes);  // both or neither
+      for (const OutputWrite& w : writes) say("wrote %s\n", shown(w.to.path).c_str());
       if (!rep.verified()) {
         std::fprintf(stderr, "error: some timed results did not match the reference (see 'verified')\n");
         return 1;
@@ -597,17 +649,17 @@ static int run(int argc, char** argv) {
     if (*devices) {
       for (const BackendInfo& b : list_backends()) {
         if (!b.make) {
-          std::printf("%-12s not built: %s\n", b.name.c_str(), b.unavailable.c_str());
+          say("%-12s not built: %s\n", b.name.c_str(), b.unavailable.c_str());
           continue;
         }
         try {
           auto be = b.make(dv_dev.options(0));
-          std::printf("%-12s ready: %s%s\n", b.name.c_str(), be->describe().c_str(),
-                      b.alias_of.empty() ? "" : (" (= " + b.alias_of + ")").c_str());
+          say("%-12s ready: %s%s\n", b.name.c_str(), be->describe().c_str(),
+              b.alias_of.empty() ? "" : (" (= " + b.alias_of + ")").c_str());
           if (b.devices && b.alias_of.empty())
-            for (const std::string& d : b.devices()) std::printf("%-12s   device %s\n", "", d.c_str());
+            for (const std::string& d : b.devices()) say("%-12s   device %s\n", "", d.c_str());
         } catch (const std::exception& e) {
-          std::printf("%-12s cannot start: %s\n", b.name.c_str(), e.what());
+          say("%-12s cannot start: %s\n", b.name.c_str(), e.what());
         }
       }
       return 0;
@@ -621,6 +673,11 @@ static int run(int argc, char** argv) {
 
 int main(int argc, char** argv) {
   int rc = run(argc, argv);
+  // the report is an output too: a failed write to standard output fails the run
+  if (std::fflush(stdout) != 0 || std::ferror(stdout)) {
+    std::fprintf(stderr, "mbvh: error: standard output: write failed: %s\n", std::strerror(errno));
+    if (rc == 0) rc = 2;
+  }
   // problems a backend's diagnostics raised where they could not throw (Vulkan validation
   // messages while tearing down): the run fails
   for (const BackendInfo& b : list_backends())

@@ -1,0 +1,53 @@
+// output.h — every file mbvh writes: regular files only, replaced atomically through a unique
+// temporary beside the target, never a device, FIFO, socket or directory; "-" is standard output.
+#pragma once
+#include <cstddef>
+#include <span>
+#include <string>
+
+namespace mbvh {
+
+/// Where one output of a command goes: the option that named it (for messages; may be empty),
+/// its path ("-": standard output) and whether the format is text (JSON, CSV), which may go to a
+/// terminal, or binary (rays, hits, occlusion, PNG, PFM), which may not.
+struct OutputTarget {
+  std::string option;
+  std::string path;
+  bool text = false;
+};
+
+/// One input file of a command, for check_outputs: the option that named it and its path.
+struct InputFile {
+  std::string option;
+  std::string path;
+};
+
+/// The bytes of one output.
+struct OutputWrite {
+  OutputTarget to;
+  const void* data = nullptr;
+  std::size_t size = 0;
+};
+
+/// Checks a command's outputs before it does any work; throws Error naming the option and path
+/// when an output (a) exists and is not a regular file (directory, FIFO, socket, device) or is a
+/// symbolic link to one or to nothing, (b) lies in a directory that does not exist, (c) is one of
+/// `inputs` (same device and inode: symlinks, hard links and other spellings included) or names
+/// the same file as another output, (d) is "-" for a second output, or for a binary format while
+/// standard output is a terminal. Inputs that do not exist are left to their readers. Costs a
+/// few stat calls.
+void check_outputs(std::span<const OutputTarget> outputs, std::span<const InputFile> inputs = {});
+
+/// Writes every output, all or none: each file goes to a new temporary `.NAME.XXXXXX.partial`
+/// (mkstemp, in the target's directory) whose mode is the replaced file's (and its owner, where
+/// permitted), or 0666 minus the umask for a new file; every write, fsync and close is checked;
+/// "-" is written to standard output once every file is staged; then each temporary is renamed
+/// over its target. A symbolic link is followed: the regular file it finally names is replaced and
+/// the link stays. On any failure no target has been touched (up to a failing rename, the last
+/// step), the temporaries are removed and Error names the option and path; SIGINT, SIGTERM,
+/// SIGHUP and SIGPIPE (where not ignored) remove them too before the signal ends the process.
+/// After its rename each target must still be the file written: if another writer renamed over it
+/// in between, Error says so — a run never reports another run's data as its own.
+void write_outputs(std::span<const OutputWrite> outputs);
+
+}  // namespace mbvh
