@@ -41,7 +41,7 @@ std::string build_error(const Scene& s, const BuildOptions& o = {}) {
 
 }  // namespace
 
-TEST_CASE("Accel::build refuses out-of-range indices and NaN or infinite vertices, naming them", "[api]") {
+TEST_CASE("Accel::build refuses out-of-range indices and NaN or infinite vertices and names them", "[api]") {
   Scene s = one_triangle();
   s.triangles.push_back({0, 1, 7});
   CHECK_THAT(build_error(s), Catch::Contains("tri: triangle 1 names vertex 7, out of range (the scene has 3 vertices)"));
@@ -67,7 +67,7 @@ TEST_CASE("Accel::build refuses out-of-range indices and NaN or infinite vertice
   CHECK_THAT(build_error(big), Catch::Contains("gen:sphere:8@scale=3e38@offset=3e38") && Catch::Contains("inf"));
 }
 
-TEST_CASE("any thread count is safe: clamped to kMaxThreads, the build and the trace unchanged", "[api]") {
+TEST_CASE("any thread count is safe - clamped to kMaxThreads with the build and the trace unchanged", "[api]") {
   CHECK(resolve_threads(1) == 1);
   CHECK(resolve_threads(536870912u) == kMaxThreads);
   CHECK(resolve_threads(UINT32_MAX) == kMaxThreads);
@@ -93,7 +93,7 @@ TEST_CASE("any thread count is safe: clamped to kMaxThreads, the build and the t
   }
 }
 
-TEST_CASE("a camera looking along its up vector makes rays; one that cannot is an Error", "[api]") {
+TEST_CASE("a camera looking along its up vector makes rays - one that cannot is an Error", "[api]") {
   const Scene s = load_scene("gen:sphere:16");
   const auto acc = Accel::build(s);
   RayGenOptions o;
@@ -184,7 +184,7 @@ TEST_CASE("every backend traces an empty batch and refuses a traversal it lacks 
 }
 
 #ifdef MBVH_HAVE_EMBREE
-TEST_CASE("the embree peer reports a ray beyond what Embree accepts as an Error, the other backends trace it", "[api]") {
+TEST_CASE("the embree peer reports a ray beyond what Embree accepts as an Error - the other backends trace it", "[api]") {
   const Scene s = load_scene("gen:sphere:16");
   const auto acc = Accel::build(s);
   auto embree = make_backend("embree");

@@ -30,7 +30,7 @@ void require_refused(const std::string& args, const std::string& option) {
 
 }  // namespace
 
-TEST_CASE("mbvh checks every numeric option's range, naming the option", "[cli][inputs]") {
+TEST_CASE("mbvh checks every numeric option's range and names the option", "[cli][inputs]") {
   TempDir dir;
   const std::string t = "trace gen:sphere:8 ";
   require_refused(t + "--count -1", "--count");
@@ -69,7 +69,7 @@ TEST_CASE("mbvh checks every numeric option's range, naming the option", "[cli][
   CHECK_THAT(r.output, Catch::Contains("1024 thread(s)"));
 }
 
-TEST_CASE("mbvh refuses a camera that cannot make rays, naming --camera; straight down renders", "[cli][inputs]") {
+TEST_CASE("mbvh refuses a camera that cannot make rays and names --camera - straight down renders", "[cli][inputs]") {
   TempDir dir;
   for (const char* cam : {"1,2,3,1,2,3", "nan,0,3,0,0,0", "0,0,inf,0,0,0", "0,0,1e39,0,0,0", "0,0,3,0,0,0,0",
                           "0,0,3,0,0,0,180", "0,0,3,0,0,0,-20"}) {
@@ -97,7 +97,7 @@ TEST_CASE("mbvh refuses a camera that cannot make rays, naming --camera; straigh
 }
 
 #ifdef MBVH_HAVE_EMBREE
-TEST_CASE("the embree peer never aborts mbvh: trace, check, render and bench report rays beyond Embree's range",
+TEST_CASE("the embree peer never aborts mbvh - trace and check and render and bench report rays beyond Embree's range",
           "[cli][inputs]") {
   TempDir dir;
   const std::vector<Ray> rays{Ray{0, 0, 5, 0, 0, 0, -1, INFINITY}, Ray{2e18f, 0, 0, 0, -1, 0, 0, INFINITY}};
