@@ -120,8 +120,11 @@ struct TriPacks {
 /// (thread-safe) and kept.
 class Accel {
 public:
-  /// Builds the binary BVH. Throws Error if the scene has no non-degenerate triangle, or if its
-  /// coordinates leave the exactly traced range (kMaxCoordinate, kMinSceneScale).
+  /// Builds the binary BVH. Throws Error if the scene has no non-degenerate triangle, fails
+  /// Scene::validate (a vertex index out of range, a NaN or infinite vertex) or
+  /// `opt.traversal_cost` is negative or not finite, or if its coordinates leave the exactly traced
+  /// range (kMaxCoordinate, kMinSceneScale); other options are clamped to what works
+  /// (threads to kMaxThreads, bins to 2..64, max_leaf and leaf_block to at least 1).
   /// Cost: O(n log n), parallel over `opt.threads`; the bytes do not depend on the thread count.
   static std::unique_ptr<Accel> build(const Scene& scene, const BuildOptions& opt = {});
 

@@ -3,7 +3,11 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <cstring>
+#include <string>
+
+#include "host/error.h"
 
 namespace mbvh {
 
@@ -63,10 +67,30 @@ void Comparison::add(std::size_t ray, Verdict v) {
   }
 }
 
+namespace {
+
+// The arrays a comparison walks must line up: `what` answers of each side, one closest hit (and
+// one index) per answer where given, every index naming a ray of the batch. Throws Error.
+void require_aligned(const char* fn, std::size_t a, std::size_t b, std::size_t index, std::size_t closest,
+                     std::size_t closest_alt, std::span<const std::size_t> idx, std::size_t rays, bool need_rays) {
+  auto bad = [fn](const std::string& what) { throw Error(std::string(fn) + ": " + what); };
+  if (a != b) bad("the answer arrays differ in size (" + std::to_string(a) + " and " + std::to_string(b) + ")");
+  if (index && index != a) bad(std::to_string(index) + " indices for " + std::to_string(a) + " answers");
+  if (closest != SIZE_MAX && closest != a) bad(std::to_string(closest) + " closest hits for " + std::to_string(a) + " answers");
+  if (closest_alt && closest_alt != a) bad(std::to_string(closest_alt) + " alternative closest hits for " + std::to_string(a) + " answers");
+  if (!need_rays) return;
+  if (idx.empty() && rays != a) bad(std::to_string(rays) + " rays for " + std::to_string(a) + " answers");
+  for (std::size_t i = 0; i < idx.size(); ++i)
+    if (idx[i] >= rays) bad("index " + std::to_string(i) + " names ray " + std::to_string(idx[i]) + " of " + std::to_string(rays));
+}
+
+}  // namespace
+
 Comparison compare_hit_arrays(std::span<const Hit> a, std::span<const Hit> b, std::span<const std::size_t> index,
                               const TieRule& tie) {
+  require_aligned("compare_hit_arrays", a.size(), b.size(), index.size(), SIZE_MAX, 0, index, 0, false);
   Comparison c;
-  const std::size_t n = std::min(a.size(), b.size());
+  const std::size_t n = a.size();
   for (std::size_t i = 0; i < n; ++i) {
     const std::size_t ray = index.empty() ? i : index[i];
     if (std::memcmp(&a[i], &b[i], sizeof(Hit)) == 0) ++c.bit_identical;
@@ -82,8 +106,10 @@ Comparison compare_occlusion_arrays(std::span<const std::uint8_t> a, std::span<c
                                     std::span<const Hit> closest, std::span<const Ray> rays,
                                     std::span<const std::size_t> index, std::span<const Hit> closest_alt,
                                     const TieRule& tie) {
+  require_aligned("compare_occlusion_arrays", a.size(), b.size(), index.size(), closest.size(), closest_alt.size(), index,
+                  rays.size(), true);
   Comparison c;
-  const std::size_t n = std::min(a.size(), b.size());
+  const std::size_t n = a.size();
   for (std::size_t i = 0; i < n; ++i) {
     const std::size_t ray = index.empty() ? i : index[i];
     if (a[i] == b[i]) ++c.bit_identical;

@@ -51,11 +51,14 @@ struct Comparison {
 /// Reclassifies a would-be mismatch (ray index, answer a, answer b) as a tie when it returns true.
 using TieRule = std::function<bool(std::size_t, const Hit&, const Hit&)>;
 
+/// Compares answers a[i] and b[i] of ray index[i] (or i). Throws Error unless a and b (and index,
+/// when given) have the same size.
 Comparison compare_hit_arrays(std::span<const Hit> a, std::span<const Hit> b, std::span<const std::size_t> index = {},
                               const TieRule& tie = {});
 /// `closest` (and, if given, `closest_alt`, e.g. a float answer next to the oracle's) are aligned
 /// with a and b; a difference is a tie if either closest hit makes it one. `rays` is the whole
-/// batch, indexed through `index`.
+/// batch, indexed through `index`. Throws Error unless the arrays line up (a, b, closest and the
+/// given index and closest_alt of one size; without index, as many rays; every index < rays).
 Comparison compare_occlusion_arrays(std::span<const std::uint8_t> a, std::span<const std::uint8_t> b,
                                     std::span<const Hit> closest, std::span<const Ray> rays,
                                     std::span<const std::size_t> index = {}, std::span<const Hit> closest_alt = {},

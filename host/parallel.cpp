@@ -11,8 +11,8 @@
 namespace mbvh {
 
 unsigned resolve_threads(unsigned threads) {
-  if (threads != 0) return threads;
-  return std::max(1u, std::thread::hardware_concurrency());
+  if (threads == 0) threads = std::thread::hardware_concurrency();
+  return std::clamp(threads, 1u, kMaxThreads);
 }
 
 void parallel_for(std::size_t n, std::size_t grain, unsigned threads,

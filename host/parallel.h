@@ -7,7 +7,12 @@
 
 namespace mbvh {
 
-/// Number of worker threads to use for a request of `threads` (0 = every hardware thread).
+/// The most worker threads mbvh starts (`--threads` takes 0..kMaxThreads); a larger request is
+/// clamped to it, so any value is safe (per-thread arithmetic never overflows).
+inline constexpr unsigned kMaxThreads = 1024;
+
+/// Number of worker threads to use for a request of `threads` (0 = every hardware thread), in
+/// [1, kMaxThreads].
 unsigned resolve_threads(unsigned threads);
 
 /// Calls fn(begin, end, worker) for consecutive chunks of [0, n) of size `grain` (the last may be

@@ -61,10 +61,29 @@ Ray make_ray(const Vec3f& o, V3 d, float tmax) {
 
 }  // namespace
 
+std::string camera_problem(const Camera& c) {
+  const auto finite = [](const Vec3f& v) { return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z); };
+  if (!finite(c.eye)) return "the eye is not finite";
+  if (!finite(c.target)) return "the target is not finite";
+  if (!finite(c.up)) return "the up vector is not finite";
+  const V3 view = d3(c.target) - d3(c.eye);
+  if (dot(view, view) == 0) return "the eye equals the target (no view direction)";
+  if (!std::isfinite(dot(view, view))) return "the eye is too far from the target";
+  if (dot(d3(c.up), d3(c.up)) == 0) return "the up vector is zero";
+  if (!(c.fov_deg > 0 && c.fov_deg < 180)) return "the field of view must be in (0, 180) degrees";
+  return "";
+}
+
 Ray camera_ray(const Camera& c, double px, double py, double aspect) {
   const V3 eye = d3(c.eye);
   const V3 fwd = normalize(d3(c.target) - eye);
-  const V3 right = normalize(cross(fwd, d3(c.up)));
+  V3 side = cross(fwd, normalize(d3(c.up)));
+  if (dot(side, side) < 1e-18) {  // looking along up: the axis least aligned with the view
+    const double a[3] = {std::fabs(fwd.x), std::fabs(fwd.y), std::fabs(fwd.z)};
+    const int k = a[2] <= a[0] && a[2] <= a[1] ? 2 : (a[0] <= a[1] ? 0 : 1);
+    side = cross(fwd, V3{k == 0 ? 1.0 : 0.0, k == 1 ? 1.0 : 0.0, k == 2 ? 1.0 : 0.0});
+  }
+  const V3 right = normalize(side);
   const V3 up = cross(right, fwd);
   const double h = std::tan(c.fov_deg * std::numbers::pi / 360.0);
   const V3 d = normalize(fwd + right * ((2 * px - 1) * h * aspect) + up * ((1 - 2 * py) * h));
@@ -145,6 +164,7 @@ Ray spawn_ray(const Vec3f& p0, const Vec3f& p1, const Vec3f& p2, float u, float 
 std::vector<Ray> generate_rays(const Scene& scene, const Accel& acc, const RayGenOptions& opt) {
   const Box bounds = acc.bounds();
   const Camera cam = opt.has_camera ? opt.camera : default_camera(bounds);
+  if (const std::string p = camera_problem(cam); !p.empty()) throw Error("camera: " + p);
   if (opt.kind == RayKind::inside) {
     const Vec3f inside = inside_point(scene);
     std::vector<Ray> r = feature_rays(scene, inside, opt.count / 2, 0, opt.seed);

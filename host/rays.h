@@ -22,10 +22,16 @@ struct Camera {
   float fov_deg = 60.0f;
 };
 Camera default_camera(const Box& bounds);
+/// Why `c` cannot make rays, "" if it can: a NaN or infinite eye, target or up, eye = target, a
+/// zero up vector, or fov_deg outside (0, 180). (A view along `up` is fine: camera_ray picks
+/// another up vector.)
+std::string camera_problem(const Camera& c);
 /// The point light of shadow rays: near the top of the box, centred.
 Vec3f default_light(const Box& bounds);
 /// The primary ray through image position (px, py) in [0,1)^2 (y down), from the eye, tmax = inf.
-/// `aspect` (width / height) widens the horizontal field; the vertical one is fov_deg.
+/// `aspect` (width / height) widens the horizontal field; the vertical one is fov_deg. A view
+/// parallel to `up` (looking straight down or up) takes the coordinate axis least aligned with the
+/// view as its up vector. Requires camera_problem(c) == "".
 Ray camera_ray(const Camera& c, double px, double py, double aspect = 1.0);
 /// Unit geometric normal of triangle (a, b, c), flipped to face against `incoming`.
 Vec3f facing_normal(const Vec3f& a, const Vec3f& b, const Vec3f& c, const Vec3f& incoming);
@@ -47,7 +53,7 @@ struct RayGenOptions {
 /// generated mesh from inside_point, the rest random from there; special: stress.h's special
 /// rays, about `count`). Shadow and diffuse rays start at hit points of primary rays (traced
 /// with the reference traversal), offset by the hit point's rounding-error bound. Throws Error
-/// if the camera sees no geometry.
+/// if the camera sees no geometry or has a camera_problem.
 std::vector<Ray> generate_rays(const Scene& scene, const Accel& acc, const RayGenOptions& opt);
 
 /// pbrt-v4-style secondary ray: the hit point on triangle (p0, p1, p2) at barycentrics (u, v),

@@ -89,6 +89,7 @@ public:
       throw Error("render: backend '" + backend.name() + "' has no " + to_string(opt.layout) + "/" +
                   to_string(opt.traversal) + " traversal");
     cam_ = opt.has_camera ? opt.camera : default_camera(acc.bounds());
+    if (const std::string p = camera_problem(cam_); !p.empty()) throw Error("render: camera: " + p);
     light_ = default_light(acc.bounds());
     const Vec3f e = acc.bounds().extent();
     diag2_ = e.x * e.x + e.y * e.y + e.z * e.z;

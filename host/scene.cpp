@@ -2,6 +2,8 @@
 #include "host/scene.h"
 
 #include <algorithm>
+#include <cmath>
+#include <cstdio>
 #include <cstring>
 
 #include "host/error.h"
@@ -22,6 +24,25 @@ float Box::half_area() const {
   if (empty()) return 0.0f;
   const Vec3f e = extent();
   return e.x * e.y + e.y * e.z + e.z * e.x;
+}
+
+void Scene::validate() const {
+  const std::string who = name.empty() ? std::string("scene") : name;
+  for (std::size_t i = 0; i < triangles.size(); ++i)
+    for (int k = 0; k < 3; ++k) {
+      const std::uint32_t v = triangles[i][k];
+      if (v >= vertices.size())
+        throw Error(who + ": triangle " + std::to_string(i) + " names vertex " + std::to_string(v) + ", out of range (the scene has " +
+                    std::to_string(vertices.size()) + " vertices)");
+      const Vec3f& p = vertices[v];
+      for (int a = 0; a < 3; ++a)
+        if (!std::isfinite(p[a])) {
+          char value[32];
+          std::snprintf(value, sizeof value, "%g", static_cast<double>(p[a]));
+          throw Error(who + ": vertex " + std::to_string(v) + " of triangle " + std::to_string(i) + " has coordinate " + "xyz"[a] +
+                      " = " + value + "; vertices must be finite");
+        }
+    }
 }
 
 Box Scene::bounds() const {

@@ -36,7 +36,11 @@ struct Scene {
   std::vector<std::array<std::uint32_t, 3>> triangles;
 
   std::size_t triangle_count() const { return triangles.size(); }
-  Box bounds() const;                            ///< box of the vertices used by triangles
+  /// Throws Error (naming the scene, the triangle and the index or coordinate) if a triangle
+  /// names a vertex that does not exist or uses a vertex with a NaN or infinite coordinate.
+  /// Unused vertices are not looked at. O(triangles).
+  void validate() const;
+  Box bounds() const;                            ///< box of the vertices used by triangles (requires validate())
   /// 64-bit content hash of vertices and triangles (FNV-1a), for build caching and reports.
   std::uint64_t hash() const;
 };

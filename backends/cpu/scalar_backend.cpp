@@ -1,16 +1,15 @@
 // scalar_backend.cpp — the `cpu-scalar` backend: the host's reference traversals (MBVH2 and
 // MBVH4, stack and bitstack, closest and any hit) multi-threaded over ray batches.
-#include <thread>
-
 #include "backends/cpu/cpu_backends.h"
 #include "host/backend.h"
+#include "host/parallel.h"
 
 namespace mbvh {
 namespace {
 
 class ScalarBackend final : public Backend {
 public:
-  explicit ScalarBackend(const BackendOptions& o) : threads_(resolve(o.threads)) {}
+  explicit ScalarBackend(const BackendOptions& o) : threads_(resolve_threads(o.threads)) {}
   std::string name() const override { return "cpu-scalar"; }
   std::string describe() const override {
     return "cpu-scalar: reference scalar traversals, " + std::to_string(threads_) + " thread(s)";
@@ -27,7 +26,6 @@ public:
   }
 
 private:
-  static unsigned resolve(unsigned t) { return t ? t : std::max(1u, std::thread::hardware_concurrency()); }
   unsigned threads_;
 };
 

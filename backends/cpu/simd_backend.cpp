@@ -4,11 +4,11 @@
 // `isa=` setting does): the AVX-512 kernels then count as absent, as on an AVX2-only machine.
 #include <cstdlib>
 #include <cstring>
-#include <thread>
 
 #include "backends/cpu/cpu_backends.h"
 #include "host/backend.h"
 #include "host/error.h"
+#include "host/parallel.h"
 
 namespace mbvh {
 
@@ -38,7 +38,7 @@ bool has_avx512() {
 class SimdBackend final : public Backend {
 public:
   SimdBackend(std::string name, const CpuKernels& k, const BackendOptions& o)
-      : name_(std::move(name)), kernels_(k), threads_(o.threads ? o.threads : std::max(1u, std::thread::hardware_concurrency())) {}
+      : name_(std::move(name)), kernels_(k), threads_(resolve_threads(o.threads)) {}
   std::string name() const override { return name_; }
   std::string describe() const override {
     return name_ + ": " + kernels_.isa + " node tests (MBVH4: 4 boxes, MBVH8: 8 at once), 4-wide SIMD leaves, " +

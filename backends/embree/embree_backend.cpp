@@ -8,9 +8,15 @@
 // under the label mbvh4/stack (Embree's single-ray kernels traverse a wide BVH with a stack), with
 // its own triangle test, so its answers agree with cpu-scalar's up to classified ties rather than
 // bit for bit (Backend::peer), and it has no per-ray counters.
+//
+// Embree accepts only rays and vertices whose coordinates lie within ±1.844e18 (its FLT_LARGE;
+// Debian's build asserts `ray.valid()` and aborts the process on any other ray): such a ray,
+// valid by mbvh's numerical contract, is an Error naming it, never handed to Embree.
 #include <embree3/rtcore.h>
 
+#include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <mutex>
 #include <vector>
 
@@ -22,6 +28,30 @@
 
 namespace mbvh {
 namespace {
+
+/// Embree's FLT_LARGE: the largest coordinate magnitude of a ray origin or direction it accepts
+/// (RayK::valid) and of a vertex it builds (isvalid, strictly below).
+constexpr float kEmbreeLarge = 1.844e18f;
+
+/// Whether Embree accepts the ray's origin and direction (RayK::valid without the t checks, which
+/// prepare_ray's valid rays pass).
+bool within_embree(const Ray& r) {
+  return std::fabs(r.ox) <= kEmbreeLarge && std::fabs(r.oy) <= kEmbreeLarge && std::fabs(r.oz) <= kEmbreeLarge &&
+         std::fabs(r.dx) <= kEmbreeLarge && std::fabs(r.dy) <= kEmbreeLarge && std::fabs(r.dz) <= kEmbreeLarge;
+}
+
+/// "origin x = 2e+18": the first of a ray's origin and direction components beyond kEmbreeLarge,
+/// "" if none.
+std::string beyond_embree(const Ray& r) {
+  const float c[6] = {r.ox, r.oy, r.oz, r.dx, r.dy, r.dz};
+  for (int k = 0; k < 6; ++k)
+    if (!(std::fabs(c[k]) <= kEmbreeLarge)) {
+      char text[64];
+      std::snprintf(text, sizeof text, "%s %c = %g", k < 3 ? "origin" : "direction", "xyz"[k % 3], static_cast<double>(c[k]));
+      return text;
+    }
+  return "";
+}
 
 class EmbreeBackend final : public Backend {
 public:
@@ -72,6 +102,14 @@ public:
     for (std::size_t i = 0; i < tris.size(); ++i) {
       const float* rows[3] = {tris[i].v0, tris[i].v1, tris[i].v2};
       for (int k = 0; k < 3; ++k)
+        for (int a = 0; a < 3; ++a)
+          if (!(std::fabs(rows[k][a]) < kEmbreeLarge)) {  // Embree would leave the triangle out
+            rtcReleaseGeometry(g);
+            rtcReleaseScene(scene);
+            throw Error("embree: triangle " + std::to_string(tri_prim(tris[i])) + " has a coordinate " +
+                        std::to_string(rows[k][a]) + " beyond the +-1.844e18 Embree builds (trace it on another backend)");
+          }
+      for (int k = 0; k < 3; ++k)
         for (int a = 0; a < 3; ++a) v[9 * i + 3 * k + a] = rows[k][a];
       for (int k = 0; k < 3; ++k) idx[3 * i + k] = static_cast<unsigned>(3 * i + k);
       prims_[i] = tri_prim(tris[i]);
@@ -95,7 +133,8 @@ public:
     prepare(acc, opt);
     const bool any = opt.query == Query::any;
     out.reset(rays.size(), opt);
-    std::vector<std::size_t> invalid(threads_, 0);  // per worker
+    std::vector<std::size_t> invalid(threads_, 0);         // per worker
+    std::vector<std::size_t> too_large(threads_, SIZE_MAX);  // per worker: the first ray Embree refuses
     parallel_for(rays.size(), 2048, threads_, [&](std::size_t b, std::size_t e, unsigned worker) {
       RTCIntersectContext ctx;
       rtcInitIntersectContext(&ctx);
@@ -104,6 +143,10 @@ public:
         RayPre p;
         if (!prepare_ray(r, p)) {  // the numerical contract's invalid rays: defined misses
           ++invalid[worker];
+          continue;
+        }
+        if (!within_embree(r)) {
+          too_large[worker] = std::min(too_large[worker], i);  // reported below, never traced
           continue;
         }
         RTCRayHit rh{};
@@ -130,6 +173,9 @@ public:
     });
     for (std::size_t n : invalid) out.invalid += n;
     raise("rtcIntersect1");
+    if (const std::size_t first = *std::min_element(too_large.begin(), too_large.end()); first != SIZE_MAX)
+      throw Error("embree: ray " + std::to_string(first) + " has " + beyond_embree(rays[first]) +
+                  ", beyond the +-1.844e18 Embree accepts for ray origins and directions (trace it on another backend)");
   }
 
 private:

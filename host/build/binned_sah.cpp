@@ -272,6 +272,10 @@ void check_traceable_range(const Scene& scene, const std::vector<Box>& boxes, co
 
 std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_in) {
   const auto t0 = std::chrono::steady_clock::now();
+  // -- what the build is given: indices in range, finite vertices, a usable SAH cost
+  scene.validate();
+  if (!std::isfinite(opt_in.traversal_cost) || opt_in.traversal_cost < 0)
+    throw Error("BuildOptions::traversal_cost " + std::to_string(opt_in.traversal_cost) + " must be finite and >= 0");
   std::unique_ptr<Accel> acc(new Accel());
   acc->opt_ = opt_in;
   BuildOptions& opt = acc->opt_;
@@ -328,7 +332,7 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
     upper[0].box.grow(boxes[p]);
     upper[0].cbox.grow(cents[p]);
   }
-  const unsigned threads = resolve_threads(opt.threads);
+  const std::size_t threads = resolve_threads(opt.threads);
   const std::size_t small = std::max<std::size_t>(4096, idx.size() / (8 * threads));
   std::vector<std::int32_t> subtree_of;
   std::vector<std::size_t> jobs;

@@ -1,10 +1,17 @@
 // main.cpp — the `mbvh` program: info, rays, trace, check, bench, render, devices.
 #include <CLI/CLI.hpp>
 
+#include <unistd.h>
+
+#include <cfloat>
+#include <charconv>
 #include <chrono>
+#include <cmath>
 #include <cstdarg>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
+#include <fstream>
 #include <iostream>
 #include <nlohmann/json.hpp>
 
@@ -77,6 +84,58 @@ std::vector<T> parse_list(const std::string& s, F parse) {
   return out;
 }
 
+// -- numeric options: every one range-checked before conversion; CLI11 puts the option's name in
+// front of a validator's message ("--count: ...") and exits with its validation code
+
+/// An unsigned integer option in [lo, hi], `why` appended to the error. Refuses a sign, which
+/// CLI11 would wrap into 2^64-1 for a 64-bit option, and any trailing text.
+CLI::Validator integer_in(std::uint64_t lo, std::uint64_t hi, const std::string& why = "") {
+  const std::string range = "an integer in [" + std::to_string(lo) + ", " + std::to_string(hi) + "]";
+  return CLI::Validator(
+      [lo, hi, range, why](std::string& s) -> std::string {
+        std::uint64_t v = 0;
+        const auto r = std::from_chars(s.data(), s.data() + s.size(), v);
+        if (r.ec != std::errc() || r.ptr != s.data() + s.size() || v < lo || v > hi)
+          return "'" + s + "' is not " + range + why;
+        return "";
+      },
+      "INT in [" + std::to_string(lo) + ", " + std::to_string(hi) + "]");
+}
+
+/// A finite number in [lo, hi] (as a float, when `as_float`: 1e39 is not a finite float).
+CLI::Validator number_in(double lo, double hi, bool as_float = false) {
+  return CLI::Validator(
+      [lo, hi, as_float](std::string& s) -> std::string {
+        char* end = nullptr;
+        const double v = std::strtod(s.c_str(), &end);
+        const bool finite = std::isfinite(v) && (!as_float || std::isfinite(static_cast<float>(v)));
+        if (s.empty() || end != s.c_str() + s.size() || !finite || v < lo || v > hi) {
+          char range[96];
+          std::snprintf(range, sizeof range, "a finite number in [%g, %g]", lo, hi);
+          return "'" + s + "' is not " + range;
+        }
+        return "";
+      },
+      "NUMBER");
+}
+
+/// Items of `bytes_each` bytes that fit in this machine's physical memory (the bound of the
+/// count options: a larger count is an error naming the option, not a failed allocation).
+std::uint64_t fits_in_memory(std::uint64_t bytes_each) {
+  const long pages = sysconf(_SC_PHYS_PAGES), page = sysconf(_SC_PAGE_SIZE);
+  const std::uint64_t bytes = pages > 0 && page > 0 ? std::uint64_t(pages) * std::uint64_t(page) : std::uint64_t(1) << 34;
+  return std::max<std::uint64_t>(1, bytes / bytes_each);
+}
+
+/// The bound of ray counts: a traced ray holds its 32-byte record, its 16-byte hit and copies.
+constexpr std::uint64_t kBytesPerRay = 64;
+/// The bound of image sizes: a pixel holds its radiance, a path's ray, hit and state.
+constexpr std::uint64_t kBytesPerPixel = 256;
+CLI::Validator ray_count() {
+  return integer_in(1, fits_in_memory(kBytesPerRay),
+                    " (" + std::to_string(kBytesPerRay) + " bytes per ray must fit in this machine's memory)");
+}
+
 struct SceneArgs {
   std::string scene;
   unsigned threads = 0;
@@ -86,9 +145,10 @@ struct SceneArgs {
 
 void add_scene_args(CLI::App* c, SceneArgs& a) {
   c->add_option("scene", a.scene, "scene file (.obj/.ply, optionally .zst) or gen:NAME:PARAMS")->required();
-  c->add_option("--threads", a.threads, "worker threads (0 = all hardware threads)");
-  c->add_option("--max-leaf", a.max_leaf, "largest leaf the SAH may choose");
-  c->add_option("--leaf-block", a.leaf_block, "triangles the SAH prices as one leaf test (4: SIMD leaves)");
+  c->add_option("--threads", a.threads, "worker threads (0 = all hardware threads)")->check(integer_in(0, kMaxThreads));
+  c->add_option("--max-leaf", a.max_leaf, "largest leaf the SAH may choose")->check(integer_in(1, 1024));
+  c->add_option("--leaf-block", a.leaf_block, "triangles the SAH prices as one leaf test (4: SIMD leaves)")
+      ->check(integer_in(1, 64));
 }
 
 struct Loaded {
@@ -199,6 +259,13 @@ struct GridArgs {
   }
 };
 
+void add_camera_option(CLI::App* c, std::vector<float>& camera) {
+  c->add_option("--camera", camera, "eye x y z, target x y z [, fov degrees] (default: frames the scene)")
+      ->delimiter(',')
+      ->expected(6, 7)
+      ->check(number_in(-FLT_MAX, FLT_MAX, true));
+}
+
 struct RayArgs {
   std::string rays_file;
   std::string kind = "primary";
@@ -210,19 +277,27 @@ struct RayArgs {
 void add_ray_args(CLI::App* c, RayArgs& r, bool allow_file) {
   if (allow_file) c->add_option("--rays", r.rays_file, "ray file (32 bytes per ray) instead of generated rays");
   c->add_option("--kind", r.kind, "generated ray kind: primary, shadow, diffuse, random, inside (closed generated meshes), special, path (the path tracer's bounces)");
-  c->add_option("--count", r.count, "number of generated rays");
-  c->add_option("--seed", r.seed, "seed of the generated rays");
-  c->add_option("--camera", r.camera, "eye x y z, target x y z [, fov degrees] (default: frames the scene)")
-      ->delimiter(',')
-      ->expected(6, 7);
+  c->add_option("--count", r.count, "number of generated rays")->check(ray_count());
+  c->add_option("--seed", r.seed, "seed of the generated rays")->check(integer_in(0, UINT64_MAX));
+  add_camera_option(c, r.camera);
 }
 
+// --camera's values go in `cam`; a camera that cannot make rays is an error naming --camera.
 void set_camera(const std::vector<float>& c, bool& has, Camera& cam) {
   if (c.empty()) return;
   has = true;
   cam.eye = {c[0], c[1], c[2]};
   cam.target = {c[3], c[4], c[5]};
   if (c.size() == 7) cam.fov_deg = c[6];
+  if (const std::string p = camera_problem(cam); !p.empty()) {
+    std::string text;
+    for (float v : c) {
+      char x[32];
+      std::snprintf(x, sizeof x, "%s%g", text.empty() ? "" : ",", static_cast<double>(v));
+      text += x;
+    }
+    throw Error("--camera " + text + ": " + p);
+  }
 }
 
 RayGenOptions ray_gen(const RayArgs& r, const std::string& kind, unsigned threads) {
@@ -362,7 +437,8 @@ static int run(int argc, char** argv) {
   add_ray_args(check, ck_r, true);
   ck_g.add(check);
   check->add_option("--kinds", ck_kinds, "comma-separated generated ray kinds (default: --kind)");
-  check->add_option("--brute", ck_brute, "rays checked by double-precision brute force, spread over the batch, or 'all'");
+  check->add_option("--brute", ck_brute, "rays checked by double-precision brute force, spread over the batch, or 'all'")
+      ->check(CLI::IsMember({"all"}) | integer_in(0, UINT64_MAX));
   check->add_option("--json", ck_json, "also write every comparison as JSON (per ray kind: rays, invalid, pairs)");
 
   // -- bench
@@ -376,22 +452,22 @@ static int run(int argc, char** argv) {
   add_scene_args(bench, bn_a);
   bn_g.add(bench);
   bench->add_option("--kinds", bn_kinds, "comma-separated ray kinds");
-  bench->add_option("--count", bn_count, "rays per kind");
+  bench->add_option("--count", bn_count, "rays per kind")->check(ray_count());
   std::size_t bn_error = 0;
   bench->add_option("--error-rays", bn_error,
                     "rays per kind whose closest hits are also compared with the double-precision brute force "
-                    "(error_rate in the records; inside rays also count leaks)");
-  bench->add_option("--seed", bn_seed, "ray seed");
-  bench->add_option("--passes", bn_passes, "timed passes after the warm-up (at least 5)");
+                    "(error_rate in the records; inside rays also count leaks)")
+      ->check(integer_in(0, fits_in_memory(kBytesPerRay)));
+  bench->add_option("--seed", bn_seed, "ray seed")->check(integer_in(0, UINT64_MAX));
+  bench->add_option("--passes", bn_passes, "timed passes after the warm-up (at least 5)")->check(integer_in(5, 1000000));
   double bn_warmup = 0.25;
   bool bn_first_layout = false;
   bench->add_flag("--first-layout", bn_first_layout,
                   "per backend and traversal, only the first layout of --layout it has (mbvh4,mbvh2: MBVH4, else MBVH2)");
-  bench->add_option("--warmup", bn_warmup, "seconds of untimed passes before the timed ones (after the verifying pass)");
+  bench->add_option("--warmup", bn_warmup, "seconds of untimed passes before the timed ones (after the verifying pass)")
+      ->check(number_in(0, 3600));
   std::vector<float> bn_camera;
-  bench->add_option("--camera", bn_camera, "eye x y z, target x y z [, fov degrees] (default: frames the scene)")
-      ->delimiter(',')
-      ->expected(6, 7);
+  add_camera_option(bench, bn_camera);
   bench->add_option("--json", bn_json, "write the records as JSON ('-': standard output)");
   std::string bn_csv;
   bench->add_option("--csv", bn_csv, "write the records as CSV, one line per record ('-': standard output)");
@@ -411,14 +487,13 @@ static int run(int argc, char** argv) {
   render_cmd->add_option("--layout", rn_layout, "mbvh2, mbvh4 or mbvh8 (default: mbvh4, or mbvh2 where the backend has only that)");
   render_cmd->add_option("--traversal", rn_trav, "stack, bitstack, stack-ordered or bitstack-retest");
   render_cmd->add_option("--mode", rn_mode, "path (8-bounce diffuse, point light and sky), ao or normals");
-  render_cmd->add_option("--spp", rn_o.spp, "samples per pixel");
-  render_cmd->add_option("--bounces", rn_o.bounces, "path mode: diffuse bounces after the primary hit");
-  render_cmd->add_option("--width", rn_o.width, "image width");
-  render_cmd->add_option("--height", rn_o.height, "image height");
-  render_cmd->add_option("--seed", rn_o.seed, "seed of every random number of the image");
-  render_cmd->add_option("--camera", rn_camera, "eye x y z, target x y z [, fov degrees] (default: frames the scene)")
-      ->delimiter(',')
-      ->expected(6, 7);
+  render_cmd->add_option("--spp", rn_o.spp, "samples per pixel")->check(integer_in(1, 1u << 20));
+  render_cmd->add_option("--bounces", rn_o.bounces, "path mode: diffuse bounces after the primary hit")
+      ->check(integer_in(0, 1024));
+  render_cmd->add_option("--width", rn_o.width, "image width")->check(integer_in(1, 65536));
+  render_cmd->add_option("--height", rn_o.height, "image height")->check(integer_in(1, 65536));
+  render_cmd->add_option("--seed", rn_o.seed, "seed of every random number of the image")->check(integer_in(0, UINT64_MAX));
+  add_camera_option(render_cmd, rn_camera);
   render_cmd->add_option("-o,--output", rn_out, "PNG file ('-': standard output, not a terminal)")->required();
   std::string rn_precision = "robust", rn_pfm, rn_reference, rn_curve;
   render_cmd->add_option("--precision", rn_precision, "accuracy mode: robust (default), exact or fast");
@@ -451,6 +526,10 @@ static int run(int argc, char** argv) {
     if (*render_cmd) {
       const std::vector<OutputTarget> outs{{"-o", rn_out}, {"--pfm", rn_pfm}, {"--curve", rn_curve, true}};
       prepare_outputs(outs, {{"scene", rn_a.scene}, {"--reference", rn_reference}});
+      if (const std::uint64_t pixels = std::uint64_t(rn_o.width) * rn_o.height; pixels > fits_in_memory(kBytesPerPixel))
+        throw Error("--width " + std::to_string(rn_o.width) + " --height " + std::to_string(rn_o.height) + ": " +
+                    std::to_string(pixels) + " pixels of " + std::to_string(kBytesPerPixel) +
+                    " bytes each do not fit in this machine's memory");
       rn_o.mode = parse_render_mode(rn_mode);
       rn_o.traversal = parse_traversal(rn_trav);
       rn_o.threads = rn_a.threads;
@@ -575,7 +654,7 @@ static int run(int argc, char** argv) {
       co.grid = ck_g.parse();
       co.threads = ck_a.threads;
       co.backend = ck_g.dev.options(ck_a.threads);
-      co.brute_rays = ck_brute == "all" ? SIZE_MAX : std::stoull(ck_brute);
+      co.brute_rays = ck_brute == "all" ? SIZE_MAX : std::strtoull(ck_brute.c_str(), nullptr, 10);  // checked: an integer
       Loaded l = load_and_build(ck_a);
       std::vector<std::string> kinds = ck_kinds.empty() ? std::vector<std::string>{ck_r.kind} : split_list(ck_kinds);
       if (!ck_r.rays_file.empty()) kinds = {"file"};

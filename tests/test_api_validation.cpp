@@ -1,0 +1,221 @@
+// test_api_validation.cpp — the library refuses what it cannot use with an Error, never undefined
+// behaviour: out-of-range indices and non-finite vertices in Accel::build, any thread count,
+// cameras that cannot make rays (and a view along `up`, which can), comparison arrays that do not
+// line up, and rays the embree peer cannot take.
+#include <catch2/catch.hpp>
+
+#include <cmath>
+#include <limits>
+
+#include "host/accel.h"
+#include "host/backend.h"
+#include "host/compare.h"
+#include "host/error.h"
+#include "host/parallel.h"
+#include "host/rays.h"
+#include "host/render.h"
+#include "host/scene.h"
+#include "host/trace/trace.h"
+#include "tests/backends.h"
+
+using namespace mbvh;
+
+namespace {
+
+Scene one_triangle() {
+  Scene s;
+  s.name = "tri";
+  s.vertices = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}};
+  s.triangles = {{0, 1, 2}};
+  return s;
+}
+
+std::string build_error(const Scene& s, const BuildOptions& o = {}) {
+  try {
+    Accel::build(s, o);
+  } catch (const Error& e) {
+    return e.what();
+  }
+  return "(no error)";
+}
+
+}  // namespace
+
+TEST_CASE("Accel::build refuses out-of-range indices and NaN or infinite vertices and names them", "[api]") {
+  Scene s = one_triangle();
+  s.triangles.push_back({0, 1, 7});
+  CHECK_THAT(build_error(s), Catch::Contains("tri: triangle 1 names vertex 7, out of range (the scene has 3 vertices)"));
+  s.triangles[1] = {0, 1, std::numeric_limits<std::uint32_t>::max()};
+  CHECK_THAT(build_error(s), Catch::Contains("triangle 1") && Catch::Contains("out of range"));
+  for (float bad : {NAN, INFINITY, -INFINITY}) {
+    Scene t = one_triangle();
+    t.vertices[2].y = bad;
+    INFO(bad);
+    CHECK_THAT(build_error(t), Catch::Contains("tri: vertex 2 of triangle 0 has coordinate y") && Catch::Contains("finite"));
+  }
+  // an unused non-finite vertex is not looked at
+  Scene u = one_triangle();
+  u.vertices.push_back({NAN, 0, 0});
+  CHECK_NOTHROW(Accel::build(u));
+  BuildOptions o;
+  o.traversal_cost = NAN;
+  CHECK_THAT(build_error(one_triangle(), o), Catch::Contains("traversal_cost"));
+  o.traversal_cost = -1;
+  CHECK_THAT(build_error(one_triangle(), o), Catch::Contains("traversal_cost"));
+  // a generator whose modifiers overflow the floats: the build says so
+  const Scene big = load_scene("gen:sphere:8@scale=3e38@offset=3e38");
+  CHECK_THAT(build_error(big), Catch::Contains("gen:sphere:8@scale=3e38@offset=3e38") && Catch::Contains("inf"));
+}
+
+TEST_CASE("any thread count is safe - clamped to kMaxThreads with the build and the trace unchanged", "[api]") {
+  CHECK(resolve_threads(1) == 1);
+  CHECK(resolve_threads(536870912u) == kMaxThreads);
+  CHECK(resolve_threads(UINT32_MAX) == kMaxThreads);
+  CHECK(resolve_threads(0) >= 1);
+  const Scene s = load_scene("gen:soup:20000");
+  BuildOptions one, huge;
+  one.threads = 1;
+  huge.threads = 536870912u;  // 8 * threads wrapped to 0 in the builder's subtree size: SIGFPE
+  const auto a = Accel::build(s, one);
+  const auto b = Accel::build(s, huge);
+  CHECK(a->hash() == b->hash());
+  BackendOptions bo;
+  bo.threads = UINT32_MAX;
+  for (const char* name : {"cpu-scalar", "cpu"}) {
+    auto backend = make_backend(name, bo);
+    CHECK_THAT(backend->describe(), Catch::Contains(std::to_string(kMaxThreads) + " thread(s)"));
+    RayGenOptions ro;
+    ro.count = 1000;
+    const std::vector<Ray> rays = generate_rays(s, *a, ro);
+    TraceOutput out;
+    backend->trace(*a, rays, TraceOptions{}, out);
+    CHECK(out.hits.size() == rays.size());
+  }
+}
+
+TEST_CASE("a camera looking along its up vector makes rays - one that cannot is an Error", "[api]") {
+  const Scene s = load_scene("gen:sphere:16");
+  const auto acc = Accel::build(s);
+  RayGenOptions o;
+  o.count = 400;
+  o.has_camera = true;
+  for (const Vec3f eye : {Vec3f{0, 2.5f, 0}, Vec3f{0, -2.5f, 0}}) {  // straight down, straight up: parallel to (0, 1, 0)
+    o.camera.eye = eye;
+    o.camera.target = {0, 0, 0};
+    const std::vector<Ray> rays = generate_rays(s, *acc, o);
+    TraceOutput out;
+    trace_reference(*acc, rays, TraceOptions{}, out, 1);
+    std::size_t valid = 0, hits = 0;
+    for (std::size_t i = 0; i < rays.size(); ++i) {
+      valid += ray_valid(rays[i]);
+      hits += out.hits[i].prim != MBVH_MISS_PRIM;
+    }
+    CHECK(valid == rays.size());
+    CHECK(hits > rays.size() / 4);  // the sphere fills the middle of the view
+    CHECK(hits < rays.size());
+    const Ray centre = camera_ray(o.camera, 0.5, 0.5);
+    CHECK(std::fabs(centre.dy - (eye.y > 0 ? -1.0f : 1.0f)) < 1e-6f);
+  }
+  struct Bad {
+    Camera c;
+    const char* says;
+  };
+  Camera eq, nan_eye, inf_target, fov0, fov180, up0;
+  eq.eye = eq.target = {1, 2, 3};
+  nan_eye.eye = {NAN, 0, 5};
+  inf_target.eye = {0, 0, 5};
+  inf_target.target = {INFINITY, 0, 0};
+  fov0.eye = fov180.eye = up0.eye = {0, 0, 5};
+  fov0.fov_deg = 0;
+  fov180.fov_deg = 180;
+  up0.up = {0, 0, 0};
+  for (const Bad& b : {Bad{eq, "eye equals the target"}, Bad{nan_eye, "eye is not finite"},
+                       Bad{inf_target, "target is not finite"}, Bad{fov0, "field of view"}, Bad{fov180, "field of view"},
+                       Bad{up0, "up vector is zero"}}) {
+    INFO(b.says);
+    CHECK_THAT(camera_problem(b.c), Catch::Contains(b.says));
+    o.camera = b.c;
+    CHECK_THROWS_WITH(generate_rays(s, *acc, o), Catch::Contains("camera: ") && Catch::Contains(b.says));
+    RenderOptions ro;
+    ro.width = ro.height = 4;
+    ro.spp = 1;
+    ro.has_camera = true;
+    ro.camera = b.c;
+    ro.traversal = Traversal::stack;
+    auto backend = make_backend("cpu-scalar");
+    CHECK_THROWS_WITH(render(s, *acc, *backend, ro), Catch::Contains("render: camera: ") && Catch::Contains(b.says));
+  }
+  CHECK(camera_problem(default_camera(acc->bounds())).empty());
+}
+
+TEST_CASE("comparisons refuse arrays that do not line up", "[api]") {
+  const std::vector<Hit> two(2), three(3);
+  const std::vector<std::uint8_t> o2(2), o3(3);
+  const std::vector<Ray> r2(2);
+  const std::vector<std::size_t> bad_index{0, 5};
+  CHECK_THROWS_WITH(compare_hit_arrays(two, three), Catch::Contains("compare_hit_arrays") && Catch::Contains("2 and 3"));
+  CHECK_THROWS_AS(compare_hit_arrays(two, two, std::vector<std::size_t>{0}), Error);
+  CHECK_NOTHROW(compare_hit_arrays(two, two));
+  CHECK_THROWS_AS(compare_occlusion_arrays(o2, o3, two, r2), Error);
+  CHECK_THROWS_WITH(compare_occlusion_arrays(o2, o2, three, r2), Catch::Contains("3 closest hits for 2 answers"));
+  CHECK_THROWS_WITH(compare_occlusion_arrays(o2, o2, two, std::vector<Ray>(1)), Catch::Contains("1 rays for 2 answers"));
+  CHECK_THROWS_WITH(compare_occlusion_arrays(o2, o2, two, r2, bad_index), Catch::Contains("names ray 5 of 2"));
+  CHECK_NOTHROW(compare_occlusion_arrays(o2, o2, two, r2));
+}
+
+TEST_CASE("every backend traces an empty batch and refuses a traversal it lacks with an Error", "[api]") {
+  const Scene s = load_scene("gen:cube:4");
+  const auto acc = Accel::build(s);
+  for (const std::string& name : mbvh_test::all_backends().backends) {
+    INFO(name);
+    auto backend = make_backend(name);
+    const Traversal t = backend->supports(Layout::mbvh4, Traversal::stack) ? Traversal::stack : Traversal::bitstack;
+    const Layout l = backend->supports(Layout::mbvh4, t) ? Layout::mbvh4 : Layout::mbvh2;
+    for (Query q : {Query::closest, Query::any}) {
+      TraceOutput out;
+      CHECK_NOTHROW(backend->trace(*acc, std::span<const Ray>(), TraceOptions{l, t, q, false}, out));
+      CHECK(out.hits.empty());
+      CHECK(out.occluded.empty());
+    }
+    TraceOutput out;
+    const std::vector<Ray> rays(1, Ray{0, 0, 5, 0, 0, 0, -1, INFINITY});
+    CHECK_THROWS_AS(backend->trace(*acc, rays, TraceOptions{Layout::mbvh8, Traversal::bitstack}, out), Error);
+  }
+}
+
+#ifdef MBVH_HAVE_EMBREE
+TEST_CASE("the embree peer reports a ray beyond what Embree accepts as an Error - the other backends trace it", "[api]") {
+  const Scene s = load_scene("gen:sphere:16");
+  const auto acc = Accel::build(s);
+  auto embree = make_backend("embree");
+  const TraceOptions o{Layout::mbvh4, Traversal::stack, Query::closest, false};
+  std::vector<Ray> rays(4, Ray{0, 0, 5, 0, 0, 0, -1, INFINITY});
+  TraceOutput out;
+  embree->trace(*acc, rays, o, out);  // fine rays: hits
+  CHECK(out.hits[0].prim != MBVH_MISS_PRIM);
+  rays[3] = Ray{2e18f, 0, 0, 0, -1, 0, 0, INFINITY};  // valid by the contract; Embree asserts ray.valid()
+  rays[2] = Ray{0, 0, 5, 0, 0, 0, -1e20f, INFINITY};
+  for (Query q : {Query::closest, Query::any}) {
+    TraceOptions oq = o;
+    oq.query = q;
+    CHECK_THROWS_WITH(embree->trace(*acc, rays, oq, out),
+                      Catch::Contains("embree: ray 2 has direction z = -1e+20") && Catch::Contains("1.844e18"));
+  }
+  rays[2] = rays[0];
+  CHECK_THROWS_WITH(embree->trace(*acc, rays, o, out), Catch::Contains("embree: ray 3 has origin x = 2e+18"));
+  rays[3] = Ray{1.8e18f, 0, 0, 0, -1, 0, 0, INFINITY};  // within Embree's range: traced
+  CHECK_NOTHROW(embree->trace(*acc, rays, o, out));
+  // invalid rays stay defined misses, whatever their size
+  rays[3] = Ray{INFINITY, 0, 0, 0, -1, 0, 0, INFINITY};
+  CHECK_NOTHROW(embree->trace(*acc, rays, o, out));
+  CHECK(out.invalid == 1);
+  // mbvh's own backends trace the ray Embree refuses
+  rays[3] = Ray{2e18f, 0, 0, 0, -1, 0, 0, INFINITY};
+  auto scalar = make_backend("cpu-scalar");
+  CHECK_NOTHROW(scalar->trace(*acc, rays, o, out));
+  // a scene beyond Embree's range is refused when it is prepared, not silently thinned
+  const Scene far = load_scene("gen:sphere:8@scale=1e19");
+  const auto far_acc = Accel::build(far);
+  CHECK_THROWS_WITH(embree->prepare(*far_acc, o), Catch::Contains("embree: triangle") && Catch::Contains("1.844e18"));
+}
+#endif
