@@ -31,10 +31,12 @@ struct RunResult {
 };
 
 /// Runs the mbvh program with `args` (a shell fragment), capturing its output; `env` (e.g.
-/// "OCL_ICD_VENDORS=/x") is set for that run only.
-inline RunResult run_cli(const std::string& args, const std::string& env = "") {
+/// "OCL_ICD_VENDORS=/x") is set for that run only. With `timeout_s` > 0 a run that takes longer
+/// is killed and returns code 124 (a hang becomes a failure, not a stuck test).
+inline RunResult run_cli(const std::string& args, const std::string& env = "", int timeout_s = 0) {
   RunResult r;
-  const std::string cmd = (env.empty() ? "" : "env " + env + " ") + std::string(MBVH_CLI_PATH) + " " + args + " 2>&1";
+  const std::string cmd = (timeout_s > 0 ? "timeout -k 5 " + std::to_string(timeout_s) + " " : std::string()) +
+                          (env.empty() ? "" : "env " + env + " ") + std::string(MBVH_CLI_PATH) + " " + args + " 2>&1";
   FILE* p = popen(cmd.c_str(), "r");
   if (!p) return r;
   std::array<char, 4096> buf;
