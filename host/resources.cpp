@@ -72,15 +72,16 @@ void require_memory(const std::string& what, std::uint64_t bytes, const std::str
               format_bytes(b.bytes) + " available (" + b.source + ")");
 }
 
-std::uint64_t build_memory_estimate(std::uint64_t triangles) {
-  constexpr std::uint64_t bytes_per_triangle = 160;
-  return std::min(triangles, UINT64_MAX / 1024) * bytes_per_triangle;
+std::uint64_t build_memory_estimate(std::uint64_t triangles, std::uint64_t vertices) {
+  triangles = std::min(triangles, UINT64_MAX / 1024);  // no overflow for any count
+  vertices = std::min(vertices, UINT64_MAX / 1024);
+  return 128 * triangles + 56 * vertices;
 }
 
 std::uint64_t scene_memory_estimate(std::uint64_t triangles, std::uint64_t vertices) {
-  triangles = std::min(triangles, UINT64_MAX / 1024);  // no overflow for any count
+  triangles = std::min(triangles, UINT64_MAX / 1024);
   vertices = std::min(vertices, UINT64_MAX / 1024);
-  return 12 * vertices + 12 * triangles + build_memory_estimate(triangles);
+  return 12 * vertices + 12 * triangles + build_memory_estimate(triangles, vertices);
 }
 
 std::uint64_t regular_file_size(const std::string& path, const std::string& what) {

@@ -23,9 +23,11 @@ MemoryBudget memory_budget();
 void require_memory(const std::string& what, std::uint64_t bytes, const std::string& how,
                     const MemoryBudget& budget = memory_budget());
 
-/// Bytes one build of `triangles` triangles costs beyond the scene (the builder's references, the
-/// BVH2 and the MBVH2, MBVH4 and MBVH8 layouts), from the peak RSS of `mbvh info` on gen:soup.
-std::uint64_t build_memory_estimate(std::uint64_t triangles);
+/// Bytes one build of a scene costs beyond the scene (the builder's references, the BVH2 and the
+/// MBVH2, MBVH4 and MBVH8 layouts): 128 a triangle and 56 a vertex, fitted to the peak RSS of
+/// `mbvh info` on gen:hairball (0.53 vertices a triangle, 155 B a triangle in all) and gen:soup
+/// (3 vertices a triangle, 293 B a triangle) at 1M and 2M triangles.
+std::uint64_t build_memory_estimate(std::uint64_t triangles, std::uint64_t vertices);
 /// Bytes a scene of `triangles` triangles and `vertices` vertices costs, itself (12 bytes a
 /// vertex, 12 a triangle) and through one build.
 std::uint64_t scene_memory_estimate(std::uint64_t triangles, std::uint64_t vertices);

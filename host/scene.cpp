@@ -64,7 +64,7 @@ Scene load_scene(const std::string& path) {
   else throw Error(path + ": unknown scene format (expected .obj, .ply, optionally .zst, or gen:NAME:PARAMS)");
   // -- the build comes next in every command: refuse it here rather than run out of memory there
   data = {};
-  require_memory(path, build_memory_estimate(s.triangles.size()),
+  require_memory(path, build_memory_estimate(s.triangles.size(), s.vertices.size()),
                  "to build its " + std::to_string(s.triangles.size()) + " triangles");
   return s;
 }

@@ -217,7 +217,7 @@ TEST_CASE("bounded resources: zstd bombs generated scenes and PFM headers are re
   }
   {
     MemoryLimit limit("100");
-    CHECK_THAT(error_of([&] { load_scene(cube); }), Catch::Contains("cube.obj: needs about 160 bytes") && Catch::Contains("to build its 1 triangles"));
+    CHECK_THAT(error_of([&] { load_scene(cube); }), Catch::Contains("cube.obj: needs about 296 bytes") && Catch::Contains("to build its 1 triangles"));
   }
   // -- PFM: a 20-byte header once allocated width x height x 12 bytes before reading a pixel
   const std::string pfm = dir.write("big.pfm", "PF\n4096 4096\n-1.0\n");
