@@ -13,6 +13,7 @@
 #include "host/error.h"
 #include "host/io/output.h"
 #include "host/random.h"
+#include "host/resources.h"
 #include "host/stress.h"
 #include "host/trace/trace.h"
 
@@ -256,13 +257,12 @@ std::vector<T> records_from_bytes(const std::string& name, const char* what, con
 
 template <class T>
 std::vector<T> read_records(const std::string& path, const char* what) {
+  // stat()ed before it is opened: a FIFO would block in open, a device has no size
+  const std::uint64_t size = regular_file_size(path, what);
+  check_record_size(path, what, static_cast<std::size_t>(size), sizeof(T));
+  require_memory(path, size, std::string("to read the ") + what + " file");
   std::unique_ptr<FILE, int (*)(FILE*)> f(std::fopen(path.c_str(), "rb"), &std::fclose);
   if (!f) throw Error(path + ": cannot open " + what + " file: " + std::strerror(errno));
-  std::fseek(f.get(), 0, SEEK_END);
-  const long size = std::ftell(f.get());
-  std::fseek(f.get(), 0, SEEK_SET);
-  if (size < 0) throw Error(path + ": cannot determine the size of the " + what + " file");
-  check_record_size(path, what, static_cast<std::size_t>(size), sizeof(T));
   std::vector<T> out(static_cast<std::size_t>(size) / sizeof(T));
   if (!out.empty() && std::fread(out.data(), sizeof(T), out.size(), f.get()) != out.size())
     throw Error(path + ": read error in " + what + " file");

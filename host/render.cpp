@@ -14,6 +14,7 @@
 #include "host/error.h"
 #include "host/parallel.h"
 #include "host/random.h"
+#include "host/resources.h"
 
 namespace mbvh {
 
@@ -331,6 +332,7 @@ void write_pfm(const std::string& path, unsigned width, unsigned height, const s
 }
 
 std::vector<float> read_pfm(const std::string& path, unsigned& width, unsigned& height) {
+  const std::uint64_t file_size = regular_file_size(path, "PFM");  // before opening: a FIFO would block
   std::ifstream f(path, std::ios::binary);
   if (!f) throw Error(path + ": cannot open the PFM file");
   std::string magic;
@@ -340,6 +342,15 @@ std::vector<float> read_pfm(const std::string& path, unsigned& width, unsigned& 
   if (!f || magic != "PF" || w <= 0 || h <= 0 || w > 65536 || h > 65536 || !(scale < 0))
     throw Error(path + ": not a little-endian RGB PFM (expected 'PF', width, height, a negative scale)");
   f.get();  // the single whitespace after the scale
+  // -- the header's size against the file's, before allocating: 21 bytes may claim 48 GiB
+  const std::uint64_t pixels = static_cast<std::uint64_t>(w) * static_cast<std::uint64_t>(h) * 12;
+  const std::streamoff at = f.tellg();  // -1 when the header ends the file
+  const std::uint64_t have = at < 0 ? 0 : file_size - static_cast<std::uint64_t>(at);
+  if (pixels != have)
+    throw Error(path + ": the PFM header says " + std::to_string(w) + "x" + std::to_string(h) + " pixels (" +
+                std::to_string(pixels) + " bytes of RGB floats) but the file holds " + std::to_string(have) +
+                " bytes after the header");
+  require_memory(path, pixels, "to read the PFM image");
   width = static_cast<unsigned>(w);
   height = static_cast<unsigned>(h);
   std::vector<float> rgb(std::size_t(width) * height * 3);

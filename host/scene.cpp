@@ -7,6 +7,7 @@
 #include <cstring>
 
 #include "host/error.h"
+#include "host/resources.h"
 
 namespace mbvh {
 
@@ -76,10 +77,17 @@ Scene load_scene(const std::string& path) {
   std::vector<char> data = read_file(path);
   std::string base = ends_with(path, ".zst") ? path.substr(0, path.size() - 4) : path;
   std::transform(base.begin(), base.end(), base.begin(), [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
-  const bool ply_magic = data.size() >= 3 && std::memcmp(data.data(), "ply", 3) == 0;
-  if (ends_with(base, ".ply") || ply_magic) return parse_ply(path, data.data(), data.size());
-  if (ends_with(base, ".obj")) return parse_obj(path, data.data(), data.size());
-  throw Error(path + ": unknown scene format (expected .obj, .ply, optionally .zst, or gen:NAME:PARAMS)");
+  const std::size_t bom = data.size() >= 3 && std::memcmp(data.data(), "\xEF\xBB\xBF", 3) == 0 ? 3 : 0;
+  const bool ply_magic = data.size() >= bom + 3 && std::memcmp(data.data() + bom, "ply", 3) == 0;
+  Scene s;
+  if (ends_with(base, ".ply") || ply_magic) s = parse_ply(path, data.data(), data.size());
+  else if (ends_with(base, ".obj")) s = parse_obj(path, data.data(), data.size());
+  else throw Error(path + ": unknown scene format (expected .obj, .ply, optionally .zst, or gen:NAME:PARAMS)");
+  // -- the build comes next in every command: refuse it here rather than run out of memory there
+  data = {};
+  require_memory(path, build_memory_estimate(s.triangles.size(), s.vertices.size()),
+                 "to build its " + std::to_string(s.triangles.size()) + " triangles");
+  return s;
 }
 
 }  // namespace mbvh

@@ -47,20 +47,30 @@ struct Scene {
 
 /// Loads a scene from a path (.obj, .ply, optionally .zst-compressed) or a generator spec
 /// ("gen:sphere:64", "gen:soup:100000:7", "gen:hairball:1000000", "gen:exponential:200",
-/// "gen:cube:16"). Throws Error naming the file, line and what was wrong on malformed input.
+/// "gen:cube:16"). Throws Error naming the file, line and what was wrong on malformed input, and
+/// naming the path or spec and the estimate when the scene and one build of it would not fit in
+/// memory_budget() (host/resources.h), checked before allocating wherever the size is known first
+/// (file and decompressed sizes, PLY counts, generator parameters). An input that is not a
+/// regular file (directory, FIFO, device) is refused unopened.
 Scene load_scene(const std::string& path_or_spec);
 
 /// Parsers on an in-memory buffer (already decompressed); `name` is used in error messages.
+/// Neither drops or shifts geometry silently: a leading UTF-8 byte-order mark is skipped, CRLF
+/// line ends are accepted, and anything else they cannot read exactly is an Error naming the
+/// line (see the notes atop host/io/obj.cpp and host/io/ply.cpp).
 Scene parse_obj(const std::string& name, const char* data, std::size_t size);
 Scene parse_ply(const std::string& name, const char* data, std::size_t size);
 
-/// Reads a whole file, transparently decompressing zstd (by magic number). Throws Error.
+/// Reads a whole file, transparently decompressing zstd (by magic number). Throws Error on a path
+/// that is not a regular file (unopened) and on a file or decompressed size beyond memory_budget().
 std::vector<char> read_file(const std::string& path);
 /// Decompresses `data` if it starts with the zstd magic number, else returns it unchanged;
-/// `name` is used in error messages. Throws Error on a corrupt or truncated stream.
+/// `name` is used in error messages. Throws Error on a corrupt or truncated stream, and when the
+/// frame header's content size (before decompressing) or the output so far exceeds memory_budget().
 std::vector<char> maybe_decompress(const std::string& name, std::vector<char> data);
 
-/// Builds a generated scene from "NAME:PARAMS" (the part after "gen:"). Throws Error.
+/// Builds a generated scene from "NAME:PARAMS" (the part after "gen:"). Throws Error on bad
+/// parameters, and before generating when scene_memory_estimate() of its size exceeds memory_budget().
 Scene generate_scene(const std::string& spec);
 /// One line per generator, for --help texts.
 std::string generator_help();

@@ -8,6 +8,7 @@
 
 #include "host/error.h"
 #include "host/random.h"
+#include "host/resources.h"
 #include "host/scene.h"
 
 namespace mbvh {
@@ -314,19 +315,57 @@ Scene generate_scene(const std::string& full_spec) {
 
 namespace {
 
+// Refuses, before generating, a scene of this size whose generation and build would not fit in
+// memory (`extra`: the generator's own scratch memory).
+void require_fit(const std::string& spec, std::uint64_t triangles, std::uint64_t vertices, std::uint64_t extra = 0) {
+  require_memory("gen:" + spec, scene_memory_estimate(triangles, vertices) + extra,
+                 std::to_string(triangles) + " triangles, " + std::to_string(vertices) + " vertices, and their build");
+}
+
 Scene generate_base(const std::string& spec) {
   const std::vector<std::string> p = split(spec, ':');
   const std::string& n = p[0];
-  if (n == "sphere") return sphere(static_cast<std::uint32_t>(param(p, 1, 64, 3, 1u << 15, spec)));
-  if (n == "cube") return cube(static_cast<std::uint32_t>(param(p, 1, 16, 1, 4096, spec)));
-  if (n == "soup") return soup(param(p, 1, 100000, 1, 200'000'000, spec), param(p, 2, 1, 0, UINT64_MAX, spec));
-  if (n == "hairball")
-    return hairball(param(p, 1, 1'000'000, 1, 400'000'000, spec), param(p, 2, 1, 0, UINT64_MAX, spec));
+  if (n == "sphere") {
+    const std::uint64_t seg = param(p, 1, 64, 3, 1u << 15, spec), rings = std::max<std::uint64_t>(2, seg / 2);
+    require_fit(spec, 2 * seg * (rings - 1), 2 + (rings - 1) * seg);
+    return sphere(static_cast<std::uint32_t>(seg));
+  }
+  if (n == "cube") {
+    const std::uint64_t k = param(p, 1, 16, 1, 4096, spec);
+    require_fit(spec, 12 * k * k, 6 * (k + 1) * (k + 1));
+    return cube(static_cast<std::uint32_t>(k));
+  }
+  if (n == "soup") {
+    const std::uint64_t count = param(p, 1, 100000, 1, 200'000'000, spec), seed = param(p, 2, 1, 0, UINT64_MAX, spec);
+    require_fit(spec, count, 3 * count);
+    return soup(count, seed);
+  }
+  if (n == "hairball") {
+    const std::uint64_t count = param(p, 1, 1'000'000, 1, 400'000'000, spec), seed = param(p, 2, 1, 0, UINT64_MAX, spec);
+    require_fit(spec, count, (count + 191) / 192 * 102);  // 102 vertices a tube of 192 triangles
+    return hairball(count, seed);
+  }
   if (n == "exponential") return exponential(static_cast<std::uint32_t>(param(p, 1, 200, 1, 200, spec)));
-  if (n == "torus") return torus(static_cast<std::uint32_t>(param(p, 1, 64, 3, 1u << 14, spec)));
-  if (n == "grid") return grid_box(static_cast<std::uint32_t>(param(p, 1, 8, 1, 1024, spec)));
-  if (n == "plane") return plane(static_cast<std::uint32_t>(param(p, 1, 32, 1, 4096, spec)));
-  if (n == "needles") return needles(param(p, 1, 10000, 1, 100'000'000, spec), param(p, 2, 1, 0, UINT64_MAX, spec));
+  if (n == "torus") {
+    const std::uint64_t seg = param(p, 1, 64, 3, 1u << 14, spec), tube = std::max<std::uint64_t>(3, seg / 2);
+    require_fit(spec, 2 * seg * tube, seg * tube);
+    return torus(static_cast<std::uint32_t>(seg));
+  }
+  if (n == "grid") {
+    const std::uint64_t k = param(p, 1, 8, 1, 1024, spec);
+    require_fit(spec, 12 * k * k, 6 * (k + 1) * (k + 1), 8 * (k + 1) * (k + 1) * (k + 1));  // + the vertex index
+    return grid_box(static_cast<std::uint32_t>(k));
+  }
+  if (n == "plane") {
+    const std::uint64_t k = param(p, 1, 32, 1, 4096, spec);
+    require_fit(spec, 2 * k * k, (k + 1) * (k + 1));
+    return plane(static_cast<std::uint32_t>(k));
+  }
+  if (n == "needles") {
+    const std::uint64_t count = param(p, 1, 10000, 1, 100'000'000, spec), seed = param(p, 2, 1, 0, UINT64_MAX, spec);
+    require_fit(spec, count, 3 * count);
+    return needles(count, seed);
+  }
   throw Error("gen:" + spec + ": unknown generator '" + n + "'; known generators:\n" + generator_help());
 }
 

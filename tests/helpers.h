@@ -52,9 +52,11 @@ inline RunResult run_shell(const std::string& command) {
 }
 
 /// Runs the mbvh program with `args` (a shell fragment), capturing its output; `env` (e.g.
-/// "OCL_ICD_VENDORS=/x") is set for that run only.
-inline RunResult run_cli(const std::string& args, const std::string& env = "") {
-  return run_shell((env.empty() ? "" : "env " + env + " ") + cli_path() + " " + args);
+/// "OCL_ICD_VENDORS=/x") is set for that run only. With `timeout_s` > 0 a run that takes longer
+/// is killed and returns code 124 (a hang becomes a failure, not a stuck test).
+inline RunResult run_cli(const std::string& args, const std::string& env = "", int timeout_s = 0) {
+  return run_shell((timeout_s > 0 ? "timeout -k 5 " + std::to_string(timeout_s) + " " : std::string()) +
+                   (env.empty() ? "" : "env " + env + " ") + cli_path() + " " + args);
 }
 
 }  // namespace mbvh_test

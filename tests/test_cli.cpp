@@ -7,6 +7,8 @@
 #include <filesystem>
 #include <nlohmann/json.hpp>
 
+#include <sys/stat.h>
+
 #include "host/check.h"
 #include "host/rays.h"
 #include "tests/helpers.h"
@@ -152,6 +154,59 @@ TEST_CASE("mbvh gives clear errors and non-zero exit codes", "[cli]") {
   r = run_cli("trace gen:sphere:16 --count 1000 --backend cpu");  // the best ISA, named in the log
   CHECK(r.code == 0);
   CHECK_THAT(r.output, Catch::Contains("backend: cpu: avx"));
+}
+
+TEST_CASE("mbvh reads a byte-order mark exactly refuses binary .obj files names the line (issue 19)", "[cli][issue19]") {
+  TempDir dir;
+  auto r = run_cli("info " + dir.write("bom.obj", "\xEF\xBB\xBFv 0 0 0\r\nv 1 0 0\r\nv 0 1 0\r\nv 0 0 1\r\nf 1 2 3\r\nf 1 2 4\r\n"));
+  INFO(r.output);
+  CHECK(r.code == 0);
+  CHECK_THAT(r.output, Catch::Contains("triangles  2 (0 degenerate, kept out of leaves), 4 vertices"));
+  std::string binary = "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n";
+  binary += std::string(64, '\0');
+  r = run_cli("info " + dir.write("binary.obj", binary));
+  CHECK(r.code == 2);
+  CHECK_THAT(r.output, Catch::Contains("binary.obj:5: a NUL byte"));
+  r = run_cli("info " + dir.write("notes.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nthese are my notes\n"));
+  CHECK(r.code == 2);
+  CHECK_THAT(r.output, Catch::Contains("notes.obj:5: unknown statement 'these'"));
+  r = run_cli("info " + dir.write("bare.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nv\nf 1 2 3\n"));
+  CHECK(r.code == 2);
+  CHECK_THAT(r.output, Catch::Contains("bare.obj:4: vertex has fewer than 3 coordinates"));
+}
+
+TEST_CASE("mbvh refuses FIFOs directories and devices as inputs without hanging - and scenes beyond the memory budget "
+          "before generating them (issue 19)",
+          "[cli][issue19]") {
+  TempDir dir;
+  const std::string fifo = dir.file("pipe.obj");
+  REQUIRE(mkfifo(fifo.c_str(), 0600) == 0);
+  auto r = run_cli("info " + fifo, "", 60);
+  CHECK(r.code == 2);
+  CHECK_THAT(r.output, Catch::Contains("pipe.obj: is a FIFO (named pipe), not a regular input file"));
+  const std::string hits = dir.file("h.hits");
+  r = run_cli("trace gen:sphere:16 --rays " + fifo + " -o " + hits, "", 60);
+  CHECK(r.code == 2);
+  CHECK_THAT(r.output, Catch::Contains("pipe.obj: is a FIFO (named pipe), not a regular ray file"));
+  CHECK_FALSE(std::filesystem::exists(hits));
+  r = run_cli("trace gen:sphere:16 --rays /dev/zero -o " + hits, "", 60);
+  CHECK(r.code == 2);
+  CHECK_THAT(r.output, Catch::Contains("/dev/zero: is a character device"));
+  CHECK_FALSE(std::filesystem::exists(hits));
+  r = run_cli("info /dev/null", "", 60);  // read only (never an output), and an endless /dev/zero before the fix
+  CHECK(r.code == 2);
+  CHECK_THAT(r.output, Catch::Contains("/dev/null: is a character device"));
+  r = run_cli("info " + dir.path.string(), "", 60);
+  CHECK(r.code == 2);
+  CHECK_THAT(r.output, Catch::Contains("is a directory"));
+  // 1M soup triangles need ~340 MB with their build: refused under a 100 MiB cap, named with the estimate
+  r = run_cli("info gen:soup:1000000", "MBVH_MEMORY_LIMIT=100M", 60);
+  CHECK(r.code == 2);
+  CHECK_THAT(r.output, Catch::Contains("gen:soup:1000000: needs about 328 MiB") && Catch::Contains("1000000 triangles") &&
+                           Catch::Contains("more than the 100 MiB available (MBVH_MEMORY_LIMIT)"));
+  r = run_cli("info gen:hairball:400000000", "MBVH_MEMORY_LIMIT=64G", 60);
+  CHECK(r.code == 2);
+  CHECK_THAT(r.output, Catch::Contains("gen:hairball:400000000: needs about 66 GiB"));
 }
 
 TEST_CASE("MBVH_CPU_ISA=avx2 runs the cpu backend as an AVX2-only machine would - a bad value is a clear error",

@@ -1,4 +1,5 @@
-// file.cpp — whole-file reads with transparent zstd decompression (libzstd streaming API).
+// file.cpp — whole-file reads with transparent zstd decompression (libzstd streaming API), both
+// bounded by the memory budget before anything is allocated.
 #include <zstd.h>
 
 #include <algorithm>
@@ -7,6 +8,7 @@
 #include <memory>
 
 #include "host/error.h"
+#include "host/resources.h"
 #include "host/scene.h"
 
 namespace mbvh {
@@ -18,14 +20,17 @@ void fail_at(const std::string& file, std::size_t line, const std::string& messa
 
 namespace {
 
+// The file is stat()ed before it is opened: a FIFO would block in open and a device never ends.
 std::vector<char> read_raw(const std::string& path) {
+  const std::uint64_t size = regular_file_size(path, "input");
+  require_memory(path, size, "to read the file");
   std::unique_ptr<FILE, int (*)(FILE*)> f(std::fopen(path.c_str(), "rb"), &std::fclose);
   if (!f) fail_at(path, 0, std::string("cannot open file: ") + std::strerror(errno));
-  std::vector<char> data;
-  char buf[1 << 16];
-  std::size_t n;
-  while ((n = std::fread(buf, 1, sizeof buf, f.get())) > 0) data.insert(data.end(), buf, buf + n);
-  if (std::ferror(f.get())) fail_at(path, 0, "read error");
+  std::vector<char> data(static_cast<std::size_t>(size));
+  const std::size_t n = size ? std::fread(data.data(), 1, data.size(), f.get()) : 0;
+  if (std::ferror(f.get())) fail_at(path, 0, std::string("read error: ") + std::strerror(errno));
+  if (n != data.size() || std::fgetc(f.get()) != EOF)
+    fail_at(path, 0, "the file changed size while it was read");
   return data;
 }
 
@@ -39,19 +44,26 @@ std::vector<char> decompress(const std::string& path, const std::vector<char>& i
   if (!ds) fail_at(path, 0, "zstd: out of memory");
   ZSTD_initDStream(ds.get());
   std::vector<char> out;
-  // The frame header's content size is only a hint: a corrupt header may claim terabytes (found
-  // by fuzzing), so reserve no more than a plausible ratio of the input; the vector grows past it.
-  const unsigned long long hint = ZSTD_getFrameContentSize(in.data(), in.size());
-  if (hint != ZSTD_CONTENTSIZE_UNKNOWN && hint != ZSTD_CONTENTSIZE_ERROR)
-    out.reserve(static_cast<std::size_t>(std::min<unsigned long long>(hint, 64ull * in.size() + (1u << 20))));
+  // The first frame's content size, when its header states it, is checked against the budget
+  // before decompressing; the stream is capped at the budget either way. A corrupt header may
+  // claim terabytes (found by fuzzing), so reserve no more than a plausible ratio of the input.
+  const MemoryBudget budget = memory_budget();
+  const unsigned long long stated = ZSTD_getFrameContentSize(in.data(), in.size());
+  if (stated != ZSTD_CONTENTSIZE_UNKNOWN && stated != ZSTD_CONTENTSIZE_ERROR) {
+    require_memory(path, stated, "to decompress: the size the zstd frame header states", budget);
+    out.reserve(static_cast<std::size_t>(std::min<unsigned long long>(stated, 64ull * in.size() + (1u << 20))));
+  }
   ZSTD_inBuffer ib{in.data(), in.size(), 0};
   std::vector<char> chunk(ZSTD_DStreamOutSize());
   std::size_t ret = 0;
   bool full = false;
-  while (ib.pos < ib.size || full) {  // a full output buffer may hold more: call again
+  // a full output buffer may hold more: call again, unless the frame just ended (ret == 0), where
+  // another call would start a new frame and report it missing
+  while (ib.pos < ib.size || (full && ret != 0)) {
     ZSTD_outBuffer ob{chunk.data(), chunk.size(), 0};
     ret = ZSTD_decompressStream(ds.get(), &ob, &ib);
     if (ZSTD_isError(ret)) fail_at(path, 0, std::string("zstd: ") + ZSTD_getErrorName(ret));
+    require_memory(path, out.size() + ob.pos, "to decompress, at least: the zstd stream goes on", budget);
     out.insert(out.end(), chunk.data(), chunk.data() + ob.pos);
     full = ob.pos == ob.size;
   }

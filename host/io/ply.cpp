@@ -1,7 +1,11 @@
 // ply.cpp — a PLY reader: ascii, binary_little_endian and binary_big_endian; any extra vertex
 // properties and elements; faces as a list property (vertex_indices / vertex_index),
 // fan-triangulated (0, k, k+1). Counts are checked against the bytes left before anything
-// is allocated, so a lying header cannot exhaust memory.
+// is allocated, so a lying header cannot exhaust memory. Nothing is dropped silently: a UTF-8
+// byte-order mark before "ply" is skipped and CRLF header lines are read, but a header line with
+// more words than its keyword takes, an ascii element line with more values than its properties,
+// and data after the last element are errors naming the line (or the byte count, in binary).
+#include <algorithm>
 #include <bit>
 #include <charconv>
 #include <cmath>
@@ -94,9 +98,31 @@ public:
     eol_ = static_cast<const char*>(std::memchr(p_, '\n', static_cast<std::size_t>(end_ - p_)));
     if (!eol_) eol_ = end_;
   }
-  void end_element() {
+  // ascii: the rest of the element's line must be blank; `what` names the element ("vertex 3")
+  void end_element(const std::string& what) {
     if (format_ != Format::ascii) return;
+    while (p_ < eol_ && (*p_ == ' ' || *p_ == '\t' || *p_ == '\r')) ++p_;
+    if (p_ < eol_) {
+      const char* te = p_;
+      while (te < eol_ && !(*te == ' ' || *te == '\t' || *te == '\r')) ++te;
+      fail_at(name_, line_, what + ": extra value '" + std::string(p_, std::min<std::size_t>(static_cast<std::size_t>(te - p_), 24)) +
+                                "' after the last property (the header declares fewer)");
+    }
     p_ = eol_ < end_ ? eol_ + 1 : end_;
+  }
+  // after the last element only blank lines (ascii) or nothing (binary) may follow
+  void end_data() {
+    if (format_ != Format::ascii) {
+      if (p_ < end_)
+        fail_at(name_, 0, std::to_string(end_ - p_) + " bytes of data after the last element (the header's counts or "
+                                                       "types do not match the data)");
+      return;
+    }
+    while (p_ < end_ && (*p_ == ' ' || *p_ == '\t' || *p_ == '\r' || *p_ == '\n')) {
+      if (*p_ == '\n') ++line_;
+      ++p_;
+    }
+    if (p_ < end_) fail_at(name_, line_ + 1, "data after the last element (the header's counts do not match the data)");
   }
   std::size_t line() const { return format_ == Format::ascii ? line_ : 0; }
   std::size_t bytes_left() const { return static_cast<std::size_t>(end_ - p_); }
@@ -135,6 +161,7 @@ Scene parse_ply(const std::string& name, const char* data, std::size_t size) {
   s.name = name;
   const char* p = data;
   const char* end = data + size;
+  if (size >= 3 && std::memcmp(p, "\xEF\xBB\xBF", 3) == 0) p += 3;  // UTF-8 byte-order mark
   // -- header
   std::size_t line = 0;
   auto next_line = [&](std::string& out) -> bool {
@@ -157,8 +184,16 @@ Scene parse_ply(const std::string& name, const char* data, std::size_t size) {
     std::istringstream ls(l);
     std::string kw;
     ls >> kw;
-    if (kw == "end_header") break;
     if (kw.empty() || kw == "comment" || kw == "obj_info") continue;
+    // a line with more words than its keyword takes is refused: a guess could shift every value
+    auto no_more_words = [&] {
+      std::string extra;
+      if (ls >> extra) fail_at(name, line, "unexpected '" + extra + "' at the end of the header line '" + l + "'");
+    };
+    if (kw == "end_header") {
+      no_more_words();
+      break;
+    }
     if (kw == "format") {
       std::string f, v;
       ls >> f >> v;
@@ -167,6 +202,7 @@ Scene parse_ply(const std::string& name, const char* data, std::size_t size) {
       else if (f == "binary_big_endian") format = Format::binary_be;
       else fail_at(name, line, "unknown PLY format '" + f + "'");
       if (v != "1.0") fail_at(name, line, "unsupported PLY version '" + v + "'");
+      no_more_words();
       have_format = true;
     } else if (kw == "element") {
       Element e;
@@ -175,6 +211,7 @@ Scene parse_ply(const std::string& name, const char* data, std::size_t size) {
       auto r = std::from_chars(count.data(), count.data() + count.size(), e.count);
       if (e.name.empty() || r.ec != std::errc() || r.ptr != count.data() + count.size())
         fail_at(name, line, "bad element line '" + l + "'");
+      no_more_words();
       e.header_line = line;
       elements.push_back(e);
     } else if (kw == "property") {
@@ -193,6 +230,7 @@ Scene parse_ply(const std::string& name, const char* data, std::size_t size) {
         if (!parse_type(t, pr.type)) fail_at(name, line, "unknown property type '" + t + "'");
       }
       if (pr.name.empty()) fail_at(name, line, "property without a name");
+      no_more_words();
       elements.back().props.push_back(pr);
     } else {
       fail_at(name, line, "unknown header keyword '" + kw + "'");
@@ -255,7 +293,7 @@ Scene parse_ply(const std::string& name, const char* data, std::size_t size) {
           if (static_cast<int>(k) == iz) c[2] = v;
         }
       }
-      rd.end_element();
+      rd.end_element(e.name + " " + std::to_string(i));
       if (is_vertex) {
         Vec3f v{static_cast<float>(c[0]), static_cast<float>(c[1]), static_cast<float>(c[2])};
         if (!std::isfinite(v.x) || !std::isfinite(v.y) || !std::isfinite(v.z))
@@ -271,6 +309,7 @@ Scene parse_ply(const std::string& name, const char* data, std::size_t size) {
       }
     }
   }
+  rd.end_data();
   return s;
 }
 

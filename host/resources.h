@@ -1,0 +1,43 @@
+// resources.h — bounded resources: the memory a command may use, estimated before allocating, and
+// the checks that refuse an input which is not a regular file (a FIFO would block, /dev/zero never ends).
+#pragma once
+#include <cstdint>
+#include <string>
+
+namespace mbvh {
+
+/// The memory a command may plan to use and where that number came from.
+struct MemoryBudget {
+  std::uint64_t bytes = 0;
+  const char* source = "";  ///< for messages: "MBVH_MEMORY_LIMIT", "MemAvailable in /proc/meminfo; ..."
+};
+
+/// MBVH_MEMORY_LIMIT when set (bytes, or with a K, M, G or T suffix, powers of 1024), else
+/// MemAvailable from /proc/meminfo, else the physical memory (sysconf). Read at every call (a few
+/// microseconds): take it once before allocating, as MemAvailable falls with every allocation.
+/// Throws Error on a malformed MBVH_MEMORY_LIMIT.
+MemoryBudget memory_budget();
+
+/// Throws Error "WHAT: needs about X of memory (HOW), more than the Y available (SOURCE)" when
+/// `bytes` exceeds `budget`; allocates nothing.
+void require_memory(const std::string& what, std::uint64_t bytes, const std::string& how,
+                    const MemoryBudget& budget = memory_budget());
+
+/// Bytes one build of a scene costs beyond the scene (the builder's references, the BVH2 and the
+/// MBVH2, MBVH4 and MBVH8 layouts): 128 a triangle and 56 a vertex, fitted to the peak RSS of
+/// `mbvh info` on gen:hairball (0.53 vertices a triangle, 155 B a triangle in all) and gen:soup
+/// (3 vertices a triangle, 293 B a triangle) at 1M and 2M triangles.
+std::uint64_t build_memory_estimate(std::uint64_t triangles, std::uint64_t vertices);
+/// Bytes a scene of `triangles` triangles and `vertices` vertices costs, itself (12 bytes a
+/// vertex, 12 a triangle) and through one build.
+std::uint64_t scene_memory_estimate(std::uint64_t triangles, std::uint64_t vertices);
+
+/// The size of the regular file at `path`, without opening it; throws Error naming the path and
+/// `what` (e.g. "scene", "ray") when it cannot be examined or is a directory, FIFO, socket or
+/// device: opening a FIFO blocks until a writer comes and a device may never end.
+std::uint64_t regular_file_size(const std::string& path, const std::string& what);
+
+/// "1.5 GiB", "12 MiB", "300 bytes": for messages.
+std::string format_bytes(std::uint64_t bytes);
+
+}  // namespace mbvh
