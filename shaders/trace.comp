@@ -511,9 +511,12 @@ Hit trace4_stack(RayPre r) {
         }
         const uint code = skip_code(m, i); /* bit k: slot (i + 1 + k) & 3 was hit */
         const ivec4 c = rotate(n.child, i + 1);
-        if ((code & 4u) != 0u) stack[sp++] = c.z;
-        if ((code & 2u) != 0u) stack[sp++] = c.y;
-        if ((code & 1u) != 0u) stack[sp++] = c.x;
+        /* push the hit ones of c.z, c.y, c.x in that order: three unconditional stores of the
+         * compacted sequence (entries past the pushed ones are dead), then sp += their count */
+        stack[sp] = (code & 4u) != 0u ? c.z : (code & 2u) != 0u ? c.y : c.x;
+        stack[sp + 1u] = (code & 6u) == 6u ? c.y : c.x;
+        stack[sp + 2u] = c.x;
+        sp += uint(bitCount(code));
         if (STATS) st_depth = max(st_depth, sp);
         cur = c.w;
       } else {
