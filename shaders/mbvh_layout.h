@@ -75,6 +75,37 @@ typedef uint mbvh_uint;
  * device's maxStorageBufferRange is bound as up to this many power-of-two chunks (TRAVERSAL.md §9). */
 #define MBVH_VK_CHUNK_BINDINGS 8
 
+/* The Vulkan dispatch contract of shaders/trace.comp, used by name on both sides
+ * (backends/vulkan/vulkan_backend.cpp). Descriptor bindings of set 0: */
+#define MBVH_VK_BINDING_RAYS 0     /* Ray[], read */
+#define MBVH_VK_BINDING_HITS 1     /* Hit[], closest hit */
+#define MBVH_VK_BINDING_OCCLUDED 2 /* uint[], any hit: 1 = occluded */
+#define MBVH_VK_BINDING_STATS 3    /* uint[MBVH_VK_STAT_WORDS] per ray, host RayStats order */
+#define MBVH_VK_BINDING_COUNTERS 4 /* uint[MBVH_VK_COUNTERS]: MBVH_VK_COUNTER_* */
+#define MBVH_VK_BINDING_LEAVES 5   /* Leaf[] */
+#define MBVH_VK_BINDING_NODES 6    /* the traced layout's nodes: MBVH_VK_CHUNK_BINDINGS RGBA32UI texel buffers */
+#define MBVH_VK_BINDING_TRIS 7     /* Tri[]: MBVH_VK_CHUNK_BINDINGS storage-buffer chunks */
+#define MBVH_VK_BINDINGS 8
+/* Specialisation constant ids (each a 32-bit word; VkBool32 for the flags): */
+#define MBVH_VK_SPEC_BITSTACK 0    /* bitstack traversal, else its stack twin */
+#define MBVH_VK_SPEC_ANY 1         /* any hit (occlusion), else closest hit */
+#define MBVH_VK_SPEC_STATS 2       /* per-ray counters */
+#define MBVH_VK_SPEC_NODE_CHUNKS 3 /* node chunks bound */
+#define MBVH_VK_SPEC_NODE_SHIFT 4  /* log2 of the nodes per chunk */
+#define MBVH_VK_SPEC_TRI_CHUNKS 5
+#define MBVH_VK_SPEC_TRI_SHIFT 6
+#define MBVH_VK_SPEC_LOCAL_SIZE 7  /* local_size_x */
+#define MBVH_VK_SPEC_FAST 8        /* the `fast` accuracy mode */
+#define MBVH_VK_SPEC_MBVH4 9       /* the MBVH4 layout (Node4, skip codes), else MBVH2 (Node2) */
+#define MBVH_VK_SPECS 10
+/* Counters (binding MBVH_VK_BINDING_COUNTERS), zeroed by the host before each trace: */
+#define MBVH_VK_COUNTER_INVALID 0  /* rays rejected as invalid (defined misses) */
+#define MBVH_VK_COUNTER_OVERFLOW 1 /* rays whose traversal stack would overflow (a tree deeper than its cap) */
+#define MBVH_VK_COUNTERS 2
+/* Words of one ray's statistics record: nodes, box tests, leaves, triangles, climbs, re-tests,
+ * maximum depth (bitstack: levels; stack: entries), one spare. */
+#define MBVH_VK_STAT_WORDS 8
+
 MBVH_NS_BEGIN
 
 /* A ray as stored in a .rays file: 32 bytes, little-endian. */

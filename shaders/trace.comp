@@ -1,8 +1,11 @@
 /* trace.comp — the Vulkan backend's compute shader: the GPU path of TRAVERSAL.md §9, one
- * invocation per ray over the MBVH2 layout (Aila & Laine 2009 node, both child boxes in one
- * 64-byte record), with the 1-bit-per-level bitstack of Áfra & Szirmay-Kalos ("Stackless
- * Multi-BVH Traversal for CPU, MIC and GPU Ray Tracing", CGF 2014) in a 64-bit word, and its
- * stack-based twin with a fixed-size local stack; closest and any hit.
+ * invocation per ray, with the bitstack of Áfra & Szirmay-Kalos ("Stackless Multi-BVH Traversal
+ * for CPU, MIC and GPU Ray Tracing", CGF 2014) in a 64-bit word and its stack-based twin with a
+ * fixed-size local stack; closest and any hit; over either layout (a specialisation constant):
+ *  - MBVH2 (Aila & Laine 2009 node, both child boxes in one 64-byte record), 1 bit per level;
+ *  - MBVH4 (128-byte SoA record, TRAVERSAL.md §2.3), 3-bit skip codes per level (§3.3, §4.3):
+ *    the nearest hit child first, the others in cyclic slot order.
+ * Both layouts share the ray set-up, the box test, the triangle tests and the leaf visit.
  *
  * Every operation repeats host/trace/intersect.h and host/trace/traverse.h in the same order
  * (TRAVERSAL.md §10), so answers are bit-identical to cpu-scalar's:
@@ -19,10 +22,10 @@
  * GPUs", HPG 2009): a lane descends through inner nodes until it reaches a leaf, so the lanes of a
  * subgroup test their leaves together (1.4-1.5x faster than one node-or-leaf step per iteration).
  *
- * Specialization constants pick the variant (one pipeline per traversal x query x statistics x
- * chunk counts); the node and triangle arrays are bound as up to MBVH_VK_CHUNK_BINDINGS chunks of
- * 2^SHIFT records each, so arrays over a device's maxTexelBufferElements or
- * maxStorageBufferRange still fit.
+ * Specialization constants pick the variant (one pipeline per layout x traversal x query x
+ * statistics x accuracy mode x chunk counts); the node and triangle arrays are bound as up to
+ * MBVH_VK_CHUNK_BINDINGS chunks of 2^SHIFT records each, so arrays over a device's
+ * maxTexelBufferElements or maxStorageBufferRange still fit.
  */
 #version 460
 #extension GL_GOOGLE_include_directive : require
@@ -34,33 +37,35 @@
 /* SPIR-V ExecutionMode SignedZeroInfNanPreserve (4461) for 32-bit floats, capability 4466 */
 spirv_execution_mode(capabilities = [4466], 4461, 32);
 
-layout(constant_id = 0) const bool BITSTACK = true; /* false: the stack twin */
-layout(constant_id = 1) const bool ANY = false;     /* any hit (occlusion) instead of closest */
-layout(constant_id = 2) const bool STATS = false;   /* per-ray counters */
-layout(constant_id = 3) const uint NODE_CHUNKS = 1;
-layout(constant_id = 4) const uint NODE_SHIFT = 21;
-layout(constant_id = 5) const uint TRI_CHUNKS = 1;
-layout(constant_id = 6) const uint TRI_SHIFT = 21;
-layout(local_size_x_id = 7) in;
-layout(constant_id = 8) const bool FAST = false;    /* the `fast` accuracy mode (host relax_ray, tri_test_mt) */
+/* the ids and the bindings below: the dispatch contract in mbvh_layout.h */
+layout(constant_id = MBVH_VK_SPEC_BITSTACK) const bool BITSTACK = true; /* false: the stack twin */
+layout(constant_id = MBVH_VK_SPEC_ANY) const bool ANY = false;          /* any hit (occlusion) instead of closest */
+layout(constant_id = MBVH_VK_SPEC_STATS) const bool STATS = false;      /* per-ray counters */
+layout(constant_id = MBVH_VK_SPEC_NODE_CHUNKS) const uint NODE_CHUNKS = 1;
+layout(constant_id = MBVH_VK_SPEC_NODE_SHIFT) const uint NODE_SHIFT = 21;
+layout(constant_id = MBVH_VK_SPEC_TRI_CHUNKS) const uint TRI_CHUNKS = 1;
+layout(constant_id = MBVH_VK_SPEC_TRI_SHIFT) const uint TRI_SHIFT = 21;
+layout(local_size_x_id = MBVH_VK_SPEC_LOCAL_SIZE) in;
+layout(constant_id = MBVH_VK_SPEC_FAST) const bool FAST = false;   /* the `fast` accuracy mode (host relax_ray, tri_test_mt) */
+layout(constant_id = MBVH_VK_SPEC_MBVH4) const bool MBVH4 = false; /* the MBVH4 layout, else MBVH2 */
 
 layout(push_constant) uniform Push {
   uint count; /* rays in this dispatch */
 } pc;
 
-layout(std430, set = 0, binding = 0) readonly buffer RayBuf { Ray rays[]; };
-layout(std430, set = 0, binding = 1) writeonly buffer HitBuf { Hit hits[]; };
-layout(std430, set = 0, binding = 2) writeonly buffer OccBuf { uint occluded[]; };
-layout(std430, set = 0, binding = 3) writeonly buffer StatBuf { uint stats[]; };
-/* counters[0]: invalid rays (defined misses); counters[1]: rays whose stack would overflow */
-layout(std430, set = 0, binding = 4) buffer CounterBuf { uint counters[]; };
-layout(std430, set = 0, binding = 5) readonly buffer LeafBuf { Leaf leaves[]; };
-/* MBVH2 nodes as a uniform texel buffer of RGBA32UI texels, four per node (Aila & Laine 2009 fetch
- * their nodes through the texture path too): on lavapipe a texel fetch gathers all lanes at once,
- * where a storage-buffer load with a per-lane address loops over the lanes (1.45x faster
- * traversal, README). Integer texels carry the float bits unchanged. */
-layout(set = 0, binding = 6) uniform usamplerBuffer nodeTex[MBVH_VK_CHUNK_BINDINGS];
-layout(std430, set = 0, binding = 7) readonly buffer TriChunk { Tri t[]; } tris[MBVH_VK_CHUNK_BINDINGS];
+layout(std430, set = 0, binding = MBVH_VK_BINDING_RAYS) readonly buffer RayBuf { Ray rays[]; };
+layout(std430, set = 0, binding = MBVH_VK_BINDING_HITS) writeonly buffer HitBuf { Hit hits[]; };
+layout(std430, set = 0, binding = MBVH_VK_BINDING_OCCLUDED) writeonly buffer OccBuf { uint occluded[]; };
+layout(std430, set = 0, binding = MBVH_VK_BINDING_STATS) writeonly buffer StatBuf { uint stats[]; };
+layout(std430, set = 0, binding = MBVH_VK_BINDING_COUNTERS) buffer CounterBuf { uint counters[]; }; /* MBVH_VK_COUNTER_* */
+layout(std430, set = 0, binding = MBVH_VK_BINDING_LEAVES) readonly buffer LeafBuf { Leaf leaves[]; };
+/* The nodes as a uniform texel buffer of RGBA32UI texels, one per 16-byte row: four per MBVH2
+ * node, eight per MBVH4 node (Aila & Laine 2009 fetch their nodes through the texture path too):
+ * on lavapipe a texel fetch gathers all lanes at once, where a storage-buffer load with a per-lane
+ * address loops over the lanes (1.45x faster traversal, README). Integer texels carry the float
+ * bits unchanged. */
+layout(set = 0, binding = MBVH_VK_BINDING_NODES) uniform usamplerBuffer nodeTex[MBVH_VK_CHUNK_BINDINGS];
+layout(std430, set = 0, binding = MBVH_VK_BINDING_TRIS) readonly buffer TriChunk { Tri t[]; } tris[MBVH_VK_CHUNK_BINDINGS];
 
 /* Record i of a chunked array: chunk i >> SHIFT, record i & (2^SHIFT - 1) in it, read by
  * FETCH(chunk, record). Constant indices into the binding arrays need no descriptor-indexing
@@ -84,11 +89,24 @@ Node2 node_texels(usamplerBuffer t, uint o) {
   return Node2(uintBitsToFloat(texelFetch(t, k)), uintBitsToFloat(texelFetch(t, k + 1)),
                uintBitsToFloat(texelFetch(t, k + 2)), ivec4(texelFetch(t, k + 3)));
 }
+/* MBVH4: rows lo.x, hi.x, lo.y, hi.y, lo.z, hi.z, child[4], (parent, sib[0..2]) */
+Node4 node4_texels(usamplerBuffer t, uint o) {
+  const int k = 8 * int(o);
+  const ivec4 l = ivec4(texelFetch(t, k + 7));
+  return Node4(uintBitsToFloat(texelFetch(t, k)), uintBitsToFloat(texelFetch(t, k + 1)),
+               uintBitsToFloat(texelFetch(t, k + 2)), uintBitsToFloat(texelFetch(t, k + 3)),
+               uintBitsToFloat(texelFetch(t, k + 4)), uintBitsToFloat(texelFetch(t, k + 5)),
+               ivec4(texelFetch(t, k + 6)), l.x, int[3](l.y, l.z, l.w));
+}
 #define NODE_FETCH(k, o) node_texels(nodeTex[k], o)
 #define LINK_FETCH(k, o) ivec4(texelFetch(nodeTex[k], 4 * int(o) + 3))
+#define NODE4_FETCH(k, o) node4_texels(nodeTex[k], o)
+#define LINK4_FETCH(k, o) ivec4(texelFetch(nodeTex[k], 8 * int(o) + 7))
 #define TRI_FETCH(k, o) tris[k].t[o]
 Node2 node(int i) { CHUNKED(NODE_FETCH, NODE_CHUNKS, NODE_SHIFT, i) }
 ivec4 node_links(int i) { CHUNKED(LINK_FETCH, NODE_CHUNKS, NODE_SHIFT, i) } /* parent, sibling, child0, child1 */
+Node4 node4(int i) { CHUNKED(NODE4_FETCH, NODE_CHUNKS, NODE_SHIFT, i) }
+ivec4 node4_links(int i) { CHUNKED(LINK4_FETCH, NODE_CHUNKS, NODE_SHIFT, i) } /* parent, sib[0], sib[1], sib[2] */
 Tri tri_at(uint i) { CHUNKED(TRI_FETCH, TRI_CHUNKS, TRI_SHIFT, i) }
 
 /* constants by their bits (exact; glslang folds no bit casts into constants) */
@@ -343,7 +361,7 @@ Hit trace_bitstack(RayPre r) {
   }
 }
 
-/* the stack-based twin (§4.5): the farther hit child pushed, one entry per level */
+/* MBVH2 stack-based twin (§4.5): the farther hit child pushed, one entry per level */
 Hit trace_stack(RayPre r) {
   Hit best = miss_hit();
   float tmax = r.tmax;
@@ -360,7 +378,7 @@ Hit trace_stack(RayPre r) {
         const int k = first_slot2(m, d0, d1);
         if (m == 3u) {
           if (sp + 1u > MBVH_STACK2_ENTRIES) { /* flag the ray rather than overflow */
-            atomicAdd(counters[1], 1u);
+            atomicAdd(counters[MBVH_VK_COUNTER_OVERFLOW], 1u);
             return miss_hit();
           }
           stack[sp++] = n.link[2 + (1 - k)];
@@ -378,17 +396,155 @@ Hit trace_stack(RayPre r) {
   }
 }
 
+/* ---------------------------------------------------------------- MBVH4 (§4.3, §4.5) */
+
+/* the four child boxes of an MBVH4 node, slot by slot in slot order (host test_boxes): hit mask
+ * (bit s = slot s) and entry distances */
+uint test4(Node4 n, RayPre r, float tcull, out vec4 d) {
+  if (STATS) { ++st_nodes; st_boxes += 4u; }
+  float d0, d1, d2, d3;
+  const bool h0 = box_test(r, n.lo_x.x, n.hi_x.x, n.lo_y.x, n.hi_y.x, n.lo_z.x, n.hi_z.x, tcull, d0);
+  const bool h1 = box_test(r, n.lo_x.y, n.hi_x.y, n.lo_y.y, n.hi_y.y, n.lo_z.y, n.hi_z.y, tcull, d1);
+  const bool h2 = box_test(r, n.lo_x.z, n.hi_x.z, n.lo_y.z, n.hi_y.z, n.lo_z.z, n.hi_z.z, tcull, d2);
+  const bool h3 = box_test(r, n.lo_x.w, n.hi_x.w, n.lo_y.w, n.hi_y.w, n.lo_z.w, n.hi_z.w, tcull, d3);
+  d = vec4(d0, d1, d2, d3);
+  return (h0 ? 1u : 0u) | (h1 ? 2u : 0u) | (h2 ? 4u : 0u) | (h3 ? 8u : 0u);
+}
+
+/* slot entered first (host first_slot4): any hit the lowest hit slot; closest hit the smallest
+ * entry distance, ties to the lower slot */
+int first_slot4(uint m, vec4 d) {
+  int i = findLSB(m);
+  if (ANY) return i;
+  float di = i == 0 ? d.x : i == 1 ? d.y : i == 2 ? d.z : d.w;
+  if (i < 1 && (m & 2u) != 0u && d.y < di) { i = 1; di = d.y; }
+  if (i < 2 && (m & 4u) != 0u && d.z < di) { i = 2; di = d.z; }
+  if (i < 3 && (m & 8u) != 0u && d.w < di) i = 3;
+  return i;
+}
+
+/* rot(mask, i) (§3.3): bit k = slot (i + 1 + k) & 3, the entered slot's own bit dropped */
+uint skip_code(uint m, int i) { return ((m >> (i + 1)) | (m << (3 - i))) & 7u; }
+
+/* (v[j & 3], v[(j + 1) & 3], v[(j + 2) & 3], v[(j + 3) & 3]) by swizzles: a per-lane index into a
+ * vector would go through memory */
+ivec4 rotate(ivec4 v, int j) {
+  j &= 3;
+  return j == 0 ? v : j == 1 ? v.yzwx : j == 2 ? v.zwxy : v.wxyz;
+}
+
+/* The bitstack's registers S = (sib[0], sib[1], sib[2], cur) (§3.3 "cached registers": R): entering
+ * slot i of a node is S = rotate(child, i + 1); moving to the k-th cyclic sibling is
+ * S = rotate(S, k + 1) (cur = R[k], sib[j] = R[(k + 1 + j) & 3]). */
+
+/* backtracking (§4.3), host trace_mbvh4_bitstack: climb while the level's code is 0 (cur = par,
+ * its parent and siblings from its record), then skip to the first pending sibling and keep the
+ * rest of the code relative to it; false when done */
+bool backtrack4(inout ivec4 S, inout int par, inout uint64_t bits, inout uint level) {
+  uint code;
+  for (;;) {
+    if (bits == 0ul) return false;
+    code = uint(bits) & 7u;
+    if (code != 0u) break;
+    S.w = par;
+    const ivec4 l = node4_links(par);
+    par = l.x;
+    S.xyz = l.yzw;
+    bits >>= 3;
+    if (STATS) { ++st_climbs; --level; }
+  }
+  const int k = findLSB(code);
+  const uint rest = code >> (k + 1);
+  bits ^= uint64_t(code ^ rest);
+  S = rotate(S, k + 1);
+  return true;
+}
+
+/* MBVH4 bitstack with skip codes (§4.3), host trace_mbvh4_bitstack: 3 bits per level */
+Hit trace4_bitstack(RayPre r) {
+  Hit best = miss_hit();
+  float tmax = r.tmax;
+  ivec4 S = ivec4(MBVH_NONE, MBVH_NONE, MBVH_NONE, 0); /* sib[0..2], cur = the root */
+  int par = MBVH_NONE;
+  uint64_t bits = 0ul;
+  uint level = 0u;
+  for (;;) {
+    while (S.w >= 0) {
+      const Node4 n = node4(S.w);
+      vec4 d;
+      precise float tcull = tmax * CULL_SLACK;
+      const uint m = test4(n, r, tcull, d);
+      if (m != 0u) {
+        const int i = first_slot4(m, d);
+        bits = (bits << 3) | uint64_t(skip_code(m, i)); /* push */
+        if (STATS) { ++level; st_depth = max(st_depth, level); }
+        par = S.w;
+        S = rotate(n.child, i + 1);
+      } else if (!backtrack4(S, par, bits, level)) {
+        return best;
+      }
+    }
+    if (visit_leaf(S.w, r, tmax, best)) return best;
+    if (!backtrack4(S, par, bits, level)) return best;
+  }
+}
+
+/* MBVH4 stack-based twin (§4.5), host trace_mbvh4_stack: enter the nearest hit child, push the
+ * other hit children in reverse cyclic order so they pop in cyclic order */
+Hit trace4_stack(RayPre r) {
+  Hit best = miss_hit();
+  float tmax = r.tmax;
+  int stack[MBVH_STACK4_ENTRIES];
+  uint sp = 0u;
+  int cur = 0;
+  for (;;) {
+    while (cur >= 0) {
+      const Node4 n = node4(cur);
+      vec4 d;
+      precise float tcull = tmax * CULL_SLACK;
+      const uint m = test4(n, r, tcull, d);
+      if (m != 0u) {
+        const int i = first_slot4(m, d);
+        if (sp + 3u > MBVH_STACK4_ENTRIES) { /* flag the ray rather than overflow */
+          atomicAdd(counters[MBVH_VK_COUNTER_OVERFLOW], 1u);
+          return miss_hit();
+        }
+        const uint code = skip_code(m, i); /* bit k: slot (i + 1 + k) & 3 was hit */
+        const ivec4 c = rotate(n.child, i + 1);
+        /* push the hit ones of c.z, c.y, c.x in that order: three unconditional stores of the
+         * compacted sequence (entries past the pushed ones are dead), then sp += their count */
+        stack[sp] = (code & 4u) != 0u ? c.z : (code & 2u) != 0u ? c.y : c.x;
+        stack[sp + 1u] = (code & 6u) == 6u ? c.y : c.x;
+        stack[sp + 2u] = c.x;
+        sp += uint(bitCount(code));
+        if (STATS) st_depth = max(st_depth, sp);
+        cur = c.w;
+      } else {
+        if (sp == 0u) return best;
+        cur = stack[--sp];
+      }
+    }
+    if (visit_leaf(cur, r, tmax, best)) return best;
+    if (sp == 0u) return best;
+    cur = stack[--sp];
+  }
+}
+
 void main() {
   const uint gid = gl_GlobalInvocationID.x;
   if (gid >= pc.count) return;
   RayPre r;
   Hit h = miss_hit();
-  if (prepare_ray(rays[gid], r)) h = BITSTACK ? trace_bitstack(r) : trace_stack(r);
-  else atomicAdd(counters[0], 1u);
+  if (prepare_ray(rays[gid], r)) {
+    if (MBVH4) h = BITSTACK ? trace4_bitstack(r) : trace4_stack(r);
+    else h = BITSTACK ? trace_bitstack(r) : trace_stack(r);
+  } else {
+    atomicAdd(counters[MBVH_VK_COUNTER_INVALID], 1u);
+  }
   if (ANY) occluded[gid] = h.prim != MBVH_MISS_PRIM ? 1u : 0u;
   else hits[gid] = h;
   if (STATS) {
-    const uint s = 8u * gid;
+    const uint s = MBVH_VK_STAT_WORDS * gid;
     stats[s + 0u] = st_nodes; stats[s + 1u] = st_boxes; stats[s + 2u] = st_leaves; stats[s + 3u] = st_tris;
     stats[s + 4u] = st_climbs; stats[s + 5u] = 0u; stats[s + 6u] = st_depth; stats[s + 7u] = 0u;
   }

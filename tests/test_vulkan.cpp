@@ -3,7 +3,8 @@
 // MBVH_VK_VALIDATION=1 for every test): the layer's messages are caught; arrays split over
 // several bindings (a scene over lavapipe's 128 MiB maxStorageBufferRange, and small scenes with
 // the binding range capped) and rays over several batches give cpu-scalar's answers; clear
-// errors for a missing driver and an unknown --vk-device; bench records beside cpu.
+// errors for a missing driver and an unknown --vk-device; bench records beside cpu. Every check
+// covers both layouts the shader traverses, MBVH2 and MBVH4.
 #include <catch2/catch.hpp>
 
 #include <cstring>
@@ -20,9 +21,17 @@ using namespace mbvh;
 
 namespace {
 
+constexpr Layout kLayouts[] = {Layout::mbvh2, Layout::mbvh4};
+
 // every variant the backend has, bit for bit against the reference
 void check_against_reference(Backend& b, const Accel& acc, const std::vector<Ray>& rays) {
-  mbvh_test::check_against_reference(b, acc, rays, Layout::mbvh2, {Traversal::stack, Traversal::bitstack});
+  for (Layout l : kLayouts) mbvh_test::check_against_reference(b, acc, rays, l, {Traversal::stack, Traversal::bitstack});
+}
+
+TraceOptions layout_options(Layout l) {
+  TraceOptions o;
+  o.layout = l;
+  return o;
 }
 
 }  // namespace
@@ -85,25 +94,34 @@ TEST_CASE("vulkan: arrays over the binding range are split - rays over several b
   BackendOptions bo;
   bo.vk_max_binding_bytes = 256 * 1024;
   auto b = make_backend("vulkan", bo);
-  b->prepare(*acc, TraceOptions{});
+  b->prepare(*acc, layout_options(Layout::mbvh2));
+  const std::string d2 = b->describe();
+  b->prepare(*acc, layout_options(Layout::mbvh4));
   const std::string d = b->describe();
   INFO(d);
-  // 256 KiB = 4096 nodes of 64 B; 5461 triangles of 48 B, rounded down to 4096; 8192 rays of 32 B
-  const std::size_t node_chunks = (acc->mbvh2().nodes.size() + 4095) / 4096, tri_chunks = (acc->tris().size() + 4095) / 4096;
-  REQUIRE(node_chunks > 1);
+  // 256 KiB = 4096 MBVH2 nodes of 64 B, 2048 MBVH4 nodes of 128 B; 5461 triangles of 48 B,
+  // rounded down to 4096; 8192 rays of 32 B
+  const std::size_t node2_chunks = (acc->mbvh2().nodes.size() + 4095) / 4096,
+                    node4_chunks = (acc->mbvh4().nodes.size() + 2047) / 2048,
+                    tri_chunks = (acc->tris().size() + 4095) / 4096;
+  REQUIRE(node2_chunks > 1);
+  REQUIRE(node4_chunks > 1);
   REQUIRE(tri_chunks > 1);
-  CHECK(d.find("nodes in " + std::to_string(node_chunks) + " texel binding(s) of 0.2 MiB") != std::string::npos);
+  CHECK(d2.find("MBVH4 nodes") == std::string::npos);  // a layout's nodes are uploaded when a trace asks for it
+  CHECK(d.find("MBVH2 nodes in " + std::to_string(node2_chunks) + " texel binding(s) of 0.2 MiB") != std::string::npos);
+  CHECK(d.find("MBVH4 nodes in " + std::to_string(node4_chunks) + " texel binding(s) of 0.2 MiB") != std::string::npos);
   CHECK(d.find("triangles in " + std::to_string(tri_chunks) + " storage binding(s) of 0.2 MiB") != std::string::npos);
   CHECK(d.find("batches of 8192 rays") != std::string::npos);
-  check_against_reference(*b, *acc, rays);
+  check_against_reference(*b, *acc, rays);  // switches between the layouts' node arrays
 
   // more chunks than the shader has bindings: a clear error naming the array and the limit
   BackendOptions tiny;
   tiny.vk_max_binding_bytes = 16 * 1024;
   auto t = make_backend("vulkan", tiny);
-  CHECK_THROWS_WITH(t->prepare(*acc, TraceOptions{}),
-                    Catch::Contains("the MBVH2 node array") && Catch::Contains("bindings of") &&
-                        Catch::Contains("the shader has 8"));
+  for (Layout l : kLayouts)
+    CHECK_THROWS_WITH(t->prepare(*acc, layout_options(l)),
+                      Catch::Contains(std::string("the ") + (l == Layout::mbvh2 ? "MBVH2" : "MBVH4") + " node array") &&
+                          Catch::Contains("bindings of") && Catch::Contains("the shader has 8"));
 }
 
 TEST_CASE("vulkan: a scene whose node and triangle arrays exceed 128 MiB traces exactly", "[vulkan][large]") {
@@ -121,7 +139,7 @@ TEST_CASE("vulkan: a scene whose node and triangle arrays exceed 128 MiB traces 
   ro.count = 20000;
   const std::vector<Ray> rays = generate_rays(s, *acc, ro);
   auto b = make_backend("vulkan");
-  b->prepare(*acc, TraceOptions{});
+  b->prepare(*acc, layout_options(Layout::mbvh2));
   INFO(b->describe());
   CHECK(b->describe().find("triangles in 2 storage binding(s)") != std::string::npos);
   check_against_reference(*b, *acc, rays);
@@ -183,7 +201,7 @@ TEST_CASE("vulkan: mbvh devices says whether each device offers VK_KHR_ray_query
 }
 
 TEST_CASE("vulkan: mbvh bench times it beside cpu - verified - with its state and the ratio to cpu", "[vulkan]") {
-  // backends x traversals x queries
-  mbvh_test::check_bench_beside_cpu("vulkan", "--layout mbvh2 --traversal stack,bitstack", 2 * 2 * 2, 4,
+  // backends x layouts x traversals x queries
+  mbvh_test::check_bench_beside_cpu("vulkan", "--layout mbvh2,mbvh4 --traversal stack,bitstack", 2 * 2 * 2 * 2, 8,
                                     {"Vulkan device", "validation layer on"});
 }

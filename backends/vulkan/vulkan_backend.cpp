@@ -1,15 +1,18 @@
-// vulkan_backend.cpp — the `vulkan` backend: the GPU path of TRAVERSAL.md §9 (MBVH2, Aila & Laine
-// node, 1-bit-per-level bitstack of Áfra & Szirmay-Kalos 2014, and its stack-based twin) as a
-// GLSL compute shader (shaders/trace.comp, SPIR-V embedded at build time) on any Vulkan 1.2
-// device: lavapipe here, a real GPU where there is one. Headless: no window, no surface.
+// vulkan_backend.cpp — the `vulkan` backend: the GPU path of TRAVERSAL.md §9 — the bitstack of
+// Áfra & Szirmay-Kalos 2014 and its stack-based twin over MBVH2 (Aila & Laine node, 1 bit per
+// level) and MBVH4 (SoA node, 3-bit skip codes) — as a GLSL compute shader (shaders/trace.comp,
+// SPIR-V embedded at build time) on any Vulkan 1.2 device: lavapipe here, a real GPU where there
+// is one. Headless: no window, no surface.
 //
-// Per build, the MBVH2 nodes, leaves and triangles are uploaded once (device-local memory, by a
-// staging copy where it is not host-visible) and reused across calls. The nodes are read as a
-// uniform texel buffer (RGBA32UI; shaders/trace.comp says why), the rest as std430 storage
-// buffers. An array over the device's maxTexelBufferElements or maxStorageBufferRange is bound
-// as power-of-two chunks of one buffer (up to MBVH_VK_CHUNK_BINDINGS descriptors each); rays go
-// through in batches within the range, the allocation limit and the work-group count. One pipeline per (traversal, query, statistics,
-// chunk counts), from specialization constants, made on first use and kept.
+// Per build, the leaves and triangles are uploaded once, and each layout's nodes the first time
+// a trace asks for that layout (device-local memory, by a staging copy where it is not
+// host-visible); all are reused across calls. The nodes are read as a uniform texel buffer
+// (RGBA32UI; shaders/trace.comp says why), the rest as std430 storage buffers. An array over the
+// device's maxTexelBufferElements or maxStorageBufferRange is bound as power-of-two chunks of one
+// buffer (up to MBVH_VK_CHUNK_BINDINGS descriptors each); rays go through in batches within the
+// range, the allocation limit and the work-group count. One pipeline per (layout, traversal,
+// query, statistics, accuracy mode, chunk counts), from specialization constants, made on first
+// use and kept. Bindings, specialization constant ids and counters: shaders/mbvh_layout.h.
 #include <algorithm>
 #include <cstdio>
 #include <cstring>
@@ -31,8 +34,13 @@ using vk::check;
 
 constexpr std::uint32_t kLocalSize = 64;                   // lavapipe: 8 to 1024 measured within noise
 constexpr std::size_t kMaxBatch = std::size_t(1) << 21;    // rays per dispatch (64 MiB of rays)
-constexpr std::uint32_t kBindings = 8;                     // descriptor bindings 0..7 (trace.comp)
-constexpr std::uint32_t kChunks = MBVH_VK_CHUNK_BINDINGS;  // descriptors of bindings 6 and 7
+constexpr std::uint32_t kBindings = MBVH_VK_BINDINGS;
+constexpr std::uint32_t kChunks = MBVH_VK_CHUNK_BINDINGS;  // descriptors of the node and triangle bindings
+constexpr std::uint32_t kStorageBindings = kBindings - 1;  // every binding but the node texels
+/// The descriptor count of binding `i`: the chunked arrays have kChunks.
+constexpr std::uint32_t descriptors_of(std::uint32_t i) {
+  return i == MBVH_VK_BINDING_NODES || i == MBVH_VK_BINDING_TRIS ? kChunks : 1;
+}
 
 std::string mib(std::size_t bytes) {
   char b[32];
@@ -75,54 +83,80 @@ public:
 
   std::string name() const override { return "vulkan"; }
   std::string describe() const override {
-    std::string s = "vulkan: MBVH2 GPU-style traversal (GLSL compute, SPIR-V); Vulkan device " + dev_.describe() +
-                    (instance_.validation() ? "; validation layer on" : "");
-    if (acc_)  // how the current build is bound
-      s += "; nodes in " + std::to_string(nodes_.count) + " texel binding(s) of " + mib(nodes_.chunk_bytes) +
-           ", triangles in " + std::to_string(tris_.count) + " storage binding(s) of " + mib(tris_.chunk_bytes) +
+    std::string s = "vulkan: MBVH2 and MBVH4 GPU-style traversal (GLSL compute, SPIR-V); Vulkan device " +
+                    dev_.describe() + (instance_.validation() ? "; validation layer on" : "");
+    if (acc_) {  // how the current build is bound
+      for (Layout l : {Layout::mbvh2, Layout::mbvh4})
+        if (const Chunked& n = nodes(l); n.buf.buffer != VK_NULL_HANDLE)
+          s += std::string("; ") + (l == Layout::mbvh2 ? "MBVH2" : "MBVH4") + " nodes in " + std::to_string(n.count) +
+               " texel binding(s) of " + mib(n.chunk_bytes);
+      s += "; triangles in " + std::to_string(tris_.count) + " storage binding(s) of " + mib(tris_.chunk_bytes) +
            ", batches of " + std::to_string(max_batch_) + " rays";
+    }
     return s;
   }
   bool supports(Layout l, Traversal t) const override {
-    return l == Layout::mbvh2 && (t == Traversal::stack || t == Traversal::bitstack);
+    return (l == Layout::mbvh2 || l == Layout::mbvh4) && (t == Traversal::stack || t == Traversal::bitstack);
   }
   bool supports_precision(Precision) const override { return true; }
 
-  void prepare(const Accel& acc, const TraceOptions&) override {
-    if (&acc == acc_ && acc.hash() == hash_) return;
-    wait_idle();
-    destroy(nodes_);
-    destroy(tris_);
-    destroy(leaves_);
-    acc_ = nullptr;
-    const auto& n = acc.mbvh2().nodes;
-    nodes_ = upload_chunked("the MBVH2 node array", n.data(), n.size(), sizeof(Node2), texel_range_, true);
-    tris_ = upload_chunked("the triangle array", acc.tris().data(), acc.tris().size(), sizeof(Tri), range_, false);
-    const std::size_t leaf_bytes = acc.leaves().size() * sizeof(Leaf);
-    if (leaf_bytes > range_)
-      throw Error("vulkan: the leaf array (" + mib(leaf_bytes) + ") exceeds maxStorageBufferRange (" + mib(range_) +
-                  ") of " + dev_.name + "; use a smaller scene or another device");
-    leaves_ = upload("the leaf array", acc.leaves().data(), leaf_bytes);
-    acc_ = &acc;
-    hash_ = acc.hash();
-    descriptors_dirty_ = true;
+  /// Uploads the build's leaves and triangles (once per build) and the node array of
+  /// `opt.layout` (once per build and layout), and binds that layout's nodes.
+  void prepare(const Accel& acc, const TraceOptions& opt) override {
+    if (opt.layout != Layout::mbvh2 && opt.layout != Layout::mbvh4)
+      throw Error("vulkan: layout " + std::string(to_string(opt.layout)) + " is not implemented (the GPU path is MBVH2 "
+                  "and MBVH4)");
+    if (&acc != acc_ || acc.hash() != hash_) {  // a new build: drop the old one's arrays
+      wait_idle();
+      destroy(nodes2_);
+      destroy(nodes4_);
+      destroy(tris_);
+      destroy(leaves_);
+      acc_ = nullptr;
+      descriptors_dirty_ = true;
+    }
+    if (Chunked& n = nodes(opt.layout); n.buf.buffer == VK_NULL_HANDLE) {
+      if (opt.layout == Layout::mbvh4) {
+        const auto& v = acc.mbvh4().nodes;
+        n = upload_chunked("the MBVH4 node array", v.data(), v.size(), sizeof(Node4), texel_range_, true);
+      } else {
+        const auto& v = acc.mbvh2().nodes;
+        n = upload_chunked("the MBVH2 node array", v.data(), v.size(), sizeof(Node2), texel_range_, true);
+      }
+      descriptors_dirty_ = true;
+    }
+    if (acc_ == nullptr) {
+      tris_ = upload_chunked("the triangle array", acc.tris().data(), acc.tris().size(), sizeof(Tri), range_, false);
+      const std::size_t leaf_bytes = acc.leaves().size() * sizeof(Leaf);
+      if (leaf_bytes > range_)
+        throw Error("vulkan: the leaf array (" + mib(leaf_bytes) + ") exceeds maxStorageBufferRange (" + mib(range_) +
+                    ") of " + dev_.name + "; use a smaller scene or another device");
+      leaves_ = upload("the leaf array", acc.leaves().data(), leaf_bytes);
+      acc_ = &acc;
+      hash_ = acc.hash();
+    }
+    if (bound_ != opt.layout) {
+      bound_ = opt.layout;
+      descriptors_dirty_ = true;
+    }
     report_validation();
   }
 
   void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
     if (!supports(opt.layout, opt.traversal))
       throw Error("vulkan: " + std::string(to_string(opt.layout)) + " " + to_string(opt.traversal) +
-                  " traversal is not implemented (the GPU path is MBVH2 stack and bitstack)");
+                  " traversal is not implemented (the GPU path is MBVH2 and MBVH4, stack and bitstack)");
     prepare(acc, opt);
     const bool any = opt.query == Query::any;
     out.reset(rays.size(), opt);
     if (rays.empty()) return;
 
-    const VkPipeline pipe = pipeline(opt.traversal == Traversal::bitstack, any, opt.stats, opt.precision == Precision::fast);
+    const VkPipeline pipe = pipeline(opt.layout == Layout::mbvh4, opt.traversal == Traversal::bitstack, any, opt.stats,
+                                     opt.precision == Precision::fast);
     const std::size_t batch = std::min(rays.size(), max_batch_);
     ensure_batch_buffers(batch);
     if (descriptors_dirty_) write_descriptors();
-    std::memset(counters_.mapped, 0, 2 * sizeof(std::uint32_t));
+    std::memset(counters_.mapped, 0, MBVH_VK_COUNTERS * sizeof(std::uint32_t));
     for (std::size_t b = 0; b < rays.size(); b += batch) {
       const std::size_t n = std::min(batch, rays.size() - b);
       std::memcpy(rays_.mapped, rays.data() + b, n * sizeof(Ray));
@@ -135,14 +169,15 @@ public:
       }
       if (opt.stats) {
         const auto* s = static_cast<const std::uint32_t*>(stats_.mapped);
-        for (std::size_t i = 0; i < n; ++i, s += 8) out.stats[b + i] = RayStats{s[0], s[1], s[2], s[3], s[4], s[5], s[6]};
+        for (std::size_t i = 0; i < n; ++i, s += MBVH_VK_STAT_WORDS)
+          out.stats[b + i] = RayStats{s[0], s[1], s[2], s[3], s[4], s[5], s[6]};
       }
     }
     const auto* counters = static_cast<const std::uint32_t*>(counters_.mapped);
-    out.invalid = counters[0];
+    out.invalid = counters[MBVH_VK_COUNTER_INVALID];
     report_validation();
-    if (counters[1] != 0)
-      throw Error("vulkan: " + std::to_string(counters[1]) + " rays overflowed the traversal stack: the tree is deeper "
+    if (counters[MBVH_VK_COUNTER_OVERFLOW] != 0)
+      throw Error("vulkan: " + std::to_string(counters[MBVH_VK_COUNTER_OVERFLOW]) + " rays overflowed the traversal stack: the tree is deeper "
                   "than its cap (corrupt build)");
   }
 
@@ -184,10 +219,11 @@ private:
                   " lacks shaderSignedZeroInfNanPreserveFloat32: without it -0, inf and NaN need not survive, and the "
                   "answers would not be exact (TRAVERSAL.md §9)");
     const VkPhysicalDeviceLimits& lim = props.properties.limits;
-    if (lim.maxPerStageDescriptorStorageBuffers < 6 + kChunks || lim.maxPerStageDescriptorSampledImages < kChunks)
+    if (lim.maxPerStageDescriptorStorageBuffers < kStorageBindings - 1 + kChunks ||
+        lim.maxPerStageDescriptorSampledImages < kChunks)
       throw Error("Vulkan device " + dev_.name + " allows " + std::to_string(lim.maxPerStageDescriptorStorageBuffers) +
                   " storage buffers and " + std::to_string(lim.maxPerStageDescriptorSampledImages) +
-                  " sampled images per stage; the shader binds " + std::to_string(6 + kChunks) + " and " +
+                  " sampled images per stage; the shader binds " + std::to_string(kStorageBindings - 1 + kChunks) + " and " +
                   std::to_string(kChunks));
     VkFormatProperties fp;
     vkGetPhysicalDeviceFormatProperties(pd, VK_FORMAT_R32G32B32A32_UINT, &fp);
@@ -248,13 +284,14 @@ private:
     fi.sType = VK_STRUCTURE_TYPE_FENCE_CREATE_INFO;
     check(vkCreateFence(device_, &fi, nullptr, &fence_), "vkCreateFence");
 
-    // descriptor layout: 0 rays, 1 hits, 2 occluded, 3 stats, 4 counters, 5 leaves (storage buffers),
-    // 6 node chunks (uniform texel buffers), 7 triangle chunks (storage buffers)
+    // descriptor layout (MBVH_VK_BINDING_*): storage buffers, but the node chunks as uniform
+    // texel buffers
     VkDescriptorSetLayoutBinding b[kBindings]{};
     for (std::uint32_t i = 0; i < kBindings; ++i) {
       b[i].binding = i;
-      b[i].descriptorType = i == 6 ? VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER : VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
-      b[i].descriptorCount = i >= 6 ? kChunks : 1;
+      b[i].descriptorType =
+          i == MBVH_VK_BINDING_NODES ? VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER : VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
+      b[i].descriptorCount = descriptors_of(i);
       b[i].stageFlags = VK_SHADER_STAGE_COMPUTE_BIT;
     }
     VkDescriptorSetLayoutCreateInfo li{};
@@ -270,7 +307,7 @@ private:
     pli.pushConstantRangeCount = 1;
     pli.pPushConstantRanges = &pcr;
     check(vkCreatePipelineLayout(device_, &pli, nullptr, &pipeline_layout_), "vkCreatePipelineLayout");
-    const VkDescriptorPoolSize ps[2] = {{VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 6 + kChunks},
+    const VkDescriptorPoolSize ps[2] = {{VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, kStorageBindings - 1 + kChunks},
                                         {VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER, kChunks}};
     VkDescriptorPoolCreateInfo dpi{};
     dpi.sType = VK_STRUCTURE_TYPE_DESCRIPTOR_POOL_CREATE_INFO;
@@ -289,14 +326,15 @@ private:
     si.codeSize = sizeof kTraceSpv;
     si.pCode = kTraceSpv;
     check(vkCreateShaderModule(device_, &si, nullptr, &shader_), "vkCreateShaderModule");
-    counters_ = make_buffer(2 * sizeof(std::uint32_t), VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, true, "counters");
+    counters_ = make_buffer(MBVH_VK_COUNTERS * sizeof(std::uint32_t), VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, true, "counters");
     report_validation();
   }
 
   void release() noexcept {
     if (device_ == VK_NULL_HANDLE) return;
     vkDeviceWaitIdle(device_);
-    destroy(nodes_);
+    destroy(nodes2_);
+    destroy(nodes4_);
     destroy(tris_);
     for (Buffer* b : {&leaves_, &rays_, &hits_, &occ_, &stats_, &counters_}) destroy(*b);
     for (auto& [key, p] : pipelines_) vkDestroyPipeline(device_, p, nullptr);
@@ -454,56 +492,66 @@ private:
     rays_ = make_buffer(n * sizeof(Ray), u, true, "rays");
     hits_ = make_buffer(n * sizeof(Hit), u, true, "hits");
     occ_ = make_buffer(n * sizeof(std::uint32_t), u, true, "occlusion flags");
-    stats_ = make_buffer(n * 8 * sizeof(std::uint32_t), u, true, "per-ray statistics");
+    stats_ = make_buffer(n * MBVH_VK_STAT_WORDS * sizeof(std::uint32_t), u, true, "per-ray statistics");
     cap_ = n;
     descriptors_dirty_ = true;
   }
 
+  /// The node array of a layout (MBVH2 or MBVH4); empty until a trace asks for that layout.
+  Chunked& nodes(Layout l) { return l == Layout::mbvh4 ? nodes4_ : nodes2_; }
+  const Chunked& nodes(Layout l) const { return l == Layout::mbvh4 ? nodes4_ : nodes2_; }
+
   void write_descriptors() {
     // chunks past an array's end repeat chunk 0: bound, never read (the shader's switch)
-    std::vector<VkDescriptorBufferInfo> info;
-    info.reserve(6 + 2 * kChunks);
-    for (const Buffer* b : {&rays_, &hits_, &occ_, &stats_, &counters_, &leaves_})
-      info.push_back({b->buffer, 0, VK_WHOLE_SIZE});
-    info.push_back({});  // binding 6 is texel views
+    const Chunked& bound = nodes(bound_);
+    std::vector<VkDescriptorBufferInfo> info(kBindings);  // per binding; the triangle chunks after them
+    const std::pair<std::uint32_t, const Buffer*> buffers[] = {
+        {MBVH_VK_BINDING_RAYS, &rays_},         {MBVH_VK_BINDING_HITS, &hits_},
+        {MBVH_VK_BINDING_OCCLUDED, &occ_},      {MBVH_VK_BINDING_STATS, &stats_},
+        {MBVH_VK_BINDING_COUNTERS, &counters_}, {MBVH_VK_BINDING_LEAVES, &leaves_}};
+    for (const auto& [i, b] : buffers) info[i] = {b->buffer, 0, VK_WHOLE_SIZE};
     for (std::uint32_t k = 0; k < kChunks; ++k) {
       const std::size_t off = k < tris_.count ? k * tris_.chunk_bytes : 0;
       info.push_back({tris_.buf.buffer, off, std::min(tris_.chunk_bytes, tris_.buf.size - off)});
     }
     VkBufferView views[kChunks];
-    for (std::uint32_t k = 0; k < kChunks; ++k) views[k] = nodes_.views[k < nodes_.count ? k : 0];
+    for (std::uint32_t k = 0; k < kChunks; ++k) views[k] = bound.views[k < bound.count ? k : 0];
     VkWriteDescriptorSet w[kBindings]{};
-    std::size_t at = 0;
     for (std::uint32_t i = 0; i < kBindings; ++i) {
       w[i].sType = VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET;
       w[i].dstSet = set_;
       w[i].dstBinding = i;
-      w[i].descriptorCount = i >= 6 ? kChunks : 1;
-      if (i == 6) {
+      w[i].descriptorCount = descriptors_of(i);
+      if (i == MBVH_VK_BINDING_NODES) {
         w[i].descriptorType = VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER;
         w[i].pTexelBufferView = views;
-        at += 1;
         continue;
       }
       w[i].descriptorType = VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
-      w[i].pBufferInfo = &info[at];
-      at += w[i].descriptorCount;
+      w[i].pBufferInfo = i == MBVH_VK_BINDING_TRIS ? &info[kBindings] : &info[i];
     }
     vkUpdateDescriptorSets(device_, kBindings, w, 0, nullptr);
     descriptors_dirty_ = false;
   }
 
-  VkPipeline pipeline(bool bitstack, bool any, bool stats, bool fast) {
-    const auto key = std::make_tuple(bitstack, any, stats, fast, nodes_.count, tris_.count);
+  VkPipeline pipeline(bool mbvh4, bool bitstack, bool any, bool stats, bool fast) {
+    const Chunked& n = nodes(bound_);
+    const auto key = std::make_tuple(mbvh4, bitstack, any, stats, fast, n.count, tris_.count);
     if (auto it = pipelines_.find(key); it != pipelines_.end()) return it->second;
-    struct Spec {
-      VkBool32 bitstack, any, stats;
-      std::uint32_t node_chunks, node_shift, tri_chunks, tri_shift, local;
-      VkBool32 fast;
-    } spec{bitstack, any, stats, nodes_.count, nodes_.shift, tris_.count, tris_.shift, kLocalSize, fast};
-    VkSpecializationMapEntry e[9];  // constant_id i at offset 4 i
-    for (std::uint32_t i = 0; i < 9; ++i) e[i] = {i, i * 4u, 4};
-    VkSpecializationInfo si{9, e, sizeof spec, &spec};
+    std::uint32_t spec[MBVH_VK_SPECS]{};  // by constant id, 4 bytes each (VkBool32 for the flags)
+    spec[MBVH_VK_SPEC_BITSTACK] = bitstack;
+    spec[MBVH_VK_SPEC_ANY] = any;
+    spec[MBVH_VK_SPEC_STATS] = stats;
+    spec[MBVH_VK_SPEC_NODE_CHUNKS] = n.count;
+    spec[MBVH_VK_SPEC_NODE_SHIFT] = n.shift;
+    spec[MBVH_VK_SPEC_TRI_CHUNKS] = tris_.count;
+    spec[MBVH_VK_SPEC_TRI_SHIFT] = tris_.shift;
+    spec[MBVH_VK_SPEC_LOCAL_SIZE] = kLocalSize;
+    spec[MBVH_VK_SPEC_FAST] = fast;
+    spec[MBVH_VK_SPEC_MBVH4] = mbvh4;
+    VkSpecializationMapEntry e[MBVH_VK_SPECS];  // constant_id i at offset 4 i
+    for (std::uint32_t i = 0; i < MBVH_VK_SPECS; ++i) e[i] = {i, i * 4u, 4};
+    VkSpecializationInfo si{MBVH_VK_SPECS, e, sizeof spec, spec};
     VkComputePipelineCreateInfo ci{};
     ci.sType = VK_STRUCTURE_TYPE_COMPUTE_PIPELINE_CREATE_INFO;
     ci.stage.sType = VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO;
@@ -577,11 +625,12 @@ private:
   VkDescriptorPool descriptor_pool_ = VK_NULL_HANDLE;
   VkDescriptorSet set_ = VK_NULL_HANDLE;
   VkShaderModule shader_ = VK_NULL_HANDLE;
-  std::map<std::tuple<bool, bool, bool, bool, std::uint32_t, std::uint32_t>, VkPipeline> pipelines_;
+  std::map<std::tuple<bool, bool, bool, bool, bool, std::uint32_t, std::uint32_t>, VkPipeline> pipelines_;
   bool descriptors_dirty_ = true;
   const Accel* acc_ = nullptr;
   std::uint64_t hash_ = 0;
-  Chunked nodes_, tris_;
+  Chunked nodes2_, nodes4_, tris_;
+  Layout bound_ = Layout::mbvh2;  ///< whose nodes the descriptor set binds
   Buffer leaves_;
   std::size_t cap_ = 0;
   Buffer rays_, hits_, occ_, stats_, counters_;
@@ -603,7 +652,7 @@ std::vector<std::string> device_lines() {
 void register_vulkan_backends() {
   BackendInfo info;
   info.name = "vulkan";
-  info.summary = "GPU-style MBVH2 stack and bitstack traversal in a GLSL compute shader (lavapipe here)";
+  info.summary = "GPU-style MBVH2 and MBVH4 stack and bitstack traversal in a GLSL compute shader (lavapipe here)";
   info.make = [](const BackendOptions& o) -> std::unique_ptr<Backend> { return std::make_unique<VulkanBackend>(o); };
   info.devices = &device_lines;
   info.pending_problems = &vk::take_validation_messages;
