@@ -81,7 +81,7 @@ TEST_CASE("opencl: --cl-device chooses by index - platform:device or name - and 
   mbvh_test::check_device_flag("opencl", "--cl-device", "0:0", "opencl: OpenCL device 0:0 ", "OpenCL", "\n  0:0 ");
 }
 
-TEST_CASE("opencl: the GPU mapping - ray per lane, work-groups from the kernel's preferred multiple - gives the "
+TEST_CASE("opencl: the GPU mapping - ray per lane and work-groups from the kernel's preferred multiple - gives the "
           "reference's bytes",
           "[opencl]") {
   // --cl-mapping gpu forces on this CPU device what a GPU device gets by default: `opencl` takes

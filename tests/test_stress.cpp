@@ -197,7 +197,7 @@ TEST_CASE("stress: a corrupt or adversarial tree is refused and cannot make a ra
 #endif
 }
 
-TEST_CASE("stress: accuracy modes: exact is robust bit for bit, fast leaks where robust cannot, a peer refuses both",
+TEST_CASE("stress: accuracy modes: exact is robust bit for bit - fast leaks where robust cannot - a peer refuses both",
           "[stress]") {
   const Scene s = load_scene("gen:sphere:96");
   const auto acc = Accel::build(s);
