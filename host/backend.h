@@ -51,6 +51,11 @@ public:
   /// A peer library (embree): its own BVH and triangle test, so its answers agree with
   /// cpu-scalar's up to classified ties (not bit for bit), and it has no per-ray counters.
   virtual bool peer() const { return false; }
+  /// Device time of the last trace() call: the summed execution time of its trace kernels'
+  /// dispatches (every batch), in seconds, by the device's own clock (OpenCL event profiling,
+  /// Vulkan timestamps); excludes ray uploads, hit downloads and host copies. Negative when the
+  /// backend does not measure it (CPU backends, a device without timestamps) or has not traced.
+  virtual double last_device_seconds() const { return -1; }
   /// Bytes of traversal state per ray for these options (TRAVERSAL.md §5).
   virtual std::size_t state_bytes(const TraceOptions& opt) const { return state_bytes_per_ray(opt.layout, opt.traversal); }
 };

@@ -47,9 +47,12 @@ std::string BenchReport::table() const {
   for (const auto& r : records) scaled = scaled || r.thread_scaling > 0;
   bool errors = false;
   for (const auto& r : records) errors = errors || r.error_rays > 0;
-  std::snprintf(line, sizeof line, "%-12s %-6s %-15s %-7s %-8s %-6s %9s %15s %8s %7s %8s %7s %7s %7s %9s%s%s\n", "backend",
-                "layout", "traversal", "query", "rays", "prec", "Mrays/s", "(min-max)", "vs twin", "vs cpu", "state B", "nodes",
-                "leaves", "tris", "verified", errors ? "  genuine  wrong/checked  leaks" : "", scaled ? "  1 thr   x/1thr" : "");
+  bool device = false;  // a "dev Mr/s" column only when some backend measured its device time
+  for (const auto& r : records) device = device || r.device_mrays_per_s > 0;
+  std::snprintf(line, sizeof line, "%-12s %-6s %-15s %-7s %-8s %-6s %9s %15s%s %8s %7s %8s %7s %7s %7s %9s%s%s\n", "backend",
+                "layout", "traversal", "query", "rays", "prec", "Mrays/s", "(min-max)", device ? "  dev Mr/s" : "", "vs twin",
+                "vs cpu", "state B", "nodes", "leaves", "tris", "verified", errors ? "  genuine  wrong/checked  leaks" : "",
+                scaled ? "  1 thr   x/1thr" : "");
   s += line;
   for (const auto& r : records) {
     char ratio[32] = "";
@@ -58,9 +61,12 @@ std::string BenchReport::table() const {
     if (r.ratio_vs_cpu > 0) std::snprintf(vcpu, sizeof vcpu, "%.2fx", r.ratio_vs_cpu);
     char spread[48];
     std::snprintf(spread, sizeof spread, "(%.2f-%.2f)", r.mrays_min, r.mrays_max);
-    std::snprintf(line, sizeof line, "%-12s %-6s %-15s %-7s %-8s %-6s %9.3f %15s %8s %7s %8zu %7.1f %7.2f %7.1f %9s\n",
+    char dev[32] = "";
+    if (device && r.device_mrays_per_s > 0) std::snprintf(dev, sizeof dev, " %9.3f", r.device_mrays_per_s);
+    else if (device) std::snprintf(dev, sizeof dev, " %9s", "");
+    std::snprintf(line, sizeof line, "%-12s %-6s %-15s %-7s %-8s %-6s %9.3f %15s%s %8s %7s %8zu %7.1f %7.2f %7.1f %9s\n",
                   r.backend.c_str(), r.layout.c_str(), r.traversal.c_str(), r.query.c_str(), r.ray_kind.c_str(),
-                  r.precision.c_str(), r.mrays_per_s, spread, ratio, vcpu, r.state_bytes_per_ray, r.nodes_per_ray,
+                  r.precision.c_str(), r.mrays_per_s, spread, dev, ratio, vcpu, r.state_bytes_per_ray, r.nodes_per_ray,
                   r.leaves_per_ray, r.tris_per_ray,
                   !r.verified() ? "MISMATCH" : r.verify_mismatches ? "differs" : "yes");
     s += line;
@@ -104,6 +110,8 @@ static nlohmann::json report_json(const BenchReport& rep) {
                             {"mrays_per_s", r.mrays_per_s},
                             {"mrays_per_s_min", r.mrays_min},
                             {"mrays_per_s_max", r.mrays_max},
+                            {"device_mrays_per_s", r.device_mrays_per_s > 0 ? nlohmann::json(r.device_mrays_per_s)
+                                                                            : nlohmann::json(nullptr)},
                             {"state_bytes_per_ray", r.state_bytes_per_ray},
                             {"peak_state_bytes_per_ray", r.peak_state_bytes_per_ray},
                             {"nodes_per_ray", r.nodes_per_ray},
@@ -139,6 +147,7 @@ std::string BenchReport::csv() const {
   // cpu, compiler and flags), one line per record; strings quoted, quotes doubled
   const nlohmann::json j = report_json(*this);
   auto cell = [](const nlohmann::json& v) {
+    if (v.is_null()) return std::string();  // not measured: an empty cell
     if (!v.is_string()) return v.dump();
     std::string s = "\"";
     for (char c : v.get<std::string>()) s += c == '"' ? std::string("\"\"") : std::string(1, c);
@@ -282,16 +291,22 @@ BenchReport run_bench(const Scene& scene, const Accel& acc, const BenchOptions& 
               be.trace(acc, rays, to, out);
               return static_cast<double>(rays.size()) / std::chrono::duration<double>(Clock::now() - t0).count() * 1e-6;
             };
-            std::vector<double> mr, m1;
+            std::vector<double> mr, m1, md;  // md: by the device's clock, where the backend measures it
             if (scaling) single[bn]->trace(acc, rays, to, out);  // its warm-up
             for (unsigned p = 0; p < passes; ++p) {
               mr.push_back(timed(b));
+              if (const double ds = b.last_device_seconds(); ds > 0)
+                md.push_back(static_cast<double>(rays.size()) / ds * 1e-6);
               if (scaling) m1.push_back(timed(*single[bn]));
             }
             std::sort(mr.begin(), mr.end());
             r.mrays_per_s = mr[mr.size() / 2];
             r.mrays_min = mr.front();
             r.mrays_max = mr.back();
+            if (md.size() == mr.size()) {  // every pass measured
+              std::sort(md.begin(), md.end());
+              r.device_mrays_per_s = md[md.size() / 2];
+            }
             if (scaling) {
               std::sort(m1.begin(), m1.end());
               r.mrays_one_thread = m1[m1.size() / 2];

@@ -40,6 +40,9 @@ struct BenchRecord {
   std::size_t rays = 0;
   unsigned threads = 0, passes = 0;
   double mrays_per_s = 0, mrays_min = 0, mrays_max = 0;  ///< median and spread over the passes
+  /// Median over the passes of rays / the backend's device time (Backend::last_device_seconds:
+  /// the trace kernels alone, no transfers); 0 where the backend does not measure it (JSON null).
+  double device_mrays_per_s = 0;
   std::size_t state_bytes_per_ray = 0;
   double peak_state_bytes_per_ray = 0;  ///< mean over rays of the state actually used
   double nodes_per_ray = 0, box_tests_per_ray = 0, leaves_per_ray = 0, tris_per_ray = 0, climbs_per_ray = 0;

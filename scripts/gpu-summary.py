@@ -1,9 +1,10 @@
 #!/usr/bin/env python3
 """gpu-summary.py — scripts/gpu-run's report: merges the per-step JSON of `mbvh check` and
 `mbvh bench` into OUT/check.json and OUT/bench.json and writes OUT/summary.md: the devices and
-drivers, each step's status, the check's genuine mismatches per scene, and the Mrays/s of every
-backend x layout x traversal x query x ray kind (a requested layout a backend has no record of,
-in a bench step that passed, is "not supported").
+drivers, each step's status, the check's genuine mismatches per scene, and the Mrays/s (end to
+end, and by the device's clock where the backend measures it) of every backend x layout x
+traversal x query x ray kind (a requested layout a backend has no record of, in a bench step that
+passed, is "not supported").
 
   gpu-summary.py --parts DIR --out DIR --backends LIST --layouts LIST --traversals LIST
   gpu-summary.py verify OUT --backends LIST --layouts LIST --traversals LIST
@@ -98,7 +99,7 @@ def bench_cells(runs, backends, layouts, traversals, step_status):
         scene = scene_name(recs[0]["scene"]) if recs else run["step"]
         for b in backends:
             if step_status.get("start-" + b, "0") != "0":
-                rows.append((scene, b, "", "", "", "", "cannot start (devices.txt)", "", "", "", ""))
+                rows.append((scene, b, "", "", "", "", "cannot start (devices.txt)", "", "", "", "", ""))
                 continue
             if b not in run_backends(run["step"], backends):
                 continue
@@ -106,7 +107,7 @@ def bench_cells(runs, backends, layouts, traversals, step_status):
                 mine = [r for r in recs if r["backend"] == b and r["layout"] == l]
                 if not mine:
                     rows.append((scene, b, l, "", "", "", "not supported" if status == "0" else "not run (step failed)",
-                                 "", "", "", ""))
+                                 "", "", "", "", ""))
                     continue
                 kinds = ["primary", "diffuse", "shadow"]
                 for r in sorted(mine, key=lambda r: (traversals.index(r["traversal"]) if r["traversal"] in traversals
@@ -114,6 +115,7 @@ def bench_cells(runs, backends, layouts, traversals, step_status):
                                                      if r["ray_kind"] in kinds else 99)):
                     rows.append((scene, b, l, r["traversal"], r["query"], r["ray_kind"], "%.2f" % r["mrays_per_s"],
                                  "%.2f–%.2f" % (r["mrays_per_s_min"], r["mrays_per_s_max"]),
+                                 "%.2f" % r["device_mrays_per_s"] if r.get("device_mrays_per_s") else "",
                                  "%.2f" % r["bitstack_vs_stack"] if r["bitstack_vs_stack"] else "",
                                  "%.2f" % r["vs_cpu"] if r["vs_cpu"] else "",
                                  "yes" if r["verified"] else "NO (%d mismatches)" % r["verify_mismatches"]))
@@ -151,8 +153,11 @@ def summary(args):
                 scene_name(run["scene"]), ",".join(run_backends(run["step"], backends)), k["kind"], k["rays"],
                 len(variants), len(k["comparisons"]), k["mismatches"], exact, len(ref)))
     md += ["", "## Bench: Mrays/s (median of the timed passes), verified before timing", "",
-           "| scene | backend | layout | traversal | query | ray kind | Mrays/s | min–max | bitstack / stack | / cpu | verified |",
-           "|---|---|---|---|---|---|---|---|---|---|---|"]
+           "Mrays/s: end to end (`trace()`: ray upload, dispatch, hit download); device Mrays/s: by the device's "
+           "clock, the trace kernels alone (blank: not measured).", "",
+           "| scene | backend | layout | traversal | query | ray kind | Mrays/s | min–max | device Mrays/s | bitstack / stack "
+           "| / cpu | verified |",
+           "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     md += ["| " + " | ".join(r) + " |" for r in bench_cells(merged["bench"], backends, layouts, traversals, status)]
     md.append("")
     with open(os.path.join(args.out, "summary.md"), "w") as f:

@@ -91,8 +91,9 @@ inline void check_against_reference(mbvh::Backend& backend, const mbvh::Accel& a
 }
 
 /// `mbvh bench --backend cpu,BACKEND ARGS --json`: `records` records, all verified, with the
-/// traversal state, and BACKEND's (`expected` of them) with a ratio to cpu and a device line
-/// containing each of `device_words`.
+/// traversal state, and BACKEND's (`expected` of them) with a ratio to cpu, a device line
+/// containing each of `device_words` and a device-clock speed no lower than the end-to-end one
+/// (cpu's: none), shown in the table's "dev Mr/s" column.
 inline void check_bench_beside_cpu(const std::string& backend, const std::string& args, std::size_t records,
                                    std::size_t expected, std::initializer_list<const char*> device_words) {
   TempDir dir;
@@ -101,6 +102,7 @@ inline void check_bench_beside_cpu(const std::string& backend, const std::string
                          " --query closest,any --json " + json);
   INFO(r.output);
   REQUIRE(r.code == 0);
+  CHECK_THAT(r.output, Catch::Contains("dev Mr/s"));
   const auto j = nlohmann::json::parse(std::ifstream(json));
   REQUIRE(j["records"].size() == records);
   std::size_t mine = 0;
@@ -108,10 +110,17 @@ inline void check_bench_beside_cpu(const std::string& backend, const std::string
     CHECK(rec["verify_mismatches"].get<int>() == 0);
     CHECK(rec["state_bytes_per_ray"].get<int>() == (rec["traversal"] == "stack" ? 264 : 12));
     CHECK(rec["nodes_per_ray"].get<double>() > 0);
-    if (rec["backend"] == "cpu") CHECK((rec["isa"] == "avx512" || rec["isa"] == "avx2"));  // the best this CPU has
+    if (rec["backend"] == "cpu") {
+      CHECK((rec["isa"] == "avx512" || rec["isa"] == "avx2"));  // the best this CPU has
+      CHECK(rec["device_mrays_per_s"].is_null());             // no device clock to read
+    }
     if (rec["backend"] == backend) {
       ++mine;
       CHECK(rec["vs_cpu"].get<double>() > 0);
+      // the device time (the trace kernels alone) is part of the end-to-end time: no slower
+      REQUIRE(rec["device_mrays_per_s"].is_number());
+      CHECK(rec["device_mrays_per_s"].get<double>() > 0);
+      CHECK(rec["device_mrays_per_s"].get<double>() >= rec["mrays_per_s"].get<double>());
       for (const char* w : device_words) CHECK(rec["device"].get<std::string>().find(w) != std::string::npos);
     }
   }

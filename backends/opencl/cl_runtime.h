@@ -21,7 +21,7 @@ inline void check(cl_int err, const char* call) {
   if (err != CL_SUCCESS) fail(call, err);
 }
 
-/// An owning OpenCL handle (context, queue, program, kernel, buffer): released once.
+/// An owning OpenCL handle (context, queue, program, kernel, buffer, event): released once.
 template <class T, cl_int (*Release)(T)>
 class Handle {
 public:
@@ -53,6 +53,7 @@ using Queue = Handle<cl_command_queue, clReleaseCommandQueue>;
 using Program = Handle<cl_program, clReleaseProgram>;
 using Kernel = Handle<cl_kernel, clReleaseKernel>;
 using Buffer = Handle<cl_mem, clReleaseMemObject>;
+using Event = Handle<cl_event, clReleaseEvent>;
 
 /// One device of one platform, as `mbvh devices` lists it.
 struct DeviceEntry {

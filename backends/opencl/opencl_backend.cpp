@@ -99,7 +99,8 @@ public:
     cl_int err = CL_SUCCESS;
     ctx_ = cl::Context(clCreateContext(nullptr, 1, &dev_.device, nullptr, nullptr, &err));
     check(err, "clCreateContext");
-    queue_ = cl::Queue(clCreateCommandQueue(ctx_.get(), dev_.device, 0, &err));
+    // profiling on: each trace kernel's start and end on the device's clock (last_device_seconds)
+    queue_ = cl::Queue(clCreateCommandQueue(ctx_.get(), dev_.device, CL_QUEUE_PROFILING_ENABLE, &err));
     check(err, "clCreateCommandQueue");
   }
 
@@ -111,6 +112,7 @@ public:
     return l != Layout::mbvh8 && (t == Traversal::stack || t == Traversal::bitstack);
   }
   bool supports_precision(Precision) const override { return true; }
+  double last_device_seconds() const override { return device_seconds_; }
 
   void prepare(const Accel& acc, const TraceOptions& opt) override {
     program(opt.stats, opt.precision == Precision::fast);
@@ -135,6 +137,7 @@ public:
   void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
     if (!supports(opt.layout, opt.traversal))
       throw Error(name_ + ": traversal '" + std::string(to_string(opt.traversal)) + "' is not implemented (stack and bitstack are)");
+    device_seconds_ = -1;
     prepare(acc, opt);
     const bool any = opt.query == Query::any;
     out.reset(rays.size(), opt);
@@ -151,6 +154,7 @@ public:
           "clEnqueueWriteBuffer(counters)");
     const cl_mem nodes = opt.layout == Layout::mbvh2 ? n2_.get() : n4_.get();
     std::vector<cl_uint> stats;
+    cl_ulong kernel_ns = 0;  // the trace kernels' summed execution time (CL_QUEUE_PROFILING_ENABLE)
     for (std::size_t b = 0; b < rays.size(); b += batch) {
       const std::size_t n = std::min(batch, rays.size() - b);
       // in-order queue: the write completes before the kernel, the kernel before the reads
@@ -164,8 +168,10 @@ public:
       const cl_mem outs[] = {hits_.get(), occ_.get(), stats_.get(), counters_.get()};
       for (cl_uint i = 0; i < 4; ++i) check(clSetKernelArg(k, 5 + i, sizeof(cl_mem), &outs[i]), "clSetKernelArg");
       const std::size_t global = (n + local - 1) / local * local;  // no non-uniform groups
-      check(clEnqueueNDRangeKernel(queue_.get(), k, 1, nullptr, &global, &local, 0, nullptr, nullptr),
+      cl_event ran = nullptr;
+      check(clEnqueueNDRangeKernel(queue_.get(), k, 1, nullptr, &global, &local, 0, nullptr, &ran),
             "clEnqueueNDRangeKernel");
+      const cl::Event kernel_event(ran);
       if (any)
         check(clEnqueueReadBuffer(queue_.get(), occ_.get(), CL_FALSE, 0, n, out.occluded.data() + b, 0, nullptr, nullptr),
               "clEnqueueReadBuffer(occluded)");
@@ -184,11 +190,13 @@ public:
       }
       // the next batch rewrites the ray buffer: wait for this one (host memory stays valid)
       check(clFinish(queue_.get()), "clFinish");
+      kernel_ns += profiled_ns(kernel_event.get());
     }
     cl_uint counters[2];
     check(clEnqueueReadBuffer(queue_.get(), counters_.get(), CL_TRUE, 0, sizeof counters, counters, 0, nullptr, nullptr),
           "clEnqueueReadBuffer(counters)");
     out.invalid = counters[0];
+    device_seconds_ = double(kernel_ns) * 1e-9;
     if (counters[1] != 0)
       throw Error(name_ + ": " + std::to_string(counters[1]) + " rays overflowed the traversal stack: the tree is deeper "
                   "than its cap (corrupt build)");
@@ -203,6 +211,16 @@ private:
     cl::Program program;
     std::map<std::string, Kernel> kernels;
   };
+
+  // A finished command's execution time on the device's clock, in nanoseconds.
+  static cl_ulong profiled_ns(cl_event e) {
+    cl_ulong start = 0, end = 0;
+    check(clGetEventProfilingInfo(e, CL_PROFILING_COMMAND_START, sizeof start, &start, nullptr),
+          "clGetEventProfilingInfo(CL_PROFILING_COMMAND_START)");
+    check(clGetEventProfilingInfo(e, CL_PROFILING_COMMAND_END, sizeof end, &end, nullptr),
+          "clGetEventProfilingInfo(CL_PROFILING_COMMAND_END)");
+    return end > start ? end - start : 0;
+  }
 
   std::size_t max_batch() const {
     return std::max<std::size_t>(kMaxLocalSize, std::min<std::size_t>(kMaxBatch, max_alloc_ / (8 * sizeof(cl_uint))));
@@ -302,6 +320,7 @@ private:
   std::size_t cap_ = 0, stats_cap_ = 0;
   Buffer rays_, hits_, occ_, stats_, counters_;
   alignas(16) unsigned char zeros_[16] = {};
+  double device_seconds_ = -1;  // last_device_seconds()
 };
 
 std::vector<std::string> device_lines() {

@@ -99,6 +99,7 @@ public:
     return (l == Layout::mbvh2 || l == Layout::mbvh4) && (t == Traversal::stack || t == Traversal::bitstack);
   }
   bool supports_precision(Precision) const override { return true; }
+  double last_device_seconds() const override { return device_seconds_; }
 
   /// Uploads the build's leaves and triangles (once per build) and the node array of
   /// `opt.layout` (once per build and layout), and binds that layout's nodes.
@@ -146,6 +147,7 @@ public:
     if (!supports(opt.layout, opt.traversal))
       throw Error("vulkan: " + std::string(to_string(opt.layout)) + " " + to_string(opt.traversal) +
                   " traversal is not implemented (the GPU path is MBVH2 and MBVH4, stack and bitstack)");
+    device_seconds_ = -1;
     prepare(acc, opt);
     const bool any = opt.query == Query::any;
     out.reset(rays.size(), opt);
@@ -157,10 +159,11 @@ public:
     ensure_batch_buffers(batch);
     if (descriptors_dirty_) write_descriptors();
     std::memset(counters_.mapped, 0, MBVH_VK_COUNTERS * sizeof(std::uint32_t));
+    double dispatch_seconds = 0;  // the dispatches' summed time on the device's clock (timestamps)
     for (std::size_t b = 0; b < rays.size(); b += batch) {
       const std::size_t n = std::min(batch, rays.size() - b);
       std::memcpy(rays_.mapped, rays.data() + b, n * sizeof(Ray));
-      run(pipe, static_cast<std::uint32_t>(n));
+      dispatch_seconds += run(pipe, static_cast<std::uint32_t>(n));
       if (any) {
         const auto* occ = static_cast<const std::uint32_t*>(occ_.mapped);
         for (std::size_t i = 0; i < n; ++i) out.occluded[b + i] = static_cast<std::uint8_t>(occ[i]);
@@ -175,6 +178,7 @@ public:
     }
     const auto* counters = static_cast<const std::uint32_t*>(counters_.mapped);
     out.invalid = counters[MBVH_VK_COUNTER_INVALID];
+    if (timestamps_ != VK_NULL_HANDLE) device_seconds_ = dispatch_seconds;
     report_validation();
     if (counters[MBVH_VK_COUNTER_OVERFLOW] != 0)
       throw Error("vulkan: " + std::to_string(counters[MBVH_VK_COUNTER_OVERFLOW]) + " rays overflowed the traversal stack: the tree is deeper "
@@ -251,6 +255,8 @@ private:
     for (std::uint32_t i = 0; i < nq && family_ == nq; ++i)
       if (qf[i].queueFlags & VK_QUEUE_COMPUTE_BIT) family_ = i;
     if (family_ == nq) throw Error("Vulkan device " + dev_.name + " has no compute queue");
+    timestamp_bits_ = qf[family_].timestampValidBits;  // 0: the family writes no timestamps
+    timestamp_period_ = lim.timestampPeriod;
 
     const float priority = 1.0f;
     VkDeviceQueueCreateInfo qi{};
@@ -283,6 +289,13 @@ private:
     VkFenceCreateInfo fi{};
     fi.sType = VK_STRUCTURE_TYPE_FENCE_CREATE_INFO;
     check(vkCreateFence(device_, &fi, nullptr, &fence_), "vkCreateFence");
+    if (timestamp_bits_ > 0) {  // two timestamps around each dispatch (last_device_seconds)
+      VkQueryPoolCreateInfo qpi{};
+      qpi.sType = VK_STRUCTURE_TYPE_QUERY_POOL_CREATE_INFO;
+      qpi.queryType = VK_QUERY_TYPE_TIMESTAMP;
+      qpi.queryCount = 2;
+      check(vkCreateQueryPool(device_, &qpi, nullptr, &timestamps_), "vkCreateQueryPool");
+    }
 
     // descriptor layout (MBVH_VK_BINDING_*): storage buffers, but the node chunks as uniform
     // texel buffers
@@ -343,6 +356,7 @@ private:
     if (descriptor_pool_) vkDestroyDescriptorPool(device_, descriptor_pool_, nullptr);
     if (pipeline_layout_) vkDestroyPipelineLayout(device_, pipeline_layout_, nullptr);
     if (set_layout_) vkDestroyDescriptorSetLayout(device_, set_layout_, nullptr);
+    if (timestamps_) vkDestroyQueryPool(device_, timestamps_, nullptr);
     if (fence_) vkDestroyFence(device_, fence_, nullptr);
     if (pool_) vkDestroyCommandPool(device_, pool_, nullptr);
     vkDestroyDevice(device_, nullptr);
@@ -597,17 +611,30 @@ private:
     check(vkResetFences(device_, 1, &fence_), "vkResetFences");
   }
 
-  /// One dispatch of `n` rays from the ray buffer.
-  void run(VkPipeline pipe, std::uint32_t n) {
+  /// One dispatch of `n` rays from the ray buffer; returns its execution time in seconds by the
+  /// device's clock (the timestamps around it), 0 where the queue family has no timestamps.
+  double run(VkPipeline pipe, std::uint32_t n) {
     begin();
+    if (timestamps_) vkCmdResetQueryPool(cmd_, timestamps_, 0, 2);
     vkCmdBindPipeline(cmd_, VK_PIPELINE_BIND_POINT_COMPUTE, pipe);
     vkCmdBindDescriptorSets(cmd_, VK_PIPELINE_BIND_POINT_COMPUTE, pipeline_layout_, 0, 1, &set_, 0, nullptr);
     vkCmdPushConstants(cmd_, pipeline_layout_, VK_SHADER_STAGE_COMPUTE_BIT, 0, sizeof n, &n);
+    // timestamps: before the dispatch starts, and once every earlier command has completed
+    if (timestamps_) vkCmdWriteTimestamp(cmd_, VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT, timestamps_, 0);
     vkCmdDispatch(cmd_, (n + kLocalSize - 1) / kLocalSize, 1, 1);
+    if (timestamps_) vkCmdWriteTimestamp(cmd_, VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT, timestamps_, 1);
     // orders: the shader's writes (hits, flags, statistics, counters) before the host reads them
     barrier(VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, VK_ACCESS_SHADER_WRITE_BIT, VK_PIPELINE_STAGE_HOST_BIT,
             VK_ACCESS_HOST_READ_BIT);
     submit_and_wait();
+    if (!timestamps_) return 0;
+    std::uint64_t ticks[2] = {};  // the fence has signalled: both are written
+    check(vkGetQueryPoolResults(device_, timestamps_, 0, 2, sizeof ticks, ticks, sizeof ticks[0],
+                                VK_QUERY_RESULT_64_BIT | VK_QUERY_RESULT_WAIT_BIT),
+          "vkGetQueryPoolResults");
+    // only timestamp_bits_ of a tick count are valid: the difference modulo 2^bits survives a wrap
+    const std::uint64_t mask = timestamp_bits_ >= 64 ? ~std::uint64_t(0) : (std::uint64_t(1) << timestamp_bits_) - 1;
+    return double((ticks[1] - ticks[0]) & mask) * double(timestamp_period_) * 1e-9;
   }
 
   vk::Instance instance_;
@@ -620,6 +647,10 @@ private:
   VkCommandPool pool_ = VK_NULL_HANDLE;
   VkCommandBuffer cmd_ = VK_NULL_HANDLE;
   VkFence fence_ = VK_NULL_HANDLE;
+  VkQueryPool timestamps_ = VK_NULL_HANDLE;  ///< two timestamps per dispatch; none without timestampValidBits
+  std::uint32_t timestamp_bits_ = 0;         ///< valid bits of a timestamp on the queue family (0: none)
+  float timestamp_period_ = 1;               ///< nanoseconds per timestamp tick
+  double device_seconds_ = -1;               ///< last_device_seconds()
   VkDescriptorSetLayout set_layout_ = VK_NULL_HANDLE;
   VkPipelineLayout pipeline_layout_ = VK_NULL_HANDLE;
   VkDescriptorPool descriptor_pool_ = VK_NULL_HANDLE;
