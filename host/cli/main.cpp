@@ -650,6 +650,7 @@ static int run(int argc, char** argv) {
     }
 
     if (*check) {
+      if (!ck_json.empty()) prepare_outputs({{"--json", ck_json, true}}, {{"scene", ck_a.scene}, {"--rays", ck_r.rays_file}});
       CheckOptions co;
       co.grid = ck_g.parse();
       co.threads = ck_a.threads;
@@ -676,7 +677,7 @@ static int run(int argc, char** argv) {
       if (!ck_json.empty()) {
         j["mismatches"] = genuine;
         const std::string text = j.dump(1) + "\n";
-        write_bytes(ck_json, text.data(), text.size());
+        write_bytes_to({"--json", ck_json, true}, text.data(), text.size());
       }
       return genuine ? 1 : 0;
     }
