@@ -26,6 +26,10 @@ struct BackendOptions {
   /// Caps a Vulkan storage-buffer binding below the device's maxStorageBufferRange (0 = no cap),
   /// so the split-buffer path can be exercised on small scenes.
   std::size_t vk_max_binding_bytes = 0;
+  /// Vulkan: keep the per-batch rays and results in device-local memory and move them through
+  /// host-visible staging buffers even where device-local memory is host-visible (lavapipe), so
+  /// the discrete-GPU path is exercised here (also MBVH_VK_STAGING=1).
+  bool vk_staging = false;
 };
 
 class Backend {

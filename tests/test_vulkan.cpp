@@ -4,9 +4,11 @@
 // several bindings (a scene over lavapipe's 128 MiB maxStorageBufferRange, and small scenes with
 // the binding range capped) and rays over several batches give cpu-scalar's answers; clear
 // errors for a missing driver and an unknown --vk-device; bench records beside cpu. Every check
-// covers both layouts the shader traverses, MBVH2 and MBVH4.
+// covers both layouts the shader traverses, MBVH2 and MBVH4. The batches go both ways: in
+// lavapipe's host-visible memory, and staged through copies as on a discrete GPU (vk_staging).
 #include <catch2/catch.hpp>
 
+#include <cstdlib>
 #include <cstring>
 #include <fstream>
 #include <nlohmann/json.hpp>
@@ -82,7 +84,8 @@ TEST_CASE("vulkan: the validation layer is on in the tests and its messages are 
   CHECK(after.empty());
 }
 
-TEST_CASE("vulkan: arrays over the binding range are split - rays over several batches come back in order",
+TEST_CASE("vulkan: arrays over the binding range are split - rays over several batches come back in order - "
+          "directly and staged",
           "[vulkan]") {
   // capped binding range: nodes and triangles each in several chunks, rays in many batches
   const Scene s = load_scene("gen:soup:20000");
@@ -93,6 +96,10 @@ TEST_CASE("vulkan: arrays over the binding range are split - rays over several b
   const std::vector<Ray> rays = generate_rays(s, *acc, ro);
   BackendOptions bo;
   bo.vk_max_binding_bytes = 256 * 1024;
+  // lavapipe's device-local memory is host-visible: direct unless staging is forced
+  const bool staged = GENERATE(false, true);
+  bo.vk_staging = staged;
+  INFO((staged ? "staged" : "direct (or MBVH_VK_STAGING set)"));
   auto b = make_backend("vulkan", bo);
   b->prepare(*acc, layout_options(Layout::mbvh2));
   const std::string d2 = b->describe();
@@ -113,6 +120,13 @@ TEST_CASE("vulkan: arrays over the binding range are split - rays over several b
   CHECK(d.find("triangles in " + std::to_string(tri_chunks) + " storage binding(s) of 0.2 MiB") != std::string::npos);
   CHECK(d.find("batches of 8192 rays") != std::string::npos);
   check_against_reference(*b, *acc, rays);  // switches between the layouts' node arrays
+  const std::string after = b->describe();
+  INFO(after);
+  if (staged)
+    CHECK(after.find("; rays and results staged through host-visible buffers") != std::string::npos);
+  else if (!std::getenv("MBVH_VK_STAGING"))
+    CHECK(after.find("; rays and results in host-visible memory") != std::string::npos);
+  CHECK(vk::take_validation_messages().empty());
 
   // more chunks than the shader has bindings: a clear error naming the array and the limit
   BackendOptions tiny;

@@ -10,11 +10,17 @@
 // (RGBA32UI; shaders/trace.comp says why), the rest as std430 storage buffers. An array over the
 // device's maxTexelBufferElements or maxStorageBufferRange is bound as power-of-two chunks of one
 // buffer (up to MBVH_VK_CHUNK_BINDINGS descriptors each); rays go through in batches within the
-// range, the allocation limit and the work-group count. One pipeline per (layout, traversal,
-// query, statistics, accuracy mode, chunk counts), from specialization constants, made on first
-// use and kept. Bindings, specialization constant ids and counters: shaders/mbvh_layout.h.
+// range, the allocation limit and the work-group count. Where device-local memory is host-visible
+// (unified memory: lavapipe) a batch's rays and results live in host-visible memory the shader
+// reads and writes in place; elsewhere (a discrete GPU) they live in device-local memory, and each
+// batch's command buffer copies the rays in from an upload staging buffer before the dispatch and
+// the results out to a host-cached readback buffer after it (MBVH_VK_STAGING=1 forces this path).
+// One pipeline per (layout, traversal, query, statistics, accuracy mode, chunk counts), from
+// specialization constants, made on first use and kept. Bindings, specialization constant ids
+// and counters: shaders/mbvh_layout.h.
 #include <algorithm>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <map>
 #include <mutex>
@@ -48,6 +54,19 @@ std::string mib(std::size_t bytes) {
   return b;
 }
 
+/// Where a buffer's memory lives: device-local where the device has it (the build's arrays, the
+/// staged path's batch buffers); host-visible and coherent for the host to write (upload staging:
+/// write-combined is fine); host-visible and coherent, host-cached where available, for the host
+/// to read (the direct path's batch buffers, counters, readback staging).
+enum class Memory { device, upload, host };
+
+/// MBVH_VK_STAGING set and not "0".
+bool staging_requested(bool flag) {
+  if (flag) return true;
+  const char* env = std::getenv("MBVH_VK_STAGING");
+  return env && *env && std::strcmp(env, "0") != 0;
+}
+
 struct Buffer {
   VkBuffer buffer = VK_NULL_HANDLE;
   VkDeviceMemory memory = VK_NULL_HANDLE;
@@ -68,7 +87,7 @@ struct Chunked {
 class VulkanBackend final : public Backend {
 public:
   explicit VulkanBackend(const BackendOptions& o)
-      : instance_(vk::validation_requested(o.vk_validation)) {
+      : instance_(vk::validation_requested(o.vk_validation)), force_staging_(staging_requested(o.vk_staging)) {
     try {
       init(o);
     } catch (...) {
@@ -92,6 +111,9 @@ public:
                " texel binding(s) of " + mib(n.chunk_bytes);
       s += "; triangles in " + std::to_string(tris_.count) + " storage binding(s) of " + mib(tris_.chunk_bytes) +
            ", batches of " + std::to_string(max_batch_) + " rays";
+      if (cap_)
+        s += staged_ ? "; rays and results staged through host-visible buffers"
+                     : "; rays and results in host-visible memory";
     }
     return s;
   }
@@ -159,19 +181,24 @@ public:
     ensure_batch_buffers(batch);
     if (descriptors_dirty_) write_descriptors();
     std::memset(counters_.mapped, 0, MBVH_VK_COUNTERS * sizeof(std::uint32_t));
+    // what the host writes and reads: the staging buffers on the staged path, else the batch buffers
+    void* rays_in = (staged_ ? rays_up_ : rays_).mapped;
+    const void* hits_out = (staged_ ? hits_down_ : hits_).mapped;
+    const void* occ_out = (staged_ ? occ_down_ : occ_).mapped;
+    const void* stats_out = (staged_ ? stats_down_ : stats_).mapped;
     double dispatch_seconds = 0;  // the dispatches' summed time on the device's clock (timestamps)
     for (std::size_t b = 0; b < rays.size(); b += batch) {
       const std::size_t n = std::min(batch, rays.size() - b);
-      std::memcpy(rays_.mapped, rays.data() + b, n * sizeof(Ray));
-      dispatch_seconds += run(pipe, static_cast<std::uint32_t>(n));
+      std::memcpy(rays_in, rays.data() + b, n * sizeof(Ray));
+      dispatch_seconds += run(pipe, static_cast<std::uint32_t>(n), any, opt.stats);
       if (any) {
-        const auto* occ = static_cast<const std::uint32_t*>(occ_.mapped);
+        const auto* occ = static_cast<const std::uint32_t*>(occ_out);
         for (std::size_t i = 0; i < n; ++i) out.occluded[b + i] = static_cast<std::uint8_t>(occ[i]);
       } else {
-        std::memcpy(out.hits.data() + b, hits_.mapped, n * sizeof(Hit));
+        std::memcpy(out.hits.data() + b, hits_out, n * sizeof(Hit));
       }
       if (opt.stats) {
-        const auto* s = static_cast<const std::uint32_t*>(stats_.mapped);
+        const auto* s = static_cast<const std::uint32_t*>(stats_out);
         for (std::size_t i = 0; i < n; ++i, s += MBVH_VK_STAT_WORDS)
           out.stats[b + i] = RayStats{s[0], s[1], s[2], s[3], s[4], s[5], s[6]};
       }
@@ -339,7 +366,8 @@ private:
     si.codeSize = sizeof kTraceSpv;
     si.pCode = kTraceSpv;
     check(vkCreateShaderModule(device_, &si, nullptr, &shader_), "vkCreateShaderModule");
-    counters_ = make_buffer(MBVH_VK_COUNTERS * sizeof(std::uint32_t), VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, true, "counters");
+    counters_ = make_buffer(MBVH_VK_COUNTERS * sizeof(std::uint32_t), VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, Memory::host,
+                            "counters");
     report_validation();
   }
 
@@ -350,6 +378,7 @@ private:
     destroy(nodes4_);
     destroy(tris_);
     for (Buffer* b : {&leaves_, &rays_, &hits_, &occ_, &stats_, &counters_}) destroy(*b);
+    for (Buffer* b : {&rays_up_, &hits_down_, &occ_down_, &stats_down_}) destroy(*b);
     for (auto& [key, p] : pipelines_) vkDestroyPipeline(device_, p, nullptr);
     pipelines_.clear();
     if (shader_) vkDestroyShaderModule(device_, shader_, nullptr);
@@ -384,9 +413,8 @@ private:
     throw Error("Vulkan device " + dev_.name + " has no memory type with the needed properties");
   }
 
-  /// A buffer of `bytes`; `host` = mapped, host-visible and coherent (batch buffers), else
-  /// device-local where the device has it (the build's arrays).
-  Buffer make_buffer(std::size_t bytes, VkBufferUsageFlags usage, bool host, const std::string& what) {
+  /// A buffer of `bytes` in memory `where` (Memory), mapped where that memory is host-visible.
+  Buffer make_buffer(std::size_t bytes, VkBufferUsageFlags usage, Memory where, const std::string& what) {
     if (bytes > max_alloc_)
       throw Error("vulkan: " + what + " (" + mib(bytes) + ") exceeds maxMemoryAllocationSize (" + mib(max_alloc_) +
                   ") of " + dev_.name + "; use a smaller scene or another device");
@@ -403,10 +431,12 @@ private:
     VkMemoryAllocateInfo ai{};
     ai.sType = VK_STRUCTURE_TYPE_MEMORY_ALLOCATE_INFO;
     ai.allocationSize = req.size;
-    ai.memoryTypeIndex = host ? memory_type(req.memoryTypeBits,
-                                            VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT | VK_MEMORY_PROPERTY_HOST_COHERENT_BIT,
-                                            VK_MEMORY_PROPERTY_HOST_CACHED_BIT)
-                              : memory_type(req.memoryTypeBits, 0, VK_MEMORY_PROPERTY_DEVICE_LOCAL_BIT);
+    const VkMemoryPropertyFlags coherent = VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT | VK_MEMORY_PROPERTY_HOST_COHERENT_BIT;
+    if (where == Memory::device)
+      ai.memoryTypeIndex = memory_type(req.memoryTypeBits, 0, VK_MEMORY_PROPERTY_DEVICE_LOCAL_BIT);
+    else  // upload: any coherent host-visible type (write-combined is fine); host: cached preferred
+      ai.memoryTypeIndex =
+          memory_type(req.memoryTypeBits, coherent, where == Memory::host ? VK_MEMORY_PROPERTY_HOST_CACHED_BIT : 0);
     const VkResult r = vkAllocateMemory(device_, &ai, nullptr, &b.memory);
     if (r != VK_SUCCESS) {
       destroy(b);
@@ -438,7 +468,7 @@ private:
     Buffer b = make_buffer(bytes,
                            VK_BUFFER_USAGE_STORAGE_BUFFER_BIT | VK_BUFFER_USAGE_UNIFORM_TEXEL_BUFFER_BIT |
                                VK_BUFFER_USAGE_TRANSFER_DST_BIT,
-                           false, what);
+                           Memory::device, what);
     if (bytes == 0) return b;
     if (b.mapped) {
       std::memcpy(b.mapped, data, bytes);  // coherent or not, made visible by the next submit
@@ -448,7 +478,7 @@ private:
       }
       return b;
     }
-    Buffer staging = make_buffer(bytes, VK_BUFFER_USAGE_TRANSFER_SRC_BIT, true, what + " (staging)");
+    Buffer staging = make_buffer(bytes, VK_BUFFER_USAGE_TRANSFER_SRC_BIT, Memory::upload, what + " (staging)");
     std::memcpy(staging.mapped, data, bytes);
     begin();
     const VkBufferCopy region{0, 0, bytes};
@@ -498,15 +528,34 @@ private:
     return c;
   }
 
+  /// The rays, hits, occlusion flags and statistics of a batch of `n` rays: in host-visible memory
+  /// where device-local memory is host-visible (unified memory: the shader reads and writes them
+  /// in place), else in device-local memory beside host-visible staging buffers (run copies).
   void ensure_batch_buffers(std::size_t n) {
     if (n <= cap_) return;
     wait_idle();
-    for (Buffer* b : {&rays_, &hits_, &occ_, &stats_}) destroy(*b);
+    for (Buffer* b : {&rays_, &hits_, &occ_, &stats_, &rays_up_, &hits_down_, &occ_down_, &stats_down_}) destroy(*b);
+    const std::size_t bytes[4] = {n * sizeof(Ray), n * sizeof(Hit), n * sizeof(std::uint32_t),
+                                  n * MBVH_VK_STAT_WORDS * sizeof(std::uint32_t)};
+    const char* what[4] = {"rays", "hits", "occlusion flags", "per-ray statistics"};
+    Buffer* batch[4] = {&rays_, &hits_, &occ_, &stats_};
     const VkBufferUsageFlags u = VK_BUFFER_USAGE_STORAGE_BUFFER_BIT;
-    rays_ = make_buffer(n * sizeof(Ray), u, true, "rays");
-    hits_ = make_buffer(n * sizeof(Hit), u, true, "hits");
-    occ_ = make_buffer(n * sizeof(std::uint32_t), u, true, "occlusion flags");
-    stats_ = make_buffer(n * MBVH_VK_STAT_WORDS * sizeof(std::uint32_t), u, true, "per-ray statistics");
+    if (!force_staging_) {  // device-local memory that is host-visible too: today's direct path
+      Buffer probe = make_buffer(16, u, Memory::device, "rays (memory probe)");
+      staged_ = !(probe.flags & VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT);
+      destroy(probe);
+    }
+    if (!staged_) {
+      for (int i = 0; i < 4; ++i) *batch[i] = make_buffer(bytes[i], u, Memory::host, what[i]);
+    } else {
+      const VkBufferUsageFlags tu = u | VK_BUFFER_USAGE_TRANSFER_SRC_BIT | VK_BUFFER_USAGE_TRANSFER_DST_BIT;
+      for (int i = 0; i < 4; ++i) *batch[i] = make_buffer(bytes[i], tu, Memory::device, what[i]);
+      rays_up_ = make_buffer(bytes[0], VK_BUFFER_USAGE_TRANSFER_SRC_BIT, Memory::upload, "rays (upload staging)");
+      Buffer* down[3] = {&hits_down_, &occ_down_, &stats_down_};
+      for (int i = 1; i < 4; ++i)
+        *down[i - 1] = make_buffer(bytes[i], VK_BUFFER_USAGE_TRANSFER_DST_BIT, Memory::host,
+                                   std::string(what[i]) + " (readback staging)");
+    }
     cap_ = n;
     descriptors_dirty_ = true;
   }
@@ -611,18 +660,64 @@ private:
     check(vkResetFences(device_, 1, &fence_), "vkResetFences");
   }
 
-  /// One dispatch of `n` rays from the ray buffer; returns its execution time in seconds by the
-  /// device's clock (the timestamps around it), 0 where the queue family has no timestamps.
-  double run(VkPipeline pipe, std::uint32_t n) {
+  /// A buffer memory barrier over the first `bytes` of `b`.
+  void buffer_barrier(const Buffer& b, std::size_t bytes, VkPipelineStageFlags src_stage, VkAccessFlags src,
+                      VkPipelineStageFlags dst_stage, VkAccessFlags dst) {
+    VkBufferMemoryBarrier bb{VK_STRUCTURE_TYPE_BUFFER_MEMORY_BARRIER, nullptr, src, dst, VK_QUEUE_FAMILY_IGNORED,
+                             VK_QUEUE_FAMILY_IGNORED, b.buffer, 0, bytes};
+    vkCmdPipelineBarrier(cmd_, src_stage, dst_stage, 0, 0, nullptr, 1, &bb, 0, nullptr);
+  }
+
+  /// The first `bytes` of `from` into `to`.
+  void copy(const Buffer& from, const Buffer& to, std::size_t bytes) {
+    const VkBufferCopy region{0, 0, bytes};
+    vkCmdCopyBuffer(cmd_, from.buffer, to.buffer, 1, &region);
+  }
+
+  /// One dispatch of `n` rays from the ray buffer (on the staged path, copied in before it and the
+  /// results the query `any` and `stats` ask for copied out after it); returns its execution time
+  /// in seconds by the device's clock (the timestamps around it), 0 where the queue family has no
+  /// timestamps.
+  double run(VkPipeline pipe, std::uint32_t n, bool any, bool stats) {
+    const std::size_t ray_bytes = n * sizeof(Ray);
+    // the results the host reads: hits or occlusion flags, and statistics when asked for
+    std::vector<std::pair<const Buffer*, const Buffer*>> out{
+        any ? std::make_pair(&occ_, &occ_down_) : std::make_pair(&hits_, &hits_down_)};
+    if (stats) out.emplace_back(&stats_, &stats_down_);
+    const auto bytes_of = [&](const Buffer* b) {
+      const std::size_t record = b == &hits_ ? sizeof(Hit)
+                                 : b == &occ_ ? sizeof(std::uint32_t)
+                                              : MBVH_VK_STAT_WORDS * sizeof(std::uint32_t);
+      return n * record;
+    };
     begin();
     if (timestamps_) vkCmdResetQueryPool(cmd_, timestamps_, 0, 2);
+    if (staged_) {
+      copy(rays_up_, rays_, ray_bytes);
+      // orders: the copy's writes of the rays before the dispatch's shader reads of them
+      buffer_barrier(rays_, ray_bytes, VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT,
+                     VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, VK_ACCESS_SHADER_READ_BIT);
+    }
     vkCmdBindPipeline(cmd_, VK_PIPELINE_BIND_POINT_COMPUTE, pipe);
     vkCmdBindDescriptorSets(cmd_, VK_PIPELINE_BIND_POINT_COMPUTE, pipeline_layout_, 0, 1, &set_, 0, nullptr);
     vkCmdPushConstants(cmd_, pipeline_layout_, VK_SHADER_STAGE_COMPUTE_BIT, 0, sizeof n, &n);
-    // timestamps: before the dispatch starts, and once every earlier command has completed
-    if (timestamps_) vkCmdWriteTimestamp(cmd_, VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT, timestamps_, 0);
+    // timestamps: before the dispatch starts (on the staged path, once the rays' copy has
+    // completed), and once every earlier command has completed
+    if (timestamps_)
+      vkCmdWriteTimestamp(cmd_, staged_ ? VK_PIPELINE_STAGE_TRANSFER_BIT : VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT,
+                          timestamps_, 0);
     vkCmdDispatch(cmd_, (n + kLocalSize - 1) / kLocalSize, 1, 1);
     if (timestamps_) vkCmdWriteTimestamp(cmd_, VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT, timestamps_, 1);
+    if (staged_) {
+      // orders: the shader's writes of the results before the copies' reads of them
+      for (const auto& [dev, host] : out)
+        buffer_barrier(*dev, bytes_of(dev), VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, VK_ACCESS_SHADER_WRITE_BIT,
+                       VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_READ_BIT);
+      for (const auto& [dev, host] : out) copy(*dev, *host, bytes_of(dev));
+      // orders: the copies' writes of the readback buffers before the host reads them
+      barrier(VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_HOST_BIT,
+              VK_ACCESS_HOST_READ_BIT);
+    }
     // orders: the shader's writes (hits, flags, statistics, counters) before the host reads them
     barrier(VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, VK_ACCESS_SHADER_WRITE_BIT, VK_PIPELINE_STAGE_HOST_BIT,
             VK_ACCESS_HOST_READ_BIT);
@@ -664,7 +759,10 @@ private:
   Layout bound_ = Layout::mbvh2;  ///< whose nodes the descriptor set binds
   Buffer leaves_;
   std::size_t cap_ = 0;
+  const bool force_staging_;  ///< BackendOptions::vk_staging or MBVH_VK_STAGING=1
+  bool staged_ = true;        ///< the batch buffers are device-local, moved by the staging buffers below
   Buffer rays_, hits_, occ_, stats_, counters_;
+  Buffer rays_up_, hits_down_, occ_down_, stats_down_;  ///< staged path: upload and readback staging
 };
 
 std::vector<std::string> device_lines() {
