@@ -55,6 +55,7 @@ std::string printable(const char* b, const char* e) {
 
 // A file with a NUL byte is binary (or UTF-16), not OBJ text: refused naming the line.
 void refuse_binary(const std::string& name, const char* data, std::size_t size) {
+  if (size == 0) return;  // an empty file: no bytes (and data may be null, which memchr must not get)
   const char* nul = static_cast<const char*>(std::memchr(data, '\0', size));
   if (!nul) return;
   const bool utf16 = size >= 2 && ((data[0] == '\xFF' && data[1] == '\xFE') || (data[0] == '\xFE' && data[1] == '\xFF'));
