@@ -22,6 +22,7 @@
 #include "host/io/output.h"
 #include "host/parallel.h"
 #include "host/progress.h"
+#include "host/version.h"
 #include "host/rays.h"
 #include "host/render.h"
 
@@ -34,8 +35,10 @@ using Clock = std::chrono::steady_clock;
 // The report (tables, "wrote ..."): standard output, or standard error while an output goes to
 // standard output ('-'), so the two never mix.
 FILE* g_report = stdout;
+bool g_quiet = false;  // --quiet: no report, errors only
 
 __attribute__((format(printf, 1, 2))) void say(const char* format, ...) {
+  if (g_quiet) return;
   va_list args;
   va_start(args, format);
   std::vfprintf(g_report, format, args);
@@ -233,7 +236,7 @@ std::vector<std::string> all_backends() {
 // --backend, --layout, --traversal, --query as comma-separated lists (check and bench).
 struct GridArgs {
   DeviceArgs dev;
-  std::string backends = "cpu-scalar", layouts = "mbvh2,mbvh4,mbvh8", traversals = "stack,bitstack,stack-ordered,bitstack-retest",
+  std::string backends = "cpu", layouts = "mbvh2,mbvh4,mbvh8", traversals = "stack,bitstack,stack-ordered,bitstack-retest",
               queries = "closest,any", precisions = "robust";
   void add(CLI::App* c) {
     c->add_option("--backend", backends,
@@ -388,9 +391,15 @@ nlohmann::json check_json(const CheckReport& rep, const std::string& kind) {
 }  // namespace
 
 static int run(int argc, char** argv) {
-  CLI::App app{"mbvh — one MBVH2/MBVH4 build, stackless bitstack traversal on several backends"};
+  CLI::App app{"mbvh " MBVH_VERSION_STRING " — one MBVH2/MBVH4/MBVH8 build, stackless bitstack traversal on several "
+               "backends\n\nexit status: 0 success; 1 `check` found a genuine mismatch or `bench` a timed result "
+               "that did not verify; 2 an error (a bad option or value, a bad input, a failed run)"};
   app.require_subcommand(1);
   app.set_help_all_flag("--help-all", "help for every command");
+  app.set_version_flag("--version", "mbvh " MBVH_VERSION_STRING);
+  app.option_defaults()->always_capture_default();  // --help shows every option's default
+  app.fallthrough();  // --quiet may follow the subcommand
+  app.add_flag("-q,--quiet", g_quiet, "print nothing but errors (outputs are still written)");
 
   // -- info
   SceneArgs info_a;
@@ -411,7 +420,7 @@ static int run(int argc, char** argv) {
   // -- trace
   SceneArgs tr_a;
   RayArgs tr_r;
-  std::string tr_backend = "cpu-scalar", tr_layout = "mbvh4", tr_trav = "bitstack", tr_query = "closest", tr_out;
+  std::string tr_backend = "cpu", tr_layout = "mbvh4", tr_trav = "bitstack", tr_query = "closest", tr_out;
   bool tr_stats = false;
   auto* trace = app.add_subcommand("trace", "trace rays; write hits (closest) or occlusion (any)");
   add_scene_args(trace, tr_a);
@@ -508,7 +517,12 @@ static int run(int argc, char** argv) {
   DeviceArgs dv_dev;
   dv_dev.add(devices);
 
-  CLI11_PARSE(app, argc, argv);
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {  // --help and --version exit 0; every usage error exits 2
+    return app.exit(e) == 0 ? 0 : 2;
+  }
+  if (g_quiet) Progress::set_enabled(false);
   try {
     if (*info) return cmd_info(info_a, info_json);
 
