@@ -144,6 +144,7 @@ struct SceneArgs {
   unsigned threads = 0;
   unsigned max_leaf = BuildOptions{}.max_leaf;
   unsigned leaf_block = BuildOptions{}.leaf_block;
+  std::string cache;
 };
 
 void add_scene_args(CLI::App* c, SceneArgs& a) {
@@ -152,6 +153,9 @@ void add_scene_args(CLI::App* c, SceneArgs& a) {
   c->add_option("--max-leaf", a.max_leaf, "largest leaf the SAH may choose")->check(integer_in(1, 1024));
   c->add_option("--leaf-block", a.leaf_block, "triangles the SAH prices as one leaf test (4: SIMD leaves)")
       ->check(integer_in(1, 64));
+  c->add_option("--cache", a.cache,
+                "BVH cache directory: the build is read from it when it holds this scene's with these options, "
+                "else built and written there (a damaged or mismatched file is rebuilt)");
 }
 
 struct Loaded {
@@ -171,12 +175,17 @@ Loaded load_and_build(const SceneArgs& a, bool verbose = true) {
   bo.leaf_block = a.leaf_block;
   Progress p("building BVH", 1000);
   bo.progress = [&p](double f) { p.update(static_cast<std::size_t>(f * 1000)); };
-  l.acc = Accel::build(l.scene, bo);
+  const auto t1 = Clock::now();
+  Accel::CacheReport cr;
+  l.acc = a.cache.empty() ? Accel::build(l.scene, bo) : Accel::build_cached(l.scene, bo, a.cache, &cr);
+  const double ms = ms_since(t1);
   p.finish();
-  if (verbose)
-    std::fprintf(stderr, "scene %s: %zu triangles, loaded in %.1f ms; BVH built in %.1f ms, hash %016llx\n", a.scene.c_str(),
-                 l.scene.triangle_count(), l.load_ms, l.acc->binary_stats().build_ms,
-                 static_cast<unsigned long long>(l.acc->hash()));
+  if (!cr.problem.empty()) std::fprintf(stderr, "mbvh: warning: %s; rebuilt and replaced\n", cr.problem.c_str());
+  if (!g_quiet && (verbose || !a.cache.empty()))
+    std::fprintf(stderr, "scene %s: %zu triangles, loaded in %.1f ms; BVH %s in %.1f ms%s%s, hash %016llx\n",
+                 a.scene.c_str(), l.scene.triangle_count(), l.load_ms, cr.loaded ? "read from the cache" : "built",
+                 cr.loaded ? ms : l.acc->binary_stats().build_ms, a.cache.empty() ? "" : cr.loaded ? ": " : ", cached in ",
+                 cr.path.c_str(), static_cast<unsigned long long>(l.acc->hash()));
   return l;
 }
 
@@ -566,7 +575,7 @@ static int run(int argc, char** argv) {
         rn_o.traversal = Traversal::stack;
       rn_o.layout = render_cmd->count("--layout") ? parse_layout(rn_layout) : default_layout(*backend, rn_o.traversal);
       Loaded l = load_and_build(rn_a);
-      std::fprintf(stderr, "backend: %s\n", backend->describe().c_str());
+      if (!g_quiet) std::fprintf(stderr, "backend: %s\n", backend->describe().c_str());
       backend->prepare(*l.acc, TraceOptions{rn_o.layout, rn_o.traversal, Query::closest, false, rn_o.precision});
       Progress p("rendering", rn_o.spp);
       const RenderResult res = render(l.scene, *l.acc, *backend, rn_o, [&p](unsigned d, unsigned) { p.update(d); });
@@ -622,7 +631,7 @@ static int run(int argc, char** argv) {
         throw Error("backend '" + tr_backend + "' does not support precision '" + tr_precision + "'");
       Loaded l = load_and_build(tr_a);
       const std::vector<Ray> r = get_rays(tr_r, l, tr_a.threads);
-      std::fprintf(stderr, "backend: %s\n", backend->describe().c_str());
+      if (!g_quiet) std::fprintf(stderr, "backend: %s\n", backend->describe().c_str());
       backend->prepare(*l.acc, o);
       // trace in batches so a long run shows progress; results are concatenated in ray order
       TraceOutput out;
@@ -678,7 +687,7 @@ static int run(int argc, char** argv) {
       for (const auto& k : kinds) {
         const std::vector<Ray> r = k == "file" ? read_rays(ck_r.rays_file)
                                                : generate_rays(l.scene, *l.acc, ray_gen(ck_r, k, ck_a.threads));
-        const bool tty = Progress::enabled();
+        const bool tty = Progress::enabled();  // false under --quiet
         CheckReport rep = run_check(*l.acc, r, co, [tty](const std::string& s) {
           if (tty) std::fprintf(stderr, "\r%-72.72s\r", s.c_str());
         });
