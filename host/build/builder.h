@@ -1,0 +1,102 @@
+// builder.h — what the binary builders share (internal to host/build/): the primitive records
+// they reorder, the temporary node arena they fill and its depth-first flattening into Bvh2.
+// Accel::build (binned_sah.cpp) prepares the records, calls one builder by BuildOptions::quality
+// and turns the leaf-ordered records into the triangles, statistics and hash.
+#pragma once
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <vector>
+
+#include "host/accel.h"
+
+namespace mbvh::build {
+
+/// One triangle's box and scene index, 32 bytes: builders move these records, not indices, so
+/// binning and partitioning stream through memory. Its centroid is centroid(a) (= Box::center()).
+struct PrimRef {
+  float lo[3];
+  std::uint32_t prim;
+  float hi[3];
+  std::uint32_t pad;
+  float centroid(int a) const { return 0.5f * (lo[a] + hi[a]); }
+};
+static_assert(sizeof(PrimRef) == 32);
+
+/// An axis-aligned box kept as two float[3] rows, grown inline (Box::grow is out of line).
+struct FastBox {
+  float lo[3] = {INFINITY, INFINITY, INFINITY};
+  float hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+  void grow(const PrimRef& r) {
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = std::min(lo[a], r.lo[a]);
+      hi[a] = std::max(hi[a], r.hi[a]);
+    }
+  }
+  void grow(const FastBox& b) {
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = std::min(lo[a], b.lo[a]);
+      hi[a] = std::max(hi[a], b.hi[a]);
+    }
+  }
+  void grow_point(const float p[3]) {
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = std::min(lo[a], p[a]);
+      hi[a] = std::max(hi[a], p[a]);
+    }
+  }
+  void grow_centroid(const PrimRef& r) {
+    const float c[3] = {r.centroid(0), r.centroid(1), r.centroid(2)};
+    grow_point(c);
+  }
+  /// As Box::half_area(): 0 for an empty box.
+  float half_area() const {
+    if (!(lo[0] <= hi[0])) return 0.0f;
+    const float e[3] = {hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]};
+    return e[0] * e[1] + e[1] * e[2] + e[2] * e[0];
+  }
+  Box box() const {
+    Box b;
+    b.lo = {lo[0], lo[1], lo[2]};
+    b.hi = {hi[0], hi[1], hi[2]};
+    return b;
+  }
+};
+
+/// A node of a builder's arena: a range of the record array, children in the same arena.
+struct TmpNode {
+  FastBox box, cbox;          // bounds of the triangles and of their centroids
+  std::uint32_t begin, end;   // range of the record array
+  std::uint32_t depth;
+  std::int32_t child[2] = {-1, -1};  // indices into the same arena; -1: none
+  bool leaf = false;
+  bool forced = false;        // leaf made by the depth cap or unsplittable centroids
+};
+
+/// A builder's result before flattening: the top of the tree in `upper`; an upper node whose
+/// subtree was built by its own task names that task's arena in subtree_of (else -1), whose
+/// node 0 stands for it.
+struct Arenas {
+  std::vector<TmpNode> upper;
+  std::vector<std::vector<TmpNode>> subtrees;
+  std::vector<std::int32_t> subtree_of;
+};
+
+/// Flattens the arenas depth-first into `out` (record 0 = root, which is always an inner node)
+/// and `leaves` (in record order: a leaf's triangles are its range of the record array).
+void flatten(const Arenas& a, Bvh2& out, std::vector<Leaf>& leaves);
+
+/// SAH price of testing `n` triangles: blocks of `leaf_block` (BuildOptions::leaf_block).
+inline float blocks(std::uint32_t n, unsigned leaf_block) {
+  const std::uint32_t b = std::max(leaf_block, 1u);
+  return static_cast<float>((n + b - 1) / b);
+}
+
+/// The builders: reorder `prims` into leaf order and fill the arenas. `root` bounds every record,
+/// `croot` their centroids. Deterministic: the same arenas at any opt.threads.
+void build_binned_sah(std::vector<PrimRef>& prims, const FastBox& root, const FastBox& croot, const BuildOptions& opt,
+                      Arenas& out);
+void build_lbvh(std::vector<PrimRef>& prims, const FastBox& root, const FastBox& croot, const BuildOptions& opt,
+                Arenas& out);
+
+}  // namespace mbvh::build
