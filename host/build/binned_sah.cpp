@@ -8,10 +8,14 @@
 // the same inputs, so the bytes do not depend on the thread count.
 #include <algorithm>
 #include <atomic>
+#include <bit>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
 
 #include "host/accel.h"
 #include "host/build/builder.h"
@@ -65,9 +69,22 @@ constexpr unsigned kMaxBins = 64;
 constexpr std::uint32_t kParallelMin = 65536;
 constexpr std::size_t kGrain = 16384;
 
-struct Bin {
-  FastBox box;
-  std::uint32_t count = 0;
+struct Bin {  // no initialisers: Bins sets a bin up on its first record; lane 3 unused
+  alignas(16) float lo[4];
+  alignas(16) float hi[4];
+  std::uint32_t count;
+  void grow(const float* l, const float* h) {
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = std::min(lo[a], l[a]);
+      hi[a] = std::max(hi[a], h[a]);
+    }
+  }
+};
+
+// Bins of the three axes; a bin is initialised only when its bit in `mask` is set.
+struct Bins {
+  std::uint64_t mask[3] = {0, 0, 0};
+  Bin bin[3][kMaxBins];
 };
 
 class SahBuilder {
@@ -94,56 +111,70 @@ public:
       g.scale[a] = ext > 0 ? static_cast<float>(bins_) / ext : 0.0f;
     }
     g.last = bins_ - 1;
-    Bin bins[3][kMaxBins];
+    // Only occupied bins are initialised and swept (a mask per axis): a split between two
+    // occupied bins prices the same at every empty bin between them, and the sweep keeps the
+    // first, so visiting the occupied ones gives the same choice as visiting all.
+    Bins bins;
     if (count >= kParallelMin) {
       const std::size_t chunks = (count + kGrain - 1) / kGrain;
-      std::vector<Bin> partial(chunks * 3 * kMaxBins);
+      std::vector<Bins> partial(chunks);
       parallel_for(count, kGrain, threads, [&](std::size_t b, std::size_t e, unsigned) {
-        Bin* dst = &partial[(b / kGrain) * 3 * kMaxBins];
-        bin_range(g, node.begin + b, node.begin + e, reinterpret_cast<Bin(*)[kMaxBins]>(dst));
+        bin_range(g, node.begin + b, node.begin + e, partial[b / kGrain]);
       });
       for (std::size_t c = 0; c < chunks; ++c)
         for (int a = 0; a < 3; ++a)
-          for (unsigned k = 0; k < bins_; ++k) {
-            const Bin& src = partial[c * 3 * kMaxBins + static_cast<unsigned>(a) * kMaxBins + k];
-            bins[a][k].box.grow(src.box);
-            bins[a][k].count += src.count;
+          for (std::uint64_t m = partial[c].mask[a]; m; m &= m - 1) {
+            const unsigned k = static_cast<unsigned>(std::countr_zero(m));
+            const Bin& src = partial[c].bin[a][k];
+            if (bins.mask[a] >> k & 1) {
+              bins.bin[a][k].grow(src.lo, src.hi);
+              bins.bin[a][k].count += src.count;
+            } else {
+              bins.bin[a][k] = src;
+              bins.mask[a] |= std::uint64_t(1) << k;
+            }
           }
     } else {
       bin_range(g, node.begin, node.end, bins);
     }
-    // -- sweep for the cheapest SAH split
+    // -- sweep for the cheapest SAH split (bin < k to the left), over the occupied bins
     float best_cost = INFINITY;
     int best_axis = -1;
     unsigned best_split = 0;
     for (int a = 0; a < 3; ++a) {
       if (g.scale[a] == 0.0f) continue;
+      const std::uint64_t mask = bins.mask[a];
       float right_area[kMaxBins];
       std::uint32_t right_count[kMaxBins];
       FastBox acc;
       std::uint32_t cnt = 0;
-      for (unsigned k = bins_ - 1; k > 0; --k) {
-        acc.grow(bins[a][k].box);
-        cnt += bins[a][k].count;
+      for (std::uint64_t m = mask; m;) {  // occupied bins from the top: bounds of bins >= k
+        const unsigned k = 63u - static_cast<unsigned>(std::countl_zero(m));
+        m &= ~(std::uint64_t(1) << k);
+        acc.grow_rows(bins.bin[a][k].lo, bins.bin[a][k].hi);
+        cnt += bins.bin[a][k].count;
         right_area[k] = acc.half_area();
         right_count[k] = cnt;
       }
       acc = FastBox();
       cnt = 0;
-      for (unsigned k = 1; k < bins_; ++k) {
-        acc.grow(bins[a][k - 1].box);
-        cnt += bins[a][k - 1].count;
-        if (cnt == 0 || right_count[k] == 0) continue;
-        const float cost = acc.half_area() * blocks(cnt, opt_.leaf_block) + right_area[k] * blocks(right_count[k], opt_.leaf_block);
+      for (std::uint64_t m = mask; m;) {
+        const unsigned k = static_cast<unsigned>(std::countr_zero(m));
+        m &= m - 1;
+        if (m == 0) break;  // the last occupied bin: nothing to its right
+        acc.grow_rows(bins.bin[a][k].lo, bins.bin[a][k].hi);
+        cnt += bins.bin[a][k].count;
+        const unsigned next = static_cast<unsigned>(std::countr_zero(m));
+        const float cost = acc.half_area() * blocks(cnt) + right_area[next] * blocks(right_count[next]);
         if (cost < best_cost) {
           best_cost = cost;
           best_axis = a;
-          best_split = k;
+          best_split = k + 1;
         }
       }
     }
     const float area = node.box.half_area();
-    const float leaf_cost = blocks(count, opt_.leaf_block);
+    const float leaf_cost = blocks(count);
     const float split_cost = opt_.traversal_cost + (area > 0 ? best_cost / area : 0.0f);
     TmpNode c[2];
     std::uint32_t mid;
@@ -176,6 +207,10 @@ public:
     }
   }
 
+  float blocks(std::uint32_t n) const {
+    return opt_.leaf_block <= 1 ? static_cast<float>(n) : build::blocks(n, opt_.leaf_block);
+  }
+
   void build_subtree(std::vector<TmpNode>& arena) {
     for (std::size_t n = 0; n < arena.size(); ++n) split(arena, n, 1);
   }
@@ -190,15 +225,60 @@ private:
     }
   };
 
-  void bin_range(const Geometry& g, std::size_t b, std::size_t e, Bin (*out)[kMaxBins]) const {
+  void bin_range(const Geometry& g, std::size_t b, std::size_t e, Bins& out) const {
+#if defined(__SSE2__)
+    // Four lanes at once: the centroid, its bin on each axis (the same float operations as
+    // Geometry::bin, so the same bins) and the bin's box as one min and one max.
+    const __m128 half = _mm_set1_ps(0.5f), zero = _mm_setzero_ps();
+    const __m128 origin = _mm_setr_ps(g.origin[0], g.origin[1], g.origin[2], 0.0f);
+    const __m128 scale = _mm_setr_ps(g.scale[0], g.scale[1], g.scale[2], 0.0f);
+    const __m128 xyz = _mm_castsi128_ps(_mm_setr_epi32(-1, -1, -1, 0));  // drops the prim id's lane
+    const __m128i last = _mm_set1_epi32(static_cast<int>(g.last));
+    for (std::size_t i = b; i < e; ++i) {
+      const PrimRef& r = prims_[i];
+      const __m128 lo = _mm_and_ps(_mm_loadu_ps(r.lo), xyz);
+      const __m128 hi = _mm_loadu_ps(r.hi);  // lane 3: pad = 0
+      const __m128 f = _mm_max_ps(_mm_mul_ps(_mm_sub_ps(_mm_mul_ps(_mm_add_ps(lo, hi), half), origin), scale), zero);
+      __m128i k = _mm_cvttps_epi32(f);
+      const __m128i over = _mm_cmpgt_epi32(k, last);
+      k = _mm_or_si128(_mm_and_si128(over, last), _mm_andnot_si128(over, k));
+      alignas(16) std::int32_t ks[4];
+      _mm_store_si128(reinterpret_cast<__m128i*>(ks), k);
+      for (int a = 0; a < 3; ++a) {
+        const unsigned kb = static_cast<unsigned>(ks[a]);
+        Bin& bn = out.bin[a][kb];
+        if (out.mask[a] >> kb & 1) {
+          _mm_store_ps(bn.lo, _mm_min_ps(_mm_load_ps(bn.lo), lo));
+          _mm_store_ps(bn.hi, _mm_max_ps(_mm_load_ps(bn.hi), hi));
+          ++bn.count;
+        } else {
+          out.mask[a] |= std::uint64_t(1) << kb;
+          _mm_store_ps(bn.lo, lo);
+          _mm_store_ps(bn.hi, hi);
+          bn.count = 1;
+        }
+      }
+    }
+#else
     for (std::size_t i = b; i < e; ++i) {
       const PrimRef& r = prims_[i];
       for (int a = 0; a < 3; ++a) {
-        Bin& bn = out[a][g.bin(r, a)];
-        bn.box.grow(r);
-        ++bn.count;
+        const unsigned k = g.bin(r, a);
+        Bin& bn = out.bin[a][k];
+        if (out.mask[a] >> k & 1) {
+          bn.grow(r.lo, r.hi);
+          ++bn.count;
+        } else {
+          out.mask[a] |= std::uint64_t(1) << k;
+          for (int d = 0; d < 3; ++d) {
+            bn.lo[d] = r.lo[d];
+            bn.hi[d] = r.hi[d];
+          }
+          bn.count = 1;
+        }
       }
     }
+#endif
   }
 
   // In-place two-sided partition of the node's records (bin < split on `axis` to the left) that

@@ -39,6 +39,12 @@ struct FastBox {
       hi[a] = std::max(hi[a], b.hi[a]);
     }
   }
+  void grow_rows(const float* l, const float* h) {
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = std::min(lo[a], l[a]);
+      hi[a] = std::max(hi[a], h[a]);
+    }
+  }
   void grow_point(const float p[3]) {
     for (int a = 0; a < 3; ++a) {
       lo[a] = std::min(lo[a], p[a]);
