@@ -70,33 +70,56 @@ public:
     for (std::uint32_t i = t.begin; i < t.end; ++i) t.box.grow(prims_[i]);
   }
 
-  // Builds the subtree of arena node n (its range and depth set); returns its SAH cost in
-  // area units (node visits traversal_cost, triangles priced by blocks()).
-  float build(std::vector<TmpNode>& arena, std::size_t n) const {
+  // The SAH cost (area units: node visits traversal_cost, triangles priced by blocks()) and box
+  // of the subtree over [b, e) at `depth` as build() would make it, without making it: a
+  // small range's leaf-or-split choice is priced before any node is written.
+  float price(std::uint32_t b, std::uint32_t e, std::uint32_t depth, FastBox& box) const {
+    TmpNode t;
+    t.begin = b;
+    t.end = e;
+    t.depth = depth;
+    const std::uint32_t mid = split_of(t);
+    box = FastBox();
+    if (mid == 0) {
+      for (std::uint32_t i = b; i < e; ++i) box.grow(prims_[i]);
+      return blocks(e - b, opt_.leaf_block) * box.half_area();
+    }
+    FastBox cb;
+    float cost = price(b, mid, depth + 1, box);
+    cost += price(mid, e, depth + 1, cb);
+    box.grow(cb);
+    const float area = box.half_area();
+    cost += opt_.traversal_cost * area;
+    return std::min(cost, blocks(e - b, opt_.leaf_block) * area);  // a leaf where the SAH prices it lower
+  }
+
+  // Builds the subtree of arena node n (its range and depth set).
+  void build(std::vector<TmpNode>& arena, std::size_t n) const {
     const std::uint32_t mid = split_of(arena[n]);
     const std::uint32_t count = arena[n].end - arena[n].begin;
     if (mid == 0) {
       make_leaf(arena[n]);
-      return blocks(count, opt_.leaf_block) * arena[n].box.half_area();
+      return;
+    }
+    if (count <= opt_.max_leaf) {  // a leaf unless its split subtree prices lower
+      FastBox lb, rb;
+      const std::uint32_t depth = arena[n].depth + 1;
+      const float split = price(arena[n].begin, mid, depth, lb) + price(mid, arena[n].end, depth, rb);
+      lb.grow(rb);
+      const float area = lb.half_area();
+      if (blocks(count, opt_.leaf_block) * area <= split + opt_.traversal_cost * area) {
+        arena[n].leaf = true;
+        arena[n].box = lb;
+        return;
+      }
     }
     const std::size_t first = arena.size();
     push_children(arena, n, mid);
-    float cost = build(arena, first) + build(arena, first + 1);
+    build(arena, first);
+    build(arena, first + 1);
     TmpNode& t = arena[n];
     t.box = arena[first].box;
     t.box.grow(arena[first + 1].box);
-    const float area = t.box.half_area();
-    cost += opt_.traversal_cost * area;
-    if (count <= opt_.max_leaf) {
-      const float leaf = blocks(count, opt_.leaf_block) * area;
-      if (leaf <= cost) {
-        arena.resize(first);
-        arena[n].leaf = true;
-        arena[n].child[0] = arena[n].child[1] = -1;
-        return leaf;
-      }
-    }
-    return cost;
   }
 
   static void push_children(std::vector<TmpNode>& arena, std::size_t n, std::uint32_t mid) {
