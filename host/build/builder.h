@@ -6,6 +6,8 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <memory>
+#include <utility>
 #include <vector>
 
 #include "host/accel.h"
@@ -22,6 +24,28 @@ struct PrimRef {
   float centroid(int a) const { return 0.5f * (lo[a] + hi[a]); }
 };
 static_assert(sizeof(PrimRef) == 32);
+
+/// An allocator that default-initialises (leaves PrimRefs and integers uninitialised): the
+/// builders' large arrays are first written by parallel passes, so their pages are first touched
+/// there, not zeroed by one thread beforehand.
+template <class T>
+struct NoInit : std::allocator<T> {
+  using value_type = T;
+  NoInit() = default;
+  template <class U>
+  NoInit(const NoInit<U>&) {}
+  template <class U>
+  struct rebind {
+    using other = NoInit<U>;
+  };
+  template <class U, class... Args>
+  void construct(U* p, Args&&... args) {
+    if constexpr (sizeof...(Args) == 0) ::new (static_cast<void*>(p)) U;
+    else ::new (static_cast<void*>(p)) U(std::forward<Args>(args)...);
+  }
+};
+template <class T>
+using RawVector = std::vector<T, NoInit<T>>;
 
 /// An axis-aligned box kept as two float[3] rows, grown inline (Box::grow is out of line).
 struct FastBox {
@@ -100,9 +124,9 @@ inline float blocks(std::uint32_t n, unsigned leaf_block) {
 
 /// The builders: reorder `prims` into leaf order and fill the arenas. `root` bounds every record,
 /// `croot` their centroids. Deterministic: the same arenas at any opt.threads.
-void build_binned_sah(std::vector<PrimRef>& prims, const FastBox& root, const FastBox& croot, const BuildOptions& opt,
+void build_binned_sah(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& croot, const BuildOptions& opt,
                       Arenas& out);
-void build_lbvh(std::vector<PrimRef>& prims, const FastBox& root, const FastBox& croot, const BuildOptions& opt,
+void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& croot, const BuildOptions& opt,
                 Arenas& out);
 
 }  // namespace mbvh::build

@@ -33,7 +33,7 @@ std::uint32_t spread3(std::uint32_t v) {
 
 class LbvhBuilder {
 public:
-  LbvhBuilder(const BuildOptions& opt, const std::vector<PrimRef>& prims, const std::vector<std::uint32_t>& codes)
+  LbvhBuilder(const BuildOptions& opt, const RawVector<PrimRef>& prims, const RawVector<std::uint32_t>& codes)
       : opt_(opt), prims_(prims), codes_(codes) {}
 
   // Binary levels below a node of `c` records down to leaves of at most max_leaf.
@@ -136,13 +136,13 @@ public:
 
 private:
   const BuildOptions& opt_;
-  const std::vector<PrimRef>& prims_;
-  const std::vector<std::uint32_t>& codes_;
+  const RawVector<PrimRef>& prims_;
+  const RawVector<std::uint32_t>& codes_;
 };
 
 }  // namespace
 
-void build_lbvh(std::vector<PrimRef>& prims, const FastBox& root, const FastBox& croot, const BuildOptions& opt,
+void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& croot, const BuildOptions& opt,
                 Arenas& out) {
   const std::size_t n = prims.size();
   constexpr std::size_t grain = 65536;
@@ -152,7 +152,7 @@ void build_lbvh(std::vector<PrimRef>& prims, const FastBox& root, const FastBox&
     const float ext = croot.hi[a] - croot.lo[a];
     scale[a] = ext > 0 ? 1024.0f / ext : 0.0f;
   }
-  std::vector<std::uint32_t> key(n), val(n), key2(n), val2(n);
+  RawVector<std::uint32_t> key(n), val(n), key2(n), val2(n);
   parallel_for(n, grain, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
     for (std::size_t i = b; i < e; ++i) {
       std::uint32_t code = 0;
@@ -183,7 +183,7 @@ void build_lbvh(std::vector<PrimRef>& prims, const FastBox& root, const FastBox&
     val.swap(val2);
   }
   {
-    std::vector<PrimRef> sorted(n);
+    RawVector<PrimRef> sorted(n);
     parallel_for(n, grain, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
       for (std::size_t i = b; i < e; ++i) sorted[i] = prims[val[i]];
     });

@@ -18,7 +18,7 @@ bool has_area(const Vec3f& a, const Vec3f& b, const Vec3f& c);
 PrimRef prim_ref(const Vec3f& a, const Vec3f& b, const Vec3f& c, std::uint32_t prim);
 float magnitude(const PrimRef& r);
 void fill_tri(Tri& d, const Vec3f& a, const Vec3f& b, const Vec3f& c, std::uint32_t prim);
-std::uint64_t hash_build(const Bvh2& b, const std::vector<Leaf>& leaves, const AlignedVector<Tri>& tris);
+std::uint64_t hash_build(const Bvh2& b, const std::vector<Leaf>& leaves, const AlignedVector<Tri>& tris, unsigned threads);
 double sah_of_binary(const Bvh2& b, const std::vector<Leaf>& leaves, float ct);
 }  // namespace build
 
@@ -103,7 +103,7 @@ void Accel::refit(const Scene& moved) {
   constexpr std::size_t grain = 65536;
 
   // -- the leaf-ordered triangles, new, and the checks a build makes of them
-  AlignedVector<Tri> tris(tris_.size());
+  AlignedVector<Tri> tris(tris_.size());  // (zeroed by one thread: Tri is AlignedVector's)
   std::vector<std::uint8_t> in_leaf(scene_triangles_, 0);
   const std::size_t chunks = (tris.size() + grain - 1) / grain;
   std::vector<float> mag(chunks, 0.0f);
@@ -208,7 +208,7 @@ void Accel::refit(const Scene& moved) {
       }
     });
   }
-  hash_ = build::hash_build(bvh2_, leaves_, tris_);
+  hash_ = build::hash_build(bvh2_, leaves_, tris_, threads);
   ++generation_;
   refit_ms_ = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
 }
