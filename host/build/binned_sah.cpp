@@ -53,6 +53,17 @@ std::uint64_t hash_bytes(const void* p, std::size_t n, std::uint64_t h) {
   return h;
 }
 
+const char* to_string(BuildQuality q) {
+  return q == BuildQuality::low ? "low" : q == BuildQuality::medium ? "medium" : "high";
+}
+
+BuildQuality parse_quality(const std::string& s) {
+  if (s == "low") return BuildQuality::low;
+  if (s == "medium") return BuildQuality::medium;
+  if (s == "high") return BuildQuality::high;
+  throw Error("unknown build quality '" + s + "' (known: low, medium, high)");
+}
+
 namespace build {
 namespace {
 
