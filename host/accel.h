@@ -9,6 +9,8 @@
 #include <new>
 #include <span>
 #include <string>
+#include <type_traits>
+#include <utility>
 #include <vector>
 
 #include "host/scene.h"
@@ -27,6 +29,14 @@ struct CacheAligned {
   CacheAligned(const CacheAligned<U>&) {}
   T* allocate(std::size_t n) { return static_cast<T*>(::operator new(n * sizeof(T), align)); }
   void deallocate(T* p, std::size_t) { ::operator delete(p, align); }
+  /// Value-initialises (zero words in unused slots of nodes), except Tri: a triangle array is
+  /// sized and then every word written by parallel passes (build, refit), which then also first
+  /// touch its pages, instead of one thread zeroing it beforehand.
+  template <class U, class... Args>
+  void construct(U* p, Args&&... args) {
+    if constexpr (sizeof...(Args) == 0 && std::is_same_v<U, Tri>) ::new (static_cast<void*>(p)) U;
+    else ::new (static_cast<void*>(p)) U(std::forward<Args>(args)...);
+  }
   template <class U>
   bool operator==(const CacheAligned<U>&) const { return true; }
 };

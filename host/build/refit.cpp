@@ -103,7 +103,7 @@ void Accel::refit(const Scene& moved) {
   constexpr std::size_t grain = 65536;
 
   // -- the leaf-ordered triangles, new, and the checks a build makes of them
-  AlignedVector<Tri> tris(tris_.size());  // (zeroed by one thread: Tri is AlignedVector's)
+  AlignedVector<Tri> tris(tris_.size());  // not zeroed (CacheAligned): every word written below
   std::vector<std::uint8_t> in_leaf(scene_triangles_, 0);
   const std::size_t chunks = (tris.size() + grain - 1) / grain;
   std::vector<float> mag(chunks, 0.0f);
