@@ -230,7 +230,8 @@ private:
     }
   };
 
-  void bin_range(const Geometry& g, std::size_t b, std::size_t e, Bins& out) const {
+  // Out of line (as partition()), so that profiles show binning and partitioning apart.
+  [[gnu::noinline]] void bin_range(const Geometry& g, std::size_t b, std::size_t e, Bins& out) const {
 #if defined(__SSE2__)
     // Four lanes at once: the centroid, its bin on each axis (the same float operations as
     // Geometry::bin, so the same bins) and the bin's box as one min and one max.
@@ -288,7 +289,8 @@ private:
 
   // In-place two-sided partition of the node's records (bin < split on `axis` to the left) that
   // also bounds each side's boxes and centroids; returns the first right record.
-  std::uint32_t partition(const Geometry& g, int axis, unsigned split, const TmpNode& node, TmpNode (&c)[2]) {
+  [[gnu::noinline]] std::uint32_t partition(const Geometry& g, int axis, unsigned split, const TmpNode& node,
+                                            TmpNode (&c)[2]) {
     PrimRef* p = prims_.data();
     std::uint32_t i = node.begin, j = node.end;
 #if defined(__SSE2__)
@@ -523,43 +525,6 @@ void check_traceable_range(const Scene& scene, const build::RawVector<build::Pri
 }  // namespace
 
 namespace build {
-
-bool has_area(const Vec3f& a, const Vec3f& bb, const Vec3f& c) {
-  const double e1[3] = {double(bb.x) - a.x, double(bb.y) - a.y, double(bb.z) - a.z};
-  const double e2[3] = {double(c.x) - a.x, double(c.y) - a.y, double(c.z) - a.z};
-  const double cx = e1[1] * e2[2] - e1[2] * e2[1], cy = e1[2] * e2[0] - e1[0] * e2[2], cz = e1[0] * e2[1] - e1[1] * e2[0];
-  return cx != 0 || cy != 0 || cz != 0;
-}
-
-PrimRef prim_ref(const Vec3f& a, const Vec3f& b, const Vec3f& c, std::uint32_t prim) {
-  PrimRef r;
-  r.lo[0] = std::min(std::min(a.x, b.x), c.x);
-  r.lo[1] = std::min(std::min(a.y, b.y), c.y);
-  r.lo[2] = std::min(std::min(a.z, b.z), c.z);
-  r.hi[0] = std::max(std::max(a.x, b.x), c.x);
-  r.hi[1] = std::max(std::max(a.y, b.y), c.y);
-  r.hi[2] = std::max(std::max(a.z, b.z), c.z);
-  r.prim = prim;
-  r.pad = 0;
-  return r;
-}
-
-float magnitude(const PrimRef& r) {
-  return std::max({std::fabs(r.lo[0]), std::fabs(r.lo[1]), std::fabs(r.lo[2]), std::fabs(r.hi[0]), std::fabs(r.hi[1]),
-                   std::fabs(r.hi[2])});
-}
-
-void fill_tri(Tri& d, const Vec3f& a, const Vec3f& b, const Vec3f& c, std::uint32_t prim) {
-  const Vec3f* v[3] = {&a, &b, &c};
-  float* rows[3] = {d.v0, d.v1, d.v2};
-  for (int k = 0; k < 3; ++k) {
-    rows[k][0] = v[k]->x;
-    rows[k][1] = v[k]->y;
-    rows[k][2] = v[k]->z;
-    rows[k][3] = 0.0f;
-  }
-  std::memcpy(&d.v0[3], &prim, 4);
-}
 
 // The build's bytes (nodes, leaves, triangles) as 1 MiB blocks, each hashed on its own (in
 // parallel), then the blocks' hashes in order: the same value at any thread count.

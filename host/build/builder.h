@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <cstring>
 #include <memory>
 #include <utility>
 #include <vector>
@@ -115,6 +116,48 @@ struct Arenas {
 /// Flattens the arenas depth-first into `out` (record 0 = root, which is always an inner node)
 /// and `leaves` (in record order: a leaf's triangles are its range of the record array).
 void flatten(const Arenas& a, Bvh2& out, std::vector<Leaf>& leaves);
+
+/// Whether the triangle has area (its edges' cross product, in double, is not zero): the build
+/// keeps the others out of leaves.
+inline bool has_area(const Vec3f& a, const Vec3f& bb, const Vec3f& c) {
+  const double e1[3] = {double(bb.x) - a.x, double(bb.y) - a.y, double(bb.z) - a.z};
+  const double e2[3] = {double(c.x) - a.x, double(c.y) - a.y, double(c.z) - a.z};
+  const double cx = e1[1] * e2[2] - e1[2] * e2[1], cy = e1[2] * e2[0] - e1[0] * e2[2], cz = e1[0] * e2[1] - e1[1] * e2[0];
+  return cx != 0 || cy != 0 || cz != 0;
+}
+
+/// The record of a triangle: the box of its three vertices.
+inline PrimRef prim_ref(const Vec3f& a, const Vec3f& b, const Vec3f& c, std::uint32_t prim) {
+  PrimRef r;
+  r.lo[0] = std::min(std::min(a.x, b.x), c.x);
+  r.lo[1] = std::min(std::min(a.y, b.y), c.y);
+  r.lo[2] = std::min(std::min(a.z, b.z), c.z);
+  r.hi[0] = std::max(std::max(a.x, b.x), c.x);
+  r.hi[1] = std::max(std::max(a.y, b.y), c.y);
+  r.hi[2] = std::max(std::max(a.z, b.z), c.z);
+  r.prim = prim;
+  r.pad = 0;
+  return r;
+}
+
+/// The largest coordinate magnitude of a record (the traced range check).
+inline float magnitude(const PrimRef& r) {
+  return std::max({std::fabs(r.lo[0]), std::fabs(r.lo[1]), std::fabs(r.lo[2]), std::fabs(r.hi[0]), std::fabs(r.hi[1]),
+                   std::fabs(r.hi[2])});
+}
+
+/// The triangle record of the leaf-ordered array: three vertex rows, the prim id in v0[3].
+inline void fill_tri(Tri& d, const Vec3f& a, const Vec3f& b, const Vec3f& c, std::uint32_t prim) {
+  const Vec3f* v[3] = {&a, &b, &c};
+  float* rows[3] = {d.v0, d.v1, d.v2};
+  for (int k = 0; k < 3; ++k) {
+    rows[k][0] = v[k]->x;
+    rows[k][1] = v[k]->y;
+    rows[k][2] = v[k]->z;
+    rows[k][3] = 0.0f;
+  }
+  std::memcpy(&d.v0[3], &prim, 4);
+}
 
 /// SAH price of testing `n` triangles: blocks of `leaf_block` (BuildOptions::leaf_block).
 inline float blocks(std::uint32_t n, unsigned leaf_block) {

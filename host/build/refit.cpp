@@ -4,6 +4,7 @@
 // exact; only its work per ray may grow (Lauterbach et al. 2006, "RT-DEFORM", refitting).
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstring>
 
 #include "host/accel.h"
@@ -14,10 +15,6 @@
 
 namespace mbvh {
 namespace build {
-bool has_area(const Vec3f& a, const Vec3f& b, const Vec3f& c);
-PrimRef prim_ref(const Vec3f& a, const Vec3f& b, const Vec3f& c, std::uint32_t prim);
-float magnitude(const PrimRef& r);
-void fill_tri(Tri& d, const Vec3f& a, const Vec3f& b, const Vec3f& c, std::uint32_t prim);
 std::uint64_t hash_build(const Bvh2& b, const std::vector<Leaf>& leaves, const AlignedVector<Tri>& tris, unsigned threads);
 double sah_of_binary(const Bvh2& b, const std::vector<Leaf>& leaves, float ct);
 }  // namespace build
@@ -98,45 +95,68 @@ void Accel::refit(const Scene& moved) {
   if (moved.triangles.size() != scene_triangles_)
     throw Error(moved.name + ": refit needs the scene the build was made from (" + std::to_string(scene_triangles_) +
                 " triangles), not " + std::to_string(moved.triangles.size()) + " triangles; rebuild instead");
-  moved.validate();
   const unsigned threads = opt_.threads;
   constexpr std::size_t grain = 65536;
+  const std::size_t nv = moved.vertices.size();
+  auto usable = [&](const std::array<std::uint32_t, 3>& t) {  // Scene::validate's conditions
+    for (std::uint32_t v : t) {
+      if (v >= nv) return false;
+      const Vec3f& p = moved.vertices[v];
+      if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z)) return false;
+    }
+    return true;
+  };
 
-  // -- the leaf-ordered triangles, new, and the checks a build makes of them
+  // -- the leaf-ordered triangles, new, and the checks a build makes of them (Scene::validate's
+  //    on the triangles used, the traced range; it names the first problem if there is one)
   AlignedVector<Tri> tris(tris_.size());  // not zeroed (CacheAligned): every word written below
-  std::vector<std::uint8_t> in_leaf(scene_triangles_, 0);
   const std::size_t chunks = (tris.size() + grain - 1) / grain;
   std::vector<float> mag(chunks, 0.0f);
+  std::vector<std::uint8_t> bad(chunks, 0);
   parallel_for(tris.size(), grain, threads, [&](std::size_t b, std::size_t e, unsigned) {
     float m = 0;
     for (std::size_t i = b; i < e; ++i) {
       const std::uint32_t prim = tri_prim(tris_[i]);
       const auto& t = moved.triangles[prim];
+      if (!usable(t)) {
+        bad[b / grain] = 1;
+        return;
+      }
       const Vec3f &v0 = moved.vertices[t[0]], &v1 = moved.vertices[t[1]], &v2 = moved.vertices[t[2]];
       build::fill_tri(tris[i], v0, v1, v2, prim);
       m = std::max(m, build::magnitude(build::prim_ref(v0, v1, v2, prim)));
-      in_leaf[prim] = 1;
     }
     mag[b / grain] = m;
   });
+  if (std::find(bad.begin(), bad.end(), 1) != bad.end()) {
+    moved.validate();  // throws, naming the triangle
+    throw Error(moved.name + ": refit: a triangle names a missing or non-finite vertex");
+  }
   const float largest = *std::max_element(mag.begin(), mag.end());
   if (largest > kMaxCoordinate || largest < kMinSceneScale)
     throw Error(moved.name + ": refit moves a coordinate out of the range mbvh traces exactly (magnitude " +
                 std::to_string(largest) + ", accel.h kMaxCoordinate, kMinSceneScale); rescale the scene");
-  std::vector<std::uint8_t> grew(chunks + 1, 0);
-  parallel_for(scene_triangles_, grain, threads, [&](std::size_t b, std::size_t e, unsigned) {
-    for (std::size_t i = b; i < e; ++i) {
-      if (in_leaf[i]) continue;
-      const auto& t = moved.triangles[i];
-      if (build::has_area(moved.vertices[t[0]], moved.vertices[t[1]], moved.vertices[t[2]])) {
-        grew[b / grain] = 1;
-        return;
+  if (bvh2_.degenerate > 0) {  // the triangles kept out as degenerate must stay so
+    std::vector<std::uint8_t> in_leaf(scene_triangles_, 0);
+    for (const Tri& t : tris_) in_leaf[tri_prim(t)] = 1;
+    const std::size_t all_chunks = (scene_triangles_ + grain - 1) / grain;
+    std::vector<std::uint8_t> grew(all_chunks, 0);
+    parallel_for(scene_triangles_, grain, threads, [&](std::size_t b, std::size_t e, unsigned) {
+      for (std::size_t i = b; i < e; ++i) {
+        if (in_leaf[i]) continue;
+        const auto& t = moved.triangles[i];
+        if (!usable(t) || build::has_area(moved.vertices[t[0]], moved.vertices[t[1]], moved.vertices[t[2]])) {
+          grew[b / grain] = 1;
+          return;
+        }
       }
+    });
+    if (std::find(grew.begin(), grew.end(), 1) != grew.end()) {
+      moved.validate();
+      throw Error(moved.name + ": refit: a triangle the build kept out as degenerate has area now, and is in no "
+                  "leaf; rebuild instead");
     }
-  });
-  if (std::find(grew.begin(), grew.end(), 1) != grew.end())
-    throw Error(moved.name + ": refit: a triangle the build kept out as degenerate has area now, and is in no leaf; "
-                "rebuild instead");
+  }
   tris_.swap(tris);
   tris = AlignedVector<Tri>();
 
