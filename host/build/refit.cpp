@@ -21,20 +21,18 @@ double sah_of_binary(const Bvh2& b, const std::vector<Leaf>& leaves, float ct);
 
 namespace {
 
-Box tri_box(const Tri& t) {
+inline Box tri_box(const Tri& t) {
   Box b;
-  for (int a = 0; a < 3; ++a) {
-    b.lo[a] = std::min(std::min(t.v0[a], t.v1[a]), t.v2[a]);
-    b.hi[a] = std::max(std::max(t.v0[a], t.v1[a]), t.v2[a]);
-  }
+  b.lo = {std::min(std::min(t.v0[0], t.v1[0]), t.v2[0]), std::min(std::min(t.v0[1], t.v1[1]), t.v2[1]),
+          std::min(std::min(t.v0[2], t.v1[2]), t.v2[2])};
+  b.hi = {std::max(std::max(t.v0[0], t.v1[0]), t.v2[0]), std::max(std::max(t.v0[1], t.v1[1]), t.v2[1]),
+          std::max(std::max(t.v0[2], t.v1[2]), t.v2[2])};
   return b;
 }
 
-void unite(Box& d, const Box& s) {
-  for (int a = 0; a < 3; ++a) {
-    d.lo[a] = std::min(d.lo[a], s.lo[a]);
-    d.hi[a] = std::max(d.hi[a], s.hi[a]);
-  }
+inline void unite(Box& d, const Box& s) {
+  d.lo = {std::min(d.lo.x, s.lo.x), std::min(d.lo.y, s.lo.y), std::min(d.lo.z, s.lo.z)};
+  d.hi = {std::max(d.hi.x, s.hi.x), std::max(d.hi.y, s.hi.y), std::max(d.hi.z, s.hi.z)};
 }
 
 template <class N>
