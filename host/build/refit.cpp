@@ -179,15 +179,17 @@ void Accel::refit(const Scene& moved) {
 
   // -- the layouts and packs already made, in place
   if (!mbvh2_.nodes.empty()) {
-    for (std::size_t i = 0; i < bvh2_.nodes.size(); ++i) {
-      const Bvh2::Node& s = bvh2_.nodes[i];
-      Node2& d = mbvh2_.nodes[i];
-      const Box b0 = s.child[0] == MBVH_EMPTY ? Box() : bvh2_.box(s.child[0]);
-      const Box b1 = s.child[1] == MBVH_EMPTY ? Box() : bvh2_.box(s.child[1]);
-      d.c0[0] = b0.lo.x; d.c0[1] = b0.hi.x; d.c0[2] = b0.lo.y; d.c0[3] = b0.hi.y;
-      d.c1[0] = b1.lo.x; d.c1[1] = b1.hi.x; d.c1[2] = b1.lo.y; d.c1[3] = b1.hi.y;
-      d.zz[0] = b0.lo.z; d.zz[1] = b0.hi.z; d.zz[2] = b1.lo.z; d.zz[3] = b1.hi.z;
-    }
+    parallel_for(bvh2_.nodes.size(), 16384, threads, [&](std::size_t lo, std::size_t hi, unsigned) {
+      for (std::size_t i = lo; i < hi; ++i) {
+        const Bvh2::Node& s = bvh2_.nodes[i];
+        Node2& d = mbvh2_.nodes[i];
+        const Box b0 = s.child[0] == MBVH_EMPTY ? Box() : bvh2_.box(s.child[0]);
+        const Box b1 = s.child[1] == MBVH_EMPTY ? Box() : bvh2_.box(s.child[1]);
+        d.c0[0] = b0.lo.x; d.c0[1] = b0.hi.x; d.c0[2] = b0.lo.y; d.c0[3] = b0.hi.y;
+        d.c1[0] = b1.lo.x; d.c1[1] = b1.hi.x; d.c1[2] = b1.lo.y; d.c1[3] = b1.hi.y;
+        d.zz[0] = b0.lo.z; d.zz[1] = b0.hi.z; d.zz[2] = b1.lo.z; d.zz[3] = b1.hi.z;
+      }
+    });
     const double root = bvh2_.nodes[0].box.half_area();
     double cost = 0;
     if (root > 0) {
