@@ -7,7 +7,10 @@
 #include <memory>
 #include <mutex>
 #include <new>
+#include <span>
 #include <string>
+#include <type_traits>
+#include <utility>
 #include <vector>
 
 #include "host/scene.h"
@@ -26,6 +29,14 @@ struct CacheAligned {
   CacheAligned(const CacheAligned<U>&) {}
   T* allocate(std::size_t n) { return static_cast<T*>(::operator new(n * sizeof(T), align)); }
   void deallocate(T* p, std::size_t) { ::operator delete(p, align); }
+  /// Value-initialises (zero words in unused slots of nodes), except Tri: a triangle array is
+  /// sized and then every word written by parallel passes (build, refit), which then also first
+  /// touch its pages, instead of one thread zeroing it beforehand.
+  template <class U, class... Args>
+  void construct(U* p, Args&&... args) {
+    if constexpr (sizeof...(Args) == 0 && std::is_same_v<U, Tri>) ::new (static_cast<void*>(p)) U;
+    else ::new (static_cast<void*>(p)) U(std::forward<Args>(args)...);
+  }
   template <class U>
   bool operator==(const CacheAligned<U>&) const { return true; }
 };
@@ -44,6 +55,16 @@ Layout parse_layout(const std::string& s);  ///< throws Error on an unknown name
 constexpr float kMaxCoordinate = 0x1p40f;   // 1.1e12
 constexpr float kMinSceneScale = 0x1p-36f;  // 1.5e-11
 
+/// Which builder makes the binary BVH (`--quality`). All three produce the same structures (Bvh2,
+/// leaves, leaf-ordered triangles), so every layout and backend traces any of them.
+enum class BuildQuality {
+  low,     ///< Morton-code LBVH (Karras 2012): several times faster to build, slower to trace
+  medium,  ///< binned SAH (Wald 2007): the default
+  high,    ///< spatial splits (SBVH, Stich et al. 2009); host/build/sbvh.cpp
+};
+const char* to_string(BuildQuality q);
+BuildQuality parse_quality(const std::string& s);  ///< throws Error on an unknown name
+
 struct BuildOptions {
   unsigned threads = 0;         ///< 0: every hardware thread; the result does not depend on it
   unsigned max_leaf = 8;        ///< largest leaf the SAH may choose (the depth cap may force bigger)
@@ -56,6 +77,7 @@ struct BuildOptions {
   unsigned leaf_block = 1;
   unsigned depth_cap = MBVH_BINARY_DEPTH_CAP;  ///< binary leaf depth limit (root children: 1)
   float traversal_cost = 1.0f;  ///< SAH cost of one node visit, relative to one triangle test
+  BuildQuality quality = BuildQuality::medium;  ///< the builder (BuildQuality)
   std::function<void(double)> progress;  ///< if set, called with the fraction done (any thread)
 };
 
@@ -68,6 +90,10 @@ struct LayoutStats {
   double sah_cost = 0;           ///< sum over nodes of area/root area * cost (node visit 1, triangle 1)
   std::size_t bytes = 0;         ///< node records (+ leaves and triangles for the binary tree)
   double build_ms = 0;
+  /// The binary build's phases, ms (binary stats only): records (boxes, degenerate triangles,
+  /// range check), tree (binning and partition, or Morton codes and splits), flatten (Bvh2 and
+  /// the leaf-ordered triangles), stats and hash.
+  double phase_ms[4] = {0, 0, 0, 0};
   unsigned bitstack_bits = 0;    ///< bits of the bitstack word the deepest path needs
 };
 
@@ -165,8 +191,26 @@ public:
   const LayoutStats& binary_stats() const { return binary_stats_; }
   const BuildOptions& options() const { return opt_; }
   /// 64-bit hash of the build's bytes (nodes, leaves, triangles); equal across thread counts.
+  /// Changes when refit() moves a vertex.
   std::uint64_t hash() const { return hash_; }
+  /// Starts at 0 and is bumped by every refit(): a backend that copied the build to a device
+  /// re-uploads it when (&accel, hash(), generation()) changes since its last prepare().
+  std::uint64_t generation() const { return generation_; }
 
+  /// Refits the build to new vertex positions with the same topology: `moved` must be the scene
+  /// this Accel was built from (the same triangles, the same vertex indices) with vertices moved.
+  /// Recomputes, in place and from the float vertices exactly as the build does, the leaf-ordered
+  /// triangles, every leaf box, every binary node box bottom-up, and the boxes of every layout and
+  /// pack already made (MBVH2/4/8, the 16-wide view, the SIMD packs); the topology (nodes, leaves,
+  /// the triangles' leaf order) is kept, so traversal stays exact but may do more work than a
+  /// rebuild's tree (boxes grow as vertices move apart). Updates hash(), the SAH costs and bumps
+  /// generation(). O(triangles + nodes), parallel over options().threads, the same bytes at any
+  /// thread count. Throws Error (leaving the Accel unchanged) if the triangle count differs,
+  /// Scene::validate fails, a coordinate leaves the exactly traced range, or a triangle the build
+  /// kept out as degenerate now has area (it is in no leaf: rebuild instead).
+  /// Not thread-safe: no trace or layout access may run concurrently.
+  void refit(const Scene& moved);
+  double last_refit_ms() const { return refit_ms_; }  ///< wall time of the last refit()
 private:
   Accel() = default;
   BuildOptions opt_;
@@ -177,6 +221,8 @@ private:
   std::size_t scene_triangles_ = 0;
   LayoutStats binary_stats_;
   std::uint64_t hash_ = 0;
+  std::uint64_t generation_ = 0;
+  double refit_ms_ = 0;
   mutable std::once_flag once2_, once4_, once8_, once4w_, oncep_;
   mutable Mbvh2 mbvh2_;
   mutable Mbvh4 mbvh4_;
@@ -201,7 +247,7 @@ void validate_layout(const Mbvh2& m, std::size_t leaf_count);
 void validate_layout(const Mbvh4& m, std::size_t leaf_count);
 void validate_layout(const Mbvh8& m, std::size_t leaf_count);
 
-/// FNV-1a over bytes, continuing from h.
+/// A 64-bit hash of n bytes (FNV-1a's step over 64-bit words, then the tail bytes), continuing from h.
 std::uint64_t hash_bytes(const void* p, std::size_t n, std::uint64_t h = 0xcbf29ce484222325ull);
 
 }  // namespace mbvh

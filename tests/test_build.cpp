@@ -5,11 +5,16 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 
 #include "host/accel.h"
+#include "host/backend.h"
+#include "host/check.h"
 #include "host/error.h"
 #include "host/scene.h"
+#include "host/rays.h"
 #include "host/trace/trace.h"
+#include "tests/backends.h"
 #include "tests/helpers.h"
 
 using namespace mbvh;
@@ -237,21 +242,65 @@ TEST_CASE("the depth cap holds on a worst-case scene and the capped tree still t
 
 TEST_CASE("the build is deterministic: the same bytes at any thread count", "[build]") {
   const Scene s = load_scene("gen:hairball:400000");
-  std::uint64_t hashes[3];
-  AlignedVector<Node4> n4[3];
-  for (unsigned t = 1; t <= 3; ++t) {
+  for (BuildQuality q : {BuildQuality::medium, BuildQuality::low}) {
+    INFO("quality " << to_string(q));
+    std::uint64_t hashes[3];
+    AlignedVector<Node4> n4[3];
+    for (unsigned t = 1; t <= 3; ++t) {
+      BuildOptions o;
+      o.threads = t;
+      o.quality = q;
+      const auto acc = Accel::build(s, o);
+      hashes[t - 1] = acc->hash();
+      n4[t - 1] = acc->mbvh4().nodes;
+    }
+    CHECK(hashes[0] == hashes[1]);
+    CHECK(hashes[0] == hashes[2]);
+    REQUIRE(n4[0].size() == n4[1].size());
+    REQUIRE(n4[0].size() == n4[2].size());
+    CHECK(std::memcmp(n4[0].data(), n4[1].data(), n4[0].size() * sizeof(Node4)) == 0);
+    CHECK(std::memcmp(n4[0].data(), n4[2].data(), n4[0].size() * sizeof(Node4)) == 0);
     BuildOptions o;
-    o.threads = t;
-    const auto acc = Accel::build(s, o);
-    hashes[t - 1] = acc->hash();
-    n4[t - 1] = acc->mbvh4().nodes;
+    o.quality = q;
+    const auto other = Accel::build(load_scene("gen:hairball:400000:2"), o);
+    CHECK(other->hash() != hashes[0]);
   }
-  CHECK(hashes[0] == hashes[1]);
-  CHECK(hashes[0] == hashes[2]);
-  REQUIRE(n4[0].size() == n4[1].size());
-  CHECK(std::memcmp(n4[0].data(), n4[1].data(), n4[0].size() * sizeof(Node4)) == 0);
-  const auto other = Accel::build(load_scene("gen:hairball:400000:2"));
-  CHECK(other->hash() != hashes[0]);
+}
+
+TEST_CASE("quality low builds a valid tree within the depth cap and max leaf", "[build]") {
+  for (const std::string& spec : {mbvh_test::scene_path("cornell_box.obj.zst"), mbvh_test::scene_path("bun_zipper.ply.zst"),
+                                 std::string("gen:sphere:64"), std::string("gen:soup:50000"),
+                                 std::string("gen:hairball:200000"), std::string("gen:exponential:200"),
+                                 std::string("gen:cube:4")}) {
+    INFO(spec);
+    const Scene s = load_scene(spec);
+    BuildOptions o;
+    o.quality = BuildQuality::low;
+    const auto acc = Accel::build(s, o);
+    check_invariants(s, *acc);
+    CHECK(acc->binary_stats().depth <= MBVH_BINARY_DEPTH_CAP);
+    CHECK(acc->bvh2().largest_leaf <= o.max_leaf);
+    CHECK(acc->bvh2().forced_leaves == 0);
+  }
+  // a tight cap: halvings by count keep every leaf within max_leaf while the cap allows it
+  BuildOptions tight;
+  tight.quality = BuildQuality::low;
+  tight.depth_cap = 14;
+  const Scene bunny = load_scene(mbvh_test::scene_path("bun_zipper.ply.zst"));  // 69K triangles: 2^14 * 8 > 69K
+  const auto capped = Accel::build(bunny, tight);
+  CHECK(capped->binary_stats().depth <= 14);
+  CHECK(capped->bvh2().largest_leaf <= tight.max_leaf);
+  check_invariants(bunny, *capped);
+  tight.depth_cap = 6;
+  const auto forced = Accel::build(bunny, tight);
+  CHECK(forced->binary_stats().depth <= 6);
+  CHECK(forced->bvh2().forced_leaves >= 1);
+  check_invariants(bunny, *forced);
+  BuildOptions high;
+  high.quality = BuildQuality::high;
+  CHECK_THROWS_AS(Accel::build(bunny, high), Error);
+  CHECK(parse_quality("low") == BuildQuality::low);
+  CHECK_THROWS_AS(parse_quality("best"), Error);
 }
 
 TEST_CASE("degenerate triangles never reach a leaf - empty scenes are an error", "[build]") {
@@ -281,4 +330,99 @@ TEST_CASE("degenerate triangles never reach a leaf - empty scenes are an error",
   Scene empty;
   empty.name = "empty";
   CHECK_THROWS_AS(Accel::build(empty), Error);
+}
+
+TEST_CASE("refit: a refitted build traces moved vertices as a fresh build does on every backend", "[build]") {
+  const VariantGrid grid = mbvh_test::all_backends();
+  const Scene a = load_scene(mbvh_test::scene_path("bun_zipper.ply.zst"));
+  Scene b = a;  // the same triangles, every vertex moved by a smooth non-rigid displacement
+  b.name = "bunny, deformed";
+  for (Vec3f& v : b.vertices) {
+    const Vec3f p = v;
+    v.x = p.x + 0.01f * std::sin(40.0f * p.y);
+    v.y = p.y + 0.01f * std::sin(30.0f * p.z);
+    v.z = p.z + 0.01f * std::sin(20.0f * p.x);
+  }
+  auto acc = Accel::build(a);
+  // every layout and pack made, and every backend prepared (device copies) on the old positions
+  for (Layout l : {Layout::mbvh2, Layout::mbvh4, Layout::mbvh8}) acc->make_layout(l);
+  acc->mbvh4_wide();
+  acc->tri_packs();
+  RayGenOptions ro_a;
+  ro_a.count = 1000;
+  const std::vector<Ray> rays_a = generate_rays(a, *acc, ro_a);
+  std::vector<std::unique_ptr<Backend>> backends;
+  for (const std::string& name : grid.backends) {
+    backends.push_back(make_backend(name));
+    for (Layout l : grid.layouts)
+      for (Traversal t : grid.traversals)
+        if (backends.back()->supports(l, t)) {
+          TraceOutput out;
+          backends.back()->trace(*acc, rays_a, TraceOptions{l, t, Query::closest, false}, out);
+        }
+  }
+  // a scene of another size, or a vertex out of range, is refused and leaves the build as it was
+  const std::uint64_t h0 = acc->hash();
+  Scene smaller = b;
+  smaller.triangles.pop_back();
+  CHECK_THROWS_AS(acc->refit(smaller), Error);
+  Scene far = b;
+  far.vertices[a.triangles[0][0]].x = 0x1p41f;
+  CHECK_THROWS_AS(acc->refit(far), Error);
+  CHECK(acc->hash() == h0);
+  CHECK(acc->generation() == 0);
+
+  acc->refit(b);
+  CHECK(acc->generation() == 1);
+  CHECK(acc->hash() != h0);
+  check_invariants(b, *acc);
+  const auto fresh = Accel::build(b);
+  CHECK(acc->bounds().lo.x == fresh->bounds().lo.x);
+  CHECK(acc->bounds().hi.z == fresh->bounds().hi.z);
+  CHECK(acc->tris().size() == fresh->tris().size());
+
+  for (RayKind kind : {RayKind::primary, RayKind::diffuse}) {
+    INFO(to_string(kind) << " rays");
+    RayGenOptions ro;
+    ro.kind = kind;
+    ro.count = 10000;
+    const std::vector<Ray> rays = generate_rays(b, *fresh, ro);
+    // the fresh build's answers (cpu-scalar) against every backend on the refitted build: the
+    // same t bit for bit, the same triangle except where two triangles tie at that t
+    TraceOutput want[2];
+    for (int q = 0; q < 2; ++q)
+      trace_reference(*fresh, rays, TraceOptions{Layout::mbvh4, Traversal::stack, q ? Query::any : Query::closest, false},
+                      want[q], 0);
+    std::size_t hits = 0;
+    for (const Hit& h : want[0].hits) hits += h.prim != MBVH_MISS_PRIM;
+    CHECK(hits > (kind == RayKind::primary ? rays.size() / 10 : 0));
+    for (auto& backend : backends) {
+      if (backend->peer()) continue;  // its own BVH and test: checked up to ties by run_check below
+      for (Layout l : grid.layouts)
+        for (Traversal t : grid.traversals)
+          for (Query q : grid.queries) {
+            if (!backend->supports(l, t)) continue;
+            TraceOutput got;
+            backend->trace(*acc, rays, TraceOptions{l, t, q, false}, got);
+            INFO(backend->name() << "/" << to_string(l) << "/" << to_string(t) << "/" << to_string(q));
+            std::size_t bad = 0;
+            if (q == Query::closest) {
+              for (std::size_t i = 0; i < rays.size(); ++i) {
+                const Hit &w = want[0].hits[i], &g = got.hits[i];
+                const bool same_t = std::memcmp(&w.t, &g.t, sizeof(float)) == 0;
+                bad += !same_t || (w.prim == g.prim && std::memcmp(&w, &g, sizeof(Hit)) != 0);
+              }
+            } else {
+              bad = got.occluded == want[1].occluded ? 0 : 1;
+            }
+            CHECK(bad == 0);
+          }
+    }
+    CheckOptions co;
+    co.grid = grid;
+    co.brute_rays = 2000;
+    const CheckReport rep = run_check(*acc, rays, co);
+    INFO(rep.table(rays));
+    CHECK(rep.mismatches() == 0);
+  }
 }

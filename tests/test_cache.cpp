@@ -64,6 +64,9 @@ TEST_CASE("BVH cache - a cached build is the build - damaged or mismatched files
   BuildOptions leafy = opt;
   leafy.max_leaf = 4;
   CHECK(Accel::cache_key(s, leafy) != Accel::cache_key(s, opt));
+  BuildOptions low = opt;
+  low.quality = BuildQuality::low;
+  CHECK(Accel::cache_key(s, low) != Accel::cache_key(s, opt));
   Scene moved = s;
   moved.vertices[0].x += 1.0f;
   CHECK(Accel::cache_key(moved, opt) != Accel::cache_key(s, opt));

@@ -22,17 +22,19 @@ constexpr std::size_t kRays = 100000;
 constexpr std::size_t kBrute = 2000;
 constexpr std::size_t kLeafOrderRays = 3000;
 
-void check_scene(const std::string& spec) {
+void check_scene(const std::string& spec, BuildQuality quality = BuildQuality::medium, std::size_t ray_count = kRays) {
   const VariantGrid grid = mbvh_test::all_backends();
   const Scene scene = load_scene(spec);
-  const auto acc = Accel::build(scene);
+  BuildOptions bo;
+  bo.quality = quality;
+  const auto acc = Accel::build(scene, bo);
   for (RayKind kind : {RayKind::primary, RayKind::shadow, RayKind::diffuse, RayKind::random}) {
-    INFO(spec << ", " << to_string(kind) << " rays");
+    INFO(spec << ", " << to_string(kind) << " rays, quality " << to_string(quality));
     RayGenOptions ro;
     ro.kind = kind;
-    ro.count = kRays;
+    ro.count = ray_count;
     const std::vector<Ray> rays = generate_rays(scene, *acc, ro);
-    REQUIRE(rays.size() == kRays);
+    REQUIRE(rays.size() == ray_count);
 
     // -- all variants against each other, any hit against closest hit, subset against brute force
     CheckOptions co;
@@ -121,6 +123,13 @@ TEST_CASE("traversal equivalence: closed sphere", "[traversal]") { check_scene("
 TEST_CASE("traversal equivalence: closed cube", "[traversal]") { check_scene("gen:cube:24"); }
 TEST_CASE("traversal equivalence: triangle soup", "[traversal]") { check_scene("gen:soup:100000"); }
 TEST_CASE("traversal equivalence: hairball", "[traversal]") { check_scene("gen:hairball:300000"); }
+// the same checks on the fast builder's trees (BuildQuality::low), fewer rays
+TEST_CASE("traversal equivalence (quality low): Stanford bunny", "[traversal]") {
+  check_scene(mbvh_test::scene_path("bun_zipper.ply.zst"), BuildQuality::low, 10000);
+}
+TEST_CASE("traversal equivalence (quality low): Cornell box", "[traversal]") {
+  check_scene(mbvh_test::scene_path("cornell_box.obj.zst"), BuildQuality::low, 10000);
+}
 
 TEST_CASE("rays from inside a closed mesh never leak", "[traversal]") {
   for (const char* spec : {"gen:sphere:200", "gen:cube:16"}) {

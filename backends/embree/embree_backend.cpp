@@ -81,7 +81,7 @@ public:
   std::size_t state_bytes(const TraceOptions&) const override { return 0; }
 
   void prepare(const Accel& acc, const TraceOptions&) override {
-    if (&acc == acc_ && acc.hash() == hash_) return;
+    if (&acc == acc_ && acc.hash() == hash_ && acc.generation() == generation_) return;
     if (scene_) rtcReleaseScene(scene_);
     scene_ = nullptr;
     acc_ = nullptr;
@@ -122,6 +122,7 @@ public:
     raise("rtcCommitScene");
     acc_ = &acc;
     hash_ = acc.hash();
+    generation_ = acc.generation();
   }
 
   void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
@@ -213,6 +214,7 @@ private:
   RTCScene scene_ = nullptr;
   const Accel* acc_ = nullptr;
   std::uint64_t hash_ = 0;
+  std::uint64_t generation_ = 0;  // Accel::generation() of the committed scene (refit bumps it)
   std::vector<std::uint32_t> prims_;  // Embree primID -> the file's prim id
   std::mutex error_mutex_;
   std::string error_;

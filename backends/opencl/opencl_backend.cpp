@@ -116,13 +116,14 @@ public:
 
   void prepare(const Accel& acc, const TraceOptions& opt) override {
     program(opt.stats, opt.precision == Precision::fast);
-    if (&acc != acc_ || acc.hash() != hash_) {
+    if (&acc != acc_ || acc.hash() != hash_ || acc.generation() != generation_) {
       n2_.reset();
       n4_.reset();
       leaves_ = upload("the leaf array", acc.leaves().data(), acc.leaves().size() * sizeof(Leaf));
       tris_ = upload("the triangle array", acc.tris().data(), acc.tris().size() * sizeof(Tri));
       acc_ = &acc;
       hash_ = acc.hash();
+      generation_ = acc.generation();
     }
     if (opt.layout == Layout::mbvh2 && !n2_) {
       const auto& n = acc.mbvh2().nodes;
@@ -316,6 +317,7 @@ private:
   Built built_[4];  // [stats + 2 * fast]
   const Accel* acc_ = nullptr;
   std::uint64_t hash_ = 0;
+  std::uint64_t generation_ = 0;  // Accel::generation() of the uploaded arrays (refit bumps it)
   Buffer n2_, n4_, leaves_, tris_;
   std::size_t cap_ = 0, stats_cap_ = 0;
   Buffer rays_, hits_, occ_, stats_, counters_;

@@ -129,7 +129,7 @@ public:
     if (opt.layout != Layout::mbvh2 && opt.layout != Layout::mbvh4)
       throw Error("vulkan: layout " + std::string(to_string(opt.layout)) + " is not implemented (the GPU path is MBVH2 "
                   "and MBVH4)");
-    if (&acc != acc_ || acc.hash() != hash_) {  // a new build: drop the old one's arrays
+    if (&acc != acc_ || acc.hash() != hash_ || acc.generation() != generation_) {  // a new build: drop the old one's arrays
       wait_idle();
       destroy(nodes2_);
       destroy(nodes4_);
@@ -157,6 +157,7 @@ public:
       leaves_ = upload("the leaf array", acc.leaves().data(), leaf_bytes);
       acc_ = &acc;
       hash_ = acc.hash();
+      generation_ = acc.generation();
     }
     if (bound_ != opt.layout) {
       bound_ = opt.layout;
@@ -755,6 +756,7 @@ private:
   bool descriptors_dirty_ = true;
   const Accel* acc_ = nullptr;
   std::uint64_t hash_ = 0;
+  std::uint64_t generation_ = 0;  // Accel::generation() of the uploaded arrays (refit bumps it)
   Chunked nodes2_, nodes4_, tris_;
   Layout bound_ = Layout::mbvh2;  ///< whose nodes the descriptor set binds
   Buffer leaves_;

@@ -47,7 +47,7 @@ struct Header {
   std::uint32_t st_depth, st_bits;
   std::uint32_t max_leaf, bins, leaf_block, depth_cap;
   float traversal_cost;
-  std::uint32_t pad1;
+  std::uint32_t quality;  // BuildQuality
 };
 static_assert(std::is_trivially_copyable_v<Header>);
 static_assert(sizeof(Header) % 8 == 0);
@@ -99,6 +99,8 @@ std::uint64_t Accel::cache_key(const Scene& scene, const BuildOptions& opt) {
   const std::uint32_t o[4] = {std::max(opt.max_leaf, 1u), std::clamp(opt.bins, 2u, 64u), std::max(opt.leaf_block, 1u),
                               std::clamp(opt.depth_cap, 1u, static_cast<unsigned>(MBVH_BINARY_DEPTH_CAP))};
   h = hash_words(o, sizeof o, h);
+  const std::uint32_t q = static_cast<std::uint32_t>(opt.quality);
+  h = hash_words(&q, sizeof q, h);
   return hash_words(&opt.traversal_cost, sizeof(float), h);
 }
 
@@ -133,6 +135,7 @@ void Accel::save(const std::string& path, std::uint64_t key) const {
   hd.leaf_block = opt_.leaf_block;
   hd.depth_cap = opt_.depth_cap;
   hd.traversal_cost = opt_.traversal_cost;
+  hd.quality = static_cast<std::uint32_t>(opt_.quality);
   std::string out;
   out.reserve(sizeof hd + hd.nodes * sizeof(Bvh2::Node) + hd.leaf_boxes * sizeof(Box) + hd.leaves * sizeof(Leaf) +
               hd.tris * sizeof(Tri) + 64);
@@ -215,6 +218,8 @@ std::unique_ptr<Accel> Accel::load(const std::string& path, std::uint64_t key) {
   acc->opt_.leaf_block = hd.leaf_block;
   acc->opt_.depth_cap = hd.depth_cap;
   acc->opt_.traversal_cost = hd.traversal_cost;
+  if (hd.quality > static_cast<std::uint32_t>(BuildQuality::high)) throw bad("unknown build quality");
+  acc->opt_.quality = static_cast<BuildQuality>(hd.quality);
 
   // Structure, as a build leaves it: the checksum catches damage; this catches a file whose
   // checksum was recomputed over a broken tree. Every reference in range, every inner node but

@@ -145,6 +145,7 @@ struct SceneArgs {
   unsigned max_leaf = BuildOptions{}.max_leaf;
   unsigned leaf_block = BuildOptions{}.leaf_block;
   std::string cache;
+  std::string quality = to_string(BuildOptions{}.quality);
 };
 
 void add_scene_args(CLI::App* c, SceneArgs& a) {
@@ -156,6 +157,9 @@ void add_scene_args(CLI::App* c, SceneArgs& a) {
   c->add_option("--cache", a.cache,
                 "BVH cache directory: the build is read from it when it holds this scene's with these options, "
                 "else built and written there (a damaged or mismatched file is rebuilt)");
+  c->add_option("--quality", a.quality,
+                "builder: low (Morton-code LBVH, fastest build), medium (binned SAH, the default) or high (SBVH)")
+      ->check(CLI::IsMember({"low", "medium", "high"}));
 }
 
 struct Loaded {
@@ -173,6 +177,7 @@ Loaded load_and_build(const SceneArgs& a, bool verbose = true) {
   bo.threads = a.threads;
   bo.max_leaf = a.max_leaf;
   bo.leaf_block = a.leaf_block;
+  bo.quality = parse_quality(a.quality);
   Progress p("building BVH", 1000);
   bo.progress = [&p](double f) { p.update(static_cast<std::size_t>(f * 1000)); };
   const auto t1 = Clock::now();
@@ -332,7 +337,38 @@ void print_stats_row(const LayoutStats& s, std::size_t state_stack, std::size_t 
       s.bitstack_bits, s.sah_cost, s.bytes, s.build_ms, state_stack, state_bit);
 }
 
-int cmd_info(const SceneArgs& a, const std::string& json_path) {
+// `mbvh info --refit`: refits the build to the scene's vertices moved by a smooth displacement
+// (0.2 % of the scene's extent), then rebuilds the moved scene with the same options, and prints
+// both times and SAH costs side by side.
+void info_refit(const SceneArgs& a, Loaded& l) {
+  Scene moved = l.scene;
+  moved.name += " (moved)";
+  const Box b = l.acc->bounds();
+  const Vec3f e = b.extent();
+  const float ext = std::max({e.x, e.y, e.z});
+  for (Vec3f& v : moved.vertices) {
+    const Vec3f p = v;
+    v.x = p.x + 0.002f * ext * std::sin(6.0f * p.y / ext);
+    v.y = p.y + 0.002f * ext * std::sin(6.0f * p.z / ext);
+    v.z = p.z + 0.002f * ext * std::sin(6.0f * p.x / ext);
+  }
+  l.acc->refit(moved);
+  const double refit_ms = l.acc->last_refit_ms();
+  BuildOptions bo = l.acc->options();
+  bo.progress = nullptr;
+  const auto t0 = Clock::now();
+  const auto rebuilt = Accel::build(moved, bo);
+  const double build_ms = ms_since(t0);
+  for (Layout lay : {Layout::mbvh2, Layout::mbvh4, Layout::mbvh8}) rebuilt->make_layout(lay);
+  const double layouts_ms = ms_since(t0);
+  say("\nrefit      %.1f ms (binary tree, leaves, triangles and the MBVH2/4/8 layouts made above); a rebuild of the "
+      "moved scene %.1f ms (%.1fx the refit), with those layouts %.1f ms (%.1fx); SAH cost refitted %.2f, rebuilt %.2f "
+      "(%u threads)\n",
+      refit_ms, build_ms, build_ms / std::max(refit_ms, 1e-6), layouts_ms, layouts_ms / std::max(refit_ms, 1e-6),
+      l.acc->binary_stats().sah_cost, rebuilt->binary_stats().sah_cost, static_cast<unsigned>(resolve_threads(a.threads)));
+}
+
+int cmd_info(const SceneArgs& a, const std::string& json_path, bool refit) {
   prepare_outputs({{"--json", json_path, true}}, {{"scene", a.scene}});
   Loaded l = load_and_build(a, false);
   const Accel& acc = *l.acc;
@@ -341,9 +377,14 @@ int cmd_info(const SceneArgs& a, const std::string& json_path) {
   say("triangles  %zu (%zu degenerate, kept out of leaves), %zu vertices, loaded in %.1f ms\n",
       l.scene.triangle_count(), acc.bvh2().degenerate, l.scene.vertices.size(), l.load_ms);
   say("bounds     (%g, %g, %g) .. (%g, %g, %g)\n", b.lo.x, b.lo.y, b.lo.z, b.hi.x, b.hi.y, b.hi.z);
-  say("build      binned SAH, %u bins, max leaf %u, leaf block %u, depth cap %u, %u threads; hash %016llx\n",
+  say("build      %s, %u bins, max leaf %u, leaf block %u, depth cap %u, %u threads; hash %016llx\n",
+      acc.options().quality == BuildQuality::low ? "Morton LBVH (quality low)" : "binned SAH (quality medium)",
       acc.options().bins, acc.options().max_leaf, acc.options().leaf_block, acc.options().depth_cap,
       static_cast<unsigned>(resolve_threads(a.threads)), static_cast<unsigned long long>(acc.hash()));
+  {
+    const double* ph = acc.binary_stats().phase_ms;
+    say("build ms   records %.1f, tree %.1f, flatten %.1f, stats and hash %.1f\n", ph[0], ph[1], ph[2], ph[3]);
+  }
   say("leaves     largest %zu triangles, %zu forced by the depth cap or equal centroids\n\n",
       acc.bvh2().largest_leaf, acc.bvh2().forced_leaves);
   say("%-7s %9s %9s %6s %9s %10s %12s %9s %10s %10s\n", "layout", "nodes", "leaves", "depth", "bits", "SAH cost",
@@ -366,6 +407,9 @@ int cmd_info(const SceneArgs& a, const std::string& json_path) {
     char h[32];
     std::snprintf(h, sizeof h, "%016llx", static_cast<unsigned long long>(acc.hash()));
     j["hash"] = h;
+    j["quality"] = to_string(acc.options().quality);
+    j["build_phases_ms"] = {{"records", bs.phase_ms[0]}, {"tree", bs.phase_ms[1]}, {"flatten", bs.phase_ms[2]},
+                            {"stats_hash", bs.phase_ms[3]}};
     for (const LayoutStats* s : {&bs, &s2, &s4, &s8})
       j["layouts"].push_back({{"layout", s->layout}, {"nodes", s->nodes}, {"leaves", s->leaves}, {"depth", s->depth},
                               {"bitstack_bits", s->bitstack_bits}, {"sah_cost", s->sah_cost}, {"bytes", s->bytes},
@@ -373,6 +417,7 @@ int cmd_info(const SceneArgs& a, const std::string& json_path) {
     const std::string text = j.dump(2) + "\n";
     write_bytes_to({"--json", json_path, true}, text.data(), text.size());
   }
+  if (refit) info_refit(a, l);
   return 0;
 }
 
@@ -416,6 +461,10 @@ static int run(int argc, char** argv) {
   auto* info = app.add_subcommand("info", "scene and per-layout build statistics");
   add_scene_args(info, info_a);
   info->add_option("--json", info_json, "also write the statistics as JSON ('-': standard output)");
+  bool info_refit_flag = false;
+  info->add_flag("--refit", info_refit_flag,
+                 "also refit the build to the vertices moved by a small smooth displacement and time it beside a "
+                 "rebuild of the moved scene");
 
   // -- rays
   SceneArgs rays_a;
@@ -533,7 +582,7 @@ static int run(int argc, char** argv) {
   }
   if (g_quiet) Progress::set_enabled(false);
   try {
-    if (*info) return cmd_info(info_a, info_json);
+    if (*info) return cmd_info(info_a, info_json, info_refit_flag);
 
     if (*rays) {
       const OutputTarget out{"-o", rays_out};
