@@ -14,6 +14,7 @@
 #include <cstring>
 
 #include "host/accel.h"
+#include "host/build/sbvh.h"
 #include "host/error.h"
 #include "host/parallel.h"
 
@@ -26,6 +27,17 @@ Layout parse_layout(const std::string& s) {
   if (s == "mbvh4") return Layout::mbvh4;
   if (s == "mbvh8") return Layout::mbvh8;
   throw Error("unknown layout '" + s + "' (known: mbvh2, mbvh4, mbvh8)");
+}
+
+const char* to_string(BuildQuality q) {
+  return q == BuildQuality::low ? "low" : q == BuildQuality::medium ? "medium" : "high";
+}
+
+BuildQuality parse_quality(const std::string& s) {
+  if (s == "low") return BuildQuality::low;
+  if (s == "medium") return BuildQuality::medium;
+  if (s == "high") return BuildQuality::high;
+  throw Error("unknown build quality '" + s + "' (known: low, medium, high)");
 }
 
 std::uint64_t hash_bytes(const void* p, std::size_t n, std::uint64_t h) {
@@ -322,61 +334,70 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
   if (idx.size() > 0x7FFFFFF0u) throw Error(scene.name + ": too many triangles for 32-bit references");
   check_traceable_range(scene, boxes, idx);
 
-  // -- top of the tree, breadth-first, with parallel binning
-  Builder builder(opt, boxes, cents, idx);
-  std::vector<TmpNode> upper(1);
-  upper[0].begin = 0;
-  upper[0].end = static_cast<std::uint32_t>(idx.size());
-  upper[0].depth = 0;
-  for (std::uint32_t p : idx) {
-    upper[0].box.grow(boxes[p]);
-    upper[0].cbox.grow(cents[p]);
-  }
-  const std::size_t threads = resolve_threads(opt.threads);
-  const std::size_t small = std::max<std::size_t>(4096, idx.size() / (8 * threads));
-  std::vector<std::int32_t> subtree_of;
-  std::vector<std::size_t> jobs;
-  for (std::size_t k = 0; k < upper.size(); ++k) {
-    if (k > 0 && upper[k].end - upper[k].begin <= small) {
-      jobs.push_back(k);
-      continue;
-    }
-    builder.split(upper, k, true);
-  }
-  // the root is always an inner node: a one-leaf scene gets a root with one leaf child
-  if (upper[0].leaf) {
-    TmpNode leaf = upper[0];
-    leaf.depth = 1;
-    upper[0].leaf = false;
-    upper[0].forced = false;
-    upper[0].child[0] = 1;
-    upper.push_back(leaf);
-  }
-  subtree_of.assign(upper.size(), -1);
-  std::vector<std::vector<TmpNode>> subtrees(jobs.size());
-  for (std::size_t j = 0; j < jobs.size(); ++j) subtree_of[jobs[j]] = static_cast<std::int32_t>(j);
-
-  // -- remaining subtrees, one per task
-  report(0.25);
-  std::atomic<std::size_t> built{0};
-  parallel_for(jobs.size(), 1, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
-    for (std::size_t j = b; j < e; ++j) {
-      subtrees[j].push_back(upper[jobs[j]]);
-      builder.build_subtree(subtrees[j]);
-      report(0.25 + 0.7 * static_cast<double>(++built) / static_cast<double>(jobs.size()));
-    }
-  });
-
-  // -- flatten depth-first; leaves come out in index-array order
   Bvh2& out = acc->bvh2_;
-  Flattener fl{upper, subtrees, subtree_of, out, acc->leaves_};
-  {
-    const TmpNode& r = upper[0];
-    out.nodes.push_back({r.box, {MBVH_EMPTY, MBVH_EMPTY}, MBVH_NONE, 0});
-    std::uint32_t h[2] = {0, 0};
-    for (int side = 0; side < 2; ++side)
-      if (r.child[side] >= 0) out.nodes[0].child[side] = fl.emit(upper, static_cast<std::size_t>(r.child[side]), 0, h[side]);
-    out.nodes[0].height = 1 + std::max(h[0], h[1]);
+  if (opt.quality == BuildQuality::high) {
+    // -- spatial splits (sbvh.cpp): idx becomes the leaf slots' prims, a prim possibly repeated
+    SbvhResult r = build_sbvh(scene, opt, boxes, idx);
+    r.bvh.degenerate = out.degenerate;
+    out = std::move(r.bvh);
+    acc->leaves_ = std::move(r.leaves);
+    idx = std::move(r.prims);
+  } else {
+    // -- top of the tree, breadth-first, with parallel binning
+    Builder builder(opt, boxes, cents, idx);
+    std::vector<TmpNode> upper(1);
+    upper[0].begin = 0;
+    upper[0].end = static_cast<std::uint32_t>(idx.size());
+    upper[0].depth = 0;
+    for (std::uint32_t p : idx) {
+      upper[0].box.grow(boxes[p]);
+      upper[0].cbox.grow(cents[p]);
+    }
+    const std::size_t threads = resolve_threads(opt.threads);
+    const std::size_t small = std::max<std::size_t>(4096, idx.size() / (8 * threads));
+    std::vector<std::int32_t> subtree_of;
+    std::vector<std::size_t> jobs;
+    for (std::size_t k = 0; k < upper.size(); ++k) {
+      if (k > 0 && upper[k].end - upper[k].begin <= small) {
+        jobs.push_back(k);
+        continue;
+      }
+      builder.split(upper, k, true);
+    }
+    // the root is always an inner node: a one-leaf scene gets a root with one leaf child
+    if (upper[0].leaf) {
+      TmpNode leaf = upper[0];
+      leaf.depth = 1;
+      upper[0].leaf = false;
+      upper[0].forced = false;
+      upper[0].child[0] = 1;
+      upper.push_back(leaf);
+    }
+    subtree_of.assign(upper.size(), -1);
+    std::vector<std::vector<TmpNode>> subtrees(jobs.size());
+    for (std::size_t j = 0; j < jobs.size(); ++j) subtree_of[jobs[j]] = static_cast<std::int32_t>(j);
+
+    // -- remaining subtrees, one per task
+    report(0.25);
+    std::atomic<std::size_t> built{0};
+    parallel_for(jobs.size(), 1, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
+      for (std::size_t j = b; j < e; ++j) {
+        subtrees[j].push_back(upper[jobs[j]]);
+        builder.build_subtree(subtrees[j]);
+        report(0.25 + 0.7 * static_cast<double>(++built) / static_cast<double>(jobs.size()));
+      }
+    });
+
+    // -- flatten depth-first; leaves come out in index-array order
+    Flattener fl{upper, subtrees, subtree_of, out, acc->leaves_};
+    {
+      const TmpNode& r = upper[0];
+      out.nodes.push_back({r.box, {MBVH_EMPTY, MBVH_EMPTY}, MBVH_NONE, 0});
+      std::uint32_t h[2] = {0, 0};
+      for (int side = 0; side < 2; ++side)
+        if (r.child[side] >= 0) out.nodes[0].child[side] = fl.emit(upper, static_cast<std::size_t>(r.child[side]), 0, h[side]);
+      out.nodes[0].height = 1 + std::max(h[0], h[1]);
+    }
   }
   acc->tris_.resize(idx.size());
   for (std::size_t i = 0; i < idx.size(); ++i) {

@@ -141,6 +141,7 @@ struct SceneArgs {
   unsigned threads = 0;
   unsigned max_leaf = BuildOptions{}.max_leaf;
   unsigned leaf_block = BuildOptions{}.leaf_block;
+  std::string quality = to_string(BuildOptions{}.quality);
 };
 
 void add_scene_args(CLI::App* c, SceneArgs& a) {
@@ -149,6 +150,8 @@ void add_scene_args(CLI::App* c, SceneArgs& a) {
   c->add_option("--max-leaf", a.max_leaf, "largest leaf the SAH may choose")->check(integer_in(1, 1024));
   c->add_option("--leaf-block", a.leaf_block, "triangles the SAH prices as one leaf test (4: SIMD leaves)")
       ->check(integer_in(1, 64));
+  c->add_option("--quality", a.quality, "build quality: low, medium (binned SAH) or high (spatial splits, SBVH)")
+      ->check(CLI::IsMember({"low", "medium", "high"}));
 }
 
 struct Loaded {
@@ -166,6 +169,7 @@ Loaded load_and_build(const SceneArgs& a, bool verbose = true) {
   bo.threads = a.threads;
   bo.max_leaf = a.max_leaf;
   bo.leaf_block = a.leaf_block;
+  bo.quality = parse_quality(a.quality);
   Progress p("building BVH", 1000);
   bo.progress = [&p](double f) { p.update(static_cast<std::size_t>(f * 1000)); };
   l.acc = Accel::build(l.scene, bo);
@@ -329,11 +333,12 @@ int cmd_info(const SceneArgs& a, const std::string& json_path) {
   say("triangles  %zu (%zu degenerate, kept out of leaves), %zu vertices, loaded in %.1f ms\n",
       l.scene.triangle_count(), acc.bvh2().degenerate, l.scene.vertices.size(), l.load_ms);
   say("bounds     (%g, %g, %g) .. (%g, %g, %g)\n", b.lo.x, b.lo.y, b.lo.z, b.hi.x, b.hi.y, b.hi.z);
-  say("build      binned SAH, %u bins, max leaf %u, leaf block %u, depth cap %u, %u threads; hash %016llx\n",
-      acc.options().bins, acc.options().max_leaf, acc.options().leaf_block, acc.options().depth_cap,
+  say("build      %s, %u bins, max leaf %u, leaf block %u, depth cap %u, %u threads; hash %016llx\n",
+      acc.options().quality == BuildQuality::high ? "SBVH (spatial splits)" : "binned SAH", acc.options().bins, acc.options().max_leaf, acc.options().leaf_block, acc.options().depth_cap,
       static_cast<unsigned>(resolve_threads(a.threads)), static_cast<unsigned long long>(acc.hash()));
-  say("leaves     largest %zu triangles, %zu forced by the depth cap or equal centroids\n\n",
-      acc.bvh2().largest_leaf, acc.bvh2().forced_leaves);
+  say("leaves     largest %zu triangles, %zu forced by the depth cap or equal centroids; %zu references (%.1f %% more than triangles)\n\n",
+      acc.bvh2().largest_leaf, acc.bvh2().forced_leaves, acc.tris().size(),
+      100.0 * (double(acc.tris().size()) / double(l.scene.triangle_count() - acc.bvh2().degenerate) - 1.0));
   say("%-7s %9s %9s %6s %9s %10s %12s %9s %10s %10s\n", "layout", "nodes", "leaves", "depth", "bits", "SAH cost",
       "bytes", "build ms", "stack B/r", "bitstk B/r");
   const LayoutStats& bs = acc.binary_stats();
