@@ -392,6 +392,76 @@ nlohmann::json check_json(const CheckReport& rep, const std::string& kind) {
 
 }  // namespace
 
+// `mbvh build-bench`: build time of our builder (Accel::build, then the MBVH4 collapse) and of
+// the embree peer (rtcCommitScene on the build's triangles, each prim once, with the triangle
+// copy), median of --repeats fresh builds each, at --threads; and our tree's SAH cost. Embree is
+// left out with a note where it is not built in.
+int cmd_build_bench(const SceneArgs& a, unsigned repeats, const std::string& json_path) {
+  prepare_outputs({{"--json", json_path, true}}, {{"scene", a.scene}});
+  const Scene scene = load_scene(a.scene);
+  BuildOptions bo;
+  bo.threads = a.threads;
+  bo.max_leaf = a.max_leaf;
+  bo.leaf_block = a.leaf_block;
+  bo.quality = parse_quality(a.quality);
+  auto median = [](std::vector<double> v) {
+    std::sort(v.begin(), v.end());
+    return v.size() % 2 ? v[v.size() / 2] : 0.5 * (v[v.size() / 2 - 1] + v[v.size() / 2]);
+  };
+  std::vector<double> ours, embree;
+  std::unique_ptr<Accel> acc;
+  for (unsigned r = 0; r < repeats; ++r) {
+    acc.reset();
+    const auto t0 = Clock::now();
+    acc = Accel::build(scene, bo);
+    acc->mbvh4();
+    ours.push_back(ms_since(t0));
+  }
+  nlohmann::json j;
+  j["scene"] = scene.name;
+  j["triangles"] = scene.triangle_count();
+  j["threads"] = resolve_threads(a.threads);
+  j["quality"] = to_string(bo.quality);
+  j["repeats"] = repeats;
+  j["hash"] = acc->hash();
+  j["references"] = acc->tris().size();
+  j["sah_binary"] = acc->binary_stats().sah_cost;
+  j["sah_mbvh4"] = acc->mbvh4().stats.sah_cost;
+  j["build_ms"] = median(ours);
+  j["build_ms_all"] = ours;
+  say("%s, %zu triangles, quality %s, %u threads: ours %.1f ms (build + MBVH4, median of %u), SAH %.2f, %zu references\n",
+      scene.name.c_str(), scene.triangle_count(), to_string(bo.quality), resolve_threads(a.threads), median(ours), repeats,
+      acc->binary_stats().sah_cost, acc->tris().size());
+  bool have_embree = false;
+  for (const BackendInfo& b : list_backends()) have_embree |= b.name == "embree" && b.make != nullptr;
+  if (have_embree) {
+    BackendOptions eo;
+    eo.threads = a.threads;
+    eo.quality = bo.quality;
+    TraceOptions to;
+    to.layout = Layout::mbvh4;
+    to.traversal = Traversal::stack;
+    for (unsigned r = 0; r < repeats; ++r) {
+      auto be = make_backend("embree", eo);  // a fresh device and scene each time (device start not timed)
+      const auto t0 = Clock::now();
+      be->prepare(*acc, to);
+      embree.push_back(ms_since(t0));
+    }
+    j["embree_build_ms"] = median(embree);
+    j["embree_build_ms_all"] = embree;
+    say("  embree %.1f ms (rtcCommitScene with the triangle copy, median of %u)\n", median(embree), repeats);
+  } else {
+    j["embree_build_ms"] = nullptr;
+    say("  embree: not built in\n");
+  }
+  if (!json_path.empty()) {
+    const std::string text = j.dump(2) + "\n";
+    const OutputTarget out{"--json", json_path, true};
+    write_outputs({{out, text.data(), text.size()}});
+  }
+  return 0;
+}
+
 static int run(int argc, char** argv) {
   CLI::App app{"mbvh — one MBVH2/MBVH4 build, stackless bitstack traversal on several backends"};
   app.require_subcommand(1);
@@ -508,6 +578,15 @@ static int run(int argc, char** argv) {
   render_cmd->add_option("--curve", rn_curve, "with --reference: write the RMSE-against-time curve as JSON");
   rn_dev.add(render_cmd);
 
+  // -- build-bench
+  SceneArgs bb_a;
+  unsigned bb_repeats = 5;
+  std::string bb_json;
+  auto* build_bench = app.add_subcommand("build-bench", "build time (median of --repeats) of ours and of the embree peer, and our tree's SAH");
+  add_scene_args(build_bench, bb_a);
+  build_bench->add_option("--repeats", bb_repeats, "builds timed per builder (median reported)")->check(integer_in(1, 1000));
+  build_bench->add_option("--json", bb_json, "also write the results as JSON ('-': standard output)");
+
   // -- devices
   auto* devices = app.add_subcommand("devices", "list the backends of this build, their devices and whether they can start");
   DeviceArgs dv_dev;
@@ -516,6 +595,7 @@ static int run(int argc, char** argv) {
   CLI11_PARSE(app, argc, argv);
   try {
     if (*info) return cmd_info(info_a, info_json);
+    if (*build_bench) return cmd_build_bench(bb_a, bb_repeats, bb_json);
 
     if (*rays) {
       const OutputTarget out{"-o", rays_out};
@@ -602,6 +682,7 @@ static int run(int argc, char** argv) {
       o.stats = tr_stats;
       o.precision = parse_precision(tr_precision);
       BackendOptions bo = tr_dev.options(tr_a.threads);
+      bo.quality = parse_quality(tr_a.quality);
       auto backend = make_backend(tr_backend, bo);
       if (trace->count("--layout") == 0) {
         o.layout = default_layout(*backend, o.traversal);
@@ -660,6 +741,7 @@ static int run(int argc, char** argv) {
       co.grid = ck_g.parse();
       co.threads = ck_a.threads;
       co.backend = ck_g.dev.options(ck_a.threads);
+      co.backend.quality = parse_quality(ck_a.quality);
       co.brute_rays = ck_brute == "all" ? SIZE_MAX : std::strtoull(ck_brute.c_str(), nullptr, 10);  // checked: an integer
       Loaded l = load_and_build(ck_a);
       std::vector<std::string> kinds = ck_kinds.empty() ? std::vector<std::string>{ck_r.kind} : split_list(ck_kinds);
@@ -702,6 +784,7 @@ static int run(int argc, char** argv) {
       bo.scaling = bn_scaling;
       bo.threads = bn_a.threads;
       bo.backend = bn_g.dev.options(bn_a.threads);
+      bo.backend.quality = parse_quality(bn_a.quality);
       set_camera(bn_camera, bo.has_camera, bo.camera);
       Loaded l = load_and_build(bn_a);
       Progress p("benchmarking", bo.kinds.size() * bo.grid.size());
