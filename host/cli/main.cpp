@@ -457,7 +457,8 @@ int cmd_build_bench(const SceneArgs& a, unsigned repeats, const std::string& jso
   if (!json_path.empty()) {
     const std::string text = j.dump(2) + "\n";
     const OutputTarget out{"--json", json_path, true};
-    write_outputs({{out, text.data(), text.size()}});
+    const std::vector<OutputWrite> writes{{out, text.data(), text.size()}};
+    write_outputs(writes);
   }
   return 0;
 }
