@@ -37,6 +37,11 @@ namespace {
 constexpr unsigned kMaxBins = 64;
 constexpr float kAlpha = 1e-5f;   // SBVH §4.4: spatial splits only where children overlap this much
 constexpr double kGrowth = 0.3;   // at most 30 % more references than triangles
+// Binning clips a reference against the triangle at each bin plane it crosses when it crosses at
+// most this many; a longer one (a large triangle in a small node, where the clipping would cost
+// most) is binned as its box cut at the planes: an upper bound of the chopped boxes' SAH. The
+// chosen split itself always clips the triangle.
+constexpr unsigned kExactSpan = 4;
 
 struct Ref {
   Box box;
@@ -197,6 +202,17 @@ public:
         SBin sb[kMaxBins];
         for (const Ref& r : node.refs) {
           const unsigned b0 = bin(r.box.lo[a]), b1 = bin(r.box.hi[a]);
+          if (b1 - b0 > kExactSpan) {  // a long reference: its box cut at the bin planes (an upper bound)
+            for (unsigned k = b0; k <= b1; ++k) {
+              Box piece = r.box;
+              if (k > b0) piece.lo[a] = std::max(piece.lo[a], pos(k));
+              if (k < b1) piece.hi[a] = std::min(piece.hi[a], pos(k + 1));
+              sb[k].box.grow(piece);
+            }
+            ++sb[b0].enter;
+            ++sb[b1].exit;
+            continue;
+          }
           Ref cur = r;
           unsigned last = b0;
           for (unsigned k = b0; k < b1; ++k) {
