@@ -396,7 +396,15 @@ nlohmann::json check_json(const CheckReport& rep, const std::string& kind) {
 // the embree peer (rtcCommitScene on the build's triangles, each prim once, with the triangle
 // copy), median of --repeats fresh builds each, at --threads; and our tree's SAH cost. Embree is
 // left out with a note where it is not built in.
-int cmd_build_bench(const SceneArgs& a, unsigned repeats, const std::string& json_path) {
+struct VersusArgs {
+  std::string quality;         // "": no side-by-side trace
+  std::string backend = "cpu";
+  std::size_t count = 200000;  // diffuse rays
+  unsigned passes = 15;
+  std::vector<float> camera;
+};
+
+int cmd_build_bench(const SceneArgs& a, unsigned repeats, const std::string& json_path, const VersusArgs& vs) {
   prepare_outputs({{"--json", json_path, true}}, {{"scene", a.scene}});
   const Scene scene = load_scene(a.scene);
   BuildOptions bo;
@@ -453,6 +461,56 @@ int cmd_build_bench(const SceneArgs& a, unsigned repeats, const std::string& jso
   } else {
     j["embree_build_ms"] = nullptr;
     say("  embree: not built in\n");
+  }
+  if (!vs.quality.empty()) {
+    // -- side by side: the same diffuse rays on this tree and on a --versus tree, passes
+    //    interleaved (this, versus, this, ...) so that a machine's changing load hits both alike;
+    //    the ratio is the median of the per-pair ratios. The two trees' hits must be identical.
+    BuildOptions vo = bo;
+    vo.quality = parse_quality(vs.quality);
+    const auto other = Accel::build(scene, vo);
+    RayGenOptions ro;
+    ro.kind = RayKind::diffuse;
+    ro.count = vs.count;
+    ro.threads = a.threads;
+    set_camera(vs.camera, ro.has_camera, ro.camera);
+    const std::vector<Ray> rays = generate_rays(scene, *acc, ro);
+    BackendOptions eo;
+    eo.threads = a.threads;
+    auto be = make_backend(vs.backend, eo);
+    TraceOptions to;
+    to.layout = Layout::mbvh4;
+    to.traversal = Traversal::stack;
+    TraceOutput out[2];
+    const Accel* trees[2] = {acc.get(), other.get()};
+    for (int t = 0; t < 2; ++t) be->trace(*trees[t], rays, to, out[t]);  // warm-up and check
+    if (std::memcmp(out[0].hits.data(), out[1].hits.data(), rays.size() * sizeof(Hit)) != 0)
+      throw Error("build-bench: the " + vs.quality + " tree's hits differ from the " + to_string(bo.quality) + " tree's");
+    std::vector<double> mr[2], ratio;
+    for (unsigned p = 0; p < vs.passes; ++p) {
+      double sec[2];
+      for (int t = 0; t < 2; ++t) {
+        const auto t0 = Clock::now();
+        be->trace(*trees[t], rays, to, out[t]);
+        sec[t] = ms_since(t0) * 1e-3;
+        mr[t].push_back(double(rays.size()) / sec[t] * 1e-6);
+      }
+      ratio.push_back(sec[1] / sec[0]);  // this tree's speed over the versus tree's
+    }
+    nlohmann::json v;
+    v["quality"] = vs.quality;
+    v["backend"] = be->name();
+    v["rays"] = rays.size();
+    v["passes"] = vs.passes;
+    v["mrays_per_s"] = median(mr[0]);
+    v["versus_mrays_per_s"] = median(mr[1]);
+    v["speed_ratio"] = median(ratio);
+    v["sah_binary"] = other->binary_stats().sah_cost;
+    j["versus"] = v;
+    say("  %s, %zu diffuse rays, %u interleaved passes: %s %.3f Mrays/s, %s %.3f Mrays/s, speed %s/%s %.3fx (median of per-pair ratios; min %.3f, max %.3f)\n",
+        be->name().c_str(), rays.size(), vs.passes, to_string(bo.quality), median(mr[0]), vs.quality.c_str(),
+        median(mr[1]), to_string(bo.quality), vs.quality.c_str(), median(ratio), *std::min_element(ratio.begin(), ratio.end()),
+        *std::max_element(ratio.begin(), ratio.end()));
   }
   if (!json_path.empty()) {
     const std::string text = j.dump(2) + "\n";
@@ -587,6 +645,15 @@ static int run(int argc, char** argv) {
   add_scene_args(build_bench, bb_a);
   build_bench->add_option("--repeats", bb_repeats, "builds timed per builder (median reported)")->check(integer_in(1, 1000));
   build_bench->add_option("--json", bb_json, "also write the results as JSON ('-': standard output)");
+  VersusArgs bb_vs;
+  build_bench->add_option("--versus", bb_vs.quality,
+                          "also trace diffuse rays on this tree and on one of quality VERSUS, passes interleaved, and "
+                          "report the speed ratio (median of per-pair ratios)")
+      ->check(CLI::IsMember({"low", "medium", "high"}));
+  build_bench->add_option("--versus-backend", bb_vs.backend, "backend of --versus (default cpu)");
+  build_bench->add_option("--versus-count", bb_vs.count, "diffuse rays of --versus")->check(ray_count());
+  build_bench->add_option("--versus-passes", bb_vs.passes, "interleaved pass pairs of --versus")->check(integer_in(1, 100000));
+  add_camera_option(build_bench, bb_vs.camera);
 
   // -- devices
   auto* devices = app.add_subcommand("devices", "list the backends of this build, their devices and whether they can start");
@@ -596,7 +663,7 @@ static int run(int argc, char** argv) {
   CLI11_PARSE(app, argc, argv);
   try {
     if (*info) return cmd_info(info_a, info_json);
-    if (*build_bench) return cmd_build_bench(bb_a, bb_repeats, bb_json);
+    if (*build_bench) return cmd_build_bench(bb_a, bb_repeats, bb_json, bb_vs);
 
     if (*rays) {
       const OutputTarget out{"-o", rays_out};
