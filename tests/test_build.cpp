@@ -297,7 +297,7 @@ void check_high_invariants(const Scene& scene, const Accel& acc) {
 }
 
 TEST_CASE("quality high - spatial splits keep whole triangles and are deterministic at 1 2 3 threads", "[build][quality]") {
-  for (const std::string& spec : {std::string("gen:soup:20000"), mbvh_test::scene_path("sibenik.obj.zst")}) {
+  for (const std::string& spec : {std::string("gen:soup:8000"), mbvh_test::scene_path("sibenik.obj.zst")}) {
     INFO(spec);
     const Scene s = load_scene(spec);
     std::uint64_t hashes[3];
