@@ -359,6 +359,8 @@ int cmd_info(const SceneArgs& a, const std::string& json_path) {
     char h[32];
     std::snprintf(h, sizeof h, "%016llx", static_cast<unsigned long long>(acc.hash()));
     j["hash"] = h;
+    j["quality"] = to_string(acc.options().quality);
+    j["references"] = acc.tris().size();
     for (const LayoutStats* s : {&bs, &s2, &s4, &s8})
       j["layouts"].push_back({{"layout", s->layout}, {"nodes", s->nodes}, {"leaves", s->leaves}, {"depth", s->depth},
                               {"bitstack_bits", s->bitstack_bits}, {"sah_cost", s->sah_cost}, {"bytes", s->bytes},
