@@ -60,6 +60,16 @@ struct Node {
 
 bool valid(const Box& b) { return b.lo.x <= b.hi.x && b.lo.y <= b.hi.y && b.lo.z <= b.hi.z; }
 
+// Box::grow, inlined: the builder's innermost operation
+inline void grow_box(Box& b, const Box& o) {
+  b.lo = {std::min(b.lo.x, o.lo.x), std::min(b.lo.y, o.lo.y), std::min(b.lo.z, o.lo.z)};
+  b.hi = {std::max(b.hi.x, o.hi.x), std::max(b.hi.y, o.hi.y), std::max(b.hi.z, o.hi.z)};
+}
+inline void grow_box(Box& b, const Vec3f& p) {
+  b.lo = {std::min(b.lo.x, p.x), std::min(b.lo.y, p.y), std::min(b.lo.z, p.z)};
+  b.hi = {std::max(b.hi.x, p.x), std::max(b.hi.y, p.y), std::max(b.hi.z, p.z)};
+}
+
 Box intersect(const Box& a, const Box& b) {
   Box r;
   r.lo = {std::max(a.lo.x, b.lo.x), std::max(a.lo.y, b.lo.y), std::max(a.lo.z, b.lo.z)};
@@ -95,8 +105,8 @@ public:
       const Vec3f& v0 = *v[k];
       const Vec3f& v1 = *v[(k + 1) % 3];
       const float a0 = v0[a], a1 = v1[a];
-      if (a0 <= p) left.grow(v0);
-      if (a0 >= p) right.grow(v0);
+      if (a0 <= p) grow_box(left, v0);
+      if (a0 >= p) grow_box(right, v0);
       if ((a0 < p && a1 > p) || (a0 > p && a1 < p)) {
         const double s = (double(p) - a0) / (double(a1) - double(a0));
         Box pt;
@@ -110,8 +120,8 @@ public:
           pt.lo[c] = std::nextafter(f, -INFINITY);
           pt.hi[c] = std::nextafter(f, INFINITY);
         }
-        left.grow(pt);
-        right.grow(pt);
+        grow_box(left, pt);
+        grow_box(right, pt);
       }
     }
     left.hi[a] = std::min(left.hi[a], p);
@@ -135,7 +145,7 @@ public:
 
     // -- object split: binned SAH over the references' centroids (as binned_sah.cpp)
     Box cbox;
-    for (const Ref& r : node.refs) cbox.grow(r.box.center());
+    for (const Ref& r : node.refs) grow_box(cbox, r.box.center());
     const Vec3f cext = cbox.extent();
     float oscale[3];
     for (int a = 0; a < 3; ++a) oscale[a] = cext[a] > 0 ? static_cast<float>(bins_) / cext[a] : 0.0f;
@@ -153,7 +163,7 @@ public:
       std::uint32_t bc[kMaxBins] = {};
       for (const Ref& r : node.refs) {
         const unsigned b = obin(r, a);
-        bb[b].grow(r.box);
+        grow_box(bb[b], r.box);
         ++bc[b];
       }
       Box rbox[kMaxBins];
@@ -161,7 +171,7 @@ public:
       Box acc;
       std::uint32_t cnt = 0;
       for (unsigned k = bins_ - 1; k > 0; --k) {
-        acc.grow(bb[k]);
+        grow_box(acc, bb[k]);
         cnt += bc[k];
         rbox[k] = acc;
         rcnt[k] = cnt;
@@ -169,7 +179,7 @@ public:
       acc = Box();
       cnt = 0;
       for (unsigned k = 1; k < bins_; ++k) {
-        acc.grow(bb[k - 1]);
+        grow_box(acc, bb[k - 1]);
         cnt += bc[k - 1];
         if (cnt == 0 || rcnt[k] == 0) continue;
         const float cost = area(acc) * blocks(cnt) + area(rbox[k]) * blocks(rcnt[k]);
@@ -207,7 +217,7 @@ public:
               Box piece = r.box;
               if (k > b0) piece.lo[a] = std::max(piece.lo[a], pos(k));
               if (k < b1) piece.hi[a] = std::min(piece.hi[a], pos(k + 1));
-              sb[k].box.grow(piece);
+              grow_box(sb[k].box, piece);
             }
             ++sb[b0].enter;
             ++sb[b1].exit;
@@ -218,12 +228,12 @@ public:
           for (unsigned k = b0; k < b1; ++k) {
             Box l, rt;
             clip(cur, a, pos(k + 1), l, rt);
-            if (valid(l)) sb[k].box.grow(l);
+            if (valid(l)) grow_box(sb[k].box, l);
             if (!valid(rt)) break;
             cur.box = rt;
             last = k + 1;
           }
-          if (last == b1 || b0 == b1) sb[last].box.grow(cur.box);
+          if (last == b1 || b0 == b1) grow_box(sb[last].box, cur.box);
           ++sb[b0].enter;
           ++sb[last].exit;
         }
@@ -232,7 +242,7 @@ public:
         Box acc;
         std::uint32_t cnt = 0;
         for (unsigned k = bins_ - 1; k > 0; --k) {
-          acc.grow(sb[k].box);
+          grow_box(acc, sb[k].box);
           cnt += sb[k].exit;
           rbox[k] = acc;
           rcnt[k] = cnt;
@@ -240,7 +250,7 @@ public:
         acc = Box();
         cnt = 0;
         for (unsigned k = 1; k < bins_; ++k) {
-          acc.grow(sb[k - 1].box);
+          grow_box(acc, sb[k - 1].box);
           cnt += sb[k - 1].enter;
           if (cnt == 0 || rcnt[k] == 0) continue;
           const float cost = area(acc) * blocks(cnt) + area(rbox[k]) * blocks(rcnt[k]);
@@ -288,7 +298,7 @@ public:
     const std::size_t caps[2] = {lcap, rcap};
     for (int s = 0; s < 2; ++s) {
       Node c;
-      for (const Ref& r : *sides[s]) c.box.grow(r.box);
+      for (const Ref& r : *sides[s]) grow_box(c.box, r.box);
       c.refs = std::move(*sides[s]);
       c.cap = caps[s];
       c.depth = depth + 1;
@@ -306,10 +316,10 @@ public:
       const Ref& r = node.refs[i];
       if (r.box.hi[a] <= p) {
         left.push_back(r);
-        lb.grow(r.box);
+        grow_box(lb, r.box);
       } else if (r.box.lo[a] >= p) {
         right.push_back(r);
-        rb.grow(r.box);
+        grow_box(rb, r.box);
       } else {
         straddle.push_back(i);
       }
@@ -326,10 +336,10 @@ public:
       else if (!hr) choice = 1;
       else {
         Box ls = lb, rs = rb, lw = lb, rw = rb;
-        ls.grow(l);
-        rs.grow(rt);
-        lw.grow(r.box);
-        rw.grow(r.box);
+        grow_box(ls, l);
+        grow_box(rs, rt);
+        grow_box(lw, r.box);
+        grow_box(rw, r.box);
         const float csplit = area(ls) * blocks(left.size() + 1) + area(rs) * blocks(right.size() + 1);
         const float c1 = area(lw) * blocks(left.size() + 1) + area(rb) * nr;
         const float c2 = area(lb) * nl + area(rw) * blocks(right.size() + 1);
@@ -339,18 +349,18 @@ public:
       if (choice == 0) {
         left.push_back({l, r.prim});
         right.push_back({rt, r.prim});
-        lb.grow(l);
-        rb.grow(rt);
+        grow_box(lb, l);
+        grow_box(rb, rt);
       } else if (choice == 1) {
         Ref w = r;
         if (!hr) w.box = l;
         left.push_back(w);
-        lb.grow(w.box);
+        grow_box(lb, w.box);
       } else {
         Ref w = r;
         if (!hl) w.box = rt;
         right.push_back(w);
-        rb.grow(w.box);
+        grow_box(rb, w.box);
       }
     }
     return !left.empty() && !right.empty();
@@ -414,7 +424,7 @@ SbvhResult build_sbvh(const Scene& scene, const BuildOptions& opt, const std::ve
   root.refs.reserve(idx.size());
   for (std::uint32_t p : idx) {
     root.refs.push_back({boxes[p], p});
-    root.box.grow(boxes[p]);
+    grow_box(root.box, boxes[p]);
   }
   root.cap = static_cast<std::size_t>(static_cast<double>(idx.size()) * (1.0 + kGrowth));
   Sbvh builder(scene, opt, root.box.half_area());
