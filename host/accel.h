@@ -137,6 +137,29 @@ public:
   /// Cost: O(n log n), parallel over `opt.threads`; the bytes do not depend on the thread count.
   static std::unique_ptr<Accel> build(const Scene& scene, const BuildOptions& opt = {});
 
+  /// The BVH cache (host/build/cache.cpp). build_cached returns the build of `scene` with `opt`
+  /// from DIR/<key>.mbvh when that file holds it, else builds and writes it there (atomically; DIR
+  /// is made if missing). A file that is truncated, damaged, of another format version or made for
+  /// other triangles, options or library version is never traced from: it is rebuilt and replaced,
+  /// and `report->problem` says what was wrong. Throws Error when DIR cannot be made or the file
+  /// cannot be written, and as build does.
+  struct CacheReport {
+    std::string path;     ///< the cache file
+    bool loaded = false;  ///< true: read from the file; false: built (and written)
+    std::string problem;  ///< why an existing file was not used, or empty
+  };
+  static std::unique_ptr<Accel> build_cached(const Scene& scene, const BuildOptions& opt, const std::string& dir,
+                                             CacheReport* report = nullptr);
+  /// The cache key: a content hash of the scene's vertices and triangles, the options that shape
+  /// the tree (not threads) and the library version.
+  static std::uint64_t cache_key(const Scene& scene, const BuildOptions& opt);
+  /// Writes this build to `path` (atomically, through a temporary) under `key`.
+  void save(const std::string& path, std::uint64_t key) const;
+  /// Reads a build written by save; throws Error naming the path and what is wrong when the file
+  /// is truncated, damaged (checksum), of another format version or record size, of another key,
+  /// or not a well-formed tree. O(file size).
+  static std::unique_ptr<Accel> load(const std::string& path, std::uint64_t key);
+
   const Bvh2& bvh2() const { return bvh2_; }
   const Mbvh2& mbvh2() const;   ///< MBVH2 layout (Aila–Laine nodes with links), made on first use
   const Mbvh4& mbvh4() const;   ///< MBVH4 layout (depth-aware SAH-guided collapse), made on first use

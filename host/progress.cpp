@@ -7,7 +7,11 @@
 
 namespace mbvh {
 
-bool Progress::enabled() { return isatty(fileno(stderr)) != 0; }
+namespace {
+bool g_progress_allowed = true;
+}
+bool Progress::enabled() { return g_progress_allowed && isatty(fileno(stderr)) != 0; }
+void Progress::set_enabled(bool on) { g_progress_allowed = on; }
 
 Progress::Progress(std::string label, std::size_t total) : label_(std::move(label)), total_(total), on_(enabled()) {}
 

@@ -17,6 +17,8 @@ public:
   /// Clears the bar.
   void finish();
   static bool enabled();
+  /// Turns every bar off (false: `--quiet`) or back on where stderr is a terminal.
+  static void set_enabled(bool on);
 
 private:
   std::string label_;

@@ -11,6 +11,7 @@
 
 #include "host/check.h"
 #include "host/rays.h"
+#include "host/version.h"
 #include "tests/helpers.h"
 
 using namespace mbvh;
@@ -63,7 +64,7 @@ TEST_CASE("mbvh check info and bench report - bench writes JSON records", "[cli]
   CHECK_THAT(r.output, Catch::Contains("mbvh2") && Catch::Contains("mbvh4") && Catch::Contains("mbvh8") && Catch::Contains("22.0x smaller"));
   const std::string json = dir.file("b.json");
   const std::string csv = dir.file("b.csv");
-  r = run_cli("bench gen:soup:20000 --count 5000 --kinds primary,random --json " + json + " --csv " + csv);
+  r = run_cli("bench gen:soup:20000 --backend cpu-scalar --count 5000 --kinds primary,random --json " + json + " --csv " + csv);
   INFO(r.output);
   REQUIRE(r.code == 0);
   CHECK_THAT(r.output, Catch::Contains("Mrays/s") && Catch::Contains("bitstack"));
@@ -75,7 +76,7 @@ TEST_CASE("mbvh check info and bench report - bench writes JSON records", "[cli]
                             "mrays_per_s", "state_bytes_per_ray", "nodes_per_ray", "leaves_per_ray", "triangles_per_ray",
                             "bvh_hash"})
       CHECK(rec.contains(key));
-    CHECK(rec["isa"] == "scalar");  // the default backend, cpu-scalar
+    CHECK(rec["isa"] == "scalar");
     CHECK(rec["device_mrays_per_s"].is_null());  // a CPU backend has no device clock
     CHECK(rec["mrays_per_s"].get<double>() > 0);
     CHECK(rec["verify_mismatches"].get<int>() == 0);
@@ -247,4 +248,36 @@ TEST_CASE("MBVH_CPU_ISA=avx2 runs the cpu backend as an AVX2-only machine would 
   INFO(bad.output);
   CHECK(bad.code == 2);
   CHECK(bad.output.find("MBVH_CPU_ISA=sse4 is not an ISA: set avx2 or avx512") != std::string::npos);
+}
+
+TEST_CASE("mbvh conventions - version and default backend and exit codes and quiet", "[cli]") {
+  auto r = run_cli("--version");
+  CHECK(r.code == 0);
+  CHECK_THAT(r.output, Catch::Contains(std::string("mbvh ") + MBVH_VERSION_STRING));
+  CHECK(std::string(mbvh::version()) == MBVH_VERSION_STRING);
+  // every command that traces defaults to `cpu`, the fastest verified backend
+  r = run_cli("trace gen:sphere:16 --count 1000");
+  CHECK(r.code == 0);
+  CHECK_THAT(r.output, Catch::Contains("backend: cpu: avx"));
+  r = run_cli("check gen:sphere:16 --count 1000 --layout mbvh4 --traversal bitstack --query closest");
+  CHECK(r.code == 0);
+  CHECK_THAT(r.output, Catch::Contains("cpu/mbvh4/bitstack/closest"));
+  // usage errors exit 2 like every other error (CLI11's own codes are 1xx)
+  for (const char* bad : {"trace", "trace gen:sphere:16 --count -5", "trace gen:sphere:16 --no-such-option",
+                          "frobnicate", "bench gen:sphere:16 --passes 2"}) {
+    r = run_cli(bad);
+    INFO(bad << "\n" << r.output);
+    CHECK(r.code == 2);
+  }
+  // --help shows defaults
+  r = run_cli("bench --help");
+  CHECK(r.code == 0);
+  CHECK_THAT(r.output, Catch::Contains("TEXT=cpu ") && Catch::Contains("=100000"));
+  // --quiet: the report goes, errors stay
+  r = run_cli("info gen:sphere:16 --quiet");
+  CHECK(r.code == 0);
+  CHECK(r.output.empty());
+  r = run_cli("--quiet info gen:nothing:1");
+  CHECK(r.code == 2);
+  CHECK_THAT(r.output, Catch::Contains("error"));
 }

@@ -22,6 +22,7 @@
 #include "host/io/output.h"
 #include "host/parallel.h"
 #include "host/progress.h"
+#include "host/version.h"
 #include "host/rays.h"
 #include "host/render.h"
 
@@ -34,8 +35,10 @@ using Clock = std::chrono::steady_clock;
 // The report (tables, "wrote ..."): standard output, or standard error while an output goes to
 // standard output ('-'), so the two never mix.
 FILE* g_report = stdout;
+bool g_quiet = false;  // --quiet: no report, errors only
 
 __attribute__((format(printf, 1, 2))) void say(const char* format, ...) {
+  if (g_quiet) return;
   va_list args;
   va_start(args, format);
   std::vfprintf(g_report, format, args);
@@ -142,6 +145,7 @@ struct SceneArgs {
   unsigned max_leaf = BuildOptions{}.max_leaf;
   unsigned leaf_block = BuildOptions{}.leaf_block;
   std::string quality = to_string(BuildOptions{}.quality);
+  std::string cache;
 };
 
 void add_scene_args(CLI::App* c, SceneArgs& a) {
@@ -152,6 +156,9 @@ void add_scene_args(CLI::App* c, SceneArgs& a) {
       ->check(integer_in(1, 64));
   c->add_option("--quality", a.quality, "build quality: low, medium (binned SAH) or high (spatial splits, SBVH)")
       ->check(CLI::IsMember({"low", "medium", "high"}));
+  c->add_option("--cache", a.cache,
+                "BVH cache directory: the build is read from it when it holds this scene's with these options, "
+                "else built and written there (a damaged or mismatched file is rebuilt)");
 }
 
 struct Loaded {
@@ -172,12 +179,17 @@ Loaded load_and_build(const SceneArgs& a, bool verbose = true) {
   bo.quality = parse_quality(a.quality);
   Progress p("building BVH", 1000);
   bo.progress = [&p](double f) { p.update(static_cast<std::size_t>(f * 1000)); };
-  l.acc = Accel::build(l.scene, bo);
+  const auto t1 = Clock::now();
+  Accel::CacheReport cr;
+  l.acc = a.cache.empty() ? Accel::build(l.scene, bo) : Accel::build_cached(l.scene, bo, a.cache, &cr);
+  const double ms = ms_since(t1);
   p.finish();
-  if (verbose)
-    std::fprintf(stderr, "scene %s: %zu triangles, loaded in %.1f ms; BVH built in %.1f ms, hash %016llx\n", a.scene.c_str(),
-                 l.scene.triangle_count(), l.load_ms, l.acc->binary_stats().build_ms,
-                 static_cast<unsigned long long>(l.acc->hash()));
+  if (!cr.problem.empty()) std::fprintf(stderr, "mbvh: warning: %s; rebuilt and replaced\n", cr.problem.c_str());
+  if (!g_quiet && (verbose || !a.cache.empty()))
+    std::fprintf(stderr, "scene %s: %zu triangles, loaded in %.1f ms; BVH %s in %.1f ms%s%s, hash %016llx\n",
+                 a.scene.c_str(), l.scene.triangle_count(), l.load_ms, cr.loaded ? "read from the cache" : "built",
+                 cr.loaded ? ms : l.acc->binary_stats().build_ms, a.cache.empty() ? "" : cr.loaded ? ": " : ", cached in ",
+                 cr.path.c_str(), static_cast<unsigned long long>(l.acc->hash()));
   return l;
 }
 
@@ -237,7 +249,7 @@ std::vector<std::string> all_backends() {
 // --backend, --layout, --traversal, --query as comma-separated lists (check and bench).
 struct GridArgs {
   DeviceArgs dev;
-  std::string backends = "cpu-scalar", layouts = "mbvh2,mbvh4,mbvh8", traversals = "stack,bitstack,stack-ordered,bitstack-retest",
+  std::string backends = "cpu", layouts = "mbvh2,mbvh4,mbvh8", traversals = "stack,bitstack,stack-ordered,bitstack-retest",
               queries = "closest,any", precisions = "robust";
   void add(CLI::App* c) {
     c->add_option("--backend", backends,
@@ -524,9 +536,15 @@ int cmd_build_bench(const SceneArgs& a, unsigned repeats, const std::string& jso
 }
 
 static int run(int argc, char** argv) {
-  CLI::App app{"mbvh — one MBVH2/MBVH4 build, stackless bitstack traversal on several backends"};
+  CLI::App app{"mbvh " MBVH_VERSION_STRING " — one MBVH2/MBVH4/MBVH8 build, stackless bitstack traversal on several "
+               "backends\n\nexit status: 0 success; 1 `check` found a genuine mismatch or `bench` a timed result "
+               "that did not verify; 2 an error (a bad option or value, a bad input, a failed run)"};
   app.require_subcommand(1);
   app.set_help_all_flag("--help-all", "help for every command");
+  app.set_version_flag("--version", "mbvh " MBVH_VERSION_STRING);
+  app.option_defaults()->always_capture_default();  // --help shows every option's default
+  app.fallthrough();  // --quiet may follow the subcommand
+  app.add_flag("-q,--quiet", g_quiet, "print nothing but errors (outputs are still written)");
 
   // -- info
   SceneArgs info_a;
@@ -547,7 +565,7 @@ static int run(int argc, char** argv) {
   // -- trace
   SceneArgs tr_a;
   RayArgs tr_r;
-  std::string tr_backend = "cpu-scalar", tr_layout = "mbvh4", tr_trav = "bitstack", tr_query = "closest", tr_out;
+  std::string tr_backend = "cpu", tr_layout = "mbvh4", tr_trav = "bitstack", tr_query = "closest", tr_out;
   bool tr_stats = false;
   auto* trace = app.add_subcommand("trace", "trace rays; write hits (closest) or occlusion (any)");
   add_scene_args(trace, tr_a);
@@ -662,7 +680,12 @@ static int run(int argc, char** argv) {
   DeviceArgs dv_dev;
   dv_dev.add(devices);
 
-  CLI11_PARSE(app, argc, argv);
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {  // --help and --version exit 0; every usage error exits 2
+    return app.exit(e) == 0 ? 0 : 2;
+  }
+  if (g_quiet) Progress::set_enabled(false);
   try {
     if (*info) return cmd_info(info_a, info_json);
     if (*build_bench) return cmd_build_bench(bb_a, bb_repeats, bb_json, bb_vs);
@@ -707,7 +730,7 @@ static int run(int argc, char** argv) {
         rn_o.traversal = Traversal::stack;
       rn_o.layout = render_cmd->count("--layout") ? parse_layout(rn_layout) : default_layout(*backend, rn_o.traversal);
       Loaded l = load_and_build(rn_a);
-      std::fprintf(stderr, "backend: %s\n", backend->describe().c_str());
+      if (!g_quiet) std::fprintf(stderr, "backend: %s\n", backend->describe().c_str());
       backend->prepare(*l.acc, TraceOptions{rn_o.layout, rn_o.traversal, Query::closest, false, rn_o.precision});
       Progress p("rendering", rn_o.spp);
       const RenderResult res = render(l.scene, *l.acc, *backend, rn_o, [&p](unsigned d, unsigned) { p.update(d); });
@@ -764,7 +787,7 @@ static int run(int argc, char** argv) {
         throw Error("backend '" + tr_backend + "' does not support precision '" + tr_precision + "'");
       Loaded l = load_and_build(tr_a);
       const std::vector<Ray> r = get_rays(tr_r, l, tr_a.threads);
-      std::fprintf(stderr, "backend: %s\n", backend->describe().c_str());
+      if (!g_quiet) std::fprintf(stderr, "backend: %s\n", backend->describe().c_str());
       backend->prepare(*l.acc, o);
       // trace in batches so a long run shows progress; results are concatenated in ray order
       TraceOutput out;
@@ -821,7 +844,7 @@ static int run(int argc, char** argv) {
       for (const auto& k : kinds) {
         const std::vector<Ray> r = k == "file" ? read_rays(ck_r.rays_file)
                                                : generate_rays(l.scene, *l.acc, ray_gen(ck_r, k, ck_a.threads));
-        const bool tty = Progress::enabled();
+        const bool tty = Progress::enabled();  // false under --quiet
         CheckReport rep = run_check(*l.acc, r, co, [tty](const std::string& s) {
           if (tty) std::fprintf(stderr, "\r%-72.72s\r", s.c_str());
         });

@@ -1,0 +1,287 @@
+// cache.cpp — the BVH cache: Accel::save / Accel::load / Accel::build_cached. A build is kept as
+// one file holding the binary tree, its leaves and leaf-ordered triangles (the layouts are made
+// from them on first use, as after a build), keyed by a content hash of the triangles and of every
+// build option that shapes the tree (and the library version: a newer builder makes other trees).
+// The file is versioned and checksummed; a file that is truncated, corrupt, of another format
+// version or of another scene or options is detected before anything is traced from it.
+//
+// File (native little-endian, 8-byte aligned):
+//   header  "MBVHBVH\0", u32 format version, u32 record sizes (node, box, leaf, tri), u64 key,
+//           u64 Accel::hash(), counts (nodes, leaf boxes, leaves, triangles), the scene's triangle
+//           count, tree facts (forced leaves, largest leaf, degenerate), bounds, binary statistics,
+//           build options
+//   arrays  nodes, leaf boxes, leaves, triangles
+//   u64     checksum of every byte before it (hash_words)
+#include <sys/stat.h>
+
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <type_traits>
+
+#include "host/accel.h"
+#include "host/error.h"
+#include "host/io/output.h"
+#include "host/resources.h"
+#include "host/version.h"
+
+namespace mbvh {
+
+namespace {
+
+constexpr char kMagic[8] = {'M', 'B', 'V', 'H', 'B', 'V', 'H', '\0'};
+constexpr std::uint32_t kFormatVersion = 2;  // 2: the build quality in the key and the header
+
+struct Header {
+  char magic[8];
+  std::uint32_t version;
+  std::uint32_t sizes[4];  // Bvh2::Node, Box, Leaf, Tri
+  std::uint32_t pad0;
+  std::uint64_t key;
+  std::uint64_t accel_hash;
+  std::uint64_t nodes, leaf_boxes, leaves, tris;
+  std::uint64_t scene_triangles, forced_leaves, largest_leaf, degenerate;
+  Box bounds;
+  std::uint64_t st_nodes, st_leaves, st_bytes;
+  double st_sah, st_build_ms;
+  std::uint32_t st_depth, st_bits;
+  std::uint32_t max_leaf, bins, leaf_block, depth_cap;
+  float traversal_cost;
+  std::uint32_t quality;  // BuildQuality
+};
+static_assert(std::is_trivially_copyable_v<Header>);
+static_assert(sizeof(Header) % 8 == 0);
+
+// Four independent multiply-xor lanes over 64-bit words (a few GB/s, against FNV-1a's ~1 byte per
+// cycle): the file checksum and the cache key. Not cryptographic: it detects damage, not forgery.
+std::uint64_t hash_words(const void* p, std::size_t n, std::uint64_t seed) {
+  constexpr std::uint64_t k = 0x9E3779B97F4A7C15ull;
+  std::uint64_t h[4] = {seed ^ k, seed + 0x632BE59BD9B4E019ull, ~seed, seed * k + 1};
+  const auto* b = static_cast<const unsigned char*>(p);
+  std::size_t i = 0;
+  for (; i + 32 <= n; i += 32)
+    for (int l = 0; l < 4; ++l) {
+      std::uint64_t w;
+      std::memcpy(&w, b + i + 8 * l, 8);
+      h[l] = (h[l] ^ w) * k;
+      h[l] ^= h[l] >> 29;
+    }
+  std::uint64_t tail = n;
+  for (; i < n; ++i) tail = (tail ^ b[i]) * 0x100000001B3ull;
+  std::uint64_t r = tail;
+  for (int l = 0; l < 4; ++l) {
+    r = (r ^ h[l]) * k;
+    r ^= r >> 31;
+  }
+  return r;
+}
+
+template <class T>
+void append(std::string& out, const T* p, std::size_t count) {
+  out.append(reinterpret_cast<const char*>(p), count * sizeof(T));
+  out.append((8 - out.size() % 8) % 8, '\0');
+}
+
+std::string hex(std::uint64_t v) {
+  char b[17];
+  std::snprintf(b, sizeof b, "%016llx", static_cast<unsigned long long>(v));
+  return b;
+}
+
+}  // namespace
+
+std::uint64_t Accel::cache_key(const Scene& scene, const BuildOptions& opt) {
+  std::uint64_t h = hash_words(MBVH_VERSION_STRING, sizeof(MBVH_VERSION_STRING), kFormatVersion);
+  h = hash_words(scene.vertices.data(), scene.vertices.size() * sizeof(Vec3f), h);
+  h = hash_words(scene.triangles.data(), scene.triangles.size() * sizeof(scene.triangles[0]), h);
+  // every option that shapes the tree, after Accel::build's clamping; not threads (the bytes do
+  // not depend on them) and not progress
+  const std::uint32_t o[4] = {std::max(opt.max_leaf, 1u), std::clamp(opt.bins, 2u, 64u), std::max(opt.leaf_block, 1u),
+                              std::clamp(opt.depth_cap, 1u, static_cast<unsigned>(MBVH_BINARY_DEPTH_CAP))};
+  h = hash_words(o, sizeof o, h);
+  h = hash_words(&opt.traversal_cost, sizeof(float), h);
+  const std::uint32_t q = static_cast<std::uint32_t>(opt.quality);
+  return hash_words(&q, sizeof q, h);
+}
+
+void Accel::save(const std::string& path, std::uint64_t key) const {
+  Header hd{};
+  std::memcpy(hd.magic, kMagic, 8);
+  hd.version = kFormatVersion;
+  hd.sizes[0] = sizeof(Bvh2::Node);
+  hd.sizes[1] = sizeof(Box);
+  hd.sizes[2] = sizeof(Leaf);
+  hd.sizes[3] = sizeof(Tri);
+  hd.key = key;
+  hd.accel_hash = hash_;
+  hd.nodes = bvh2_.nodes.size();
+  hd.leaf_boxes = bvh2_.leaf_boxes.size();
+  hd.leaves = leaves_.size();
+  hd.tris = tris_.size();
+  hd.scene_triangles = scene_triangles_;
+  hd.forced_leaves = bvh2_.forced_leaves;
+  hd.largest_leaf = bvh2_.largest_leaf;
+  hd.degenerate = bvh2_.degenerate;
+  hd.bounds = bounds_;
+  hd.st_nodes = binary_stats_.nodes;
+  hd.st_leaves = binary_stats_.leaves;
+  hd.st_bytes = binary_stats_.bytes;
+  hd.st_sah = binary_stats_.sah_cost;
+  hd.st_build_ms = binary_stats_.build_ms;
+  hd.st_depth = binary_stats_.depth;
+  hd.st_bits = binary_stats_.bitstack_bits;
+  hd.max_leaf = opt_.max_leaf;
+  hd.bins = opt_.bins;
+  hd.leaf_block = opt_.leaf_block;
+  hd.depth_cap = opt_.depth_cap;
+  hd.traversal_cost = opt_.traversal_cost;
+  hd.quality = static_cast<std::uint32_t>(opt_.quality);
+  std::string out;
+  out.reserve(sizeof hd + hd.nodes * sizeof(Bvh2::Node) + hd.leaf_boxes * sizeof(Box) + hd.leaves * sizeof(Leaf) +
+              hd.tris * sizeof(Tri) + 64);
+  std::uint64_t sum = 0;
+  auto segment = [&out, &sum](const auto* p, std::size_t count) {
+    sum = hash_words(p, count * sizeof(*p), sum);  // the checksum chains the segments, padding left out
+    append(out, p, count);
+  };
+  segment(&hd, 1);
+  segment(bvh2_.nodes.data(), bvh2_.nodes.size());
+  segment(bvh2_.leaf_boxes.data(), bvh2_.leaf_boxes.size());
+  segment(leaves_.data(), leaves_.size());
+  segment(tris_.data(), tris_.size());
+  append(out, &sum, 1);
+  const OutputWrite w{{"cache", path, false}, out.data(), out.size()};
+  write_outputs({&w, 1});
+}
+
+std::unique_ptr<Accel> Accel::load(const std::string& path, std::uint64_t key) {
+  const std::uint64_t size = regular_file_size(path, "BVH cache");
+  auto bad = [&path](const std::string& why) { return Error(path + ": not a usable BVH cache file: " + why); };
+  if (size < sizeof(Header) + 8) throw bad("truncated (" + std::to_string(size) + " bytes)");
+  require_memory(path, size, "the BVH cache file");
+  // read straight into the build's arrays: no staging copy of the file (page faults are most of a
+  // load's time)
+  std::unique_ptr<FILE, int (*)(FILE*)> f(std::fopen(path.c_str(), "rb"), &std::fclose);
+  if (!f) throw bad("cannot be opened");
+  std::setvbuf(f.get(), nullptr, _IONBF, 0);
+  Header hd;
+  if (std::fread(&hd, sizeof hd, 1, f.get()) != 1) throw bad("cannot be read");
+  if (std::memcmp(hd.magic, kMagic, 8) != 0) throw bad("no mbvh BVH cache header");
+  if (hd.version != kFormatVersion)
+    throw bad("format version " + std::to_string(hd.version) + ", this library reads " + std::to_string(kFormatVersion));
+  if (hd.sizes[0] != sizeof(Bvh2::Node) || hd.sizes[1] != sizeof(Box) || hd.sizes[2] != sizeof(Leaf) ||
+      hd.sizes[3] != sizeof(Tri))
+    throw bad("written by a build with other record sizes");
+  auto padded = [](std::uint64_t bytes) { return (bytes + 7) / 8 * 8; };
+  const std::uint64_t limit = size;  // every count is bounded by the file it came from
+  if (hd.nodes > limit || hd.leaf_boxes > limit || hd.leaves > limit || hd.tris > limit) throw bad("counts out of range");
+  const std::uint64_t need = sizeof hd + padded(hd.nodes * sizeof(Bvh2::Node)) + padded(hd.leaf_boxes * sizeof(Box)) +
+                             padded(hd.leaves * sizeof(Leaf)) + padded(hd.tris * sizeof(Tri)) + 8;
+  if (need != size) throw bad("size " + std::to_string(size) + " does not match its counts (" + std::to_string(need) + "): truncated or damaged");
+
+  std::unique_ptr<Accel> acc(new Accel());
+  std::uint64_t sum = hash_words(&hd, sizeof hd, 0);
+  auto take = [&](auto& vec, std::uint64_t count) {
+    vec.resize(count);
+    const std::size_t bytes = count * sizeof(vec[0]);
+    char pad[8] = {};
+    const std::size_t npad = padded(bytes) - bytes;
+    if ((bytes && std::fread(vec.data(), bytes, 1, f.get()) != 1) || (npad && std::fread(pad, npad, 1, f.get()) != 1))
+      throw bad("cannot be read");
+    sum = hash_words(vec.data(), bytes, sum);
+  };
+  take(acc->bvh2_.nodes, hd.nodes);
+  take(acc->bvh2_.leaf_boxes, hd.leaf_boxes);
+  take(acc->leaves_, hd.leaves);
+  take(acc->tris_, hd.tris);
+  std::uint64_t stored;
+  if (std::fread(&stored, 8, 1, f.get()) != 1) throw bad("cannot be read");
+  if (sum != stored) throw bad("checksum mismatch (truncated or damaged)");
+  if (hd.key != key) throw bad("made for another scene, build options or library version (key " + hex(hd.key) + ", wanted " + hex(key) + ")");
+  acc->bvh2_.forced_leaves = hd.forced_leaves;
+  acc->bvh2_.largest_leaf = hd.largest_leaf;
+  acc->bvh2_.degenerate = hd.degenerate;
+  acc->bounds_ = hd.bounds;
+  acc->scene_triangles_ = hd.scene_triangles;
+  acc->hash_ = hd.accel_hash;
+  LayoutStats& st = acc->binary_stats_;
+  st.layout = "binary";
+  st.nodes = hd.st_nodes;
+  st.leaves = hd.st_leaves;
+  st.bytes = hd.st_bytes;
+  st.sah_cost = hd.st_sah;
+  st.build_ms = hd.st_build_ms;
+  st.depth = hd.st_depth;
+  st.bitstack_bits = hd.st_bits;
+  acc->opt_.max_leaf = hd.max_leaf;
+  acc->opt_.bins = hd.bins;
+  acc->opt_.leaf_block = hd.leaf_block;
+  acc->opt_.depth_cap = hd.depth_cap;
+  acc->opt_.traversal_cost = hd.traversal_cost;
+  if (hd.quality > static_cast<std::uint32_t>(BuildQuality::high)) throw bad("unknown build quality");
+  acc->opt_.quality = static_cast<BuildQuality>(hd.quality);
+
+  // Structure, as a build leaves it: the checksum catches damage; this catches a file whose
+  // checksum was recomputed over a broken tree. Every reference in range, every inner node but
+  // the root and every leaf referenced exactly once, each from a node of smaller index (so descent
+  // terminates), leaves inside the triangle array, depth within the cap.
+  const Bvh2& b = acc->bvh2_;
+  if (b.nodes.empty() || b.leaf_boxes.size() != acc->leaves_.size()) throw bad("inconsistent tree");
+  std::vector<std::uint8_t> seen_node(b.nodes.size(), 0), seen_leaf(acc->leaves_.size(), 0);
+  for (std::size_t i = 0; i < b.nodes.size(); ++i)
+    for (std::int32_t c : b.nodes[i].child) {
+      if (c == MBVH_EMPTY) continue;
+      if (c >= 0) {
+        const auto ci = static_cast<std::size_t>(c);
+        if (ci <= i || ci >= b.nodes.size() || seen_node[ci]++) throw bad("node " + std::to_string(i) + " has a bad child");
+      } else {
+        const auto li = static_cast<std::size_t>(~c);
+        if (li >= seen_leaf.size() || seen_leaf[li]++) throw bad("node " + std::to_string(i) + " has a bad leaf");
+      }
+    }
+  for (std::size_t i = 1; i < b.nodes.size(); ++i)
+    if (!seen_node[i]) throw bad("node " + std::to_string(i) + " is unreachable");
+  for (std::size_t i = 0; i < seen_leaf.size(); ++i) {
+    const Leaf& l = acc->leaves_[i];
+    if (!seen_leaf[i] || l.first > acc->tris_.size() || l.count > acc->tris_.size() - l.first)
+      throw bad("leaf " + std::to_string(i) + " is unreachable or out of range");
+  }
+  if (st.depth > MBVH_BINARY_DEPTH_CAP || b.nodes[0].height > MBVH_BINARY_DEPTH_CAP) throw bad("deeper than the depth cap");
+  for (std::size_t i = 0; i < b.nodes.size(); ++i) {
+    const std::uint32_t h = b.nodes[i].height;
+    for (std::int32_t c : b.nodes[i].child)
+      if (c >= 0 && b.nodes[static_cast<std::size_t>(c)].height >= h) throw bad("node heights are inconsistent");
+  }
+  return acc;
+}
+
+std::unique_ptr<Accel> Accel::build_cached(const Scene& scene, const BuildOptions& opt, const std::string& dir,
+                                           CacheReport* report) {
+  CacheReport rep;
+  std::error_code ec;
+  std::filesystem::create_directories(dir, ec);
+  if (!std::filesystem::is_directory(dir)) throw Error("--cache " + dir + ": not a directory and cannot be made one");
+  const std::uint64_t key = cache_key(scene, opt);
+  rep.path = (std::filesystem::path(dir) / (hex(key) + ".mbvh")).string();
+  std::unique_ptr<Accel> acc;
+  struct stat sb;
+  if (::stat(rep.path.c_str(), &sb) == 0) {
+    try {
+      acc = load(rep.path, key);
+      rep.loaded = true;
+    } catch (const Error& e) {
+      rep.problem = e.what();  // rebuilt and replaced below
+    }
+  }
+  if (!acc) {
+    acc = build(scene, opt);
+    acc->opt_.threads = opt.threads;
+    acc->save(rep.path, key);
+  }
+  acc->opt_.threads = opt.threads;
+  acc->opt_.progress = opt.progress;
+  if (report) *report = rep;
+  return acc;
+}
+
+}  // namespace mbvh

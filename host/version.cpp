@@ -1,0 +1,6 @@
+// version.cpp — mbvh::version(): the version of the library that was linked.
+#include "host/version.h"
+
+namespace mbvh {
+const char* version() { return MBVH_VERSION_STRING; }
+}  // namespace mbvh
