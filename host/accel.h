@@ -56,7 +56,9 @@ constexpr float kMaxCoordinate = 0x1p40f;   // 1.1e12
 constexpr float kMinSceneScale = 0x1p-36f;  // 1.5e-11
 
 /// Which builder makes the binary BVH (`--quality`). All three produce the same structures (Bvh2,
-/// leaves, leaf-ordered triangles), so every layout and backend traces any of them.
+/// leaves, leaf-ordered triangles), so every layout and backend traces any of them. With `high`
+/// a triangle may sit in more than one leaf (never twice in one; up to 30 % more references),
+/// for fewer node visits and triangle tests per ray.
 enum class BuildQuality {
   low,     ///< Morton-code LBVH (Karras 2012): several times faster to build, slower to trace
   medium,  ///< binned SAH (Wald 2007): the default

@@ -16,6 +16,9 @@ namespace mbvh {
 
 struct BackendOptions {
   unsigned threads = 0;     ///< CPU workers (0 = every hardware thread)
+  /// Build quality of a peer library's own BVH, `--quality` (embree: rtcSetSceneBuildQuality
+  /// RTC_BUILD_QUALITY_LOW / MEDIUM / HIGH); the other backends trace the Accel they are given.
+  BuildQuality quality = BuildQuality::medium;
   std::string cl_device;    ///< OpenCL device selector, `--cl-device` ("" = the backend's choice, printed)
   std::string vk_device;    ///< Vulkan device selector, `--vk-device` ("" = the backend's choice, printed)
   /// OpenCL work mapping, `--cl-mapping`: "" or "auto" = by the device's type, "cpu" (the 16-wide

@@ -67,6 +67,20 @@ TEST_CASE("BVH cache - a cached build is the build - damaged or mismatched files
   BuildOptions low = opt;
   low.quality = BuildQuality::low;
   CHECK(Accel::cache_key(s, low) != Accel::cache_key(s, opt));
+  BuildOptions high = opt;
+  high.quality = BuildQuality::high;
+  CHECK(Accel::cache_key(s, high) != Accel::cache_key(s, opt));
+  {  // a high-quality build (prims repeated across leaves) round-trips with its quality
+    Accel::CacheReport h1, h2;
+    const auto hb = Accel::build_cached(s, high, dir.file("h"), &h1);
+    const auto hl = Accel::build_cached(s, high, dir.file("h"), &h2);
+    CHECK(h2.loaded);
+    CHECK(hl->hash() == hb->hash());
+    CHECK(hl->options().quality == BuildQuality::high);
+    CHECK(hl->tris().size() > built->tris().size());
+    const std::vector<Hit> c = trace_all(*hl, rays);
+    CHECK(std::memcmp(a.data(), c.data(), a.size() * sizeof(Hit)) == 0);
+  }
   Scene moved = s;
   moved.vertices[0].x += 1.0f;
   CHECK(Accel::cache_key(moved, opt) != Accel::cache_key(s, opt));

@@ -159,6 +159,27 @@ TEST_CASE("mbvh gives clear errors and non-zero exit codes", "[cli]") {
   CHECK_THAT(r.output, Catch::Contains("backend: cpu: avx"));
 }
 
+TEST_CASE("mbvh build-bench times both builders and --quality picks the builder", "[cli][quality]") {
+  TempDir dir;
+  auto r = run_cli("build-bench gen:soup:3000 --quality high --repeats 2 --threads 2 --versus medium --versus-count 2000 "
+                   "--versus-passes 2 --json " + dir.file("b.json"));
+  INFO(r.output);
+  REQUIRE(r.code == 0);
+  CHECK_THAT(r.output, Catch::Contains("quality high") && Catch::Contains("median of 2") && Catch::Contains("speed high/medium"));
+  const auto j = nlohmann::json::parse(std::ifstream(dir.file("b.json")));
+  CHECK(j["quality"] == "high");
+  CHECK(j["build_ms"].get<double>() > 0);
+  CHECK(j["build_ms_all"].size() == 2);
+  CHECK(j["references"].get<std::size_t>() > 3000);  // the soup's big overlapping triangles split
+  CHECK(j["versus"]["speed_ratio"].get<double>() > 0);
+  if (!j["embree_build_ms"].is_null()) CHECK(j["embree_build_ms_all"].size() == 2);
+  r = run_cli("info gen:soup:3000 --quality high");
+  CHECK(r.code == 0);
+  CHECK_THAT(r.output, Catch::Contains("SBVH, spatial splits"));
+  r = run_cli("info gen:soup:3000 --quality ultra");
+  CHECK(r.code != 0);
+}
+
 TEST_CASE("mbvh reads a byte-order mark exactly refuses binary .obj files names the line (issue 19)", "[cli][issue19]") {
   TempDir dir;
   auto r = run_cli("info " + dir.write("bom.obj", "\xEF\xBB\xBFv 0 0 0\r\nv 1 0 0\r\nv 0 1 0\r\nv 0 0 1\r\nf 1 2 3\r\nf 1 2 4\r\n"));

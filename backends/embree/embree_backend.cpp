@@ -18,6 +18,7 @@
 #include <cmath>
 #include <cstdio>
 #include <mutex>
+#include <span>
 #include <vector>
 
 #include "backends/embree/embree_backends.h"
@@ -55,7 +56,7 @@ std::string beyond_embree(const Ray& r) {
 
 class EmbreeBackend final : public Backend {
 public:
-  explicit EmbreeBackend(const BackendOptions& o) : threads_(resolve_threads(o.threads)) {
+  explicit EmbreeBackend(const BackendOptions& o) : threads_(resolve_threads(o.threads)), quality_(o.quality) {
     const std::string config = "threads=" + std::to_string(threads_);
     device_ = rtcNewDevice(config.c_str());
     if (!device_)
@@ -72,7 +73,7 @@ public:
   std::string name() const override { return "embree"; }
   std::string describe() const override {
     return std::string("embree: Embree ") + RTC_VERSION_STRING +
-           " robust mode (RTC_SCENE_FLAG_ROBUST), its own BVH, rtcIntersect1/rtcOccluded1, " + std::to_string(threads_) +
+           " robust mode (RTC_SCENE_FLAG_ROBUST), its own BVH (build quality " + to_string(quality_) + "), rtcIntersect1/rtcOccluded1, " + std::to_string(threads_) +
            " thread(s)";
   }
   bool supports(Layout l, Traversal t) const override { return l == Layout::mbvh4 && t == Traversal::stack; }
@@ -85,11 +86,29 @@ public:
     if (scene_) rtcReleaseScene(scene_);
     scene_ = nullptr;
     acc_ = nullptr;
-    const auto& tris = acc.tris();
+    // a high-quality build repeats a split triangle in several leaves: Embree gets each prim once
+    // (the same triangles as from any other build), in the build's leaf order
+    const auto& all = acc.tris();
+    std::vector<Tri> unique;
+    const bool repeats = all.size() + acc.bvh2().degenerate > acc.scene_triangles();
+    if (repeats) {
+      std::vector<std::uint8_t> seen(acc.scene_triangles(), 0);
+      for (const Tri& t : all)
+        if (!seen[tri_prim(t)]) {
+          seen[tri_prim(t)] = 1;
+          unique.push_back(t);
+        }
+    }
+    const std::span<const Tri> tris = repeats ? std::span<const Tri>(unique) : std::span<const Tri>(all.data(), all.size());
     prims_.resize(tris.size());
     RTCScene scene = rtcNewScene(device_);
     rtcSetSceneFlags(scene, RTC_SCENE_FLAG_ROBUST);
+    const RTCBuildQuality q = quality_ == BuildQuality::low    ? RTC_BUILD_QUALITY_LOW
+                              : quality_ == BuildQuality::high ? RTC_BUILD_QUALITY_HIGH
+                                                               : RTC_BUILD_QUALITY_MEDIUM;
+    rtcSetSceneBuildQuality(scene, q);  // HIGH: Embree's spatial-split (SBVH) builder
     RTCGeometry g = rtcNewGeometry(device_, RTC_GEOMETRY_TYPE_TRIANGLE);
+    rtcSetGeometryBuildQuality(g, q);
     auto* v = static_cast<float*>(
         rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 3 * sizeof(float), 3 * tris.size()));
     auto* idx = static_cast<unsigned*>(
@@ -210,6 +229,7 @@ private:
   }
 
   unsigned threads_;
+  BuildQuality quality_;
   RTCDevice device_ = nullptr;
   RTCScene scene_ = nullptr;
   const Accel* acc_ = nullptr;

@@ -19,6 +19,7 @@
 
 #include "host/accel.h"
 #include "host/build/builder.h"
+#include "host/build/sbvh.h"
 #include "host/error.h"
 #include "host/parallel.h"
 
@@ -31,6 +32,17 @@ Layout parse_layout(const std::string& s) {
   if (s == "mbvh4") return Layout::mbvh4;
   if (s == "mbvh8") return Layout::mbvh8;
   throw Error("unknown layout '" + s + "' (known: mbvh2, mbvh4, mbvh8)");
+}
+
+const char* to_string(BuildQuality q) {
+  return q == BuildQuality::low ? "low" : q == BuildQuality::medium ? "medium" : "high";
+}
+
+BuildQuality parse_quality(const std::string& s) {
+  if (s == "low") return BuildQuality::low;
+  if (s == "medium") return BuildQuality::medium;
+  if (s == "high") return BuildQuality::high;
+  throw Error("unknown build quality '" + s + "' (known: low, medium, high)");
 }
 
 std::uint64_t hash_bytes(const void* p, std::size_t n, std::uint64_t h) {
@@ -51,17 +63,6 @@ std::uint64_t hash_bytes(const void* p, std::size_t n, std::uint64_t h) {
   for (int k = 0; k < 4; ++k) h = ((h ^ lane[k]) * prime) ^ (lane[k] >> 31);
   for (; i < n; ++i) h = (h ^ b[i]) * prime;
   return h;
-}
-
-const char* to_string(BuildQuality q) {
-  return q == BuildQuality::low ? "low" : q == BuildQuality::medium ? "medium" : "high";
-}
-
-BuildQuality parse_quality(const std::string& s) {
-  if (s == "low") return BuildQuality::low;
-  if (s == "medium") return BuildQuality::medium;
-  if (s == "high") return BuildQuality::high;
-  throw Error("unknown build quality '" + s + "' (known: low, medium, high)");
 }
 
 namespace build {
@@ -568,8 +569,6 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
   scene.validate();
   if (!std::isfinite(opt_in.traversal_cost) || opt_in.traversal_cost < 0)
     throw Error("BuildOptions::traversal_cost " + std::to_string(opt_in.traversal_cost) + " must be finite and >= 0");
-  if (opt_in.quality == BuildQuality::high)
-    throw Error("--quality high (SBVH, host/build/sbvh.cpp) is not built yet; use low or medium");
   std::unique_ptr<Accel> acc(new Accel());
   acc->opt_ = opt_in;
   BuildOptions& opt = acc->opt_;
@@ -631,27 +630,52 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
   const auto t_prep = Clock::now();
   report(0.05);
 
-  // -- the binary tree
-  build::Arenas arenas;
-  if (opt.quality == BuildQuality::low) build::build_lbvh(prims, root, croot, opt, arenas);
-  else build::build_binned_sah(prims, root, croot, opt, arenas);
-  const auto t_tree = Clock::now();
-
-  // -- flatten depth-first; leaves come out in record order
   Bvh2& out = acc->bvh2_;
-  out.nodes.reserve(prims.size());
-  out.leaf_boxes.reserve(prims.size());  // address space only: pages are touched as written
-  acc->leaves_.reserve(prims.size());
-  build::flatten(arenas, out, acc->leaves_);
-
-  arenas = build::Arenas();
-  acc->tris_.resize(prims.size());
-  parallel_for(prims.size(), grain, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
-    for (std::size_t i = b; i < e; ++i) {
-      const auto& t = scene.triangles[prims[i].prim];
-      build::fill_tri(acc->tris_[i], scene.vertices[t[0]], scene.vertices[t[1]], scene.vertices[t[2]], prims[i].prim);
+  auto t_tree = Clock::now();
+  if (opt.quality == BuildQuality::high) {
+    // -- spatial splits (sbvh.cpp): a triangle may sit in several leaves (never twice in one)
+    std::vector<Box> boxes(n);
+    std::vector<std::uint32_t> idx(prims.size());
+    for (std::size_t i = 0; i < prims.size(); ++i) {
+      const PrimRef& r = prims[i];
+      idx[i] = r.prim;
+      boxes[r.prim].lo = {r.lo[0], r.lo[1], r.lo[2]};
+      boxes[r.prim].hi = {r.hi[0], r.hi[1], r.hi[2]};
     }
-  });
+    SbvhResult r = build_sbvh(scene, opt, boxes, idx);
+    t_tree = Clock::now();
+    r.bvh.degenerate = out.degenerate;
+    out = std::move(r.bvh);
+    acc->leaves_ = std::move(r.leaves);
+    acc->tris_.resize(r.prims.size());
+    parallel_for(r.prims.size(), grain, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
+      for (std::size_t i = b; i < e; ++i) {
+        const auto& t = scene.triangles[r.prims[i]];
+        build::fill_tri(acc->tris_[i], scene.vertices[t[0]], scene.vertices[t[1]], scene.vertices[t[2]], r.prims[i]);
+      }
+    });
+  } else {
+    // -- the binary tree
+    build::Arenas arenas;
+    if (opt.quality == BuildQuality::low) build::build_lbvh(prims, root, croot, opt, arenas);
+    else build::build_binned_sah(prims, root, croot, opt, arenas);
+    t_tree = Clock::now();
+
+    // -- flatten depth-first; leaves come out in record order
+    out.nodes.reserve(prims.size());
+    out.leaf_boxes.reserve(prims.size());  // address space only: pages are touched as written
+    acc->leaves_.reserve(prims.size());
+    build::flatten(arenas, out, acc->leaves_);
+
+    arenas = build::Arenas();
+    acc->tris_.resize(prims.size());
+    parallel_for(prims.size(), grain, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
+      for (std::size_t i = b; i < e; ++i) {
+        const auto& t = scene.triangles[prims[i].prim];
+        build::fill_tri(acc->tris_[i], scene.vertices[t[0]], scene.vertices[t[1]], scene.vertices[t[2]], prims[i].prim);
+      }
+    });
+  }
   acc->bounds_ = out.nodes[0].box;
   const auto t_flat = Clock::now();
 

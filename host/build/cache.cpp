@@ -30,7 +30,7 @@ namespace mbvh {
 namespace {
 
 constexpr char kMagic[8] = {'M', 'B', 'V', 'H', 'B', 'V', 'H', '\0'};
-constexpr std::uint32_t kFormatVersion = 1;
+constexpr std::uint32_t kFormatVersion = 2;  // 2: the build quality in the key and the header
 
 struct Header {
   char magic[8];

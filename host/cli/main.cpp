@@ -378,15 +378,18 @@ int cmd_info(const SceneArgs& a, const std::string& json_path, bool refit) {
       l.scene.triangle_count(), acc.bvh2().degenerate, l.scene.vertices.size(), l.load_ms);
   say("bounds     (%g, %g, %g) .. (%g, %g, %g)\n", b.lo.x, b.lo.y, b.lo.z, b.hi.x, b.hi.y, b.hi.z);
   say("build      %s, %u bins, max leaf %u, leaf block %u, depth cap %u, %u threads; hash %016llx\n",
-      acc.options().quality == BuildQuality::low ? "Morton LBVH (quality low)" : "binned SAH (quality medium)",
+      acc.options().quality == BuildQuality::low    ? "Morton LBVH (quality low)"
+      : acc.options().quality == BuildQuality::high ? "SBVH, spatial splits (quality high)"
+                                                    : "binned SAH (quality medium)",
       acc.options().bins, acc.options().max_leaf, acc.options().leaf_block, acc.options().depth_cap,
       static_cast<unsigned>(resolve_threads(a.threads)), static_cast<unsigned long long>(acc.hash()));
   {
     const double* ph = acc.binary_stats().phase_ms;
     say("build ms   records %.1f, tree %.1f, flatten %.1f, stats and hash %.1f\n", ph[0], ph[1], ph[2], ph[3]);
   }
-  say("leaves     largest %zu triangles, %zu forced by the depth cap or equal centroids\n\n",
-      acc.bvh2().largest_leaf, acc.bvh2().forced_leaves);
+  say("leaves     largest %zu triangles, %zu forced by the depth cap or equal centroids; %zu references (%.1f %% more than triangles)\n\n",
+      acc.bvh2().largest_leaf, acc.bvh2().forced_leaves, acc.tris().size(),
+      100.0 * (double(acc.tris().size()) / double(l.scene.triangle_count() - acc.bvh2().degenerate) - 1.0));
   say("%-7s %9s %9s %6s %9s %10s %12s %9s %10s %10s\n", "layout", "nodes", "leaves", "depth", "bits", "SAH cost",
       "bytes", "build ms", "stack B/r", "bitstk B/r");
   const LayoutStats& bs = acc.binary_stats();
@@ -410,6 +413,7 @@ int cmd_info(const SceneArgs& a, const std::string& json_path, bool refit) {
     j["quality"] = to_string(acc.options().quality);
     j["build_phases_ms"] = {{"records", bs.phase_ms[0]}, {"tree", bs.phase_ms[1]}, {"flatten", bs.phase_ms[2]},
                             {"stats_hash", bs.phase_ms[3]}};
+    j["references"] = acc.tris().size();
     for (const LayoutStats* s : {&bs, &s2, &s4, &s8})
       j["layouts"].push_back({{"layout", s->layout}, {"nodes", s->nodes}, {"leaves", s->leaves}, {"depth", s->depth},
                               {"bitstack_bits", s->bitstack_bits}, {"sah_cost", s->sah_cost}, {"bytes", s->bytes},
@@ -443,6 +447,135 @@ nlohmann::json check_json(const CheckReport& rep, const std::string& kind) {
 }
 
 }  // namespace
+
+// `mbvh build-bench`: build time of our builder (Accel::build, then the MBVH4 collapse) and of
+// the embree peer (rtcCommitScene on the build's triangles, each prim once, with the triangle
+// copy), median of --repeats fresh builds each, at --threads; and our tree's SAH cost. Embree is
+// left out with a note where it is not built in.
+struct VersusArgs {
+  std::string quality;         // "": no side-by-side trace
+  std::string backend = "cpu";
+  std::size_t count = 200000;  // diffuse rays
+  unsigned passes = 15;
+  std::vector<float> camera;
+};
+
+int cmd_build_bench(const SceneArgs& a, unsigned repeats, const std::string& json_path, const VersusArgs& vs) {
+  prepare_outputs({{"--json", json_path, true}}, {{"scene", a.scene}});
+  const Scene scene = load_scene(a.scene);
+  BuildOptions bo;
+  bo.threads = a.threads;
+  bo.max_leaf = a.max_leaf;
+  bo.leaf_block = a.leaf_block;
+  bo.quality = parse_quality(a.quality);
+  auto median = [](std::vector<double> v) {
+    std::sort(v.begin(), v.end());
+    return v.size() % 2 ? v[v.size() / 2] : 0.5 * (v[v.size() / 2 - 1] + v[v.size() / 2]);
+  };
+  std::vector<double> ours, embree;
+  std::unique_ptr<Accel> acc;
+  for (unsigned r = 0; r < repeats; ++r) {
+    acc.reset();
+    const auto t0 = Clock::now();
+    acc = Accel::build(scene, bo);
+    acc->mbvh4();
+    ours.push_back(ms_since(t0));
+  }
+  nlohmann::json j;
+  j["scene"] = scene.name;
+  j["triangles"] = scene.triangle_count();
+  j["threads"] = resolve_threads(a.threads);
+  j["quality"] = to_string(bo.quality);
+  j["repeats"] = repeats;
+  j["hash"] = acc->hash();
+  j["references"] = acc->tris().size();
+  j["sah_binary"] = acc->binary_stats().sah_cost;
+  j["sah_mbvh4"] = acc->mbvh4().stats.sah_cost;
+  j["build_ms"] = median(ours);
+  j["build_ms_all"] = ours;
+  say("%s, %zu triangles, quality %s, %u threads: ours %.1f ms (build + MBVH4, median of %u), SAH %.2f, %zu references\n",
+      scene.name.c_str(), scene.triangle_count(), to_string(bo.quality), resolve_threads(a.threads), median(ours), repeats,
+      acc->binary_stats().sah_cost, acc->tris().size());
+  bool have_embree = false;
+  for (const BackendInfo& b : list_backends()) have_embree |= b.name == "embree" && b.make != nullptr;
+  if (have_embree) {
+    BackendOptions eo;
+    eo.threads = a.threads;
+    eo.quality = bo.quality;
+    TraceOptions to;
+    to.layout = Layout::mbvh4;
+    to.traversal = Traversal::stack;
+    for (unsigned r = 0; r < repeats; ++r) {
+      auto be = make_backend("embree", eo);  // a fresh device and scene each time (device start not timed)
+      const auto t0 = Clock::now();
+      be->prepare(*acc, to);
+      embree.push_back(ms_since(t0));
+    }
+    j["embree_build_ms"] = median(embree);
+    j["embree_build_ms_all"] = embree;
+    say("  embree %.1f ms (rtcCommitScene with the triangle copy, median of %u)\n", median(embree), repeats);
+  } else {
+    j["embree_build_ms"] = nullptr;
+    say("  embree: not built in\n");
+  }
+  if (!vs.quality.empty()) {
+    // -- side by side: the same diffuse rays on this tree and on a --versus tree, passes
+    //    interleaved (this, versus, this, ...) so that a machine's changing load hits both alike;
+    //    the ratio is the median of the per-pair ratios. The two trees' hits must be identical.
+    BuildOptions vo = bo;
+    vo.quality = parse_quality(vs.quality);
+    const auto other = Accel::build(scene, vo);
+    RayGenOptions ro;
+    ro.kind = RayKind::diffuse;
+    ro.count = vs.count;
+    ro.threads = a.threads;
+    set_camera(vs.camera, ro.has_camera, ro.camera);
+    const std::vector<Ray> rays = generate_rays(scene, *acc, ro);
+    BackendOptions eo;
+    eo.threads = a.threads;
+    auto be = make_backend(vs.backend, eo);
+    TraceOptions to;
+    to.layout = Layout::mbvh4;
+    to.traversal = Traversal::stack;
+    TraceOutput out[2];
+    const Accel* trees[2] = {acc.get(), other.get()};
+    for (int t = 0; t < 2; ++t) be->trace(*trees[t], rays, to, out[t]);  // warm-up and check
+    if (std::memcmp(out[0].hits.data(), out[1].hits.data(), rays.size() * sizeof(Hit)) != 0)
+      throw Error("build-bench: the " + vs.quality + " tree's hits differ from the " + to_string(bo.quality) + " tree's");
+    std::vector<double> mr[2], ratio;
+    for (unsigned p = 0; p < vs.passes; ++p) {
+      double sec[2];
+      for (int t = 0; t < 2; ++t) {
+        const auto t0 = Clock::now();
+        be->trace(*trees[t], rays, to, out[t]);
+        sec[t] = ms_since(t0) * 1e-3;
+        mr[t].push_back(double(rays.size()) / sec[t] * 1e-6);
+      }
+      ratio.push_back(sec[1] / sec[0]);  // this tree's speed over the versus tree's
+    }
+    nlohmann::json v;
+    v["quality"] = vs.quality;
+    v["backend"] = be->name();
+    v["rays"] = rays.size();
+    v["passes"] = vs.passes;
+    v["mrays_per_s"] = median(mr[0]);
+    v["versus_mrays_per_s"] = median(mr[1]);
+    v["speed_ratio"] = median(ratio);
+    v["sah_binary"] = other->binary_stats().sah_cost;
+    j["versus"] = v;
+    say("  %s, %zu diffuse rays, %u interleaved passes: %s %.3f Mrays/s, %s %.3f Mrays/s, speed %s/%s %.3fx (median of per-pair ratios; min %.3f, max %.3f)\n",
+        be->name().c_str(), rays.size(), vs.passes, to_string(bo.quality), median(mr[0]), vs.quality.c_str(),
+        median(mr[1]), to_string(bo.quality), vs.quality.c_str(), median(ratio), *std::min_element(ratio.begin(), ratio.end()),
+        *std::max_element(ratio.begin(), ratio.end()));
+  }
+  if (!json_path.empty()) {
+    const std::string text = j.dump(2) + "\n";
+    const OutputTarget out{"--json", json_path, true};
+    const std::vector<OutputWrite> writes{{out, text.data(), text.size()}};
+    write_outputs(writes);
+  }
+  return 0;
+}
 
 static int run(int argc, char** argv) {
   CLI::App app{"mbvh " MBVH_VERSION_STRING " — one MBVH2/MBVH4/MBVH8 build, stackless bitstack traversal on several "
@@ -570,6 +703,24 @@ static int run(int argc, char** argv) {
   render_cmd->add_option("--curve", rn_curve, "with --reference: write the RMSE-against-time curve as JSON");
   rn_dev.add(render_cmd);
 
+  // -- build-bench
+  SceneArgs bb_a;
+  unsigned bb_repeats = 5;
+  std::string bb_json;
+  auto* build_bench = app.add_subcommand("build-bench", "build time (median of --repeats) of ours and of the embree peer, and our tree's SAH");
+  add_scene_args(build_bench, bb_a);
+  build_bench->add_option("--repeats", bb_repeats, "builds timed per builder (median reported)")->check(integer_in(1, 1000));
+  build_bench->add_option("--json", bb_json, "also write the results as JSON ('-': standard output)");
+  VersusArgs bb_vs;
+  build_bench->add_option("--versus", bb_vs.quality,
+                          "also trace diffuse rays on this tree and on one of quality VERSUS, passes interleaved, and "
+                          "report the speed ratio (median of per-pair ratios)")
+      ->check(CLI::IsMember({"low", "medium", "high"}));
+  build_bench->add_option("--versus-backend", bb_vs.backend, "backend of --versus (default cpu)");
+  build_bench->add_option("--versus-count", bb_vs.count, "diffuse rays of --versus")->check(ray_count());
+  build_bench->add_option("--versus-passes", bb_vs.passes, "interleaved pass pairs of --versus")->check(integer_in(1, 100000));
+  add_camera_option(build_bench, bb_vs.camera);
+
   // -- devices
   auto* devices = app.add_subcommand("devices", "list the backends of this build, their devices and whether they can start");
   DeviceArgs dv_dev;
@@ -583,6 +734,7 @@ static int run(int argc, char** argv) {
   if (g_quiet) Progress::set_enabled(false);
   try {
     if (*info) return cmd_info(info_a, info_json, info_refit_flag);
+    if (*build_bench) return cmd_build_bench(bb_a, bb_repeats, bb_json, bb_vs);
 
     if (*rays) {
       const OutputTarget out{"-o", rays_out};
@@ -669,6 +821,7 @@ static int run(int argc, char** argv) {
       o.stats = tr_stats;
       o.precision = parse_precision(tr_precision);
       BackendOptions bo = tr_dev.options(tr_a.threads);
+      bo.quality = parse_quality(tr_a.quality);
       auto backend = make_backend(tr_backend, bo);
       if (trace->count("--layout") == 0) {
         o.layout = default_layout(*backend, o.traversal);
@@ -727,6 +880,7 @@ static int run(int argc, char** argv) {
       co.grid = ck_g.parse();
       co.threads = ck_a.threads;
       co.backend = ck_g.dev.options(ck_a.threads);
+      co.backend.quality = parse_quality(ck_a.quality);
       co.brute_rays = ck_brute == "all" ? SIZE_MAX : std::strtoull(ck_brute.c_str(), nullptr, 10);  // checked: an integer
       Loaded l = load_and_build(ck_a);
       std::vector<std::string> kinds = ck_kinds.empty() ? std::vector<std::string>{ck_r.kind} : split_list(ck_kinds);
@@ -769,6 +923,7 @@ static int run(int argc, char** argv) {
       bo.scaling = bn_scaling;
       bo.threads = bn_a.threads;
       bo.backend = bn_g.dev.options(bn_a.threads);
+      bo.backend.quality = parse_quality(bn_a.quality);
       set_camera(bn_camera, bo.has_camera, bo.camera);
       Loaded l = load_and_build(bn_a);
       Progress p("benchmarking", bo.kinds.size() * bo.grid.size());
