@@ -295,3 +295,25 @@ TEST_CASE("stress: mbvh check counts a lost hit as a genuine mismatch - not a ti
     CHECK(excused * 20 < hits);  // only hits on edges or in the ray's plane may be excused
   }
 }
+
+// The same guarantees on the other builders' trees (issue 15): the low-quality LBVH and the
+// high-quality SBVH (a triangle in several leaves, clipped reference boxes). Fewer rays and no
+// transforms: the builders change the tree, not the arithmetic the transforms stress.
+TEST_CASE("stress: inside and special rays on the low and high quality trees", "[stress][quality]") {
+  const VariantGrid grid = all_backends();
+  for (BuildQuality q : {BuildQuality::low, BuildQuality::high}) {
+    BuildOptions bo;
+    bo.quality = q;
+    for (const char* spec : kClosed) {
+      const Scene s = load_scene(spec);
+      const auto acc = Accel::build(s, bo);
+      require_clean(*acc, feature_rays(s, inside_point(s), 1000, 300, 7), grid,
+                    std::string(spec) + " quality " + to_string(q) + ": inside rays");
+    }
+    for (const char* spec : kOpen) {
+      const Scene s = load_scene(spec);
+      const auto acc = Accel::build(s, bo);
+      require_clean(*acc, special_rays(s, *acc, 1500, 3), grid, std::string(spec) + " quality " + to_string(q) + ": special rays");
+    }
+  }
+}
