@@ -63,7 +63,8 @@ public:
     rtcSetDeviceErrorFunction(device_, &on_error, this);
   }
   ~EmbreeBackend() override {
-    if (scene_) rtcReleaseScene(scene_);
+    for (RTCScene s : scene_)
+      if (s) rtcReleaseScene(s);
     if (device_) rtcReleaseDevice(device_);
   }
   EmbreeBackend(const EmbreeBackend&) = delete;
@@ -72,23 +73,32 @@ public:
   std::string name() const override { return "embree"; }
   std::string describe() const override {
     return std::string("embree: Embree ") + RTC_VERSION_STRING +
-           " robust mode (RTC_SCENE_FLAG_ROBUST), its own BVH, rtcIntersect1/rtcOccluded1, " + std::to_string(threads_) +
-           " thread(s)";
+           " robust mode (RTC_SCENE_FLAG_ROBUST; --precision fast: its default mode), its own BVH, "
+           "rtcIntersect1/rtcOccluded1, " + std::to_string(threads_) + " thread(s)";
   }
+  /// robust: Embree's robust mode (RTC_SCENE_FLAG_ROBUST); fast: Embree's default mode (the flag
+  /// off: faster box and triangle tests that may miss an edge), the peer of mbvh's fast mode.
+  /// exact is mbvh's own contract: refused.
+  bool supports_precision(Precision p) const override { return p != Precision::exact; }
   bool supports(Layout l, Traversal t) const override { return l == Layout::mbvh4 && t == Traversal::stack; }
   bool peer() const override { return true; }
   /// Embree's stack is internal: not reported.
   std::size_t state_bytes(const TraceOptions&) const override { return 0; }
 
-  void prepare(const Accel& acc, const TraceOptions&) override {
-    if (&acc == acc_ && acc.hash() == hash_) return;
-    if (scene_) rtcReleaseScene(scene_);
-    scene_ = nullptr;
-    acc_ = nullptr;
+  void prepare(const Accel& acc, const TraceOptions& opt) override {
+    const int mode = opt.precision == Precision::fast ? 1 : 0;
+    if (&acc != acc_ || acc.hash() != hash_) {  // a new build: both modes' scenes are stale
+      for (RTCScene& s : scene_) {
+        if (s) rtcReleaseScene(s);
+        s = nullptr;
+      }
+      acc_ = nullptr;
+    }
+    if (scene_[mode]) return;
     const auto& tris = acc.tris();
     prims_.resize(tris.size());
     RTCScene scene = rtcNewScene(device_);
-    rtcSetSceneFlags(scene, RTC_SCENE_FLAG_ROBUST);
+    rtcSetSceneFlags(scene, mode == 0 ? RTC_SCENE_FLAG_ROBUST : RTC_SCENE_FLAG_NONE);
     RTCGeometry g = rtcNewGeometry(device_, RTC_GEOMETRY_TYPE_TRIANGLE);
     auto* v = static_cast<float*>(
         rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 3 * sizeof(float), 3 * tris.size()));
@@ -118,7 +128,7 @@ public:
     rtcAttachGeometry(scene, g);
     rtcReleaseGeometry(g);
     rtcCommitScene(scene);
-    scene_ = scene;
+    scene_[mode] = scene;
     raise("rtcCommitScene");
     acc_ = &acc;
     hash_ = acc.hash();
@@ -129,8 +139,10 @@ public:
       throw Error("embree: answers only as mbvh4/stack (its own BVH and traversal)");
     if (!supports_precision(opt.precision))
       throw Error(std::string("embree: precision '") + to_string(opt.precision) +
-                  "' is not available (Embree's robust mode is its only one: --precision robust)");
+                  "' is not available (Embree has its robust mode, --precision robust, and its default mode, "
+                  "--precision fast)");
     prepare(acc, opt);
+    RTCScene scene = scene_[opt.precision == Precision::fast ? 1 : 0];
     const bool any = opt.query == Query::any;
     out.reset(rays.size(), opt);
     std::vector<std::size_t> invalid(threads_, 0);         // per worker
@@ -162,10 +174,10 @@ public:
         rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
         rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
         if (any) {
-          rtcOccluded1(scene_, &ctx, &rh.ray);
+          rtcOccluded1(scene, &ctx, &rh.ray);
           out.occluded[i] = rh.ray.tfar == -INFINITY ? 1 : 0;
         } else {
-          rtcIntersect1(scene_, &ctx, &rh);
+          rtcIntersect1(scene, &ctx, &rh);
           if (rh.hit.geomID != RTC_INVALID_GEOMETRY_ID)
             out.hits[i] = Hit{rh.ray.tfar, rh.hit.u, rh.hit.v, prims_[rh.hit.primID]};
         }
@@ -210,7 +222,7 @@ private:
 
   unsigned threads_;
   RTCDevice device_ = nullptr;
-  RTCScene scene_ = nullptr;
+  RTCScene scene_[2] = {nullptr, nullptr};  // robust mode, default (fast) mode
   const Accel* acc_ = nullptr;
   std::uint64_t hash_ = 0;
   std::vector<std::uint32_t> prims_;  // Embree primID -> the file's prim id

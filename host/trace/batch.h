@@ -4,6 +4,7 @@
 // namespace like the kernels it calls.
 #pragma once
 #include <atomic>
+#include <cstdlib>
 #include <functional>
 #include <span>
 
@@ -38,15 +39,29 @@ inline TraceView trace_view(const Accel& acc, Layout layout, bool packs = false)
   return v;
 }
 
+inline bool bitstack_slot_variant() {  // TEMPORARY: A/B measurement switch (1 = the sibling-register form)
+  static const bool on = [] { const char* e = std::getenv("MBVH_BITSTACK_REGS"); return e && *e == '1'; }();
+  return on;
+}
+
 template <bool Any, class K, class St>
 inline Hit dispatch(const TraceView& v, const RayPre& r, Layout l, Traversal t, St& st) {
   if (l == Layout::mbvh2)
     return t == Traversal::stack ? trace_mbvh2_stack<Any, St, K>(v, r, st) : trace_mbvh2_bitstack<Any, St, K>(v, r, st);
-  if (l == Layout::mbvh8)
-    return t == Traversal::stack_ordered ? trace_wide_stack_ordered<Any, St, K, Node8>(v, r, st) : miss_hit();
+  if (l == Layout::mbvh8) {
+    switch (t) {
+      case Traversal::stack: return trace_mbvh8_stack<Any, St, K>(v, r, st);
+      case Traversal::bitstack: return trace_mbvh8_bitstack<Any, St, K>(v, r, st);
+      case Traversal::stack_ordered: return trace_wide_stack_ordered<Any, St, K, Node8>(v, r, st);
+      case Traversal::bitstack_retest: return miss_hit();
+    }
+    return miss_hit();
+  }
   switch (t) {
     case Traversal::stack: return trace_mbvh4_stack<Any, St, K>(v, r, st);
-    case Traversal::bitstack: return trace_mbvh4_bitstack<Any, St, K>(v, r, st);
+    case Traversal::bitstack:
+      if (bitstack_slot_variant()) return trace_mbvh4_bitstack<Any, St, K>(v, r, st);
+      return trace_mbvh4_bitstack_slot<Any, St, K>(v, r, st);
     case Traversal::stack_ordered: return trace_wide_stack_ordered<Any, St, K>(v, r, st);
     case Traversal::bitstack_retest: return trace_mbvh4_bitstack_retest<Any, St, K>(v, r, st);
   }
