@@ -4,7 +4,6 @@
 // namespace like the kernels it calls.
 #pragma once
 #include <atomic>
-#include <cstdlib>
 #include <functional>
 #include <span>
 
@@ -39,11 +38,6 @@ inline TraceView trace_view(const Accel& acc, Layout layout, bool packs = false)
   return v;
 }
 
-inline bool bitstack_slot_variant() {  // TEMPORARY: A/B measurement switch (1 = the sibling-register form)
-  static const bool on = [] { const char* e = std::getenv("MBVH_BITSTACK_REGS"); return e && *e == '1'; }();
-  return on;
-}
-
 template <bool Any, class K, class St>
 inline Hit dispatch(const TraceView& v, const RayPre& r, Layout l, Traversal t, St& st) {
   if (l == Layout::mbvh2)
@@ -59,9 +53,7 @@ inline Hit dispatch(const TraceView& v, const RayPre& r, Layout l, Traversal t, 
   }
   switch (t) {
     case Traversal::stack: return trace_mbvh4_stack<Any, St, K>(v, r, st);
-    case Traversal::bitstack:
-      if (bitstack_slot_variant()) return trace_mbvh4_bitstack<Any, St, K>(v, r, st);
-      return trace_mbvh4_bitstack_slot<Any, St, K>(v, r, st);
+    case Traversal::bitstack: return trace_mbvh4_bitstack<Any, St, K>(v, r, st);
     case Traversal::stack_ordered: return trace_wide_stack_ordered<Any, St, K>(v, r, st);
     case Traversal::bitstack_retest: return trace_mbvh4_bitstack_retest<Any, St, K>(v, r, st);
   }
