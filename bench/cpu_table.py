@@ -1,17 +1,26 @@
 #!/usr/bin/env python3
 """cpu_table.py — Markdown tables from the `mbvh bench --scaling --json` files of
-bench/cpu_vs_embree.sh: the cpu backend's variants beside Embree (Mrays/s, medians, on 1 and 2
-threads), the ratios issue 3 sets targets for (stack-based cpu / Embree >= 1.0, bitstack time /
-stack time <= 1.10) and the thread scaling from 1 to 2 threads (>= 1.9 on incoherent rays).
+bench/cpu_vs_embree.sh: per scene x rays (query) x threads, the cpu backend's variants beside
+Embree's robust mode (Mrays/s, medians), and the ratios issue 14 sets targets for:
+  best stack-based cpu (robust) / Embree robust  >= 1.0 on every row,
+  best stackless cpu (robust)   / Embree robust,
+  best cpu fast                 / Embree default mode (`embree --precision fast`),
+  bitstack time / its stack twin's time (MBVH4, MBVH8) <= 1.05;
+then the thread scaling from 1 to 2 threads. Robust records count only when verified (zero
+mismatches against cpu-scalar); fast records always (the fast modes differ from the robust answer
+by design: their mismatch counts are printed below the table).
     python3 bench/cpu_table.py bench/out/*.json
 """
 import json
 import os
 import sys
 
-VARIANTS = [("cpu", "mbvh4", "stack"), ("cpu", "mbvh4", "bitstack"), ("cpu", "mbvh4", "stack-ordered"),
-            ("cpu", "mbvh8", "stack-ordered"), ("embree", "mbvh4", "stack")]
-STACK_BASED = [0, 2, 3]
+ROBUST = [("cpu", "mbvh4", "stack"), ("cpu", "mbvh4", "bitstack"), ("cpu", "mbvh4", "stack-ordered"),
+          ("cpu", "mbvh8", "stack"), ("cpu", "mbvh8", "bitstack"), ("cpu", "mbvh8", "stack-ordered")]
+STACK_BASED = [0, 2, 3, 5]
+STACKLESS = [1, 4]
+EMBREE = ("embree", "mbvh4", "stack")
+KINDS = ["primary", "diffuse", "shadow"]
 
 
 def fmt(x, digits=2):
@@ -19,47 +28,68 @@ def fmt(x, digits=2):
 
 
 def main(paths):
-    speed, scaling, order = {}, {}, []
+    speed, scaling, order, fast_mismatch = {}, {}, [], {}
     for p in paths:
         with open(p) as f:
             doc = json.load(f)
         for r in doc["records"]:
-            if r["query"] != "closest" or r.get("verify_mismatches", 0) != 0:
+            prec = r.get("precision", "robust")
+            if prec == "exact":
+                continue
+            if prec == "robust" and r.get("verify_mismatches", 0) != 0:
                 continue
             scene = os.path.basename(r["scene"]).split(".")[0]
-            v = (r["backend"], r["layout"], r["traversal"])
-            for threads, mr in ((1, r.get("mrays_per_s_1_thread", 0)), (r["threads"], r["mrays_per_s"])):
-                key = (scene, r["ray_kind"], threads)
+            v = (r["backend"], r["layout"], r["traversal"], prec)
+            rows = ((1, r.get("mrays_per_s_1_thread", 0)), (r["threads"], r["mrays_per_s"]))
+            for threads, mr in rows:
+                key = (scene, r["ray_kind"], r["query"], threads)
                 if mr and key not in order:
                     order.append(key)
                 if mr:
                     speed[key + v] = mr
-            scaling[(scene, r["ray_kind"]) + v] = r.get("thread_scaling", 0)
+            scaling[(scene, r["ray_kind"], r["query"]) + v] = r.get("thread_scaling", 0)
+            if prec == "fast":
+                fast_mismatch[(scene, r["ray_kind"], r["backend"], r["layout"], r["traversal"])] = r.get(
+                    "verify_mismatches", 0)
     if not speed:
-        sys.exit("cpu_table.py: no verified closest-hit records in " + " ".join(paths))
-    order.sort(key=lambda k: (k[0], ["primary", "diffuse", "shadow"].index(k[1]) if k[1] in ("primary", "diffuse", "shadow") else 9, k[2]))
+        sys.exit("cpu_table.py: no usable records in " + " ".join(paths))
+    order.sort(key=lambda k: (k[0], KINDS.index(k[1]) if k[1] in KINDS else 9, k[2], k[3]))
 
-    print("| scene | rays | threads | MBVH4 stack | MBVH4 bitstack | MBVH4 ordered | MBVH8 ordered | embree "
-          "| MBVH4 stack × embree | best stack-based cpu × embree | bitstack / stack time |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print("| scene | rays | query | threads | MBVH4 stack | MBVH4 bitstack | MBVH4 ordered | MBVH8 stack "
+          "| MBVH8 bitstack | MBVH8 ordered | embree robust | best cpu fast | embree default "
+          "| best stack-based × embree robust | best stackless × embree robust | best fast × embree default "
+          "| MBVH4 bitstack/stack time | MBVH8 bitstack/stack time |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for key in order:
-        s = [speed.get(key + v) for v in VARIANTS]
-        emb = s[4]
-        best = max((s[i] for i in STACK_BASED if s[i]), default=None)
-        ratio = lambda x: None if not x or not emb else x / emb
-        slow = None if not s[0] or not s[1] else s[0] / s[1]
-        print(f"| {key[0]} | {key[1]} | {key[2]} | " + " | ".join(fmt(x) for x in s) +
-              f" | {fmt(ratio(s[0]))} | {fmt(ratio(best))} | {fmt(slow, 3)} |")
+        s = [speed.get(key + v + ("robust",)) for v in ROBUST]
+        emb = speed.get(key + EMBREE + ("robust",))
+        emb_fast = speed.get(key + EMBREE + ("fast",))
+        fast = max((speed.get(key + v + ("fast",)) or 0 for v in ROBUST), default=0) or None
+        best_stack = max((s[i] for i in STACK_BASED if s[i]), default=None)
+        best_less = max((s[i] for i in STACKLESS if s[i]), default=None)
+        ratio = lambda x, e: None if not x or not e else x / e
+        slow4 = None if not s[0] or not s[1] else s[0] / s[1]
+        slow8 = None if not s[3] or not s[4] else s[3] / s[4]
+        print(f"| {key[0]} | {key[1]} | {key[2]} | {key[3]} | " + " | ".join(fmt(x) for x in s) +
+              f" | {fmt(emb)} | {fmt(fast)} | {fmt(emb_fast)} | {fmt(ratio(best_stack, emb))} "
+              f"| {fmt(ratio(best_less, emb))} | {fmt(ratio(fast, emb_fast))} | {fmt(slow4, 3)} | {fmt(slow8, 3)} |")
 
     print()
-    print("| scene | rays | MBVH4 stack 2/1 threads | MBVH4 bitstack | MBVH8 ordered | embree |")
-    print("|---|---|---|---|---|---|")
+    print("| scene | rays | MBVH4 stack 2/1 threads | MBVH4 bitstack | MBVH8 bitstack | MBVH8 ordered | embree robust |")
+    print("|---|---|---|---|---|---|---|")
     seen = []
-    for scene, kind, _ in order:
-        if (scene, kind) not in seen:
-            seen.append((scene, kind))
-            cells = [scaling.get((scene, kind) + VARIANTS[i]) for i in (0, 1, 3, 4)]
+    for scene, kind, query, _ in order:
+        if (scene, kind, query) not in seen:
+            seen.append((scene, kind, query))
+            cells = [scaling.get((scene, kind, query) + ROBUST[i] + ("robust",)) for i in (0, 1, 4, 5)]
+            cells.append(scaling.get((scene, kind, query) + EMBREE + ("robust",)))
             print(f"| {scene} | {kind} | " + " | ".join(fmt(c) for c in cells) + " |")
+
+    bad = {k: m for k, m in fast_mismatch.items() if m}
+    if bad:
+        print()
+        print("fast-mode answers that differ from the robust reference (by design; not timed out): " +
+              ", ".join(f"{k[0]}/{k[1]} {k[2]} {k[3]}/{k[4]}: {m}" for k, m in sorted(bad.items())))
 
 
 if __name__ == "__main__":

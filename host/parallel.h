@@ -1,6 +1,7 @@
-// parallel.h — the one threading primitive of mbvh: a blocking parallel loop over index chunks.
-// Chunks are claimed dynamically, so results that must be deterministic may depend only on the
-// chunk index, never on which worker ran it.
+// parallel.h — the one threading primitive of mbvh: a blocking parallel loop over index chunks,
+// run on a persistent worker pool (no thread is created per call). Chunks are claimed
+// dynamically, so results that must be deterministic may depend only on the chunk index, never
+// on which worker ran it. A call from inside a running parallel_for runs inline on its thread.
 #pragma once
 #include <cstddef>
 #include <functional>

@@ -4,8 +4,12 @@
 // line up, and rays the embree peer cannot take.
 #include <catch2/catch.hpp>
 
+#include <atomic>
 #include <cmath>
 #include <limits>
+#include <stdexcept>
+#include <thread>
+#include <vector>
 
 #include "host/accel.h"
 #include "host/backend.h"
@@ -179,7 +183,7 @@ TEST_CASE("every backend traces an empty batch and refuses a traversal it lacks 
     }
     TraceOutput out;
     const std::vector<Ray> rays(1, Ray{0, 0, 5, 0, 0, 0, -1, INFINITY});
-    CHECK_THROWS_AS(backend->trace(*acc, rays, TraceOptions{Layout::mbvh8, Traversal::bitstack}, out), Error);
+    CHECK_THROWS_AS(backend->trace(*acc, rays, TraceOptions{Layout::mbvh8, Traversal::bitstack_retest}, out), Error);
   }
 }
 
@@ -218,3 +222,52 @@ TEST_CASE("the embree peer reports a ray beyond what Embree accepts as an Error 
   CHECK_THROWS_WITH(Accel::build(load_scene("gen:sphere:8@scale=1e19")), Catch::Contains("is beyond +-2^40"));
 }
 #endif
+
+TEST_CASE("parallel_for on the persistent pool - every chunk once - nested and concurrent calls - errors rethrown",
+          "[api]") {
+  // every chunk exactly once, chunk bounds as documented, worker ids below the thread count
+  for (unsigned threads : {1u, 2u, 3u, 8u})
+    for (std::size_t n : {std::size_t{1}, std::size_t{7}, std::size_t{1000}, std::size_t{4097}}) {
+      std::vector<std::atomic<int>> seen(n);
+      std::atomic<unsigned> max_worker{0};
+      std::atomic<int> bad_bounds{0};  // Catch's CHECK is not thread-safe: count, check after
+      mbvh::parallel_for(n, 64, threads, [&](std::size_t b, std::size_t e, unsigned w) {
+        bad_bounds += b % 64 != 0 || e != std::min(n, b + 64);
+        for (std::size_t i = b; i < e; ++i) ++seen[i];
+        unsigned m = max_worker.load();
+        while (w > m && !max_worker.compare_exchange_weak(m, w)) {}
+      });
+      CHECK(bad_bounds == 0);
+      for (std::size_t i = 0; i < n; ++i) CHECK(seen[i] == 1);
+      CHECK(max_worker < threads);
+    }
+  // a call from inside a running parallel_for runs inline (no deadlock on the pool)
+  std::atomic<std::size_t> inner{0}, inner_workers{0};
+  mbvh::parallel_for(64, 1, 4, [&](std::size_t, std::size_t, unsigned) {
+    mbvh::parallel_for(10, 3, 4, [&](std::size_t b, std::size_t e, unsigned w) {
+      inner_workers += w;
+      inner += e - b;
+    });
+  });
+  CHECK(inner == 640);
+  CHECK(inner_workers == 0);
+  // concurrent callers from other threads each get all their chunks
+  std::vector<std::thread> callers;
+  std::atomic<std::size_t> total{0};
+  for (int c = 0; c < 4; ++c)
+    callers.emplace_back([&] {
+      for (int rep = 0; rep < 20; ++rep)
+        mbvh::parallel_for(500, 7, 2, [&](std::size_t b, std::size_t e, unsigned) { total += e - b; });
+    });
+  for (std::thread& t : callers) t.join();
+  CHECK(total == 4 * 20 * 500);
+  // the first exception reaches the caller; the pool stays usable
+  CHECK_THROWS_WITH(mbvh::parallel_for(100, 1, 2,
+                                       [](std::size_t b, std::size_t, unsigned) {
+                                         if (b == 50) throw std::runtime_error("chunk 50");
+                                       }),
+                    Catch::Contains("chunk 50"));
+  std::atomic<std::size_t> after{0};
+  mbvh::parallel_for(100, 1, 2, [&](std::size_t b, std::size_t e, unsigned) { after += e - b; });
+  CHECK(after == 100);
+}

@@ -161,6 +161,7 @@ void check_invariants(const Scene& scene, const Accel& acc) {
   for (int r : leaf_refs8) REQUIRE(r == 1);
   REQUIRE(m8.stats.depth <= MBVH_MBVH8_LEVEL_CAP);
   REQUIRE(1 + 7 * m8.stats.depth <= MBVH_STACK8_ENTRIES);
+  REQUIRE(m8.stats.bitstack_bits <= 128);  // the MBVH8 bitstack's 128-bit word
 
   // -- SIMD leaf packs: each leaf's triangles, in order, four to a pack, padding lanes empty
   const TriPacks& packs = acc.tri_packs();

@@ -135,5 +135,5 @@ TEST_CASE("opencl: rays over several dispatch batches come back in order", "[ope
 
 TEST_CASE("opencl: mbvh bench times it beside cpu - verified - with its state and the ratio to cpu", "[opencl]") {
   // backends x layouts x traversals x queries
-  mbvh_test::check_bench_beside_cpu("opencl", "--traversal stack,bitstack", 2 * 2 * 2 * 2, 8, {"OpenCL device"});
+  mbvh_test::check_bench_beside_cpu("opencl", "--layout mbvh2,mbvh4 --traversal stack,bitstack", 2 * 2 * 2 * 2, 8, {"OpenCL device"});
 }

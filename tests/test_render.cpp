@@ -142,8 +142,8 @@ TEST_CASE("render: bad requests are clear errors", "[render]") {
   CHECK_THROWS_WITH(render(s, *acc, *vk, o), Catch::Contains("empty"));
   o = small(RenderMode::path);
   o.layout = Layout::mbvh8;
-  o.traversal = Traversal::bitstack;
-  CHECK_THROWS_WITH(render(s, *acc, *vk, o), Catch::Contains("cpu-scalar") && Catch::Contains("mbvh8/bitstack"));
+  o.traversal = Traversal::bitstack_retest;
+  CHECK_THROWS_WITH(render(s, *acc, *vk, o), Catch::Contains("cpu-scalar") && Catch::Contains("mbvh8/bitstack-retest"));
   CHECK_THROWS_WITH(parse_render_mode("photon"), Catch::Contains("photon") && Catch::Contains("path, ao, normals"));
   mbvh_test::TempDir dir;
   auto r = mbvh_test::run_cli("render gen:cube:4 --width 16 --height 16 --spp 1 -o " + dir.file("ok.png"));

@@ -47,7 +47,8 @@ void check_scene(const std::string& spec, const BuildOptions& bo = {}, std::size
     // -- twins are bit-identical: each bitstack and its stack twin, per layout and query
     const std::pair<Layout, Traversal> bitstacks[] = {{Layout::mbvh2, Traversal::bitstack},
                                                       {Layout::mbvh4, Traversal::bitstack},
-                                                      {Layout::mbvh4, Traversal::bitstack_retest}};
+                                                      {Layout::mbvh4, Traversal::bitstack_retest},
+                                                      {Layout::mbvh8, Traversal::bitstack}};
     for (const auto& [l, bt] : bitstacks)
       for (Query q : {Query::closest, Query::any}) {
         TraceOutput out[2];
@@ -202,7 +203,7 @@ TEST_CASE("rays from inside a closed mesh never leak", "[traversal]") {
       r.oy *= 0.4f;
       r.oz *= 0.4f;
     }
-    for (Layout l : {Layout::mbvh2, Layout::mbvh4})
+    for (Layout l : {Layout::mbvh2, Layout::mbvh4, Layout::mbvh8})
       for (Traversal t : {Traversal::stack, Traversal::bitstack})
         for (Query q : {Query::closest, Query::any}) {
           TraceOptions o{l, t, q, false};
@@ -268,7 +269,7 @@ TEST_CASE("statistics count work and stay out of the answers", "[traversal]") {
   RayGenOptions ro;
   ro.count = 20000;
   const std::vector<Ray> rays = generate_rays(s, *acc, ro);
-  for (Layout l : {Layout::mbvh2, Layout::mbvh4}) {
+  for (Layout l : {Layout::mbvh2, Layout::mbvh4, Layout::mbvh8}) {
     TraceOutput plain, counted, stack;
     trace_reference(*acc, rays, TraceOptions{l, Traversal::bitstack, Query::closest, false}, plain, 0);
     trace_reference(*acc, rays, TraceOptions{l, Traversal::bitstack, Query::closest, true}, counted, 0);
@@ -296,7 +297,9 @@ TEST_CASE("statistics count work and stay out of the answers", "[traversal]") {
       CHECK(counted.stats[i].leaves == stack.stats[i].leaves);
       CHECK(counted.stats[i].tris == stack.stats[i].tris);
       CHECK(stack.stats[i].climbs == 0);
-      CHECK(stack.stats[i].max_depth <= (l == Layout::mbvh2 ? MBVH_STACK2_ENTRIES : MBVH_STACK4_ENTRIES));
+      CHECK(stack.stats[i].max_depth <= (l == Layout::mbvh2   ? MBVH_STACK2_ENTRIES
+                                         : l == Layout::mbvh4 ? MBVH_STACK4_ENTRIES
+                                                              : MBVH_STACK8_ENTRIES));
       climbs += counted.stats[i].climbs;
       nodes += counted.stats[i].nodes;
     }
@@ -309,7 +312,7 @@ TEST_CASE("statistics count work and stay out of the answers", "[traversal]") {
   for (const std::string& name : grid.backends) {
     auto backend = make_backend(name);
     if (backend->peer()) continue;  // a peer library has no per-ray counters
-    for (Layout l : {Layout::mbvh2, Layout::mbvh4})
+    for (Layout l : {Layout::mbvh2, Layout::mbvh4, Layout::mbvh8})
       for (Traversal t : grid.traversals)
         for (Query q : {Query::closest, Query::any}) {
           if (!backend->supports(l, t)) continue;
@@ -334,5 +337,11 @@ TEST_CASE("statistics count work and stay out of the answers", "[traversal]") {
   CHECK_FALSE(reference_supports(Layout::mbvh2, Traversal::bitstack_retest));
   CHECK(state_bytes_per_ray(Layout::mbvh8, Traversal::stack_ordered) == 1032);  // 128 (node, distance) entries
   CHECK(reference_supports(Layout::mbvh8, Traversal::stack_ordered));
-  CHECK_FALSE(reference_supports(Layout::mbvh8, Traversal::bitstack));  // no 7-bit skip codes: stack-based only
+  CHECK(reference_supports(Layout::mbvh8, Traversal::bitstack));  // 8 pending bits per level, 128-bit word
+  CHECK(reference_supports(Layout::mbvh8, Traversal::stack));      // its twin
+  CHECK_FALSE(reference_supports(Layout::mbvh8, Traversal::bitstack_retest));
+  CHECK(state_bytes_per_ray(Layout::mbvh8, Traversal::bitstack) == 20);  // node + 128-bit word
+  CHECK(state_bytes_per_ray(Layout::mbvh8, Traversal::stack) == 520);    // 128 int32 entries
+  CHECK(state_bytes_per_ray(Layout::mbvh8, Traversal::stack) / state_bytes_per_ray(Layout::mbvh8, Traversal::bitstack) >= 22);
+  CHECK(state_bytes_per_ray(Layout::mbvh8, Traversal::stack_ordered) / state_bytes_per_ray(Layout::mbvh8, Traversal::bitstack) >= 51);
 }

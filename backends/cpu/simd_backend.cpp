@@ -47,8 +47,11 @@ public:
   std::string isa() const override { return kernels_.isa; }
   bool supports(Layout l, Traversal t) const override { return reference_supports(l, t); }
   bool supports_precision(Precision) const override { return true; }
+  /// Everything made once per build happens here, outside the timed trace: the layout and the
+  /// leaves' SIMD packs (both kept by the Accel; later calls are free).
   void prepare(const Accel& acc, const TraceOptions& opt) override {
     acc.make_layout(opt.layout);
+    acc.tri_packs();
   }
   void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
     if (!reference_supports(opt.layout, opt.traversal))

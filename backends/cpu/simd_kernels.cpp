@@ -12,6 +12,7 @@
 // test, Woop, Benthin & Wald 2013 for the watertight triangle test.
 #include <immintrin.h>
 
+#include <array>
 #include <atomic>
 #include <bit>
 #include <cmath>
@@ -67,6 +68,18 @@ inline namespace MBVH_ISA_NS {
 namespace {
 
 inline unsigned mask4(__m128 m) { return static_cast<unsigned>(_mm_movemask_ps(m)); }
+
+/// 8-bit masks bit-reversed (slot s <-> 7 - s).
+constexpr std::array<std::uint8_t, 256> kReverse8 = [] {
+  std::array<std::uint8_t, 256> t{};
+  for (unsigned m = 0; m < 256; ++m) {
+    unsigned r = 0;
+    for (int b = 0; b < 8; ++b)
+      if ((m >> b) & 1u) r |= 1u << (7 - b);
+    t[m] = static_cast<std::uint8_t>(r);
+  }
+  return t;
+}();
 
 /// 4 and 8 lanes of float: the operations the box test needs.
 struct F4 {
@@ -133,6 +146,10 @@ template <class F, class N>
 /// denominator (u = V / det, v = W / det: divided for the chosen lane only); the lanes this cannot settle in
 /// float — an edge function exactly 0 (settled in double) or t within its error bound of 0
 /// (settled by the plane distance in double) — go to `fallback` for the scalar test, a rare case.
+/// Any (occlusion): the same decision, but nothing beyond it — no t, barycentrics or
+/// determinant leave the function. The t-error bound stays: it is the decision's last step (a
+/// lane with t within it is no certain hit).
+template <bool Any = false>
 [[gnu::always_inline]] inline unsigned tri4_test(const Tri4& p, const RayPre& r, unsigned valid, float tmax, float t_out[4],
                                                  float V_out[4], float W_out[4], float det_out[4], unsigned& fallback) {
   const __m128 ox = _mm_set1_ps(r.o[r.kx]), oy = _mm_set1_ps(r.o[r.ky]), oz = _mm_set1_ps(r.o[r.kz]);
@@ -184,6 +201,7 @@ template <class F, class N>
       _mm_mul_ps(_mm_mul_ps(_mm_set1_ps(3.0f), sum), _mm_andnot_ps(sign, _mm_div_ps(_mm_set1_ps(1.0f), det)));
   const unsigned sure = cand & mask4(_mm_cmp_ps(t, dt, _CMP_GT_OQ));
   fallback |= cand & ~sure;
+  if constexpr (Any) return sure;
   _mm_storeu_ps(t_out, t);
   _mm_storeu_ps(V_out, V);
   _mm_storeu_ps(W_out, W);
@@ -194,6 +212,7 @@ template <class F, class N>
 /// The `fast` mode's four triangles at once: Möller–Trumbore (1997) with FMA and the reciprocal
 /// estimate refined by one Newton step (about 23 bits, not correctly rounded), as fast SIMD tracers
 /// do. Returns the hit lanes of `valid` with t, u, v (det_out = 1: u, v are the weights already).
+template <bool Any = false>
 [[gnu::always_inline]] inline unsigned tri4_test_mt(const Tri4& p, const RayPre& r, unsigned valid, float tmax, float t_out[4],
                                                     float u_out[4], float v_out[4], float det_out[4]) {
   __m128 v0[3], e1[3], e2[3], d[3], s[3];
@@ -227,7 +246,7 @@ template <class F, class N>
   ok = _mm_and_ps(ok, _mm_cmp_ps(_mm_add_ps(u, v), one, _CMP_LE_OQ));
   ok = _mm_and_ps(ok, _mm_and_ps(_mm_cmp_ps(t, _mm_set1_ps(r.tmin), _CMP_GE_OQ), _mm_cmp_ps(t, _mm_set1_ps(tmax), _CMP_LE_OQ)));
   const unsigned hit = valid & mask4(ok);
-  if (hit == 0) return 0;
+  if (Any || hit == 0) return hit;
   _mm_storeu_ps(t_out, t);
   _mm_storeu_ps(u_out, u);
   _mm_storeu_ps(v_out, v);
@@ -270,6 +289,26 @@ struct SimdKernelsT {
     }
   }
 
+  /// MBVH8 pushes (traverse.h: highest slot first): AVX-512 reverses the row of child links,
+  /// compresses the hit ones (the mask bit-reversed) in a register and stores the whole row (a
+  /// compress straight to memory is microcoded on Zen 4).
+  [[gnu::always_inline]] static unsigned push8(std::int32_t* stack, unsigned sp, unsigned mask, const std::int32_t* child) {
+#if MBVH_CPU_ISA_ID == 2
+    const __m256i links = _mm256_permutexvar_epi32(_mm256_setr_epi32(7, 6, 5, 4, 3, 2, 1, 0),
+                                                   _mm256_loadu_si256(reinterpret_cast<const __m256i*>(child)));
+    const unsigned rev = static_cast<unsigned>(kReverse8[mask & 0xFFu]);
+    _mm256_storeu_si256(reinterpret_cast<__m256i*>(stack + sp), _mm256_maskz_compress_epi32(static_cast<__mmask8>(rev), links));
+    return sp + static_cast<unsigned>(std::popcount(mask));
+#else
+    while (mask != 0) {
+      const int s = 31 - std::countl_zero(mask);
+      mask &= ~(1u << s);
+      stack[sp++] = child[s];
+    }
+    return sp;
+#endif
+  }
+
   template <bool Any, class St>
   [[gnu::always_inline]] static bool leaf(const TraceView& v, std::int32_t ref, const RayPre& r, float& tmax, Hit& best,
                                           St& st) {
@@ -278,11 +317,34 @@ struct SimdKernelsT {
     } else {
       const Leaf l = v.leaf4[~ref];
       const Tri4* p = v.tri4 + l.first;
+      if constexpr (Any && !Fast) {
+        // occlusion: the first pack with a lane hit for certain answers; the rare undecided lanes
+        // (an exact-zero edge function, t within its error bound) go to the scalar test only while
+        // no lane of the pack is certain. The reference's any hit accepts exactly the same lanes.
+        for (std::uint32_t k = 0; k < l.count; k += 4, ++p) {
+          const unsigned valid = l.count - k >= 4 ? 0xFu : (1u << (l.count - k)) - 1u;
+          float t[4], u[4], w[4], det[4];
+          unsigned fallback = 0;
+          const unsigned hit = tri4_test<true>(*p, r, valid, tmax, t, u, w, det, fallback);
+          if (hit != 0) {
+            best.prim = p->prim[std::countr_zero(hit)];
+            return true;
+          }
+          for (unsigned f = fallback; f != 0; f &= f - 1) {
+            const int lane = std::countr_zero(f);
+            if (tri_test(r, v.tris[v.leaves[~ref].first + k + static_cast<unsigned>(lane)], tmax, t[lane], u[lane], w[lane])) {
+              best.prim = p->prim[lane];
+              return true;
+            }
+          }
+        }
+        return false;
+      }
       for (std::uint32_t k = 0; k < l.count; k += 4, ++p) {
         const unsigned valid = l.count - k >= 4 ? 0xFu : (1u << (l.count - k)) - 1u;
         float t[4], u[4], w[4], det[4];
         unsigned fallback = 0, hit;
-        if constexpr (Fast) hit = tri4_test_mt(*p, r, valid, tmax, t, u, w, det);
+        if constexpr (Fast) hit = tri4_test_mt<Any>(*p, r, valid, tmax, t, u, w, det);
         else hit = tri4_test(*p, r, valid, tmax, t, u, w, det, fallback);
         for (unsigned f = fallback; f != 0; f &= f - 1) {
           const int lane = std::countr_zero(f);
@@ -293,8 +355,8 @@ struct SimdKernelsT {
         }
         if (hit == 0) continue;
         int q = std::countr_zero(hit);
-        if constexpr (Any) {
-          best = Hit{t[q], u[q] / det[q], w[q] / det[q], p->prim[q]};
+        if constexpr (Any) {  // fast mode: any lane decides; no division beyond the test's own
+          best.prim = p->prim[q];
           return true;
         }
         for (unsigned o = hit & (hit - 1); o != 0; o &= o - 1) {

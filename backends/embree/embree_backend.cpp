@@ -64,7 +64,8 @@ public:
     rtcSetDeviceErrorFunction(device_, &on_error, this);
   }
   ~EmbreeBackend() override {
-    if (scene_) rtcReleaseScene(scene_);
+    for (RTCScene sc : scene_)
+      if (sc) rtcReleaseScene(sc);
     if (device_) rtcReleaseDevice(device_);
   }
   EmbreeBackend(const EmbreeBackend&) = delete;
@@ -73,19 +74,28 @@ public:
   std::string name() const override { return "embree"; }
   std::string describe() const override {
     return std::string("embree: Embree ") + RTC_VERSION_STRING +
-           " robust mode (RTC_SCENE_FLAG_ROBUST), its own BVH (build quality " + to_string(quality_) + "), rtcIntersect1/rtcOccluded1, " + std::to_string(threads_) +
-           " thread(s)";
+           " robust mode (RTC_SCENE_FLAG_ROBUST; --precision fast: its default mode), its own BVH (build quality " +
+           to_string(quality_) + "), rtcIntersect1/rtcOccluded1, " + std::to_string(threads_) + " thread(s)";
   }
+  /// robust: Embree's robust mode (RTC_SCENE_FLAG_ROBUST); fast: Embree's default mode (the flag
+  /// off: faster box and triangle tests that may miss an edge), the peer of mbvh's fast mode.
+  /// exact is mbvh's own contract: refused.
+  bool supports_precision(Precision p) const override { return p != Precision::exact; }
   bool supports(Layout l, Traversal t) const override { return l == Layout::mbvh4 && t == Traversal::stack; }
   bool peer() const override { return true; }
   /// Embree's stack is internal: not reported.
   std::size_t state_bytes(const TraceOptions&) const override { return 0; }
 
-  void prepare(const Accel& acc, const TraceOptions&) override {
-    if (&acc == acc_ && acc.hash() == hash_ && acc.generation() == generation_) return;
-    if (scene_) rtcReleaseScene(scene_);
-    scene_ = nullptr;
-    acc_ = nullptr;
+  void prepare(const Accel& acc, const TraceOptions& opt) override {
+    const int mode = opt.precision == Precision::fast ? 1 : 0;
+    if (&acc != acc_ || acc.hash() != hash_ || acc.generation() != generation_) {  // both modes' scenes are stale
+      for (RTCScene& sc : scene_) {
+        if (sc) rtcReleaseScene(sc);
+        sc = nullptr;
+      }
+      acc_ = nullptr;
+    }
+    if (scene_[mode]) return;
     // a high-quality build repeats a split triangle in several leaves: Embree gets each prim once
     // (the same triangles as from any other build), in the build's leaf order
     const auto& all = acc.tris();
@@ -102,7 +112,7 @@ public:
     const std::span<const Tri> tris = repeats ? std::span<const Tri>(unique) : std::span<const Tri>(all.data(), all.size());
     prims_.resize(tris.size());
     RTCScene scene = rtcNewScene(device_);
-    rtcSetSceneFlags(scene, RTC_SCENE_FLAG_ROBUST);
+    rtcSetSceneFlags(scene, mode == 0 ? RTC_SCENE_FLAG_ROBUST : RTC_SCENE_FLAG_NONE);
     const RTCBuildQuality q = quality_ == BuildQuality::low    ? RTC_BUILD_QUALITY_LOW
                               : quality_ == BuildQuality::high ? RTC_BUILD_QUALITY_HIGH
                                                                : RTC_BUILD_QUALITY_MEDIUM;
@@ -137,7 +147,7 @@ public:
     rtcAttachGeometry(scene, g);
     rtcReleaseGeometry(g);
     rtcCommitScene(scene);
-    scene_ = scene;
+    scene_[mode] = scene;
     raise("rtcCommitScene");
     acc_ = &acc;
     hash_ = acc.hash();
@@ -149,8 +159,10 @@ public:
       throw Error("embree: answers only as mbvh4/stack (its own BVH and traversal)");
     if (!supports_precision(opt.precision))
       throw Error(std::string("embree: precision '") + to_string(opt.precision) +
-                  "' is not available (Embree's robust mode is its only one: --precision robust)");
+                  "' is not available (Embree has its robust mode, --precision robust, and its default mode, "
+                  "--precision fast)");
     prepare(acc, opt);
+    RTCScene scene = scene_[opt.precision == Precision::fast ? 1 : 0];
     const bool any = opt.query == Query::any;
     out.reset(rays.size(), opt);
     std::vector<std::size_t> invalid(threads_, 0);         // per worker
@@ -182,10 +194,10 @@ public:
         rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
         rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
         if (any) {
-          rtcOccluded1(scene_, &ctx, &rh.ray);
+          rtcOccluded1(scene, &ctx, &rh.ray);
           out.occluded[i] = rh.ray.tfar == -INFINITY ? 1 : 0;
         } else {
-          rtcIntersect1(scene_, &ctx, &rh);
+          rtcIntersect1(scene, &ctx, &rh);
           if (rh.hit.geomID != RTC_INVALID_GEOMETRY_ID)
             out.hits[i] = Hit{rh.ray.tfar, rh.hit.u, rh.hit.v, prims_[rh.hit.primID]};
         }
@@ -231,7 +243,7 @@ private:
   unsigned threads_;
   BuildQuality quality_;
   RTCDevice device_ = nullptr;
-  RTCScene scene_ = nullptr;
+  RTCScene scene_[2] = {nullptr, nullptr};  // robust mode, default (fast) mode
   const Accel* acc_ = nullptr;
   std::uint64_t hash_ = 0;
   std::uint64_t generation_ = 0;  // Accel::generation() of the committed scene (refit bumps it)

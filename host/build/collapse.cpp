@@ -181,7 +181,7 @@ Mbvh8 make_mbvh8(const Bvh2& b, const std::vector<Leaf>& leaves) {
   const auto t0 = Clock::now();
   Mbvh8 out;
   collapse<MBVH_MBVH8_LEVEL_CAP>(b, leaves, "mbvh8", out);
-  out.stats.bitstack_bits = 0;  // stack-based only (a 7-bit skip code per level would need 98 bits)
+  out.stats.bitstack_bits = 8 * out.stats.depth;  // 8 pending-slot bits per level, in a 128-bit word
   validate_layout(out, leaves.size());
   out.stats.build_ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
   return out;

@@ -255,7 +255,7 @@ struct GridArgs {
   void add(CLI::App* c) {
     c->add_option("--backend", backends,
                   "comma-separated backends (see `mbvh devices`), or 'all': every backend this machine runs, once each");
-    c->add_option("--layout", layouts, "comma-separated layouts: mbvh2, mbvh4, mbvh8 (stack-ordered only)");
+    c->add_option("--layout", layouts, "comma-separated layouts: mbvh2, mbvh4, mbvh8 (stack, bitstack, stack-ordered)");
     c->add_option("--traversal", traversals,
                   "comma-separated traversals: stack, bitstack, stack-ordered, bitstack-retest (the last two MBVH4/8)");
     c->add_option("--query", queries, "comma-separated queries: closest, any");
@@ -399,7 +399,7 @@ int cmd_info(const SceneArgs& a, const std::string& json_path, bool refit) {
   const LayoutStats s8 = acc.mbvh8().stats;
   print_stats_row(s2, state_bytes_per_ray(Layout::mbvh2, Traversal::stack), state_bytes_per_ray(Layout::mbvh2, Traversal::bitstack));
   print_stats_row(s4, state_bytes_per_ray(Layout::mbvh4, Traversal::stack), state_bytes_per_ray(Layout::mbvh4, Traversal::bitstack));
-  print_stats_row(s8, state_bytes_per_ray(Layout::mbvh8, Traversal::stack_ordered), 0);
+  print_stats_row(s8, state_bytes_per_ray(Layout::mbvh8, Traversal::stack), state_bytes_per_ray(Layout::mbvh8, Traversal::bitstack));
   say("\ntraversal state per ray: stack %zu B, bitstack %zu B (%.1fx smaller)\n",
       state_bytes_per_ray(Layout::mbvh2, Traversal::stack), state_bytes_per_ray(Layout::mbvh2, Traversal::bitstack),
       double(state_bytes_per_ray(Layout::mbvh2, Traversal::stack)) / double(state_bytes_per_ray(Layout::mbvh2, Traversal::bitstack)));
@@ -618,7 +618,7 @@ static int run(int argc, char** argv) {
   add_ray_args(trace, tr_r, true);
   trace->add_option("--backend", tr_backend, "backend (see `mbvh devices`)");
   trace->add_option("--layout", tr_layout, "mbvh2, mbvh4 or mbvh8 (default: mbvh4, or mbvh2 where the backend has only that)");
-  trace->add_option("--traversal", tr_trav, "stack, bitstack, stack-ordered or bitstack-retest (MBVH8: stack-ordered)");
+  trace->add_option("--traversal", tr_trav, "stack, bitstack, stack-ordered or bitstack-retest (bitstack-retest: MBVH4 only)");
   trace->add_option("--query", tr_query, "closest (writes hits, 16 B/ray) or any (writes occlusion, 1 B/ray)");
   trace->add_option("-o,--output", tr_out, "output file ('-': standard output)");
   trace->add_flag("--stats", tr_stats, "also count work per ray (slower)");
@@ -935,11 +935,12 @@ static int run(int argc, char** argv) {
       const double bit = double(state_bytes_per_ray(Layout::mbvh4, Traversal::bitstack));
       say("\ntraversal state per ray: stack %zu B (64 x int32 + sp + node; MBVH4: 1 + 3x21 entries), ordered "
           "stack %zu B (64 x (node, distance)), bitstack %.0f B (node + 64-bit word): %.0fx and %.0fx smaller; "
-          "MBVH8 ordered stack %zu B (128 entries)\n",
+          "MBVH8 stack %zu B and ordered stack %zu B (128 entries), bitstack %zu B (node + 128-bit word)\n",
           state_bytes_per_ray(Layout::mbvh4, Traversal::stack), state_bytes_per_ray(Layout::mbvh4, Traversal::stack_ordered),
           bit, double(state_bytes_per_ray(Layout::mbvh4, Traversal::stack)) / bit,
           double(state_bytes_per_ray(Layout::mbvh4, Traversal::stack_ordered)) / bit,
-          state_bytes_per_ray(Layout::mbvh8, Traversal::stack_ordered));
+          state_bytes_per_ray(Layout::mbvh8, Traversal::stack), state_bytes_per_ray(Layout::mbvh8, Traversal::stack_ordered),
+          state_bytes_per_ray(Layout::mbvh8, Traversal::bitstack));
       const std::string json = rep.json() + "\n", csv = rep.csv();
       std::vector<OutputWrite> writes;
       if (!bn_json.empty()) writes.push_back({outs[0], json.data(), json.size()});

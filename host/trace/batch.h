@@ -42,8 +42,15 @@ template <bool Any, class K, class St>
 inline Hit dispatch(const TraceView& v, const RayPre& r, Layout l, Traversal t, St& st) {
   if (l == Layout::mbvh2)
     return t == Traversal::stack ? trace_mbvh2_stack<Any, St, K>(v, r, st) : trace_mbvh2_bitstack<Any, St, K>(v, r, st);
-  if (l == Layout::mbvh8)
-    return t == Traversal::stack_ordered ? trace_wide_stack_ordered<Any, St, K, Node8>(v, r, st) : miss_hit();
+  if (l == Layout::mbvh8) {
+    switch (t) {
+      case Traversal::stack: return trace_mbvh8_stack<Any, St, K>(v, r, st);
+      case Traversal::bitstack: return trace_mbvh8_bitstack<Any, St, K>(v, r, st);
+      case Traversal::stack_ordered: return trace_wide_stack_ordered<Any, St, K, Node8>(v, r, st);
+      case Traversal::bitstack_retest: return miss_hit();
+    }
+    return miss_hit();
+  }
   switch (t) {
     case Traversal::stack: return trace_mbvh4_stack<Any, St, K>(v, r, st);
     case Traversal::bitstack: return trace_mbvh4_bitstack<Any, St, K>(v, r, st);

@@ -44,7 +44,7 @@ Traversal stack_twin(Traversal t) {
 }
 
 bool reference_supports(Layout layout, Traversal traversal) {
-  if (layout == Layout::mbvh8) return traversal == Traversal::stack_ordered;  // stack-based only
+  if (layout == Layout::mbvh8) return traversal != Traversal::bitstack_retest;  // no variant B on MBVH8
   return layout == Layout::mbvh4 || traversal == Traversal::stack || traversal == Traversal::bitstack;
 }
 
@@ -63,6 +63,8 @@ Traversal parse_traversal(const std::string& s) {
 }
 
 std::size_t state_bytes_per_ray(Layout layout, Traversal traversal) {
+  // MBVH8 bitstack: node + a 128-bit word (8 pending-slot bits per level, traverse.h)
+  if (traversal == Traversal::bitstack && layout == Layout::mbvh8) return 4 + 16;
   if (traversal == Traversal::bitstack || traversal == Traversal::bitstack_retest) return 4 + 8;
   const std::size_t entries = layout == Layout::mbvh2   ? MBVH_STACK2_ENTRIES
                               : layout == Layout::mbvh4 ? MBVH_STACK4_ENTRIES
@@ -79,7 +81,7 @@ bool ray_valid(const Ray& ray) {
 static void require_supported(const TraceOptions& opt) {
   if (!reference_supports(opt.layout, opt.traversal))
     throw Error(std::string("traversal '") + to_string(opt.traversal) + "' is not defined for layout " + to_string(opt.layout) +
-                " (variant B and its ordered-stack twin are MBVH4 traversals)");
+                " (variant B is an MBVH4 traversal; MBVH2 has no ordered stack)");
 }
 
 template <class K>
