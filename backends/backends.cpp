@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // backends.cpp — registers every backend compiled into this build, and names the ones that are
 // not, with the reason, so `--backend NAME` can say why it cannot start.
 #include "backends/cpu/cpu_backends.h"

@@ -1,4 +1,5 @@
 #!/usr/bin/env bash
+# SPDX-License-Identifier: MIT
 # all.sh — issue 6's benchmarks in one command: every table and plot of the README, from real runs
 # on the shared scenes, on every backend this machine runs (`mbvh bench --backend all`: a backend
 # added later is in every table without a change here).

@@ -1,4 +1,5 @@
 #!/usr/bin/env bash
+# SPDX-License-Identifier: MIT
 # build.sh — issue 15's build benchmark: build time and tree quality of our builders (--quality
 # low / medium / high: binned SAH, and SBVH spatial splits) beside Embree's (RTC_BUILD_QUALITY_LOW /
 # MEDIUM / HIGH) on the same triangles: the bunny, conference, Sibenik and Sponza (interior cameras

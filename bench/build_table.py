@@ -1,4 +1,5 @@
 #!/usr/bin/env python3
+# SPDX-License-Identifier: MIT
 """build_table.py — merges bench/build.sh's files (DIR/build-SCENE-Q.json of `mbvh build-bench`,
 DIR/bench-SCENE-Q.json of `mbvh bench`) into DIR/build.json and a Markdown table (DIR/build.md,
 also on stdout); with --plot, DIR/build.png: build time against diffuse Mrays/s, one marker per

@@ -1,4 +1,5 @@
 #!/usr/bin/env python3
+# SPDX-License-Identifier: MIT
 """cpu_table.py — Markdown tables from the `mbvh bench --scaling --json` files of
 bench/cpu_vs_embree.sh: per scene x rays (query) x threads, the cpu backend's variants beside
 Embree's robust mode (Mrays/s, medians), and the ratios issue 14 sets targets for:

@@ -1,4 +1,5 @@
 #!/usr/bin/env bash
+# SPDX-License-Identifier: MIT
 # cpu_vs_embree.sh — issue 14's deciding benchmark (issue 3's, extended): the cpu backend beside
 # two Embree peers in one run — Embree's robust mode (`embree`, RTC_SCENE_FLAG_ROBUST) and its
 # default mode (`embree --precision fast`, the flag off) — with the cpu backend in robust and fast

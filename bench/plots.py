@@ -1,4 +1,5 @@
 #!/usr/bin/env python3
+# SPDX-License-Identifier: MIT
 """plots.py — plots and Markdown tables from `mbvh bench --json` / `mbvh info --json` files.
 
     python3 bench/plots.py scaling DIR    DIR/info-N.json and DIR/bench-N.json of bench/scaling.sh:

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: MIT
 # python.sh — sourced by the bench scripts: sets PY to Debian's python3 (with Debian's
 # python3-matplotlib, installed with apt-get if missing), not another python3 earlier on PATH;
 # $PYTHON overrides.

@@ -1,4 +1,5 @@
 #!/usr/bin/env bash
+# SPDX-License-Identifier: MIT
 # scaling.sh — issue 6's scaling benchmark: build time and time per ray against triangle count
 # on the generated hairball (gen:hairball:N, thin random tubes), N from 10K to 10M, on every
 # backend this build has (each with its default layout and the bitstack; Embree with its

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: MIT
 # embed_cl.cmake — embeds an OpenCL C source in a C++ header as a string constant, with the
 # shared layout header (shaders/mbvh_layout.h) inlined where the source includes it, and #line
 # markers so a device compiler's log names the right file and line.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // trace_scene.cpp — the README's library example: a scene from the caller's arrays, one build,
 // closest hits and occlusion on the fastest verified backend (`cpu`), the answer checked.
 #include <cmath>

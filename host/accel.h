@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // accel.h — one build of a scene: the binned-SAH binary BVH and, on demand and cached, the
 // MBVH2 and MBVH4 layouts every backend traces. Leaves and leaf-ordered triangles are shared by
 // all layouts, so a leaf reference means the same triangles everywhere.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // backend.h — the one interface every tracing backend implements (cpu-scalar, cpu, opencl,
 // vulkan, embree) and the registry that makes them by name. host/ includes no backend header:
 // backends register themselves through register_builtin_backends() (backends/backends.cpp).

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // bench.cpp — `mbvh bench`: verify, warm up, time, report medians (DESIGN.md, benchmark protocol).
 #include "host/bench.h"
 #include "host/check.h"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // bench.h — the benchmark protocol of DESIGN.md (first cut): for every backend x layout x
 // traversal x query x ray kind, verify against the reference, warm up, time >= 5 passes, report
 // the median Mrays/s with its spread, the traversal state per ray and the work per ray.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // check.cpp — the cross-check behind `mbvh check` and the equivalence tests.
 #include "host/check.h"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // check.h — cross-checking: run every chosen backend x layout x traversal x query on the same
 // rays, compare them ray by ray with each other and with the double-precision brute force, and
 // classify every difference (compare.h).

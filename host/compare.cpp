@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // compare.cpp — tie classification of DESIGN.md's numerical contract.
 #include "host/compare.h"
 

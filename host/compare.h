@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // compare.h — ray-by-ray comparison of answers: equal, a classified tie (equal t within 4 ulp
 // with another prim, or a hit on a triangle's edge or vertex), or a genuine mismatch.
 #pragma once

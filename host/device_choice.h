@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // device_choice.h — the one rule by which a device backend picks its device from a selector
 // (`--cl-device`, `--vk-device`), shared by the OpenCL and Vulkan backends.
 #pragma once

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // error.h — the one exception type of the mbvh library: input errors with context, device and
 // backend failures. The library never exits; the CLI catches Error and prints what().
 #pragma once

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // parallel.cpp — parallel_for on a persistent worker pool with an atomic chunk counter.
 //
 // The pool's threads are started once (grown on demand up to the largest request) and sleep on a

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // parallel.h — the one threading primitive of mbvh: a blocking parallel loop over index chunks,
 // run on a persistent worker pool (no thread is created per call). Chunks are claimed
 // dynamically, so results that must be deterministic may depend only on the chunk index, never

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // progress.cpp — the terminal progress bar.
 #include "host/progress.h"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // progress.h — a progress bar on stderr for long builds and runs, shown only on a terminal.
 #pragma once
 #include <chrono>

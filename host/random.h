@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // random.h — a small deterministic random generator (splitmix64), identical on every platform,
 // so scenes and rays depend only on their seed.
 #pragma once

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // rays.cpp — ray generators and the exact ray / hit / occlusion file formats.
 #include "host/rays.h"
 #include "host/render.h"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // rays.h — ray generators (primary, shadow, diffuse, random; deterministic by seed), the
 // error-bound spawn helper for secondary rays, and the ray / hit / occlusion files of DESIGN.md.
 #pragma once

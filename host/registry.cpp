@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // registry.cpp — the backend registry: names to factories, filled once on first use.
 #include <mutex>
 

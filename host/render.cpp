@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // render.cpp — the wavefront renderer of `mbvh render` (render.h) and its PNG writer.
 // Path mode is the thesis' workload (Áfra, 2014: an 8-bounce diffuse path tracer over ray
 // batches): every bounce traces one batch of continuation rays (closest hit) and one batch of

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // render.h — `mbvh render`: the thesis' end-to-end workload, a wavefront path tracer on any
 // backend (generate a batch of rays, trace it on the backend, shade on the host, next bounce),
 // plus ambient-occlusion and normals modes; PNG output.

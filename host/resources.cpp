@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // resources.cpp — the memory budget (MBVH_MEMORY_LIMIT, /proc/meminfo, sysconf), memory estimates
 // and the regular-file check for inputs.
 #include "host/resources.h"

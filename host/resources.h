@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // resources.h — bounded resources: the memory a command may use, estimated before allocating, and
 // the checks that refuse an input which is not a regular file (a FIFO would block, /dev/zero never ends).
 #pragma once

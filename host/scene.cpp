@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // scene.cpp — Box and Scene helpers and load_scene: dispatch by "gen:" prefix or file content.
 #include "host/scene.h"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // scene.h — a triangle scene (float vertices, uint32 triangles) and how to get one: OBJ, PLY
 // (optionally zstd-compressed) or a built-in generator named "gen:NAME:PARAMS".
 #pragma once

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // scene_gen.cpp — built-in generated scenes ("gen:NAME:PARAMS"), deterministic by their params:
 // a closed UV sphere and a closed subdivided cube (watertightness), a random triangle soup,
 // a hairball of thin tubes of any size (tens of millions of triangles), and exponentially

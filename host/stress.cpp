@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // stress.cpp — stress rays (see stress.h).
 #include "host/stress.h"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // stress.h — deterministic stress rays for numerical robustness (shared by the stress tests and
 // `mbvh check --kind inside|special`): rays from inside a closed mesh aimed exactly at its
 // vertices and edge midpoints, and rays that hit the special cases of the box and triangle tests.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // version.cpp — mbvh::version(): the version of the library that was linked.
 #include "host/version.h"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // version.h — mbvh's version: the one place it is written (CMakeLists.txt reads it from here).
 #pragma once
 

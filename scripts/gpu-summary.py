@@ -1,4 +1,5 @@
 #!/usr/bin/env python3
+# SPDX-License-Identifier: MIT
 """gpu-summary.py — scripts/gpu-run's report: merges the per-step JSON of `mbvh check` and
 `mbvh bench` into OUT/check.json and OUT/bench.json and writes OUT/summary.md: the devices and
 drivers, each step's status, the check's genuine mismatches per scene, and the Mrays/s (end to

@@ -1,4 +1,5 @@
 #!/usr/bin/env bash
+# SPDX-License-Identifier: MIT
 # setup.sh — sourced by scripts/demo and scripts/test. Installs what is missing (Debian 12, as
 # root) and defines mbvh_build DIR [CMAKE_ARGS...], which configures and builds mbvh in DIR.
 set -euo pipefail

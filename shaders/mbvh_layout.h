@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 /* mbvh_layout.h — the one declaration of every record shared by host C++, OpenCL C and GLSL:
  * rays, hits, triangles, leaves and the MBVH2 / MBVH4 nodes (TRAVERSAL.md §2).
  *

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 /* trace.cl — the OpenCL backend's traversal kernels: one work-item per ray.
  *
  *  - MBVH4, the 16-wide MIC path (TRAVERSAL.md §8): one float16 operation tests the four

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 /* trace.comp — the Vulkan backend's compute shader: the GPU path of TRAVERSAL.md §9, one
  * invocation per ray, with the bitstack of Áfra & Szirmay-Kalos ("Stackless Multi-BVH Traversal
  * for CPU, MIC and GPU Ray Tracing", CGF 2014) in a 64-bit word and its stack-based twin with a

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // backends.h — the backends a test runs on: every backend built into this binary; one whose
 // hardware this machine lacks (e.g. AVX-512) is skipped with the reason printed, and one that
 // is built but cannot start for any other reason fails the test; an alias (`cpu`) is tested

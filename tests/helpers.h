@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // helpers.h — shared test utilities: scene paths, temporary files, running the mbvh program.
 #pragma once
 #include <array>

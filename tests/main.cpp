@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // main.cpp — the Catch2 main of mbvh-tests. After the tests, any problem a backend's diagnostics
 // raised where it could not throw (Vulkan validation messages at teardown) fails the run.
 #define CATCH_CONFIG_RUNNER

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // test_api_validation.cpp — the library refuses what it cannot use with an Error, never undefined
 // behaviour: out-of-range indices and non-finite vertices in Accel::build, any thread count,
 // cameras that cannot make rays (and a view along `up`, which can), comparison arrays that do not

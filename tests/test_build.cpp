@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // test_build.cpp — builder invariants: every triangle in exactly one leaf, boxes contain their
 // children, parent/sibling links consistent, depth within the bitstack's cap, the same bytes at
 // any thread count, degenerate triangles kept out.

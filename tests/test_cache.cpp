@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // test_cache.cpp — the BVH cache (Accel::save / load / build_cached, `--cache DIR`): a cached build
 // traces exactly as the build it came from; a damaged, truncated or mismatched file is detected,
 // never traced, and rebuilt.

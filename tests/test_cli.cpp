@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // test_cli.cpp — the `mbvh` program as a user runs it: trace writes the exact formats and agrees
 // with the brute force, check/bench/info report, bad input gives a clear error and exit code.
 #include <catch2/catch.hpp>

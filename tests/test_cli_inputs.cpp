@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // test_cli_inputs.cpp — the `mbvh` program checks every number it is given: a value outside an
 // option's range is an error naming the option (no wrap-around, no allocator or stoull message),
 // a camera that cannot make rays is an error naming --camera while one looking straight down

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // test_loaders.cpp — OBJ, PLY, zstd and generated scenes: good files load exactly, malformed
 // files give an error naming the file, the line and what was wrong.
 #include <catch2/catch.hpp>

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // test_opencl.cpp — what the OpenCL backends promise beyond the shared equivalence tests (which
 // run them on every scene, ray kind and variant): clear errors for a kernel that does not build,
 // a missing platform and an unknown --cl-device; the device choice; the GPU mapping (forced on

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // test_outputs.cpp — outputs never destroy anything: only regular files are replaced (never a
 // FIFO, socket, directory or device node), symlinks are followed, the mode is kept, temporaries are
 // unique and removed on errors and on SIGTERM, an output may not be an input, concurrent writers

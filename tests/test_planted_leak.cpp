@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // test_planted_leak.cpp — a leak on purpose, to prove the sanitizer stage still catches leaks in
 // our own code while the Vulkan drivers are kept mapped (vk_runtime.cpp). Hidden from the normal
 // runs ([.] tag); CMakeLists.txt registers it in sanitizer builds only, as a test that passes when

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // test_rays.cpp — ray generators (deterministic by seed, each kind where it belongs), the exact
 // file formats, and secondary rays that do not re-hit their source triangle.
 #include <catch2/catch.hpp>

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // test_render.cpp — `mbvh render`: the same seed gives the same image on every backend (all of
 // mbvh's answer bit for bit) and at any thread count; the normals are unit vectors; the PNG is
 // a valid file whose pixels are the image's; bad requests are clear errors.

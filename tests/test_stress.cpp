@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // test_stress.cpp — the numerical stress suite, on every backend of this build x layout x
 // traversal x query: no leaks from closed meshes (rays from inside aimed exactly at shared
 // vertices and edges), zero genuine mismatches against the double-precision brute force on

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // test_traversal.cpp — the reference traversals on every shared scene and the generated ones,
 // 100K rays of each kind: stack and bitstack, MBVH2, MBVH4 and MBVH8, closest and any hit all agree
 // (twins bit for bit), and a spread subset of 2,000 rays per kind agrees with the

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // test_vulkan.cpp — what the Vulkan backend promises beyond the shared equivalence tests (which
 // run it on every scene, ray kind and variant, with the validation layer on: CMakeLists.txt sets
 // MBVH_VK_VALIDATION=1 for every test): the layer's messages are caught; arrays split over

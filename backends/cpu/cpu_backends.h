@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // cpu_backends.h — the CPU backends' registration entry points and the per-ISA kernel table.
 #pragma once
 #include <span>

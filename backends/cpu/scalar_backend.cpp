@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // scalar_backend.cpp — the `cpu-scalar` backend: the host's reference traversals (MBVH2 and
 // MBVH4, stack and bitstack, closest and any hit) multi-threaded over ray batches.
 #include "backends/cpu/cpu_backends.h"

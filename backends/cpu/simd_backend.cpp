@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // simd_backend.cpp — the `cpu` backends: `cpu-avx2` and `cpu-avx512` run the per-ISA kernels of
 // simd_kernels.cpp; `cpu` picks the best this machine has, chosen once from CPUID. Forcing an
 // ISA the machine lacks fails with a clear message. MBVH_CPU_ISA=avx2 caps the ISA (as Embree's

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // simd_kernels.cpp — the cpu backend's kernels, compiled once per ISA from this one source
 // (CMake: mbvh_cpu_avx2, mbvh_cpu_avx512), each in its own inline namespace (MBVH_ISA_NS).
 // The ISA is switched on with a target pragma around the ISA-namespaced code only (intersect.h,

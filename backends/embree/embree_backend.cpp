@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // embree_backend.cpp — the `embree` peer backend: Embree 3's robust single-ray queries
 // (rtcIntersect1 / rtcOccluded1 with RTC_SCENE_FLAG_ROBUST) on the same triangles and rays, so
 // `mbvh bench` times it side by side with the other backends in one run and the tests use it as a

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // embree_backends.h — registers the `embree` peer backend (built when Embree 3 is found).
 #pragma once
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // cl_runtime.cpp — OpenCL errors, device discovery and choice, program builds (cl_runtime.h).
 #include "backends/opencl/cl_runtime.h"
 #include "host/device_choice.h"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // cl_runtime.h — the OpenCL backend's host plumbing below the Backend interface: owning
 // handles, errors that name the failing call and its code, platform/device discovery and the
 // `--cl-device` choice, and program builds that report the build log and options.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // opencl_backend.cpp — the `opencl` backends: the 16-wide MIC path of TRAVERSAL.md §8 (MBVH4,
 // skip-code bitstack and its stack twin; Áfra & Szirmay-Kalos 2014) and the GPU-style MBVH2
 // traversal, as OpenCL C kernels (shaders/trace.cl, embedded at build time) on any OpenCL device;

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // opencl_backends.h — the OpenCL backends' registration entry point.
 #pragma once
 #include <string>

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // vk_runtime.cpp — see vk_runtime.h.
 #include "backends/vulkan/vk_runtime.h"
 

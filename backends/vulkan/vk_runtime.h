@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // vk_runtime.h — the Vulkan backend's host plumbing below the Backend interface: errors that
 // name the failing call and its VkResult, the instance (with the Khronos validation layer and a
 // message counter when asked), physical-device discovery and the `--vk-device` choice.

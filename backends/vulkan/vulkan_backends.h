@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // vulkan_backends.h — registers the `vulkan` backend (built when MBVH_VULKAN is on).
 #pragma once
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // binned_sah.cpp — the one BVH build: a binned-SAH binary BVH over the non-degenerate triangles
 // (Wald, "On fast Construction of SAH-based Bounding Volume Hierarchies", 2007), with the binary
 // depth capped so that every path fits the 64-bit bitstack (TRAVERSAL.md §3.5).

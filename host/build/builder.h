@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // builder.h — what the binary builders share (internal to host/build/): the primitive records
 // they reorder, the temporary node arena they fill and its depth-first flattening into Bvh2.
 // Accel::build (binned_sah.cpp) prepares the records, calls one builder by BuildOptions::quality

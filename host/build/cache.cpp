@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // cache.cpp — the BVH cache: Accel::save / Accel::load / Accel::build_cached. A build is kept as
 // one file holding the binary tree, its leaves and leaf-ordered triangles (the layouts are made
 // from them on first use, as after a build), keyed by a content hash of the triangles and of every

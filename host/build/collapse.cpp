@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // collapse.cpp — the MBVH2 and MBVH4 layouts made from the one binary BVH, with the parent and
 // sibling links the stackless bitstack traversal needs (Áfra & Szirmay-Kalos, "Stackless
 // Multi-BVH Traversal for CPU, MIC and GPU Ray Tracing", CGF 2014; TRAVERSAL.md §2).

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // lbvh.cpp — the fast builder (`--quality low`): a linear BVH over Morton codes of the triangles'
 // centroids (Lauterbach et al., "Fast BVH Construction on GPUs", 2009; Karras, "Maximizing
 // Parallelism in the Construction of BVHs, Octrees, and k-d Trees", HPG 2012). The records are

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // refit.cpp — Accel::refit: new vertex positions, the same topology. Every box is recomputed
 // bottom-up from the float vertices as the build computes it (a triangle's box is the min/max of
 // its three vertices, a node's the union of its children's), so traversal of a refitted build is

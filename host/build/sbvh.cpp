@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // sbvh.cpp — the high-quality build (BuildQuality::high): a binary BVH with spatial splits
 // (Stich, Friedrich & Dietrich, "Spatial Splits in Bounding Volume Hierarchies", HPG 2009).
 //

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // sbvh.h — the high-quality build (BuildQuality::high): a binary BVH with spatial splits
 // (host/build/sbvh.cpp). Internal to Accel::build.
 #pragma once

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // main.cpp — the `mbvh` program: info, rays, trace, check, bench, render, devices.
 #include <CLI/CLI.hpp>
 

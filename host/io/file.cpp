@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // file.cpp — whole-file reads with transparent zstd decompression (libzstd streaming API), both
 // bounded by the memory budget before anything is allocated.
 #include <zstd.h>

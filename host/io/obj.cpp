@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // obj.cpp — a fast Wavefront OBJ reader: v and f lines only (vt/vn/groups/materials ignored),
 // all four face-index forms, negative indices, fan triangulation (0, k, k+1).
 // It never drops or shifts geometry silently: a UTF-8 byte-order mark at the start is skipped,

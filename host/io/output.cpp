@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // output.cpp — the one writer of every mbvh output (output.h): target checks, unique temporaries
 // renamed into place, their removal on errors and on SIGINT/SIGTERM/SIGHUP/SIGPIPE.
 #include "host/io/output.h"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // output.h — every file mbvh writes: regular files only, replaced atomically through a unique
 // temporary beside the target, never a device, FIFO, socket or directory; "-" is standard output.
 #pragma once

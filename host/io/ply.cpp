@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // ply.cpp — a PLY reader: ascii, binary_little_endian and binary_big_endian; any extra vertex
 // properties and elements; faces as a list property (vertex_indices / vertex_index),
 // fan-triangulated (0, k, k+1). Counts are checked against the bytes left before anything

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // batch.h — the multi-threaded batch driver shared by the reference (cpu-scalar) and the SIMD
 // cpu backends: validate each ray, dispatch to the traversal chosen at run time, fill the
 // outputs in ray order. Templated on the kernel policy (box test and leaf visit, traverse.h); lives in the ISA

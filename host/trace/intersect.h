@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // intersect.h — the shared numerical kernels of every traversal: ray set-up and validation
 // (TRAVERSAL.md §4.1), the conservative NaN-safe slab test (Ize, "Robust BVH Ray Traversal",
 // JCGT 2013; §6) and the watertight ray/triangle test (Woop, Benthin & Wald, JCGT 2013; §7).

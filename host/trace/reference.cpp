@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // reference.cpp — the scalar reference traversals over ray batches (one instantiation per
 // layout x traversal x query x statistics), and the double-precision brute-force oracle.
 #include <atomic>

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // trace.h — the traversal options every backend takes, the outputs it fills, and the host's
 // reference entry points: the scalar traversals over ray batches and the double-precision
 // brute force that serves as the oracle.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // traverse.h — the scalar reference traversals every backend is checked against: stack-based and
 // bitstack (Áfra & Szirmay-Kalos, "Stackless Multi-BVH Traversal for CPU, MIC and GPU Ray
 // Tracing", CGF 2014) for MBVH2, MBVH4 and MBVH8 (Áfra's thesis, ch. 3), templated on the query (closest / any hit) and on a

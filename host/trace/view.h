@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // view.h — what a traversal reads (one layout's nodes, the leaves and triangles) and the
 // per-ray work counters it fills. Plain records outside the ISA namespaces, so a per-ISA kernel
 // (backends/cpu) includes them at the baseline ISA before it switches its own code to AVX.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // fuzz_rays.cpp — libFuzzer target for the ray-file reader and the traversal of arbitrary rays:
 // any bytes either give rays or throw mbvh::Error, and every ray (NaN, inf, denormal, ±0, any
 // tmin/tmax) traces to a defined answer on every layout and traversal.

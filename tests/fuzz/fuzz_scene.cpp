@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: MIT
 // fuzz_scene.cpp — libFuzzer target for the OBJ and PLY loaders (and zstd decompression):
 // any input must either load or throw mbvh::Error; a crash, hang, leak or sanitizer report is a
 // bug. Built with -DMBVH_FUZZ=ON and clang; MBVH_FUZZ_FORMAT selects the parser.
