@@ -12,7 +12,7 @@
 //           count, tree facts (forced leaves, largest leaf, degenerate), bounds, binary statistics,
 //           build options
 //   arrays  nodes, leaf boxes, leaves, triangles
-//   u64     checksum of every byte before it (hash_words)
+//   u64     checksum of every byte before it (hash_bytes of accel.h, chained over the segments)
 #include <sys/stat.h>
 
 #include <cstdio>
@@ -31,7 +31,7 @@ namespace mbvh {
 namespace {
 
 constexpr char kMagic[8] = {'M', 'B', 'V', 'H', 'B', 'V', 'H', '\0'};
-constexpr std::uint32_t kFormatVersion = 2;  // 2: the build quality in the key and the header
+constexpr std::uint32_t kFormatVersion = 3;  // 2: the build quality in the key and header; 3: hash_bytes
 
 struct Header {
   char magic[8];
@@ -53,30 +53,6 @@ struct Header {
 static_assert(std::is_trivially_copyable_v<Header>);
 static_assert(sizeof(Header) % 8 == 0);
 
-// Four independent multiply-xor lanes over 64-bit words (a few GB/s, against FNV-1a's ~1 byte per
-// cycle): the file checksum and the cache key. Not cryptographic: it detects damage, not forgery.
-std::uint64_t hash_words(const void* p, std::size_t n, std::uint64_t seed) {
-  constexpr std::uint64_t k = 0x9E3779B97F4A7C15ull;
-  std::uint64_t h[4] = {seed ^ k, seed + 0x632BE59BD9B4E019ull, ~seed, seed * k + 1};
-  const auto* b = static_cast<const unsigned char*>(p);
-  std::size_t i = 0;
-  for (; i + 32 <= n; i += 32)
-    for (int l = 0; l < 4; ++l) {
-      std::uint64_t w;
-      std::memcpy(&w, b + i + 8 * l, 8);
-      h[l] = (h[l] ^ w) * k;
-      h[l] ^= h[l] >> 29;
-    }
-  std::uint64_t tail = n;
-  for (; i < n; ++i) tail = (tail ^ b[i]) * 0x100000001B3ull;
-  std::uint64_t r = tail;
-  for (int l = 0; l < 4; ++l) {
-    r = (r ^ h[l]) * k;
-    r ^= r >> 31;
-  }
-  return r;
-}
-
 template <class T>
 void append(std::string& out, const T* p, std::size_t count) {
   out.append(reinterpret_cast<const char*>(p), count * sizeof(T));
@@ -92,17 +68,17 @@ std::string hex(std::uint64_t v) {
 }  // namespace
 
 std::uint64_t Accel::cache_key(const Scene& scene, const BuildOptions& opt) {
-  std::uint64_t h = hash_words(MBVH_VERSION_STRING, sizeof(MBVH_VERSION_STRING), kFormatVersion);
-  h = hash_words(scene.vertices.data(), scene.vertices.size() * sizeof(Vec3f), h);
-  h = hash_words(scene.triangles.data(), scene.triangles.size() * sizeof(scene.triangles[0]), h);
+  std::uint64_t h = hash_bytes(MBVH_VERSION_STRING, sizeof(MBVH_VERSION_STRING), kFormatVersion);
+  h = hash_bytes(scene.vertices.data(), scene.vertices.size() * sizeof(Vec3f), h);
+  h = hash_bytes(scene.triangles.data(), scene.triangles.size() * sizeof(scene.triangles[0]), h);
   // every option that shapes the tree, after Accel::build's clamping; not threads (the bytes do
   // not depend on them) and not progress
   const std::uint32_t o[4] = {std::max(opt.max_leaf, 1u), std::clamp(opt.bins, 2u, 64u), std::max(opt.leaf_block, 1u),
                               std::clamp(opt.depth_cap, 1u, static_cast<unsigned>(MBVH_BINARY_DEPTH_CAP))};
-  h = hash_words(o, sizeof o, h);
+  h = hash_bytes(o, sizeof o, h);
   const std::uint32_t q = static_cast<std::uint32_t>(opt.quality);
-  h = hash_words(&q, sizeof q, h);
-  return hash_words(&opt.traversal_cost, sizeof(float), h);
+  h = hash_bytes(&q, sizeof q, h);
+  return hash_bytes(&opt.traversal_cost, sizeof(float), h);
 }
 
 void Accel::save(const std::string& path, std::uint64_t key) const {
@@ -142,7 +118,7 @@ void Accel::save(const std::string& path, std::uint64_t key) const {
               hd.tris * sizeof(Tri) + 64);
   std::uint64_t sum = 0;
   auto segment = [&out, &sum](const auto* p, std::size_t count) {
-    sum = hash_words(p, count * sizeof(*p), sum);  // the checksum chains the segments, padding left out
+    sum = hash_bytes(p, count * sizeof(*p), sum);  // the checksum chains the segments, padding left out
     append(out, p, count);
   };
   segment(&hd, 1);
@@ -181,7 +157,7 @@ std::unique_ptr<Accel> Accel::load(const std::string& path, std::uint64_t key) {
   if (need != size) throw bad("size " + std::to_string(size) + " does not match its counts (" + std::to_string(need) + "): truncated or damaged");
 
   std::unique_ptr<Accel> acc(new Accel());
-  std::uint64_t sum = hash_words(&hd, sizeof hd, 0);
+  std::uint64_t sum = hash_bytes(&hd, sizeof hd, 0);
   auto take = [&](auto& vec, std::uint64_t count) {
     vec.resize(count);
     const std::size_t bytes = count * sizeof(vec[0]);
@@ -189,7 +165,7 @@ std::unique_ptr<Accel> Accel::load(const std::string& path, std::uint64_t key) {
     const std::size_t npad = padded(bytes) - bytes;
     if ((bytes && std::fread(vec.data(), bytes, 1, f.get()) != 1) || (npad && std::fread(pad, npad, 1, f.get()) != 1))
       throw bad("cannot be read");
-    sum = hash_words(vec.data(), bytes, sum);
+    sum = hash_bytes(vec.data(), bytes, sum);
   };
   take(acc->bvh2_.nodes, hd.nodes);
   take(acc->bvh2_.leaf_boxes, hd.leaf_boxes);
