@@ -459,34 +459,10 @@ void build_binned_sah(RawVector<PrimRef>& prims, const FastBox& root, const Fast
     }
     builder.split(upper, k, threads);
   }
-  // the root is always an inner node: a one-leaf scene gets a root with one leaf child
-  if (upper[0].leaf) {
-    TmpNode leaf = upper[0];
-    leaf.depth = 1;
-    upper[0].leaf = false;
-    upper[0].forced = false;
-    upper[0].child[0] = 1;
-    upper.push_back(leaf);
-  }
-  out.subtree_of.assign(upper.size(), -1);
-  out.subtrees.assign(jobs.size(), {});
-  for (std::size_t j = 0; j < jobs.size(); ++j) out.subtree_of[jobs[j]] = static_cast<std::int32_t>(j);
-
   // -- remaining subtrees, one per task, largest first
-  std::vector<std::size_t> order(jobs.size());
-  for (std::size_t j = 0; j < jobs.size(); ++j) order[j] = j;
-  std::stable_sort(order.begin(), order.end(), [&](std::size_t x, std::size_t y) {
-    return upper[jobs[x]].end - upper[jobs[x]].begin > upper[jobs[y]].end - upper[jobs[y]].begin;
-  });
-  std::atomic<std::size_t> built{0};
-  parallel_for(jobs.size(), 1, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
-    for (std::size_t o = b; o < e; ++o) {
-      const std::size_t j = order[o];
-      out.subtrees[j].reserve(2 * (upper[jobs[j]].end - upper[jobs[j]].begin) / std::max(1u, opt.max_leaf / 2) + 1);
-      out.subtrees[j].push_back(upper[jobs[j]]);
-      builder.build_subtree(out.subtrees[j]);
-      if (opt.progress) opt.progress(0.25 + 0.7 * static_cast<double>(++built) / static_cast<double>(jobs.size()));
-    }
+  build_subtrees(out, jobs, opt, [&](std::vector<TmpNode>& subtree) {
+    subtree.reserve(2 * (subtree[0].end - subtree[0].begin) / std::max(1u, opt.max_leaf / 2) + 1);
+    builder.build_subtree(subtree);
   });
 }
 
