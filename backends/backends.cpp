@@ -2,7 +2,9 @@
 // backends.cpp — registers every backend compiled into this build, and names the ones that are
 // not, with the reason, so `--backend NAME` can say why it cannot start.
 #include "backends/cpu/cpu_backends.h"
-#include "host/backend.h"
+#include "mbvh/backend.h"
+#include "mbvh/backends.h"
+#include "mbvh/config.h"
 #ifdef MBVH_HAVE_OPENCL
 #include "backends/opencl/opencl_backends.h"
 #endif
@@ -16,8 +18,7 @@
 namespace mbvh {
 
 void register_builtin_backends() {
-  register_cpu_scalar_backend();
-  register_cpu_simd_backends();
+  register_cpu_backends();
 #ifdef MBVH_HAVE_OPENCL
   register_opencl_backends();
 #else

@@ -5,10 +5,10 @@
 #include <cstdio>
 #include <vector>
 
-#include "host/backend.h"  // Scene, Accel, Ray, Hit, backends; errors are mbvh::Error
-#include "host/version.h"
+#include <mbvh/mbvh.h>  // Scene, Accel, Ray, Hit, backends; errors are mbvh::Error
 
 int main() {
+  mbvh::register_builtin_backends();  // every backend of this build (mbvh::mbvh)
   mbvh::Scene scene;  // a unit square at z = 0, two triangles (or: mbvh::load_scene("scene.obj.zst"))
   scene.vertices = {{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}};
   scene.triangles = {{0, 1, 2}, {0, 2, 3}};

@@ -12,7 +12,7 @@
 #include <fstream>
 #include <nlohmann/json.hpp>
 
-#include "host/backend.h"
+#include "mbvh/backend.h"
 #include "tests/helpers.h"
 
 namespace mbvh_test {

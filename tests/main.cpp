@@ -6,9 +6,11 @@
 
 #include <cstdio>
 
-#include "host/backend.h"
+#include "mbvh/backend.h"
+#include "mbvh/backends.h"
 
 int main(int argc, char** argv) {
+  mbvh::register_builtin_backends();
   int rc = Catch::Session().run(argc, argv);
   for (const mbvh::BackendInfo& b : mbvh::list_backends())
     if (b.pending_problems)

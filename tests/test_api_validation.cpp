@@ -12,15 +12,16 @@
 #include <thread>
 #include <vector>
 
-#include "host/accel.h"
-#include "host/backend.h"
-#include "host/compare.h"
-#include "host/error.h"
-#include "host/parallel.h"
-#include "host/rays.h"
-#include "host/render.h"
-#include "host/scene.h"
-#include "host/trace/trace.h"
+#include "mbvh/config.h"
+#include "host/core/layouts.h"
+#include "mbvh/backend.h"
+#include "host/core/compare.h"
+#include "mbvh/error.h"
+#include "host/core/parallel.h"
+#include "host/tools/raygen.h"
+#include "host/tools/render.h"
+#include "mbvh/scene.h"
+#include "mbvh/trace.h"
 #include "tests/backends.h"
 
 using namespace mbvh;

@@ -8,13 +8,14 @@
 #include <cmath>
 #include <cstring>
 
-#include "host/accel.h"
-#include "host/backend.h"
-#include "host/check.h"
-#include "host/error.h"
-#include "host/scene.h"
-#include "host/rays.h"
-#include "host/trace/trace.h"
+#include "host/core/layouts.h"
+#include "host/core/trace/traverse.h"
+#include "mbvh/backend.h"
+#include "host/tools/check.h"
+#include "mbvh/error.h"
+#include "mbvh/scene.h"
+#include "host/tools/raygen.h"
+#include "mbvh/trace.h"
 #include "tests/backends.h"
 #include "tests/helpers.h"
 

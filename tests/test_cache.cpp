@@ -8,10 +8,10 @@
 #include <filesystem>
 #include <fstream>
 
-#include "host/accel.h"
-#include "host/backend.h"
-#include "host/error.h"
-#include "host/rays.h"
+#include "host/core/layouts.h"
+#include "mbvh/backend.h"
+#include "mbvh/error.h"
+#include "host/tools/raygen.h"
 #include "tests/helpers.h"
 
 using namespace mbvh;

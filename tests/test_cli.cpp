@@ -10,9 +10,12 @@
 
 #include <sys/stat.h>
 
-#include "host/check.h"
-#include "host/rays.h"
-#include "host/version.h"
+#include "host/core/layouts.h"
+#include "host/core/trace/traverse.h"
+#include "mbvh/config.h"
+#include "host/tools/check.h"
+#include "host/tools/raygen.h"
+#include "mbvh/version.h"
 #include "tests/helpers.h"
 
 using namespace mbvh;

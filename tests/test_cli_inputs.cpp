@@ -8,8 +8,11 @@
 #include <set>
 #include <string>
 
-#include "host/rays.h"
-#include "host/render.h"
+#include "host/core/layouts.h"
+#include "host/core/trace/traverse.h"
+#include "mbvh/config.h"
+#include "host/tools/raygen.h"
+#include "host/tools/render.h"
 #include "tests/helpers.h"
 
 using namespace mbvh;

@@ -9,10 +9,12 @@
 
 #include <sys/stat.h>
 
-#include "host/error.h"
-#include "host/render.h"
-#include "host/resources.h"
-#include "host/scene.h"
+#include "host/core/layouts.h"
+#include "host/core/trace/traverse.h"
+#include "mbvh/error.h"
+#include "host/tools/render.h"
+#include "host/core/resources.h"
+#include "mbvh/scene.h"
 #include "tests/helpers.h"
 
 using namespace mbvh;

@@ -23,8 +23,10 @@
 #include <set>
 #include <thread>
 
-#include "host/error.h"
-#include "host/rays.h"
+#include "host/core/layouts.h"
+#include "host/core/trace/traverse.h"
+#include "mbvh/error.h"
+#include "host/tools/raygen.h"
 #include "tests/helpers.h"
 
 using namespace mbvh;

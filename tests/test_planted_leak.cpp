@@ -8,9 +8,12 @@
 #include <cstdio>
 #include <memory>
 
-#include "host/backend.h"
-#include "host/rays.h"
-#include "host/scene.h"
+#include "host/core/layouts.h"
+#include "host/core/trace/traverse.h"
+#include "mbvh/config.h"
+#include "mbvh/backend.h"
+#include "host/tools/raygen.h"
+#include "mbvh/scene.h"
 
 namespace {
 

@@ -7,9 +7,11 @@
 #include <cstring>
 #include <filesystem>
 
-#include "host/error.h"
-#include "host/rays.h"
-#include "host/trace/trace.h"
+#include "host/core/layouts.h"
+#include "host/core/trace/traverse.h"
+#include "mbvh/error.h"
+#include "host/tools/raygen.h"
+#include "mbvh/trace.h"
 #include "tests/helpers.h"
 
 using namespace mbvh;

@@ -9,8 +9,10 @@
 #include <fstream>
 #include <iterator>
 
-#include "host/error.h"
-#include "host/render.h"
+#include "host/core/layouts.h"
+#include "host/core/trace/traverse.h"
+#include "mbvh/error.h"
+#include "host/tools/render.h"
 #include "tests/backends.h"
 #include "tests/helpers.h"
 

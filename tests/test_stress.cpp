@@ -13,12 +13,14 @@
 #include <cstdio>
 #include <cstring>
 
-#include "host/backend.h"
-#include "host/check.h"
-#include "host/error.h"
-#include "host/random.h"
-#include "host/rays.h"
-#include "host/stress.h"
+#include "host/core/layouts.h"
+#include "host/core/trace/traverse.h"
+#include "mbvh/backend.h"
+#include "host/tools/check.h"
+#include "mbvh/error.h"
+#include "host/core/random.h"
+#include "host/tools/raygen.h"
+#include "host/tools/stress.h"
 #include "tests/backends.h"
 
 using namespace mbvh;

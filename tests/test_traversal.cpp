@@ -10,8 +10,10 @@
 #include <map>
 #include <tuple>
 
-#include "host/check.h"
-#include "host/rays.h"
+#include "host/core/layouts.h"
+#include "host/core/trace/traverse.h"
+#include "host/tools/check.h"
+#include "host/tools/raygen.h"
 #include "tests/backends.h"
 #include "tests/helpers.h"
 

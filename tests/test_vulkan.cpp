@@ -14,10 +14,12 @@
 #include <fstream>
 #include <nlohmann/json.hpp>
 
+#include "host/core/layouts.h"
+#include "host/core/trace/traverse.h"
 #include "backends/vulkan/vk_runtime.h"
-#include "host/backend.h"
-#include "host/error.h"
-#include "host/rays.h"
+#include "mbvh/backend.h"
+#include "mbvh/error.h"
+#include "host/tools/raygen.h"
 #include "tests/backends.h"
 
 using namespace mbvh;

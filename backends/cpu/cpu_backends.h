@@ -3,7 +3,7 @@
 #pragma once
 #include <span>
 
-#include "host/trace/trace.h"
+#include "mbvh/trace.h"
 
 namespace mbvh {
 

@@ -2,8 +2,9 @@
 // scalar_backend.cpp — the `cpu-scalar` backend: the host's reference traversals (MBVH2 and
 // MBVH4, stack and bitstack, closest and any hit) multi-threaded over ray batches.
 #include "backends/cpu/cpu_backends.h"
-#include "host/backend.h"
-#include "host/parallel.h"
+#include "host/core/layouts.h"
+#include "mbvh/backend.h"
+#include "host/core/parallel.h"
 
 namespace mbvh {
 namespace {

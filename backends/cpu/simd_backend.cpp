@@ -7,9 +7,10 @@
 #include <cstring>
 
 #include "backends/cpu/cpu_backends.h"
-#include "host/backend.h"
-#include "host/error.h"
-#include "host/parallel.h"
+#include "host/core/layouts.h"
+#include "mbvh/backend.h"
+#include "mbvh/error.h"
+#include "host/core/parallel.h"
 
 namespace mbvh {
 

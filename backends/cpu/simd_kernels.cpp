@@ -23,9 +23,9 @@
 #include <stdexcept>
 #include <vector>
 
-#include "host/accel.h"
-#include "host/parallel.h"
-#include "host/trace/view.h"  // plain records, at the baseline ISA
+#include "host/core/layouts.h"
+#include "host/core/parallel.h"
+#include "host/core/trace/view.h"  // plain records, at the baseline ISA
 
 #ifndef MBVH_CPU_ISA
 #error "compile with -DMBVH_CPU_ISA=avx2|avx512, -DMBVH_CPU_ISA_ID=1|2 and -DMBVH_ISA_NS=<the ISA>"
@@ -53,14 +53,14 @@ MBVH_ISA_BEGIN
 // The kernels (namespace mbvh::MBVH_ISA_NS) are included first, under the ISA: the traversal
 // templates must be defined here, not at the baseline ISA (a template is compiled with the
 // target of its definition; the box test and leaves could then not be inlined into it).
-#include "host/trace/intersect.h"
-#include "host/trace/traverse.h"
+#include "host/core/trace/intersect.h"
+#include "host/core/trace/traverse.h"
 MBVH_ISA_END
 // -- trace.h's shared declarations (and TraceOutput::reset) at the baseline ISA
 #include "backends/cpu/cpu_backends.h"
-#include "host/trace/trace.h"
+#include "mbvh/trace.h"
 MBVH_ISA_BEGIN
-#include "host/trace/batch.h"  // the batch driver, in namespace mbvh::MBVH_ISA_NS
+#include "host/core/trace/batch.h"  // the batch driver, in namespace mbvh::MBVH_ISA_NS
 #define MBVH_STR2(x) #x
 #define MBVH_STR(x) MBVH_STR2(x)
 

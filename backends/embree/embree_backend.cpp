@@ -23,10 +23,11 @@
 #include <vector>
 
 #include "backends/embree/embree_backends.h"
-#include "host/backend.h"
-#include "host/error.h"
-#include "host/parallel.h"
-#include "host/trace/intersect.h"
+#include "host/core/layouts.h"
+#include "mbvh/backend.h"
+#include "mbvh/error.h"
+#include "host/core/parallel.h"
+#include "host/core/trace/intersect.h"
 
 namespace mbvh {
 namespace {

@@ -1,13 +1,13 @@
 // SPDX-License-Identifier: MIT
 // cl_runtime.cpp — OpenCL errors, device discovery and choice, program builds (cl_runtime.h).
 #include "backends/opencl/cl_runtime.h"
-#include "host/device_choice.h"
+#include "host/core/device_choice.h"
 
 #include <algorithm>
 #include <cctype>
 #include <cstdlib>
 
-#include "host/error.h"
+#include "mbvh/error.h"
 
 #ifndef CL_PLATFORM_NOT_FOUND_KHR
 #define CL_PLATFORM_NOT_FOUND_KHR -1001

@@ -23,8 +23,9 @@
 
 #include "backends/opencl/cl_runtime.h"
 #include "backends/opencl/opencl_backends.h"
-#include "host/backend.h"
-#include "host/error.h"
+#include "host/core/layouts.h"
+#include "mbvh/backend.h"
+#include "mbvh/error.h"
 #include "trace_cl.h"  // kTraceCl: shaders/trace.cl with mbvh_layout.h inlined (cmake/embed_cl.cmake)
 
 namespace mbvh {

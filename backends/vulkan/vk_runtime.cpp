@@ -13,8 +13,8 @@
 #include <link.h>
 #endif
 
-#include "host/device_choice.h"
-#include "host/error.h"
+#include "host/core/device_choice.h"
+#include "mbvh/error.h"
 
 namespace mbvh::vk {
 

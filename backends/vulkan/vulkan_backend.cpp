@@ -30,8 +30,9 @@
 
 #include "backends/vulkan/vk_runtime.h"
 #include "backends/vulkan/vulkan_backends.h"
-#include "host/backend.h"
-#include "host/error.h"
+#include "host/core/layouts.h"
+#include "mbvh/backend.h"
+#include "mbvh/error.h"
 #include "trace_spv.h"  // kTraceSpv: shaders/trace.comp compiled by glslangValidator (CMakeLists.txt)
 
 namespace mbvh {

@@ -16,16 +16,18 @@
 #include <iostream>
 #include <nlohmann/json.hpp>
 
-#include "host/backend.h"
-#include "host/bench.h"
-#include "host/check.h"
-#include "host/error.h"
-#include "host/io/output.h"
-#include "host/parallel.h"
-#include "host/progress.h"
-#include "host/version.h"
-#include "host/rays.h"
-#include "host/render.h"
+#include "mbvh/backend.h"
+#include "mbvh/backends.h"
+#include "host/tools/bench.h"
+#include "host/tools/check.h"
+#include "mbvh/error.h"
+#include "host/core/io/output.h"
+#include "host/core/layouts.h"
+#include "host/core/parallel.h"
+#include "host/cli/progress.h"
+#include "mbvh/version.h"
+#include "host/tools/raygen.h"
+#include "host/tools/render.h"
 
 using namespace mbvh;
 
@@ -981,6 +983,7 @@ static int run(int argc, char** argv) {
 }
 
 int main(int argc, char** argv) {
+  mbvh::register_builtin_backends();  // the program links every backend of this build
   int rc = run(argc, argv);
   // the report is an output too: a failed write to standard output fails the run
   if (std::fflush(stdout) != 0 || std::ferror(stdout)) {

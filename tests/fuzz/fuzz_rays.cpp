@@ -6,9 +6,9 @@
 #include <cstdint>
 #include <memory>
 
-#include "host/error.h"
-#include "host/rays.h"
-#include "host/trace/trace.h"
+#include "mbvh/error.h"
+#include "mbvh/rays.h"
+#include "mbvh/trace.h"
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
   static const mbvh::Scene scene = mbvh::load_scene("gen:cube:4");

@@ -6,8 +6,8 @@
 #include <cstdint>
 #include <vector>
 
-#include "host/error.h"
-#include "host/scene.h"
+#include "mbvh/error.h"
+#include "mbvh/scene.h"
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
   try {

@@ -1,0 +1,726 @@
+// SPDX-License-Identifier: MIT
+// binned_sah.cpp — the one BVH build: a binned-SAH binary BVH over the non-degenerate triangles
+// (Wald, "On fast Construction of SAH-based Bounding Volume Hierarchies", 2007), with the binary
+// depth capped so that every path fits the 64-bit bitstack (TRAVERSAL.md §3.5).
+//
+// Parallel and deterministic: the top of the tree is split breadth-first with binning spread
+// over threads (box unions and counts are exact, so the reduction order does not matter), then
+// the remaining subtrees are built one per task. Every split decision is the same function of
+// the same inputs, so the bytes do not depend on the thread count.
+#include <algorithm>
+#include <atomic>
+#include <bit>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
+
+#include "host/core/layouts.h"
+#include "host/core/build/builder.h"
+#include "host/core/build/sbvh.h"
+#include "mbvh/error.h"
+#include "host/core/parallel.h"
+
+namespace mbvh {
+
+const char* to_string(Layout l) { return l == Layout::mbvh2 ? "mbvh2" : l == Layout::mbvh4 ? "mbvh4" : "mbvh8"; }
+
+Layout parse_layout(const std::string& s) {
+  if (s == "mbvh2") return Layout::mbvh2;
+  if (s == "mbvh4") return Layout::mbvh4;
+  if (s == "mbvh8") return Layout::mbvh8;
+  throw Error("unknown layout '" + s + "' (known: mbvh2, mbvh4, mbvh8)");
+}
+
+const char* to_string(BuildQuality q) {
+  return q == BuildQuality::low ? "low" : q == BuildQuality::medium ? "medium" : "high";
+}
+
+BuildQuality parse_quality(const std::string& s) {
+  if (s == "low") return BuildQuality::low;
+  if (s == "medium") return BuildQuality::medium;
+  if (s == "high") return BuildQuality::high;
+  throw Error("unknown build quality '" + s + "' (known: low, medium, high)");
+}
+
+std::uint64_t hash_bytes(const void* p, std::size_t n, std::uint64_t h) {
+  // FNV-1a's step over 64-bit words in four interleaved lanes (independent multiplies), the
+  // lanes then folded in order, then the tail's bytes: many times faster than byte by byte,
+  // which made hashing a large build cost as much as a refit.
+  const unsigned char* b = static_cast<const unsigned char*>(p);
+  constexpr std::uint64_t prime = 0x100000001b3ull;
+  std::uint64_t lane[4] = {h, h ^ 1, h ^ 2, h ^ 3};
+  std::size_t i = 0;
+  for (; i + 32 <= n; i += 32)
+    for (int k = 0; k < 4; ++k) {
+      std::uint64_t w;
+      std::memcpy(&w, b + i + 8 * k, 8);
+      lane[k] = (lane[k] ^ w) * prime;
+      lane[k] ^= lane[k] >> 29;
+    }
+  for (int k = 0; k < 4; ++k) h = ((h ^ lane[k]) * prime) ^ (lane[k] >> 31);
+  for (; i < n; ++i) h = (h ^ b[i]) * prime;
+  return h;
+}
+
+namespace build {
+namespace {
+
+constexpr unsigned kMaxBins = 64;
+// Nodes of at least kParallelMin records are binned and partitioned in chunks of kGrain records
+// (in parallel where threads are free), reduced in chunk order; smaller ones in one pass. Which
+// path a node takes depends only on its size, so the bytes do not depend on the thread count.
+constexpr std::uint32_t kParallelMin = 65536;
+constexpr std::size_t kGrain = 16384;
+
+struct Bin {  // no initialisers: Bins sets a bin up on its first record; lane 3 unused
+  alignas(16) float lo[4];
+  alignas(16) float hi[4];
+  std::uint32_t count;
+  void grow(const float* l, const float* h) {
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = std::min(lo[a], l[a]);
+      hi[a] = std::max(hi[a], h[a]);
+    }
+  }
+};
+
+// Bins of the three axes; a bin is initialised only when its bit in `mask` is set.
+struct Bins {
+  std::uint64_t mask[3] = {0, 0, 0};
+  Bin bin[3][kMaxBins];
+};
+
+class SahBuilder {
+public:
+  SahBuilder(const BuildOptions& opt, RawVector<PrimRef>& prims)
+      : opt_(opt), prims_(prims), bins_(std::clamp(opt.bins, 2u, kMaxBins)) {}
+
+  // Splits node n (in `arena`) into two children appended to `arena`, or marks it a leaf.
+  // `threads`: workers for a large node's chunks (1 inside a subtree task).
+  void split(std::vector<TmpNode>& arena, std::size_t n, unsigned threads) {
+    const TmpNode node = arena[n];
+    const std::uint32_t count = node.end - node.begin;
+    const bool at_cap = node.depth >= opt_.depth_cap;
+    if (count <= 1 || at_cap) {
+      arena[n].leaf = true;
+      arena[n].forced = count > opt_.max_leaf;
+      return;
+    }
+    // -- bin centroids along the three axes: bin = floor((c - lo) * bins / extent), as floats
+    Geometry g;
+    for (int a = 0; a < 3; ++a) {
+      const float ext = node.cbox.hi[a] - node.cbox.lo[a];
+      g.origin[a] = node.cbox.lo[a];
+      g.scale[a] = ext > 0 ? static_cast<float>(bins_) / ext : 0.0f;
+    }
+    g.last = bins_ - 1;
+    // Only occupied bins are initialised and swept (a mask per axis): a split between two
+    // occupied bins prices the same at every empty bin between them, and the sweep keeps the
+    // first, so visiting the occupied ones gives the same choice as visiting all.
+    Bins bins;
+    if (count >= kParallelMin) {
+      const std::size_t chunks = (count + kGrain - 1) / kGrain;
+      std::vector<Bins> partial(chunks);
+      parallel_for(count, kGrain, threads, [&](std::size_t b, std::size_t e, unsigned) {
+        bin_range(g, node.begin + b, node.begin + e, partial[b / kGrain]);
+      });
+      for (std::size_t c = 0; c < chunks; ++c)
+        for (int a = 0; a < 3; ++a)
+          for (std::uint64_t m = partial[c].mask[a]; m; m &= m - 1) {
+            const unsigned k = static_cast<unsigned>(std::countr_zero(m));
+            const Bin& src = partial[c].bin[a][k];
+            if (bins.mask[a] >> k & 1) {
+              bins.bin[a][k].grow(src.lo, src.hi);
+              bins.bin[a][k].count += src.count;
+            } else {
+              bins.bin[a][k] = src;
+              bins.mask[a] |= std::uint64_t(1) << k;
+            }
+          }
+    } else {
+      bin_range(g, node.begin, node.end, bins);
+    }
+    // -- sweep for the cheapest SAH split (bin < k to the left), over the occupied bins
+    float best_cost = INFINITY;
+    int best_axis = -1;
+    unsigned best_split = 0;
+    for (int a = 0; a < 3; ++a) {
+      if (g.scale[a] == 0.0f) continue;
+      const std::uint64_t mask = bins.mask[a];
+      float right_area[kMaxBins];
+      std::uint32_t right_count[kMaxBins];
+      FastBox acc;
+      std::uint32_t cnt = 0;
+      for (std::uint64_t m = mask; m;) {  // occupied bins from the top: bounds of bins >= k
+        const unsigned k = 63u - static_cast<unsigned>(std::countl_zero(m));
+        m &= ~(std::uint64_t(1) << k);
+        acc.grow_rows(bins.bin[a][k].lo, bins.bin[a][k].hi);
+        cnt += bins.bin[a][k].count;
+        right_area[k] = acc.half_area();
+        right_count[k] = cnt;
+      }
+      acc = FastBox();
+      cnt = 0;
+      for (std::uint64_t m = mask; m;) {
+        const unsigned k = static_cast<unsigned>(std::countr_zero(m));
+        m &= m - 1;
+        if (m == 0) break;  // the last occupied bin: nothing to its right
+        acc.grow_rows(bins.bin[a][k].lo, bins.bin[a][k].hi);
+        cnt += bins.bin[a][k].count;
+        const unsigned next = static_cast<unsigned>(std::countr_zero(m));
+        const float cost = acc.half_area() * blocks(cnt) + right_area[next] * blocks(right_count[next]);
+        if (cost < best_cost) {
+          best_cost = cost;
+          best_axis = a;
+          best_split = k + 1;
+        }
+      }
+    }
+    const float area = node.box.half_area();
+    const float leaf_cost = blocks(count);
+    const float split_cost = opt_.traversal_cost + (area > 0 ? best_cost / area : 0.0f);
+    TmpNode c[2];
+    std::uint32_t mid;
+    if (best_axis < 0) {
+      // all centroids equal: no spatial split exists; halve by index if the leaf would be too big
+      if (count <= opt_.max_leaf) {
+        arena[n].leaf = true;
+        return;
+      }
+      mid = node.begin + count / 2;
+      for (std::uint32_t i = node.begin; i < node.end; ++i) {
+        c[i < mid ? 0 : 1].box.grow(prims_[i]);
+        c[i < mid ? 0 : 1].cbox.grow_centroid(prims_[i]);
+      }
+    } else {
+      if (count <= opt_.max_leaf && leaf_cost <= split_cost) {
+        arena[n].leaf = true;
+        return;
+      }
+      mid = count >= kParallelMin ? partition_chunked(g, best_axis, best_split, node, c, threads)
+                                  : partition(g, best_axis, best_split, node, c);
+    }
+    // -- children
+    for (int side = 0; side < 2; ++side) {
+      c[side].begin = side == 0 ? node.begin : mid;
+      c[side].end = side == 0 ? mid : node.end;
+      c[side].depth = node.depth + 1;
+      arena[n].child[side] = static_cast<std::int32_t>(arena.size());
+      arena.push_back(c[side]);
+    }
+  }
+
+  float blocks(std::uint32_t n) const {
+    return opt_.leaf_block <= 1 ? static_cast<float>(n) : build::blocks(n, opt_.leaf_block);
+  }
+
+  void build_subtree(std::vector<TmpNode>& arena) {
+    for (std::size_t n = 0; n < arena.size(); ++n) split(arena, n, 1);
+  }
+
+private:
+  struct Geometry {
+    float origin[3], scale[3];
+    unsigned last;
+    unsigned bin(const PrimRef& r, int a) const {
+      const float f = (r.centroid(a) - origin[a]) * scale[a];
+      return std::min(last, static_cast<unsigned>(f > 0 ? f : 0));
+    }
+  };
+
+  // Out of line (as partition()), so that profiles show binning and partitioning apart.
+  [[gnu::noinline]] void bin_range(const Geometry& g, std::size_t b, std::size_t e, Bins& out) const {
+#if defined(__SSE2__)
+    // Four lanes at once: the centroid, its bin on each axis (the same float operations as
+    // Geometry::bin, so the same bins) and the bin's box as one min and one max.
+    const __m128 half = _mm_set1_ps(0.5f), zero = _mm_setzero_ps();
+    const __m128 origin = _mm_setr_ps(g.origin[0], g.origin[1], g.origin[2], 0.0f);
+    const __m128 scale = _mm_setr_ps(g.scale[0], g.scale[1], g.scale[2], 0.0f);
+    const __m128 xyz = _mm_castsi128_ps(_mm_setr_epi32(-1, -1, -1, 0));  // drops the prim id's lane
+    const __m128i last = _mm_set1_epi32(static_cast<int>(g.last));
+    for (std::size_t i = b; i < e; ++i) {
+      const PrimRef& r = prims_[i];
+      const __m128 lo = _mm_and_ps(_mm_loadu_ps(r.lo), xyz);
+      const __m128 hi = _mm_loadu_ps(r.hi);  // lane 3: pad = 0
+      const __m128 f = _mm_max_ps(_mm_mul_ps(_mm_sub_ps(_mm_mul_ps(_mm_add_ps(lo, hi), half), origin), scale), zero);
+      __m128i k = _mm_cvttps_epi32(f);
+      const __m128i over = _mm_cmpgt_epi32(k, last);
+      k = _mm_or_si128(_mm_and_si128(over, last), _mm_andnot_si128(over, k));
+      alignas(16) std::int32_t ks[4];
+      _mm_store_si128(reinterpret_cast<__m128i*>(ks), k);
+      for (int a = 0; a < 3; ++a) {
+        const unsigned kb = static_cast<unsigned>(ks[a]);
+        Bin& bn = out.bin[a][kb];
+        if (out.mask[a] >> kb & 1) {
+          _mm_store_ps(bn.lo, _mm_min_ps(_mm_load_ps(bn.lo), lo));
+          _mm_store_ps(bn.hi, _mm_max_ps(_mm_load_ps(bn.hi), hi));
+          ++bn.count;
+        } else {
+          out.mask[a] |= std::uint64_t(1) << kb;
+          _mm_store_ps(bn.lo, lo);
+          _mm_store_ps(bn.hi, hi);
+          bn.count = 1;
+        }
+      }
+    }
+#else
+    for (std::size_t i = b; i < e; ++i) {
+      const PrimRef& r = prims_[i];
+      for (int a = 0; a < 3; ++a) {
+        const unsigned k = g.bin(r, a);
+        Bin& bn = out.bin[a][k];
+        if (out.mask[a] >> k & 1) {
+          bn.grow(r.lo, r.hi);
+          ++bn.count;
+        } else {
+          out.mask[a] |= std::uint64_t(1) << k;
+          for (int d = 0; d < 3; ++d) {
+            bn.lo[d] = r.lo[d];
+            bn.hi[d] = r.hi[d];
+          }
+          bn.count = 1;
+        }
+      }
+    }
+#endif
+  }
+
+  // In-place two-sided partition of the node's records (bin < split on `axis` to the left) that
+  // also bounds each side's boxes and centroids; returns the first right record.
+  [[gnu::noinline]] std::uint32_t partition(const Geometry& g, int axis, unsigned split, const TmpNode& node,
+                                            TmpNode (&c)[2]) {
+    PrimRef* p = prims_.data();
+    std::uint32_t i = node.begin, j = node.end;
+#if defined(__SSE2__)
+    // the four bounds of each side as four-lane min/max (lane 3 unused)
+    const __m128 half = _mm_set1_ps(0.5f);
+    const __m128 xyz = _mm_castsi128_ps(_mm_setr_epi32(-1, -1, -1, 0));
+    const __m128 inf = _mm_set1_ps(INFINITY), ninf = _mm_set1_ps(-INFINITY);
+    __m128 blo[2] = {inf, inf}, bhi[2] = {ninf, ninf}, clo[2] = {inf, inf}, chi[2] = {ninf, ninf};
+    auto grow = [&](int s, const PrimRef& r) {
+      const __m128 lo = _mm_and_ps(_mm_loadu_ps(r.lo), xyz), hi = _mm_loadu_ps(r.hi);
+      const __m128 ce = _mm_mul_ps(_mm_add_ps(lo, hi), half);
+      blo[s] = _mm_min_ps(blo[s], lo);
+      bhi[s] = _mm_max_ps(bhi[s], hi);
+      clo[s] = _mm_min_ps(clo[s], ce);
+      chi[s] = _mm_max_ps(chi[s], ce);
+    };
+#else
+    auto grow = [&](int s, const PrimRef& r) {
+      c[s].box.grow(r);
+      c[s].cbox.grow_centroid(r);
+    };
+#endif
+    for (;;) {
+      while (i < j && g.bin(p[i], axis) < split) grow(0, p[i++]);
+      while (i < j && g.bin(p[j - 1], axis) >= split) grow(1, p[--j]);
+      if (i >= j) break;
+      std::swap(p[i], p[j - 1]);
+      grow(0, p[i++]);
+      grow(1, p[--j]);
+    }
+#if defined(__SSE2__)
+    for (int s = 0; s < 2; ++s) {
+      alignas(16) float v[4][4];
+      _mm_store_ps(v[0], blo[s]);
+      _mm_store_ps(v[1], bhi[s]);
+      _mm_store_ps(v[2], clo[s]);
+      _mm_store_ps(v[3], chi[s]);
+      for (int a = 0; a < 3; ++a) {
+        c[s].box.lo[a] = v[0][a];
+        c[s].box.hi[a] = v[1][a];
+        c[s].cbox.lo[a] = v[2][a];
+        c[s].cbox.hi[a] = v[3][a];
+      }
+    }
+#endif
+    return i;
+  }
+
+  // Stable partition in chunks of kGrain: count and bound each chunk's sides, scatter through
+  // a scratch array by the chunks' prefix sums, copy back; side boxes reduced in chunk order.
+  std::uint32_t partition_chunked(const Geometry& g, int axis, unsigned split, const TmpNode& node, TmpNode (&c)[2],
+                                  unsigned threads) {
+    const std::uint32_t count = node.end - node.begin;
+    const std::size_t chunks = (count + kGrain - 1) / kGrain;
+    std::vector<TmpNode> side(2 * chunks);
+    std::vector<std::uint32_t> left(chunks);
+    parallel_for(count, kGrain, threads, [&](std::size_t b, std::size_t e, unsigned) {
+      const std::size_t k = b / kGrain;
+      std::uint32_t l = 0;
+      for (std::size_t i = node.begin + b; i < node.begin + e; ++i) {
+        const PrimRef& r = prims_[i];
+        const int s = g.bin(r, axis) < split ? 0 : 1;
+        side[2 * k + s].box.grow(r);
+        side[2 * k + s].cbox.grow_centroid(r);
+        l += s == 0 ? 1 : 0;
+      }
+      left[k] = l;
+    });
+    std::vector<std::uint32_t> loff(chunks), roff(chunks);
+    std::uint32_t total_left = 0;
+    for (std::size_t k = 0; k < chunks; ++k) {
+      loff[k] = total_left;
+      total_left += left[k];
+    }
+    for (std::size_t k = 0; k < chunks; ++k) {
+      roff[k] = total_left + static_cast<std::uint32_t>(k * kGrain) - loff[k];
+      for (int s = 0; s < 2; ++s) {
+        c[s].box.grow(side[2 * k + static_cast<std::size_t>(s)].box);
+        c[s].cbox.grow(side[2 * k + static_cast<std::size_t>(s)].cbox);
+      }
+    }
+    if (scratch_.size() < prims_.size()) scratch_.resize(prims_.size());
+    parallel_for(count, kGrain, threads, [&](std::size_t b, std::size_t e, unsigned) {
+      const std::size_t k = b / kGrain;
+      std::uint32_t l = node.begin + loff[k], r = node.begin + roff[k];
+      for (std::size_t i = node.begin + b; i < node.begin + e; ++i) {
+        const PrimRef& p = prims_[i];
+        scratch_[g.bin(p, axis) < split ? l++ : r++] = p;
+      }
+    });
+    parallel_for(count, kGrain, threads, [&](std::size_t b, std::size_t e, unsigned) {
+      std::copy(scratch_.begin() + node.begin + b, scratch_.begin() + node.begin + e, prims_.begin() + node.begin + b);
+    });
+    return node.begin + total_left;
+  }
+
+  const BuildOptions& opt_;
+  RawVector<PrimRef>& prims_;
+  RawVector<PrimRef> scratch_;  // chunked partitions (disjoint ranges: safe across tasks)
+  unsigned bins_;
+};
+
+// Returns the child reference of arena node n, emitted depth-first into `out`.
+struct Flattener {
+  const Arenas& a;
+  Bvh2& out;
+  std::vector<Leaf>& leaves;
+
+  std::int32_t emit(const std::vector<TmpNode>& arena, std::size_t n, std::int32_t parent, std::uint32_t& height) {
+    const TmpNode& t = arena[n];
+    if (&arena == &a.upper && a.subtree_of[n] >= 0)
+      return emit(a.subtrees[static_cast<std::size_t>(a.subtree_of[n])], 0, parent, height);
+    if (t.leaf) {
+      leaves.push_back({t.begin, t.end - t.begin});
+      out.leaf_boxes.push_back(t.box.box());
+      out.largest_leaf = std::max<std::size_t>(out.largest_leaf, t.end - t.begin);
+      out.forced_leaves += t.forced ? 1 : 0;
+      height = 0;
+      return ~static_cast<std::int32_t>(leaves.size() - 1);
+    }
+    const std::int32_t self = static_cast<std::int32_t>(out.nodes.size());
+    out.nodes.push_back({t.box.box(), {MBVH_EMPTY, MBVH_EMPTY}, parent, 0});
+    std::uint32_t h[2] = {0, 0};
+    for (int side = 0; side < 2; ++side) {
+      const std::int32_t ref = emit(arena, static_cast<std::size_t>(t.child[side]), self, h[side]);
+      out.nodes[static_cast<std::size_t>(self)].child[side] = ref;
+    }
+    height = 1 + std::max(h[0], h[1]);
+    out.nodes[static_cast<std::size_t>(self)].height = height;
+    return self;
+  }
+};
+
+}  // namespace
+
+void flatten(const Arenas& a, Bvh2& out, std::vector<Leaf>& leaves) {
+  Flattener fl{a, out, leaves};
+  const TmpNode& r = a.upper[0];
+  out.nodes.push_back({r.box.box(), {MBVH_EMPTY, MBVH_EMPTY}, MBVH_NONE, 0});
+  std::uint32_t h[2] = {0, 0};
+  for (int side = 0; side < 2; ++side)
+    if (r.child[side] >= 0) out.nodes[0].child[side] = fl.emit(a.upper, static_cast<std::size_t>(r.child[side]), 0, h[side]);
+  out.nodes[0].height = 1 + std::max(h[0], h[1]);
+}
+
+void build_binned_sah(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& croot, const BuildOptions& opt,
+                      Arenas& out) {
+  // -- top of the tree, breadth-first, large nodes binned and partitioned in parallel chunks
+  SahBuilder builder(opt, prims);
+  std::vector<TmpNode>& upper = out.upper;
+  upper.assign(1, TmpNode());
+  upper[0].box = root;
+  upper[0].cbox = croot;
+  upper[0].begin = 0;
+  upper[0].end = static_cast<std::uint32_t>(prims.size());
+  upper[0].depth = 0;
+  const unsigned threads = resolve_threads(opt.threads);
+  const std::size_t small = std::max<std::size_t>(4096, prims.size() / (8 * std::size_t(threads)));
+  std::vector<std::size_t> jobs;
+  for (std::size_t k = 0; k < upper.size(); ++k) {
+    if (k > 0 && upper[k].end - upper[k].begin <= small) {
+      jobs.push_back(k);
+      continue;
+    }
+    builder.split(upper, k, threads);
+  }
+  // -- remaining subtrees, one per task, largest first
+  build_subtrees(out, jobs, opt, [&](std::vector<TmpNode>& subtree) {
+    subtree.reserve(2 * (subtree[0].end - subtree[0].begin) / std::max(1u, opt.max_leaf / 2) + 1);
+    builder.build_subtree(subtree);
+  });
+}
+
+}  // namespace build
+
+namespace {
+
+// The scene's non-degenerate triangles must lie in the exactly traced range (accel.h): a
+// coordinate beyond ±kMaxCoordinate is named with its triangle; a scene whose largest magnitude
+// is below kMinSceneScale is refused as a whole. `largest`: the largest magnitude of the records.
+void check_traceable_range(const Scene& scene, const build::RawVector<build::PrimRef>& prims, float largest) {
+  if (largest > kMaxCoordinate) {
+    for (const build::PrimRef& r : prims) {  // the first offending triangle, in scene order
+      for (std::uint32_t v : scene.triangles[r.prim]) {
+        const Vec3f& p = scene.vertices[v];
+        for (float c : {p.x, p.y, p.z})
+          if (std::fabs(c) > kMaxCoordinate) {
+            char buf[256];
+            std::snprintf(buf, sizeof buf,
+                          ": coordinate %.9g of vertex %u (triangle %u) is beyond +-2^40 (%.3g), the range mbvh traces "
+                          "exactly (float products of three coordinates would overflow); rescale the scene",
+                          double(c), v, r.prim, double(kMaxCoordinate));
+            throw Error(scene.name + buf);
+          }
+      }
+    }
+  }
+  if (largest < kMinSceneScale) {
+    char buf[256];
+    std::snprintf(buf, sizeof buf,
+                  ": the largest coordinate magnitude is %.9g, below 2^-36 (%.3g), the smallest scene scale mbvh traces "
+                  "exactly (float products of three coordinates would underflow); rescale the scene",
+                  double(largest), double(kMinSceneScale));
+    throw Error(scene.name + buf);
+  }
+}
+
+}  // namespace
+
+namespace build {
+
+// The build's bytes (nodes, leaves, triangles) as 1 MiB blocks, each hashed on its own (in
+// parallel), then the blocks' hashes in order: the same value at any thread count.
+std::uint64_t hash_build(const Bvh2& b, const std::vector<Leaf>& leaves, const AlignedVector<Tri>& tris, unsigned threads) {
+  constexpr std::size_t kBlock = std::size_t(1) << 20;
+  struct Block {
+    const unsigned char* p;
+    std::size_t n;
+  };
+  std::vector<Block> blocks;
+  auto add = [&](const void* p, std::size_t n) {
+    const unsigned char* c = static_cast<const unsigned char*>(p);
+    for (std::size_t o = 0; o < n; o += kBlock) blocks.push_back({c + o, std::min(kBlock, n - o)});
+  };
+  add(b.nodes.data(), b.nodes.size() * sizeof(Bvh2::Node));
+  add(leaves.data(), leaves.size() * sizeof(Leaf));
+  add(tris.data(), tris.size() * sizeof(Tri));
+  std::vector<std::uint64_t> h(blocks.size());
+  parallel_for(blocks.size(), 4, threads, [&](std::size_t lo, std::size_t hi, unsigned) {
+    for (std::size_t i = lo; i < hi; ++i) h[i] = hash_bytes(blocks[i].p, blocks[i].n);
+  });
+  return hash_bytes(h.data(), h.size() * sizeof(std::uint64_t));
+}
+
+double sah_of_binary(const Bvh2& b, const std::vector<Leaf>& leaves, float ct) {
+  const double root = b.nodes[0].box.half_area();
+  if (!(root > 0)) return 0;
+  double cost = 0;
+  for (const auto& n : b.nodes) cost += ct * n.box.half_area() / root;
+  for (std::size_t i = 0; i < leaves.size(); ++i) cost += double(leaves[i].count) * b.leaf_boxes[i].half_area() / root;
+  return cost;
+}
+
+}  // namespace build
+
+std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_in) {
+  using build::PrimRef;
+  using Clock = std::chrono::steady_clock;
+  const auto t0 = Clock::now();
+  // -- what the build is given: indices in range, finite vertices, a usable SAH cost
+  scene.validate();
+  if (!std::isfinite(opt_in.traversal_cost) || opt_in.traversal_cost < 0)
+    throw Error("BuildOptions::traversal_cost " + std::to_string(opt_in.traversal_cost) + " must be finite and >= 0");
+  std::unique_ptr<Accel> acc(new Accel());
+  acc->impl_->opt_ = opt_in;
+  BuildOptions& opt = acc->impl_->opt_;
+  opt.depth_cap = std::clamp(opt.depth_cap, 1u, static_cast<unsigned>(MBVH_BINARY_DEPTH_CAP));
+  opt.max_leaf = std::max(opt.max_leaf, 1u);
+  acc->impl_->scene_triangles_ = scene.triangles.size();
+  auto report = [&opt](double f) {
+    if (opt.progress) opt.progress(f);
+  };
+
+  // -- one record per non-degenerate (non-zero area) triangle, in scene order: chunks count
+  //    their kept triangles, then write them at their prefix offsets with the chunk's bounds
+  const std::size_t n = scene.triangles.size();
+  if (n > 0x7FFFFFF0u) throw Error(scene.name + ": too many triangles for 32-bit references");
+  constexpr std::size_t grain = 65536;
+  const std::size_t chunks = (n + grain - 1) / grain;
+  std::vector<std::size_t> kept_in(chunks, 0);
+  build::RawVector<PrimRef> prims(n);
+  std::vector<build::FastBox> cb(chunks), ccb(chunks);
+  std::vector<float> mag(chunks, 0.0f);
+  parallel_for(n, grain, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
+    const std::size_t c = b / grain;
+    std::size_t o = b;
+    build::FastBox box, cbox;
+    float m = 0;
+    for (std::size_t i = b; i < e; ++i) {
+      const auto& t = scene.triangles[i];
+      const Vec3f &v0 = scene.vertices[t[0]], &v1 = scene.vertices[t[1]], &v2 = scene.vertices[t[2]];
+      if (!build::has_area(v0, v1, v2)) continue;
+      const PrimRef r = build::prim_ref(v0, v1, v2, static_cast<std::uint32_t>(i));
+      box.grow(r);
+      cbox.grow_centroid(r);
+      m = std::max(m, build::magnitude(r));
+      prims[o++] = r;
+    }
+    kept_in[c] = o - b;
+    cb[c] = box;
+    ccb[c] = cbox;
+    mag[c] = m;
+  });
+  std::size_t kept = 0;  // close the chunks' gaps (in place: a record only moves down)
+  for (std::size_t c = 0; c < chunks; ++c) {
+    if (kept != c * grain) std::memmove(&prims[kept], &prims[c * grain], kept_in[c] * sizeof(PrimRef));
+    kept += kept_in[c];
+  }
+  prims.resize(kept);
+  acc->impl_->bvh2_.degenerate = n - kept;
+  if (kept == 0)
+    throw Error(scene.name + ": the scene has no non-degenerate triangle (" + std::to_string(n) + " triangles, " +
+                std::to_string(acc->impl_->bvh2_.degenerate) + " degenerate)");
+  build::FastBox root, croot;
+  float largest = 0;
+  for (std::size_t c = 0; c < chunks; ++c) {
+    root.grow(cb[c]);
+    croot.grow(ccb[c]);
+    largest = std::max(largest, mag[c]);
+  }
+  check_traceable_range(scene, prims, largest);
+  const auto t_prep = Clock::now();
+  report(0.05);
+
+  Bvh2& out = acc->impl_->bvh2_;
+  auto t_tree = Clock::now();
+  if (opt.quality == BuildQuality::high) {
+    // -- spatial splits (sbvh.cpp): a triangle may sit in several leaves (never twice in one)
+    std::vector<Box> boxes(n);
+    std::vector<std::uint32_t> idx(prims.size());
+    for (std::size_t i = 0; i < prims.size(); ++i) {
+      const PrimRef& r = prims[i];
+      idx[i] = r.prim;
+      boxes[r.prim].lo = {r.lo[0], r.lo[1], r.lo[2]};
+      boxes[r.prim].hi = {r.hi[0], r.hi[1], r.hi[2]};
+    }
+    SbvhResult r = build_sbvh(scene, opt, boxes, idx);
+    t_tree = Clock::now();
+    r.bvh.degenerate = out.degenerate;
+    out = std::move(r.bvh);
+    acc->impl_->leaves_ = std::move(r.leaves);
+    acc->impl_->tris_.resize(r.prims.size());
+    parallel_for(r.prims.size(), grain, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
+      for (std::size_t i = b; i < e; ++i) {
+        const auto& t = scene.triangles[r.prims[i]];
+        build::fill_tri(acc->impl_->tris_[i], scene.vertices[t[0]], scene.vertices[t[1]], scene.vertices[t[2]], r.prims[i]);
+      }
+    });
+  } else {
+    // -- the binary tree
+    build::Arenas arenas;
+    if (opt.quality == BuildQuality::low) build::build_lbvh(prims, root, croot, opt, arenas);
+    else build::build_binned_sah(prims, root, croot, opt, arenas);
+    t_tree = Clock::now();
+
+    // -- flatten depth-first; leaves come out in record order
+    out.nodes.reserve(prims.size());
+    out.leaf_boxes.reserve(prims.size());  // address space only: pages are touched as written
+    acc->impl_->leaves_.reserve(prims.size());
+    build::flatten(arenas, out, acc->impl_->leaves_);
+
+    arenas = build::Arenas();
+    acc->impl_->tris_.resize(prims.size());
+    parallel_for(prims.size(), grain, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
+      for (std::size_t i = b; i < e; ++i) {
+        const auto& t = scene.triangles[prims[i].prim];
+        build::fill_tri(acc->impl_->tris_[i], scene.vertices[t[0]], scene.vertices[t[1]], scene.vertices[t[2]], prims[i].prim);
+      }
+    });
+  }
+  acc->impl_->bounds_ = out.nodes[0].box;
+  const auto t_flat = Clock::now();
+
+  // -- statistics and hash
+  LayoutStats& st = acc->impl_->binary_stats_;
+  st.layout = "binary";
+  st.nodes = out.nodes.size();
+  st.leaves = acc->impl_->leaves_.size();
+  st.depth = out.nodes[0].height;
+  st.sah_cost = build::sah_of_binary(out, acc->impl_->leaves_, opt.traversal_cost);
+  st.bytes = out.nodes.size() * sizeof(Bvh2::Node) + acc->impl_->leaves_.size() * (sizeof(Leaf) + sizeof(Box)) +
+             acc->impl_->tris_.size() * sizeof(Tri);
+  st.bitstack_bits = st.depth;
+  if (st.depth > opt.depth_cap) throw Error("internal: binary depth " + std::to_string(st.depth) + " exceeds the cap");
+  acc->impl_->hash_ = build::hash_build(out, acc->impl_->leaves_, acc->impl_->tris_, opt.threads);
+  const auto t1 = Clock::now();
+  auto ms = [](Clock::time_point a, Clock::time_point b) { return std::chrono::duration<double, std::milli>(b - a).count(); };
+  st.build_ms = ms(t0, t1);
+  st.phase_ms[0] = ms(t0, t_prep);
+  st.phase_ms[1] = ms(t_prep, t_tree);
+  st.phase_ms[2] = ms(t_tree, t_flat);
+  st.phase_ms[3] = ms(t_flat, t1);
+  report(1.0);
+  return acc;
+}
+
+Accel::Accel() : impl_(std::make_unique<Impl>()) {}
+Accel::~Accel() = default;
+const Bvh2& Accel::bvh2() const { return impl_->bvh2_; }
+const AlignedVector<Tri>& Accel::tris() const { return impl_->tris_; }
+const std::vector<Leaf>& Accel::leaves() const { return impl_->leaves_; }
+const Box& Accel::bounds() const { return impl_->bounds_; }
+std::size_t Accel::scene_triangles() const { return impl_->scene_triangles_; }
+const LayoutStats& Accel::binary_stats() const { return impl_->binary_stats_; }
+const BuildOptions& Accel::options() const { return impl_->opt_; }
+std::uint64_t Accel::hash() const { return impl_->hash_; }
+std::uint64_t Accel::generation() const { return impl_->generation_; }
+double Accel::last_refit_ms() const { return impl_->refit_ms_; }
+
+const Mbvh2& Accel::mbvh2() const {
+  std::call_once(impl_->once2_, [this] { impl_->mbvh2_ = make_mbvh2(impl_->bvh2_, impl_->leaves_); });
+  return impl_->mbvh2_;
+}
+
+void Accel::make_layout(Layout l) const {
+  if (l == Layout::mbvh2) mbvh2();
+  else if (l == Layout::mbvh4) mbvh4();
+  else mbvh8();
+}
+
+const Mbvh8& Accel::mbvh8() const {
+  std::call_once(impl_->once8_, [this] { impl_->mbvh8_ = make_mbvh8(impl_->bvh2_, impl_->leaves_); });
+  return impl_->mbvh8_;
+}
+
+const Mbvh4& Accel::mbvh4() const {
+  std::call_once(impl_->once4_, [this] { impl_->mbvh4_ = make_mbvh4(impl_->bvh2_, impl_->leaves_); });
+  return impl_->mbvh4_;
+}
+
+const TriPacks& Accel::tri_packs() const {
+  std::call_once(impl_->oncep_, [this] { impl_->packs_ = make_tri_packs(impl_->tris_, impl_->leaves_); });
+  return impl_->packs_;
+}
+
+const Mbvh4Wide& Accel::mbvh4_wide() const {
+  std::call_once(impl_->once4w_, [this] { impl_->mbvh4w_ = make_mbvh4_wide(mbvh4()); });
+  return impl_->mbvh4w_;
+}
+
+}  // namespace mbvh

@@ -1,0 +1,213 @@
+// SPDX-License-Identifier: MIT
+// builder.h — what the binary builders share (internal to host/build/): the primitive records
+// they reorder, the temporary node arena they fill and its depth-first flattening into Bvh2.
+// Accel::build (binned_sah.cpp) prepares the records, calls one builder by BuildOptions::quality
+// and turns the leaf-ordered records into the triangles, statistics and hash.
+#pragma once
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <memory>
+#include <utility>
+#include <vector>
+
+#include "host/core/layouts.h"
+#include "host/core/parallel.h"
+
+namespace mbvh::build {
+
+/// One triangle's box and scene index, 32 bytes: builders move these records, not indices, so
+/// binning and partitioning stream through memory. Its centroid is centroid(a) (= Box::center()).
+struct PrimRef {
+  float lo[3];
+  std::uint32_t prim;
+  float hi[3];
+  std::uint32_t pad;
+  float centroid(int a) const { return 0.5f * (lo[a] + hi[a]); }
+};
+static_assert(sizeof(PrimRef) == 32);
+
+/// An allocator that default-initialises (leaves PrimRefs and integers uninitialised): the
+/// builders' large arrays are first written by parallel passes, so their pages are first touched
+/// there, not zeroed by one thread beforehand.
+template <class T>
+struct NoInit : std::allocator<T> {
+  using value_type = T;
+  NoInit() = default;
+  template <class U>
+  NoInit(const NoInit<U>&) {}
+  template <class U>
+  struct rebind {
+    using other = NoInit<U>;
+  };
+  template <class U, class... Args>
+  void construct(U* p, Args&&... args) {
+    if constexpr (sizeof...(Args) == 0) ::new (static_cast<void*>(p)) U;
+    else ::new (static_cast<void*>(p)) U(std::forward<Args>(args)...);
+  }
+};
+template <class T>
+using RawVector = std::vector<T, NoInit<T>>;
+
+/// An axis-aligned box kept as two float[3] rows, grown inline (Box::grow is out of line).
+struct FastBox {
+  float lo[3] = {INFINITY, INFINITY, INFINITY};
+  float hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+  void grow(const PrimRef& r) {
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = std::min(lo[a], r.lo[a]);
+      hi[a] = std::max(hi[a], r.hi[a]);
+    }
+  }
+  void grow(const FastBox& b) {
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = std::min(lo[a], b.lo[a]);
+      hi[a] = std::max(hi[a], b.hi[a]);
+    }
+  }
+  void grow_rows(const float* l, const float* h) {
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = std::min(lo[a], l[a]);
+      hi[a] = std::max(hi[a], h[a]);
+    }
+  }
+  void grow_point(const float p[3]) {
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = std::min(lo[a], p[a]);
+      hi[a] = std::max(hi[a], p[a]);
+    }
+  }
+  void grow_centroid(const PrimRef& r) {
+    const float c[3] = {r.centroid(0), r.centroid(1), r.centroid(2)};
+    grow_point(c);
+  }
+  /// As Box::half_area(): 0 for an empty box.
+  float half_area() const {
+    if (!(lo[0] <= hi[0])) return 0.0f;
+    const float e[3] = {hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]};
+    return e[0] * e[1] + e[1] * e[2] + e[2] * e[0];
+  }
+  Box box() const {
+    Box b;
+    b.lo = {lo[0], lo[1], lo[2]};
+    b.hi = {hi[0], hi[1], hi[2]};
+    return b;
+  }
+};
+
+/// A node of a builder's arena: a range of the record array, children in the same arena.
+struct TmpNode {
+  FastBox box, cbox;          // bounds of the triangles and of their centroids
+  std::uint32_t begin, end;   // range of the record array
+  std::uint32_t depth;
+  std::int32_t child[2] = {-1, -1};  // indices into the same arena; -1: none
+  bool leaf = false;
+  bool forced = false;        // leaf made by the depth cap or unsplittable centroids
+};
+
+/// A builder's result before flattening: the top of the tree in `upper`; an upper node whose
+/// subtree was built by its own task names that task's arena in subtree_of (else -1), whose
+/// node 0 stands for it.
+struct Arenas {
+  std::vector<TmpNode> upper;
+  std::vector<std::vector<TmpNode>> subtrees;
+  std::vector<std::int32_t> subtree_of;
+};
+
+/// The step both builders (binned SAH, LBVH) take after splitting the top levels into `out.upper`:
+/// the root made an inner node (a one-leaf scene gets a root with one leaf child), then every
+/// subtree job (jobs[j]: the top node it starts from) built by `build_one(subtree)` on the pool,
+/// largest first; subtree j starts as a copy of its top node. The bytes do not depend on which
+/// worker ran a job. Progress goes from 0.25 to 0.95.
+template <class BuildOne>
+void build_subtrees(Arenas& out, const std::vector<std::size_t>& jobs, const BuildOptions& opt, BuildOne&& build_one) {
+  std::vector<TmpNode>& upper = out.upper;
+  if (upper[0].leaf) {
+    TmpNode leaf = upper[0];
+    leaf.depth = 1;
+    upper[0].leaf = false;
+    upper[0].forced = false;
+    upper[0].child[0] = 1;
+    upper.push_back(leaf);
+  }
+  out.subtree_of.assign(upper.size(), -1);
+  out.subtrees.assign(jobs.size(), {});
+  for (std::size_t j = 0; j < jobs.size(); ++j) out.subtree_of[jobs[j]] = static_cast<std::int32_t>(j);
+  std::vector<std::size_t> order(jobs.size());
+  for (std::size_t j = 0; j < jobs.size(); ++j) order[j] = j;
+  std::stable_sort(order.begin(), order.end(), [&](std::size_t x, std::size_t y) {
+    return upper[jobs[x]].end - upper[jobs[x]].begin > upper[jobs[y]].end - upper[jobs[y]].begin;
+  });
+  std::atomic<std::size_t> built{0};
+  parallel_for(jobs.size(), 1, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
+    for (std::size_t o = b; o < e; ++o) {
+      const std::size_t j = order[o];
+      out.subtrees[j].push_back(upper[jobs[j]]);
+      build_one(out.subtrees[j]);
+      if (opt.progress) opt.progress(0.25 + 0.7 * static_cast<double>(++built) / static_cast<double>(jobs.size()));
+    }
+  });
+}
+
+/// Flattens the arenas depth-first into `out` (record 0 = root, which is always an inner node)
+/// and `leaves` (in record order: a leaf's triangles are its range of the record array).
+void flatten(const Arenas& a, Bvh2& out, std::vector<Leaf>& leaves);
+
+/// Whether the triangle has area (its edges' cross product, in double, is not zero): the build
+/// keeps the others out of leaves.
+inline bool has_area(const Vec3f& a, const Vec3f& bb, const Vec3f& c) {
+  const double e1[3] = {double(bb.x) - a.x, double(bb.y) - a.y, double(bb.z) - a.z};
+  const double e2[3] = {double(c.x) - a.x, double(c.y) - a.y, double(c.z) - a.z};
+  const double cx = e1[1] * e2[2] - e1[2] * e2[1], cy = e1[2] * e2[0] - e1[0] * e2[2], cz = e1[0] * e2[1] - e1[1] * e2[0];
+  return cx != 0 || cy != 0 || cz != 0;
+}
+
+/// The record of a triangle: the box of its three vertices.
+inline PrimRef prim_ref(const Vec3f& a, const Vec3f& b, const Vec3f& c, std::uint32_t prim) {
+  PrimRef r;
+  r.lo[0] = std::min(std::min(a.x, b.x), c.x);
+  r.lo[1] = std::min(std::min(a.y, b.y), c.y);
+  r.lo[2] = std::min(std::min(a.z, b.z), c.z);
+  r.hi[0] = std::max(std::max(a.x, b.x), c.x);
+  r.hi[1] = std::max(std::max(a.y, b.y), c.y);
+  r.hi[2] = std::max(std::max(a.z, b.z), c.z);
+  r.prim = prim;
+  r.pad = 0;
+  return r;
+}
+
+/// The largest coordinate magnitude of a record (the traced range check).
+inline float magnitude(const PrimRef& r) {
+  return std::max({std::fabs(r.lo[0]), std::fabs(r.lo[1]), std::fabs(r.lo[2]), std::fabs(r.hi[0]), std::fabs(r.hi[1]),
+                   std::fabs(r.hi[2])});
+}
+
+/// The triangle record of the leaf-ordered array: three vertex rows, the prim id in v0[3].
+inline void fill_tri(Tri& d, const Vec3f& a, const Vec3f& b, const Vec3f& c, std::uint32_t prim) {
+  const Vec3f* v[3] = {&a, &b, &c};
+  float* rows[3] = {d.v0, d.v1, d.v2};
+  for (int k = 0; k < 3; ++k) {
+    rows[k][0] = v[k]->x;
+    rows[k][1] = v[k]->y;
+    rows[k][2] = v[k]->z;
+    rows[k][3] = 0.0f;
+  }
+  std::memcpy(&d.v0[3], &prim, 4);
+}
+
+/// SAH price of testing `n` triangles: blocks of `leaf_block` (BuildOptions::leaf_block).
+inline float blocks(std::uint32_t n, unsigned leaf_block) {
+  const std::uint32_t b = std::max(leaf_block, 1u);
+  return static_cast<float>((n + b - 1) / b);
+}
+
+/// The builders: reorder `prims` into leaf order and fill the arenas. `root` bounds every record,
+/// `croot` their centroids. Deterministic: the same arenas at any opt.threads.
+void build_binned_sah(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& croot, const BuildOptions& opt,
+                      Arenas& out);
+void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& croot, const BuildOptions& opt,
+                Arenas& out);
+
+}  // namespace mbvh::build

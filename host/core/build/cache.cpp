@@ -1,0 +1,264 @@
+// SPDX-License-Identifier: MIT
+// cache.cpp — the BVH cache: Accel::save / Accel::load / Accel::build_cached. A build is kept as
+// one file holding the binary tree, its leaves and leaf-ordered triangles (the layouts are made
+// from them on first use, as after a build), keyed by a content hash of the triangles and of every
+// build option that shapes the tree (and the library version: a newer builder makes other trees).
+// The file is versioned and checksummed; a file that is truncated, corrupt, of another format
+// version or of another scene or options is detected before anything is traced from it.
+//
+// File (native little-endian, 8-byte aligned):
+//   header  "MBVHBVH\0", u32 format version, u32 record sizes (node, box, leaf, tri), u64 key,
+//           u64 Accel::hash(), counts (nodes, leaf boxes, leaves, triangles), the scene's triangle
+//           count, tree facts (forced leaves, largest leaf, degenerate), bounds, binary statistics,
+//           build options
+//   arrays  nodes, leaf boxes, leaves, triangles
+//   u64     checksum of every byte before it (hash_bytes of accel.h, chained over the segments)
+#include <sys/stat.h>
+
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <type_traits>
+
+#include "host/core/layouts.h"
+#include "mbvh/error.h"
+#include "host/core/io/output.h"
+#include "host/core/resources.h"
+#include "mbvh/version.h"
+
+namespace mbvh {
+
+namespace {
+
+constexpr char kMagic[8] = {'M', 'B', 'V', 'H', 'B', 'V', 'H', '\0'};
+constexpr std::uint32_t kFormatVersion = 3;  // 2: the build quality in the key and header; 3: hash_bytes
+
+struct Header {
+  char magic[8];
+  std::uint32_t version;
+  std::uint32_t sizes[4];  // Bvh2::Node, Box, Leaf, Tri
+  std::uint32_t pad0;
+  std::uint64_t key;
+  std::uint64_t accel_hash;
+  std::uint64_t nodes, leaf_boxes, leaves, tris;
+  std::uint64_t scene_triangles, forced_leaves, largest_leaf, degenerate;
+  Box bounds;
+  std::uint64_t st_nodes, st_leaves, st_bytes;
+  double st_sah, st_build_ms;
+  std::uint32_t st_depth, st_bits;
+  std::uint32_t max_leaf, bins, leaf_block, depth_cap;
+  float traversal_cost;
+  std::uint32_t quality;  // BuildQuality
+};
+static_assert(std::is_trivially_copyable_v<Header>);
+static_assert(sizeof(Header) % 8 == 0);
+
+template <class T>
+void append(std::string& out, const T* p, std::size_t count) {
+  out.append(reinterpret_cast<const char*>(p), count * sizeof(T));
+  out.append((8 - out.size() % 8) % 8, '\0');
+}
+
+std::string hex(std::uint64_t v) {
+  char b[17];
+  std::snprintf(b, sizeof b, "%016llx", static_cast<unsigned long long>(v));
+  return b;
+}
+
+}  // namespace
+
+std::uint64_t Accel::cache_key(const Scene& scene, const BuildOptions& opt) {
+  std::uint64_t h = hash_bytes(MBVH_VERSION_STRING, sizeof(MBVH_VERSION_STRING), kFormatVersion);
+  h = hash_bytes(scene.vertices.data(), scene.vertices.size() * sizeof(Vec3f), h);
+  h = hash_bytes(scene.triangles.data(), scene.triangles.size() * sizeof(scene.triangles[0]), h);
+  // every option that shapes the tree, after Accel::build's clamping; not threads (the bytes do
+  // not depend on them) and not progress
+  const std::uint32_t o[4] = {std::max(opt.max_leaf, 1u), std::clamp(opt.bins, 2u, 64u), std::max(opt.leaf_block, 1u),
+                              std::clamp(opt.depth_cap, 1u, static_cast<unsigned>(MBVH_BINARY_DEPTH_CAP))};
+  h = hash_bytes(o, sizeof o, h);
+  const std::uint32_t q = static_cast<std::uint32_t>(opt.quality);
+  h = hash_bytes(&q, sizeof q, h);
+  return hash_bytes(&opt.traversal_cost, sizeof(float), h);
+}
+
+void Accel::save(const std::string& path, std::uint64_t key) const {
+  Header hd{};
+  std::memcpy(hd.magic, kMagic, 8);
+  hd.version = kFormatVersion;
+  hd.sizes[0] = sizeof(Bvh2::Node);
+  hd.sizes[1] = sizeof(Box);
+  hd.sizes[2] = sizeof(Leaf);
+  hd.sizes[3] = sizeof(Tri);
+  hd.key = key;
+  hd.accel_hash = impl_->hash_;
+  hd.nodes = impl_->bvh2_.nodes.size();
+  hd.leaf_boxes = impl_->bvh2_.leaf_boxes.size();
+  hd.leaves = impl_->leaves_.size();
+  hd.tris = impl_->tris_.size();
+  hd.scene_triangles = impl_->scene_triangles_;
+  hd.forced_leaves = impl_->bvh2_.forced_leaves;
+  hd.largest_leaf = impl_->bvh2_.largest_leaf;
+  hd.degenerate = impl_->bvh2_.degenerate;
+  hd.bounds = impl_->bounds_;
+  hd.st_nodes = impl_->binary_stats_.nodes;
+  hd.st_leaves = impl_->binary_stats_.leaves;
+  hd.st_bytes = impl_->binary_stats_.bytes;
+  hd.st_sah = impl_->binary_stats_.sah_cost;
+  hd.st_build_ms = impl_->binary_stats_.build_ms;
+  hd.st_depth = impl_->binary_stats_.depth;
+  hd.st_bits = impl_->binary_stats_.bitstack_bits;
+  hd.max_leaf = impl_->opt_.max_leaf;
+  hd.bins = impl_->opt_.bins;
+  hd.leaf_block = impl_->opt_.leaf_block;
+  hd.depth_cap = impl_->opt_.depth_cap;
+  hd.traversal_cost = impl_->opt_.traversal_cost;
+  hd.quality = static_cast<std::uint32_t>(impl_->opt_.quality);
+  std::string out;
+  out.reserve(sizeof hd + hd.nodes * sizeof(Bvh2::Node) + hd.leaf_boxes * sizeof(Box) + hd.leaves * sizeof(Leaf) +
+              hd.tris * sizeof(Tri) + 64);
+  std::uint64_t sum = 0;
+  auto segment = [&out, &sum](const auto* p, std::size_t count) {
+    sum = hash_bytes(p, count * sizeof(*p), sum);  // the checksum chains the segments, padding left out
+    append(out, p, count);
+  };
+  segment(&hd, 1);
+  segment(impl_->bvh2_.nodes.data(), impl_->bvh2_.nodes.size());
+  segment(impl_->bvh2_.leaf_boxes.data(), impl_->bvh2_.leaf_boxes.size());
+  segment(impl_->leaves_.data(), impl_->leaves_.size());
+  segment(impl_->tris_.data(), impl_->tris_.size());
+  append(out, &sum, 1);
+  const OutputWrite w{{"cache", path, false}, out.data(), out.size()};
+  write_outputs({&w, 1});
+}
+
+std::unique_ptr<Accel> Accel::load(const std::string& path, std::uint64_t key) {
+  const std::uint64_t size = regular_file_size(path, "BVH cache");
+  auto bad = [&path](const std::string& why) { return Error(path + ": not a usable BVH cache file: " + why); };
+  if (size < sizeof(Header) + 8) throw bad("truncated (" + std::to_string(size) + " bytes)");
+  require_memory(path, size, "the BVH cache file");
+  // read straight into the build's arrays: no staging copy of the file (page faults are most of a
+  // load's time)
+  std::unique_ptr<FILE, int (*)(FILE*)> f(std::fopen(path.c_str(), "rb"), &std::fclose);
+  if (!f) throw bad("cannot be opened");
+  std::setvbuf(f.get(), nullptr, _IONBF, 0);
+  Header hd;
+  if (std::fread(&hd, sizeof hd, 1, f.get()) != 1) throw bad("cannot be read");
+  if (std::memcmp(hd.magic, kMagic, 8) != 0) throw bad("no mbvh BVH cache header");
+  if (hd.version != kFormatVersion)
+    throw bad("format version " + std::to_string(hd.version) + ", this library reads " + std::to_string(kFormatVersion));
+  if (hd.sizes[0] != sizeof(Bvh2::Node) || hd.sizes[1] != sizeof(Box) || hd.sizes[2] != sizeof(Leaf) ||
+      hd.sizes[3] != sizeof(Tri))
+    throw bad("written by a build with other record sizes");
+  auto padded = [](std::uint64_t bytes) { return (bytes + 7) / 8 * 8; };
+  const std::uint64_t limit = size;  // every count is bounded by the file it came from
+  if (hd.nodes > limit || hd.leaf_boxes > limit || hd.leaves > limit || hd.tris > limit) throw bad("counts out of range");
+  const std::uint64_t need = sizeof hd + padded(hd.nodes * sizeof(Bvh2::Node)) + padded(hd.leaf_boxes * sizeof(Box)) +
+                             padded(hd.leaves * sizeof(Leaf)) + padded(hd.tris * sizeof(Tri)) + 8;
+  if (need != size) throw bad("size " + std::to_string(size) + " does not match its counts (" + std::to_string(need) + "): truncated or damaged");
+
+  std::unique_ptr<Accel> acc(new Accel());
+  std::uint64_t sum = hash_bytes(&hd, sizeof hd, 0);
+  auto take = [&](auto& vec, std::uint64_t count) {
+    vec.resize(count);
+    const std::size_t bytes = count * sizeof(vec[0]);
+    char pad[8] = {};
+    const std::size_t npad = padded(bytes) - bytes;
+    if ((bytes && std::fread(vec.data(), bytes, 1, f.get()) != 1) || (npad && std::fread(pad, npad, 1, f.get()) != 1))
+      throw bad("cannot be read");
+    sum = hash_bytes(vec.data(), bytes, sum);
+  };
+  take(acc->impl_->bvh2_.nodes, hd.nodes);
+  take(acc->impl_->bvh2_.leaf_boxes, hd.leaf_boxes);
+  take(acc->impl_->leaves_, hd.leaves);
+  take(acc->impl_->tris_, hd.tris);
+  std::uint64_t stored;
+  if (std::fread(&stored, 8, 1, f.get()) != 1) throw bad("cannot be read");
+  if (sum != stored) throw bad("checksum mismatch (truncated or damaged)");
+  if (hd.key != key) throw bad("made for another scene, build options or library version (key " + hex(hd.key) + ", wanted " + hex(key) + ")");
+  acc->impl_->bvh2_.forced_leaves = hd.forced_leaves;
+  acc->impl_->bvh2_.largest_leaf = hd.largest_leaf;
+  acc->impl_->bvh2_.degenerate = hd.degenerate;
+  acc->impl_->bounds_ = hd.bounds;
+  acc->impl_->scene_triangles_ = hd.scene_triangles;
+  acc->impl_->hash_ = hd.accel_hash;
+  LayoutStats& st = acc->impl_->binary_stats_;
+  st.layout = "binary";
+  st.nodes = hd.st_nodes;
+  st.leaves = hd.st_leaves;
+  st.bytes = hd.st_bytes;
+  st.sah_cost = hd.st_sah;
+  st.build_ms = hd.st_build_ms;
+  st.depth = hd.st_depth;
+  st.bitstack_bits = hd.st_bits;
+  acc->impl_->opt_.max_leaf = hd.max_leaf;
+  acc->impl_->opt_.bins = hd.bins;
+  acc->impl_->opt_.leaf_block = hd.leaf_block;
+  acc->impl_->opt_.depth_cap = hd.depth_cap;
+  acc->impl_->opt_.traversal_cost = hd.traversal_cost;
+  if (hd.quality > static_cast<std::uint32_t>(BuildQuality::high)) throw bad("unknown build quality");
+  acc->impl_->opt_.quality = static_cast<BuildQuality>(hd.quality);
+
+  // Structure, as a build leaves it: the checksum catches damage; this catches a file whose
+  // checksum was recomputed over a broken tree. Every reference in range, every inner node but
+  // the root and every leaf referenced exactly once, each from a node of smaller index (so descent
+  // terminates), leaves inside the triangle array, depth within the cap.
+  const Bvh2& b = acc->impl_->bvh2_;
+  if (b.nodes.empty() || b.leaf_boxes.size() != acc->impl_->leaves_.size()) throw bad("inconsistent tree");
+  std::vector<std::uint8_t> seen_node(b.nodes.size(), 0), seen_leaf(acc->impl_->leaves_.size(), 0);
+  for (std::size_t i = 0; i < b.nodes.size(); ++i)
+    for (std::int32_t c : b.nodes[i].child) {
+      if (c == MBVH_EMPTY) continue;
+      if (c >= 0) {
+        const auto ci = static_cast<std::size_t>(c);
+        if (ci <= i || ci >= b.nodes.size() || seen_node[ci]++) throw bad("node " + std::to_string(i) + " has a bad child");
+      } else {
+        const auto li = static_cast<std::size_t>(~c);
+        if (li >= seen_leaf.size() || seen_leaf[li]++) throw bad("node " + std::to_string(i) + " has a bad leaf");
+      }
+    }
+  for (std::size_t i = 1; i < b.nodes.size(); ++i)
+    if (!seen_node[i]) throw bad("node " + std::to_string(i) + " is unreachable");
+  for (std::size_t i = 0; i < seen_leaf.size(); ++i) {
+    const Leaf& l = acc->impl_->leaves_[i];
+    if (!seen_leaf[i] || l.first > acc->impl_->tris_.size() || l.count > acc->impl_->tris_.size() - l.first)
+      throw bad("leaf " + std::to_string(i) + " is unreachable or out of range");
+  }
+  if (st.depth > MBVH_BINARY_DEPTH_CAP || b.nodes[0].height > MBVH_BINARY_DEPTH_CAP) throw bad("deeper than the depth cap");
+  for (std::size_t i = 0; i < b.nodes.size(); ++i) {
+    const std::uint32_t h = b.nodes[i].height;
+    for (std::int32_t c : b.nodes[i].child)
+      if (c >= 0 && b.nodes[static_cast<std::size_t>(c)].height >= h) throw bad("node heights are inconsistent");
+  }
+  return acc;
+}
+
+std::unique_ptr<Accel> Accel::build_cached(const Scene& scene, const BuildOptions& opt, const std::string& dir,
+                                           CacheReport* report) {
+  CacheReport rep;
+  std::error_code ec;
+  std::filesystem::create_directories(dir, ec);
+  if (!std::filesystem::is_directory(dir)) throw Error("--cache " + dir + ": not a directory and cannot be made one");
+  const std::uint64_t key = cache_key(scene, opt);
+  rep.path = (std::filesystem::path(dir) / (hex(key) + ".mbvh")).string();
+  std::unique_ptr<Accel> acc;
+  struct stat sb;
+  if (::stat(rep.path.c_str(), &sb) == 0) {
+    try {
+      acc = load(rep.path, key);
+      rep.loaded = true;
+    } catch (const Error& e) {
+      rep.problem = e.what();  // rebuilt and replaced below
+    }
+  }
+  if (!acc) {
+    acc = build(scene, opt);
+    acc->impl_->opt_.threads = opt.threads;
+    acc->save(rep.path, key);
+  }
+  acc->impl_->opt_.threads = opt.threads;
+  acc->impl_->opt_.progress = opt.progress;
+  if (report) *report = rep;
+  return acc;
+}
+
+}  // namespace mbvh

@@ -1,0 +1,317 @@
+// SPDX-License-Identifier: MIT
+// collapse.cpp — the MBVH2 and MBVH4 layouts made from the one binary BVH, with the parent and
+// sibling links the stackless bitstack traversal needs (Áfra & Szirmay-Kalos, "Stackless
+// Multi-BVH Traversal for CPU, MIC and GPU Ray Tracing", CGF 2014; TRAVERSAL.md §2).
+#include <algorithm>
+#include <bit>
+#include <cstring>
+#include <limits>
+#include <chrono>
+
+#include "host/core/layouts.h"
+#include "host/core/trace/view.h"
+#include "mbvh/error.h"
+
+namespace mbvh {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+Box empty_box() { return Box(); }  // lo = +inf, hi = -inf: never hit (TRAVERSAL.md §2.1)
+
+double leaf_sah(const Bvh2& b, const std::vector<Leaf>& leaves, double root) {
+  double c = 0;
+  for (std::size_t i = 0; i < leaves.size(); ++i) c += double(leaves[i].count) * b.leaf_boxes[i].half_area() / root;
+  return c;
+}
+
+}  // namespace
+
+// MBVH2: the binary tree itself, both child boxes in the parent (Aila & Laine 2009).
+Mbvh2 make_mbvh2(const Bvh2& b, const std::vector<Leaf>& leaves) {
+  const auto t0 = Clock::now();
+  Mbvh2 out;
+  out.nodes.resize(b.nodes.size());
+  for (std::size_t i = 0; i < b.nodes.size(); ++i) {
+    const Bvh2::Node& s = b.nodes[i];
+    Node2& d = out.nodes[i];
+    const Box b0 = s.child[0] == MBVH_EMPTY ? empty_box() : b.box(s.child[0]);
+    const Box b1 = s.child[1] == MBVH_EMPTY ? empty_box() : b.box(s.child[1]);
+    d.c0[0] = b0.lo.x; d.c0[1] = b0.hi.x; d.c0[2] = b0.lo.y; d.c0[3] = b0.hi.y;
+    d.c1[0] = b1.lo.x; d.c1[1] = b1.hi.x; d.c1[2] = b1.lo.y; d.c1[3] = b1.hi.y;
+    d.zz[0] = b0.lo.z; d.zz[1] = b0.hi.z; d.zz[2] = b1.lo.z; d.zz[3] = b1.hi.z;
+    d.link[0] = s.parent;
+    d.link[1] = MBVH_NONE;
+    d.link[2] = s.child[0];
+    d.link[3] = s.child[1];
+  }
+  for (std::size_t i = 0; i < b.nodes.size(); ++i)
+    for (int k = 0; k < 2; ++k) {
+      const std::int32_t c = b.nodes[i].child[k];
+      if (c >= 0) out.nodes[static_cast<std::size_t>(c)].link[1] = b.nodes[i].child[1 - k];
+    }
+  LayoutStats& st = out.stats;
+  st.layout = "mbvh2";
+  st.nodes = out.nodes.size();
+  st.leaves = leaves.size();
+  st.depth = b.nodes[0].height;
+  const double root = b.nodes[0].box.half_area();
+  double cost = 0;
+  if (root > 0) {
+    for (const auto& n : b.nodes) cost += n.box.half_area() / root;
+    cost += leaf_sah(b, leaves, root);
+  }
+  st.sah_cost = cost;
+  st.bytes = out.nodes.size() * sizeof(Node2);
+  st.bitstack_bits = st.depth;
+  if (st.depth > MBVH_MBVH2_LEVEL_CAP) throw Error("internal: MBVH2 depth exceeds the 64-bit bitstack");
+  validate_layout(out, leaves.size());
+  st.build_ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+  return out;
+}
+
+namespace {
+
+// Depth-aware greedy collapse into W-wide nodes (W = 4: MBVH4, W = 8: MBVH8). A node at level L
+// takes its binary node's two children and repeatedly opens one inner child until it holds W:
+// first any child that would break the level cap (an inner child of binary height h at level L+1
+// needs L+1+ceil(h/B) <= cap, B = log2(W) binary levels per level, what opening every descendant
+// B levels down achieves), else the child of largest surface area (the SAH greedy of Wald et al.
+// 2008). With the binary cap of 42 the root satisfies ceil(42/B) <= cap and the invariant carries
+// down: MBVH4 never exceeds 21 levels (63 bits of a 64-bit word), MBVH8 never 14.
+template <class N, unsigned Cap>
+struct Collapser {
+  static constexpr int W = node_width<N>();
+  static constexpr unsigned B = static_cast<unsigned>(std::countr_zero(static_cast<unsigned>(W)));  // log2(W)
+  const Bvh2& b;
+  AlignedVector<N>& out;
+  unsigned max_level = 0;
+  double cost = 0, root_area = 1;
+
+  bool violates(std::int32_t ref, unsigned level) const {
+    if (ref < 0) return false;
+    const unsigned h = b.nodes[static_cast<std::size_t>(ref)].height;
+    return level + (h + B - 1) / B > Cap;
+  }
+
+  static void set_box(N& n, int s, const Box& bx) {
+    n.lo_x[s] = bx.lo.x; n.hi_x[s] = bx.hi.x;
+    n.lo_y[s] = bx.lo.y; n.hi_y[s] = bx.hi.y;
+    n.lo_z[s] = bx.lo.z; n.hi_z[s] = bx.hi.z;
+  }
+
+  std::int32_t emit(std::int32_t bref, std::int32_t parent, unsigned level) {
+    const Bvh2::Node& bn = b.nodes[static_cast<std::size_t>(bref)];
+    std::int32_t kids[W];
+    for (int k = 0; k < W; ++k) kids[k] = MBVH_EMPTY;
+    kids[0] = bn.child[0];
+    kids[1] = bn.child[1];
+    int count = bn.child[1] == MBVH_EMPTY ? 1 : 2;
+    while (count < W) {
+      int pick = -1;
+      for (int k = 0; k < count; ++k)
+        if (violates(kids[k], level + 1) && (pick < 0 || b.box(kids[k]).half_area() > b.box(kids[pick]).half_area())) pick = k;
+      if (pick < 0)
+        for (int k = 0; k < count; ++k)
+          if (kids[k] >= 0 && (pick < 0 || b.box(kids[k]).half_area() > b.box(kids[pick]).half_area())) pick = k;
+      if (pick < 0) break;
+      const Bvh2::Node& open = b.nodes[static_cast<std::size_t>(kids[pick])];
+      for (int k = count; k > pick + 1; --k) kids[k] = kids[k - 1];
+      kids[pick] = open.child[0];
+      kids[pick + 1] = open.child[1];
+      ++count;
+    }
+    const std::int32_t self = static_cast<std::int32_t>(out.size());
+    out.emplace_back();
+    Box all;
+    for (int s = 0; s < W; ++s) {
+      const Box bx = kids[s] == MBVH_EMPTY ? empty_box() : b.box(kids[s]);
+      all.grow(bx);
+      set_box(out[static_cast<std::size_t>(self)], s, bx);
+    }
+    cost += all.half_area() / root_area;
+    out[static_cast<std::size_t>(self)].parent = parent;
+    for (int s = 0; s < W; ++s) {
+      std::int32_t ref = kids[s];
+      if (ref >= 0) ref = emit(ref, self, level + 1);
+      else if (ref != MBVH_EMPTY) max_level = std::max(max_level, level + 1);
+      out[static_cast<std::size_t>(self)].child[s] = ref;
+    }
+    return self;
+  }
+};
+
+// Collapses `b` into `out` (nodes and stats of a wide layout named `name`; nodes are
+// value-initialised, so unused words are zero).
+template <unsigned Cap, class M>
+void collapse(const Bvh2& b, const std::vector<Leaf>& leaves, const char* name, M& out) {
+  using N = typename decltype(out.nodes)::value_type;
+  out.nodes.reserve(b.nodes.size() / (node_width<N>() / 2) + 1);
+  Collapser<N, Cap> c{b, out.nodes};
+  c.root_area = std::max(1e-30, static_cast<double>(b.nodes[0].box.half_area()));
+  c.emit(0, MBVH_NONE, 0);
+  LayoutStats& st = out.stats;
+  st.layout = name;
+  st.nodes = out.nodes.size();
+  st.leaves = leaves.size();
+  st.depth = c.max_level;
+  st.sah_cost = c.cost + leaf_sah(b, leaves, c.root_area);
+  st.bytes = out.nodes.size() * sizeof(N);
+  if (st.depth > Cap) throw Error(std::string("internal: ") + name + " depth exceeds its level cap");
+}
+
+}  // namespace
+
+Mbvh4 make_mbvh4(const Bvh2& b, const std::vector<Leaf>& leaves) {
+  const auto t0 = Clock::now();
+  Mbvh4 out;
+  collapse<MBVH_MBVH4_LEVEL_CAP>(b, leaves, "mbvh4", out);
+  // cyclic sibling links: sib[k] = parent.child[(slot + 1 + k) & 3]
+  out.nodes[0].sib[0] = out.nodes[0].sib[1] = out.nodes[0].sib[2] = MBVH_NONE;
+  for (const Node4& p : out.nodes)
+    for (int s = 0; s < 4; ++s)
+      if (p.child[s] >= 0)
+        for (int k = 0; k < 3; ++k) out.nodes[static_cast<std::size_t>(p.child[s])].sib[k] = p.child[(s + 1 + k) & 3];
+  out.stats.bitstack_bits = 3 * out.stats.depth;
+  validate_layout(out, leaves.size());
+  out.stats.build_ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+  return out;
+}
+
+Mbvh8 make_mbvh8(const Bvh2& b, const std::vector<Leaf>& leaves) {
+  const auto t0 = Clock::now();
+  Mbvh8 out;
+  collapse<MBVH_MBVH8_LEVEL_CAP>(b, leaves, "mbvh8", out);
+  out.stats.bitstack_bits = 8 * out.stats.depth;  // 8 pending-slot bits per level, in a 128-bit word
+  validate_layout(out, leaves.size());
+  out.stats.build_ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+  return out;
+}
+
+namespace {
+
+[[noreturn]] void corrupt(const char* layout, std::size_t node, const std::string& what) {
+  throw Error(std::string("corrupt ") + layout + " layout: node " + std::to_string(node) + ": " + what);
+}
+
+// Checks child reference `c` of node `i`; counts references into `seen` / `leaf_seen`.
+void check_ref(const char* layout, std::size_t i, std::int32_t c, std::size_t nodes, std::size_t leaves,
+               std::vector<std::uint8_t>& seen, std::vector<std::uint8_t>& leaf_seen) {
+  if (c == MBVH_EMPTY) return;
+  if (c >= 0) {
+    const std::size_t ci = static_cast<std::size_t>(c);
+    if (ci <= i || ci >= nodes) corrupt(layout, i, "child " + std::to_string(c) + " is not a later node (a cycle or out of range)");
+    if (seen[ci]++) corrupt(layout, i, "node " + std::to_string(c) + " has two parents");
+  } else {
+    const std::size_t li = static_cast<std::size_t>(~c);
+    if (li >= leaves) corrupt(layout, i, "leaf " + std::to_string(li) + " out of range");
+    if (leaf_seen[li]++) corrupt(layout, i, "leaf " + std::to_string(li) + " referenced twice");
+  }
+}
+
+}  // namespace
+
+void validate_layout(const Mbvh2& m, std::size_t leaf_count) {
+  const std::size_t n = m.nodes.size();
+  if (n == 0) corrupt("MBVH2", 0, "no root");
+  if (m.nodes[0].link[0] != MBVH_NONE) corrupt("MBVH2", 0, "the root has a parent");
+  std::vector<std::uint8_t> seen(n, 0), leaf_seen(leaf_count, 0);
+  for (std::size_t i = 0; i < n; ++i)
+    for (int k = 0; k < 2; ++k) {
+      const std::int32_t c = m.nodes[i].link[2 + k];
+      check_ref("MBVH2", i, c, n, leaf_count, seen, leaf_seen);
+      if (c >= 0) {
+        const Node2& ch = m.nodes[static_cast<std::size_t>(c)];
+        if (ch.link[0] != static_cast<std::int32_t>(i) || ch.link[1] != m.nodes[i].link[2 + (1 - k)])
+          corrupt("MBVH2", static_cast<std::size_t>(c), "parent or sibling link does not match its parent");
+      }
+    }
+  for (std::size_t i = 1; i < n; ++i)
+    if (!seen[i]) corrupt("MBVH2", i, "unreachable");
+}
+
+Mbvh4Wide make_mbvh4_wide(const Mbvh4& m) {
+  Mbvh4Wide w;
+  w.nodes.resize(m.nodes.size());
+  for (std::size_t i = 0; i < m.nodes.size(); ++i) {
+    const Node4& n = m.nodes[i];
+    Node4W& o = w.nodes[i];
+    const std::int32_t link[4] = {n.parent, n.sib[0], n.sib[1], n.sib[2]};
+    for (int s = 0; s < 4; ++s) {
+      o.lo[s][0] = n.lo_x[s];
+      o.lo[s][1] = n.lo_y[s];
+      o.lo[s][2] = n.lo_z[s];
+      std::memcpy(&o.lo[s][3], &n.child[s], 4);
+      o.hi[s][0] = n.hi_x[s];
+      o.hi[s][1] = n.hi_y[s];
+      o.hi[s][2] = n.hi_z[s];
+      std::memcpy(&o.hi[s][3], &link[s], 4);
+    }
+  }
+  return w;
+}
+
+TriPacks make_tri_packs(const AlignedVector<Tri>& tris, const std::vector<Leaf>& leaves) {
+  TriPacks p;
+  p.leaves.reserve(leaves.size());
+  std::size_t total = 0;
+  for (const Leaf& l : leaves) total += (l.count + 3) / 4;
+  Tri4 empty;
+  for (auto& row : empty.v)
+    for (float& x : row) x = std::numeric_limits<float>::quiet_NaN();
+  for (auto& id : empty.prim) id = MBVH_MISS_PRIM;
+  p.packs.assign(total, empty);
+  std::size_t next = 0;
+  for (const Leaf& l : leaves) {
+    p.leaves.push_back(Leaf{static_cast<std::uint32_t>(next), l.count});
+    for (std::uint32_t k = 0; k < l.count; ++k) {
+      const Tri& t = tris[l.first + k];
+      Tri4& o = p.packs[next + k / 4];
+      const float* vert[3] = {t.v0, t.v1, t.v2};
+      for (int i = 0; i < 3; ++i)
+        for (int a = 0; a < 3; ++a) o.v[3 * i + a][k % 4] = vert[i][a];
+      std::memcpy(&o.prim[k % 4], &t.v0[3], 4);
+    }
+    next += (l.count + 3) / 4;
+  }
+  return p;
+}
+
+namespace {
+
+// The checks of a W-wide layout; `links_ok(child, parent node, slot)` checks a child's own links.
+template <class N, class LinksOk>
+void validate_wide(const AlignedVector<N>& nodes, const char* name, std::size_t leaf_count, LinksOk links_ok) {
+  const std::size_t n = nodes.size();
+  if (n == 0) corrupt(name, 0, "no root");
+  if (nodes[0].parent != MBVH_NONE) corrupt(name, 0, "the root has a parent");
+  std::vector<std::uint8_t> seen(n, 0), leaf_seen(leaf_count, 0);
+  for (std::size_t i = 0; i < n; ++i)
+    for (int s = 0; s < node_width<N>(); ++s) {
+      const std::int32_t c = nodes[i].child[s];
+      check_ref(name, i, c, n, leaf_count, seen, leaf_seen);
+      if (c >= 0) {
+        const N& ch = nodes[static_cast<std::size_t>(c)];
+        if (ch.parent != static_cast<std::int32_t>(i) || !links_ok(ch, nodes[i], s))
+          corrupt(name, static_cast<std::size_t>(c), "parent or sibling links do not match its parent");
+      }
+    }
+  for (std::size_t i = 1; i < n; ++i)
+    if (!seen[i]) corrupt(name, i, "unreachable");
+}
+
+}  // namespace
+
+void validate_layout(const Mbvh4& m, std::size_t leaf_count) {
+  validate_wide(m.nodes, "MBVH4", leaf_count, [](const Node4& ch, const Node4& p, int s) {
+    for (int k = 0; k < 3; ++k)
+      if (ch.sib[k] != p.child[(s + 1 + k) & 3]) return false;
+    return true;
+  });
+}
+
+void validate_layout(const Mbvh8& m, std::size_t leaf_count) {
+  validate_wide(m.nodes, "MBVH8", leaf_count, [](const Node8&, const Node8&, int) { return true; });
+}
+
+}  // namespace mbvh

@@ -1,0 +1,125 @@
+// SPDX-License-Identifier: MIT
+// layouts.h — the build's private structures behind mbvh/accel.h: the binary BVH, the MBVH2/4/8
+// layouts and their views, the SIMD triangle packs, the collapse and validation functions, and
+// Accel's state (Accel::Impl). Backends and tools of this repository include it; users do not.
+#pragma once
+#include <cstdint>
+#include <mutex>
+#include <new>
+#include <type_traits>
+#include <utility>
+#include <vector>
+
+#include "mbvh/accel.h"
+#include "mbvh/mbvh_layout.h"
+
+namespace mbvh {
+
+/// Allocator of cache-line (64-byte) aligned arrays: a 128-byte MBVH4 node then spans two cache
+/// lines, not three, and a leaf's triangles start on a line.
+template <class T>
+struct CacheAligned {
+  using value_type = T;
+  static constexpr std::align_val_t align{64};
+  CacheAligned() = default;
+  template <class U>
+  CacheAligned(const CacheAligned<U>&) {}
+  T* allocate(std::size_t n) { return static_cast<T*>(::operator new(n * sizeof(T), align)); }
+  void deallocate(T* p, std::size_t) { ::operator delete(p, align); }
+  /// Value-initialises (zero words in unused slots of nodes), except Tri: a triangle array is
+  /// sized and then every word written by parallel passes (build, refit), which then also first
+  /// touch its pages, instead of one thread zeroing it beforehand.
+  template <class U, class... Args>
+  void construct(U* p, Args&&... args) {
+    if constexpr (sizeof...(Args) == 0 && std::is_same_v<U, Tri>) ::new (static_cast<void*>(p)) U;
+    else ::new (static_cast<void*>(p)) U(std::forward<Args>(args)...);
+  }
+  template <class U>
+  bool operator==(const CacheAligned<U>&) const { return true; }
+};
+
+/// The binary BVH: inner nodes in depth-first order (record 0 = root; children before siblings'
+/// subtrees), each child a reference as in mbvh_layout.h.
+struct Bvh2 {
+  struct Node {
+    Box box;             ///< the node's own box
+    std::int32_t child[2];
+    std::int32_t parent;
+    std::uint32_t height;  ///< binary levels below this node to its deepest leaf
+  };
+  std::vector<Node> nodes;
+  std::vector<Box> leaf_boxes;
+  std::size_t forced_leaves = 0;   ///< leaves made by the depth cap or unsplittable centroids
+  std::size_t largest_leaf = 0;
+  std::size_t degenerate = 0;      ///< triangles kept out of leaves (zero area)
+  const Box& box(std::int32_t ref) const { return ref >= 0 ? nodes[static_cast<std::size_t>(ref)].box : leaf_boxes[static_cast<std::size_t>(~ref)]; }
+};
+
+struct Mbvh2 {
+  AlignedVector<Node2> nodes;
+  LayoutStats stats;
+};
+
+struct Mbvh4 {
+  AlignedVector<Node4> nodes;
+  LayoutStats stats;
+};
+
+struct Mbvh8 {
+  AlignedVector<Node8> nodes;
+  LayoutStats stats;
+};
+
+/// The MBVH4 layout's 16-wide view (mbvh_layout.h, Node4W): same topology and references.
+struct Mbvh4Wide {
+  AlignedVector<Node4W> nodes;
+};
+
+/// The leaves' triangles as 4-wide SoA packs (mbvh_layout.h, Tri4) for SIMD leaf tests:
+/// leaves[i] = (first pack, triangle count) of leaf i, its triangles those of Accel::leaves()[i]
+/// in the same order.
+struct TriPacks {
+  AlignedVector<Tri4> packs;
+  std::vector<Leaf> leaves;
+};
+
+/// Accel's state: what build, load and refit write, and the layouts made on first use.
+struct Accel::Impl {
+  BuildOptions opt_;
+  Bvh2 bvh2_;
+  AlignedVector<Tri> tris_;
+  std::vector<Leaf> leaves_;
+  Box bounds_;
+  std::size_t scene_triangles_ = 0;
+  LayoutStats binary_stats_;
+  std::uint64_t hash_ = 0;
+  std::uint64_t generation_ = 0;
+  double refit_ms_ = 0;
+  mutable std::once_flag once2_, once4_, once8_, once4w_, oncep_;
+  mutable Mbvh2 mbvh2_;
+  mutable Mbvh4 mbvh4_;
+  mutable Mbvh8 mbvh8_;
+  mutable Mbvh4Wide mbvh4w_;
+  mutable TriPacks packs_;
+};
+
+/// Collapses a binary BVH into the layouts (host/build/collapse.cpp).
+Mbvh2 make_mbvh2(const Bvh2& bvh, const std::vector<Leaf>& leaves);
+Mbvh4 make_mbvh4(const Bvh2& bvh, const std::vector<Leaf>& leaves);
+Mbvh8 make_mbvh8(const Bvh2& bvh, const std::vector<Leaf>& leaves);
+/// Rewrites the MBVH4 SoA records as the 16-wide view (a permutation of each record's words).
+Mbvh4Wide make_mbvh4_wide(const Mbvh4& m);
+/// Packs each leaf's triangles four at a time (SoA), in leaf order.
+TriPacks make_tri_packs(const AlignedVector<Tri>& tris, const std::vector<Leaf>& leaves);
+
+/// Structural checks of a layout: every reference in range, every inner node referenced once by
+/// a node of smaller index (so descent always terminates), every leaf once, parent and sibling
+/// links consistent. Throws Error naming the first broken node. O(nodes).
+void validate_layout(const Mbvh2& m, std::size_t leaf_count);
+void validate_layout(const Mbvh4& m, std::size_t leaf_count);
+void validate_layout(const Mbvh8& m, std::size_t leaf_count);
+
+/// A 64-bit hash of n bytes (FNV-1a's step over 64-bit words, then the tail bytes), continuing from h.
+std::uint64_t hash_bytes(const void* p, std::size_t n, std::uint64_t h = 0xcbf29ce484222325ull);
+
+}  // namespace mbvh

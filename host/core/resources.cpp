@@ -1,0 +1,113 @@
+// SPDX-License-Identifier: MIT
+// resources.cpp — the memory budget (MBVH_MEMORY_LIMIT, /proc/meminfo, sysconf), memory estimates
+// and the regular-file check for inputs.
+#include "host/core/resources.h"
+
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <charconv>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <fstream>
+
+#include "mbvh/error.h"
+
+namespace mbvh {
+namespace {
+
+// MBVH_MEMORY_LIMIT: "123", "64K", "512M", "8G", "1T" (powers of 1024); 0 if unset.
+std::uint64_t limit_from_env() {
+  const char* env = std::getenv("MBVH_MEMORY_LIMIT");
+  if (!env || !*env) return 0;
+  const char* end = env + std::strlen(env);
+  std::uint64_t v = 0;
+  auto r = std::from_chars(env, end, v);
+  int shift = 0;
+  if (r.ec == std::errc() && r.ptr + 1 == end) {
+    switch (*r.ptr) {
+      case 'K': case 'k': shift = 10; break;
+      case 'M': case 'm': shift = 20; break;
+      case 'G': case 'g': shift = 30; break;
+      case 'T': case 't': shift = 40; break;
+      default: shift = -1;
+    }
+  } else if (r.ec != std::errc() || r.ptr != end) {
+    shift = -1;
+  }
+  if (shift < 0 || v == 0 || (shift > 0 && v > (UINT64_MAX >> shift)))
+    throw Error(std::string("MBVH_MEMORY_LIMIT=") + env + " is not a size (use bytes or a K, M, G or T suffix, e.g. 8G)");
+  return v << shift;
+}
+
+// MemAvailable in bytes, 0 when /proc/meminfo lacks it.
+std::uint64_t mem_available() {
+  std::ifstream f("/proc/meminfo");
+  std::string key, unit;
+  std::uint64_t kib = 0;
+  while (f >> key >> kib) {
+    std::getline(f, unit);
+    if (key == "MemAvailable:") return kib * 1024;
+  }
+  return 0;
+}
+
+}  // namespace
+
+MemoryBudget memory_budget() {
+  if (const std::uint64_t env = limit_from_env()) return {env, "MBVH_MEMORY_LIMIT"};
+  if (const std::uint64_t avail = mem_available()) return {avail, "MemAvailable in /proc/meminfo; set MBVH_MEMORY_LIMIT to change"};
+  const long pages = sysconf(_SC_PHYS_PAGES), page = sysconf(_SC_PAGESIZE);
+  if (pages > 0 && page > 0)
+    return {static_cast<std::uint64_t>(pages) * static_cast<std::uint64_t>(page),
+            "physical memory; set MBVH_MEMORY_LIMIT to change"};
+  return {UINT64_MAX, "unknown"};
+}
+
+void require_memory(const std::string& what, std::uint64_t bytes, const std::string& how, const MemoryBudget& b) {
+  if (bytes <= b.bytes) return;
+  throw Error(what + ": needs about " + format_bytes(bytes) + " of memory (" + how + "), more than the " +
+              format_bytes(b.bytes) + " available (" + b.source + ")");
+}
+
+std::uint64_t build_memory_estimate(std::uint64_t triangles, std::uint64_t vertices) {
+  triangles = std::min(triangles, UINT64_MAX / 1024);  // no overflow for any count
+  vertices = std::min(vertices, UINT64_MAX / 1024);
+  return 128 * triangles + 56 * vertices;
+}
+
+std::uint64_t scene_memory_estimate(std::uint64_t triangles, std::uint64_t vertices) {
+  triangles = std::min(triangles, UINT64_MAX / 1024);
+  vertices = std::min(vertices, UINT64_MAX / 1024);
+  return 12 * vertices + 12 * triangles + build_memory_estimate(triangles, vertices);
+}
+
+std::uint64_t regular_file_size(const std::string& path, const std::string& what) {
+  struct stat st {};
+  if (::stat(path.c_str(), &st) != 0) fail_at(path, 0, "cannot open " + what + " file: " + std::strerror(errno));
+  const char* kind = S_ISDIR(st.st_mode)    ? "a directory"
+                     : S_ISFIFO(st.st_mode) ? "a FIFO (named pipe)"
+                     : S_ISSOCK(st.st_mode) ? "a socket"
+                     : S_ISCHR(st.st_mode)  ? "a character device"
+                     : S_ISBLK(st.st_mode)  ? "a block device"
+                     : S_ISREG(st.st_mode)  ? nullptr
+                                            : "an unusual kind of file";
+  if (kind) fail_at(path, 0, "is " + std::string(kind) + ", not a regular " + what + " file");
+  return static_cast<std::uint64_t>(st.st_size);
+}
+
+std::string format_bytes(std::uint64_t bytes) {
+  static const char* const units[] = {"KiB", "MiB", "GiB", "TiB", "PiB", "EiB"};
+  if (bytes < 1024) return std::to_string(bytes) + " bytes";
+  double v = static_cast<double>(bytes) / 1024;
+  int u = 0;
+  while (v >= 1024 && u < 5) { v /= 1024; ++u; }
+  char buf[32];
+  std::snprintf(buf, sizeof buf, v < 10 ? "%.1f %s" : "%.0f %s", v, units[u]);
+  return buf;
+}
+
+}  // namespace mbvh

@@ -1,0 +1,115 @@
+// SPDX-License-Identifier: MIT
+// batch.h — the multi-threaded batch driver shared by the reference (cpu-scalar) and the SIMD
+// cpu backends: validate each ray, dispatch to the traversal chosen at run time, fill the
+// outputs in ray order. Templated on the kernel policy (box test and leaf visit, traverse.h); lives in the ISA
+// namespace like the kernels it calls.
+#pragma once
+#include <atomic>
+#include <functional>
+#include <span>
+
+#include "host/core/parallel.h"
+#include "mbvh/trace.h"
+#include "host/core/layouts.h"
+#include "host/core/trace/traverse.h"
+
+namespace mbvh {
+inline namespace MBVH_ISA_NS {
+
+/// The view of `layout` a traversal reads (makes the layout on first use); with the SIMD leaf
+/// packs when `packs` (a kernel policy's `uses_packs`).
+inline TraceView trace_view(const Accel& acc, Layout layout, bool packs = false) {
+  TraceView v;
+  if (layout == Layout::mbvh2) {
+    v.n2 = acc.mbvh2().nodes.data();
+    v.nodes = acc.mbvh2().nodes.size();
+  } else if (layout == Layout::mbvh4) {
+    v.n4 = acc.mbvh4().nodes.data();
+    v.nodes = acc.mbvh4().nodes.size();
+  } else {
+    v.n8 = acc.mbvh8().nodes.data();
+    v.nodes = acc.mbvh8().nodes.size();
+  }
+  v.leaf_count = acc.leaves().size();
+  v.leaves = acc.leaves().data();
+  v.tris = acc.tris().data();
+  if (packs) {
+    v.tri4 = acc.tri_packs().packs.data();
+    v.leaf4 = acc.tri_packs().leaves.data();
+  }
+  return v;
+}
+
+template <bool Any, class K, class St>
+inline Hit dispatch(const TraceView& v, const RayPre& r, Layout l, Traversal t, St& st) {
+  if (l == Layout::mbvh2)
+    return t == Traversal::stack ? trace_mbvh2_stack<Any, St, K>(v, r, st) : trace_mbvh2_bitstack<Any, St, K>(v, r, st);
+  if (l == Layout::mbvh8) {
+    switch (t) {
+      case Traversal::stack: return trace_mbvh8_stack<Any, St, K>(v, r, st);
+      case Traversal::bitstack: return trace_mbvh8_bitstack<Any, St, K>(v, r, st);
+      case Traversal::stack_ordered: return trace_wide_stack_ordered<Any, St, K, Node8>(v, r, st);
+      case Traversal::bitstack_retest: return miss_hit();
+    }
+    return miss_hit();
+  }
+  switch (t) {
+    case Traversal::stack: return trace_mbvh4_stack<Any, St, K>(v, r, st);
+    case Traversal::bitstack: return trace_mbvh4_bitstack<Any, St, K>(v, r, st);
+    case Traversal::stack_ordered: return trace_wide_stack_ordered<Any, St, K>(v, r, st);
+    case Traversal::bitstack_retest: return trace_mbvh4_bitstack_retest<Any, St, K>(v, r, st);
+  }
+  return miss_hit();
+}
+
+template <bool Any, bool Stats, class K>
+inline void run_batch(const TraceView& v, std::span<const Ray> rays, std::size_t b, std::size_t e,
+                      const TraceOptions& opt, TraceOutput& out, std::size_t& invalid) {
+  for (std::size_t i = b; i < e; ++i) {
+    RayPre r;
+    Hit h = miss_hit();
+    if (!prepare_ray(rays[i], r)) {
+      ++invalid;
+      if constexpr (Stats) out.stats[i] = RayStats{};
+    } else if constexpr (Stats) {
+      if constexpr (K::fast) relax_ray(r);
+      CountStats st;
+      h = dispatch<Any, K>(v, r, opt.layout, opt.traversal, st);
+      out.stats[i] = st.s;
+    } else {
+      if constexpr (K::fast) relax_ray(r);
+      NoStats st;
+      h = dispatch<Any, K>(v, r, opt.layout, opt.traversal, st);
+    }
+    if constexpr (Any) out.occluded[i] = h.prim != MBVH_MISS_PRIM ? 1 : 0;
+    else out.hits[i] = h;
+  }
+}
+
+/// Traces `rays` on `threads` workers (0 = all) in chunks of 2048 rays; no per-ray allocation.
+/// K: the kernel policy of TraceOptions::precision (the caller picks it).
+template <class K>
+inline void trace_parallel(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out,
+                           unsigned threads, const std::function<void(std::size_t)>& progress = {}) {
+  const TraceView v = trace_view(acc, opt.layout, K::uses_packs);
+  const bool any = opt.query == Query::any;
+  out.resize_for(rays.size(), opt);  // every ray's entries are written below
+  std::atomic<std::size_t> invalid{0}, done{0};
+  parallel_for(rays.size(), 2048, threads, [&](std::size_t b, std::size_t e, unsigned worker) {
+    std::size_t inv = 0;
+    if (any) {
+      if (opt.stats) run_batch<true, true, K>(v, rays, b, e, opt, out, inv);
+      else run_batch<true, false, K>(v, rays, b, e, opt, out, inv);
+    } else {
+      if (opt.stats) run_batch<false, true, K>(v, rays, b, e, opt, out, inv);
+      else run_batch<false, false, K>(v, rays, b, e, opt, out, inv);
+    }
+    invalid += inv;
+    const std::size_t d = done += e - b;
+    if (progress && worker == 0) progress(d);
+  });
+  out.invalid = invalid;
+}
+
+}  // namespace MBVH_ISA_NS
+}  // namespace mbvh

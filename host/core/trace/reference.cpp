@@ -1,0 +1,161 @@
+// SPDX-License-Identifier: MIT
+// reference.cpp — the scalar reference traversals over ray batches (one instantiation per
+// layout x traversal x query x statistics), and the double-precision brute-force oracle.
+#include <atomic>
+#include <cmath>
+
+#include "mbvh/error.h"
+#include "host/core/parallel.h"
+#include "host/core/trace/batch.h"
+#include "mbvh/trace.h"
+
+namespace mbvh {
+
+const char* to_string(Precision p) {
+  switch (p) {
+    case Precision::robust: return "robust";
+    case Precision::exact: return "exact";
+    case Precision::fast: return "fast";
+  }
+  return "?";
+}
+
+Precision parse_precision(const std::string& s) {
+  if (s == "robust") return Precision::robust;
+  if (s == "exact") return Precision::exact;
+  if (s == "fast") return Precision::fast;
+  throw Error("unknown precision '" + s + "' (known: robust, exact, fast)");
+}
+
+const char* to_string(Query q) { return q == Query::closest ? "closest" : "any"; }
+const char* to_string(Traversal t) {
+  switch (t) {
+    case Traversal::stack: return "stack";
+    case Traversal::bitstack: return "bitstack";
+    case Traversal::stack_ordered: return "stack-ordered";
+    case Traversal::bitstack_retest: return "bitstack-retest";
+  }
+  return "?";
+}
+
+Traversal stack_twin(Traversal t) {
+  if (t == Traversal::bitstack) return Traversal::stack;
+  if (t == Traversal::bitstack_retest) return Traversal::stack_ordered;
+  return t;
+}
+
+bool reference_supports(Layout layout, Traversal traversal) {
+  if (layout == Layout::mbvh8) return traversal != Traversal::bitstack_retest;  // no variant B on MBVH8
+  return layout == Layout::mbvh4 || traversal == Traversal::stack || traversal == Traversal::bitstack;
+}
+
+Query parse_query(const std::string& s) {
+  if (s == "closest") return Query::closest;
+  if (s == "any") return Query::any;
+  throw Error("unknown query '" + s + "' (known: closest, any)");
+}
+
+Traversal parse_traversal(const std::string& s) {
+  if (s == "stack") return Traversal::stack;
+  if (s == "bitstack") return Traversal::bitstack;
+  if (s == "stack-ordered") return Traversal::stack_ordered;
+  if (s == "bitstack-retest") return Traversal::bitstack_retest;
+  throw Error("unknown traversal '" + s + "' (known: stack, bitstack, stack-ordered, bitstack-retest)");
+}
+
+std::size_t state_bytes_per_ray(Layout layout, Traversal traversal) {
+  // MBVH8 bitstack: node + a 128-bit word (8 pending-slot bits per level, traverse.h)
+  if (traversal == Traversal::bitstack && layout == Layout::mbvh8) return 4 + 16;
+  if (traversal == Traversal::bitstack || traversal == Traversal::bitstack_retest) return 4 + 8;
+  const std::size_t entries = layout == Layout::mbvh2   ? MBVH_STACK2_ENTRIES
+                              : layout == Layout::mbvh4 ? MBVH_STACK4_ENTRIES
+                                                        : MBVH_STACK8_ENTRIES;
+  const std::size_t entry = traversal == Traversal::stack_ordered ? 8 : 4;  // (node, distance) or node
+  return entries * entry + 4 + 4;
+}
+
+bool ray_valid(const Ray& ray) {
+  RayPre p;
+  return prepare_ray(ray, p);
+}
+
+static void require_supported(const TraceOptions& opt) {
+  if (!reference_supports(opt.layout, opt.traversal))
+    throw Error(std::string("traversal '") + to_string(opt.traversal) + "' is not defined for layout " + to_string(opt.layout) +
+                " (variant B is an MBVH4 traversal; MBVH2 has no ordered stack)");
+}
+
+template <class K>
+static Hit trace_one_with(const TraceView& v, RayPre& r, const TraceOptions& opt, RayStats* stats,
+                          std::vector<std::int32_t>* leaf_log) {
+  if constexpr (K::fast) relax_ray(r);
+  const bool any = opt.query == Query::any;
+  if (stats || leaf_log) {
+    CountStats st;
+    st.leaf_log = leaf_log;
+    const Hit h = any ? dispatch<true, K>(v, r, opt.layout, opt.traversal, st) : dispatch<false, K>(v, r, opt.layout, opt.traversal, st);
+    if (stats) *stats = st.s;
+    return h;
+  }
+  NoStats st;
+  return any ? dispatch<true, K>(v, r, opt.layout, opt.traversal, st) : dispatch<false, K>(v, r, opt.layout, opt.traversal, st);
+}
+
+Hit trace_one(const Accel& acc, const Ray& ray, const TraceOptions& opt, RayStats* stats,
+              std::vector<std::int32_t>* leaf_log) {
+  require_supported(opt);
+  RayPre r;
+  if (!prepare_ray(ray, r)) return miss_hit();
+  const TraceView v = trace_view(acc, opt.layout);
+  return opt.precision == Precision::fast ? trace_one_with<ScalarKernelsT<true>>(v, r, opt, stats, leaf_log)
+                                          : trace_one_with<ScalarKernels>(v, r, opt, stats, leaf_log);
+}
+
+void trace_reference(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out,
+                     unsigned threads, const std::function<void(std::size_t)>& progress) {
+  require_supported(opt);
+  if (opt.precision == Precision::fast) trace_parallel<ScalarKernelsT<true>>(acc, rays, opt, out, threads, progress);
+  else trace_parallel<ScalarKernels>(acc, rays, opt, out, threads, progress);
+}
+
+Hit brute_force(const Accel& acc, const Ray& ray) {
+  RayPre r;
+  if (!prepare_ray(ray, r)) return miss_hit();
+  // the watertight test of Woop et al. evaluated in double from the float inputs
+  const double o[3] = {r.o[0], r.o[1], r.o[2]};
+  const double dk = r.d[r.kz];
+  const double sx = double(r.d[r.kx]) / dk, sy = double(r.d[r.ky]) / dk;
+  double best_t = INFINITY, best_u = 0, best_v = 0;
+  std::uint32_t best_prim = MBVH_MISS_PRIM;
+  for (const Tri& tri : acc.tris()) {
+    const float* P[3] = {tri.v0, tri.v1, tri.v2};
+    double X[3], Y[3];
+    for (int i = 0; i < 3; ++i) {
+      const double ax = double(P[i][r.kx]) - o[r.kx], ay = double(P[i][r.ky]) - o[r.ky], az = double(P[i][r.kz]) - o[r.kz];
+      X[i] = ax - sx * az;
+      Y[i] = ay - sy * az;
+    }
+    const double U = X[2] * Y[1] - Y[2] * X[1];
+    const double V = X[0] * Y[2] - Y[0] * X[2];
+    const double W = X[1] * Y[0] - Y[1] * X[0];
+    if ((U < 0 || V < 0 || W < 0) && (U > 0 || V > 0 || W > 0)) continue;
+    const double det = U + V + W;
+    if (det == 0) continue;
+    // t from the plane equation: the differences and products of float inputs are (nearly) exact
+    // in double, so its sign is right even at t ~ 1e-45, where the sheared T / det is not
+    // (a ray leaving a floor from 1e-45 above it gave T / det = +1e-16).
+    const double t = plane_t_double(r, tri);
+    if (!(t > 0 && t >= r.tmin && t <= double(r.tmax))) continue;
+    const std::uint32_t prim = tri_prim(tri);
+    if (t < best_t || (t == best_t && prim < best_prim)) {
+      best_t = t;
+      best_u = V / det;
+      best_v = W / det;
+      best_prim = prim;
+    }
+  }
+  if (best_prim == MBVH_MISS_PRIM) return miss_hit();
+  return Hit{static_cast<float>(best_t), static_cast<float>(best_u), static_cast<float>(best_v), best_prim};
+}
+
+}  // namespace mbvh

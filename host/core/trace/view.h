@@ -1,0 +1,30 @@
+// SPDX-License-Identifier: MIT
+// view.h — what a traversal reads (one layout's nodes, the leaves and triangles) and the
+// per-ray work counters it fills. Plain records outside the ISA namespaces, so a per-ISA kernel
+// (backends/cpu) includes them at the baseline ISA before it switches its own code to AVX.
+#pragma once
+#include <cstddef>
+#include <cstdint>
+
+#include "mbvh/mbvh_layout.h"
+#include "mbvh/trace.h"  // RayStats
+
+namespace mbvh {
+
+/// Children per node of a wide layout (Node4: 4, Node8: 8).
+template <class N>
+constexpr int node_width() { return sizeof(N::child) / sizeof(N::child[0]); }
+
+/// What a traversal reads: one layout's nodes plus the shared leaves and triangles.
+struct TraceView {
+  const Node2* n2 = nullptr;
+  const Node4* n4 = nullptr;
+  const Node8* n8 = nullptr;
+  const Leaf* leaves = nullptr;
+  const Tri* tris = nullptr;
+  const Tri4* tri4 = nullptr;   ///< SIMD leaf packs (Accel::tri_packs), where a kernel uses them
+  const Leaf* leaf4 = nullptr;  ///< per leaf: (first pack, triangle count)
+  std::size_t nodes = 0, leaf_count = 0;  ///< sizes, for the termination guard
+};
+
+}  // namespace mbvh

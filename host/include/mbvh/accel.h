@@ -1,0 +1,164 @@
+// SPDX-License-Identifier: MIT
+// accel.h — one build of a scene: the binned-SAH binary BVH and, on demand and cached, the
+// MBVH2 and MBVH4 layouts every backend traces. Leaves and leaf-ordered triangles are shared by
+// all layouts, so a leaf reference means the same triangles everywhere.
+#pragma once
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "mbvh/scene.h"
+#include "mbvh/mbvh_layout.h"
+
+namespace mbvh {
+
+/// The build's private structures (host/core/layouts.h): a user never needs them; the backends
+/// of this repository read them through the accessors below.
+template <class T>
+struct CacheAligned;
+template <class T>
+using AlignedVector = std::vector<T, CacheAligned<T>>;
+struct Bvh2;
+struct Mbvh2;
+struct Mbvh4;
+struct Mbvh8;
+struct Mbvh4Wide;
+struct TriPacks;
+
+
+enum class Layout { mbvh2, mbvh4, mbvh8 };
+const char* to_string(Layout l);
+Layout parse_layout(const std::string& s);  ///< throws Error on an unknown name
+
+/// The coordinate range traced exactly under DESIGN.md's numerical contract (measured on closed
+/// spheres with every ray kind against the double brute force: exact from 1e-12 to 1e13, lost hits
+/// from 1e-13 and 1e14 on, as the watertight test's products of three coordinates leave the float
+/// range). Accel::build refuses a scene whose non-degenerate triangles reach beyond ±kMaxCoordinate
+/// or whose largest coordinate magnitude is below kMinSceneScale: rescale such a scene.
+constexpr float kMaxCoordinate = 0x1p40f;   // 1.1e12
+constexpr float kMinSceneScale = 0x1p-36f;  // 1.5e-11
+
+/// Which builder makes the binary BVH (`--quality`). All three produce the same structures (Bvh2,
+/// leaves, leaf-ordered triangles), so every layout and backend traces any of them. With `high`
+/// a triangle may sit in more than one leaf (never twice in one; up to 30 % more references),
+/// for fewer node visits and triangle tests per ray.
+enum class BuildQuality {
+  low,     ///< Morton-code LBVH (Karras 2012): several times faster to build, slower to trace
+  medium,  ///< binned SAH (Wald 2007): the default
+  high,    ///< spatial splits (SBVH, Stich et al. 2009); host/build/sbvh.cpp
+};
+const char* to_string(BuildQuality q);
+BuildQuality parse_quality(const std::string& s);  ///< throws Error on an unknown name
+
+struct BuildOptions {
+  unsigned threads = 0;         ///< 0: every hardware thread; the result does not depend on it
+  unsigned max_leaf = 8;        ///< largest leaf the SAH may choose (the depth cap may force bigger)
+  unsigned bins = 32;           ///< SAH bins per axis
+  /// Triangles one leaf test costs as one in the SAH: a leaf of n triangles costs ceil(n / B)
+  /// (Embree's SAH "blocks"). 1, the default, prices every triangle: the build all backends share.
+  /// 4 prices the cpu backend's four-wide SIMD leaves: fewer, fuller leaves, up to 1.2x faster on
+  /// `cpu` for some scenes and slower for others, and 20-30 % slower on the OpenCL and Vulkan
+  /// backends, which test a leaf's triangles one by one (README, "The cpu backend").
+  unsigned leaf_block = 1;
+  unsigned depth_cap = MBVH_BINARY_DEPTH_CAP;  ///< binary leaf depth limit (root children: 1)
+  float traversal_cost = 1.0f;  ///< SAH cost of one node visit, relative to one triangle test
+  BuildQuality quality = BuildQuality::medium;  ///< the builder (BuildQuality)
+  std::function<void(double)> progress;  ///< if set, called with the fraction done (any thread)
+};
+
+/// Statistics of one layout (binary tree, MBVH2 or MBVH4).
+struct LayoutStats {
+  std::string layout;
+  std::size_t nodes = 0;         ///< inner-node records
+  std::size_t leaves = 0;
+  unsigned depth = 0;            ///< levels below the root of the deepest leaf
+  double sah_cost = 0;           ///< sum over nodes of area/root area * cost (node visit 1, triangle 1)
+  std::size_t bytes = 0;         ///< node records (+ leaves and triangles for the binary tree)
+  double build_ms = 0;
+  /// The binary build's phases, ms (binary stats only): records (boxes, degenerate triangles,
+  /// range check), tree (binning and partition, or Morton codes and splits), flatten (Bvh2 and
+  /// the leaf-ordered triangles), stats and hash.
+  double phase_ms[4] = {0, 0, 0, 0};
+  unsigned bitstack_bits = 0;    ///< bits of the bitstack word the deepest path needs
+};
+
+/// An acceleration structure. Build once with Accel::build; layouts are made on first use
+/// (thread-safe) and kept.
+class Accel {
+public:
+  /// Builds the binary BVH. Throws Error if the scene has no non-degenerate triangle, fails
+  /// Scene::validate (a vertex index out of range, a NaN or infinite vertex) or
+  /// `opt.traversal_cost` is negative or not finite, or if its coordinates leave the exactly traced
+  /// range (kMaxCoordinate, kMinSceneScale); other options are clamped to what works
+  /// (threads to kMaxThreads, bins to 2..64, max_leaf and leaf_block to at least 1).
+  /// Cost: O(n log n), parallel over `opt.threads`; the bytes do not depend on the thread count.
+  static std::unique_ptr<Accel> build(const Scene& scene, const BuildOptions& opt = {});
+
+  /// The BVH cache (host/build/cache.cpp). build_cached returns the build of `scene` with `opt`
+  /// from DIR/<key>.mbvh when that file holds it, else builds and writes it there (atomically; DIR
+  /// is made if missing). A file that is truncated, damaged, of another format version or made for
+  /// other triangles, options or library version is never traced from: it is rebuilt and replaced,
+  /// and `report->problem` says what was wrong. Throws Error when DIR cannot be made or the file
+  /// cannot be written, and as build does.
+  struct CacheReport {
+    std::string path;     ///< the cache file
+    bool loaded = false;  ///< true: read from the file; false: built (and written)
+    std::string problem;  ///< why an existing file was not used, or empty
+  };
+  static std::unique_ptr<Accel> build_cached(const Scene& scene, const BuildOptions& opt, const std::string& dir,
+                                             CacheReport* report = nullptr);
+  /// The cache key: a content hash of the scene's vertices and triangles, the options that shape
+  /// the tree (not threads) and the library version.
+  static std::uint64_t cache_key(const Scene& scene, const BuildOptions& opt);
+  /// Writes this build to `path` (atomically, through a temporary) under `key`.
+  void save(const std::string& path, std::uint64_t key) const;
+  /// Reads a build written by save; throws Error naming the path and what is wrong when the file
+  /// is truncated, damaged (checksum), of another format version or record size, of another key,
+  /// or not a well-formed tree. O(file size).
+  static std::unique_ptr<Accel> load(const std::string& path, std::uint64_t key);
+
+  ~Accel();
+  const Bvh2& bvh2() const;
+  const Mbvh2& mbvh2() const;   ///< MBVH2 layout (Aila–Laine nodes with links), made on first use
+  const Mbvh4& mbvh4() const;   ///< MBVH4 layout (depth-aware SAH-guided collapse), made on first use
+  const Mbvh8& mbvh8() const;   ///< MBVH8 layout (the same collapse, eight wide), made on first use
+  const Mbvh4Wide& mbvh4_wide() const;  ///< its 16-wide view (OpenCL, TRAVERSAL.md §8), made on first use
+  void make_layout(Layout l) const;  ///< makes layout `l` now (its accessor above), not on first trace
+  const TriPacks& tri_packs() const;  ///< the leaves as SIMD packs, made on first use
+  const AlignedVector<Tri>& tris() const;
+  const std::vector<Leaf>& leaves() const;
+  const Box& bounds() const;
+  std::size_t scene_triangles() const;
+  const LayoutStats& binary_stats() const;
+  const BuildOptions& options() const;
+  /// 64-bit hash of the build's bytes (nodes, leaves, triangles); equal across thread counts.
+  /// Changes when refit() moves a vertex.
+  std::uint64_t hash() const;
+  /// Starts at 0 and is bumped by every refit(): a backend that copied the build to a device
+  /// re-uploads it when (&accel, hash(), generation()) changes since its last prepare().
+  std::uint64_t generation() const;
+
+  /// Refits the build to new vertex positions with the same topology: `moved` must be the scene
+  /// this Accel was built from (the same triangles, the same vertex indices) with vertices moved.
+  /// Recomputes, in place and from the float vertices exactly as the build does, the leaf-ordered
+  /// triangles, every leaf box, every binary node box bottom-up, and the boxes of every layout and
+  /// pack already made (MBVH2/4/8, the 16-wide view, the SIMD packs); the topology (nodes, leaves,
+  /// the triangles' leaf order) is kept, so traversal stays exact but may do more work than a
+  /// rebuild's tree (boxes grow as vertices move apart). Updates hash(), the SAH costs and bumps
+  /// generation(). O(triangles + nodes), parallel over options().threads, the same bytes at any
+  /// thread count. Throws Error (leaving the Accel unchanged) if the triangle count differs,
+  /// Scene::validate fails, a coordinate leaves the exactly traced range, or a triangle the build
+  /// kept out as degenerate now has area (it is in no leaf: rebuild instead).
+  /// Not thread-safe: no trace or layout access may run concurrently.
+  void refit(const Scene& moved);
+  double last_refit_ms() const;  ///< wall time of the last refit()
+private:
+  Accel();
+  struct Impl;  ///< host/core/layouts.h
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace mbvh

@@ -1,0 +1,112 @@
+// SPDX-License-Identifier: MIT
+// backend.h — the one interface every tracing backend implements (cpu-scalar, cpu, opencl,
+// vulkan, embree) and the registry that makes them by name. The core includes no backend: a
+// program registers the backends it links (mbvh/backends.h).
+#pragma once
+#include <cstddef>
+#include <functional>
+#include <memory>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "mbvh/accel.h"
+#include "mbvh/trace.h"
+
+namespace mbvh {
+
+struct BackendOptions {
+  unsigned threads = 0;     ///< CPU workers (0 = every hardware thread)
+  /// Build quality of a peer library's own BVH, `--quality` (embree: rtcSetSceneBuildQuality
+  /// RTC_BUILD_QUALITY_LOW / MEDIUM / HIGH); the other backends trace the Accel they are given.
+  BuildQuality quality = BuildQuality::medium;
+  std::string cl_device;    ///< OpenCL device selector, `--cl-device` ("" = the backend's choice, printed)
+  std::string vk_device;    ///< Vulkan device selector, `--vk-device` ("" = the backend's choice, printed)
+  /// OpenCL work mapping, `--cl-mapping`: "" or "auto" = by the device's type, "cpu" (the 16-wide
+  /// node test, fixed work-groups) or "gpu" (the scalar node test, work-groups sized from the
+  /// kernel's preferred multiple); forcing "gpu" on a CPU device tests the GPU mapping here.
+  std::string cl_mapping;
+  bool vk_validation = false;  ///< Khronos validation layer on, `--vk-validation` (also MBVH_VK_VALIDATION=1)
+  /// Caps a Vulkan storage-buffer binding below the device's maxStorageBufferRange (0 = no cap),
+  /// so the split-buffer path can be exercised on small scenes.
+  std::size_t vk_max_binding_bytes = 0;
+  /// Vulkan: keep the per-batch rays and results in device-local memory and move them through
+  /// host-visible staging buffers even where device-local memory is host-visible (lavapipe), so
+  /// the discrete-GPU path is exercised here (also MBVH_VK_STAGING=1).
+  bool vk_staging = false;
+};
+
+class Backend {
+public:
+  virtual ~Backend() = default;
+  /// Registry name, e.g. "cpu-scalar".
+  virtual std::string name() const = 0;
+  /// One line: ISA, device and driver strings, for logs and benchmark records.
+  virtual std::string describe() const = 0;
+  /// Whether this backend implements the layout / traversal pair.
+  virtual bool supports(Layout layout, Traversal traversal) const = 0;
+  /// Whether this backend implements the accuracy mode (TraceOptions::precision); mbvh's own
+  /// backends implement all three, a peer library only its own robust queries.
+  virtual bool supports_precision(Precision p) const { return p == Precision::robust; }
+  /// Makes the backend ready to trace `acc` with these options (uploads only the layout needed;
+  /// repeated calls with the same build are free). Called by trace() if not done before.
+  virtual void prepare(const Accel& acc, const TraceOptions& opt) = 0;
+  /// Traces `rays`, filling `out` in ray order (TraceOutput). Throws Error on failure.
+  virtual void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) = 0;
+  /// The instruction set the traversal runs on a CPU backend ("scalar", "avx2", "avx512"); ""
+  /// for a device backend or a library that picks its own (the device line says more).
+  virtual std::string isa() const { return ""; }
+  /// A peer library (embree): its own BVH and triangle test, so its answers agree with
+  /// cpu-scalar's up to classified ties (not bit for bit), and it has no per-ray counters.
+  virtual bool peer() const { return false; }
+  /// Device time of the last trace() call: the summed execution time of its trace kernels'
+  /// dispatches (every batch), in seconds, by the device's own clock (OpenCL event profiling,
+  /// Vulkan timestamps); excludes ray uploads, hit downloads and host copies. Negative when the
+  /// backend does not measure it (CPU backends, a device without timestamps) or has not traced.
+  virtual double last_device_seconds() const { return -1; }
+  /// Bytes of traversal state per ray for these options (TRAVERSAL.md §5).
+  virtual std::size_t state_bytes(const TraceOptions& opt) const { return state_bytes_per_ray(opt.layout, opt.traversal); }
+};
+
+/// A set of traversal variants: every backend x layout x traversal x query combination.
+struct VariantGrid {
+  std::vector<std::string> backends{"cpu-scalar"};
+  std::vector<Layout> layouts{Layout::mbvh2, Layout::mbvh4, Layout::mbvh8};
+  std::vector<Traversal> traversals{Traversal::stack, Traversal::bitstack, Traversal::stack_ordered,
+                                    Traversal::bitstack_retest};
+  std::vector<Query> queries{Query::closest, Query::any};
+  std::vector<Precision> precisions{Precision::robust};
+  std::size_t size() const {
+    return backends.size() * layouts.size() * traversals.size() * queries.size() * precisions.size();
+  }
+};
+
+using BackendFactory = std::function<std::unique_ptr<Backend>(const BackendOptions&)>;
+
+struct BackendInfo {
+  std::string name;
+  std::string summary;
+  BackendFactory make;        ///< empty when the backend is not built into this binary
+  std::string unavailable;    ///< why it is not built (when `make` is empty)
+  /// If set and it returns a reason, this machine lacks the hardware the backend needs (e.g.
+  /// AVX-512): tests skip it and say why. Any other failure to start is an error.
+  std::function<std::string()> missing_hardware;
+  /// Set when this name is another backend under a second name (`cpu` = the best ISA build):
+  /// tests run the backend once, under its own name.
+  std::string alias_of;
+  /// If set, lists the devices this backend can run on (one line each; `mbvh devices`).
+  std::function<std::vector<std::string>()> devices;
+  /// If set, takes the problems the backend's diagnostics raised where they could not be thrown
+  /// (Vulkan validation messages while tearing down); the CLI and the tests fail on any.
+  std::function<std::vector<std::string>()> pending_problems;
+};
+
+/// Adds a backend to the registry (a later registration of the same name replaces it).
+void register_backend(BackendInfo info);
+/// Every backend known to this binary, built or not, in registration order.
+std::vector<BackendInfo> list_backends();
+/// Makes a backend by name; throws Error naming the known backends, or saying why a known
+/// backend is not built or cannot start.
+std::unique_ptr<Backend> make_backend(const std::string& name, const BackendOptions& opt = {});
+
+}  // namespace mbvh

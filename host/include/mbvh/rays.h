@@ -1,0 +1,28 @@
+// SPDX-License-Identifier: MIT
+// rays.h — the ray / hit / occlusion files of DESIGN.md (the ray generators are the tools'
+// host/tools/raygen.h).
+#pragma once
+#include <cstdint>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "mbvh/trace.h"
+
+namespace mbvh {
+
+/// Files (little-endian, no header): rays 32 B, hits 16 B, occlusion 1 B per ray. Writers go
+/// through write_outputs (io/output.h): a unique temporary renamed on success, regular files only.
+std::vector<Ray> read_rays(const std::string& path);
+/// Writes `bytes` bytes to `path` ("-": standard output) as write_outputs does: a unique temporary
+/// beside it renamed on success; refuses anything but a regular file; Error on any failure.
+void write_bytes(const std::string& path, const void* data, std::size_t bytes);
+/// The ray records in `size` bytes; throws Error (naming `name`) unless size is a multiple of 32.
+std::vector<Ray> rays_from_bytes(const std::string& name, const char* data, std::size_t size);
+void write_rays(const std::string& path, std::span<const Ray> rays);
+std::vector<Hit> read_hits(const std::string& path);
+void write_hits(const std::string& path, std::span<const Hit> hits);
+std::vector<std::uint8_t> read_occlusion(const std::string& path);
+void write_occlusion(const std::string& path, std::span<const std::uint8_t> occ);
+
+}  // namespace mbvh

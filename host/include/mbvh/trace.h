@@ -1,0 +1,113 @@
+// SPDX-License-Identifier: MIT
+// trace.h — the traversal options every backend takes, the outputs it fills, and the host's
+// reference entry points: the scalar traversals over ray batches and the double-precision
+// brute force that serves as the oracle.
+#pragma once
+#include <cmath>
+#include <cstdint>
+#include <functional>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "mbvh/accel.h"
+#include "mbvh/mbvh_layout.h"
+
+namespace mbvh {
+
+/// Per-ray work counters.
+struct RayStats {
+  std::uint32_t nodes = 0;      ///< inner-node records visited
+  std::uint32_t box_tests = 0;  ///< child boxes tested (2 per MBVH2 node, 4 per MBVH4 node)
+  std::uint32_t leaves = 0;
+  std::uint32_t tris = 0;       ///< triangle tests
+  std::uint32_t climbs = 0;     ///< parent reads while backtracking (bitstack only)
+  std::uint32_t retests = 0;    ///< parent nodes re-tested on a sibling move (variant B only)
+  std::uint32_t max_depth = 0;  ///< peak stack entries (stack) or bitstack levels (bitstack)
+};
+
+enum class Query { closest, any };
+/// stack / bitstack: the skip-code bitstack of Áfra & Szirmay-Kalos and its stack twin (cyclic
+/// order after the nearest child); bitstack_retest / stack_ordered: variant B (parent re-test,
+/// full distance order, culling) and its Embree-like ordered stack twin, MBVH4 only.
+enum class Traversal { stack, bitstack, stack_ordered, bitstack_retest };
+/// The stack-based twin a bitstack traversal must reproduce (itself for stack traversals).
+Traversal stack_twin(Traversal t);
+/// Whether the reference traversals implement the pair (variant B and its twin: MBVH4 only).
+bool reference_supports(Layout layout, Traversal traversal);
+/// Accuracy mode (the run-time-vs-error benchmark). robust, the default: the conservative slab
+/// test (Ize 2013) and the watertight triangle test (Woop et al. 2013). exact: answers bit-identical
+/// on every backend, no FMA contraction, correctly rounded division — which robust already is in
+/// mbvh (the same kernels; a separate name so a user can require it, and a backend that cannot
+/// promise it, embree, refuses it). fast: the slab test without its far-plane widening and
+/// Möller–Trumbore triangles (with FMA and an approximate reciprocal where the backend has them):
+/// not bit-identical across backends, and it may leak through shared edges.
+enum class Precision { robust, exact, fast };
+const char* to_string(Precision p);
+Precision parse_precision(const std::string& s);  ///< throws Error on an unknown name
+const char* to_string(Query q);
+const char* to_string(Traversal t);
+Query parse_query(const std::string& s);          ///< throws Error on an unknown name
+Traversal parse_traversal(const std::string& s);  ///< throws Error on an unknown name
+
+struct TraceOptions {
+  Layout layout = Layout::mbvh4;
+  Traversal traversal = Traversal::bitstack;
+  Query query = Query::closest;
+  bool stats = false;  ///< fill TraceOutput::stats (costs time; off compiles counters away)
+  Precision precision = Precision::robust;  ///< accuracy mode
+};
+
+/// Results in ray order. Closest hit fills `hits`; any hit fills `occluded` (1 = occluded).
+struct TraceOutput {
+  std::vector<Hit> hits;
+  std::vector<std::uint8_t> occluded;
+  std::vector<RayStats> stats;  ///< per ray, only when TraceOptions::stats
+  std::size_t invalid = 0;      ///< rays rejected as invalid (defined misses)
+
+  /// Sized for `n` rays of these options (hits or occlusion flags, statistics if asked), all
+  /// misses, no invalid rays: what every backend starts a trace from.
+  void reset(std::size_t n, const TraceOptions& opt) {
+    const bool any = opt.query == Query::any;
+    hits.assign(any ? 0 : n, Hit{INFINITY, 0.0f, 0.0f, MBVH_MISS_PRIM});  // miss_hit(), spelled out: no ISA code here
+    occluded.assign(any ? n : 0, 0);
+    stats.assign(opt.stats ? n : 0, RayStats{});
+    invalid = 0;
+  }
+
+  /// As reset, for a backend that writes every ray's answer (and statistics, when asked) itself:
+  /// sizes the arrays without filling them, so no serial pass over the output precedes a parallel
+  /// trace (a reused output is not touched at all). Contents are unspecified until written.
+  void resize_for(std::size_t n, const TraceOptions& opt) {
+    const bool any = opt.query == Query::any;
+    hits.resize(any ? 0 : n);
+    occluded.resize(any ? n : 0);
+    stats.resize(opt.stats ? n : 0);
+    invalid = 0;
+  }
+};
+
+/// Bytes of traversal state one ray needs in the given layout and traversal (TRAVERSAL.md §5):
+/// stack = entries * 4 + stack pointer + current node; bitstack = current node + 64-bit word.
+std::size_t state_bytes_per_ray(Layout layout, Traversal traversal);
+
+/// Traces one ray with the scalar reference traversal. If `stats` is given, counts work; if
+/// `leaf_log` is given, appends every visited leaf reference in visit order.
+Hit trace_one(const Accel& acc, const Ray& ray, const TraceOptions& opt, RayStats* stats = nullptr,
+              std::vector<std::int32_t>* leaf_log = nullptr);
+
+/// Traces a batch with the scalar reference traversals on `threads` workers (0 = all).
+/// `progress` (may be null) is called with the number of rays finished so far.
+void trace_reference(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out,
+                     unsigned threads, const std::function<void(std::size_t)>& progress = {});
+
+/// Double-precision brute force over every triangle of the build (degenerate ones excluded:
+/// they have no area to hit): the watertight inside test in double, t from the plane equation
+/// in double; the closest hit in [tmin, tmax] with t > 0, ties to the smaller prim id; a miss
+/// for an invalid ray. Cost: one test per triangle.
+Hit brute_force(const Accel& acc, const Ray& ray);
+
+/// True if the ray is valid (see prepare_ray).
+bool ray_valid(const Ray& ray);
+
+}  // namespace mbvh

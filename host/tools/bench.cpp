@@ -1,0 +1,357 @@
+// SPDX-License-Identifier: MIT
+// bench.cpp — `mbvh bench`: verify, warm up, time, report medians (DESIGN.md, benchmark protocol).
+#include "host/tools/bench.h"
+#include "host/tools/check.h"
+
+#include <sys/utsname.h>
+
+#include <algorithm>
+#include <bit>
+#include <chrono>
+#include <cstdio>
+#include <fstream>
+#include <map>
+#include <memory>
+#include <nlohmann/json.hpp>
+
+#include "mbvh/backend.h"
+#include "host/core/compare.h"
+#include "host/core/parallel.h"
+
+#ifndef MBVH_COMPILE_FLAGS
+#define MBVH_COMPILE_FLAGS ""
+#endif
+
+namespace mbvh {
+
+std::string cpu_model() {
+  std::ifstream f("/proc/cpuinfo");
+  std::string line;
+  while (std::getline(f, line))
+    if (line.rfind("model name", 0) == 0) {
+      const auto p = line.find(':');
+      return p == std::string::npos ? line : line.substr(p + 2);
+    }
+  return "unknown CPU";
+}
+
+bool BenchReport::verified() const {
+  for (const auto& r : records)
+    if (!r.verified()) return false;
+  return true;
+}
+
+std::string BenchReport::table() const {
+  std::string s;
+  char line[512];
+  bool scaled = false;
+  for (const auto& r : records) scaled = scaled || r.thread_scaling > 0;
+  bool errors = false;
+  for (const auto& r : records) errors = errors || r.error_rays > 0;
+  bool device = false;  // a "dev Mr/s" column only when some backend measured its device time
+  for (const auto& r : records) device = device || r.device_mrays_per_s > 0;
+  std::snprintf(line, sizeof line, "%-12s %-6s %-15s %-7s %-8s %-6s %9s %15s%s %8s %7s %8s %7s %7s %7s %9s%s%s\n", "backend",
+                "layout", "traversal", "query", "rays", "prec", "Mrays/s", "(min-max)", device ? "  dev Mr/s" : "", "vs twin",
+                "vs cpu", "state B", "nodes", "leaves", "tris", "verified", errors ? "  genuine  wrong/checked  leaks" : "",
+                scaled ? "  1 thr   x/1thr" : "");
+  s += line;
+  for (const auto& r : records) {
+    char ratio[32] = "";
+    if (r.ratio_vs_stack > 0) std::snprintf(ratio, sizeof ratio, "%.3fx", r.ratio_vs_stack);
+    char vcpu[32] = "";
+    if (r.ratio_vs_cpu > 0) std::snprintf(vcpu, sizeof vcpu, "%.2fx", r.ratio_vs_cpu);
+    char spread[48];
+    std::snprintf(spread, sizeof spread, "(%.2f-%.2f)", r.mrays_min, r.mrays_max);
+    char dev[32] = "";
+    if (device && r.device_mrays_per_s > 0) std::snprintf(dev, sizeof dev, " %9.3f", r.device_mrays_per_s);
+    else if (device) std::snprintf(dev, sizeof dev, " %9s", "");
+    std::snprintf(line, sizeof line, "%-12s %-6s %-15s %-7s %-8s %-6s %9.3f %15s%s %8s %7s %8zu %7.1f %7.2f %7.1f %9s\n",
+                  r.backend.c_str(), r.layout.c_str(), r.traversal.c_str(), r.query.c_str(), r.ray_kind.c_str(),
+                  r.precision.c_str(), r.mrays_per_s, spread, dev, ratio, vcpu, r.state_bytes_per_ray, r.nodes_per_ray,
+                  r.leaves_per_ray, r.tris_per_ray,
+                  !r.verified() ? "MISMATCH" : r.verify_mismatches ? "differs" : "yes");
+    s += line;
+    if (errors) {
+      s.pop_back();
+      std::snprintf(line, sizeof line, "  %7zu %6zu/%-6zu %6zu\n", r.error_mismatches, r.wrong_answers, r.error_rays, r.leaks);
+      s += line;
+    }
+    if (scaled) {
+      s.pop_back();
+      std::snprintf(line, sizeof line, " %8.3f %7.2fx\n", r.mrays_one_thread, r.thread_scaling);
+      s += line;
+    }
+  }
+  return s;
+}
+
+// The report as a JSON document: what --json writes and --csv flattens.
+static nlohmann::json report_json(const BenchReport& rep) {
+  const std::string& bvh_hash = rep.bvh_hash;
+  nlohmann::json j;
+  j["machine"] = rep.machine;
+  j["cpu"] = rep.cpu;
+  j["compiler"] = rep.compiler;
+  j["flags"] = rep.flags;
+  j["bvh_hash"] = bvh_hash;
+  j["records"] = nlohmann::json::array();
+  for (const auto& r : rep.records) {
+    j["records"].push_back({{"scene", r.scene},
+                            {"backend", r.backend},
+                            {"isa", r.isa},
+                            {"device", r.device},
+                            {"layout", r.layout},
+                            {"traversal", r.traversal},
+                            {"query", r.query},
+                            {"ray_kind", r.ray_kind},
+                            {"precision", r.precision},
+                            {"rays", r.rays},
+                            {"threads", r.threads},
+                            {"passes", r.passes},
+                            {"mrays_per_s", r.mrays_per_s},
+                            {"mrays_per_s_min", r.mrays_min},
+                            {"mrays_per_s_max", r.mrays_max},
+                            {"device_mrays_per_s", r.device_mrays_per_s > 0 ? nlohmann::json(r.device_mrays_per_s)
+                                                                            : nlohmann::json(nullptr)},
+                            {"state_bytes_per_ray", r.state_bytes_per_ray},
+                            {"peak_state_bytes_per_ray", r.peak_state_bytes_per_ray},
+                            {"nodes_per_ray", r.nodes_per_ray},
+                            {"box_tests_per_ray", r.box_tests_per_ray},
+                            {"leaves_per_ray", r.leaves_per_ray},
+                            {"triangles_per_ray", r.tris_per_ray},
+                            {"climbs_per_ray", r.climbs_per_ray},
+                            {"verify_mismatches", r.verify_mismatches},
+                            {"verified", r.verified()},
+                            {"error_rays", r.error_rays},
+                            {"error_mismatches", r.error_mismatches},
+                            {"error_rate", r.error_rays ? double(r.error_mismatches) / double(r.error_rays) : 0.0},
+                            {"wrong_answers", r.wrong_answers},
+                            {"leaks", r.leaks},
+                            {"bitstack_vs_stack", r.ratio_vs_stack},
+                            {"vs_cpu", r.ratio_vs_cpu},
+                            {"mrays_per_s_1_thread", r.mrays_one_thread},
+                            {"thread_scaling", r.thread_scaling},
+                            {"histograms", {{"buckets", "0: none; k >= 1: [2^(k-1), 2^k)"},
+                                            {"nodes", r.hist_nodes},
+                                            {"leaves", r.hist_leaves},
+                                            {"triangles", r.hist_tris},
+                                            {"climbs", r.hist_climbs}}},
+                            {"bvh_hash", bvh_hash}});
+  }
+  return j;
+}
+
+std::string BenchReport::json() const { return report_json(*this).dump(2); }
+
+std::string BenchReport::csv() const {
+  // the JSON records flattened: one header line (the record's keys, then the run's machine,
+  // cpu, compiler and flags), one line per record; strings quoted, quotes doubled
+  const nlohmann::json j = report_json(*this);
+  auto cell = [](const nlohmann::json& v) {
+    if (v.is_null()) return std::string();  // not measured: an empty cell
+    if (!v.is_string()) return v.dump();
+    std::string s = "\"";
+    for (char c : v.get<std::string>()) s += c == '"' ? std::string("\"\"") : std::string(1, c);
+    return s + "\"";
+  };
+  std::string out;
+  if (j["records"].empty()) return out;
+  std::vector<std::string> keys;
+  for (const auto& [k, v] : j["records"][0].items())
+    if (!v.is_structured()) keys.push_back(k);  // the histograms stay in the JSON
+  const char* run_keys[] = {"machine", "cpu", "compiler", "flags"};
+  for (const auto& k : keys) out += k + ",";
+  for (const char* k : run_keys) out += std::string(k) + (k == run_keys[3] ? "\n" : ",");
+  for (const auto& r : j["records"]) {
+    for (const auto& k : keys) out += cell(r[k]) + ",";
+    for (const char* k : run_keys) out += cell(j[k]) + (k == run_keys[3] ? "\n" : ",");
+  }
+  return out;
+}
+
+// Mrays/s of `r` over that of the record of `backend` / `traversal` on r's layout, query and
+// rays; 0 when that record was not run.
+static double speed_ratio(const std::vector<BenchRecord>& all, const BenchRecord& r, const std::string& backend,
+                          const std::string& traversal) {
+  for (const auto& s : all)
+    if (s.backend == backend && s.traversal == traversal && s.layout == r.layout && s.query == r.query &&
+        s.ray_kind == r.ray_kind && s.precision == r.precision && s.mrays_per_s > 0)
+      return r.mrays_per_s / s.mrays_per_s;
+  return 0;
+}
+
+BenchReport run_bench(const Scene& scene, const Accel& acc, const BenchOptions& opt,
+                      const std::function<void(std::size_t, std::size_t)>& progress) {
+  using Clock = std::chrono::steady_clock;
+  BenchReport rep;
+  utsname u{};
+  uname(&u);
+  rep.machine = std::string(u.nodename) + " " + u.sysname + " " + u.release + " " + u.machine + ", " +
+                std::to_string(resolve_threads(0)) + " hardware threads";
+  rep.cpu = cpu_model();
+  rep.compiler = std::string("g++ ") + __VERSION__;
+  rep.flags = MBVH_COMPILE_FLAGS;
+  char hash[32];
+  std::snprintf(hash, sizeof hash, "%016llx", static_cast<unsigned long long>(acc.hash()));
+  rep.bvh_hash = hash;
+  BackendOptions bo = opt.backend;
+  bo.threads = opt.threads;
+  std::map<std::string, std::unique_ptr<Backend>> backends, single;  // single: one thread (--scaling)
+  for (const auto& n : opt.grid.backends) backends[n] = make_backend(n, bo);
+  const bool scaling = opt.scaling && resolve_threads(opt.threads) > 1;
+  if (scaling) {
+    BackendOptions one = bo;
+    one.threads = 1;
+    for (const auto& n : opt.grid.backends) single[n] = make_backend(n, one);
+  }
+  const unsigned passes = std::max(5u, opt.passes);
+  const std::size_t total = opt.kinds.size() * opt.grid.size();
+  std::size_t done = 0;
+  for (RayKind kind : opt.kinds) {
+    RayGenOptions ro;
+    ro.kind = kind;
+    ro.count = opt.count;
+    ro.seed = opt.seed;
+    ro.threads = opt.threads;
+    ro.has_camera = opt.has_camera;
+    ro.camera = opt.camera;
+    const std::vector<Ray> rays = generate_rays(scene, acc, ro);
+    const TieRule oracle = oracle_tie_rule(acc, rays);
+    const TieRule settle = oracle_settlement(acc, rays, oracle);  // differences the tie rules leave open (a peer's)
+    // the double-precision brute force on a spread subset, once per kind (BenchOptions::error_rays)
+    const std::vector<std::size_t> sub = spread_indices(rays.size(), opt.error_rays);
+    const auto in_plane = in_plane_rule(acc);
+    std::vector<Hit> brute(sub.size());
+    parallel_for(sub.size(), 16, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
+      for (std::size_t i = b; i < e; ++i) brute[i] = brute_force(acc, rays[sub[i]]);
+    });
+    for (Query q : opt.grid.queries) {
+      // the reference answer every timed result is verified against
+      TraceOptions refo;
+      refo.query = q;
+      refo.layout = Layout::mbvh4;
+      refo.traversal = Traversal::stack;
+      TraceOutput ref;
+      trace_reference(acc, rays, refo, ref, opt.threads);
+      TraceOutput closest;
+      if (q == Query::any) trace_reference(acc, rays, TraceOptions{}, closest, opt.threads);
+      for (Precision pr : opt.grid.precisions)
+      for (const auto& bn : opt.grid.backends)
+        for (Layout l : opt.grid.layouts)
+          for (Traversal t : opt.grid.traversals) {
+            Backend& b = *backends[bn];
+            if (!b.supports(l, t) || !b.supports_precision(pr)) continue;
+            if (opt.first_layout &&
+                std::any_of(opt.grid.layouts.begin(), std::find(opt.grid.layouts.begin(), opt.grid.layouts.end(), l),
+                            [&](Layout e) { return b.supports(e, t); }))
+              continue;  // an earlier layout of the list was run
+            TraceOptions to;
+            to.layout = l;
+            to.traversal = t;
+            to.query = q;
+            to.precision = pr;
+            BenchRecord r;
+            r.scene = scene.name;
+            r.backend = bn;
+            r.device = b.describe();
+            r.isa = b.isa();
+            r.layout = to_string(l);
+            r.traversal = to_string(t);
+            r.query = to_string(q);
+            r.ray_kind = to_string(kind);
+            r.precision = to_string(pr);
+            r.rays = rays.size();
+            r.threads = resolve_threads(opt.threads);
+            r.passes = passes;
+            r.state_bytes_per_ray = b.state_bytes(to);
+            // -- verify (also the warm-up pass)
+            TraceOutput out;
+            b.trace(acc, rays, to, out);
+            const Comparison c = q == Query::any ? compare_occlusion_arrays(out.occluded, ref.occluded, closest.hits, rays)
+                                                 : compare_hit_arrays(out.hits, ref.hits, {}, settle);
+            r.verify_mismatches = c.mismatches;
+            if (q == Query::closest) {
+              // -- error against the brute force on the subset, and leaks out of a closed mesh
+              r.error_rays = sub.size();
+              std::vector<Hit> h;
+              for (std::size_t i : sub) h.push_back(out.hits[i]);
+              r.error_mismatches = compare_hit_arrays(h, brute, sub, oracle).mismatches;
+              for (std::size_t k = 0; k < sub.size(); ++k)
+                r.wrong_answers += wrong_answer(h[k], brute[k], rays[sub[k]]) && !in_plane(rays[sub[k]], h[k]) &&
+                                   !in_plane(rays[sub[k]], brute[k]);
+              if (kind == RayKind::inside)
+                for (std::size_t i = 0; i < rays.size(); ++i)
+                  r.leaks += out.hits[i].prim == MBVH_MISS_PRIM && ray_valid(rays[i]);
+            }
+            // -- warm up for BenchOptions::warmup_seconds, 0.25 s by default (JIT-compiled backends
+            // such as PoCL reach their speed only after a few dispatches), then time
+            for (auto w0 = Clock::now(); std::chrono::duration<double>(Clock::now() - w0).count() < opt.warmup_seconds;)
+              b.trace(acc, rays, to, out);
+            const auto timed = [&](Backend& be) {
+              const auto t0 = Clock::now();
+              be.trace(acc, rays, to, out);
+              return static_cast<double>(rays.size()) / std::chrono::duration<double>(Clock::now() - t0).count() * 1e-6;
+            };
+            std::vector<double> mr, m1, md;  // md: by the device's clock, where the backend measures it
+            if (scaling) single[bn]->trace(acc, rays, to, out);  // its warm-up
+            for (unsigned p = 0; p < passes; ++p) {
+              mr.push_back(timed(b));
+              if (const double ds = b.last_device_seconds(); ds > 0)
+                md.push_back(static_cast<double>(rays.size()) / ds * 1e-6);
+              if (scaling) m1.push_back(timed(*single[bn]));
+            }
+            std::sort(mr.begin(), mr.end());
+            r.mrays_per_s = mr[mr.size() / 2];
+            r.mrays_min = mr.front();
+            r.mrays_max = mr.back();
+            if (md.size() == mr.size()) {  // every pass measured
+              std::sort(md.begin(), md.end());
+              r.device_mrays_per_s = md[md.size() / 2];
+            }
+            if (scaling) {
+              std::sort(m1.begin(), m1.end());
+              r.mrays_one_thread = m1[m1.size() / 2];
+              r.thread_scaling = r.mrays_per_s / r.mrays_one_thread;
+            }
+            // -- work per ray (a separate pass with counters)
+            TraceOptions so = to;
+            so.stats = true;
+            TraceOutput st;
+            b.trace(acc, rays, so, st);  // the backend's own counters
+            double n = 0, bt = 0, lf = 0, tr = 0, cl = 0, peak = 0;
+            const auto count = [](std::vector<std::uint64_t>& h, std::uint32_t v) {
+              const std::size_t k = static_cast<std::size_t>(std::bit_width(v));  // 0 -> 0, [2^(k-1), 2^k) -> k
+              if (h.size() <= k) h.resize(k + 1, 0);
+              ++h[k];
+            };
+            for (const RayStats& s : st.stats) {
+              n += s.nodes; bt += s.box_tests; lf += s.leaves; tr += s.tris; cl += s.climbs;
+              count(r.hist_nodes, s.nodes);
+              count(r.hist_leaves, s.leaves);
+              count(r.hist_tris, s.tris);
+              count(r.hist_climbs, s.climbs);
+              peak += t == Traversal::stack ? 8.0 + 4.0 * s.max_depth
+                      : t == Traversal::stack_ordered ? 8.0 + 8.0 * s.max_depth : 12.0;
+            }
+            const double k = rays.empty() ? 1.0 : static_cast<double>(rays.size());
+            r.nodes_per_ray = n / k;
+            r.box_tests_per_ray = bt / k;
+            r.leaves_per_ray = lf / k;
+            r.tris_per_ray = tr / k;
+            r.climbs_per_ray = cl / k;
+            r.peak_state_bytes_per_ray = peak / k;
+            rep.records.push_back(r);
+            if (progress) progress(++done, total);
+          }
+    }
+  }
+  // ratios side by side from the same run: bitstack / its stack twin, each backend / `cpu`
+  for (auto& r : rep.records) {
+    if (const std::string twin = to_string(stack_twin(parse_traversal(r.traversal))); twin != r.traversal)
+      r.ratio_vs_stack = speed_ratio(rep.records, r, r.backend, twin);
+    if (r.backend != "cpu") r.ratio_vs_cpu = speed_ratio(rep.records, r, "cpu", r.traversal);
+  }
+  return rep;
+}
+
+}  // namespace mbvh

@@ -1,0 +1,86 @@
+// SPDX-License-Identifier: MIT
+// bench.h — the benchmark protocol of DESIGN.md (first cut): for every backend x layout x
+// traversal x query x ray kind, verify against the reference, warm up, time >= 5 passes, report
+// the median Mrays/s with its spread, the traversal state per ray and the work per ray.
+#pragma once
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "mbvh/accel.h"
+#include "mbvh/backend.h"
+#include "host/tools/raygen.h"
+#include "mbvh/trace.h"
+
+namespace mbvh {
+
+struct BenchOptions {
+  VariantGrid grid;
+  std::vector<RayKind> kinds{RayKind::primary, RayKind::diffuse};
+  std::size_t count = 100000;
+  std::uint64_t seed = 1;
+  unsigned passes = 5;
+  double warmup_seconds = 0.25;  ///< untimed passes before the timed ones, at least one
+  unsigned threads = 0;
+  BackendOptions backend;  ///< device choices (threads come from `threads`)
+  /// Also time every variant on one thread, each 1-thread pass right after an N-thread pass (a
+  /// ratio taken side by side, not across runs): BenchRecord::thread_scaling.
+  bool scaling = false;
+  /// Rays per kind (spread over the batch) whose closest hits are also compared with the
+  /// double-precision brute force: BenchRecord::error_* (0: none).
+  std::size_t error_rays = 0;
+  /// Per backend and traversal, only the first layout of grid.layouts the backend has (e.g.
+  /// mbvh4,mbvh2: MBVH4 where there is one, else MBVH2).
+  bool first_layout = false;
+  bool has_camera = false;  ///< primary rays (and the secondary rays built on them) from `camera`
+  Camera camera;
+};
+
+struct BenchRecord {
+  std::string scene, backend, isa, device, layout, traversal, query, ray_kind, precision;
+  std::size_t rays = 0;
+  unsigned threads = 0, passes = 0;
+  double mrays_per_s = 0, mrays_min = 0, mrays_max = 0;  ///< median and spread over the passes
+  /// Median over the passes of rays / the backend's device time (Backend::last_device_seconds:
+  /// the trace kernels alone, no transfers); 0 where the backend does not measure it (JSON null).
+  double device_mrays_per_s = 0;
+  std::size_t state_bytes_per_ray = 0;
+  double peak_state_bytes_per_ray = 0;  ///< mean over rays of the state actually used
+  double nodes_per_ray = 0, box_tests_per_ray = 0, leaves_per_ray = 0, tris_per_ray = 0, climbs_per_ray = 0;
+  /// Histograms of the work per ray, power-of-two buckets: bucket 0 counts rays with 0, bucket
+  /// k >= 1 rays with [2^(k-1), 2^k) (trailing empty buckets dropped).
+  std::vector<std::uint64_t> hist_nodes, hist_leaves, hist_tris, hist_climbs;
+  std::size_t verify_mismatches = 0;    ///< genuine mismatches against the reference (robust, all rays)
+  std::size_t error_rays = 0;           ///< closest hits compared with the brute force (BenchOptions::error_rays)
+  std::size_t error_mismatches = 0;     ///< of those, genuine mismatches (compare.h's tie rules, as `mbvh check`)
+  /// of those, wrong answers by compare.h's stricter wrong_answer (a miss beside an edge counts),
+  /// rays lying in a hit triangle's plane left out (check.h in_plane_rule)
+  std::size_t wrong_answers = 0;
+  /// `inside` rays (from inside a closed mesh: every one must hit) that missed: leaks.
+  std::size_t leaks = 0;
+  double ratio_vs_stack = 0;            ///< Mrays/s of this record / its stack twin (bitstack rows)
+  double ratio_vs_cpu = 0;              ///< Mrays/s of this record / the `cpu` backend's on the same variant
+  double mrays_one_thread = 0;          ///< with BenchOptions::scaling: the median on one thread
+  double thread_scaling = 0;            ///< mrays_per_s / mrays_one_thread (0: not measured)
+  /// Whether the timed result passed verification: no genuine mismatch, except in the fast mode,
+  /// whose mismatches are its measured error (reported, not a failure).
+  bool verified() const { return verify_mismatches == 0 || precision == to_string(Precision::fast); }
+};
+
+struct BenchReport {
+  std::string machine, cpu, compiler, flags;
+  std::string bvh_hash;
+  std::vector<BenchRecord> records;
+  std::string table() const;
+  std::string json() const;
+  std::string csv() const;  ///< the JSON records as CSV: a header line, one line per record
+  bool verified() const;
+};
+
+BenchReport run_bench(const Scene& scene, const Accel& acc, const BenchOptions& opt,
+                      const std::function<void(std::size_t done, std::size_t total)>& progress = {});
+
+/// CPU model name, from /proc/cpuinfo.
+std::string cpu_model();
+
+}  // namespace mbvh

@@ -1,0 +1,427 @@
+// SPDX-License-Identifier: MIT
+// render.cpp — the wavefront renderer of `mbvh render` (render.h) and its PNG writer.
+// Path mode is the thesis' workload (Áfra, 2014: an 8-bounce diffuse path tracer over ray
+// batches): every bounce traces one batch of continuation rays (closest hit) and one batch of
+// shadow rays (any hit) on the chosen backend; shading, sampling and accumulation run on the host.
+#include "host/tools/render.h"
+
+#include <algorithm>
+#include <array>
+#include <chrono>
+#include <cmath>
+#include <fstream>
+#include <numbers>
+
+#include "mbvh/error.h"
+#include "host/core/parallel.h"
+#include "host/core/random.h"
+#include "host/core/resources.h"
+
+namespace mbvh {
+
+const char* to_string(RenderMode m) {
+  switch (m) {
+    case RenderMode::path: return "path";
+    case RenderMode::ao: return "ao";
+    case RenderMode::normals: return "normals";
+  }
+  return "?";
+}
+
+RenderMode parse_render_mode(const std::string& s) {
+  if (s == "path") return RenderMode::path;
+  if (s == "ao") return RenderMode::ao;
+  if (s == "normals") return RenderMode::normals;
+  throw Error("unknown render mode '" + s + "' (known: path, ao, normals)");
+}
+
+namespace {
+
+constexpr float kAlbedo = 0.7f;
+
+struct Rgb {
+  float r = 0, g = 0, b = 0;
+};
+
+// The sky a ray sees when it leaves the scene: white-blue, brighter towards +y.
+Rgb sky(const Ray& ray) {
+  const float len = std::sqrt(ray.dx * ray.dx + ray.dy * ray.dy + ray.dz * ray.dz);
+  const float t = 0.5f * (ray.dy / len + 1.0f);
+  const float k = 0.35f + 0.45f * t;
+  return {0.85f * k, 0.92f * k, 1.0f * k};
+}
+
+// One path (or one AO / normals sample) in flight: its pixel, throughput and random stream.
+struct Path {
+  std::uint32_t pixel;
+  Rgb thr;
+  Rng rng;
+};
+
+Rng path_rng(std::uint64_t seed, std::size_t pixel, unsigned sample) {
+  Rng h(seed);
+  return Rng(h.next() ^ (static_cast<std::uint64_t>(pixel) * 0x9E3779B97F4A7C15ull) ^
+             (static_cast<std::uint64_t>(sample) << 40));
+}
+
+struct Surface {
+  Vec3f a, b, c, n, p;  ///< triangle, normal facing the incoming ray, hit point
+};
+
+Surface surface(const Scene& s, const Ray& ray, const Hit& h) {
+  Surface f;
+  tri_vertices(s, h.prim, f.a, f.b, f.c);
+  f.n = facing_normal(f.a, f.b, f.c, Vec3f{ray.dx, ray.dy, ray.dz});
+  const float b0 = 1.0f - h.u - h.v;
+  for (int k = 0; k < 3; ++k) f.p[k] = b0 * f.a[k] + h.u * f.b[k] + h.v * f.c[k];
+  return f;
+}
+
+class Renderer {
+public:
+  Renderer(const Scene& scene, const Accel& acc, Backend& backend, const RenderOptions& opt)
+      : scene_(scene), acc_(acc), backend_(backend), opt_(opt) {
+    if (opt.width == 0 || opt.height == 0) throw Error("render: the image is empty (width and height must be > 0)");
+    if (opt.spp == 0) throw Error("render: --spp must be at least 1");
+    if (opt.reference && opt.reference->size() != static_cast<std::size_t>(opt.width) * opt.height * 3)
+      throw Error("render: the reference image is not " + std::to_string(opt.width) + "x" + std::to_string(opt.height));
+    if (!backend.supports_precision(opt.precision))
+      throw Error("render: backend '" + backend.name() + "' has no '" + to_string(opt.precision) + "' precision");
+    if (!backend.supports(opt.layout, opt.traversal))
+      throw Error("render: backend '" + backend.name() + "' has no " + to_string(opt.layout) + "/" +
+                  to_string(opt.traversal) + " traversal");
+    cam_ = opt.has_camera ? opt.camera : default_camera(acc.bounds());
+    if (const std::string p = camera_problem(cam_); !p.empty()) throw Error("render: camera: " + p);
+    light_ = default_light(acc.bounds());
+    const Vec3f e = acc.bounds().extent();
+    diag2_ = e.x * e.x + e.y * e.y + e.z * e.z;
+    light_power_ = 0.08f * diag2_;  // lights the scene at about half its diagonal
+    ao_radius_ = 0.1f * std::sqrt(diag2_);
+  }
+
+  RenderResult run(const std::function<void(unsigned, unsigned)>& progress) {
+    const auto t0 = std::chrono::steady_clock::now();
+    res_.width = opt_.width;
+    res_.height = opt_.height;
+    const std::size_t pixels = static_cast<std::size_t>(opt_.width) * opt_.height;
+    res_.rgb.assign(pixels * 3, 0.0f);
+    double excluded = 0;  // seconds spent on the error curve
+    for (unsigned s = 0; s < opt_.spp; ++s) {
+      sample_pass(s);
+      if (opt_.reference) {
+        const auto c0 = std::chrono::steady_clock::now();
+        const double elapsed = std::chrono::duration<double>(c0 - t0).count() - excluded;
+        std::vector<float> mean(res_.rgb);
+        for (float& v : mean) v /= static_cast<float>(s + 1);
+        res_.curve.push_back(CurvePoint{s + 1, res_.trace_seconds, elapsed, rmse(mean, *opt_.reference)});
+        excluded += std::chrono::duration<double>(std::chrono::steady_clock::now() - c0).count();
+      }
+      if (progress) progress(s + 1, opt_.spp);
+    }
+    for (float& v : res_.rgb) v /= static_cast<float>(opt_.spp);
+    res_.total_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count() - excluded;
+    return std::move(res_);
+  }
+
+private:
+  void trace(const std::vector<Ray>& rays, Query q, TraceOutput& out) {
+    TraceOptions o;
+    o.layout = opt_.layout;
+    o.traversal = opt_.traversal;
+    o.query = q;
+    o.precision = opt_.precision;
+    if (opt_.capture && q == Query::closest) opt_.capture->insert(opt_.capture->end(), rays.begin(), rays.end());
+    const auto t0 = std::chrono::steady_clock::now();
+    backend_.trace(acc_, rays, o, out);
+    res_.trace_seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    res_.rays += rays.size();
+  }
+
+  void add(std::uint32_t pixel, const Rgb& c) {
+    float* p = &res_.rgb[static_cast<std::size_t>(pixel) * 3];
+    p[0] += c.r;
+    p[1] += c.g;
+    p[2] += c.b;
+  }
+
+  // Runs fn(i) for i in [0, n) on the host threads; each i touches only its own path and pixel.
+  template <class F>
+  void for_each(std::size_t n, F&& fn) {
+    parallel_for(n, 4096, opt_.threads, [&](std::size_t b, std::size_t e, unsigned) {
+      for (std::size_t i = b; i < e; ++i) fn(i);
+    });
+  }
+
+  void sample_pass(unsigned sample) {
+    const std::size_t pixels = static_cast<std::size_t>(opt_.width) * opt_.height;
+    const double aspect = double(opt_.width) / double(opt_.height);
+    std::vector<Path> paths(pixels, Path{0, {1, 1, 1}, Rng(0)});
+    std::vector<Ray> rays(pixels);
+    for_each(pixels, [&](std::size_t i) {
+      Path& p = paths[i];
+      p.pixel = static_cast<std::uint32_t>(i);
+      p.rng = path_rng(opt_.seed, i, sample);
+      const double px = (double(i % opt_.width) + p.rng.uniform_d()) / opt_.width;
+      const double py = (double(i / opt_.width) + p.rng.uniform_d()) / opt_.height;
+      rays[i] = camera_ray(cam_, px, py, aspect);
+    });
+    const unsigned bounces = opt_.mode == RenderMode::path ? opt_.bounces + 1 : 1;
+    TraceOutput hits, occ;
+    std::vector<Ray> next, shadow;
+    std::vector<Path> next_paths;
+    std::vector<Rgb> direct;
+    for (unsigned bounce = 0; bounce < bounces && !rays.empty(); ++bounce) {
+      trace(rays, Query::closest, hits);
+      const std::size_t n = rays.size();
+      if (opt_.mode == RenderMode::normals) {
+        for_each(n, [&](std::size_t i) {
+          const Hit& h = hits.hits[i];
+          if (h.prim == MBVH_MISS_PRIM) return;
+          const Surface f = surface(scene_, rays[i], h);
+          add(paths[i].pixel, Rgb{0.5f * (f.n.x + 1), 0.5f * (f.n.y + 1), 0.5f * (f.n.z + 1)});
+        });
+        return;
+      }
+      // -- secondary rays of every live path: shadow / AO ray and (path mode) the next bounce
+      shadow.resize(n);
+      next.resize(n);
+      direct.resize(n);
+      std::vector<std::uint8_t> alive(n, 0), lit(n, 0);  // lit: has a shadow / AO ray
+      for_each(n, [&](std::size_t i) {
+        Path& p = paths[i];
+        const Hit& h = hits.hits[i];
+        if (h.prim == MBVH_MISS_PRIM) {
+          if (opt_.mode == RenderMode::ao) add(p.pixel, Rgb{1, 1, 1});
+          else {
+            const Rgb s = sky(rays[i]);
+            add(p.pixel, Rgb{p.thr.r * s.r, p.thr.g * s.g, p.thr.b * s.b});
+          }
+          return;
+        }
+        const Surface f = surface(scene_, rays[i], h);
+        const double r1 = p.rng.uniform_d(), r2 = p.rng.uniform_d();
+        if (opt_.mode == RenderMode::ao) {
+          shadow[i] = spawn_ray(f.a, f.b, f.c, h.u, h.v, cosine_direction(f.n, r1, r2), ao_radius_);
+          direct[i] = Rgb{1, 1, 1};
+          lit[i] = 1;
+          return;
+        }
+        // direct light from the point light, if it is above the surface
+        const Vec3f to{light_.x - f.p.x, light_.y - f.p.y, light_.z - f.p.z};
+        const float d2 = to.x * to.x + to.y * to.y + to.z * to.z;
+        const float d = std::sqrt(d2);
+        const float cosl = (to.x * f.n.x + to.y * f.n.y + to.z * f.n.z) / d;
+        if (cosl > 0 && d > 0) {
+          shadow[i] = spawn_ray(f.a, f.b, f.c, h.u, h.v, Vec3f{to.x / d, to.y / d, to.z / d}, d);
+          const float k = kAlbedo / std::numbers::pi_v<float> * light_power_ * cosl / d2;
+          direct[i] = Rgb{p.thr.r * k, p.thr.g * k, p.thr.b * k};
+          lit[i] = 1;
+        }
+        // the next bounce: cosine-weighted, throughput times the albedo (Lambertian)
+        next[i] = spawn_ray(f.a, f.b, f.c, h.u, h.v, cosine_direction(f.n, r1, r2), INFINITY);
+        p.thr = Rgb{p.thr.r * kAlbedo, p.thr.g * kAlbedo, p.thr.b * kAlbedo};
+        alive[i] = 1;
+      });
+      // -- the shadow / AO rays, compacted (in path order), traced as one any-hit batch
+      std::vector<std::uint32_t> lit_paths;
+      std::vector<Ray> lit_rays;
+      for (std::size_t i = 0; i < n; ++i)
+        if (lit[i]) {
+          lit_paths.push_back(static_cast<std::uint32_t>(i));
+          lit_rays.push_back(shadow[i]);
+        }
+      if (!lit_rays.empty()) trace(lit_rays, Query::any, occ);
+      for_each(lit_paths.size(), [&](std::size_t k) {
+        if (!occ.occluded[k]) add(paths[lit_paths[k]].pixel, direct[lit_paths[k]]);
+      });
+      if (opt_.mode == RenderMode::ao || bounce + 1 == bounces) return;
+      // -- compact the live paths (in path order: deterministic)
+      next_paths.clear();
+      std::vector<Ray> live;
+      for (std::size_t i = 0; i < n; ++i)
+        if (alive[i]) {
+          next_paths.push_back(paths[i]);
+          live.push_back(next[i]);
+        }
+      paths.swap(next_paths);
+      rays.swap(live);
+    }
+  }
+
+  const Scene& scene_;
+  const Accel& acc_;
+  Backend& backend_;
+  const RenderOptions& opt_;
+  Camera cam_;
+  Vec3f light_;
+  float diag2_ = 1, light_power_ = 1, ao_radius_ = 1;
+  RenderResult res_;
+};
+
+// -- PNG: signature, IHDR, one IDAT holding a zlib stream of stored (uncompressed) blocks, IEND
+std::uint32_t crc32(const std::uint8_t* p, std::size_t n, std::uint32_t c = 0xFFFFFFFFu) {
+  static const auto table = [] {
+    std::array<std::uint32_t, 256> t{};
+    for (std::uint32_t i = 0; i < 256; ++i) {
+      std::uint32_t v = i;
+      for (int k = 0; k < 8; ++k) v = (v & 1u) ? 0xEDB88320u ^ (v >> 1) : v >> 1;
+      t[i] = v;
+    }
+    return t;
+  }();
+  for (std::size_t i = 0; i < n; ++i) c = table[(c ^ p[i]) & 0xFFu] ^ (c >> 8);
+  return c;
+}
+
+void put32(std::vector<std::uint8_t>& o, std::uint32_t v) {
+  for (int s = 24; s >= 0; s -= 8) o.push_back(static_cast<std::uint8_t>(v >> s));
+}
+
+void chunk(std::vector<std::uint8_t>& o, const char* type, const std::vector<std::uint8_t>& data) {
+  put32(o, static_cast<std::uint32_t>(data.size()));
+  const std::size_t start = o.size();
+  o.insert(o.end(), type, type + 4);
+  o.insert(o.end(), data.begin(), data.end());
+  put32(o, crc32(o.data() + start, o.size() - start) ^ 0xFFFFFFFFu);
+}
+
+}  // namespace
+
+std::vector<Ray> path_tracer_rays(const Scene& scene, const Accel& acc, std::size_t count, std::uint64_t seed,
+                                  const Camera* camera, unsigned threads) {
+  BackendOptions bo;
+  bo.threads = threads;
+  const auto tracer = make_backend("cpu-scalar", bo);  // the reference traversals
+  std::vector<Ray> rays;
+  RenderOptions o;
+  // about 3 closest-hit rays per pixel over the bounces (the count is measured below anyway)
+  o.width = o.height = std::max(1u, static_cast<unsigned>(std::sqrt(static_cast<double>(std::max<std::size_t>(count, 1)) / 3.0)));
+  o.spp = 1;
+  o.threads = threads;
+  o.capture = &rays;
+  o.has_camera = camera != nullptr;
+  if (camera) o.camera = *camera;
+  for (std::uint64_t pass = 0; rays.size() < std::max<std::size_t>(count, 1); ++pass) {
+    o.seed = seed + pass;
+    render(scene, acc, *tracer, o);
+  }
+  rays.resize(std::max<std::size_t>(count, 1));
+  return rays;
+}
+
+double rmse(const std::vector<float>& a, const std::vector<float>& b) {
+  if (a.size() != b.size()) throw Error("rmse: images of different sizes");
+  double sum = 0;
+  for (std::size_t i = 0; i < a.size(); ++i) sum += (double(a[i]) - b[i]) * (double(a[i]) - b[i]);
+  return a.empty() ? 0.0 : std::sqrt(sum / static_cast<double>(a.size()));
+}
+
+std::vector<char> pfm_bytes(const std::string& name, unsigned width, unsigned height, const std::vector<float>& rgb) {
+  if (rgb.size() != std::size_t(width) * height * 3) throw Error(name + ": PFM size does not match the image");
+  const std::string header = "PF\n" + std::to_string(width) + " " + std::to_string(height) + "\n-1.0\n";
+  std::vector<char> bytes(header.begin(), header.end());
+  for (unsigned y = height; y-- > 0;) {  // bottom row first
+    const char* row = reinterpret_cast<const char*>(rgb.data() + std::size_t(y) * width * 3);
+    bytes.insert(bytes.end(), row, row + std::size_t(width) * 12);
+  }
+  return bytes;
+}
+
+void write_pfm(const std::string& path, unsigned width, unsigned height, const std::vector<float>& rgb) {
+  const std::vector<char> bytes = pfm_bytes(path, width, height, rgb);
+  write_bytes(path, bytes.data(), bytes.size());
+}
+
+std::vector<float> read_pfm(const std::string& path, unsigned& width, unsigned& height) {
+  const std::uint64_t file_size = regular_file_size(path, "PFM");  // before opening: a FIFO would block
+  std::ifstream f(path, std::ios::binary);
+  if (!f) throw Error(path + ": cannot open the PFM file");
+  std::string magic;
+  double scale = 0;
+  long long w = 0, h = 0;
+  f >> magic >> w >> h >> scale;
+  if (!f || magic != "PF" || w <= 0 || h <= 0 || w > 65536 || h > 65536 || !(scale < 0))
+    throw Error(path + ": not a little-endian RGB PFM (expected 'PF', width, height, a negative scale)");
+  f.get();  // the single whitespace after the scale
+  // -- the header's size against the file's, before allocating: 21 bytes may claim 48 GiB
+  const std::uint64_t pixels = static_cast<std::uint64_t>(w) * static_cast<std::uint64_t>(h) * 12;
+  const std::streamoff at = f.tellg();  // -1 when the header ends the file
+  const std::uint64_t have = at < 0 ? 0 : file_size - static_cast<std::uint64_t>(at);
+  if (pixels != have)
+    throw Error(path + ": the PFM header says " + std::to_string(w) + "x" + std::to_string(h) + " pixels (" +
+                std::to_string(pixels) + " bytes of RGB floats) but the file holds " + std::to_string(have) +
+                " bytes after the header");
+  require_memory(path, pixels, "to read the PFM image");
+  width = static_cast<unsigned>(w);
+  height = static_cast<unsigned>(h);
+  std::vector<float> rgb(std::size_t(width) * height * 3);
+  for (unsigned y = height; y-- > 0;)
+    if (!f.read(reinterpret_cast<char*>(rgb.data() + std::size_t(y) * width * 3), std::streamsize(width) * 12))
+      throw Error(path + ": PFM data ends early (row " + std::to_string(height - 1 - y) + " of " + std::to_string(height) + ")");
+  return rgb;
+}
+
+RenderResult render(const Scene& scene, const Accel& acc, Backend& backend, const RenderOptions& opt,
+                    const std::function<void(unsigned, unsigned)>& progress) {
+  Renderer r(scene, acc, backend, opt);
+  return r.run(progress);
+}
+
+std::vector<std::uint8_t> to_srgb8(const std::vector<float>& rgb) {
+  std::vector<std::uint8_t> out(rgb.size());
+  for (std::size_t i = 0; i < rgb.size(); ++i) {
+    const float v = std::clamp(rgb[i], 0.0f, 1.0f);
+    const float s = v <= 0.0031308f ? 12.92f * v : 1.055f * std::pow(v, 1.0f / 2.4f) - 0.055f;
+    out[i] = static_cast<std::uint8_t>(std::lround(s * 255.0f));
+  }
+  return out;
+}
+
+std::vector<std::uint8_t> png_bytes(const std::string& name, unsigned width, unsigned height,
+                                    const std::vector<std::uint8_t>& rgb8) {
+  if (width == 0 || height == 0 || rgb8.size() != std::size_t(width) * height * 3)
+    throw Error(name + ": cannot write a PNG of " + std::to_string(width) + "x" + std::to_string(height) + " from " +
+                std::to_string(rgb8.size()) + " bytes");
+  std::vector<std::uint8_t> raw;  // scanlines, each with filter byte 0
+  raw.reserve((std::size_t(width) * 3 + 1) * height);
+  for (unsigned y = 0; y < height; ++y) {
+    raw.push_back(0);
+    const auto row = rgb8.begin() + static_cast<std::ptrdiff_t>(std::size_t(y) * width * 3);
+    raw.insert(raw.end(), row, row + static_cast<std::ptrdiff_t>(width) * 3);
+  }
+  std::vector<std::uint8_t> z{0x78, 0x01};  // zlib header: deflate, 32K window, no dictionary
+  for (std::size_t off = 0; off < raw.size() || off == 0;) {
+    const std::size_t len = std::min<std::size_t>(65535, raw.size() - off);
+    const bool last = off + len == raw.size();
+    z.push_back(last ? 1 : 0);  // BFINAL, BTYPE = 00 (stored)
+    z.push_back(static_cast<std::uint8_t>(len));
+    z.push_back(static_cast<std::uint8_t>(len >> 8));
+    z.push_back(static_cast<std::uint8_t>(~len));
+    z.push_back(static_cast<std::uint8_t>(~len >> 8));
+    z.insert(z.end(), raw.begin() + static_cast<std::ptrdiff_t>(off), raw.begin() + static_cast<std::ptrdiff_t>(off + len));
+    off += len;
+    if (last) break;
+  }
+  std::uint32_t a = 1, b = 0;  // Adler-32 of the uncompressed data
+  for (std::uint8_t v : raw) {
+    a = (a + v) % 65521u;
+    b = (b + a) % 65521u;
+  }
+  put32(z, (b << 16) | a);
+  std::vector<std::uint8_t> png{0x89, 'P', 'N', 'G', '\r', '\n', 0x1A, '\n'};
+  std::vector<std::uint8_t> ihdr;
+  put32(ihdr, width);
+  put32(ihdr, height);
+  ihdr.insert(ihdr.end(), {8, 2, 0, 0, 0});  // 8 bits, RGB, deflate, adaptive filtering, no interlace
+  chunk(png, "IHDR", ihdr);
+  chunk(png, "IDAT", z);
+  chunk(png, "IEND", {});
+  return png;
+}
+
+void write_png(const std::string& path, unsigned width, unsigned height, const std::vector<std::uint8_t>& rgb8) {
+  const std::vector<std::uint8_t> png = png_bytes(path, width, height, rgb8);
+  write_bytes(path, png.data(), png.size());
+}
+
+}  // namespace mbvh

@@ -1,0 +1,91 @@
+// SPDX-License-Identifier: MIT
+// render.h — `mbvh render`: the thesis' end-to-end workload, a wavefront path tracer on any
+// backend (generate a batch of rays, trace it on the backend, shade on the host, next bounce),
+// plus ambient-occlusion and normals modes; PNG output.
+#pragma once
+#include <cstdint>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "mbvh/accel.h"
+#include "mbvh/backend.h"
+#include "host/tools/raygen.h"
+#include "mbvh/scene.h"
+
+namespace mbvh {
+
+enum class RenderMode { path, ao, normals };
+const char* to_string(RenderMode m);
+RenderMode parse_render_mode(const std::string& s);  ///< throws Error on an unknown name
+
+struct RenderOptions {
+  unsigned width = 512, height = 512;
+  unsigned spp = 4;       ///< samples per pixel (one sample pass each)
+  unsigned bounces = 8;   ///< path mode: diffuse bounces after the primary hit
+  RenderMode mode = RenderMode::path;
+  std::uint64_t seed = 1;
+  bool has_camera = false;  ///< `camera` instead of default_camera
+  Camera camera;
+  Layout layout = Layout::mbvh4;
+  Traversal traversal = Traversal::bitstack;
+  unsigned threads = 0;   ///< host shading threads (0 = all)
+  Precision precision = Precision::robust;  ///< the backend's accuracy mode
+  /// If set (width x height x 3 linear floats), the RMSE of the running mean against it after
+  /// every sample pass: RenderResult::curve (image error against time).
+  const std::vector<float>* reference = nullptr;
+  /// If set, every closest-hit ray the renderer traces (all bounces, in order) is appended: the
+  /// `path` ray kind of the benchmark.
+  std::vector<Ray>* capture = nullptr;
+};
+
+/// One point of the image-error-against-time curve.
+struct CurvePoint {
+  unsigned spp = 0;
+  double trace_seconds = 0, total_seconds = 0;  ///< so far, the RMSE computation left out
+  double rmse = 0;                              ///< of the mean of `spp` samples against the reference
+};
+
+struct RenderResult {
+  unsigned width = 0, height = 0;
+  std::vector<float> rgb;          ///< linear radiance, 3 floats per pixel, row by row from the top
+  std::size_t rays = 0;            ///< rays traced over all bounces (closest and shadow/AO rays)
+  double trace_seconds = 0;        ///< time inside Backend::trace
+  double total_seconds = 0;        ///< the whole render, shading and ray generation included
+  std::vector<CurvePoint> curve;   ///< with RenderOptions::reference: one point per sample pass
+  double mrays_per_s() const { return trace_seconds > 0 ? static_cast<double>(rays) / trace_seconds * 1e-6 : 0; }
+};
+
+/// Renders `scene` (built as `acc`) on `backend`. Lambertian surfaces (albedo 0.7), a point light
+/// at default_light with shadow rays (any hit) and a sky for rays that leave the scene. Every
+/// random number depends only on (seed, pixel, sample, bounce), and every pixel's samples are
+/// summed in sample order, so the same seed gives the same image on every backend whose answers
+/// are bit-identical (all of mbvh's), at any thread count. `progress(done, total)` after each
+/// sample pass. Throws Error for an empty image or a backend that lacks the layout/traversal.
+RenderResult render(const Scene& scene, const Accel& acc, Backend& backend, const RenderOptions& opt,
+                    const std::function<void(unsigned, unsigned)>& progress = {});
+
+/// The rays of the path tracer's bounces (closest-hit continuation rays of every bounce, primary
+/// rays included) from 1-spp renders with the reference traversal (cpu-scalar), about `count` of them (at least
+/// 1): the thesis' workload as a benchmark ray kind. Deterministic by seed.
+std::vector<Ray> path_tracer_rays(const Scene& scene, const Accel& acc, std::size_t count, std::uint64_t seed,
+                                  const Camera* camera, unsigned threads);
+/// Root-mean-square difference of two images of the same size (linear values).
+double rmse(const std::vector<float>& a, const std::vector<float>& b);
+/// Portable float map (PFM, "PF", little-endian, rows bottom to top as the format says): the
+/// linear image without loss, for references. Throws Error naming the path on failure.
+/// pfm_bytes: the file's bytes (Error naming `name` if rgb is not width x height x 3).
+std::vector<char> pfm_bytes(const std::string& name, unsigned width, unsigned height, const std::vector<float>& rgb);
+void write_pfm(const std::string& path, unsigned width, unsigned height, const std::vector<float>& rgb);
+std::vector<float> read_pfm(const std::string& path, unsigned& width, unsigned& height);
+/// 8-bit sRGB of linear radiance (clamped to [0, 1]), 3 bytes per pixel.
+std::vector<std::uint8_t> to_srgb8(const std::vector<float>& rgb);
+
+/// Writes an 8-bit RGB PNG (zlib stored blocks, no compression library needed) as write_bytes
+/// does; throws Error naming the path on failure. png_bytes: the file's bytes (Error naming `name`
+/// unless rgb8 is width x height x 3, both non-zero).
+std::vector<std::uint8_t> png_bytes(const std::string& name, unsigned width, unsigned height,
+                                    const std::vector<std::uint8_t>& rgb8);
+void write_png(const std::string& path, unsigned width, unsigned height, const std::vector<std::uint8_t>& rgb8);
+
+}  // namespace mbvh
