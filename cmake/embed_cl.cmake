@@ -1,8 +1,8 @@
 # SPDX-License-Identifier: MIT
 # embed_cl.cmake — embeds an OpenCL C source in a C++ header as a string constant, with the
-# shared layout header (shaders/mbvh_layout.h) inlined where the source includes it, and #line
+# shared layout header (host/include/mbvh/mbvh_layout.h) inlined where the source includes it, and #line
 # markers so a device compiler's log names the right file and line.
-#   cmake -DSRC=shaders/trace.cl -DLAYOUT=shaders/mbvh_layout.h -DOUT=x.h -DNAME=kTraceCl -P embed_cl.cmake
+#   cmake -DSRC=shaders/trace.cl -DLAYOUT=host/include/mbvh/mbvh_layout.h -DOUT=x.h -DNAME=kTraceCl -P embed_cl.cmake
 file(READ "${SRC}" src)
 file(READ "${LAYOUT}" layout)
 get_filename_component(src_name "${SRC}" NAME)

@@ -23,10 +23,11 @@ if ((${#missing[@]})); then
   DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
 fi
 
-mbvh_build() {
+mbvh_build() {  # DIR [CMAKE_ARGS...]; MBVH_TARGETS="a b" builds only those targets
   local dir="$1"
   shift
-  echo "== configuring and building in $dir $*"
+  echo "== configuring and building in $dir $* ${MBVH_TARGETS:+(targets: $MBVH_TARGETS)}"
   cmake -S "$ROOT" -B "$dir" -G Ninja -DCMAKE_BUILD_TYPE=Release "$@" >/dev/null
-  cmake --build "$dir" --parallel "$(nproc)"
+  # shellcheck disable=SC2086
+  cmake --build "$dir" --parallel "$(nproc)" ${MBVH_TARGETS:+--target $MBVH_TARGETS}
 }

@@ -9,7 +9,7 @@
  *  - MBVH2, the GPU-style traversal (Aila & Laine 2009 node, 1-bit-per-level bitstack) and its
  *    stack twin, so both layouts can be cross-checked on one device.
  *
- * Every operation repeats host/trace/intersect.h and host/trace/traverse.h in the same order
+ * Every operation repeats host/core/trace/intersect.h and host/core/trace/traverse.h in the same order
  * (TRAVERSAL.md §10): contraction off, correctly rounded division (the host builds with
  * -cl-fp32-correctly-rounded-divide-sqrt), compare-and-select instead of fmin/fmax in the slab
  * tests, so every answer is bit-identical to cpu-scalar's.

@@ -8,7 +8,7 @@
  *    the nearest hit child first, the others in cyclic slot order.
  * Both layouts share the ray set-up, the box test, the triangle tests and the leaf visit.
  *
- * Every operation repeats host/trace/intersect.h and host/trace/traverse.h in the same order
+ * Every operation repeats host/core/trace/intersect.h and host/core/trace/traverse.h in the same order
  * (TRAVERSAL.md §10), so answers are bit-identical to cpu-scalar's:
  *  - `precise` on every float expression (SPIR-V NoContraction: no FMA is formed);
  *  - SignedZeroInfNanPreserve for 32-bit floats (declared below), so -0, inf and NaN survive;

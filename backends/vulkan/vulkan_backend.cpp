@@ -18,7 +18,7 @@
 // the results out to a host-cached readback buffer after it (MBVH_VK_STAGING=1 forces this path).
 // One pipeline per (layout, traversal, query, statistics, accuracy mode, chunk counts), from
 // specialization constants, made on first use and kept. Bindings, specialization constant ids
-// and counters: shaders/mbvh_layout.h.
+// and counters: host/include/mbvh/mbvh_layout.h.
 #include <algorithm>
 #include <cstdio>
 #include <cstdlib>

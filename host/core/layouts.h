@@ -103,7 +103,7 @@ struct Accel::Impl {
   mutable TriPacks packs_;
 };
 
-/// Collapses a binary BVH into the layouts (host/build/collapse.cpp).
+/// Collapses a binary BVH into the layouts (host/core/build/collapse.cpp).
 Mbvh2 make_mbvh2(const Bvh2& bvh, const std::vector<Leaf>& leaves);
 Mbvh4 make_mbvh4(const Bvh2& bvh, const std::vector<Leaf>& leaves);
 Mbvh8 make_mbvh8(const Bvh2& bvh, const std::vector<Leaf>& leaves);

@@ -48,7 +48,7 @@ constexpr float kMinSceneScale = 0x1p-36f;  // 1.5e-11
 enum class BuildQuality {
   low,     ///< Morton-code LBVH (Karras 2012): several times faster to build, slower to trace
   medium,  ///< binned SAH (Wald 2007): the default
-  high,    ///< spatial splits (SBVH, Stich et al. 2009); host/build/sbvh.cpp
+  high,    ///< spatial splits (SBVH, Stich et al. 2009); host/core/build/sbvh.cpp
 };
 const char* to_string(BuildQuality q);
 BuildQuality parse_quality(const std::string& s);  ///< throws Error on an unknown name
@@ -97,7 +97,7 @@ public:
   /// Cost: O(n log n), parallel over `opt.threads`; the bytes do not depend on the thread count.
   static std::unique_ptr<Accel> build(const Scene& scene, const BuildOptions& opt = {});
 
-  /// The BVH cache (host/build/cache.cpp). build_cached returns the build of `scene` with `opt`
+  /// The BVH cache (host/core/build/cache.cpp). build_cached returns the build of `scene` with `opt`
   /// from DIR/<key>.mbvh when that file holds it, else builds and writes it there (atomically; DIR
   /// is made if missing). A file that is truncated, damaged, of another format version or made for
   /// other triangles, options or library version is never traced from: it is rebuilt and replaced,

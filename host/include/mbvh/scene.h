@@ -58,7 +58,7 @@ Scene load_scene(const std::string& path_or_spec);
 /// Parsers on an in-memory buffer (already decompressed); `name` is used in error messages.
 /// Neither drops or shifts geometry silently: a leading UTF-8 byte-order mark is skipped, CRLF
 /// line ends are accepted, and anything else they cannot read exactly is an Error naming the
-/// line (see the notes atop host/io/obj.cpp and host/io/ply.cpp).
+/// line (see the notes atop host/core/io/obj.cpp and host/core/io/ply.cpp).
 Scene parse_obj(const std::string& name, const char* data, std::size_t size);
 Scene parse_ply(const std::string& name, const char* data, std::size_t size);
 

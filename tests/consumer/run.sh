@@ -1,0 +1,81 @@
+#!/usr/bin/env bash
+# SPDX-License-Identifier: MIT
+# run.sh BUILD WORK — mbvh as a user gets it (issue 16's acceptance), each step must pass:
+#   1. full: `cmake --install BUILD` into WORK/full, then examples/trace_scene.cpp built against it
+#      with find_package(mbvh COMPONENTS cpu opencl vulkan embree) and run; the same file built
+#      with `pkg-config --cflags --libs --static mbvh` and run;
+#   2. add_subdirectory, CPU-only, shared libraries: the consumer project adds mbvh's source tree
+#      with OpenCL, Vulkan and Embree made unfindable (CMAKE_DISABLE_FIND_PACKAGE_*: AUTO must
+#      build without them) and without setting C++20 itself, builds and runs the example;
+#   3. CPU-only find_package: that build installed into WORK/cpu, the example built against it
+#      with find_package(mbvh COMPONENTS cpu) and run; find_package(mbvh COMPONENTS opencl) must
+#      fail there with a message naming the missing component.
+set -euo pipefail
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)"
+BUILD="$(cd "$1" && pwd)"
+WORK="$2"
+rm -rf "$WORK"
+mkdir -p "$WORK"
+CONSUMER="$ROOT/tests/consumer"
+passed=0
+step() { echo "== consumer: $*"; }
+ok() { echo "PASS: $*"; passed=$((passed + 1)); }
+
+step "install the full build into $WORK/full"
+cmake --install "$BUILD" --prefix "$WORK/full" >/dev/null
+for f in include/mbvh/mbvh.h include/mbvh/config.h lib/cmake/mbvh/mbvhConfig.cmake lib/pkgconfig/mbvh.pc bin/mbvh; do
+  [ -e "$WORK/full/$f" ] || { echo "error: $WORK/full/$f was not installed" >&2; exit 1; }
+done
+if ls "$WORK/full/include/mbvh" | grep -qE "traverse|layouts|intersect"; then
+  echo "error: private headers were installed: $(ls "$WORK/full/include/mbvh")" >&2
+  exit 1
+fi
+cmake -S "$CONSUMER" -B "$WORK/full-consumer" -G Ninja -DCMAKE_BUILD_TYPE=Release \
+  -DCMAKE_PREFIX_PATH="$WORK/full" "-DMBVH_COMPONENTS=cpu;opencl;vulkan;embree" >/dev/null
+cmake --build "$WORK/full-consumer" >/dev/null
+"$WORK/full-consumer/trace_scene"
+ok "find_package(mbvh COMPONENTS cpu opencl vulkan embree) from an install"
+"$WORK/full/bin/mbvh" --version
+PKG_CONFIG_PATH="$WORK/full/lib/pkgconfig" pkg-config --modversion mbvh
+# shellcheck disable=SC2046
+g++ -O1 -o "$WORK/pc-example" "$ROOT/examples/trace_scene.cpp" \
+  $(PKG_CONFIG_PATH="$WORK/full/lib/pkgconfig" pkg-config --cflags --libs --static mbvh)
+"$WORK/pc-example"
+ok "pkg-config --cflags --libs --static mbvh"
+
+step "add_subdirectory, CPU-only (OpenCL, Vulkan, Embree unfindable), shared libraries"
+cmake -S "$CONSUMER" -B "$WORK/sub" -G Ninja -DCMAKE_BUILD_TYPE=Release -DMBVH_SOURCE_DIR="$ROOT" \
+  -DBUILD_SHARED_LIBS=ON -DCMAKE_DISABLE_FIND_PACKAGE_OpenCL=ON -DCMAKE_DISABLE_FIND_PACKAGE_Vulkan=ON \
+  -DCMAKE_DISABLE_FIND_PACKAGE_embree=ON | tee "$WORK/sub-configure.log" | grep "mbvh:" || true
+grep -q "the OPENCL backend is not built" "$WORK/sub-configure.log"
+grep -q "the EMBREE backend is not built" "$WORK/sub-configure.log"
+# nothing of mbvh's own leaks into the consumer's cache
+if grep -qE "^CMAKE_CXX_STANDARD|^CMAKE_CXX_FLAGS:.*fp-contract" "$WORK/sub/CMakeCache.txt"; then
+  echo "error: mbvh set the consumer's C++ standard or flags in its cache" >&2
+  exit 1
+fi
+cmake --build "$WORK/sub" >/dev/null
+"$WORK/sub/trace_scene"
+# the program and the tests are not built for a consumer; the core library links no backend
+[ ! -e "$WORK/sub/mbvh/mbvh" ] && [ ! -e "$WORK/sub/mbvh/mbvh-tests" ]
+ldd "$WORK/sub/trace_scene" | grep -q "libmbvh_core.so"
+if ldd "$WORK/sub/trace_scene" | grep -qE "libOpenCL|libvulkan|libembree"; then
+  echo "error: the CPU-only consumer links a device library" >&2
+  exit 1
+fi
+ok "add_subdirectory, CPU-only, shared"
+
+step "install the CPU-only build into $WORK/cpu"
+cmake --install "$WORK/sub" --prefix "$WORK/cpu" >/dev/null
+cmake -S "$CONSUMER" -B "$WORK/cpu-consumer" -G Ninja -DCMAKE_BUILD_TYPE=Release \
+  -DCMAKE_PREFIX_PATH="$WORK/cpu" -DMBVH_COMPONENTS=cpu >/dev/null
+cmake --build "$WORK/cpu-consumer" >/dev/null
+LD_LIBRARY_PATH="$WORK/cpu/lib" "$WORK/cpu-consumer/trace_scene"
+if cmake -S "$CONSUMER" -B "$WORK/cpu-consumer-cl" -G Ninja -DCMAKE_PREFIX_PATH="$WORK/cpu" \
+     -DMBVH_COMPONENTS=opencl > "$WORK/cl.log" 2>&1; then
+  echo "error: find_package(mbvh COMPONENTS opencl) succeeded on a CPU-only install" >&2
+  exit 1
+fi
+grep -q "no 'opencl' backend" "$WORK/cl.log"
+ok "find_package(mbvh COMPONENTS cpu) from a CPU-only install; opencl refused"
+echo "consumer: $passed passed"
