@@ -75,7 +75,8 @@ struct GeomPrim {
 /// the file after fan-triangulating polygons as (0, k, k+1), its prim id is i, and the scene is
 /// geometry 0. Views: mesh g's triangles are the prim ids [offset_g, offset_g + count_g) in the
 /// order the meshes were added (offset_0 = 0), which is what every backend reports; geometry_of
-/// turns such an id back into (geometry, triangle of that geometry).
+/// turns such an id back into (geometry, triangle of that geometry). Copying a Scene copies its
+/// views, not the caller's buffers they point to.
 struct Scene {
   std::string name;                              ///< the path or generator spec it came from
   std::vector<Vec3f> vertices;
