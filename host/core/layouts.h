@@ -91,6 +91,9 @@ struct Accel::Impl {
   std::vector<Leaf> leaves_;
   Box bounds_;
   std::size_t scene_triangles_ = 0;
+  /// Scene::geometry_offset(g) for g = 0 .. geometries: the prim ids of each geometry; {0, n}
+  /// for an owned scene or a build loaded without its scene (Accel::load).
+  std::vector<std::uint64_t> geometry_offsets_{0, 0};
   LayoutStats binary_stats_;
   std::uint64_t hash_ = 0;
   std::uint64_t generation_ = 0;

@@ -1,5 +1,6 @@
 // SPDX-License-Identifier: MIT
-// scene.cpp — Box and Scene helpers and load_scene: dispatch by "gen:" prefix or file content.
+// scene.cpp — Box and Scene helpers (the caller's mesh views among them) and load_scene: dispatch
+// by "gen:" prefix or file content.
 #include "mbvh/scene.h"
 
 #include <algorithm>
@@ -28,8 +29,72 @@ float Box::half_area() const {
   return e.x * e.y + e.y * e.z + e.z * e.x;
 }
 
+std::uint32_t Scene::add_mesh(const MeshView& m) {
+  const std::string who = (name.empty() ? std::string("scene") : name) + ": geometry " + std::to_string(meshes_.size());
+  if (!triangles.empty())
+    throw Error(who + ": add_mesh on a scene with owned triangles; a scene holds owned arrays or mesh views, not both");
+  if (!m.vertices && m.vertex_count > 0)
+    throw Error(who + ": the vertex pointer is null but vertex_count is " + std::to_string(m.vertex_count));
+  if (!m.indices && m.triangle_count > 0)
+    throw Error(who + ": the index pointer is null but triangle_count is " + std::to_string(m.triangle_count));
+  if (m.vertex_stride < 12)
+    throw Error(who + ": vertex_stride is " + std::to_string(m.vertex_stride) + " bytes; it must be at least 12 (x, y, z)");
+  if (m.index_stride < 12)
+    throw Error(who + ": index_stride is " + std::to_string(m.index_stride) + " bytes; it must be at least 12 (three uint32)");
+  if (m.triangle_count > kMaxTriangles - offsets_.back())
+    throw Error(who + ": " + std::to_string(m.triangle_count) + " more triangles exceed the " + std::to_string(kMaxTriangles) +
+                " a scene may hold (32-bit prim ids)");
+  meshes_.push_back(m);
+  offsets_.push_back(offsets_.back() + m.triangle_count);
+  return static_cast<std::uint32_t>(meshes_.size() - 1);
+}
+
+std::size_t Scene::mesh_of(std::size_t prim) const {
+  return static_cast<std::size_t>(std::upper_bound(offsets_.begin(), offsets_.end(), std::uint64_t(prim)) - offsets_.begin()) - 1;
+}
+
+GeomPrim Scene::geometry_of(std::uint32_t prim) const {
+  if (prim >= triangle_count()) return {};
+  if (meshes_.empty()) return {0, prim};
+  const std::size_t g = mesh_of(prim);
+  return {static_cast<std::uint32_t>(g), static_cast<std::uint32_t>(prim - offsets_[g])};
+}
+
+namespace {
+
+std::string coordinate_text(float c) {
+  char value[32];
+  std::snprintf(value, sizeof value, "%g", static_cast<double>(c));
+  return value;
+}
+
+}  // namespace
+
 void Scene::validate() const {
   const std::string who = name.empty() ? std::string("scene") : name;
+  if (!meshes_.empty()) {
+    if (!triangles.empty()) throw Error(who + ": the scene has both owned triangles and mesh views; use one or the other");
+    for (std::size_t g = 0; g < meshes_.size(); ++g) {
+      const MeshView& m = meshes_[g];
+      const std::string geom = who + ": geometry " + std::to_string(g);
+      for (std::size_t i = 0; i < m.triangle_count; ++i) {
+        const auto t = m.triangle(i);
+        for (int k = 0; k < 3; ++k) {
+          const std::uint32_t v = t[k];
+          if (v >= m.vertex_count)
+            throw Error(geom + " triangle " + std::to_string(i) + " (prim " + std::to_string(offsets_[g] + i) + ") names vertex " +
+                        std::to_string(v) + ", out of range (the geometry has " + std::to_string(m.vertex_count) + " vertices)");
+          const Vec3f p = m.vertex(v);
+          for (int a = 0; a < 3; ++a)
+            if (!std::isfinite(p[a]))
+              throw Error(geom + ": vertex " + std::to_string(v) + " of triangle " + std::to_string(i) + " (prim " +
+                          std::to_string(offsets_[g] + i) + ") has coordinate " + "xyz"[a] + " = " + coordinate_text(p[a]) +
+                          "; vertices must be finite");
+        }
+      }
+    }
+    return;
+  }
   for (std::size_t i = 0; i < triangles.size(); ++i)
     for (int k = 0; k < 3; ++k) {
       const std::uint32_t v = triangles[i][k];
@@ -38,19 +103,22 @@ void Scene::validate() const {
                     std::to_string(vertices.size()) + " vertices)");
       const Vec3f& p = vertices[v];
       for (int a = 0; a < 3; ++a)
-        if (!std::isfinite(p[a])) {
-          char value[32];
-          std::snprintf(value, sizeof value, "%g", static_cast<double>(p[a]));
+        if (!std::isfinite(p[a]))
           throw Error(who + ": vertex " + std::to_string(v) + " of triangle " + std::to_string(i) + " has coordinate " + "xyz"[a] +
-                      " = " + value + "; vertices must be finite");
-        }
+                      " = " + coordinate_text(p[a]) + "; vertices must be finite");
     }
 }
 
 Box Scene::bounds() const {
   Box b;
-  for (const auto& t : triangles)
-    for (std::uint32_t v : t) b.grow(vertices[v]);
+  if (meshes_.empty()) {
+    for (const auto& t : triangles)
+      for (std::uint32_t v : t) b.grow(vertices[v]);
+    return b;
+  }
+  for (const MeshView& m : meshes_)
+    for (std::size_t i = 0; i < m.triangle_count; ++i)
+      for (std::uint32_t v : m.triangle(i)) b.grow(m.vertex(v));
   return b;
 }
 
@@ -60,8 +128,25 @@ std::uint64_t Scene::hash() const {
     const unsigned char* b = static_cast<const unsigned char*>(p);
     for (std::size_t i = 0; i < n; ++i) h = (h ^ b[i]) * 0x100000001b3ull;
   };
-  mix(vertices.data(), vertices.size() * sizeof(Vec3f));
-  mix(triangles.data(), triangles.size() * sizeof(triangles[0]));
+  if (meshes_.empty()) {
+    mix(vertices.data(), vertices.size() * sizeof(Vec3f));
+    mix(triangles.data(), triangles.size() * sizeof(triangles[0]));
+    return h;
+  }
+  for (const MeshView& m : meshes_) {
+    if (meshes_.size() > 1) {  // where one mesh ends and the next begins
+      const std::uint64_t counts[2] = {m.vertex_count, m.triangle_count};
+      mix(counts, sizeof counts);
+    }
+    for (std::size_t v = 0; v < m.vertex_count; ++v) {
+      const Vec3f p = m.vertex(v);
+      mix(&p, sizeof p);
+    }
+    for (std::size_t i = 0; i < m.triangle_count; ++i) {
+      const auto t = m.triangle(i);
+      mix(t.data(), sizeof t);
+    }
+  }
   return h;
 }
 

@@ -21,6 +21,7 @@
 #include "host/core/layouts.h"
 #include "host/core/build/builder.h"
 #include "host/core/build/sbvh.h"
+#include "host/core/build/triangles.h"
 #include "mbvh/error.h"
 #include "host/core/parallel.h"
 
@@ -476,18 +477,23 @@ namespace {
 void check_traceable_range(const Scene& scene, const build::RawVector<build::PrimRef>& prims, float largest) {
   if (largest > kMaxCoordinate) {
     for (const build::PrimRef& r : prims) {  // the first offending triangle, in scene order
-      for (std::uint32_t v : scene.triangles[r.prim]) {
-        const Vec3f& p = scene.vertices[v];
-        for (float c : {p.x, p.y, p.z})
+      Vec3f p[3];
+      scene.triangle(r.prim, p[0], p[1], p[2]);
+      const GeomPrim g = scene.geometry_of(r.prim);
+      const std::array<std::uint32_t, 3> index =
+          scene.meshes().empty() ? scene.triangles[r.prim] : scene.meshes()[g.geom_id].triangle(g.prim_id);
+      for (int k = 0; k < 3; ++k)
+        for (float c : {p[k].x, p[k].y, p[k].z})
           if (std::fabs(c) > kMaxCoordinate) {
-            char buf[256];
+            char buf[320];
+            const std::string where =
+                scene.meshes().empty() ? "" : ", geometry " + std::to_string(g.geom_id) + " triangle " + std::to_string(g.prim_id);
             std::snprintf(buf, sizeof buf,
-                          ": coordinate %.9g of vertex %u (triangle %u) is beyond +-2^40 (%.3g), the range mbvh traces "
+                          ": coordinate %.9g of vertex %u (triangle %u%s) is beyond +-2^40 (%.3g), the range mbvh traces "
                           "exactly (float products of three coordinates would overflow); rescale the scene",
-                          double(c), v, r.prim, double(kMaxCoordinate));
+                          double(c), index[k], r.prim, where.c_str(), double(kMaxCoordinate));
             throw Error(scene.name + buf);
           }
-      }
     }
   }
   if (largest < kMinSceneScale) {
@@ -498,6 +504,26 @@ void check_traceable_range(const Scene& scene, const build::RawVector<build::Pri
                   double(largest), double(kMinSceneScale));
     throw Error(scene.name + buf);
   }
+}
+
+// The leaf-ordered triangle records: tris[i] is the triangle `prim(order[i])` of the scene.
+// `order` holds prim ids (SBVH) or the leaf-ordered records (binned SAH, LBVH).
+std::uint32_t prim_of(std::uint32_t p) { return p; }
+std::uint32_t prim_of(const build::PrimRef& r) { return r.prim; }
+
+template <class Order>
+void fill_tris(const Scene& scene, const Order& order, AlignedVector<Tri>& tris, unsigned threads) {
+  constexpr std::size_t grain = 65536;
+  build::with_triangles(scene, [&](const auto& src) {
+    parallel_for(order.size(), grain, threads, [&](std::size_t b, std::size_t e, unsigned) {
+      for (std::size_t i = b; i < e; ++i) {
+        const std::uint32_t prim = prim_of(order[i]);
+        Vec3f v0, v1, v2;
+        src.get(prim, v0, v1, v2);
+        build::fill_tri(tris[i], v0, v1, v2, prim);
+      }
+    });
+  });
 }
 
 }  // namespace
@@ -551,40 +577,45 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
   BuildOptions& opt = acc->impl_->opt_;
   opt.depth_cap = std::clamp(opt.depth_cap, 1u, static_cast<unsigned>(MBVH_BINARY_DEPTH_CAP));
   opt.max_leaf = std::max(opt.max_leaf, 1u);
-  acc->impl_->scene_triangles_ = scene.triangles.size();
+  acc->impl_->scene_triangles_ = scene.triangle_count();
+  acc->impl_->geometry_offsets_.resize(scene.geometry_count() + 1);
+  for (std::size_t g = 0; g <= scene.geometry_count(); ++g) acc->impl_->geometry_offsets_[g] = scene.geometry_offset(g);
   auto report = [&opt](double f) {
     if (opt.progress) opt.progress(f);
   };
 
   // -- one record per non-degenerate (non-zero area) triangle, in scene order: chunks count
-  //    their kept triangles, then write them at their prefix offsets with the chunk's bounds
-  const std::size_t n = scene.triangles.size();
-  if (n > 0x7FFFFFF0u) throw Error(scene.name + ": too many triangles for 32-bit references");
+  //    their kept triangles, then write them at their prefix offsets with the chunk's bounds;
+  //    compiled once for the owned arrays and once for mesh views (triangles.h)
+  const std::size_t n = scene.triangle_count();
+  if (n > kMaxTriangles) throw Error(scene.name + ": too many triangles for 32-bit references");
   constexpr std::size_t grain = 65536;
   const std::size_t chunks = (n + grain - 1) / grain;
   std::vector<std::size_t> kept_in(chunks, 0);
   build::RawVector<PrimRef> prims(n);
   std::vector<build::FastBox> cb(chunks), ccb(chunks);
   std::vector<float> mag(chunks, 0.0f);
-  parallel_for(n, grain, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
-    const std::size_t c = b / grain;
-    std::size_t o = b;
-    build::FastBox box, cbox;
-    float m = 0;
-    for (std::size_t i = b; i < e; ++i) {
-      const auto& t = scene.triangles[i];
-      const Vec3f &v0 = scene.vertices[t[0]], &v1 = scene.vertices[t[1]], &v2 = scene.vertices[t[2]];
-      if (!build::has_area(v0, v1, v2)) continue;
-      const PrimRef r = build::prim_ref(v0, v1, v2, static_cast<std::uint32_t>(i));
-      box.grow(r);
-      cbox.grow_centroid(r);
-      m = std::max(m, build::magnitude(r));
-      prims[o++] = r;
-    }
-    kept_in[c] = o - b;
-    cb[c] = box;
-    ccb[c] = cbox;
-    mag[c] = m;
+  build::with_triangles(scene, [&](const auto& src) {
+    parallel_for(n, grain, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
+      const std::size_t c = b / grain;
+      std::size_t o = b;
+      build::FastBox box, cbox;
+      float m = 0;
+      for (std::size_t i = b; i < e; ++i) {
+        Vec3f v0, v1, v2;
+        src.get(i, v0, v1, v2);
+        if (!build::has_area(v0, v1, v2)) continue;
+        const PrimRef r = build::prim_ref(v0, v1, v2, static_cast<std::uint32_t>(i));
+        box.grow(r);
+        cbox.grow_centroid(r);
+        m = std::max(m, build::magnitude(r));
+        prims[o++] = r;
+      }
+      kept_in[c] = o - b;
+      cb[c] = box;
+      ccb[c] = cbox;
+      mag[c] = m;
+    });
   });
   std::size_t kept = 0;  // close the chunks' gaps (in place: a record only moves down)
   for (std::size_t c = 0; c < chunks; ++c) {
@@ -625,12 +656,7 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
     out = std::move(r.bvh);
     acc->impl_->leaves_ = std::move(r.leaves);
     acc->impl_->tris_.resize(r.prims.size());
-    parallel_for(r.prims.size(), grain, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
-      for (std::size_t i = b; i < e; ++i) {
-        const auto& t = scene.triangles[r.prims[i]];
-        build::fill_tri(acc->impl_->tris_[i], scene.vertices[t[0]], scene.vertices[t[1]], scene.vertices[t[2]], r.prims[i]);
-      }
-    });
+    fill_tris(scene, r.prims, acc->impl_->tris_, opt.threads);
   } else {
     // -- the binary tree
     build::Arenas arenas;
@@ -646,12 +672,7 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
 
     arenas = build::Arenas();
     acc->impl_->tris_.resize(prims.size());
-    parallel_for(prims.size(), grain, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
-      for (std::size_t i = b; i < e; ++i) {
-        const auto& t = scene.triangles[prims[i].prim];
-        build::fill_tri(acc->impl_->tris_[i], scene.vertices[t[0]], scene.vertices[t[1]], scene.vertices[t[2]], prims[i].prim);
-      }
-    });
+    fill_tris(scene, prims, acc->impl_->tris_, opt.threads);
   }
   acc->impl_->bounds_ = out.nodes[0].box;
   const auto t_flat = Clock::now();
@@ -686,6 +707,14 @@ const AlignedVector<Tri>& Accel::tris() const { return impl_->tris_; }
 const std::vector<Leaf>& Accel::leaves() const { return impl_->leaves_; }
 const Box& Accel::bounds() const { return impl_->bounds_; }
 std::size_t Accel::scene_triangles() const { return impl_->scene_triangles_; }
+std::size_t Accel::geometry_count() const { return impl_->geometry_offsets_.size() - 1; }
+
+GeomPrim Accel::geometry_of(std::uint32_t prim) const {
+  const std::vector<std::uint64_t>& o = impl_->geometry_offsets_;
+  if (prim >= o.back()) return {};
+  const std::size_t g = static_cast<std::size_t>(std::upper_bound(o.begin(), o.end(), std::uint64_t(prim)) - o.begin()) - 1;
+  return {static_cast<std::uint32_t>(g), static_cast<std::uint32_t>(prim - o[g])};
+}
 const LayoutStats& Accel::binary_stats() const { return impl_->binary_stats_; }
 const BuildOptions& Accel::options() const { return impl_->opt_; }
 std::uint64_t Accel::hash() const { return impl_->hash_; }

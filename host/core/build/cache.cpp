@@ -97,8 +97,17 @@ std::string hex(std::uint64_t v) {
 
 std::uint64_t Accel::cache_key(const Scene& scene, const BuildOptions& opt) {
   std::uint64_t h = hash_bytes(MBVH_VERSION_STRING, sizeof(MBVH_VERSION_STRING), kFormatVersion);
-  h = hash_bytes(scene.vertices.data(), scene.vertices.size() * sizeof(Vec3f), h);
-  h = hash_bytes(scene.triangles.data(), scene.triangles.size() * sizeof(scene.triangles[0]), h);
+  if (scene.meshes().empty()) {
+    h = hash_bytes(scene.vertices.data(), scene.vertices.size() * sizeof(Vec3f), h);
+    h = hash_bytes(scene.triangles.data(), scene.triangles.size() * sizeof(scene.triangles[0]), h);
+  } else {  // the views' content (Scene::hash) and their triangle counts
+    const std::uint64_t content = scene.hash();
+    h = hash_bytes(&content, sizeof content, h);
+    for (std::size_t g = 0; g <= scene.geometry_count(); ++g) {
+      const std::uint64_t o = scene.geometry_offset(g);
+      h = hash_bytes(&o, sizeof o, h);
+    }
+  }
   // every option that shapes the tree, after Accel::build's clamping; not threads (the bytes do
   // not depend on them) and not progress
   const std::uint32_t o[4] = {std::max(opt.max_leaf, 1u), std::clamp(opt.bins, 2u, 64u), std::max(opt.leaf_block, 1u),
@@ -240,6 +249,7 @@ std::unique_ptr<Accel> Accel::load(const std::string& path, std::uint64_t key) {
   acc->impl_->bvh2_.degenerate = hd.degenerate;
   acc->impl_->bounds_ = hd.bounds;
   acc->impl_->scene_triangles_ = hd.scene_triangles;
+  acc->impl_->geometry_offsets_ = {0, hd.scene_triangles};
   acc->impl_->hash_ = hd.accel_hash;
   LayoutStats& st = acc->impl_->binary_stats_;
   st.layout = "binary";
@@ -317,6 +327,8 @@ std::unique_ptr<Accel> Accel::build_cached(const Scene& scene, const BuildOption
   }
   acc->impl_->opt_.threads = opt.threads;
   acc->impl_->opt_.progress = opt.progress;
+  acc->impl_->geometry_offsets_.resize(scene.geometry_count() + 1);  // a loaded build knows only its triangle count
+  for (std::size_t g = 0; g <= scene.geometry_count(); ++g) acc->impl_->geometry_offsets_[g] = scene.geometry_offset(g);
   if (report) *report = rep;
   return acc;
 }

@@ -10,6 +10,7 @@
 
 #include "host/core/layouts.h"
 #include "host/core/build/builder.h"
+#include "host/core/build/triangles.h"
 #include "mbvh/error.h"
 #include "host/core/parallel.h"
 #include "host/core/trace/intersect.h"
@@ -91,19 +92,21 @@ void refit_wide(M& m, const Bvh2& b, const std::vector<Leaf>& leaves) {
 
 void Accel::refit(const Scene& moved) {
   const auto t0 = std::chrono::steady_clock::now();
-  if (moved.triangles.size() != impl_->scene_triangles_)
+  if (moved.triangle_count() != impl_->scene_triangles_)
     throw Error(moved.name + ": refit needs the scene the build was made from (" + std::to_string(impl_->scene_triangles_) +
-                " triangles), not " + std::to_string(moved.triangles.size()) + " triangles; rebuild instead");
+                " triangles), not " + std::to_string(moved.triangle_count()) + " triangles; rebuild instead");
+  const std::vector<std::uint64_t>& geoms = impl_->geometry_offsets_;  // {0, n} for an owned scene
+  bool same = moved.geometry_count() + 1 == geoms.size();
+  for (std::size_t g = 0; same && g < geoms.size(); ++g) same = moved.geometry_offset(g) == geoms[g];
+  if (!same)
+    throw Error(moved.name + ": refit needs the geometries the build was made from (" + std::to_string(geoms.size() - 1) +
+                " with the same triangle counts each), not these " + std::to_string(moved.geometry_count()) + "; rebuild instead");
   const unsigned threads = impl_->opt_.threads;
   constexpr std::size_t grain = 65536;
-  const std::size_t nv = moved.vertices.size();
-  auto usable = [&](const std::array<std::uint32_t, 3>& t) {  // Scene::validate's conditions
-    for (std::uint32_t v : t) {
-      if (v >= nv) return false;
-      const Vec3f& p = moved.vertices[v];
-      if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z)) return false;
-    }
-    return true;
+  // Scene::validate's conditions on triangle i of `src` (triangles.h): its vertices, in range and
+  // finite, or false
+  auto usable = [](const auto& src, std::size_t i, Vec3f& v0, Vec3f& v1, Vec3f& v2) {
+    return src.get_checked(i, v0, v1, v2) && build::finite(v0, v1, v2);
   };
 
   // -- the leaf-ordered triangles, new, and the checks a build makes of them (Scene::validate's
@@ -112,20 +115,21 @@ void Accel::refit(const Scene& moved) {
   const std::size_t chunks = (tris.size() + grain - 1) / grain;
   std::vector<float> mag(chunks, 0.0f);
   std::vector<std::uint8_t> bad(chunks, 0);
-  parallel_for(tris.size(), grain, threads, [&](std::size_t b, std::size_t e, unsigned) {
-    float m = 0;
-    for (std::size_t i = b; i < e; ++i) {
-      const std::uint32_t prim = tri_prim(impl_->tris_[i]);
-      const auto& t = moved.triangles[prim];
-      if (!usable(t)) {
-        bad[b / grain] = 1;
-        return;
+  build::with_triangles(moved, [&](const auto& src) {
+    parallel_for(tris.size(), grain, threads, [&](std::size_t b, std::size_t e, unsigned) {
+      float m = 0;
+      for (std::size_t i = b; i < e; ++i) {
+        const std::uint32_t prim = tri_prim(impl_->tris_[i]);
+        Vec3f v0, v1, v2;
+        if (!usable(src, prim, v0, v1, v2)) {
+          bad[b / grain] = 1;
+          return;
+        }
+        build::fill_tri(tris[i], v0, v1, v2, prim);
+        m = std::max(m, build::magnitude(build::prim_ref(v0, v1, v2, prim)));
       }
-      const Vec3f &v0 = moved.vertices[t[0]], &v1 = moved.vertices[t[1]], &v2 = moved.vertices[t[2]];
-      build::fill_tri(tris[i], v0, v1, v2, prim);
-      m = std::max(m, build::magnitude(build::prim_ref(v0, v1, v2, prim)));
-    }
-    mag[b / grain] = m;
+      mag[b / grain] = m;
+    });
   });
   if (std::find(bad.begin(), bad.end(), 1) != bad.end()) {
     moved.validate();  // throws, naming the triangle
@@ -140,15 +144,17 @@ void Accel::refit(const Scene& moved) {
     for (const Tri& t : impl_->tris_) in_leaf[tri_prim(t)] = 1;
     const std::size_t all_chunks = (impl_->scene_triangles_ + grain - 1) / grain;
     std::vector<std::uint8_t> grew(all_chunks, 0);
-    parallel_for(impl_->scene_triangles_, grain, threads, [&](std::size_t b, std::size_t e, unsigned) {
-      for (std::size_t i = b; i < e; ++i) {
-        if (in_leaf[i]) continue;
-        const auto& t = moved.triangles[i];
-        if (!usable(t) || build::has_area(moved.vertices[t[0]], moved.vertices[t[1]], moved.vertices[t[2]])) {
-          grew[b / grain] = 1;
-          return;
+    build::with_triangles(moved, [&](const auto& src) {
+      parallel_for(impl_->scene_triangles_, grain, threads, [&](std::size_t b, std::size_t e, unsigned) {
+        for (std::size_t i = b; i < e; ++i) {
+          if (in_leaf[i]) continue;
+          Vec3f v0, v1, v2;
+          if (!usable(src, i, v0, v1, v2) || build::has_area(v0, v1, v2)) {
+            grew[b / grain] = 1;
+            return;
+          }
         }
-      }
+      });
     });
     if (std::find(grew.begin(), grew.end(), 1) != grew.end()) {
       moved.validate();

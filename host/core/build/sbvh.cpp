@@ -98,8 +98,9 @@ public:
   // The parts of reference r's triangle on each side of the plane x[a] = p, as conservative boxes
   // (invalid where that side holds nothing of it).
   void clip(const Ref& r, int a, float p, Box& left, Box& right) const {
-    const auto& t = scene_.triangles[r.prim];
-    const Vec3f* v[3] = {&scene_.vertices[t[0]], &scene_.vertices[t[1]], &scene_.vertices[t[2]]};
+    Vec3f tri[3];
+    scene_.triangle(r.prim, tri[0], tri[1], tri[2]);
+    const Vec3f* v[3] = {&tri[0], &tri[1], &tri[2]};
     left = Box();
     right = Box();
     for (int k = 0; k < 3; ++k) {

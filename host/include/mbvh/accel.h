@@ -132,6 +132,11 @@ public:
   const std::vector<Leaf>& leaves() const;
   const Box& bounds() const;
   std::size_t scene_triangles() const;
+  /// Geometries of the scene it was built from (Scene::geometry_count(); 1 after Accel::load).
+  std::size_t geometry_count() const;
+  /// Scene::geometry_of of the scene it was built from (kept by the build: the scene and the
+  /// caller's buffers need not outlive it). O(log geometries).
+  GeomPrim geometry_of(std::uint32_t prim) const;
   const LayoutStats& binary_stats() const;
   const BuildOptions& options() const;
   /// 64-bit hash of the build's bytes (nodes, leaves, triangles); equal across thread counts.
@@ -142,14 +147,17 @@ public:
   std::uint64_t generation() const;
 
   /// Refits the build to new vertex positions with the same topology: `moved` must be the scene
-  /// this Accel was built from (the same triangles, the same vertex indices) with vertices moved.
+  /// this Accel was built from (the same triangles, the same vertex indices, the same meshes with
+  /// the same triangle counts) with vertices moved; a scene of views is read through them, so the
+  /// caller may move the vertices in its own buffers and refit with the same Scene.
   /// Recomputes, in place and from the float vertices exactly as the build does, the leaf-ordered
   /// triangles, every leaf box, every binary node box bottom-up, and the boxes of every layout and
   /// pack already made (MBVH2/4/8, the 16-wide view, the SIMD packs); the topology (nodes, leaves,
   /// the triangles' leaf order) is kept, so traversal stays exact but may do more work than a
   /// rebuild's tree (boxes grow as vertices move apart). Updates hash(), the SAH costs and bumps
   /// generation(). O(triangles + nodes), parallel over options().threads, the same bytes at any
-  /// thread count. Throws Error (leaving the Accel unchanged) if the triangle count differs,
+  /// thread count. Throws Error (leaving the Accel unchanged) if the triangle count or the
+  /// geometries' triangle counts differ,
   /// Scene::validate fails, a coordinate leaves the exactly traced range, or a triangle the build
   /// kept out as degenerate now has area (it is in no leaf: rebuild instead).
   /// Not thread-safe: no trace or layout access may run concurrently.

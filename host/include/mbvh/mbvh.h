@@ -1,19 +1,22 @@
 // SPDX-License-Identifier: MIT
 // mbvh.h — the one header a user includes: scenes (mbvh/scene.h), the build (mbvh/accel.h),
 // rays, hits and trace options (mbvh/trace.h), backends and their registry (mbvh/backend.h,
-// mbvh/backends.h), the ray / hit files (mbvh/rays.h), errors (mbvh/error.h) and the version
-// (mbvh/version.h: MBVH_VERSION_STRING, mbvh::version()).
+// mbvh/backends.h), the caller's meshes, geometry-id hits and one-ray calls (mbvh/geometry.h), the
+// ray / hit files (mbvh/rays.h), errors (mbvh/error.h) and the version (mbvh/version.h:
+// MBVH_VERSION_STRING, mbvh::version()).
 //
 // Rules: every function throws mbvh::Error on failure (never exits). An Accel is immutable after
 // build (refit excepted) and may be traced from several threads at once; a Backend object is
 // used by one thread at a time (make one per thread, or serialise). Nothing keeps a pointer to
-// the caller's arrays after the call returns.
+// the caller's arrays after the call returns, except a Scene's mesh views (Scene::add_mesh; the
+// rules atop mbvh/geometry.h).
 #pragma once
 #include "mbvh/accel.h"
 #include "mbvh/backend.h"
 #include "mbvh/backends.h"
 #include "mbvh/config.h"
 #include "mbvh/error.h"
+#include "mbvh/geometry.h"
 #include "mbvh/rays.h"
 #include "mbvh/scene.h"
 #include "mbvh/trace.h"

@@ -1,10 +1,12 @@
 // SPDX-License-Identifier: MIT
-// scene.h — a triangle scene (float vertices, uint32 triangles) and how to get one: OBJ, PLY
-// (optionally zstd-compressed) or a built-in generator named "gen:NAME:PARAMS".
+// scene.h — a triangle scene (float vertices, uint32 triangles, or views of the caller's meshes)
+// and how to get one: OBJ, PLY (optionally zstd-compressed) or a built-in generator named
+// "gen:NAME:PARAMS".
 #pragma once
 #include <array>
 #include <cmath>
 #include <cstdint>
+#include <cstring>
 #include <string>
 #include <vector>
 
@@ -29,21 +31,105 @@ struct Box {
   float half_area() const;
 };
 
-/// A scene: vertices and triangles. Triangle i is the i-th triangle of the file after
-/// fan-triangulating polygons as (0, k, k+1): its prim id is i.
+/// A view of one caller-owned triangle mesh (mbvh/geometry.h has the rules): vertex v is the
+/// three floats x, y, z at byte offset v * vertex_stride from `vertices` (so positions may sit
+/// inside interleaved vertex records); triangle t is the three uint32 vertex indices at byte
+/// offset t * index_stride from `indices`. Nothing is copied: the builders read through the view.
+/// Neither pointer needs more than byte alignment.
+struct MeshView {
+  const float* vertices = nullptr;
+  std::size_t vertex_count = 0;
+  std::size_t vertex_stride = 12;  ///< bytes between vertices, >= 12
+  const std::uint32_t* indices = nullptr;
+  std::size_t triangle_count = 0;
+  std::size_t index_stride = 12;   ///< bytes between triangles, >= 12
+
+  /// Vertex v (v < vertex_count, unchecked).
+  Vec3f vertex(std::size_t v) const {
+    Vec3f p;
+    std::memcpy(&p, reinterpret_cast<const unsigned char*>(vertices) + v * vertex_stride, sizeof p);
+    return p;
+  }
+  /// The vertex indices of triangle t (t < triangle_count, unchecked).
+  std::array<std::uint32_t, 3> triangle(std::size_t t) const {
+    std::array<std::uint32_t, 3> i;
+    std::memcpy(i.data(), reinterpret_cast<const unsigned char*>(indices) + t * index_stride, sizeof i);
+    return i;
+  }
+};
+
+/// The most triangles one scene may hold (32-bit references with room for the leaf encoding).
+constexpr std::uint64_t kMaxTriangles = 0x7FFFFFF0u;
+
+/// The invalid geometry id: the geometry of a miss (MBVH_MISS_PRIM) or of no triangle.
+constexpr std::uint32_t kInvalidGeometry = 0xFFFFFFFFu;
+
+/// A triangle named by its geometry (mesh) and its index within that mesh.
+struct GeomPrim {
+  std::uint32_t geom_id = kInvalidGeometry;
+  std::uint32_t prim_id = 0xFFFFFFFFu;  ///< MBVH_MISS_PRIM when geom_id is kInvalidGeometry
+};
+
+/// A scene: either owned arrays (vertices, triangles: what the loaders and generators produce) or
+/// views of the caller's meshes (add_mesh), never both. Owned: triangle i is the i-th triangle of
+/// the file after fan-triangulating polygons as (0, k, k+1), its prim id is i, and the scene is
+/// geometry 0. Views: mesh g's triangles are the prim ids [offset_g, offset_g + count_g) in the
+/// order the meshes were added (offset_0 = 0), which is what every backend reports; geometry_of
+/// turns such an id back into (geometry, triangle of that geometry). Copying a Scene copies its
+/// views, not the caller's buffers they point to.
 struct Scene {
   std::string name;                              ///< the path or generator spec it came from
   std::vector<Vec3f> vertices;
   std::vector<std::array<std::uint32_t, 3>> triangles;
 
-  std::size_t triangle_count() const { return triangles.size(); }
-  /// Throws Error (naming the scene, the triangle and the index or coordinate) if a triangle
-  /// names a vertex that does not exist or uses a vertex with a NaN or infinite coordinate.
-  /// Unused vertices are not looked at. O(triangles).
+  /// Adds a view of a caller-owned mesh and returns its geometry id (0, 1, ... in call order).
+  /// The view's buffers are not copied: they must stay alive and unchanged while anything reads
+  /// the scene's triangles (validate, bounds, hash, triangle, Accel::build and build_cached until
+  /// they return, Accel::refit until it returns). Throws Error (naming the geometry id) if
+  /// `triangles` is not empty, a pointer is null with a nonzero count, a stride is below 12 bytes
+  /// or the scene would exceed 2^31 - 16 triangles. Indices and coordinates are checked by
+  /// validate (so the buffers may be filled after this call). O(1).
+  std::uint32_t add_mesh(const MeshView& mesh);
+  /// The views added by add_mesh, in geometry id order (empty for an owned scene).
+  const std::vector<MeshView>& meshes() const { return meshes_; }
+  /// Geometries: the number of views, or 1 for an owned scene.
+  std::size_t geometry_count() const { return meshes_.empty() ? 1 : meshes_.size(); }
+  /// Prim ids of geometry g start here (g <= geometry_count(); g = geometry_count(): the total).
+  std::size_t geometry_offset(std::size_t g) const {
+    return meshes_.empty() ? (g == 0 ? 0 : triangles.size()) : static_cast<std::size_t>(offsets_[g]);
+  }
+  /// Triangles of every geometry together: the prim ids are 0 .. triangle_count() - 1.
+  std::size_t triangle_count() const { return meshes_.empty() ? triangles.size() : static_cast<std::size_t>(offsets_.back()); }
+  /// (geometry id, index within it) of a prim id; {kInvalidGeometry, MBVH_MISS_PRIM} for
+  /// MBVH_MISS_PRIM or any id >= triangle_count(). O(log geometries).
+  GeomPrim geometry_of(std::uint32_t prim) const;
+  /// The three vertices of triangle `prim` (prim < triangle_count(), indices valid: validate()).
+  void triangle(std::size_t prim, Vec3f& a, Vec3f& b, Vec3f& c) const {
+    if (meshes_.empty()) {
+      const auto& t = triangles[prim];
+      a = vertices[t[0]], b = vertices[t[1]], c = vertices[t[2]];
+      return;
+    }
+    const std::size_t g = mesh_of(prim);
+    const MeshView& m = meshes_[g];
+    const auto t = m.triangle(prim - static_cast<std::size_t>(offsets_[g]));
+    a = m.vertex(t[0]), b = m.vertex(t[1]), c = m.vertex(t[2]);
+  }
+  /// Throws Error (naming the scene, the geometry when it has views, the triangle and the index
+  /// or coordinate) if a triangle names a vertex that does not exist or uses a vertex with a NaN
+  /// or infinite coordinate. Unused vertices are not looked at. O(triangles).
   void validate() const;
   Box bounds() const;                            ///< box of the vertices used by triangles (requires validate())
-  /// 64-bit content hash of vertices and triangles (FNV-1a), for build caching and reports.
+  /// 64-bit content hash of vertices and triangles (FNV-1a), for build caching and reports. A
+  /// scene of views hashes each mesh's positions and indices (not the bytes between them); one
+  /// view hashes as the owned scene with the same vertices and triangles.
   std::uint64_t hash() const;
+
+private:
+  /// The view holding prim (meshes_ not empty, prim < triangle_count()).
+  std::size_t mesh_of(std::size_t prim) const;
+  std::vector<MeshView> meshes_;
+  std::vector<std::uint64_t> offsets_{0};  ///< prim id of each view's first triangle, then the total
 };
 
 /// Loads a scene from a path (.obj, .ply, optionally .zst-compressed) or a generator spec
