@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstring>
 #include <filesystem>
+#include <fstream>
 #include <nlohmann/json.hpp>
 
 #include <sys/stat.h>
@@ -109,6 +110,27 @@ TEST_CASE("mbvh check info and bench report - bench writes JSON records", "[cli]
     CHECK(line.find("\"cpu-scalar\"") != std::string::npos);
   }
   CHECK(lines == j["records"].size());
+}
+
+TEST_CASE("mbvh check --json writes the verdict - zero genuine mismatches and exit status 0", "[cli]") {
+  TempDir dir;
+  const std::string json = dir.file("c.json");
+  const auto r = run_cli("check gen:sphere:32 --kinds primary,random --count 2000 --brute 200 --layout mbvh4 --json " + json);
+  INFO(r.output);
+  REQUIRE(r.code == 0);
+  const auto j = nlohmann::json::parse(std::ifstream(json));
+  CHECK(j["verdict"] == "ok");
+  CHECK(j["genuine_mismatches"] == 0);
+  CHECK(j["mismatches"] == 0);  // the same count under its first name (scripts/gpu-summary.py)
+  REQUIRE(j["kinds"].size() == 2);
+  CHECK(j["kinds"][0]["kind"] == "primary");
+  CHECK(j["kinds"][1]["kind"] == "random");
+  for (const auto& k : j["kinds"]) {
+    CHECK(k["rays"] == 2000);
+    CHECK(k["brute_rays"] == 200);
+    CHECK(k["mismatches"] == 0);
+    CHECK_FALSE(k["comparisons"].empty());
+  }
 }
 
 TEST_CASE("mbvh gives clear errors and non-zero exit codes", "[cli]") {
