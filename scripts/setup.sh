@@ -5,7 +5,7 @@
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 BUILD="${MBVH_BUILD_DIR:-$ROOT/build}"
-PACKAGES=(build-essential cmake ninja-build pkg-config catch2 libzstd-dev nlohmann-json3-dev libcli11-dev zstd python3-matplotlib
+PACKAGES=(build-essential cmake ninja-build pkg-config catch2 libzstd-dev zlib1g-dev nlohmann-json3-dev libcli11-dev zstd python3-matplotlib
           ocl-icd-opencl-dev opencl-headers pocl-opencl-icd
           libvulkan-dev mesa-vulkan-drivers glslang-tools vulkan-validationlayers
           libembree-dev

@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstring>
 #include <filesystem>
+#include <fstream>
 #include <nlohmann/json.hpp>
 
 #include <sys/stat.h>
@@ -109,6 +110,50 @@ TEST_CASE("mbvh check info and bench report - bench writes JSON records", "[cli]
     CHECK(line.find("\"cpu-scalar\"") != std::string::npos);
   }
   CHECK(lines == j["records"].size());
+}
+
+TEST_CASE("mbvh check --json writes the verdict - zero genuine mismatches and exit status 0", "[cli]") {
+  TempDir dir;
+  const std::string json = dir.file("c.json");
+  const auto r = run_cli("check gen:sphere:32 --kinds primary,random --count 2000 --brute 200 --layout mbvh4 --json " + json);
+  INFO(r.output);
+  REQUIRE(r.code == 0);
+  const auto j = nlohmann::json::parse(std::ifstream(json));
+  CHECK(j["verdict"] == "ok");
+  CHECK(j["genuine_mismatches"] == 0);
+  CHECK(j["mismatches"] == 0);  // the same count under its first name (scripts/gpu-summary.py)
+  REQUIRE(j["kinds"].size() == 2);
+  CHECK(j["kinds"][0]["kind"] == "primary");
+  CHECK(j["kinds"][1]["kind"] == "random");
+  for (const auto& k : j["kinds"]) {
+    CHECK(k["rays"] == 2000);
+    CHECK(k["brute_rays"] == 200);
+    CHECK(k["mismatches"] == 0);
+    CHECK_FALSE(k["comparisons"].empty());
+  }
+}
+
+TEST_CASE("mbvh check --json writes the verdict - a genuine mismatch gives mismatch and exit status 1", "[cli]") {
+  // Two rays from the centre of gen:sphere:64 through shared edges that cpu-scalar's fast mode
+  // (non-conservative boxes, Moller-Trumbore) loses: found by `mbvh check gen:sphere:64
+  // --precision fast --kind special --count 20000 --brute all --backend cpu-scalar` (rays 15727
+  // and 17493). Should the fast mode stop losing them, that command finds new ones.
+  TempDir dir;
+  const float two[2][8] = {{0, 0, 0, 0, 0.065664947f, -0.991812289f, -0.10952872f, 0.998957098f},
+                           {0, 0, 0, 0, 0.0921194553f, -0.985804856f, 0.140366659f, 0.99901557f}};
+  const std::string rays = dir.write("two.rays", std::string(reinterpret_cast<const char*>(two), sizeof two));
+  const std::string json = dir.file("c.json");
+  const auto r = run_cli("check gen:sphere:64 --rays " + rays + " --precision fast --backend cpu-scalar --brute all --json " + json);
+  INFO(r.output);
+  CHECK(r.code == 1);
+  CHECK_THAT(r.output, Catch::Contains("genuine mismatches") && !Catch::Contains("zero genuine"));
+  const auto j = nlohmann::json::parse(std::ifstream(json));
+  CHECK(j["verdict"] == "mismatch");
+  CHECK(j["genuine_mismatches"].get<std::size_t>() > 0);
+  CHECK(j["mismatches"] == j["genuine_mismatches"]);
+  REQUIRE(j["kinds"].size() == 1);
+  CHECK(j["kinds"][0]["kind"] == "file");
+  CHECK(j["kinds"][0]["mismatches"] == j["genuine_mismatches"]);
 }
 
 TEST_CASE("mbvh gives clear errors and non-zero exit codes", "[cli]") {

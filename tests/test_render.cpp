@@ -1,8 +1,10 @@
 // SPDX-License-Identifier: MIT
 // test_render.cpp — `mbvh render`: the same seed gives the same image on every backend (all of
 // mbvh's answer bit for bit) and at any thread count; the normals are unit vectors; the PNG is
-// a valid file whose pixels are the image's; bad requests are clear errors.
+// a valid file whose pixels, inflated by zlib, are the image's, and compressed; bad requests are
+// clear errors.
 #include <catch2/catch.hpp>
+#include <zlib.h>
 
 #include <cmath>
 #include <cstring>
@@ -33,6 +35,47 @@ RenderOptions small(RenderMode mode) {
 
 std::uint32_t be32(const std::vector<std::uint8_t>& b, std::size_t at) {
   return (std::uint32_t(b[at]) << 24) | (std::uint32_t(b[at + 1]) << 16) | (std::uint32_t(b[at + 2]) << 8) | b[at + 3];
+}
+
+// A PNG's size and its inflated scanlines (filter byte, then the row), checked on the way:
+// signature, IHDR first (8-bit RGB, no interlace), every chunk's CRC, IEND last.
+struct Png {
+  unsigned width = 0, height = 0;
+  std::vector<std::uint8_t> raw;
+};
+
+Png decode_png(const std::vector<std::uint8_t>& b) {
+  Png png;
+  const std::uint8_t sig[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1A, '\n'};
+  REQUIRE(b.size() > 33);
+  REQUIRE(std::memcmp(b.data(), sig, 8) == 0);
+  std::vector<std::uint8_t> z;  // the IDATs' zlib stream
+  std::string last;
+  for (std::size_t at = 8; at < b.size();) {
+    REQUIRE(at + 12 <= b.size());
+    const std::size_t len = be32(b, at);
+    REQUIRE(at + 12 + len <= b.size());
+    const std::string type(reinterpret_cast<const char*>(&b[at + 4]), 4);
+    CHECK(be32(b, at + 8 + len) == crc32(crc32(0L, Z_NULL, 0), &b[at + 4], static_cast<uInt>(len + 4)));
+    if (at == 8) {
+      REQUIRE(type == "IHDR");
+      REQUIRE(len == 13);
+      png.width = be32(b, at + 8);
+      png.height = be32(b, at + 12);
+      CHECK(b[at + 16] == 8);  // bit depth
+      CHECK(b[at + 17] == 2);  // RGB
+      CHECK(b[at + 20] == 0);  // no interlace
+    }
+    if (type == "IDAT") z.insert(z.end(), b.begin() + static_cast<std::ptrdiff_t>(at + 8), b.begin() + static_cast<std::ptrdiff_t>(at + 8 + len));
+    last = type;
+    at += 12 + len;
+  }
+  CHECK(last == "IEND");
+  uLongf size = static_cast<uLongf>((std::size_t(png.width) * 3 + 1) * png.height);
+  png.raw.resize(size + 1);  // one spare byte: a stream holding more than the image fails below
+  REQUIRE(uncompress(png.raw.data(), &size, z.data(), static_cast<uLong>(z.size())) == Z_OK);
+  png.raw.resize(size);
+  return png;
 }
 
 }  // namespace
@@ -96,7 +139,7 @@ TEST_CASE("render: normals mode shows unit normals where the camera sees geometr
 
 TEST_CASE("render: the PNG is valid and holds the image's pixels", "[render]") {
   mbvh_test::TempDir dir;
-  const unsigned w = 300, h = 230;  // more than one 64 KiB stored block
+  const unsigned w = 300, h = 230;  // more than one 64 KiB deflate block of pixels
   std::vector<float> rgb(std::size_t(w) * h * 3);
   for (std::size_t i = 0; i < rgb.size(); ++i) rgb[i] = float(i % 97) / 96.0f;
   const std::vector<std::uint8_t> px = to_srgb8(rgb);
@@ -106,34 +149,33 @@ TEST_CASE("render: the PNG is valid and holds the image's pixels", "[render]") {
   write_png(path, w, h, px);
   std::ifstream f(path, std::ios::binary);
   const std::vector<std::uint8_t> b((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
-  REQUIRE(b.size() > 33);
-  const std::uint8_t sig[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1A, '\n'};
-  CHECK(std::memcmp(b.data(), sig, 8) == 0);
-  CHECK(be32(b, 8) == 13);
-  CHECK(std::memcmp(&b[12], "IHDR", 4) == 0);
-  CHECK(be32(b, 16) == w);
-  CHECK(be32(b, 20) == h);
-  // IDAT: a zlib stream of stored blocks; the scanlines inside are the pixels with filter 0
-  const std::size_t idat = 8 + 25;
-  REQUIRE(std::memcmp(&b[idat + 4], "IDAT", 4) == 0);
-  const std::size_t zlen = be32(b, idat);
-  std::size_t at = idat + 8 + 2;  // past the zlib header
-  std::vector<std::uint8_t> raw;
-  for (;;) {
-    const bool last = b[at] & 1;
-    const std::size_t len = b[at + 1] | (b[at + 2] << 8);
-    CHECK(std::size_t((b[at + 3] | (b[at + 4] << 8)) ^ 0xFFFF) == len);
-    raw.insert(raw.end(), b.begin() + static_cast<std::ptrdiff_t>(at + 5), b.begin() + static_cast<std::ptrdiff_t>(at + 5 + len));
-    at += 5 + len;
-    if (last) break;
-  }
-  CHECK(at + 4 == idat + 8 + zlen);  // the Adler-32 ends the stream
-  REQUIRE(raw.size() == (std::size_t(w) * 3 + 1) * h);
+  const Png png = decode_png(b);
+  CHECK(png.width == w);
+  CHECK(png.height == h);
+  // the scanlines inside are the pixels with filter 0
+  REQUIRE(png.raw.size() == (std::size_t(w) * 3 + 1) * h);
   for (unsigned y = 0; y < h; ++y) {
-    CHECK(raw[y * (w * 3 + 1)] == 0);
-    CHECK(std::memcmp(&raw[y * (w * 3 + 1) + 1], &px[std::size_t(y) * w * 3], w * 3) == 0);
+    CHECK(png.raw[y * (w * 3 + 1)] == 0);
+    CHECK(std::memcmp(&png.raw[y * (w * 3 + 1) + 1], &px[std::size_t(y) * w * 3], w * 3) == 0);
   }
-  CHECK(std::memcmp(&b[b.size() - 8], "IEND", 4) == 0);
+  CHECK(png_bytes("x.png", w, h, px) == b);  // the file holds exactly png_bytes
+}
+
+TEST_CASE("render: the PNG is compressed - smaller than stored blocks for a uniform image", "[render]") {
+  const unsigned w = 256, h = 200;
+  const std::vector<std::uint8_t> px(std::size_t(w) * h * 3, 180);
+  const std::vector<std::uint8_t> b = png_bytes("u.png", w, h, px);
+  const Png png = decode_png(b);
+  REQUIRE(png.raw.size() == (std::size_t(w) * 3 + 1) * h);
+  for (unsigned y = 0; y < h; ++y) {
+    CHECK(png.raw[y * (w * 3 + 1)] == 0);
+    CHECK(std::memcmp(&png.raw[y * (w * 3 + 1) + 1], &px[std::size_t(y) * w * 3], w * 3) == 0);
+  }
+  // the stored form: zlib header, 5 bytes per block of at most 65535, the bytes, Adler-32
+  const std::size_t raw = png.raw.size(), blocks = (raw + 65534) / 65535;
+  const std::size_t stored = 8 + (12 + 13) + (12 + 2 + 5 * blocks + raw + 4) + 12;
+  INFO("PNG " << b.size() << " bytes, stored form " << stored);
+  CHECK(b.size() < stored / 10);
 }
 
 TEST_CASE("render: bad requests are clear errors", "[render]") {

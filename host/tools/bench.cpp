@@ -17,6 +17,7 @@
 #include "mbvh/backend.h"
 #include "host/core/compare.h"
 #include "host/core/parallel.h"
+#include "host/tools/variants.h"
 
 #ifndef MBVH_COMPILE_FLAGS
 #define MBVH_COMPILE_FLAGS ""
@@ -180,10 +181,144 @@ static double speed_ratio(const std::vector<BenchRecord>& all, const BenchRecord
   return 0;
 }
 
-BenchReport run_bench(const Scene& scene, const Accel& acc, const BenchOptions& opt,
-                      const std::function<void(std::size_t, std::size_t)>& progress) {
-  using Clock = std::chrono::steady_clock;
-  BenchReport rep;
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+// One ray kind's rays and what every variant on them is checked against: the oracle's rules, the
+// brute force on a spread subset (BenchOptions::error_rays) and, per query, the reference answer.
+struct KindRays {
+  RayKind kind;
+  std::vector<Ray> rays;
+  TieRule oracle, settle;  // settle: differences the tie rules leave open (a peer's)
+  std::vector<std::size_t> sub;
+  std::function<bool(const Ray&, const Hit&)> in_plane;
+  std::vector<Hit> brute;
+  bool have_ref = false;
+  Query ref_query = Query::closest;
+  TraceOutput ref, closest;  // closest: the closest hits, for any-hit queries
+
+  KindRays(const Scene& scene, const Accel& acc, const BenchOptions& opt, RayKind k) : kind(k) {
+    RayGenOptions ro;
+    ro.kind = kind;
+    ro.count = opt.count;
+    ro.seed = opt.seed;
+    ro.threads = opt.threads;
+    ro.has_camera = opt.has_camera;
+    ro.camera = opt.camera;
+    rays = generate_rays(scene, acc, ro);
+    oracle = oracle_tie_rule(acc, rays);
+    settle = oracle_settlement(acc, rays, oracle);
+    sub = spread_indices(rays.size(), opt.error_rays);
+    in_plane = in_plane_rule(acc);
+    brute.resize(sub.size());
+    parallel_for(sub.size(), 16, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
+      for (std::size_t i = b; i < e; ++i) brute[i] = brute_force(acc, rays[sub[i]]);
+    });
+  }
+
+  // The reference answer of query `q` every timed result is verified against (made once per query).
+  void reference_for(const Accel& acc, Query q, unsigned threads) {
+    if (have_ref && ref_query == q) return;
+    TraceOptions refo;
+    refo.query = q;
+    refo.layout = Layout::mbvh4;
+    refo.traversal = Traversal::stack;
+    ref = {};
+    closest = {};
+    trace_reference(acc, rays, refo, ref, threads);
+    if (q == Query::any) trace_reference(acc, rays, TraceOptions{}, closest, threads);
+    have_ref = true;
+    ref_query = q;
+  }
+};
+
+// Verifies `out` (the variant's answer) against the reference, and for closest hits measures the
+// error against the brute force and the leaks out of a closed mesh.
+void verify(const KindRays& k, const TraceOutput& out, const TraceOptions& to, BenchRecord& r) {
+  const Comparison c = to.query == Query::any ? compare_occlusion_arrays(out.occluded, k.ref.occluded, k.closest.hits, k.rays)
+                                              : compare_hit_arrays(out.hits, k.ref.hits, {}, k.settle);
+  r.verify_mismatches = c.mismatches;
+  if (to.query != Query::closest) return;
+  r.error_rays = k.sub.size();
+  std::vector<Hit> h;
+  for (std::size_t i : k.sub) h.push_back(out.hits[i]);
+  r.error_mismatches = compare_hit_arrays(h, k.brute, k.sub, k.oracle).mismatches;
+  for (std::size_t i = 0; i < k.sub.size(); ++i)
+    r.wrong_answers += wrong_answer(h[i], k.brute[i], k.rays[k.sub[i]]) && !k.in_plane(k.rays[k.sub[i]], h[i]) &&
+                       !k.in_plane(k.rays[k.sub[i]], k.brute[i]);
+  if (k.kind == RayKind::inside)
+    for (std::size_t i = 0; i < k.rays.size(); ++i)
+      r.leaks += out.hits[i].prim == MBVH_MISS_PRIM && ray_valid(k.rays[i]);
+}
+
+// Warms up for BenchOptions::warmup_seconds, 0.25 s by default (JIT-compiled backends such as
+// PoCL reach their speed only after a few dispatches), then times `passes` passes: the median and
+// spread of Mrays/s, by the host's and (where the backend measures it) the device's clock, and
+// with `single`, the 1-thread backend, passes interleaved.
+void time_variant(const Accel& acc, const std::vector<Ray>& rays, Backend& b, Backend* single, const TraceOptions& to,
+                  unsigned passes, double warmup_seconds, TraceOutput& out, BenchRecord& r) {
+  for (auto w0 = Clock::now(); std::chrono::duration<double>(Clock::now() - w0).count() < warmup_seconds;)
+    b.trace(acc, rays, to, out);
+  const auto timed = [&](Backend& be) {
+    const auto t0 = Clock::now();
+    be.trace(acc, rays, to, out);
+    return static_cast<double>(rays.size()) / std::chrono::duration<double>(Clock::now() - t0).count() * 1e-6;
+  };
+  std::vector<double> mr, m1, md;  // md: by the device's clock, where the backend measures it
+  if (single) single->trace(acc, rays, to, out);  // its warm-up
+  for (unsigned p = 0; p < passes; ++p) {
+    mr.push_back(timed(b));
+    if (const double ds = b.last_device_seconds(); ds > 0) md.push_back(static_cast<double>(rays.size()) / ds * 1e-6);
+    if (single) m1.push_back(timed(*single));
+  }
+  std::sort(mr.begin(), mr.end());
+  r.mrays_per_s = mr[mr.size() / 2];
+  r.mrays_min = mr.front();
+  r.mrays_max = mr.back();
+  if (md.size() == mr.size()) {  // every pass measured
+    std::sort(md.begin(), md.end());
+    r.device_mrays_per_s = md[md.size() / 2];
+  }
+  if (single) {
+    std::sort(m1.begin(), m1.end());
+    r.mrays_one_thread = m1[m1.size() / 2];
+    r.thread_scaling = r.mrays_per_s / r.mrays_one_thread;
+  }
+}
+
+// The work per ray, from a separate pass with the backend's own counters: means and histograms.
+void count_work(const Accel& acc, const std::vector<Ray>& rays, Backend& b, const TraceOptions& to, BenchRecord& r) {
+  TraceOptions so = to;
+  so.stats = true;
+  TraceOutput st;
+  b.trace(acc, rays, so, st);
+  double n = 0, bt = 0, lf = 0, tr = 0, cl = 0, peak = 0;
+  const auto count = [](std::vector<std::uint64_t>& h, std::uint32_t v) {
+    const std::size_t k = static_cast<std::size_t>(std::bit_width(v));  // 0 -> 0, [2^(k-1), 2^k) -> k
+    if (h.size() <= k) h.resize(k + 1, 0);
+    ++h[k];
+  };
+  for (const RayStats& s : st.stats) {
+    n += s.nodes; bt += s.box_tests; lf += s.leaves; tr += s.tris; cl += s.climbs;
+    count(r.hist_nodes, s.nodes);
+    count(r.hist_leaves, s.leaves);
+    count(r.hist_tris, s.tris);
+    count(r.hist_climbs, s.climbs);
+    peak += to.traversal == Traversal::stack ? 8.0 + 4.0 * s.max_depth
+            : to.traversal == Traversal::stack_ordered ? 8.0 + 8.0 * s.max_depth : 12.0;
+  }
+  const double k = rays.empty() ? 1.0 : static_cast<double>(rays.size());
+  r.nodes_per_ray = n / k;
+  r.box_tests_per_ray = bt / k;
+  r.leaves_per_ray = lf / k;
+  r.tris_per_ray = tr / k;
+  r.climbs_per_ray = cl / k;
+  r.peak_state_bytes_per_ray = peak / k;
+}
+
+// The machine, compiler and BVH a report was measured on.
+void describe_run(const Accel& acc, BenchReport& rep) {
   utsname u{};
   uname(&u);
   rep.machine = std::string(u.nodename) + " " + u.sysname + " " + u.release + " " + u.machine + ", " +
@@ -194,158 +329,61 @@ BenchReport run_bench(const Scene& scene, const Accel& acc, const BenchOptions& 
   char hash[32];
   std::snprintf(hash, sizeof hash, "%016llx", static_cast<unsigned long long>(acc.hash()));
   rep.bvh_hash = hash;
+}
+
+}  // namespace
+
+BenchReport run_bench(const Scene& scene, const Accel& acc, const BenchOptions& opt,
+                      const std::function<void(std::size_t, std::size_t)>& progress) {
+  BenchReport rep;
+  describe_run(acc, rep);
+  // -- the backends, and with --scaling each once more on one thread
   BackendOptions bo = opt.backend;
   bo.threads = opt.threads;
-  std::map<std::string, std::unique_ptr<Backend>> backends, single;  // single: one thread (--scaling)
-  for (const auto& n : opt.grid.backends) backends[n] = make_backend(n, bo);
+  const auto backends = make_backends(opt.grid, bo);
+  std::map<std::string, std::unique_ptr<Backend>> single;
   const bool scaling = opt.scaling && resolve_threads(opt.threads) > 1;
   if (scaling) {
     BackendOptions one = bo;
     one.threads = 1;
-    for (const auto& n : opt.grid.backends) single[n] = make_backend(n, one);
+    single = make_backends(opt.grid, one);
   }
   const unsigned passes = std::max(5u, opt.passes);
   const std::size_t total = opt.kinds.size() * opt.grid.size();
   std::size_t done = 0;
+  // -- every ray kind x variant: verify (also the warm-up pass), time, count the work
   for (RayKind kind : opt.kinds) {
-    RayGenOptions ro;
-    ro.kind = kind;
-    ro.count = opt.count;
-    ro.seed = opt.seed;
-    ro.threads = opt.threads;
-    ro.has_camera = opt.has_camera;
-    ro.camera = opt.camera;
-    const std::vector<Ray> rays = generate_rays(scene, acc, ro);
-    const TieRule oracle = oracle_tie_rule(acc, rays);
-    const TieRule settle = oracle_settlement(acc, rays, oracle);  // differences the tie rules leave open (a peer's)
-    // the double-precision brute force on a spread subset, once per kind (BenchOptions::error_rays)
-    const std::vector<std::size_t> sub = spread_indices(rays.size(), opt.error_rays);
-    const auto in_plane = in_plane_rule(acc);
-    std::vector<Hit> brute(sub.size());
-    parallel_for(sub.size(), 16, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
-      for (std::size_t i = b; i < e; ++i) brute[i] = brute_force(acc, rays[sub[i]]);
+    KindRays k(scene, acc, opt, kind);
+    for_each_variant(opt.grid, backends, [&](const std::string& bn, Backend& b, const TraceOptions& to) {
+      if (opt.first_layout &&
+          std::any_of(opt.grid.layouts.begin(), std::find(opt.grid.layouts.begin(), opt.grid.layouts.end(), to.layout),
+                      [&](Layout e) { return b.supports(e, to.traversal); }))
+        return;  // an earlier layout of the list was run
+      k.reference_for(acc, to.query, opt.threads);
+      BenchRecord r;
+      r.scene = scene.name;
+      r.backend = bn;
+      r.device = b.describe();
+      r.isa = b.isa();
+      r.layout = to_string(to.layout);
+      r.traversal = to_string(to.traversal);
+      r.query = to_string(to.query);
+      r.ray_kind = to_string(kind);
+      r.precision = to_string(to.precision);
+      r.rays = k.rays.size();
+      r.threads = resolve_threads(opt.threads);
+      r.passes = passes;
+      r.state_bytes_per_ray = b.state_bytes(to);
+      TraceOutput out;
+      b.trace(acc, k.rays, to, out);
+      verify(k, out, to, r);
+      time_variant(acc, k.rays, b, scaling ? single.at(bn).get() : nullptr, to, passes, opt.warmup_seconds, out, r);
+      count_work(acc, k.rays, b, to, r);
+      rep.records.push_back(r);
+      if (progress) progress(++done, total);
     });
-    for (Query q : opt.grid.queries) {
-      // the reference answer every timed result is verified against
-      TraceOptions refo;
-      refo.query = q;
-      refo.layout = Layout::mbvh4;
-      refo.traversal = Traversal::stack;
-      TraceOutput ref;
-      trace_reference(acc, rays, refo, ref, opt.threads);
-      TraceOutput closest;
-      if (q == Query::any) trace_reference(acc, rays, TraceOptions{}, closest, opt.threads);
-      for (Precision pr : opt.grid.precisions)
-      for (const auto& bn : opt.grid.backends)
-        for (Layout l : opt.grid.layouts)
-          for (Traversal t : opt.grid.traversals) {
-            Backend& b = *backends[bn];
-            if (!b.supports(l, t) || !b.supports_precision(pr)) continue;
-            if (opt.first_layout &&
-                std::any_of(opt.grid.layouts.begin(), std::find(opt.grid.layouts.begin(), opt.grid.layouts.end(), l),
-                            [&](Layout e) { return b.supports(e, t); }))
-              continue;  // an earlier layout of the list was run
-            TraceOptions to;
-            to.layout = l;
-            to.traversal = t;
-            to.query = q;
-            to.precision = pr;
-            BenchRecord r;
-            r.scene = scene.name;
-            r.backend = bn;
-            r.device = b.describe();
-            r.isa = b.isa();
-            r.layout = to_string(l);
-            r.traversal = to_string(t);
-            r.query = to_string(q);
-            r.ray_kind = to_string(kind);
-            r.precision = to_string(pr);
-            r.rays = rays.size();
-            r.threads = resolve_threads(opt.threads);
-            r.passes = passes;
-            r.state_bytes_per_ray = b.state_bytes(to);
-            // -- verify (also the warm-up pass)
-            TraceOutput out;
-            b.trace(acc, rays, to, out);
-            const Comparison c = q == Query::any ? compare_occlusion_arrays(out.occluded, ref.occluded, closest.hits, rays)
-                                                 : compare_hit_arrays(out.hits, ref.hits, {}, settle);
-            r.verify_mismatches = c.mismatches;
-            if (q == Query::closest) {
-              // -- error against the brute force on the subset, and leaks out of a closed mesh
-              r.error_rays = sub.size();
-              std::vector<Hit> h;
-              for (std::size_t i : sub) h.push_back(out.hits[i]);
-              r.error_mismatches = compare_hit_arrays(h, brute, sub, oracle).mismatches;
-              for (std::size_t k = 0; k < sub.size(); ++k)
-                r.wrong_answers += wrong_answer(h[k], brute[k], rays[sub[k]]) && !in_plane(rays[sub[k]], h[k]) &&
-                                   !in_plane(rays[sub[k]], brute[k]);
-              if (kind == RayKind::inside)
-                for (std::size_t i = 0; i < rays.size(); ++i)
-                  r.leaks += out.hits[i].prim == MBVH_MISS_PRIM && ray_valid(rays[i]);
-            }
-            // -- warm up for BenchOptions::warmup_seconds, 0.25 s by default (JIT-compiled backends
-            // such as PoCL reach their speed only after a few dispatches), then time
-            for (auto w0 = Clock::now(); std::chrono::duration<double>(Clock::now() - w0).count() < opt.warmup_seconds;)
-              b.trace(acc, rays, to, out);
-            const auto timed = [&](Backend& be) {
-              const auto t0 = Clock::now();
-              be.trace(acc, rays, to, out);
-              return static_cast<double>(rays.size()) / std::chrono::duration<double>(Clock::now() - t0).count() * 1e-6;
-            };
-            std::vector<double> mr, m1, md;  // md: by the device's clock, where the backend measures it
-            if (scaling) single[bn]->trace(acc, rays, to, out);  // its warm-up
-            for (unsigned p = 0; p < passes; ++p) {
-              mr.push_back(timed(b));
-              if (const double ds = b.last_device_seconds(); ds > 0)
-                md.push_back(static_cast<double>(rays.size()) / ds * 1e-6);
-              if (scaling) m1.push_back(timed(*single[bn]));
-            }
-            std::sort(mr.begin(), mr.end());
-            r.mrays_per_s = mr[mr.size() / 2];
-            r.mrays_min = mr.front();
-            r.mrays_max = mr.back();
-            if (md.size() == mr.size()) {  // every pass measured
-              std::sort(md.begin(), md.end());
-              r.device_mrays_per_s = md[md.size() / 2];
-            }
-            if (scaling) {
-              std::sort(m1.begin(), m1.end());
-              r.mrays_one_thread = m1[m1.size() / 2];
-              r.thread_scaling = r.mrays_per_s / r.mrays_one_thread;
-            }
-            // -- work per ray (a separate pass with counters)
-            TraceOptions so = to;
-            so.stats = true;
-            TraceOutput st;
-            b.trace(acc, rays, so, st);  // the backend's own counters
-            double n = 0, bt = 0, lf = 0, tr = 0, cl = 0, peak = 0;
-            const auto count = [](std::vector<std::uint64_t>& h, std::uint32_t v) {
-              const std::size_t k = static_cast<std::size_t>(std::bit_width(v));  // 0 -> 0, [2^(k-1), 2^k) -> k
-              if (h.size() <= k) h.resize(k + 1, 0);
-              ++h[k];
-            };
-            for (const RayStats& s : st.stats) {
-              n += s.nodes; bt += s.box_tests; lf += s.leaves; tr += s.tris; cl += s.climbs;
-              count(r.hist_nodes, s.nodes);
-              count(r.hist_leaves, s.leaves);
-              count(r.hist_tris, s.tris);
-              count(r.hist_climbs, s.climbs);
-              peak += t == Traversal::stack ? 8.0 + 4.0 * s.max_depth
-                      : t == Traversal::stack_ordered ? 8.0 + 8.0 * s.max_depth : 12.0;
-            }
-            const double k = rays.empty() ? 1.0 : static_cast<double>(rays.size());
-            r.nodes_per_ray = n / k;
-            r.box_tests_per_ray = bt / k;
-            r.leaves_per_ray = lf / k;
-            r.tris_per_ray = tr / k;
-            r.climbs_per_ray = cl / k;
-            r.peak_state_bytes_per_ray = peak / k;
-            rep.records.push_back(r);
-            if (progress) progress(++done, total);
-          }
-    }
   }
-  // ratios side by side from the same run: bitstack / its stack twin, each backend / `cpu`
+  // -- ratios side by side from the same run: bitstack / its stack twin, each backend / `cpu`
   for (auto& r : rep.records) {
     if (const std::string twin = to_string(stack_twin(parse_traversal(r.traversal))); twin != r.traversal)
       r.ratio_vs_stack = speed_ratio(rep.records, r, r.backend, twin);

@@ -12,6 +12,7 @@
 #include "host/core/layouts.h"
 #include "host/core/parallel.h"
 #include "host/core/trace/traverse.h"
+#include "host/tools/variants.h"
 
 namespace mbvh {
 
@@ -177,8 +178,7 @@ CheckReport run_check(const Accel& acc, std::span<const Ray> rays, const CheckOp
   for (const Ray& r : rays) rep.invalid += ray_valid(r) ? 0 : 1;
   BackendOptions bo = opt.backend;
   bo.threads = opt.threads;
-  std::map<std::string, std::unique_ptr<Backend>> backends;
-  for (const auto& name : opt.grid.backends) backends[name] = make_backend(name, bo);
+  const auto backends = make_backends(opt.grid, bo);
 
   // -- run every variant
   struct Run {
@@ -186,23 +186,14 @@ CheckReport run_check(const Accel& acc, std::span<const Ray> rays, const CheckOp
     TraceOutput out;
   };
   std::vector<Run> runs;
-  for (Query q : opt.grid.queries)
-    for (Precision pr : opt.grid.precisions)
-    for (const auto& name : opt.grid.backends)
-      for (Layout l : opt.grid.layouts)
-        for (Traversal t : opt.grid.traversals) {
-          Run run;
-          run.v.backend = name;
-          run.v.opt.layout = l;
-          run.v.opt.traversal = t;
-          run.v.opt.query = q;
-          run.v.opt.precision = pr;
-          Backend& b = *backends[name];
-          if (!b.supports(l, t) || !b.supports_precision(pr)) continue;  // e.g. variant B on MBVH2
-          if (log) log("tracing " + run.v.label());
-          b.trace(acc, rays, run.v.opt, run.out);
-          runs.push_back(std::move(run));
-        }
+  for_each_variant(opt.grid, backends, [&](const std::string& name, Backend& b, const TraceOptions& o) {
+    Run run;
+    run.v.backend = name;
+    run.v.opt = o;
+    if (log) log("tracing " + run.v.label());
+    b.trace(acc, rays, run.v.opt, run.out);
+    runs.push_back(std::move(run));
+  });
 
   if (runs.empty()) throw Error("no backend supports the requested layout / traversal combinations");
 

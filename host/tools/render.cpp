@@ -1,21 +1,18 @@
 // SPDX-License-Identifier: MIT
-// render.cpp — the wavefront renderer of `mbvh render` (render.h) and its PNG writer.
+// render.cpp — the wavefront renderer of `mbvh render` (render.h); its images are written by image.cpp.
 // Path mode is the thesis' workload (Áfra, 2014: an 8-bounce diffuse path tracer over ray
 // batches): every bounce traces one batch of continuation rays (closest hit) and one batch of
 // shadow rays (any hit) on the chosen backend; shading, sampling and accumulation run on the host.
 #include "host/tools/render.h"
 
 #include <algorithm>
-#include <array>
 #include <chrono>
 #include <cmath>
-#include <fstream>
 #include <numbers>
 
 #include "mbvh/error.h"
 #include "host/core/parallel.h"
 #include "host/core/random.h"
-#include "host/core/resources.h"
 
 namespace mbvh {
 
@@ -258,33 +255,6 @@ private:
   RenderResult res_;
 };
 
-// -- PNG: signature, IHDR, one IDAT holding a zlib stream of stored (uncompressed) blocks, IEND
-std::uint32_t crc32(const std::uint8_t* p, std::size_t n, std::uint32_t c = 0xFFFFFFFFu) {
-  static const auto table = [] {
-    std::array<std::uint32_t, 256> t{};
-    for (std::uint32_t i = 0; i < 256; ++i) {
-      std::uint32_t v = i;
-      for (int k = 0; k < 8; ++k) v = (v & 1u) ? 0xEDB88320u ^ (v >> 1) : v >> 1;
-      t[i] = v;
-    }
-    return t;
-  }();
-  for (std::size_t i = 0; i < n; ++i) c = table[(c ^ p[i]) & 0xFFu] ^ (c >> 8);
-  return c;
-}
-
-void put32(std::vector<std::uint8_t>& o, std::uint32_t v) {
-  for (int s = 24; s >= 0; s -= 8) o.push_back(static_cast<std::uint8_t>(v >> s));
-}
-
-void chunk(std::vector<std::uint8_t>& o, const char* type, const std::vector<std::uint8_t>& data) {
-  put32(o, static_cast<std::uint32_t>(data.size()));
-  const std::size_t start = o.size();
-  o.insert(o.end(), type, type + 4);
-  o.insert(o.end(), data.begin(), data.end());
-  put32(o, crc32(o.data() + start, o.size() - start) ^ 0xFFFFFFFFu);
-}
-
 }  // namespace
 
 std::vector<Ray> path_tracer_rays(const Scene& scene, const Accel& acc, std::size_t count, std::uint64_t seed,
@@ -316,112 +286,10 @@ double rmse(const std::vector<float>& a, const std::vector<float>& b) {
   return a.empty() ? 0.0 : std::sqrt(sum / static_cast<double>(a.size()));
 }
 
-std::vector<char> pfm_bytes(const std::string& name, unsigned width, unsigned height, const std::vector<float>& rgb) {
-  if (rgb.size() != std::size_t(width) * height * 3) throw Error(name + ": PFM size does not match the image");
-  const std::string header = "PF\n" + std::to_string(width) + " " + std::to_string(height) + "\n-1.0\n";
-  std::vector<char> bytes(header.begin(), header.end());
-  for (unsigned y = height; y-- > 0;) {  // bottom row first
-    const char* row = reinterpret_cast<const char*>(rgb.data() + std::size_t(y) * width * 3);
-    bytes.insert(bytes.end(), row, row + std::size_t(width) * 12);
-  }
-  return bytes;
-}
-
-void write_pfm(const std::string& path, unsigned width, unsigned height, const std::vector<float>& rgb) {
-  const std::vector<char> bytes = pfm_bytes(path, width, height, rgb);
-  write_bytes(path, bytes.data(), bytes.size());
-}
-
-std::vector<float> read_pfm(const std::string& path, unsigned& width, unsigned& height) {
-  const std::uint64_t file_size = regular_file_size(path, "PFM");  // before opening: a FIFO would block
-  std::ifstream f(path, std::ios::binary);
-  if (!f) throw Error(path + ": cannot open the PFM file");
-  std::string magic;
-  double scale = 0;
-  long long w = 0, h = 0;
-  f >> magic >> w >> h >> scale;
-  if (!f || magic != "PF" || w <= 0 || h <= 0 || w > 65536 || h > 65536 || !(scale < 0))
-    throw Error(path + ": not a little-endian RGB PFM (expected 'PF', width, height, a negative scale)");
-  f.get();  // the single whitespace after the scale
-  // -- the header's size against the file's, before allocating: 21 bytes may claim 48 GiB
-  const std::uint64_t pixels = static_cast<std::uint64_t>(w) * static_cast<std::uint64_t>(h) * 12;
-  const std::streamoff at = f.tellg();  // -1 when the header ends the file
-  const std::uint64_t have = at < 0 ? 0 : file_size - static_cast<std::uint64_t>(at);
-  if (pixels != have)
-    throw Error(path + ": the PFM header says " + std::to_string(w) + "x" + std::to_string(h) + " pixels (" +
-                std::to_string(pixels) + " bytes of RGB floats) but the file holds " + std::to_string(have) +
-                " bytes after the header");
-  require_memory(path, pixels, "to read the PFM image");
-  width = static_cast<unsigned>(w);
-  height = static_cast<unsigned>(h);
-  std::vector<float> rgb(std::size_t(width) * height * 3);
-  for (unsigned y = height; y-- > 0;)
-    if (!f.read(reinterpret_cast<char*>(rgb.data() + std::size_t(y) * width * 3), std::streamsize(width) * 12))
-      throw Error(path + ": PFM data ends early (row " + std::to_string(height - 1 - y) + " of " + std::to_string(height) + ")");
-  return rgb;
-}
-
 RenderResult render(const Scene& scene, const Accel& acc, Backend& backend, const RenderOptions& opt,
                     const std::function<void(unsigned, unsigned)>& progress) {
   Renderer r(scene, acc, backend, opt);
   return r.run(progress);
-}
-
-std::vector<std::uint8_t> to_srgb8(const std::vector<float>& rgb) {
-  std::vector<std::uint8_t> out(rgb.size());
-  for (std::size_t i = 0; i < rgb.size(); ++i) {
-    const float v = std::clamp(rgb[i], 0.0f, 1.0f);
-    const float s = v <= 0.0031308f ? 12.92f * v : 1.055f * std::pow(v, 1.0f / 2.4f) - 0.055f;
-    out[i] = static_cast<std::uint8_t>(std::lround(s * 255.0f));
-  }
-  return out;
-}
-
-std::vector<std::uint8_t> png_bytes(const std::string& name, unsigned width, unsigned height,
-                                    const std::vector<std::uint8_t>& rgb8) {
-  if (width == 0 || height == 0 || rgb8.size() != std::size_t(width) * height * 3)
-    throw Error(name + ": cannot write a PNG of " + std::to_string(width) + "x" + std::to_string(height) + " from " +
-                std::to_string(rgb8.size()) + " bytes");
-  std::vector<std::uint8_t> raw;  // scanlines, each with filter byte 0
-  raw.reserve((std::size_t(width) * 3 + 1) * height);
-  for (unsigned y = 0; y < height; ++y) {
-    raw.push_back(0);
-    const auto row = rgb8.begin() + static_cast<std::ptrdiff_t>(std::size_t(y) * width * 3);
-    raw.insert(raw.end(), row, row + static_cast<std::ptrdiff_t>(width) * 3);
-  }
-  std::vector<std::uint8_t> z{0x78, 0x01};  // zlib header: deflate, 32K window, no dictionary
-  for (std::size_t off = 0; off < raw.size() || off == 0;) {
-    const std::size_t len = std::min<std::size_t>(65535, raw.size() - off);
-    const bool last = off + len == raw.size();
-    z.push_back(last ? 1 : 0);  // BFINAL, BTYPE = 00 (stored)
-    z.push_back(static_cast<std::uint8_t>(len));
-    z.push_back(static_cast<std::uint8_t>(len >> 8));
-    z.push_back(static_cast<std::uint8_t>(~len));
-    z.push_back(static_cast<std::uint8_t>(~len >> 8));
-    z.insert(z.end(), raw.begin() + static_cast<std::ptrdiff_t>(off), raw.begin() + static_cast<std::ptrdiff_t>(off + len));
-    off += len;
-    if (last) break;
-  }
-  std::uint32_t a = 1, b = 0;  // Adler-32 of the uncompressed data
-  for (std::uint8_t v : raw) {
-    a = (a + v) % 65521u;
-    b = (b + a) % 65521u;
-  }
-  put32(z, (b << 16) | a);
-  std::vector<std::uint8_t> png{0x89, 'P', 'N', 'G', '\r', '\n', 0x1A, '\n'};
-  std::vector<std::uint8_t> ihdr;
-  put32(ihdr, width);
-  put32(ihdr, height);
-  ihdr.insert(ihdr.end(), {8, 2, 0, 0, 0});  // 8 bits, RGB, deflate, adaptive filtering, no interlace
-  chunk(png, "IHDR", ihdr);
-  chunk(png, "IDAT", z);
-  chunk(png, "IEND", {});
-  return png;
-}
-
-void write_png(const std::string& path, unsigned width, unsigned height, const std::vector<std::uint8_t>& rgb8) {
-  const std::vector<std::uint8_t> png = png_bytes(path, width, height, rgb8);
-  write_bytes(path, png.data(), png.size());
 }
 
 }  // namespace mbvh

@@ -1,7 +1,7 @@
 // SPDX-License-Identifier: MIT
 // render.h — `mbvh render`: the thesis' end-to-end workload, a wavefront path tracer on any
 // backend (generate a batch of rays, trace it on the backend, shade on the host, next bounce),
-// plus ambient-occlusion and normals modes; PNG output.
+// plus ambient-occlusion and normals modes. The images are written by image.h.
 #pragma once
 #include <cstdint>
 #include <functional>
@@ -10,6 +10,7 @@
 
 #include "mbvh/accel.h"
 #include "mbvh/backend.h"
+#include "host/tools/image.h"
 #include "host/tools/raygen.h"
 #include "mbvh/scene.h"
 
@@ -72,20 +73,5 @@ std::vector<Ray> path_tracer_rays(const Scene& scene, const Accel& acc, std::siz
                                   const Camera* camera, unsigned threads);
 /// Root-mean-square difference of two images of the same size (linear values).
 double rmse(const std::vector<float>& a, const std::vector<float>& b);
-/// Portable float map (PFM, "PF", little-endian, rows bottom to top as the format says): the
-/// linear image without loss, for references. Throws Error naming the path on failure.
-/// pfm_bytes: the file's bytes (Error naming `name` if rgb is not width x height x 3).
-std::vector<char> pfm_bytes(const std::string& name, unsigned width, unsigned height, const std::vector<float>& rgb);
-void write_pfm(const std::string& path, unsigned width, unsigned height, const std::vector<float>& rgb);
-std::vector<float> read_pfm(const std::string& path, unsigned& width, unsigned& height);
-/// 8-bit sRGB of linear radiance (clamped to [0, 1]), 3 bytes per pixel.
-std::vector<std::uint8_t> to_srgb8(const std::vector<float>& rgb);
-
-/// Writes an 8-bit RGB PNG (zlib stored blocks, no compression library needed) as write_bytes
-/// does; throws Error naming the path on failure. png_bytes: the file's bytes (Error naming `name`
-/// unless rgb8 is width x height x 3, both non-zero).
-std::vector<std::uint8_t> png_bytes(const std::string& name, unsigned width, unsigned height,
-                                    const std::vector<std::uint8_t>& rgb8);
-void write_png(const std::string& path, unsigned width, unsigned height, const std::vector<std::uint8_t>& rgb8);
 
 }  // namespace mbvh

@@ -1,0 +1,141 @@
+// SPDX-License-Identifier: MIT
+// cmd_info.cpp — `mbvh info`: the scene and per-layout build statistics, as a table and as JSON;
+// with --refit, a refit of the build timed beside a rebuild.
+#include <cmath>
+#include <nlohmann/json.hpp>
+
+#include "host/cli/commands.h"
+#include "host/core/layouts.h"
+#include "host/core/parallel.h"
+
+namespace mbvh::cli {
+
+namespace {
+
+struct InfoArgs {
+  SceneArgs scene;
+  std::string json;
+  bool refit = false;
+};
+
+void print_stats_row(const LayoutStats& s, std::size_t state_stack, std::size_t state_bit) {
+  say("%-7s %9zu %9zu %6u %9u %10.2f %12zu %9.1f %10zu %10zu\n", s.layout.c_str(), s.nodes, s.leaves, s.depth,
+      s.bitstack_bits, s.sah_cost, s.bytes, s.build_ms, state_stack, state_bit);
+}
+
+// The report: the scene, the build and one row per layout.
+void print_info(const SceneArgs& a, const Loaded& l) {
+  const Accel& acc = *l.acc;
+  const Box b = acc.bounds();
+  say("scene      %s\n", l.scene.name.c_str());
+  say("triangles  %zu (%zu degenerate, kept out of leaves), %zu vertices, loaded in %.1f ms\n",
+      l.scene.triangle_count(), acc.bvh2().degenerate, l.scene.vertices.size(), l.load_ms);
+  say("bounds     (%g, %g, %g) .. (%g, %g, %g)\n", b.lo.x, b.lo.y, b.lo.z, b.hi.x, b.hi.y, b.hi.z);
+  say("build      %s, %u bins, max leaf %u, leaf block %u, depth cap %u, %u threads; hash %016llx\n",
+      acc.options().quality == BuildQuality::low    ? "Morton LBVH (quality low)"
+      : acc.options().quality == BuildQuality::high ? "SBVH, spatial splits (quality high)"
+                                                    : "binned SAH (quality medium)",
+      acc.options().bins, acc.options().max_leaf, acc.options().leaf_block, acc.options().depth_cap,
+      static_cast<unsigned>(resolve_threads(a.threads)), static_cast<unsigned long long>(acc.hash()));
+  {
+    const double* ph = acc.binary_stats().phase_ms;
+    say("build ms   records %.1f, tree %.1f, flatten %.1f, stats and hash %.1f\n", ph[0], ph[1], ph[2], ph[3]);
+  }
+  say("leaves     largest %zu triangles, %zu forced by the depth cap or equal centroids; %zu references (%.1f %% more than triangles)\n\n",
+      acc.bvh2().largest_leaf, acc.bvh2().forced_leaves, acc.tris().size(),
+      100.0 * (double(acc.tris().size()) / double(l.scene.triangle_count() - acc.bvh2().degenerate) - 1.0));
+  say("%-7s %9s %9s %6s %9s %10s %12s %9s %10s %10s\n", "layout", "nodes", "leaves", "depth", "bits", "SAH cost",
+      "bytes", "build ms", "stack B/r", "bitstk B/r");
+  print_stats_row(acc.binary_stats(), 0, 0);
+  const LayoutStats s2 = acc.mbvh2().stats;  // each layout made here, on first use
+  const LayoutStats s4 = acc.mbvh4().stats;
+  const LayoutStats s8 = acc.mbvh8().stats;
+  print_stats_row(s2, state_bytes_per_ray(Layout::mbvh2, Traversal::stack), state_bytes_per_ray(Layout::mbvh2, Traversal::bitstack));
+  print_stats_row(s4, state_bytes_per_ray(Layout::mbvh4, Traversal::stack), state_bytes_per_ray(Layout::mbvh4, Traversal::bitstack));
+  print_stats_row(s8, state_bytes_per_ray(Layout::mbvh8, Traversal::stack), state_bytes_per_ray(Layout::mbvh8, Traversal::bitstack));
+  say("\ntraversal state per ray: stack %zu B, bitstack %zu B (%.1fx smaller)\n",
+      state_bytes_per_ray(Layout::mbvh2, Traversal::stack), state_bytes_per_ray(Layout::mbvh2, Traversal::bitstack),
+      double(state_bytes_per_ray(Layout::mbvh2, Traversal::stack)) / double(state_bytes_per_ray(Layout::mbvh2, Traversal::bitstack)));
+}
+
+// --json: the same statistics as a JSON document.
+std::string info_json(const Loaded& l) {
+  const Accel& acc = *l.acc;
+  const LayoutStats& bs = acc.binary_stats();
+  nlohmann::json j;
+  j["scene"] = l.scene.name;
+  j["triangles"] = l.scene.triangle_count();
+  char h[32];
+  std::snprintf(h, sizeof h, "%016llx", static_cast<unsigned long long>(acc.hash()));
+  j["hash"] = h;
+  j["quality"] = to_string(acc.options().quality);
+  j["build_phases_ms"] = {{"records", bs.phase_ms[0]}, {"tree", bs.phase_ms[1]}, {"flatten", bs.phase_ms[2]},
+                          {"stats_hash", bs.phase_ms[3]}};
+  j["references"] = acc.tris().size();
+  const LayoutStats &s2 = acc.mbvh2().stats, &s4 = acc.mbvh4().stats, &s8 = acc.mbvh8().stats;
+  for (const LayoutStats* s : {&bs, &s2, &s4, &s8})
+    j["layouts"].push_back({{"layout", s->layout}, {"nodes", s->nodes}, {"leaves", s->leaves}, {"depth", s->depth},
+                            {"bitstack_bits", s->bitstack_bits}, {"sah_cost", s->sah_cost}, {"bytes", s->bytes},
+                            {"build_ms", s->build_ms}});
+  return j.dump(2) + "\n";
+}
+
+// --refit: refits the build to the scene's vertices moved by a smooth displacement (0.2 % of the
+// scene's extent), then rebuilds the moved scene with the same options, and prints both times and
+// SAH costs side by side.
+void info_refit(const SceneArgs& a, Loaded& l) {
+  // -- move the vertices
+  Scene moved = l.scene;
+  moved.name += " (moved)";
+  const Box b = l.acc->bounds();
+  const Vec3f e = b.extent();
+  const float ext = std::max({e.x, e.y, e.z});
+  for (Vec3f& v : moved.vertices) {
+    const Vec3f p = v;
+    v.x = p.x + 0.002f * ext * std::sin(6.0f * p.y / ext);
+    v.y = p.y + 0.002f * ext * std::sin(6.0f * p.z / ext);
+    v.z = p.z + 0.002f * ext * std::sin(6.0f * p.x / ext);
+  }
+  // -- refit, then rebuild with the same options
+  l.acc->refit(moved);
+  const double refit_ms = l.acc->last_refit_ms();
+  BuildOptions bo = l.acc->options();
+  bo.progress = nullptr;
+  const auto t0 = Clock::now();
+  const auto rebuilt = Accel::build(moved, bo);
+  const double build_ms = ms_since(t0);
+  for (Layout lay : {Layout::mbvh2, Layout::mbvh4, Layout::mbvh8}) rebuilt->make_layout(lay);
+  const double layouts_ms = ms_since(t0);
+  say("\nrefit      %.1f ms (binary tree, leaves, triangles and the MBVH2/4/8 layouts made above); a rebuild of the "
+      "moved scene %.1f ms (%.1fx the refit), with those layouts %.1f ms (%.1fx); SAH cost refitted %.2f, rebuilt %.2f "
+      "(%u threads)\n",
+      refit_ms, build_ms, build_ms / std::max(refit_ms, 1e-6), layouts_ms, layouts_ms / std::max(refit_ms, 1e-6),
+      l.acc->binary_stats().sah_cost, rebuilt->binary_stats().sah_cost, static_cast<unsigned>(resolve_threads(a.threads)));
+}
+
+int run_info(const InfoArgs& a) {
+  prepare_outputs({{"--json", a.json, true}}, {{"scene", a.scene.scene}});
+  Loaded l = load_and_build(a.scene, false);
+  print_info(a.scene, l);
+  if (!a.json.empty()) {
+    const std::string text = info_json(l);
+    write_bytes_to({"--json", a.json, true}, text.data(), text.size());
+  }
+  if (a.refit) info_refit(a.scene, l);
+  return 0;
+}
+
+}  // namespace
+
+Command add_info(CLI::App& app) {
+  auto a = std::make_shared<InfoArgs>();
+  auto* c = app.add_subcommand("info", "scene and per-layout build statistics");
+  a->scene.add(c);
+  c->add_option("--json", a->json, "also write the statistics as JSON ('-': standard output)");
+  c->add_flag("--refit", a->refit,
+              "also refit the build to the vertices moved by a small smooth displacement and time it beside a "
+              "rebuild of the moved scene");
+  return {c, [a] { return run_info(*a); }};
+}
+
+}  // namespace mbvh::cli

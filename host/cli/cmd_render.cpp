@@ -1,0 +1,129 @@
+// SPDX-License-Identifier: MIT
+// cmd_render.cpp — `mbvh render`: render an image on a backend (host/tools/render.h): 8-bounce
+// diffuse path tracing, AO or normals; a PNG, optionally the linear PFM and an error curve.
+#include <nlohmann/json.hpp>
+
+#include "host/cli/commands.h"
+#include "host/cli/progress.h"
+#include "host/tools/image.h"
+#include "host/tools/render.h"
+
+namespace mbvh::cli {
+
+namespace {
+
+struct RenderArgs {
+  SceneArgs scene;
+  DeviceArgs dev;
+  std::string backend = "cpu", layout = "mbvh4", traversal = "bitstack", mode = "path", out;
+  std::string precision = "robust", pfm, reference, curve;
+  RenderOptions o;
+  std::vector<float> camera;
+};
+
+// The render options from the arguments (all but the layout and traversal, which depend on the
+// backend), and --reference read into `reference`.
+RenderOptions render_options(const RenderArgs& a, std::vector<float>& reference) {
+  if (const std::uint64_t pixels = std::uint64_t(a.o.width) * a.o.height; pixels > fits_in_memory(kBytesPerPixel))
+    throw Error("--width " + std::to_string(a.o.width) + " --height " + std::to_string(a.o.height) + ": " +
+                std::to_string(pixels) + " pixels of " + std::to_string(kBytesPerPixel) +
+                " bytes each do not fit in this machine's memory");
+  RenderOptions o = a.o;
+  o.mode = parse_render_mode(a.mode);
+  o.traversal = parse_traversal(a.traversal);
+  o.threads = a.scene.threads;
+  o.precision = parse_precision(a.precision);
+  set_camera(a.camera, o.has_camera, o.camera);
+  if (!a.reference.empty()) {
+    unsigned w = 0, h = 0;
+    reference = read_pfm(a.reference, w, h);
+    if (w != o.width || h != o.height)
+      throw Error(a.reference + ": the reference is " + std::to_string(w) + "x" + std::to_string(h) + ", the image " +
+                  std::to_string(o.width) + "x" + std::to_string(o.height));
+    o.reference = &reference;
+  } else if (!a.curve.empty()) {
+    throw Error("--curve needs --reference (the converged image the curve measures against)");
+  }
+  return o;
+}
+
+// --curve: the RMSE against time, as JSON.
+std::string curve_json(const RenderArgs& a, const Backend& backend, const Scene& scene, const RenderResult& res) {
+  nlohmann::json j{{"backend", a.backend},       {"device", backend.describe()}, {"precision", a.precision},
+                   {"scene", scene.name},        {"width", res.width},           {"height", res.height},
+                   {"rays", res.rays},           {"mrays_per_s", res.mrays_per_s()}, {"points", nlohmann::json::array()}};
+  for (const CurvePoint& c : res.curve)
+    j["points"].push_back({{"spp", c.spp}, {"trace_seconds", c.trace_seconds}, {"total_seconds", c.total_seconds}, {"rmse", c.rmse}});
+  return j.dump(1) + "\n";
+}
+
+int run_render(const RenderArgs& a, const CLI::App& cmd) {
+  const std::vector<OutputTarget> outs{{"-o", a.out}, {"--pfm", a.pfm}, {"--curve", a.curve, true}};
+  prepare_outputs(outs, {{"scene", a.scene.scene}, {"--reference", a.reference}});
+  // -- options, backend, variant
+  std::vector<float> reference;
+  RenderOptions o = render_options(a, reference);
+  auto backend = make_backend(a.backend, a.dev.options(a.scene.threads));
+  // a backend without a bitstack (embree) renders with its stack unless --traversal says otherwise
+  if (!cmd.count("--traversal") && !backend->supports(default_layout(*backend, o.traversal), o.traversal))
+    o.traversal = Traversal::stack;
+  o.layout = cmd.count("--layout") ? parse_layout(a.layout) : default_layout(*backend, o.traversal);
+  // -- scene and render
+  Loaded l = load_and_build(a.scene);
+  if (!quiet()) std::fprintf(stderr, "backend: %s\n", backend->describe().c_str());
+  backend->prepare(*l.acc, TraceOptions{o.layout, o.traversal, Query::closest, false, o.precision});
+  Progress p("rendering", o.spp);
+  const RenderResult res = render(l.scene, *l.acc, *backend, o, [&p](unsigned d, unsigned) { p.update(d); });
+  p.finish();
+  // -- all outputs or none: the PNG is not left behind when the PFM or the curve cannot be written
+  const std::vector<std::uint8_t> png = png_bytes(a.out, res.width, res.height, to_srgb8(res.rgb));
+  std::vector<OutputWrite> writes{{outs[0], png.data(), png.size()}};
+  std::vector<char> pfm;
+  if (!a.pfm.empty()) {
+    pfm = pfm_bytes(a.pfm, res.width, res.height, res.rgb);
+    writes.push_back({outs[1], pfm.data(), pfm.size()});
+  }
+  std::string curve;
+  if (!a.curve.empty()) {
+    curve = curve_json(a, *backend, l.scene, res);
+    writes.push_back({outs[2], curve.data(), curve.size()});
+  }
+  write_outputs(writes);
+  // -- report
+  say("rendered %ux%u, %u spp, %s (%s/%s) on %s: %zu rays over all bounces, %.3f Mrays/s in traversal "
+      "(%.2f s), %.2f s in all\nwrote %s\n",
+      res.width, res.height, o.spp, to_string(o.mode), to_string(o.layout), to_string(o.traversal), a.backend.c_str(),
+      res.rays, res.mrays_per_s(), res.trace_seconds, res.total_seconds, shown(a.out).c_str());
+  if (!res.curve.empty())
+    say("RMSE against %s: %.5f after 1 spp, %.5f after %u spp\n", a.reference.c_str(), res.curve.front().rmse,
+        res.curve.back().rmse, res.curve.back().spp);
+  return 0;
+}
+
+}  // namespace
+
+Command add_render(CLI::App& app) {
+  auto a = std::make_shared<RenderArgs>();
+  RenderOptions& o = a->o;
+  auto* c = app.add_subcommand("render", "render an image on a backend: 8-bounce diffuse path tracing, AO or normals");
+  a->scene.add(c);
+  c->add_option("--backend", a->backend, "backend (see `mbvh devices`)");
+  c->add_option("--layout", a->layout, "mbvh2, mbvh4 or mbvh8 (default: mbvh4, or mbvh2 where the backend has only that)");
+  c->add_option("--traversal", a->traversal, "stack, bitstack, stack-ordered or bitstack-retest");
+  c->add_option("--mode", a->mode, "path (8-bounce diffuse, point light and sky), ao or normals");
+  c->add_option("--spp", o.spp, "samples per pixel")->check(integer_in(1, 1u << 20));
+  c->add_option("--bounces", o.bounces, "path mode: diffuse bounces after the primary hit")->check(integer_in(0, 1024));
+  c->add_option("--width", o.width, "image width")->check(integer_in(1, 65536));
+  c->add_option("--height", o.height, "image height")->check(integer_in(1, 65536));
+  c->add_option("--seed", o.seed, "seed of every random number of the image")->check(integer_in(0, UINT64_MAX));
+  add_camera_option(c, a->camera);
+  c->add_option("-o,--output", a->out, "PNG file ('-': standard output, not a terminal)")->required();
+  c->add_option("--precision", a->precision, "accuracy mode: robust (default), exact or fast");
+  c->add_option("--pfm", a->pfm, "also write the linear image as PFM (a reference for --reference)");
+  c->add_option("--reference", a->reference, "PFM of the same size: report the RMSE against it after every sample pass");
+  c->add_option("--curve", a->curve, "with --reference: write the RMSE-against-time curve as JSON");
+  a->dev.add(c);
+  return {c, [a, c] { return run_render(*a, *c); }};
+}
+
+}  // namespace mbvh::cli

@@ -1,0 +1,32 @@
+// SPDX-License-Identifier: MIT
+// variants.cpp — the variant walk of check and bench (variants.h).
+#include "host/tools/variants.h"
+
+namespace mbvh {
+
+std::map<std::string, std::unique_ptr<Backend>> make_backends(const VariantGrid& grid, const BackendOptions& options) {
+  std::map<std::string, std::unique_ptr<Backend>> backends;
+  for (const auto& name : grid.backends) backends[name] = make_backend(name, options);
+  return backends;
+}
+
+void for_each_variant(const VariantGrid& grid, const std::map<std::string, std::unique_ptr<Backend>>& backends,
+                      const std::function<void(const std::string&, Backend&, const TraceOptions&)>& fn) {
+  for (Query q : grid.queries)
+    for (Precision pr : grid.precisions)
+      for (const auto& name : grid.backends) {
+        Backend& b = *backends.at(name);
+        for (Layout l : grid.layouts)
+          for (Traversal t : grid.traversals) {
+            if (!b.supports(l, t) || !b.supports_precision(pr)) continue;  // e.g. bitstack-retest on MBVH2
+            TraceOptions o;
+            o.layout = l;
+            o.traversal = t;
+            o.query = q;
+            o.precision = pr;
+            fn(name, b, o);
+          }
+      }
+}
+
+}  // namespace mbvh
