@@ -183,7 +183,7 @@ public:
     const std::size_t batch = std::min(rays.size(), max_batch_);
     ensure_batch_buffers(batch);
     if (descriptors_dirty_) write_descriptors();
-    std::memset(counters_.mapped, 0, MBVH_VK_COUNTERS * sizeof(std::uint32_t));
+    std::memset(counters_.mapped, 0, MBVH_COUNTERS * sizeof(std::uint32_t));
     // what the host writes and reads: the staging buffers on the staged path, else the batch buffers
     void* rays_in = (staged_ ? rays_up_ : rays_).mapped;
     const void* hits_out = (staged_ ? hits_down_ : hits_).mapped;
@@ -201,17 +201,18 @@ public:
         std::memcpy(out.hits.data() + b, hits_out, n * sizeof(Hit));
       }
       if (opt.stats) {
-        const auto* s = static_cast<const std::uint32_t*>(stats_out);
-        for (std::size_t i = 0; i < n; ++i, s += MBVH_VK_STAT_WORDS)
-          out.stats[b + i] = RayStats{s[0], s[1], s[2], s[3], s[4], s[5], s[6]};
+        const auto* s = static_cast<const StatsRecord*>(stats_out);
+        for (std::size_t i = 0; i < n; ++i)
+          out.stats[b + i] = RayStats{s[i].nodes,  s[i].box_tests, s[i].leaves,   s[i].tris,
+                                      s[i].climbs, s[i].retests,   s[i].max_depth};
       }
     }
     const auto* counters = static_cast<const std::uint32_t*>(counters_.mapped);
-    out.invalid = counters[MBVH_VK_COUNTER_INVALID];
+    out.invalid = counters[MBVH_COUNTER_INVALID];
     if (timestamps_ != VK_NULL_HANDLE) device_seconds_ = dispatch_seconds;
     report_validation();
-    if (counters[MBVH_VK_COUNTER_OVERFLOW] != 0)
-      throw Error("vulkan: " + std::to_string(counters[MBVH_VK_COUNTER_OVERFLOW]) + " rays overflowed the traversal stack: the tree is deeper "
+    if (counters[MBVH_COUNTER_OVERFLOW] != 0)
+      throw Error("vulkan: " + std::to_string(counters[MBVH_COUNTER_OVERFLOW]) + " rays overflowed the traversal stack: the tree is deeper "
                   "than its cap (corrupt build)");
   }
 
@@ -342,7 +343,7 @@ private:
     li.bindingCount = kBindings;
     li.pBindings = b;
     check(vkCreateDescriptorSetLayout(device_, &li, nullptr, &set_layout_), "vkCreateDescriptorSetLayout");
-    VkPushConstantRange pcr{VK_SHADER_STAGE_COMPUTE_BIT, 0, sizeof(std::uint32_t)};
+    VkPushConstantRange pcr{VK_SHADER_STAGE_COMPUTE_BIT, 0, sizeof(TracePush)};  // MBVH_VK_PUSH_MEMBERS
     VkPipelineLayoutCreateInfo pli{};
     pli.sType = VK_STRUCTURE_TYPE_PIPELINE_LAYOUT_CREATE_INFO;
     pli.setLayoutCount = 1;
@@ -369,7 +370,7 @@ private:
     si.codeSize = sizeof kTraceSpv;
     si.pCode = kTraceSpv;
     check(vkCreateShaderModule(device_, &si, nullptr, &shader_), "vkCreateShaderModule");
-    counters_ = make_buffer(MBVH_VK_COUNTERS * sizeof(std::uint32_t), VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, Memory::host,
+    counters_ = make_buffer(MBVH_COUNTERS * sizeof(std::uint32_t), VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, Memory::host,
                             "counters");
     report_validation();
   }
@@ -539,7 +540,7 @@ private:
     wait_idle();
     for (Buffer* b : {&rays_, &hits_, &occ_, &stats_, &rays_up_, &hits_down_, &occ_down_, &stats_down_}) destroy(*b);
     const std::size_t bytes[4] = {n * sizeof(Ray), n * sizeof(Hit), n * sizeof(std::uint32_t),
-                                  n * MBVH_VK_STAT_WORDS * sizeof(std::uint32_t)};
+                                  n * sizeof(StatsRecord)};
     const char* what[4] = {"rays", "hits", "occlusion flags", "per-ray statistics"};
     Buffer* batch[4] = {&rays_, &hits_, &occ_, &stats_};
     const VkBufferUsageFlags u = VK_BUFFER_USAGE_STORAGE_BUFFER_BIT;
@@ -690,7 +691,7 @@ private:
     const auto bytes_of = [&](const Buffer* b) {
       const std::size_t record = b == &hits_ ? sizeof(Hit)
                                  : b == &occ_ ? sizeof(std::uint32_t)
-                                              : MBVH_VK_STAT_WORDS * sizeof(std::uint32_t);
+                                              : sizeof(StatsRecord);
       return n * record;
     };
     begin();
@@ -703,7 +704,9 @@ private:
     }
     vkCmdBindPipeline(cmd_, VK_PIPELINE_BIND_POINT_COMPUTE, pipe);
     vkCmdBindDescriptorSets(cmd_, VK_PIPELINE_BIND_POINT_COMPUTE, pipeline_layout_, 0, 1, &set_, 0, nullptr);
-    vkCmdPushConstants(cmd_, pipeline_layout_, VK_SHADER_STAGE_COMPUTE_BIT, 0, sizeof n, &n);
+    TracePush push{};
+    push.count = n;
+    vkCmdPushConstants(cmd_, pipeline_layout_, VK_SHADER_STAGE_COMPUTE_BIT, 0, sizeof push, &push);
     // timestamps: before the dispatch starts (on the staged path, once the rays' copy has
     // completed), and once every earlier command has completed
     if (timestamps_)
