@@ -252,7 +252,9 @@ static_assert(sizeof(mbvh::Node4W) == 128, "MBVH4 16-wide node is 128 bytes");
 static_assert(sizeof(mbvh::Node8) == 256, "MBVH8 node is 256 bytes");
 static_assert(sizeof(mbvh::Tri4) == 160, "SIMD leaf pack is ten 16-byte rows");
 static_assert(sizeof(mbvh::StatsRecord) == 32, "per-ray statistics record is eight uint words");
-static_assert(sizeof(mbvh::TracePush) == 4, "push constants: the ray count");
+static_assert(offsetof(mbvh::StatsRecord, climbs) == 16 && offsetof(mbvh::StatsRecord, max_depth) == 24,
+              "statistics record words in RayStats order");
+static_assert(sizeof(mbvh::TracePush) == 4 && offsetof(mbvh::TracePush, count) == 0, "push constants: the ray count");
 static_assert(sizeof(mbvh::TracePush) <= 128, "push constants within Vulkan's guaranteed maxPushConstantsSize");
 static_assert(MBVH_FAR_FACTOR == 1.0f + 0x1p-21f, "far factor 1 + 2^-21");
 static_assert(MBVH_CULL_SLACK == 1.0f + 3 * 0x1p-23f, "culling slack 1 + 3 * 2^-23");
