@@ -38,12 +38,9 @@
 #define MBVH_WIDE 1
 #endif
 
-#define FAR_FACTOR (1.0f + 0x1p-21f)
-#define CULL_SLACK (1.0f + 3.0f * 0x1p-23f)
-
-/* counters[] written by every kernel */
-#define COUNTER_INVALID 0  /* rays rejected as invalid (defined misses) */
-#define COUNTER_OVERFLOW 1 /* rays whose stack would overflow (a tree deeper than its cap) */
+/* The far factor, the culling slack and the unit roundoff (MBVH_FAR_FACTOR, MBVH_CULL_SLACK,
+ * MBVH_UNIT_ROUNDOFF) and the counters[] every kernel writes (MBVH_COUNTER_*) are declared in
+ * mbvh_layout.h. */
 
 typedef struct RayPre {
   float o[3], d[3], inv[3], invf[3];
@@ -53,8 +50,7 @@ typedef struct RayPre {
   float sx, sy, sz;
 } RayPre;
 
-/* Per-ray counters, host RayStats order: nodes, box_tests, leaves, tris, climbs, retests,
- * max_depth (and one pad word). */
+/* Per-ray counters while tracing, written out as a StatsRecord (mbvh_layout.h) by finish(). */
 typedef struct Stats {
   uint nodes, boxes, leaves, tris, climbs, retests, depth;
 } Stats;
@@ -83,7 +79,7 @@ static bool prepare_ray(const Ray r, RayPre* p) {
   for (int a = 0; a < 3; ++a) {
     p->inv[a] = 1.0f / p->d[a];
     p->neg[a] = signbit(p->d[a]) ? 1 : 0;
-    p->invf[a] = MBVH_FAST ? p->inv[a] : p->inv[a] * FAR_FACTOR; /* fast: host relax_ray */
+    p->invf[a] = MBVH_FAST ? p->inv[a] : p->inv[a] * MBVH_FAR_FACTOR; /* fast: host relax_ray */
   }
   p->kz = kz;
   p->kx = (kz + 1) % 3;
@@ -148,7 +144,7 @@ static bool tri_test(const RayPre* r, global const Tri* tri, float tmax, float* 
   const float T = U * Z[0] + V * Z[1] + W * Z[2];
   const float t = T / det;
   if (!(t >= r->tmin && t <= tmax)) return false;
-  const float u = 0x1p-24f;
+  const float u = MBVH_UNIT_ROUNDOFF;
   const float g2 = 2 * u / (1 - 2 * u), g3 = 3 * u / (1 - 3 * u), g5 = 5 * u / (1 - 5 * u);
   const float maxZt = fmax(fabs(Z[0]), fmax(fabs(Z[1]), fabs(Z[2])));
   const float maxXt = fmax(fabs(X[0]), fmax(fabs(X[1]), fabs(X[2])));
@@ -306,7 +302,7 @@ static Hit trace4_bitstack(global const float16* N, global const Leaf* leaves, g
     if (cur >= 0) {
       float d[4];
       int ch[4];
-      const uint m = test4(N, cur, r, &w, tmax * CULL_SLACK, d, ch, st);
+      const uint m = test4(N, cur, r, &w, tmax * MBVH_CULL_SLACK, d, ch, st);
       if (m) {
         const int i = first_slot4(m, d, any);
         bits = (bits << 3) | skip_code(m, i);
@@ -355,11 +351,11 @@ static Hit trace4_stack(global const float16* N, global const Leaf* leaves, glob
     if (cur >= 0) {
       float d[4];
       int ch[4];
-      const uint m = test4(N, cur, r, &w, tmax * CULL_SLACK, d, ch, st);
+      const uint m = test4(N, cur, r, &w, tmax * MBVH_CULL_SLACK, d, ch, st);
       if (m) {
         const int i = first_slot4(m, d, any);
         if (sp + 3 > MBVH_STACK4_ENTRIES) {
-          atomic_inc(&counters[COUNTER_OVERFLOW]);
+          atomic_inc(&counters[MBVH_COUNTER_OVERFLOW]);
           return miss_hit();
         }
         for (int k = 2; k >= 0; --k) {
@@ -403,7 +399,7 @@ static Hit trace2_bitstack(global const Node2* N, global const Leaf* leaves, glo
     if (cur >= 0) {
       global const Node2* n = &N[cur];
       float d[2];
-      const uint m = test2(n, r, tmax * CULL_SLACK, d, st);
+      const uint m = test2(n, r, tmax * MBVH_CULL_SLACK, d, st);
       if (m) {
         const int k = first_slot2(m, d, any);
         bits = (bits << 1) | (m == 3u ? 1u : 0u);
@@ -442,12 +438,12 @@ static Hit trace2_stack(global const Node2* N, global const Leaf* leaves, global
     if (cur >= 0) {
       global const Node2* n = &N[cur];
       float d[2];
-      const uint m = test2(n, r, tmax * CULL_SLACK, d, st);
+      const uint m = test2(n, r, tmax * MBVH_CULL_SLACK, d, st);
       if (m) {
         const int k = first_slot2(m, d, any);
         if (m == 3u) {
           if (sp + 1 > MBVH_STACK2_ENTRIES) {
-            atomic_inc(&counters[COUNTER_OVERFLOW]);
+            atomic_inc(&counters[MBVH_COUNTER_OVERFLOW]);
             return miss_hit();
           }
           stack[sp++] = n->link[2 + (1 - k)];
@@ -466,30 +462,32 @@ static Hit trace2_stack(global const Node2* N, global const Leaf* leaves, global
 
 /* ---------------------------------------------------------------- kernels
  * One per (layout, traversal, query). Arguments: nodes, leaves, triangles, rays, n; outputs:
- * hits (closest) or occluded (any), per-ray stats (8 words, only with MBVH_STATS), counters. */
+ * hits (closest) or occluded (any), per-ray StatsRecords (only with MBVH_STATS), counters. */
 
 static void finish(uint gid, Hit h, const bool any, global Hit* hits, global uchar* occluded, const Stats* st,
-                   global uint* stats) {
+                   global StatsRecord* stats) {
   if (any) occluded[gid] = h.prim != MBVH_MISS_PRIM ? 1 : 0;
   else hits[gid] = h;
 #if MBVH_STATS
-  global uint* s = stats + 8 * (size_t)gid;
-  s[0] = st->nodes; s[1] = st->boxes; s[2] = st->leaves; s[3] = st->tris;
-  s[4] = st->climbs; s[5] = st->retests; s[6] = st->depth; s[7] = 0;
+  global StatsRecord* s = stats + gid;
+  s->nodes = st->nodes; s->box_tests = st->boxes; s->leaves = st->leaves; s->tris = st->tris;
+  s->climbs = st->climbs; s->retests = st->retests; s->max_depth = st->depth; s->pad = 0;
 #endif
 }
 
+/* The parameters in the order of MBVH_CL_ARG_NODES, _LEAVES, _TRIS, _RAYS, _COUNT, _HITS,
+ * _OCCLUDED, _STATS and _COUNTERS (mbvh_layout.h), by which the host sets them. */
 #define MBVH_KERNEL(NAME, NODE_T, CALL, ANY)                                                                       \
   kernel void NAME(global const NODE_T* nodes, global const Leaf* leaves, global const Tri* tris,                 \
-                   global const Ray* rays, uint n, global Hit* hits, global uchar* occluded, global uint* stats,  \
-                   volatile global uint* counters) {                                                              \
+                   global const Ray* rays, uint n, global Hit* hits, global uchar* occluded,                    \
+                   global StatsRecord* stats, volatile global uint* counters) {                                   \
     const uint gid = (uint)get_global_id(0);                                                                      \
     if (gid >= n) return;                                                                                         \
     Stats st = {0, 0, 0, 0, 0, 0, 0};                                                                             \
     RayPre r;                                                                                                     \
     Hit h = miss_hit();                                                                                           \
     if (prepare_ray(rays[gid], &r)) h = CALL(nodes, leaves, tris, &r, ANY, &st MBVH_COUNTERS_##CALL);             \
-    else atomic_inc(&counters[COUNTER_INVALID]);                                                                  \
+    else atomic_inc(&counters[MBVH_COUNTER_INVALID]);                                                             \
     finish(gid, h, ANY, hits, occluded, &st, stats);                                                              \
   }
 

@@ -50,15 +50,13 @@ layout(local_size_x_id = MBVH_VK_SPEC_LOCAL_SIZE) in;
 layout(constant_id = MBVH_VK_SPEC_FAST) const bool FAST = false;   /* the `fast` accuracy mode (host relax_ray, tri_test_mt) */
 layout(constant_id = MBVH_VK_SPEC_MBVH4) const bool MBVH4 = false; /* the MBVH4 layout, else MBVH2 */
 
-layout(push_constant) uniform Push {
-  uint count; /* rays in this dispatch */
-} pc;
+layout(push_constant) uniform Push { MBVH_VK_PUSH_MEMBERS } pc; /* host: TracePush */
 
 layout(std430, set = 0, binding = MBVH_VK_BINDING_RAYS) readonly buffer RayBuf { Ray rays[]; };
 layout(std430, set = 0, binding = MBVH_VK_BINDING_HITS) writeonly buffer HitBuf { Hit hits[]; };
 layout(std430, set = 0, binding = MBVH_VK_BINDING_OCCLUDED) writeonly buffer OccBuf { uint occluded[]; };
-layout(std430, set = 0, binding = MBVH_VK_BINDING_STATS) writeonly buffer StatBuf { uint stats[]; };
-layout(std430, set = 0, binding = MBVH_VK_BINDING_COUNTERS) buffer CounterBuf { uint counters[]; }; /* MBVH_VK_COUNTER_* */
+layout(std430, set = 0, binding = MBVH_VK_BINDING_STATS) writeonly buffer StatBuf { StatsRecord stats[]; };
+layout(std430, set = 0, binding = MBVH_VK_BINDING_COUNTERS) buffer CounterBuf { uint counters[]; }; /* MBVH_COUNTER_* */
 layout(std430, set = 0, binding = MBVH_VK_BINDING_LEAVES) readonly buffer LeafBuf { Leaf leaves[]; };
 /* The nodes as a uniform texel buffer of RGBA32UI texels, one per 16-byte row: four per MBVH2
  * node, eight per MBVH4 node (Aila & Laine 2009 fetch their nodes through the texture path too):
@@ -110,9 +108,9 @@ Node4 node4(int i) { CHUNKED(NODE4_FETCH, NODE_CHUNKS, NODE_SHIFT, i) }
 ivec4 node4_links(int i) { CHUNKED(LINK4_FETCH, NODE_CHUNKS, NODE_SHIFT, i) } /* parent, sib[0], sib[1], sib[2] */
 Tri tri_at(uint i) { CHUNKED(TRI_FETCH, TRI_CHUNKS, TRI_SHIFT, i) }
 
-/* constants by their bits (exact; glslang folds no bit casts into constants) */
-#define FAR_FACTOR uintBitsToFloat(0x3F800004u)     /* 1 + 2^-21 */
-#define CULL_SLACK uintBitsToFloat(0x3F800003u)     /* 1 + 3 * 2^-23 */
+/* constants by their bits (exact; glslang folds no bit casts into constants); the far factor,
+ * the culling slack and the unit roundoff are MBVH_FAR_FACTOR, MBVH_CULL_SLACK and
+ * MBVH_UNIT_ROUNDOFF of mbvh_layout.h */
 #define FLT_MIN_NORMAL uintBitsToFloat(0x00800000u) /* smallest normal float */
 #define INF uintBitsToFloat(0x7F800000u)
 
@@ -129,7 +127,7 @@ struct RayPre {
 float pick(vec3 v, int k) { return k == 0 ? v.x : k == 1 ? v.y : v.z; }
 vec3 permute(RayPre r, vec3 v) { return vec3(pick(v, r.kx), pick(v, r.ky), pick(v, r.kz)); }
 
-/* Per-ray counters, host RayStats order: nodes, box_tests, leaves, tris, climbs, retests, depth */
+/* Per-ray counters, written as a StatsRecord (retests stay 0: no variant B here) */
 uint st_nodes = 0u, st_boxes = 0u, st_leaves = 0u, st_tris = 0u, st_climbs = 0u, st_depth = 0u;
 
 /* a / b correctly rounded (see the header comment) */
@@ -158,7 +156,7 @@ bool prepare_ray(Ray r, out RayPre p) {
   p.tmax = r.tmax;
   for (int a = 0; a < 3; ++a) {
     precise float inv = div_rn(1.0, p.d[a]);
-    precise float invf = inv * FAR_FACTOR;
+    precise float invf = inv * MBVH_FAR_FACTOR;
     p.inv[a] = inv;
     p.neg[a] = (floatBitsToUint(p.d[a]) & 0x80000000u) != 0u;
     p.invf[a] = FAST ? inv : invf;
@@ -232,7 +230,7 @@ bool tri_test(RayPre r, Tri tri, float tmax, out float t_out, out float u_out, o
   precise float T = U * Z[0] + V * Z[1] + W * Z[2];
   const float t = div_rn(T, det);
   if (!(t >= r.tmin && t <= tmax)) return false;
-  const float u = uintBitsToFloat(0x33800000u); /* 2^-24 */
+  const float u = MBVH_UNIT_ROUNDOFF;
   const float g2 = div_rn(2.0 * u, 1.0 - 2.0 * u), g3 = div_rn(3.0 * u, 1.0 - 3.0 * u),
               g5 = div_rn(5.0 * u, 1.0 - 5.0 * u);
   const float maxZt = max(abs(Z[0]), max(abs(Z[1]), abs(Z[2])));
@@ -344,7 +342,7 @@ Hit trace_bitstack(RayPre r) {
     while (cur >= 0) {
       const Node2 n = node(cur);
       float d0, d1;
-      precise float tcull = tmax * CULL_SLACK;
+      precise float tcull = tmax * MBVH_CULL_SLACK;
       const uint m = test2(n, r, tcull, d0, d1);
       if (m != 0u) {
         const int k = first_slot2(m, d0, d1);
@@ -373,13 +371,13 @@ Hit trace_stack(RayPre r) {
     while (cur >= 0) {
       const Node2 n = node(cur);
       float d0, d1;
-      precise float tcull = tmax * CULL_SLACK;
+      precise float tcull = tmax * MBVH_CULL_SLACK;
       const uint m = test2(n, r, tcull, d0, d1);
       if (m != 0u) {
         const int k = first_slot2(m, d0, d1);
         if (m == 3u) {
           if (sp + 1u > MBVH_STACK2_ENTRIES) { /* flag the ray rather than overflow */
-            atomicAdd(counters[MBVH_VK_COUNTER_OVERFLOW], 1u);
+            atomicAdd(counters[MBVH_COUNTER_OVERFLOW], 1u);
             return miss_hit();
           }
           stack[sp++] = n.link[2 + (1 - k)];
@@ -473,7 +471,7 @@ Hit trace4_bitstack(RayPre r) {
     while (S.w >= 0) {
       const Node4 n = node4(S.w);
       vec4 d;
-      precise float tcull = tmax * CULL_SLACK;
+      precise float tcull = tmax * MBVH_CULL_SLACK;
       const uint m = test4(n, r, tcull, d);
       if (m != 0u) {
         const int i = first_slot4(m, d);
@@ -502,12 +500,12 @@ Hit trace4_stack(RayPre r) {
     while (cur >= 0) {
       const Node4 n = node4(cur);
       vec4 d;
-      precise float tcull = tmax * CULL_SLACK;
+      precise float tcull = tmax * MBVH_CULL_SLACK;
       const uint m = test4(n, r, tcull, d);
       if (m != 0u) {
         const int i = first_slot4(m, d);
         if (sp + 3u > MBVH_STACK4_ENTRIES) { /* flag the ray rather than overflow */
-          atomicAdd(counters[MBVH_VK_COUNTER_OVERFLOW], 1u);
+          atomicAdd(counters[MBVH_COUNTER_OVERFLOW], 1u);
           return miss_hit();
         }
         const uint code = skip_code(m, i); /* bit k: slot (i + 1 + k) & 3 was hit */
@@ -540,13 +538,9 @@ void main() {
     if (MBVH4) h = BITSTACK ? trace4_bitstack(r) : trace4_stack(r);
     else h = BITSTACK ? trace_bitstack(r) : trace_stack(r);
   } else {
-    atomicAdd(counters[MBVH_VK_COUNTER_INVALID], 1u);
+    atomicAdd(counters[MBVH_COUNTER_INVALID], 1u);
   }
   if (ANY) occluded[gid] = h.prim != MBVH_MISS_PRIM ? 1u : 0u;
   else hits[gid] = h;
-  if (STATS) {
-    const uint s = MBVH_VK_STAT_WORDS * gid;
-    stats[s + 0u] = st_nodes; stats[s + 1u] = st_boxes; stats[s + 2u] = st_leaves; stats[s + 3u] = st_tris;
-    stats[s + 4u] = st_climbs; stats[s + 5u] = 0u; stats[s + 6u] = st_depth; stats[s + 7u] = 0u;
-  }
+  if (STATS) stats[gid] = StatsRecord(st_nodes, st_boxes, st_leaves, st_tris, st_climbs, 0u, st_depth, 0u);
 }

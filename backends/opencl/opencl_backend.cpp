@@ -17,9 +17,11 @@
 #include <algorithm>
 #include <cstdio>
 #include <cstring>
+#include <iterator>
 #include <map>
 #include <mutex>
 #include <set>
+#include <utility>
 
 #include "backends/opencl/cl_runtime.h"
 #include "backends/opencl/opencl_backends.h"
@@ -152,11 +154,11 @@ public:
     const std::size_t local = kern.local;
     const std::size_t batch = std::min(rays.size(), max_batch());
     ensure_batch_buffers(batch, opt.stats);
-    const cl_uint zero[2] = {0, 0};
+    const cl_uint zero[MBVH_COUNTERS] = {};
     check(clEnqueueWriteBuffer(queue_.get(), counters_.get(), CL_FALSE, 0, sizeof zero, zero, 0, nullptr, nullptr),
           "clEnqueueWriteBuffer(counters)");
     const cl_mem nodes = opt.layout == Layout::mbvh2 ? n2_.get() : n4_.get();
-    std::vector<cl_uint> stats;
+    std::vector<StatsRecord> stats;
     cl_ulong kernel_ns = 0;  // the trace kernels' summed execution time (CL_QUEUE_PROFILING_ENABLE)
     for (std::size_t b = 0; b < rays.size(); b += batch) {
       const std::size_t n = std::min(batch, rays.size() - b);
@@ -165,11 +167,13 @@ public:
                                  nullptr),
             "clEnqueueWriteBuffer(rays)");
       const cl_uint count = static_cast<cl_uint>(n);
-      const cl_mem args[] = {nodes, leaves_.get(), tris_.get(), rays_.get()};
-      for (cl_uint i = 0; i < 4; ++i) check(clSetKernelArg(k, i, sizeof(cl_mem), &args[i]), "clSetKernelArg");
-      check(clSetKernelArg(k, 4, sizeof count, &count), "clSetKernelArg");
-      const cl_mem outs[] = {hits_.get(), occ_.get(), stats_.get(), counters_.get()};
-      for (cl_uint i = 0; i < 4; ++i) check(clSetKernelArg(k, 5 + i, sizeof(cl_mem), &outs[i]), "clSetKernelArg");
+      const std::pair<cl_uint, cl_mem> buffers[] = {
+          {MBVH_CL_ARG_NODES, nodes},         {MBVH_CL_ARG_LEAVES, leaves_.get()}, {MBVH_CL_ARG_TRIS, tris_.get()},
+          {MBVH_CL_ARG_RAYS, rays_.get()},    {MBVH_CL_ARG_HITS, hits_.get()},     {MBVH_CL_ARG_OCCLUDED, occ_.get()},
+          {MBVH_CL_ARG_STATS, stats_.get()},  {MBVH_CL_ARG_COUNTERS, counters_.get()}};
+      static_assert(std::size(buffers) + 1 == MBVH_CL_ARGS, "every kernel argument is set");
+      for (const auto& [i, mem] : buffers) check(clSetKernelArg(k, i, sizeof(cl_mem), &mem), "clSetKernelArg");
+      check(clSetKernelArg(k, MBVH_CL_ARG_COUNT, sizeof count, &count), "clSetKernelArg");
       const std::size_t global = (n + local - 1) / local * local;  // no non-uniform groups
       cl_event ran = nullptr;
       check(clEnqueueNDRangeKernel(queue_.get(), k, 1, nullptr, &global, &local, 0, nullptr, &ran),
@@ -183,25 +187,26 @@ public:
                                   nullptr),
               "clEnqueueReadBuffer(hits)");
       if (opt.stats) {
-        stats.resize(8 * n);
-        check(clEnqueueReadBuffer(queue_.get(), stats_.get(), CL_TRUE, 0, stats.size() * 4, stats.data(), 0, nullptr, nullptr),
+        stats.resize(n);
+        check(clEnqueueReadBuffer(queue_.get(), stats_.get(), CL_TRUE, 0, n * sizeof(StatsRecord), stats.data(), 0, nullptr,
+                                  nullptr),
               "clEnqueueReadBuffer(stats)");
         for (std::size_t i = 0; i < n; ++i) {
-          const cl_uint* s = &stats[8 * i];
-          out.stats[b + i] = RayStats{s[0], s[1], s[2], s[3], s[4], s[5], s[6]};
+          const StatsRecord& s = stats[i];
+          out.stats[b + i] = RayStats{s.nodes, s.box_tests, s.leaves, s.tris, s.climbs, s.retests, s.max_depth};
         }
       }
       // the next batch rewrites the ray buffer: wait for this one (host memory stays valid)
       check(clFinish(queue_.get()), "clFinish");
       kernel_ns += profiled_ns(kernel_event.get());
     }
-    cl_uint counters[2];
+    cl_uint counters[MBVH_COUNTERS];
     check(clEnqueueReadBuffer(queue_.get(), counters_.get(), CL_TRUE, 0, sizeof counters, counters, 0, nullptr, nullptr),
           "clEnqueueReadBuffer(counters)");
-    out.invalid = counters[0];
+    out.invalid = counters[MBVH_COUNTER_INVALID];
     device_seconds_ = double(kernel_ns) * 1e-9;
-    if (counters[1] != 0)
-      throw Error(name_ + ": " + std::to_string(counters[1]) + " rays overflowed the traversal stack: the tree is deeper "
+    if (counters[MBVH_COUNTER_OVERFLOW] != 0)
+      throw Error(name_ + ": " + std::to_string(counters[MBVH_COUNTER_OVERFLOW]) + " rays overflowed the traversal stack: the tree is deeper "
                   "than its cap (corrupt build)");
   }
 
@@ -226,7 +231,7 @@ private:
   }
 
   std::size_t max_batch() const {
-    return std::max<std::size_t>(kMaxLocalSize, std::min<std::size_t>(kMaxBatch, max_alloc_ / (8 * sizeof(cl_uint))));
+    return std::max<std::size_t>(kMaxLocalSize, std::min<std::size_t>(kMaxBatch, max_alloc_ / sizeof(StatsRecord)));
   }
 
   Buffer upload(const std::string& what, const void* data, std::size_t bytes) {
@@ -257,9 +262,9 @@ private:
     }
     if (!stats_ || (stats && stats_cap_ < cap_)) {
       stats_cap_ = stats ? cap_ : 0;
-      stats_ = device_buffer(stats_cap_ * 8 * sizeof(cl_uint), CL_MEM_WRITE_ONLY, "per-ray statistics");
+      stats_ = device_buffer(stats_cap_ * sizeof(StatsRecord), CL_MEM_WRITE_ONLY, "per-ray statistics");
     }
-    if (!counters_) counters_ = device_buffer(2 * sizeof(cl_uint), CL_MEM_READ_WRITE, "counters");
+    if (!counters_) counters_ = device_buffer(MBVH_COUNTERS * sizeof(cl_uint), CL_MEM_READ_WRITE, "counters");
   }
 
   // fast: the `fast` accuracy mode (MBVH_FAST: relaxed box test, Möller–Trumbore with mad and the

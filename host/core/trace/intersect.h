@@ -16,9 +16,10 @@
 
 namespace mbvh {
 
-/// Far factor K = 1 + 2^-21 on the exit distances and culling slack S = 1 + 3*2^-23 on tmax.
-constexpr float kFarFactor = 1.0f + 0x1p-21f;
-constexpr float kCullSlack = 1.0f + 3 * 0x1p-23f;
+/// Far factor K = 1 + 2^-21 on the exit distances and culling slack S = 1 + 3*2^-23 on tmax: the
+/// values the devices use, from their one declaration in mbvh_layout.h.
+constexpr float kFarFactor = MBVH_FAR_FACTOR;
+constexpr float kCullSlack = MBVH_CULL_SLACK;
 
 /// A validated ray with its per-ray constants.
 struct RayPre {
@@ -127,7 +128,7 @@ inline double plane_t_double(const RayPre& r, const Tri& tri) {
   const float t = T / det;
   if (!(t >= r.tmin && t <= tmax)) return false;
   // conservative t > 0 (pbrt-v3 Triangle::Intersect)
-  constexpr float u = 0x1p-24f;
+  constexpr float u = MBVH_UNIT_ROUNDOFF;  // 2^-24
   constexpr float g2 = 2 * u / (1 - 2 * u), g3 = 3 * u / (1 - 3 * u), g5 = 5 * u / (1 - 5 * u);
   const float maxZt = std::fmax(std::fabs(Z[0]), std::fmax(std::fabs(Z[1]), std::fabs(Z[2])));
   const float maxXt = std::fmax(std::fabs(X[0]), std::fmax(std::fabs(X[1]), std::fabs(X[2])));

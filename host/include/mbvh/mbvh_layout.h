@@ -1,12 +1,17 @@
 // SPDX-License-Identifier: MIT
 /* mbvh_layout.h — the one declaration of every record shared by host C++, OpenCL C and GLSL:
- * rays, hits, triangles, leaves and the MBVH2 / MBVH4 nodes (TRAVERSAL.md §2).
+ * rays, hits, triangles, leaves and the MBVH2 / MBVH4 nodes (TRAVERSAL.md §2); the numerical
+ * constants every traversal shares; and the device dispatch contracts (Vulkan bindings,
+ * specialisation constants and push constants, OpenCL kernel arguments, counters, the per-ray
+ * statistics record), used by name on the host and in shaders/trace.comp and shaders/trace.cl.
  *
  * Rules (STYLE.md): rows of 16 bytes, integers in the 4th lane, no 3-vectors, bool, size_t or
  * pointers; every size is asserted on the host. A per-language prelude maps the scalar names and
  * the declaration macros: a 16-byte row MBVH_ROW(x) is `float x[4]` in C++ and OpenCL C and a
  * `vec4` in GLSL (one 16-byte load; std430 gives both the same offsets), MBVH_STRUCT/MBVH_END
- * spell `typedef struct T {...} T;` or GLSL's `struct T {...};`.
+ * spell `typedef struct T {...} T;` or GLSL's `struct T {...};`, and MBVH_FLOAT_BITS(b) is the float
+ * whose bits are the uint32 b (std::bit_cast, as_float, uintBitsToFloat: exact in every language,
+ * where a decimal or hexadecimal float literal would be a second spelling of the value).
  *
  * Child reference (int32, TRAVERSAL.md §2.1):
  *   ref >= 0          index of an inner-node record
@@ -18,6 +23,7 @@
 #define MBVH_LAYOUT_H
 
 #if defined(__cplusplus)
+#include <bit>
 #include <cstddef>
 #include <cstdint>
 #define MBVH_NS_BEGIN namespace mbvh {
@@ -30,6 +36,7 @@ typedef std::uint32_t mbvh_uint;
 #define MBVH_ROW(x) mbvh_float x[4]
 #define MBVH_IROW(x) mbvh_int x[4]
 #define MBVH_ROWS(x, n) mbvh_float x[n][4]
+#define MBVH_FLOAT_BITS(b) std::bit_cast<float>(std::uint32_t(b))
 #elif defined(__OPENCL_VERSION__)
 #define MBVH_NS_BEGIN
 #define MBVH_NS_END
@@ -41,6 +48,7 @@ typedef uint mbvh_uint;
 #define MBVH_ROW(x) mbvh_float x[4]
 #define MBVH_IROW(x) mbvh_int x[4]
 #define MBVH_ROWS(x, n) mbvh_float x[n][4]
+#define MBVH_FLOAT_BITS(b) as_float((uint)(b))
 #elif defined(GL_core_profile)
 #define MBVH_NS_BEGIN
 #define MBVH_NS_END
@@ -52,6 +60,7 @@ typedef uint mbvh_uint;
 #define MBVH_ROW(x) vec4 x
 #define MBVH_IROW(x) ivec4 x
 #define MBVH_ROWS(x, n) vec4 x[n]
+#define MBVH_FLOAT_BITS(b) uintBitsToFloat(b)
 #endif
 
 #define MBVH_NONE (-1)
@@ -76,13 +85,29 @@ typedef uint mbvh_uint;
  * device's maxStorageBufferRange is bound as up to this many power-of-two chunks (TRAVERSAL.md §9). */
 #define MBVH_VK_CHUNK_BINDINGS 8
 
+/* Numerical constants every traversal shares (TRAVERSAL.md §6, §7), declared once by their bits and
+ * read through MBVH_FLOAT_BITS, so host/core/trace/intersect.h, shaders/trace.cl and
+ * shaders/trace.comp use the same float, bit for bit: */
+#define MBVH_FAR_FACTOR_BITS 0x3F800004u    /* K = 1 + 2^-21: widens the slab test's exit distances (Ize 2013) */
+#define MBVH_CULL_SLACK_BITS 0x3F800003u    /* S = 1 + 3 * 2^-23: boxes are culled against tmax * S */
+#define MBVH_UNIT_ROUNDOFF_BITS 0x33800000u /* u = 2^-24: the unit roundoff of the watertight test's error bounds */
+#define MBVH_FAR_FACTOR MBVH_FLOAT_BITS(MBVH_FAR_FACTOR_BITS)
+#define MBVH_CULL_SLACK MBVH_FLOAT_BITS(MBVH_CULL_SLACK_BITS)
+#define MBVH_UNIT_ROUNDOFF MBVH_FLOAT_BITS(MBVH_UNIT_ROUNDOFF_BITS)
+
+/* Counters of every device trace (Vulkan: binding MBVH_VK_BINDING_COUNTERS; OpenCL: kernel argument
+ * MBVH_CL_ARG_COUNTERS), uint words zeroed by the host before each trace: */
+#define MBVH_COUNTER_INVALID 0  /* rays rejected as invalid (defined misses) */
+#define MBVH_COUNTER_OVERFLOW 1 /* rays whose traversal stack would overflow (a tree deeper than its cap) */
+#define MBVH_COUNTERS 2
+
 /* The Vulkan dispatch contract of shaders/trace.comp, used by name on both sides
- * (backends/vulkan/vulkan_backend.cpp). Descriptor bindings of set 0: */
+ * (backends/vulkan). Descriptor bindings of set 0: */
 #define MBVH_VK_BINDING_RAYS 0     /* Ray[], read */
 #define MBVH_VK_BINDING_HITS 1     /* Hit[], closest hit */
 #define MBVH_VK_BINDING_OCCLUDED 2 /* uint[], any hit: 1 = occluded */
-#define MBVH_VK_BINDING_STATS 3    /* uint[MBVH_VK_STAT_WORDS] per ray, host RayStats order */
-#define MBVH_VK_BINDING_COUNTERS 4 /* uint[MBVH_VK_COUNTERS]: MBVH_VK_COUNTER_* */
+#define MBVH_VK_BINDING_STATS 3    /* StatsRecord[] per ray */
+#define MBVH_VK_BINDING_COUNTERS 4 /* uint[MBVH_COUNTERS]: MBVH_COUNTER_* */
 #define MBVH_VK_BINDING_LEAVES 5   /* Leaf[] */
 #define MBVH_VK_BINDING_NODES 6    /* the traced layout's nodes: MBVH_VK_CHUNK_BINDINGS RGBA32UI texel buffers */
 #define MBVH_VK_BINDING_TRIS 7     /* Tri[]: MBVH_VK_CHUNK_BINDINGS storage-buffer chunks */
@@ -99,13 +124,23 @@ typedef uint mbvh_uint;
 #define MBVH_VK_SPEC_FAST 8        /* the `fast` accuracy mode */
 #define MBVH_VK_SPEC_MBVH4 9       /* the MBVH4 layout (Node4, skip codes), else MBVH2 (Node2) */
 #define MBVH_VK_SPECS 10
-/* Counters (binding MBVH_VK_BINDING_COUNTERS), zeroed by the host before each trace: */
-#define MBVH_VK_COUNTER_INVALID 0  /* rays rejected as invalid (defined misses) */
-#define MBVH_VK_COUNTER_OVERFLOW 1 /* rays whose traversal stack would overflow (a tree deeper than its cap) */
-#define MBVH_VK_COUNTERS 2
-/* Words of one ray's statistics record: nodes, box tests, leaves, triangles, climbs, re-tests,
- * maximum depth (bitstack: levels; stack: entries), one spare. */
-#define MBVH_VK_STAT_WORDS 8
+/* The push-constant block (one VkPushConstantRange at offset 0, the compute stage): its members,
+ * which trace.comp wraps in its `layout(push_constant)` block and the host in TracePush below. */
+#define MBVH_VK_PUSH_MEMBERS \
+  mbvh_uint count; /* rays in this dispatch */
+
+/* The OpenCL kernel arguments of shaders/trace.cl (every kernel of MBVH_KERNEL has this order),
+ * set by index in backends/opencl: */
+#define MBVH_CL_ARG_NODES 0    /* the traced layout's nodes: Node2[] or Node4W[] (as float16[]) */
+#define MBVH_CL_ARG_LEAVES 1   /* Leaf[] */
+#define MBVH_CL_ARG_TRIS 2     /* Tri[] */
+#define MBVH_CL_ARG_RAYS 3     /* Ray[] */
+#define MBVH_CL_ARG_COUNT 4    /* uint: rays in this dispatch */
+#define MBVH_CL_ARG_HITS 5     /* Hit[], closest hit */
+#define MBVH_CL_ARG_OCCLUDED 6 /* uchar[], any hit: 1 = occluded */
+#define MBVH_CL_ARG_STATS 7    /* StatsRecord[] per ray (written with MBVH_STATS=1) */
+#define MBVH_CL_ARG_COUNTERS 8 /* uint[MBVH_COUNTERS]: MBVH_COUNTER_* */
+#define MBVH_CL_ARGS 9
 
 MBVH_NS_BEGIN
 
@@ -191,6 +226,19 @@ MBVH_STRUCT(Tri4) {
   mbvh_uint prim[4];
 } MBVH_END(Tri4)
 
+/* One ray's statistics as a device writes them (both device backends): host RayStats
+ * (mbvh/trace.h) in its order, padded to 32 bytes. max_depth counts bitstack levels (bitstack)
+ * or stack entries (stack); retests stay 0 on the devices (no variant B there). */
+MBVH_STRUCT(StatsRecord) {
+  mbvh_uint nodes, box_tests, leaves, tris;
+  mbvh_uint climbs, retests, max_depth, pad;
+} MBVH_END(StatsRecord)
+
+/* The Vulkan push constants (MBVH_VK_PUSH_MEMBERS) as the host passes them to vkCmdPushConstants. */
+MBVH_STRUCT(TracePush) {
+  MBVH_VK_PUSH_MEMBERS
+} MBVH_END(TracePush)
+
 MBVH_NS_END
 
 #if defined(__cplusplus)
@@ -203,6 +251,14 @@ static_assert(sizeof(mbvh::Node4) == 128, "MBVH4 node is 128 bytes");
 static_assert(sizeof(mbvh::Node4W) == 128, "MBVH4 16-wide node is 128 bytes");
 static_assert(sizeof(mbvh::Node8) == 256, "MBVH8 node is 256 bytes");
 static_assert(sizeof(mbvh::Tri4) == 160, "SIMD leaf pack is ten 16-byte rows");
+static_assert(sizeof(mbvh::StatsRecord) == 32, "per-ray statistics record is eight uint words");
+static_assert(offsetof(mbvh::StatsRecord, climbs) == 16 && offsetof(mbvh::StatsRecord, max_depth) == 24,
+              "statistics record words in RayStats order");
+static_assert(sizeof(mbvh::TracePush) == 4 && offsetof(mbvh::TracePush, count) == 0, "push constants: the ray count");
+static_assert(sizeof(mbvh::TracePush) <= 128, "push constants within Vulkan's guaranteed maxPushConstantsSize");
+static_assert(MBVH_FAR_FACTOR == 1.0f + 0x1p-21f, "far factor 1 + 2^-21");
+static_assert(MBVH_CULL_SLACK == 1.0f + 3 * 0x1p-23f, "culling slack 1 + 3 * 2^-23");
+static_assert(MBVH_UNIT_ROUNDOFF == 0x1p-24f, "unit roundoff 2^-24");
 static_assert(offsetof(mbvh::Node2, link) == 48, "MBVH2 links in the 4th row");
 static_assert(offsetof(mbvh::Node4, child) == 96, "MBVH4 children at byte 96");
 static_assert(offsetof(mbvh::Node4, parent) == 112, "MBVH4 parent at byte 112");
