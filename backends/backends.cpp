@@ -17,27 +17,40 @@
 
 namespace mbvh {
 
+namespace {
+
+// A backend this build does not have: listed, with why, so `--backend NAME` can say it.
+[[maybe_unused]] void not_built(const char* name, const char* summary, const char* why) {
+  BackendInfo info;
+  info.name = name;
+  info.summary = summary;
+  info.unavailable = why;
+  register_backend(std::move(info));
+}
+
+}  // namespace
+
 void register_builtin_backends() {
   register_cpu_backends();
 #ifdef MBVH_HAVE_OPENCL
   register_opencl_backends();
 #else
-  register_backend({"opencl", "16-wide MIC-style MBVH4 traversal on OpenCL (PoCL)", {},
-                    "this build has no OpenCL backend (configure with -DMBVH_OPENCL=ON and the OpenCL headers and ICD "
-                    "loader installed)", {}, "", {}, {}});
+  not_built("opencl", "16-wide MIC-style MBVH4 traversal on OpenCL (PoCL)",
+            "this build has no OpenCL backend (configure with -DMBVH_OPENCL=ON or AUTO and the OpenCL headers and ICD "
+            "loader installed)");
 #endif
 #ifdef MBVH_HAVE_VULKAN
   register_vulkan_backends();
 #else
-  register_backend({"vulkan", "GPU-style MBVH2 traversal in a GLSL compute shader (lavapipe)", {},
-                    "this build has no Vulkan backend (configure with -DMBVH_VULKAN=ON and the Vulkan loader headers and "
-                    "glslangValidator installed)", {}, "", {}, {}});
+  not_built("vulkan", "GPU-style MBVH2 traversal in a GLSL compute shader (lavapipe)",
+            "this build has no Vulkan backend (configure with -DMBVH_VULKAN=ON or AUTO and the Vulkan loader headers and "
+            "glslangValidator installed)");
 #endif
 #ifdef MBVH_HAVE_EMBREE
   register_embree_backend();
 #else
-  register_backend({"embree", "peer: Embree 3 robust single-ray queries", {},
-                    "this build has no Embree peer (install Debian's libembree-dev and reconfigure)", {}, "", {}, {}});
+  not_built("embree", "peer: Embree 3 robust single-ray queries",
+            "this build has no Embree peer (install Debian's libembree-dev and reconfigure)");
 #endif
 }
 

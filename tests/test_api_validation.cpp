@@ -17,6 +17,7 @@
 #include "mbvh/backend.h"
 #include "host/core/compare.h"
 #include "mbvh/error.h"
+#include "tests/helpers.h"
 #include "host/core/parallel.h"
 #include "host/tools/raygen.h"
 #include "host/tools/render.h"
@@ -272,4 +273,39 @@ TEST_CASE("parallel_for on the persistent pool - every chunk once - nested and c
   std::atomic<std::size_t> after{0};
   mbvh::parallel_for(100, 1, 2, [&](std::size_t b, std::size_t e, unsigned) { after += e - b; });
   CHECK(after == 100);
+}
+
+TEST_CASE("backend settings belong to their backend - unknown names are refused by name", "[api]") {
+  // another family's setting is not this backend's concern: one options object serves several
+  BackendOptions o;
+  o.set("vulkan.device", "0").set("embree.quality", "high");
+  CHECK(make_backend("cpu", o) != nullptr);
+  // a family no backend has, or a name without a family: refused
+  CHECK_THROWS_WITH(make_backend("cpu", BackendOptions{}.set("vulcan.device", "0")),
+                    Catch::Contains("backend setting 'vulcan.device'") && Catch::Contains("FAMILY.NAME"));
+  CHECK_THROWS_WITH(make_backend("cpu", BackendOptions{}.set("device", "0")), Catch::Contains("backend setting 'device'"));
+  // a name of the backend's own family that it does not declare: refused, naming the ones it has
+  const bool have_vulkan = [] {
+    for (const BackendInfo& b : list_backends())
+      if (b.name == "vulkan") return static_cast<bool>(b.make);
+    return false;
+  }();
+  if (have_vulkan) {
+    CHECK_THROWS_WITH(make_backend("vulkan", BackendOptions{}.set("vulkan.stagin", "1")),
+                      Catch::Contains("backend 'vulkan' has no setting 'vulkan.stagin'") &&
+                          Catch::Contains("vulkan.staging"));
+    CHECK_THROWS_WITH(make_backend("vulkan", BackendOptions{}.set("vulkan.staging", "maybe")),
+                      Catch::Contains("vulkan.staging='maybe'"));
+    CHECK_THROWS_WITH(make_backend("vulkan", BackendOptions{}.set("vulkan.max-binding-bytes", "-1")),
+                      Catch::Contains("vulkan.max-binding-bytes='-1'"));
+  }
+  CHECK_THROWS_WITH(make_backend("cpu-scalar", BackendOptions{}.set("cpu.threads", "2")),
+                    Catch::Contains("backend 'cpu-scalar' has no setting 'cpu.threads' (its settings: none)"));
+  // the CLI: --set FAMILY.NAME=VALUE reaches the backend; a malformed one is a usage error
+  auto r = mbvh_test::run_cli("devices --set vulkan.validation=1");
+  CHECK(r.code == 0);
+  mbvh_test::TempDir dir;
+  r = mbvh_test::run_cli("trace gen:sphere:8 --count 10 --set nonsense -o " + dir.file("x.hits"));
+  CHECK(r.code == 2);
+  CHECK_THAT(r.output, Catch::Contains("--set 'nonsense': expected FAMILY.NAME=VALUE"));
 }

@@ -90,18 +90,18 @@ TEST_CASE("opencl: the GPU mapping - ray per lane and work-groups from the kerne
   // --cl-mapping gpu forces on this CPU device what a GPU device gets by default: `opencl` takes
   // the scalar node test and sizes its work-groups from the kernel (a partial last group too)
   BackendOptions o;
-  o.cl_mapping = "gpu";
+  o.set("opencl.mapping", "gpu");
   auto gpu = make_backend("opencl", o);
   CHECK(gpu->describe().find("ray-per-lane scalar MBVH4 node test") != std::string::npos);
   CHECK(gpu->describe().find("GPU mapping") != std::string::npos);
-  o.cl_mapping = "cpu";
+  o.set("opencl.mapping", "cpu");
   CHECK(make_backend("opencl", o)->describe().find("16-wide MBVH4 node test, MBVH2 GPU-style; CPU mapping") !=
         std::string::npos);
-  o.cl_mapping = "gpu";
+  o.set("opencl.mapping", "gpu");
   CHECK(make_backend("opencl-wide", o)->describe().find("16-wide MBVH4 node test, MBVH2 GPU-style; GPU mapping") !=
         std::string::npos);  // a named node test keeps it; the work-groups follow the mapping
-  o.cl_mapping = "simd";
-  CHECK_THROWS_WITH(make_backend("opencl", o), Catch::Contains("--cl-mapping 'simd': expected auto, cpu or gpu"));
+  o.set("opencl.mapping", "simd");
+  CHECK_THROWS_WITH(make_backend("opencl", o), Catch::Contains("opencl.mapping (--cl-mapping) 'simd': expected auto, cpu or gpu"));
 
   const Scene s = load_scene(mbvh_test::scene_path("bun_zipper.ply.zst"));
   const auto acc = Accel::build(s);

@@ -6,7 +6,7 @@
 // the binding range capped) and rays over several batches give cpu-scalar's answers; clear
 // errors for a missing driver and an unknown --vk-device; bench records beside cpu. Every check
 // covers both layouts the shader traverses, MBVH2 and MBVH4. The batches go both ways: in
-// lavapipe's host-visible memory, and staged through copies as on a discrete GPU (vk_staging).
+// lavapipe's host-visible memory, and staged through copies as on a discrete GPU (vulkan.staging).
 #include <catch2/catch.hpp>
 
 #include <cstdlib>
@@ -98,10 +98,10 @@ TEST_CASE("vulkan: arrays over the binding range are split - rays over several b
   ro.count = 50000;
   const std::vector<Ray> rays = generate_rays(s, *acc, ro);
   BackendOptions bo;
-  bo.vk_max_binding_bytes = 256 * 1024;
+  bo.set("vulkan.max-binding-bytes", std::to_string(256 * 1024));
   // lavapipe's device-local memory is host-visible: direct unless staging is forced
   const bool staged = GENERATE(false, true);
-  bo.vk_staging = staged;
+  bo.set("vulkan.staging", staged ? "1" : "0");
   INFO((staged ? "staged" : "direct (or MBVH_VK_STAGING set)"));
   auto b = make_backend("vulkan", bo);
   b->prepare(*acc, layout_options(Layout::mbvh2));
@@ -133,7 +133,7 @@ TEST_CASE("vulkan: arrays over the binding range are split - rays over several b
 
   // more chunks than the shader has bindings: a clear error naming the array and the limit
   BackendOptions tiny;
-  tiny.vk_max_binding_bytes = 16 * 1024;
+  tiny.set("vulkan.max-binding-bytes", std::to_string(16 * 1024));
   auto t = make_backend("vulkan", tiny);
   for (Layout l : kLayouts)
     CHECK_THROWS_WITH(t->prepare(*acc, layout_options(l)),

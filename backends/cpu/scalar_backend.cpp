@@ -35,7 +35,7 @@ private:
 
 void register_cpu_scalar_backend() {
   register_backend({"cpu-scalar", "scalar reference traversals (MBVH2/MBVH4, stack/bitstack), multi-threaded",
-                    [](const BackendOptions& o) { return std::unique_ptr<Backend>(new ScalarBackend(o)); }, "", {}, "", {}, {}});
+                    [](const BackendOptions& o) { return std::unique_ptr<Backend>(new ScalarBackend(o)); }, "", {}, "", {}, {}, {}});
 }
 
 }  // namespace mbvh

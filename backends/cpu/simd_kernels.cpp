@@ -182,7 +182,7 @@ template <bool Any = false>
   if (cand == 0) return 0;
   // conservative t > 0 (pbrt-v3), as tri_test: std::fmax and maxps agree here (no NaN in a
   // candidate lane's inputs: a NaN there makes t NaN)
-  constexpr float u = 0x1p-24f;
+  constexpr float u = MBVH_UNIT_ROUNDOFF;
   constexpr float g2 = 2 * u / (1 - 2 * u), g3 = 3 * u / (1 - 3 * u), g5 = 5 * u / (1 - 5 * u);
   const __m128 sign = _mm_set1_ps(-0.0f);
   auto absmax3 = [&](const __m128 a[3]) {

@@ -58,7 +58,7 @@ std::string beyond_embree(const Ray& r) {
 
 class EmbreeBackend final : public Backend {
 public:
-  explicit EmbreeBackend(const BackendOptions& o) : threads_(resolve_threads(o.threads)), quality_(o.quality) {
+  explicit EmbreeBackend(const BackendOptions& o) : threads_(resolve_threads(o.threads)), quality_(parse_quality(o.get("embree.quality", "medium"))) {
     const std::string config = "threads=" + std::to_string(threads_);
     device_ = rtcNewDevice(config.c_str());
     if (!device_)
@@ -261,6 +261,8 @@ void register_embree_backend() {
   info.name = "embree";
   info.summary = "peer: Embree 3 robust rtcIntersect1/rtcOccluded1 on the same triangles and rays";
   info.make = [](const BackendOptions& o) -> std::unique_ptr<Backend> { return std::make_unique<EmbreeBackend>(o); };
+  info.settings = {{"embree.quality", "Embree's own build quality: low, medium (the default) or high "
+                                      "(rtcSetSceneBuildQuality; `--quality`)"}};
   register_backend(std::move(info));
 }
 

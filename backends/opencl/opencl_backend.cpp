@@ -55,10 +55,10 @@ struct Mapping {
   bool gpu = false;   // work-groups from the kernel's preferred multiple (else kCpuLocalSize)
   bool wide = true;   // the 16-lane node test (MBVH_WIDE=1)
 
-  // `forced`: BackendOptions::cl_mapping ("", "auto", "cpu" or "gpu")
+  // `forced`: the opencl.mapping setting ("", "auto", "cpu" or "gpu")
   static Mapping choose(const cl::DeviceEntry& dev, NodeTest test, const std::string& forced) {
     if (!forced.empty() && forced != "auto" && forced != "cpu" && forced != "gpu")
-      throw Error("--cl-mapping '" + forced + "': expected auto, cpu or gpu");
+      throw Error("opencl.mapping (--cl-mapping) '" + forced + "': expected auto, cpu or gpu");
     Mapping m;
     m.gpu = forced == "gpu" || ((forced.empty() || forced == "auto") && (dev.type & CL_DEVICE_TYPE_GPU) != 0);
     m.wide = test == NodeTest::wide || (test == NodeTest::by_device && !m.gpu);
@@ -77,15 +77,15 @@ class OpenClBackend final : public Backend {
 public:
   OpenClBackend(std::string name, NodeTest test, const BackendOptions& o) : name_(std::move(name)) {
     const std::vector<cl::DeviceEntry> devices = cl::list_devices();
-    dev_ = cl::choose_device(devices, o.cl_device);
-    map_ = Mapping::choose(dev_, test, o.cl_mapping);
+    dev_ = cl::choose_device(devices, o.get("opencl.device"));
+    map_ = Mapping::choose(dev_, test, o.get("opencl.mapping"));
     {  // say which device, once per backend and device in a process
       static std::mutex m;
       static std::set<std::string> said;
       const std::lock_guard<std::mutex> lock(m);
       if (said.insert(name_ + " " + dev_.id()).second)
         std::fprintf(stderr, "%s: OpenCL device %s%s; %s\n", name_.c_str(), dev_.describe().c_str(),
-                     o.cl_device.empty() && devices.size() > 1
+                     o.get("opencl.device").empty() && devices.size() > 1
                          ? (" (chosen from " + std::to_string(devices.size()) + " devices; pick one with --cl-device)").c_str()
                          : "",
                      map_.gpu ? "GPU mapping" : "CPU mapping");
@@ -349,6 +349,11 @@ void add(const char* name, const char* summary, NodeTest test, const char* alias
     return std::make_unique<OpenClBackend>(name, test, o);
   };
   info.devices = &device_lines;
+  info.settings = {{"opencl.device", "the device, PLATFORM:DEVICE or a name substring (`--cl-device`; default: the "
+                                     "backend's choice, printed)"},
+                   {"opencl.mapping", "auto (by the device's type), cpu (the 16-wide node test, fixed work-groups) or gpu "
+                                      "(the scalar node test, work-groups from the kernel's preferred multiple); "
+                                      "`--cl-mapping`"}};
   register_backend(std::move(info));
 }
 

@@ -49,8 +49,8 @@ constexpr std::size_t kMaxBatch = std::size_t(1) << 21;  // rays per dispatch (6
 
 vk::DeviceRequest device_request(const BackendOptions& o) {
   vk::DeviceRequest r;
-  r.selector = o.vk_device;
-  r.max_binding_bytes = o.vk_max_binding_bytes;
+  r.selector = o.get("vulkan.device");
+  r.max_binding_bytes = o.get_size("vulkan.max-binding-bytes");
   r.local_size = kLocalSize;
   r.max_batch = kMaxBatch;
   r.storage_descriptors = vk::kStorageDescriptors;
@@ -61,10 +61,10 @@ vk::DeviceRequest device_request(const BackendOptions& o) {
 class VulkanBackend final : public Backend {
 public:
   explicit VulkanBackend(const BackendOptions& o)
-      : instance_(vk::validation_requested(o.vk_validation)),
+      : instance_(vk::validation_requested(o.get_flag("vulkan.validation"))),
         dev_(instance_, device_request(o)),
         pipelines_(dev_, kLocalSize),
-        force_staging_(vk::staging_requested(o.vk_staging)) {
+        force_staging_(vk::staging_requested(o.get_flag("vulkan.staging"))) {
     try {
       counters_ = vk::make_buffer(dev_, MBVH_COUNTERS * sizeof(std::uint32_t), VK_BUFFER_USAGE_STORAGE_BUFFER_BIT,
                                   vk::Memory::host, "counters");
@@ -289,7 +289,7 @@ private:
   vk::Instance instance_;
   vk::Device dev_;
   vk::Pipelines pipelines_;
-  const bool force_staging_;  ///< BackendOptions::vk_staging or MBVH_VK_STAGING=1
+  const bool force_staging_;  ///< the vulkan.staging setting or MBVH_VK_STAGING=1
   double device_seconds_ = -1;  ///< last_device_seconds()
   bool descriptors_dirty_ = true;
   const Accel* acc_ = nullptr;
@@ -322,6 +322,14 @@ void register_vulkan_backends() {
   info.make = [](const BackendOptions& o) -> std::unique_ptr<Backend> { return std::make_unique<VulkanBackend>(o); };
   info.devices = &device_lines;
   info.pending_problems = &vk::take_validation_messages;
+  info.settings = {
+      {"vulkan.device", "the device, an index or a name substring (`--vk-device`; default: the backend's choice, printed)"},
+      {"vulkan.validation", "1: the Khronos validation layer on, any message an error (`--vk-validation`; also "
+                            "MBVH_VK_VALIDATION=1)"},
+      {"vulkan.staging", "1: rays and results in device-local memory moved through staging buffers even where "
+                         "device-local memory is host-visible (lavapipe), as on a discrete GPU (also MBVH_VK_STAGING=1)"},
+      {"vulkan.max-binding-bytes", "caps a storage-buffer binding below maxStorageBufferRange (0: no cap), so the "
+                                   "split-buffer path runs on small scenes"}};
   register_backend(std::move(info));
 }
 

@@ -37,7 +37,7 @@ BenchOptions bench_options(const BenchArgs& a) {
   bo.scaling = a.scaling;
   bo.threads = a.scene.threads;
   bo.backend = a.grid.dev.options(a.scene.threads);
-  bo.backend.quality = parse_quality(a.scene.quality);
+  bo.backend.set("embree.quality", to_string(parse_quality(a.scene.quality)));  // the peer builds its own BVH
   set_camera(a.camera, bo.has_camera, bo.camera);
   return bo;
 }

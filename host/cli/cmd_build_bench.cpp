@@ -42,7 +42,7 @@ double median(std::vector<double> v) {
 std::vector<double> time_embree(const Accel& acc, const BuildOptions& bo, unsigned repeats) {
   BackendOptions eo;
   eo.threads = bo.threads;
-  eo.quality = bo.quality;
+  eo.set("embree.quality", to_string(bo.quality));
   TraceOptions to;
   to.layout = Layout::mbvh4;
   to.traversal = Traversal::stack;

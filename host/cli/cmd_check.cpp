@@ -47,7 +47,7 @@ int run_check_command(const CheckArgs& a) {
   co.grid = a.grid.parse();
   co.threads = a.scene.threads;
   co.backend = a.grid.dev.options(a.scene.threads);
-  co.backend.quality = parse_quality(a.scene.quality);
+  co.backend.set("embree.quality", to_string(parse_quality(a.scene.quality)));  // the peer builds its own BVH
   co.brute_rays = a.brute == "all" ? SIZE_MAX : std::strtoull(a.brute.c_str(), nullptr, 10);  // checked: an integer
   Loaded l = load_and_build(a.scene);
   std::vector<std::string> kinds = a.kinds.empty() ? std::vector<std::string>{a.rays.kind} : split_list(a.kinds);

@@ -1,6 +1,6 @@
 // SPDX-License-Identifier: MIT
-// cmd_devices.cpp — `mbvh devices`: the backends of this build, their devices and whether they
-// can start.
+// cmd_devices.cpp — `mbvh devices`: the backends of this build, their devices, their settings
+// (--set) and whether they can start.
 #include "host/cli/commands.h"
 
 namespace mbvh::cli {
@@ -19,6 +19,8 @@ int run_devices(const DeviceArgs& dev) {
           b.alias_of.empty() ? "" : (" (= " + b.alias_of + ")").c_str());
       if (b.devices && b.alias_of.empty())
         for (const std::string& d : b.devices()) say("%-12s   device %s\n", "", d.c_str());
+      if (b.alias_of.empty())
+        for (const BackendSetting& s : b.settings) say("%-12s   setting %s: %s\n", "", s.name.c_str(), s.help.c_str());
     } catch (const std::exception& e) {
       say("%-12s cannot start: %s\n", b.name.c_str(), e.what());
     }

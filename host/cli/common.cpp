@@ -181,15 +181,24 @@ void DeviceArgs::add(CLI::App* c) {
   c->add_flag("--vk-validation", vk_validation,
               "Vulkan: enable the Khronos validation layer; any message it reports is an error "
               "(also MBVH_VK_VALIDATION=1)");
+  c->add_option("--set", settings,
+                "a backend's own setting, FAMILY.NAME=VALUE (repeatable; each backend's settings: `mbvh devices`), "
+                "e.g. --set vulkan.staging=1");
 }
 
 BackendOptions DeviceArgs::options(unsigned threads) const {
   BackendOptions o;
   o.threads = threads;
-  o.cl_device = cl_device;
-  o.cl_mapping = cl_mapping;
-  o.vk_device = vk_device;
-  o.vk_validation = vk_validation;
+  // the device flags are the opencl.* and vulkan.* settings under their old names
+  if (!cl_device.empty()) o.set("opencl.device", cl_device);
+  if (cl_mapping != "auto") o.set("opencl.mapping", cl_mapping);
+  if (!vk_device.empty()) o.set("vulkan.device", vk_device);
+  if (vk_validation) o.set("vulkan.validation", "1");
+  for (const std::string& s : settings) {
+    const std::size_t eq = s.find('=');
+    if (eq == std::string::npos || eq == 0) throw Error("--set '" + s + "': expected FAMILY.NAME=VALUE");
+    o.set(s.substr(0, eq), s.substr(eq + 1));
+  }
   return o;
 }
 

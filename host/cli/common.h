@@ -119,6 +119,7 @@ Layout default_layout(const Backend& b, Traversal t);
 struct DeviceArgs {
   std::string cl_device, vk_device, cl_mapping = "auto";
   bool vk_validation = false;
+  std::vector<std::string> settings;  ///< --set FAMILY.NAME=VALUE
   void add(CLI::App* c);
   /// The backend options of these choices, with `threads`.
   BackendOptions options(unsigned threads) const;

@@ -1,6 +1,7 @@
 // SPDX-License-Identifier: MIT
 // registry.cpp — the backend registry: names to factories. The core registers nothing: the
 // program (or the user) registers the backends it links (mbvh/backends.h).
+#include <charconv>
 #include <mutex>
 
 #include "mbvh/backend.h"
@@ -36,10 +37,67 @@ std::vector<BackendInfo> list_backends() {
   return table();
 }
 
+std::string BackendOptions::get(const std::string& name, const std::string& fallback) const {
+  const auto it = settings.find(name);
+  return it == settings.end() ? fallback : it->second;
+}
+
+bool BackendOptions::get_flag(const std::string& name, bool fallback) const {
+  const auto it = settings.find(name);
+  if (it == settings.end()) return fallback;
+  for (const char* t : {"1", "true", "on", "yes"})
+    if (it->second == t) return true;
+  for (const char* f : {"0", "false", "off", "no"})
+    if (it->second == f) return false;
+  throw Error("backend setting " + name + "='" + it->second + "': expected 1, true, on, yes or 0, false, off, no");
+}
+
+std::size_t BackendOptions::get_size(const std::string& name, std::size_t fallback) const {
+  const auto it = settings.find(name);
+  if (it == settings.end()) return fallback;
+  const std::string& v = it->second;
+  std::size_t n = 0;
+  const auto [end, ec] = std::from_chars(v.data(), v.data() + v.size(), n);
+  if (v.empty() || ec != std::errc() || end != v.data() + v.size())
+    throw Error("backend setting " + name + "='" + v + "': expected an unsigned decimal number");
+  return n;
+}
+
+namespace {
+
+// "opencl-wide" -> "opencl": a backend's family, the prefix of its settings' names
+std::string family_of(const std::string& name) { return name.substr(0, name.find('-')); }
+
+// Every setting of `opt` names a registered family, and those of `b`'s family are b's own.
+void check_settings(const BackendInfo& b, const BackendOptions& opt, const std::vector<BackendInfo>& all) {
+  for (const auto& [key, value] : opt.settings) {
+    const std::size_t dot = key.find('.');
+    const std::string family = key.substr(0, dot);
+    bool known = false;
+    for (const BackendInfo& x : all) known |= family_of(x.name) == family;
+    if (dot == std::string::npos || dot + 1 == key.size() || !known)
+      throw Error("backend setting '" + key + "': settings are named FAMILY.NAME after a registered backend family " +
+                  "(e.g. opencl.device, vulkan.validation)");
+    if (family != family_of(b.name)) continue;  // another family's: not this backend's concern
+    bool declared = false;
+    std::string names;
+    for (const BackendSetting& s : b.settings) {
+      declared |= s.name == key;
+      names += (names.empty() ? "" : ", ") + s.name;
+    }
+    if (!declared)
+      throw Error("backend '" + b.name + "' has no setting '" + key + "' (its settings: " + (names.empty() ? "none" : names) + ")");
+  }
+}
+
+}  // namespace
+
 std::unique_ptr<Backend> make_backend(const std::string& name, const BackendOptions& opt) {
-  for (const BackendInfo& b : list_backends()) {
+  const std::vector<BackendInfo> all = list_backends();
+  for (const BackendInfo& b : all) {
     if (b.name != name) continue;
     if (!b.make) throw Error("backend '" + name + "' is not available in this build: " + b.unavailable);
+    check_settings(b, opt, all);
     return b.make(opt);
   }
   std::string known;

@@ -5,6 +5,7 @@
 #pragma once
 #include <cstddef>
 #include <functional>
+#include <map>
 #include <memory>
 #include <span>
 #include <string>
@@ -15,25 +16,38 @@
 
 namespace mbvh {
 
+/// What every backend takes, plus the settings of one backend by name. Settings belong to their
+/// backend: each declares its own (BackendInfo::settings, listed by `mbvh devices`), named
+/// FAMILY.NAME after the backend family (the registry name up to its first '-'):
+///   opencl.device, opencl.mapping                  (opencl, opencl-wide, opencl-lane)
+///   vulkan.device, vulkan.validation, vulkan.staging, vulkan.max-binding-bytes   (vulkan)
+///   embree.quality                                 (the embree peer)
+/// One BackendOptions may carry the settings of several families (make_backend gives each
+/// backend its own); make_backend refuses a name of an unknown family, or one its own family
+/// does not declare, naming the known ones.
 struct BackendOptions {
-  unsigned threads = 0;     ///< CPU workers (0 = every hardware thread)
-  /// Build quality of a peer library's own BVH, `--quality` (embree: rtcSetSceneBuildQuality
-  /// RTC_BUILD_QUALITY_LOW / MEDIUM / HIGH); the other backends trace the Accel they are given.
-  BuildQuality quality = BuildQuality::medium;
-  std::string cl_device;    ///< OpenCL device selector, `--cl-device` ("" = the backend's choice, printed)
-  std::string vk_device;    ///< Vulkan device selector, `--vk-device` ("" = the backend's choice, printed)
-  /// OpenCL work mapping, `--cl-mapping`: "" or "auto" = by the device's type, "cpu" (the 16-wide
-  /// node test, fixed work-groups) or "gpu" (the scalar node test, work-groups sized from the
-  /// kernel's preferred multiple); forcing "gpu" on a CPU device tests the GPU mapping here.
-  std::string cl_mapping;
-  bool vk_validation = false;  ///< Khronos validation layer on, `--vk-validation` (also MBVH_VK_VALIDATION=1)
-  /// Caps a Vulkan storage-buffer binding below the device's maxStorageBufferRange (0 = no cap),
-  /// so the split-buffer path can be exercised on small scenes.
-  std::size_t vk_max_binding_bytes = 0;
-  /// Vulkan: keep the per-batch rays and results in device-local memory and move them through
-  /// host-visible staging buffers even where device-local memory is host-visible (lavapipe), so
-  /// the discrete-GPU path is exercised here (also MBVH_VK_STAGING=1).
-  bool vk_staging = false;
+  unsigned threads = 0;  ///< CPU workers (0 = every hardware thread)
+  std::map<std::string, std::string> settings;  ///< FAMILY.NAME -> value (see above)
+
+  /// Sets a setting (chainable): BackendOptions{}.set("opencl.device", "1:0").
+  BackendOptions& set(const std::string& name, const std::string& value) {
+    settings[name] = value;
+    return *this;
+  }
+  /// The value of a setting, or `fallback` when it is not set.
+  std::string get(const std::string& name, const std::string& fallback = "") const;
+  /// A boolean setting: "1", "true", "on", "yes" or "0", "false", "off", "no"; `fallback` when
+  /// not set. Throws Error naming the setting on any other value.
+  bool get_flag(const std::string& name, bool fallback = false) const;
+  /// A byte count or other unsigned setting (decimal); `fallback` when not set. Throws Error
+  /// naming the setting on anything else.
+  std::size_t get_size(const std::string& name, std::size_t fallback = 0) const;
+};
+
+/// One setting a backend declares: its full name (FAMILY.NAME) and what it does, for help texts.
+struct BackendSetting {
+  std::string name;
+  std::string help;
 };
 
 class Backend {
@@ -99,6 +113,8 @@ struct BackendInfo {
   /// If set, takes the problems the backend's diagnostics raised where they could not be thrown
   /// (Vulkan validation messages while tearing down); the CLI and the tests fail on any.
   std::function<std::vector<std::string>()> pending_problems;
+  /// The settings this backend reads (BackendOptions::settings).
+  std::vector<BackendSetting> settings;
 };
 
 /// Adds a backend to the registry (a later registration of the same name replaces it).
@@ -106,7 +122,8 @@ void register_backend(BackendInfo info);
 /// Every backend known to this binary, built or not, in registration order.
 std::vector<BackendInfo> list_backends();
 /// Makes a backend by name; throws Error naming the known backends, or saying why a known
-/// backend is not built or cannot start.
+/// backend is not built or cannot start, or naming a setting of `opt` that no backend of its
+/// family declares (BackendOptions).
 std::unique_ptr<Backend> make_backend(const std::string& name, const BackendOptions& opt = {});
 
 }  // namespace mbvh
