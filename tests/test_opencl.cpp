@@ -77,7 +77,7 @@ TEST_CASE("opencl: --cl-device chooses by index - platform:device or name - and 
   CHECK(&cl::choose_device(list, "gpu") == &list[1]);  // by type, case-insensitive
   CHECK(&cl::choose_device(list, "CPU") == &list[0]);
   CHECK_THROWS_WITH(cl::choose_device(list, "accelerator"), Catch::Contains("no OpenCL device matches"));
-  CHECK_THROWS_WITH(cl::choose_device(list, "7:7"), Catch::Contains("no OpenCL device matches --cl-device '7:7'") &&
+  CHECK_THROWS_WITH(cl::choose_device(list, "7:7"), Catch::Contains("no OpenCL device matches opencl.device (--cl-device) '7:7'") &&
                                                      Catch::Contains("1:0 Other CPU"));
 
   // the real program: the choice is printed, and a wrong one is an error listing the devices

@@ -200,7 +200,7 @@ TEST_CASE("vulkan: --vk-device chooses by index or name - prints the choice - an
   CHECK(&vk::choose_device(list, "gpu") == &list[1]);
   CHECK(&vk::choose_device(list, "integrated gpu") == &list[2]);
   CHECK_THROWS_WITH(vk::choose_device(list, "7"),
-                    Catch::Contains("no Vulkan device matches --vk-device '7'") && Catch::Contains("2 Small GPU"));
+                    Catch::Contains("no Vulkan device matches vulkan.device (--vk-device) '7'") && Catch::Contains("2 Small GPU"));
 
   // the real program: the choice is printed (and no validation message), a wrong one lists the devices
   mbvh_test::check_device_flag("vulkan", "--vk-device", "llvmpipe", "vulkan: Vulkan device 0 llvmpipe", "Vulkan",

@@ -165,7 +165,7 @@ const DeviceEntry& choose_device(const std::vector<DeviceEntry>& devices, const 
     c.push_back({d.id(), {d.device_name, d.platform_name},
                  (d.type & CL_DEVICE_TYPE_GPU) ? 0 : (d.type & CL_DEVICE_TYPE_ACCELERATOR) ? 1 : 2, d.describe(),
                  {d.type_name()}});
-  return devices[choose_device_index(c, selector, "OpenCL", "--cl-device")];
+  return devices[choose_device_index(c, selector, "OpenCL", "opencl.device (--cl-device)")];
 }
 
 Program build_program(cl_context ctx, const DeviceEntry& dev, const std::string& source, const std::string& options) {

@@ -86,7 +86,7 @@ public:
       if (said.insert(name_ + " " + dev_.id()).second)
         std::fprintf(stderr, "%s: OpenCL device %s%s; %s\n", name_.c_str(), dev_.describe().c_str(),
                      o.get("opencl.device").empty() && devices.size() > 1
-                         ? (" (chosen from " + std::to_string(devices.size()) + " devices; pick one with --cl-device)").c_str()
+                         ? (" (chosen from " + std::to_string(devices.size()) + " devices; pick one with the opencl.device setting, --cl-device)").c_str()
                          : "",
                      map_.gpu ? "GPU mapping" : "CPU mapping");
     }

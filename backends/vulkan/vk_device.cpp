@@ -33,7 +33,7 @@ void Device::init(const Instance& instance, const DeviceRequest& o) {
     if (said.insert(entry_.index).second)
       std::fprintf(stderr, "vulkan: Vulkan device %s%s\n", entry_.describe().c_str(),
                    o.selector.empty() && devices.size() > 1
-                       ? (" (chosen from " + std::to_string(devices.size()) + " devices; pick one with --vk-device)").c_str()
+                       ? (" (chosen from " + std::to_string(devices.size()) + " devices; pick one with the vulkan.device setting, --vk-device)").c_str()
                        : "");
   }
 

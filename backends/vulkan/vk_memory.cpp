@@ -67,10 +67,15 @@ Buffer make_buffer(const Device& dev, std::size_t bytes, VkBufferUsageFlags usag
     destroy(dev, b);
     fail("vkAllocateMemory", r, what + ", " + mib(bytes));
   }
-  check(vkBindBufferMemory(device, b.buffer, b.memory, 0), "vkBindBufferMemory");
-  b.flags = dev.memory().memoryTypes[ai.memoryTypeIndex].propertyFlags;
-  if (b.flags & VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT)
-    check(vkMapMemory(device, b.memory, 0, VK_WHOLE_SIZE, 0, &b.mapped), "vkMapMemory");
+  try {
+    check(vkBindBufferMemory(device, b.buffer, b.memory, 0), "vkBindBufferMemory");
+    b.flags = dev.memory().memoryTypes[ai.memoryTypeIndex].propertyFlags;
+    if (b.flags & VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT)
+      check(vkMapMemory(device, b.memory, 0, VK_WHOLE_SIZE, 0, &b.mapped), "vkMapMemory");
+  } catch (...) {
+    destroy(dev, b);
+    throw;
+  }
   return b;
 }
 
@@ -93,22 +98,29 @@ Buffer upload(Device& dev, const std::string& what, const void* data, std::size_
                              VK_BUFFER_USAGE_TRANSFER_DST_BIT,
                          Memory::device, what);
   if (bytes == 0) return b;
-  if (b.mapped) {
-    std::memcpy(b.mapped, data, bytes);  // coherent or not, made visible by the next submit
-    if (!(b.flags & VK_MEMORY_PROPERTY_HOST_COHERENT_BIT)) {
-      VkMappedMemoryRange r{VK_STRUCTURE_TYPE_MAPPED_MEMORY_RANGE, nullptr, b.memory, 0, VK_WHOLE_SIZE};
-      check(vkFlushMappedMemoryRanges(dev.get(), 1, &r), "vkFlushMappedMemoryRanges");
+  Buffer staging;
+  try {
+    if (b.mapped) {
+      std::memcpy(b.mapped, data, bytes);  // coherent or not, made visible by the next submit
+      if (!(b.flags & VK_MEMORY_PROPERTY_HOST_COHERENT_BIT)) {
+        VkMappedMemoryRange r{VK_STRUCTURE_TYPE_MAPPED_MEMORY_RANGE, nullptr, b.memory, 0, VK_WHOLE_SIZE};
+        check(vkFlushMappedMemoryRanges(dev.get(), 1, &r), "vkFlushMappedMemoryRanges");
+      }
+      return b;
     }
-    return b;
+    staging = make_buffer(dev, bytes, VK_BUFFER_USAGE_TRANSFER_SRC_BIT, Memory::upload, what + " (staging)");
+    std::memcpy(staging.mapped, data, bytes);
+    dev.begin();
+    dev.copy(staging.buffer, b.buffer, bytes);
+    // orders: the copy's writes before any later dispatch's shader reads of this array
+    dev.barrier(VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
+                VK_ACCESS_SHADER_READ_BIT);
+    dev.submit_and_wait();
+  } catch (...) {  // neither buffer outlives a failed upload
+    destroy(dev, staging);
+    destroy(dev, b);
+    throw;
   }
-  Buffer staging = make_buffer(dev, bytes, VK_BUFFER_USAGE_TRANSFER_SRC_BIT, Memory::upload, what + " (staging)");
-  std::memcpy(staging.mapped, data, bytes);
-  dev.begin();
-  dev.copy(staging.buffer, b.buffer, bytes);
-  // orders: the copy's writes before any later dispatch's shader reads of this array
-  dev.barrier(VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
-              VK_ACCESS_SHADER_READ_BIT);
-  dev.submit_and_wait();
   destroy(dev, staging);
   return b;
 }

@@ -246,7 +246,7 @@ const DeviceEntry& choose_device(const std::vector<DeviceEntry>& devices, const 
     if (rank <= 2) types.push_back("gpu");
     c.push_back({std::to_string(d.index), {d.name, d.driver_name}, rank, d.describe(), types});
   }
-  return devices[choose_device_index(c, selector, "Vulkan", "--vk-device")];
+  return devices[choose_device_index(c, selector, "Vulkan", "vulkan.device (--vk-device)")];
 }
 
 }  // namespace mbvh::vk

@@ -36,8 +36,7 @@ BenchOptions bench_options(const BenchArgs& a) {
   bo.first_layout = a.first_layout;
   bo.scaling = a.scaling;
   bo.threads = a.scene.threads;
-  bo.backend = a.grid.dev.options(a.scene.threads);
-  bo.backend.set("embree.quality", to_string(parse_quality(a.scene.quality)));  // the peer builds its own BVH
+  bo.backend = a.grid.dev.options(a.scene.threads, a.scene.quality);
   set_camera(a.camera, bo.has_camera, bo.camera);
   return bo;
 }

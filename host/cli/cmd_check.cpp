@@ -46,8 +46,7 @@ int run_check_command(const CheckArgs& a) {
   CheckOptions co;
   co.grid = a.grid.parse();
   co.threads = a.scene.threads;
-  co.backend = a.grid.dev.options(a.scene.threads);
-  co.backend.set("embree.quality", to_string(parse_quality(a.scene.quality)));  // the peer builds its own BVH
+  co.backend = a.grid.dev.options(a.scene.threads, a.scene.quality);
   co.brute_rays = a.brute == "all" ? SIZE_MAX : std::strtoull(a.brute.c_str(), nullptr, 10);  // checked: an integer
   Loaded l = load_and_build(a.scene);
   std::vector<std::string> kinds = a.kinds.empty() ? std::vector<std::string>{a.rays.kind} : split_list(a.kinds);

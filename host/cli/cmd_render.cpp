@@ -63,7 +63,7 @@ int run_render(const RenderArgs& a, const CLI::App& cmd) {
   // -- options, backend, variant
   std::vector<float> reference;
   RenderOptions o = render_options(a, reference);
-  auto backend = make_backend(a.backend, a.dev.options(a.scene.threads));
+  auto backend = make_backend(a.backend, a.dev.options(a.scene.threads, a.scene.quality));
   // a backend without a bitstack (embree) renders with its stack unless --traversal says otherwise
   if (!cmd.count("--traversal") && !backend->supports(default_layout(*backend, o.traversal), o.traversal))
     o.traversal = Traversal::stack;

@@ -50,8 +50,7 @@ int run_trace(TraceArgs& a, const CLI::App& cmd) {
   o.query = parse_query(a.query);
   o.stats = a.stats;
   o.precision = parse_precision(a.precision);
-  BackendOptions bo = a.dev.options(a.scene.threads);
-  bo.set("embree.quality", to_string(parse_quality(a.scene.quality)));  // the peer builds its own BVH
+  BackendOptions bo = a.dev.options(a.scene.threads, a.scene.quality);
   auto backend = make_backend(a.backend, bo);
   if (cmd.count("--layout") == 0) {
     o.layout = default_layout(*backend, o.traversal);

@@ -186,7 +186,7 @@ void DeviceArgs::add(CLI::App* c) {
                 "e.g. --set vulkan.staging=1");
 }
 
-BackendOptions DeviceArgs::options(unsigned threads) const {
+BackendOptions DeviceArgs::options(unsigned threads, const std::string& quality) const {
   BackendOptions o;
   o.threads = threads;
   // the device flags are the opencl.* and vulkan.* settings under their old names
@@ -199,6 +199,8 @@ BackendOptions DeviceArgs::options(unsigned threads) const {
     if (eq == std::string::npos || eq == 0) throw Error("--set '" + s + "': expected FAMILY.NAME=VALUE");
     o.set(s.substr(0, eq), s.substr(eq + 1));
   }
+  // the peer builds its own BVH: at the quality of ours, unless set apart
+  if (!quality.empty() && !o.settings.count("embree.quality")) o.set("embree.quality", to_string(parse_quality(quality)));
   return o;
 }
 

@@ -121,8 +121,9 @@ struct DeviceArgs {
   bool vk_validation = false;
   std::vector<std::string> settings;  ///< --set FAMILY.NAME=VALUE
   void add(CLI::App* c);
-  /// The backend options of these choices, with `threads`.
-  BackendOptions options(unsigned threads) const;
+  /// The backend options of these choices, with `threads`; `quality` (the build's --quality, if
+  /// given) becomes the embree peer's own build quality unless --set embree.quality says otherwise.
+  BackendOptions options(unsigned threads, const std::string& quality = "") const;
 };
 
 /// --backend, --layout, --traversal, --query, --precision as comma-separated lists (check and

@@ -15,28 +15,6 @@
 
 namespace mbvh {
 
-/// Allocator of cache-line (64-byte) aligned arrays: a 128-byte MBVH4 node then spans two cache
-/// lines, not three, and a leaf's triangles start on a line.
-template <class T>
-struct CacheAligned {
-  using value_type = T;
-  static constexpr std::align_val_t align{64};
-  CacheAligned() = default;
-  template <class U>
-  CacheAligned(const CacheAligned<U>&) {}
-  T* allocate(std::size_t n) { return static_cast<T*>(::operator new(n * sizeof(T), align)); }
-  void deallocate(T* p, std::size_t) { ::operator delete(p, align); }
-  /// Value-initialises (zero words in unused slots of nodes), except Tri: a triangle array is
-  /// sized and then every word written by parallel passes (build, refit), which then also first
-  /// touch its pages, instead of one thread zeroing it beforehand.
-  template <class U, class... Args>
-  void construct(U* p, Args&&... args) {
-    if constexpr (sizeof...(Args) == 0 && std::is_same_v<U, Tri>) ::new (static_cast<void*>(p)) U;
-    else ::new (static_cast<void*>(p)) U(std::forward<Args>(args)...);
-  }
-  template <class U>
-  bool operator==(const CacheAligned<U>&) const { return true; }
-};
 
 /// The binary BVH: inner nodes in depth-first order (record 0 = root; children before siblings'
 /// subtrees), each child a reference as in mbvh_layout.h.

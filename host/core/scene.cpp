@@ -9,6 +9,7 @@
 #include <cstring>
 
 #include "mbvh/error.h"
+#include "host/core/layouts.h"  // hash_bytes
 #include "host/core/resources.h"
 
 namespace mbvh {
@@ -50,7 +51,7 @@ std::uint32_t Scene::add_mesh(const MeshView& m) {
 }
 
 std::size_t Scene::mesh_of(std::size_t prim) const {
-  return static_cast<std::size_t>(std::upper_bound(offsets_.begin(), offsets_.end(), std::uint64_t(prim)) - offsets_.begin()) - 1;
+  return geometry_index(offsets_.data(), meshes_.size(), prim);
 }
 
 GeomPrim Scene::geometry_of(std::uint32_t prim) const {
@@ -123,28 +124,34 @@ Box Scene::bounds() const {
 }
 
 std::uint64_t Scene::hash() const {
+  // hash_bytes (word-wise) over chunks of kChunk records: a view's records are packed into a
+  // chunk first, so one view hashes as the owned arrays holding the same vertices and triangles
+  static constexpr std::size_t kChunk = std::size_t(1) << 14;
   std::uint64_t h = 0xcbf29ce484222325ull;
-  auto mix = [&h](const void* p, std::size_t n) {
-    const unsigned char* b = static_cast<const unsigned char*>(p);
-    for (std::size_t i = 0; i < n; ++i) h = (h ^ b[i]) * 0x100000001b3ull;
+  auto chunks = [&h](const auto* p, std::size_t n) {
+    for (std::size_t i = 0; i < n; i += kChunk) h = hash_bytes(p + i, std::min(kChunk, n - i) * sizeof(*p), h);
   };
   if (meshes_.empty()) {
-    mix(vertices.data(), vertices.size() * sizeof(Vec3f));
-    mix(triangles.data(), triangles.size() * sizeof(triangles[0]));
+    chunks(vertices.data(), vertices.size());
+    chunks(triangles.data(), triangles.size());
     return h;
   }
+  std::vector<Vec3f> vb;
+  std::vector<std::array<std::uint32_t, 3>> tb;
   for (const MeshView& m : meshes_) {
     if (meshes_.size() > 1) {  // where one mesh ends and the next begins
       const std::uint64_t counts[2] = {m.vertex_count, m.triangle_count};
-      mix(counts, sizeof counts);
+      h = hash_bytes(counts, sizeof counts, h);
     }
-    for (std::size_t v = 0; v < m.vertex_count; ++v) {
-      const Vec3f p = m.vertex(v);
-      mix(&p, sizeof p);
+    for (std::size_t v0 = 0; v0 < m.vertex_count; v0 += kChunk) {
+      vb.resize(std::min(kChunk, m.vertex_count - v0));
+      for (std::size_t j = 0; j < vb.size(); ++j) vb[j] = m.vertex(v0 + j);
+      chunks(vb.data(), vb.size());
     }
-    for (std::size_t i = 0; i < m.triangle_count; ++i) {
-      const auto t = m.triangle(i);
-      mix(t.data(), sizeof t);
+    for (std::size_t t0 = 0; t0 < m.triangle_count; t0 += kChunk) {
+      tb.resize(std::min(kChunk, m.triangle_count - t0));
+      for (std::size_t j = 0; j < tb.size(); ++j) tb[j] = m.triangle(t0 + j);
+      chunks(tb.data(), tb.size());
     }
   }
   return h;

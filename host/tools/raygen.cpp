@@ -115,12 +115,7 @@ Vec3f facing_normal(const Vec3f& a, const Vec3f& b, const Vec3f& c, const Vec3f&
 
 Vec3f cosine_direction(const Vec3f& n, double r1, double r2) { return f3(cosine_direction_d(d3(n), r1, r2)); }
 
-void tri_vertices(const Scene& s, std::uint32_t prim, Vec3f& a, Vec3f& b, Vec3f& c) {
-  const auto& t = s.triangles[prim];
-  a = s.vertices[t[0]];
-  b = s.vertices[t[1]];
-  c = s.vertices[t[2]];
-}
+void tri_vertices(const Scene& s, std::uint32_t prim, Vec3f& a, Vec3f& b, Vec3f& c) { s.triangle(prim, a, b, c); }
 
 Camera default_camera(const Box& b) {
   Camera c;

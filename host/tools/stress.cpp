@@ -36,11 +36,11 @@ Vec3f inside_point(const Scene& scene) {
 std::vector<Ray> feature_rays(const Scene& scene, const Vec3f& inside, std::size_t max_features, std::size_t random,
                               std::uint64_t seed) {
   std::vector<Ray> rays;
-  const std::size_t n = scene.triangles.size();
+  const std::size_t n = scene.triangle_count();
   const std::size_t step = std::max<std::size_t>(1, (n * 4) / std::max<std::size_t>(max_features, 1));
   for (std::size_t i = 0; i < n && rays.size() < max_features; i += step) {
-    const auto& t = scene.triangles[i];
-    const Vec3f a = scene.vertices[t[0]], b = scene.vertices[t[1]], c = scene.vertices[t[2]];
+    Vec3f a, b, c;
+    scene.triangle(i, a, b, c);
     rays.push_back(toward(inside, a));          // a shared vertex
     rays.push_back(toward(inside, mid(a, b)));  // shared edge midpoints
     rays.push_back(toward(inside, mid(b, c)));
@@ -84,9 +84,9 @@ std::vector<Ray> special_rays(const Scene& scene, const Accel& acc, std::size_t 
     rays.push_back(Ray{o.x, o.y, o.z, 0.0f, d.x, d.y, d.z, inf});
   }
   // -- rays in a triangle's plane, from outside it toward a point of it, and along its edges
-  for (std::size_t i = 0; i < per && !scene.triangles.empty(); ++i) {
-    const auto& t = scene.triangles[static_cast<std::size_t>(rng.next() % scene.triangles.size())];
-    const Vec3f p0 = scene.vertices[t[0]], p1 = scene.vertices[t[1]], p2 = scene.vertices[t[2]];
+  for (std::size_t i = 0; i < per && scene.triangle_count() > 0; ++i) {
+    Vec3f p0, p1, p2;
+    scene.triangle(static_cast<std::size_t>(rng.next() % scene.triangle_count()), p0, p1, p2);
     const Vec3f m = mid(p1, p2);
     if (i % 2) {
       const Vec3f o{p0.x + (p0.x - m.x), p0.y + (p0.y - m.y), p0.z + (p0.z - m.z)};  // beyond p0 in the plane

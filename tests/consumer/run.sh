@@ -3,7 +3,7 @@
 # run.sh BUILD WORK — mbvh as a user gets it (issue 16's acceptance), each step must pass:
 #   1. full: `cmake --install BUILD` into WORK/full, then examples/trace_scene.cpp built against it
 #      with find_package(mbvh COMPONENTS cpu opencl vulkan embree) and run; the same file built
-#      with `pkg-config --cflags --libs --static mbvh` and run;
+#      with `g++ -std=c++20 $(pkg-config --cflags --libs --static mbvh)` and run;
 #   2. add_subdirectory, CPU-only, shared libraries: the consumer project adds mbvh's source tree
 #      with OpenCL, Vulkan and Embree made unfindable (CMAKE_DISABLE_FIND_PACKAGE_*: AUTO must
 #      build without them) and without setting C++20 itself, builds and runs the example;
@@ -38,14 +38,14 @@ ok "find_package(mbvh COMPONENTS cpu opencl vulkan embree) from an install"
 "$WORK/full/bin/mbvh" --version
 PKG_CONFIG_PATH="$WORK/full/lib/pkgconfig" pkg-config --modversion mbvh
 # shellcheck disable=SC2046
-g++ -O1 -o "$WORK/pc-example" "$ROOT/examples/trace_scene.cpp" \
+g++ -std=c++20 -O1 -o "$WORK/pc-example" "$ROOT/examples/trace_scene.cpp" \
   $(PKG_CONFIG_PATH="$WORK/full/lib/pkgconfig" pkg-config --cflags --libs --static mbvh)
 "$WORK/pc-example"
 ok "pkg-config --cflags --libs --static mbvh"
 
 step "add_subdirectory, CPU-only (OpenCL, Vulkan, Embree unfindable), shared libraries"
 cmake -S "$CONSUMER" -B "$WORK/sub" -G Ninja -DCMAKE_BUILD_TYPE=Release -DMBVH_SOURCE_DIR="$ROOT" \
-  -DBUILD_SHARED_LIBS=ON -DCMAKE_DISABLE_FIND_PACKAGE_OpenCL=ON -DCMAKE_DISABLE_FIND_PACKAGE_Vulkan=ON \
+  -DMBVH_INSTALL=ON -DBUILD_SHARED_LIBS=ON -DCMAKE_DISABLE_FIND_PACKAGE_OpenCL=ON -DCMAKE_DISABLE_FIND_PACKAGE_Vulkan=ON \
   -DCMAKE_DISABLE_FIND_PACKAGE_embree=ON | tee "$WORK/sub-configure.log" | grep "mbvh:" || true
 grep -q "the OPENCL backend is not built" "$WORK/sub-configure.log"
 grep -q "the EMBREE backend is not built" "$WORK/sub-configure.log"

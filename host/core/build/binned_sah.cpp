@@ -712,7 +712,7 @@ std::size_t Accel::geometry_count() const { return impl_->geometry_offsets_.size
 GeomPrim Accel::geometry_of(std::uint32_t prim) const {
   const std::vector<std::uint64_t>& o = impl_->geometry_offsets_;
   if (prim >= o.back()) return {};
-  const std::size_t g = static_cast<std::size_t>(std::upper_bound(o.begin(), o.end(), std::uint64_t(prim)) - o.begin()) - 1;
+  const std::size_t g = geometry_index(o.data(), o.size() - 1, prim);
   return {static_cast<std::uint32_t>(g), static_cast<std::uint32_t>(prim - o[g])};
 }
 const LayoutStats& Accel::binary_stats() const { return impl_->binary_stats_; }

@@ -22,6 +22,7 @@
 
 #include <cstdio>
 #include <cstring>
+#include <atomic>
 #include <filesystem>
 #include <type_traits>
 
@@ -228,7 +229,10 @@ std::unique_ptr<Accel> Accel::load(const std::string& path, std::uint64_t key) {
   char* const dst[5] = {reinterpret_cast<char*>(&hd), reinterpret_cast<char*>(acc->impl_->bvh2_.nodes.data()),
                         reinterpret_cast<char*>(acc->impl_->bvh2_.leaf_boxes.data()),
                         reinterpret_cast<char*>(acc->impl_->leaves_.data()), reinterpret_cast<char*>(acc->impl_->tris_.data())};
+  if (hd.degenerate > hd.scene_triangles || hd.tris < hd.scene_triangles - hd.degenerate)
+    throw bad("triangle counts are inconsistent");
   std::vector<std::uint64_t> block_hash(block_count(segs));
+  std::atomic<bool> bad_prim{false};
   parallel_for(block_hash.size(), 1, 0, [&](std::size_t lo, std::size_t hi, unsigned) {
     for (std::size_t i = lo; i < hi; ++i) {
       std::uint64_t sum = i;
@@ -236,6 +240,20 @@ std::unique_ptr<Accel> Accel::load(const std::string& path, std::uint64_t key) {
         char* d = dst[s] + (off - segs[s].offset);
         if (s > 0) read_at(d, n, off);  // the header is read already
         sum = hash_bytes(d, n, sum);
+        if (s == 4 && n > 0) {
+          // every triangle's prim id (row 0's w: bytes 12..15 of the record) names a triangle of the
+          // scene, checked while the bytes are hot (the traversals index the scene by it). The id's
+          // four bytes start 4 past an 8-byte boundary, so they never straddle a block's edge: each
+          // record's id is checked in exactly one piece.
+          const std::uint64_t rel = off - segs[s].offset;
+          for (std::uint64_t r = rel / sizeof(Tri); r <= (rel + n - 1) / sizeof(Tri); ++r) {
+            const std::uint64_t at = r * sizeof(Tri) + 12;
+            if (at < rel || at + 4 > rel + n) continue;
+            std::uint32_t prim;
+            std::memcpy(&prim, dst[s] + at, 4);
+            if (prim >= hd.scene_triangles) bad_prim = true;
+          }
+        }
       });
       block_hash[i] = sum;
     }
@@ -243,6 +261,7 @@ std::unique_ptr<Accel> Accel::load(const std::string& path, std::uint64_t key) {
   std::uint64_t stored;
   read_at(&stored, 8, size - 8);
   if (hash_bytes(block_hash.data(), block_hash.size() * sizeof(std::uint64_t)) != stored) throw bad("checksum mismatch (truncated or damaged)");
+  if (bad_prim) throw bad("a triangle names a prim id beyond the scene's " + std::to_string(hd.scene_triangles) + " triangles");
   if (hd.key != key) throw bad("made for another scene, build options or library version (key " + hex(hd.key) + ", wanted " + hex(key) + ")");
   acc->impl_->bvh2_.forced_leaves = hd.forced_leaves;
   acc->impl_->bvh2_.largest_leaf = hd.largest_leaf;
@@ -315,6 +334,9 @@ std::unique_ptr<Accel> Accel::build_cached(const Scene& scene, const BuildOption
   if (::stat(rep.path.c_str(), &sb) == 0) {
     try {
       acc = load(rep.path, key);
+      if (acc->scene_triangles() != scene.triangle_count())
+        throw Error(rep.path + ": not a usable BVH cache file: made for " + std::to_string(acc->scene_triangles()) +
+                    " triangles, the scene has " + std::to_string(scene.triangle_count()));
       rep.loaded = true;
     } catch (const Error& e) {
       rep.problem = e.what();  // rebuilt and replaced below

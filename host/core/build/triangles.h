@@ -40,7 +40,7 @@ struct ViewTriangles {
   std::size_t mesh_count;
 
   std::size_t mesh_of(std::size_t i) const {
-    return static_cast<std::size_t>(std::upper_bound(offsets, offsets + mesh_count + 1, std::uint64_t(i)) - offsets) - 1;
+    return geometry_index(offsets, mesh_count, i);
   }
   void get(std::size_t i, Vec3f& a, Vec3f& b, Vec3f& c) const {
     const std::size_t g = mesh_of(i);

@@ -6,6 +6,9 @@
 #include <cstdint>
 #include <functional>
 #include <memory>
+#include <utility>
+#include <type_traits>
+#include <new>
 #include <span>
 #include <string>
 #include <vector>
@@ -15,12 +18,33 @@
 
 namespace mbvh {
 
-/// The build's private structures (host/core/layouts.h): a user never needs them; the backends
-/// of this repository read them through the accessors below.
+/// Allocator of cache-line (64-byte) aligned arrays: a 128-byte MBVH4 node then spans two cache
+/// lines, not three, and a leaf's triangles start on a line.
 template <class T>
-struct CacheAligned;
+struct CacheAligned {
+  using value_type = T;
+  static constexpr std::align_val_t align{64};
+  CacheAligned() = default;
+  template <class U>
+  CacheAligned(const CacheAligned<U>&) {}
+  T* allocate(std::size_t n) { return static_cast<T*>(::operator new(n * sizeof(T), align)); }
+  void deallocate(T* p, std::size_t) { ::operator delete(p, align); }
+  /// Value-initialises (zero words in unused slots of nodes), except Tri: a triangle array is
+  /// sized and then every word written by parallel passes (build, refit), which then also first
+  /// touch its pages, instead of one thread zeroing it beforehand.
+  template <class U, class... Args>
+  void construct(U* p, Args&&... args) {
+    if constexpr (sizeof...(Args) == 0 && std::is_same_v<U, Tri>) ::new (static_cast<void*>(p)) U;
+    else ::new (static_cast<void*>(p)) U(std::forward<Args>(args)...);
+  }
+  template <class U>
+  bool operator==(const CacheAligned<U>&) const { return true; }
+};
 template <class T>
 using AlignedVector = std::vector<T, CacheAligned<T>>;
+
+/// The build's private structures (host/core/layouts.h): a user never needs them; the backends
+/// of this repository read them through the accessors below (their types are incomplete here).
 struct Bvh2;
 struct Mbvh2;
 struct Mbvh4;

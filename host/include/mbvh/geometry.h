@@ -3,6 +3,7 @@
 // MeshView, mbvh/scene.h), hits that name the geometry and the triangle within it (GeomHit),
 // traces that write into the caller's buffers, and one-ray calls.
 //
+//   mbvh::register_builtin_backends();  // once per program (mbvh/backends.h)
 //   mbvh::Scene scene;
 //   const std::uint32_t floor = scene.add_mesh({pos, 4, 24, idx, 2, 16});  // stride 24: x y z nx ny nz
 //   auto accel = mbvh::Accel::build(scene);  // reads the views; after it returns they may go

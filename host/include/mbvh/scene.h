@@ -3,6 +3,7 @@
 // and how to get one: OBJ, PLY (optionally zstd-compressed) or a built-in generator named
 // "gen:NAME:PARAMS".
 #pragma once
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstdint>
@@ -30,6 +31,13 @@ struct Box {
   /// Half the surface area (the SAH only needs ratios); 0 for an empty box.
   float half_area() const;
 };
+
+/// The geometry that holds prim id `prim`, from the geometries' prim offsets (`count` + 1
+/// ascending entries, offsets[0] = 0; geometry g holds [offsets[g], offsets[g + 1])). Requires
+/// prim < offsets[count]. O(log count).
+inline std::size_t geometry_index(const std::uint64_t* offsets, std::size_t count, std::uint64_t prim) {
+  return static_cast<std::size_t>(std::upper_bound(offsets, offsets + count + 1, prim) - offsets) - 1;
+}
 
 /// A view of one caller-owned triangle mesh (mbvh/geometry.h has the rules): vertex v is the
 /// three floats x, y, z at byte offset v * vertex_stride from `vertices` (so positions may sit
@@ -120,7 +128,7 @@ struct Scene {
   /// or infinite coordinate. Unused vertices are not looked at. O(triangles).
   void validate() const;
   Box bounds() const;                            ///< box of the vertices used by triangles (requires validate())
-  /// 64-bit content hash of vertices and triangles (FNV-1a), for build caching and reports. A
+  /// 64-bit content hash of vertices and triangles (word-wise FNV-1a in chunks), for build caching and reports. A
   /// scene of views hashes each mesh's positions and indices (not the bytes between them); one
   /// view hashes as the owned scene with the same vertices and triangles.
   std::uint64_t hash() const;
@@ -136,7 +144,7 @@ private:
 /// ("gen:sphere:64", "gen:soup:100000:7", "gen:hairball:1000000", "gen:exponential:200",
 /// "gen:cube:16"). Throws Error naming the file, line and what was wrong on malformed input, and
 /// naming the path or spec and the estimate when the scene and one build of it would not fit in
-/// memory_budget() (host/resources.h), checked before allocating wherever the size is known first
+/// the memory budget (MBVH_MEMORY_LIMIT, else the available memory), checked before allocating wherever the size is known first
 /// (file and decompressed sizes, PLY counts, generator parameters). An input that is not a
 /// regular file (directory, FIFO, device) is refused unopened.
 Scene load_scene(const std::string& path_or_spec);
@@ -149,15 +157,15 @@ Scene parse_obj(const std::string& name, const char* data, std::size_t size);
 Scene parse_ply(const std::string& name, const char* data, std::size_t size);
 
 /// Reads a whole file, transparently decompressing zstd (by magic number). Throws Error on a path
-/// that is not a regular file (unopened) and on a file or decompressed size beyond memory_budget().
+/// that is not a regular file (unopened) and on a file or decompressed size beyond the memory budget (MBVH_MEMORY_LIMIT).
 std::vector<char> read_file(const std::string& path);
 /// Decompresses `data` if it starts with the zstd magic number, else returns it unchanged;
 /// `name` is used in error messages. Throws Error on a corrupt or truncated stream, and when the
-/// frame header's content size (before decompressing) or the output so far exceeds memory_budget().
+/// frame header's content size (before decompressing) or the output so far exceeds the memory budget.
 std::vector<char> maybe_decompress(const std::string& name, std::vector<char> data);
 
 /// Builds a generated scene from "NAME:PARAMS" (the part after "gen:"). Throws Error on bad
-/// parameters, and before generating when scene_memory_estimate() of its size exceeds memory_budget().
+/// parameters, and before generating when the memory its size needs exceeds the memory budget.
 Scene generate_scene(const std::string& spec);
 /// One line per generator, for --help texts.
 std::string generator_help();
