@@ -71,9 +71,10 @@ void check_scene(const std::string& spec, const BuildOptions& bo = {}, std::size
       }
     if (kind == RayKind::primary) CHECK(hits > 0);  // the camera sees the scene
 
-    // -- every other backend gives cpu-scalar's bytes on every variant (same kernels, same order);
-    //    the reference output of each variant is computed once, for all backends
-    std::map<std::tuple<Layout, Traversal, Query>, TraceOutput> refs;
+    // -- every other backend gives cpu-scalar's bytes on every variant (same kernels, same order)
+    //    on the leaves it traces (its own leaf policy, with_leaves_of); the reference output of
+    //    each variant is computed once, for all backends
+    std::map<std::tuple<Layout, Traversal, Query, unsigned>, TraceOutput> refs;
     for (const std::string& name : grid.backends) {
       if (name == "cpu-scalar") continue;
       auto backend = make_backend(name);
@@ -83,8 +84,9 @@ void check_scene(const std::string& spec, const BuildOptions& bo = {}, std::size
           for (Query q : grid.queries) {
             if (!backend->supports(l, t)) continue;
             const TraceOptions o{l, t, q, false};
-            auto [it, fresh] = refs.try_emplace({l, t, q});
-            if (fresh) trace_reference(*acc, rays, o, it->second, 0);
+            const TraceOptions ro = with_leaves_of(*backend, o);
+            auto [it, fresh] = refs.try_emplace({l, t, q, ro.leaf_block});
+            if (fresh) trace_reference(*acc, rays, ro, it->second, 0);
             const TraceOutput& ref = it->second;
             TraceOutput got;
             backend->trace(*acc, rays, o, got);
@@ -322,7 +324,7 @@ TEST_CASE("statistics count work and stay out of the answers", "[traversal]") {
           INFO(name << "/" << to_string(l) << "/" << to_string(t) << "/" << to_string(q));
           const TraceOptions o{l, t, q, true};
           TraceOutput ref, got;
-          trace_reference(*acc, rays, o, ref, 0);
+          trace_reference(*acc, rays, with_leaves_of(*backend, o), ref, 0);  // the leaves it traces
           backend->trace(*acc, rays, o, got);
           REQUIRE(got.stats.size() == rays.size());
           std::size_t differ = 0;

@@ -1,6 +1,8 @@
 // SPDX-License-Identifier: MIT
 // scalar_backend.cpp — the `cpu-scalar` backend: the host's reference traversals (MBVH2 and
 // MBVH4, stack and bitstack, closest and any hit) multi-threaded over ray batches.
+#include <algorithm>
+
 #include "backends/cpu/cpu_backends.h"
 #include "host/core/layouts.h"
 #include "mbvh/backend.h"
@@ -19,8 +21,17 @@ public:
   std::string isa() const override { return "scalar"; }
   bool supports(Layout l, Traversal t) const override { return reference_supports(l, t); }
   bool supports_precision(Precision) const override { return true; }
+  /// The reference traces any leaf variant asked for; its own choice is the build's leaves.
+  unsigned leaf_block(const TraceOptions& opt) const override { return std::max(opt.leaf_block, 1u); }
   void prepare(const Accel& acc, const TraceOptions& opt) override {
-    acc.make_layout(opt.layout);
+    if (opt.leaf_block > 1) {
+      const LeafVariant& v = acc.leaf_variant(opt.leaf_block);
+      if (opt.layout == Layout::mbvh2) v.mbvh2();
+      else if (opt.layout == Layout::mbvh4) v.mbvh4();
+      else v.mbvh8();
+    } else {
+      acc.make_layout(opt.layout);
+    }
   }
   void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
     prepare(acc, opt);

@@ -82,11 +82,35 @@ constexpr std::array<std::uint8_t, 256> kReverse8 = [] {
   return t;
 }();
 
+/// The SIMD policies' ray: RayPre plus the per-ray constants in the form the kernels use them,
+/// made once per ray (finish) instead of at every node and leaf: the origin, reciprocals and tmin
+/// broadcast, the offsets of each axis' near and far plane rows in a Node4 and a Node8 (Embree's
+/// nearX/farX), and the triangle test's permuted origin and shear (Woop et al. 2013).
+struct SimdRay : RayPre {
+  __m256 o8[3], inv8[3], inv_far8[3], d8[3], tmin8;
+  __m128 tri_o[3], tri_s[3];
+  int near4[3], far4[3], near8[3], far8[3];
+};
+
+/// For each 8-bit mask, its set slots highest first, one byte each (the AVX2 MBVH8 push).
+constexpr std::array<std::uint64_t, 256> kDescending8 = [] {
+  std::array<std::uint64_t, 256> t{};
+  for (unsigned m = 0; m < 256; ++m) {
+    std::uint64_t packed = 0;
+    int n = 0;
+    for (int s = 7; s >= 0; --s)
+      if ((m >> s) & 1u) packed |= std::uint64_t(s) << (8 * n++);
+    t[m] = packed;
+  }
+  return t;
+}();
+
 /// 4 and 8 lanes of float: the operations the box test needs.
 struct F4 {
   using V = __m128;
   static V load(const float* p) { return _mm_load_ps(p); }
   static V set1(float x) { return _mm_set1_ps(x); }
+  static V of(const __m256& v) { return _mm256_castps256_ps128(v); }  // the low 4 lanes of a broadcast
   static V sub(V a, V b) { return _mm_sub_ps(a, b); }
   static V mul(V a, V b) { return _mm_mul_ps(a, b); }
   static V max(V a, V b) { return _mm_max_ps(a, b); }
@@ -102,6 +126,7 @@ struct F8 {
   using V = __m256;
   static V load(const float* p) { return _mm256_load_ps(p); }
   static V set1(float x) { return _mm256_set1_ps(x); }
+  static V of(const __m256& v) { return v; }
   static V sub(V a, V b) { return _mm256_sub_ps(a, b); }
   static V mul(V a, V b) { return _mm256_mul_ps(a, b); }
   static V max(V a, V b) { return _mm256_max_ps(a, b); }
@@ -114,28 +139,49 @@ struct F8 {
 #endif
 };
 
+/// Fills SimdRay's constants from its (validated, possibly relaxed) RayPre part.
+inline void finish_ray(SimdRay& r) {
+  for (int a = 0; a < 3; ++a) {
+    r.o8[a] = _mm256_set1_ps(r.o[a]);
+    r.d8[a] = _mm256_set1_ps(r.d[a]);
+    r.inv8[a] = _mm256_set1_ps(r.inv[a]);
+    r.inv_far8[a] = _mm256_set1_ps(r.inv_far[a]);
+    // rows lo_x, hi_x, lo_y, ... are W floats apart: near = (2a + neg) * W, far = near ^ W
+    r.near4[a] = (2 * a + r.neg[a]) * 4;
+    r.far4[a] = r.near4[a] ^ 4;
+    r.near8[a] = (2 * a + r.neg[a]) * 8;
+    r.far8[a] = r.near8[a] ^ 8;
+  }
+  r.tmin8 = _mm256_set1_ps(r.tmin);
+  const int k[3] = {r.kx, r.ky, r.kz};
+  const float sh[3] = {r.sx, r.sy, r.sz};
+  for (int i = 0; i < 3; ++i) {
+    r.tri_o[i] = _mm_set1_ps(r.o[k[i]]);
+    r.tri_s[i] = _mm_set1_ps(sh[i]);
+  }
+}
+
 /// A wide node's W slab tests in one pass (W = 4: MBVH4, 8: MBVH8): (plane - o) * inv per axis,
 /// the NaN-discarding max/min chain of box_test (maxps/minps return their second operand on NaN,
 /// exactly like max_nan/min_nan), and an ordered <= compare.
 template <class F, class N>
-[[gnu::always_inline]] inline unsigned box_test_wide(const N& n, const RayPre& r, float tcull, float* d) {
+[[gnu::always_inline]] inline unsigned box_test_wide(const N& n, const SimdRay& r, float tcull, float* d) {
   constexpr int W = node_width<N>();
   using V = typename F::V;
-  // near and far planes by address (Embree's nearX/farX offsets): rows lo_x, hi_x, lo_y, ... are
-  // W floats apart
   const float* p = n.lo_x;
-  const int sx = r.neg[0] * W, sy = 2 * W + r.neg[1] * W, sz = 4 * W + r.neg[2] * W;
-  const V nx = F::load(p + sx), fx = F::load(p + (sx ^ W));
-  const V ny = F::load(p + sy), fy = F::load(p + (sy ^ W));
-  const V nz = F::load(p + sz), fz = F::load(p + (sz ^ W));
-  const V ox = F::set1(r.o[0]), oy = F::set1(r.o[1]), oz = F::set1(r.o[2]);
-  const V tnx = F::mul(F::sub(nx, ox), F::set1(r.inv[0]));
-  const V tny = F::mul(F::sub(ny, oy), F::set1(r.inv[1]));
-  const V tnz = F::mul(F::sub(nz, oz), F::set1(r.inv[2]));
-  const V tfx = F::mul(F::sub(fx, ox), F::set1(r.inv_far[0]));
-  const V tfy = F::mul(F::sub(fy, oy), F::set1(r.inv_far[1]));
-  const V tfz = F::mul(F::sub(fz, oz), F::set1(r.inv_far[2]));
-  const V te = F::max(tnz, F::max(tny, F::max(tnx, F::set1(r.tmin))));
+  const int* near = W == 4 ? r.near4 : r.near8;
+  const int* far = W == 4 ? r.far4 : r.far8;
+  const V nx = F::load(p + near[0]), fx = F::load(p + far[0]);
+  const V ny = F::load(p + near[1]), fy = F::load(p + far[1]);
+  const V nz = F::load(p + near[2]), fz = F::load(p + far[2]);
+  const V ox = F::of(r.o8[0]), oy = F::of(r.o8[1]), oz = F::of(r.o8[2]);
+  const V tnx = F::mul(F::sub(nx, ox), F::of(r.inv8[0]));
+  const V tny = F::mul(F::sub(ny, oy), F::of(r.inv8[1]));
+  const V tnz = F::mul(F::sub(nz, oz), F::of(r.inv8[2]));
+  const V tfx = F::mul(F::sub(fx, ox), F::of(r.inv_far8[0]));
+  const V tfy = F::mul(F::sub(fy, oy), F::of(r.inv_far8[1]));
+  const V tfz = F::mul(F::sub(fz, oz), F::of(r.inv_far8[2]));
+  const V te = F::max(tnz, F::max(tny, F::max(tnx, F::of(r.tmin8))));
   const V tx = F::min(tfz, F::min(tfy, F::min(tfx, F::set1(tcull))));
   F::store(d, te);
   return F::le(te, tx);
@@ -151,10 +197,10 @@ template <class F, class N>
 /// determinant leave the function. The t-error bound stays: it is the decision's last step (a
 /// lane with t within it is no certain hit).
 template <bool Any = false>
-[[gnu::always_inline]] inline unsigned tri4_test(const Tri4& p, const RayPre& r, unsigned valid, float tmax, float t_out[4],
+[[gnu::always_inline]] inline unsigned tri4_test(const Tri4& p, const SimdRay& r, unsigned valid, float tmax, float t_out[4],
                                                  float V_out[4], float W_out[4], float det_out[4], unsigned& fallback) {
-  const __m128 ox = _mm_set1_ps(r.o[r.kx]), oy = _mm_set1_ps(r.o[r.ky]), oz = _mm_set1_ps(r.o[r.kz]);
-  const __m128 sx = _mm_set1_ps(r.sx), sy = _mm_set1_ps(r.sy), sz = _mm_set1_ps(r.sz);
+  const __m128 ox = r.tri_o[0], oy = r.tri_o[1], oz = r.tri_o[2];
+  const __m128 sx = r.tri_s[0], sy = r.tri_s[1], sz = r.tri_s[2];
   __m128 X[3], Y[3], Z[3];
   for (int i = 0; i < 3; ++i) {
     const __m128 ax = _mm_sub_ps(_mm_load_ps(p.v[3 * i + r.kx]), ox);
@@ -172,13 +218,13 @@ template <bool Any = false>
       mask4(_mm_or_ps(_mm_cmpeq_ps(U, zero), _mm_or_ps(_mm_cmpeq_ps(V, zero), _mm_cmpeq_ps(W, zero))));
   const __m128 neg = _mm_or_ps(_mm_cmplt_ps(U, zero), _mm_or_ps(_mm_cmplt_ps(V, zero), _mm_cmplt_ps(W, zero)));
   const __m128 pos = _mm_or_ps(_mm_cmpgt_ps(U, zero), _mm_or_ps(_mm_cmpgt_ps(V, zero), _mm_cmpgt_ps(W, zero)));
+  fallback = valid & exact0;
+  const unsigned inside = valid & ~exact0 & ~mask4(_mm_and_ps(neg, pos));
   const __m128 det = _mm_add_ps(_mm_add_ps(U, V), W);
   const __m128 T = _mm_add_ps(_mm_add_ps(_mm_mul_ps(U, Z[0]), _mm_mul_ps(V, Z[1])), _mm_mul_ps(W, Z[2]));
   const __m128 t = _mm_div_ps(T, det);
-  const __m128 in = _mm_and_ps(_mm_cmp_ps(t, _mm_set1_ps(r.tmin), _CMP_GE_OQ), _mm_cmp_ps(t, _mm_set1_ps(tmax), _CMP_LE_OQ));
-  const __m128 ok = _mm_andnot_ps(_mm_and_ps(neg, pos), _mm_and_ps(in, _mm_cmp_ps(det, zero, _CMP_NEQ_UQ)));
-  const unsigned cand = valid & ~exact0 & mask4(ok);
-  fallback = valid & exact0;
+  const __m128 in = _mm_and_ps(_mm_cmp_ps(t, F4::of(r.tmin8), _CMP_GE_OQ), _mm_cmp_ps(t, _mm_set1_ps(tmax), _CMP_LE_OQ));
+  const unsigned cand = inside & mask4(_mm_and_ps(in, _mm_cmp_ps(det, zero, _CMP_NEQ_UQ)));
   if (cand == 0) return 0;
   // conservative t > 0 (pbrt-v3), as tri_test: std::fmax and maxps agree here (no NaN in a
   // candidate lane's inputs: a NaN there makes t NaN)
@@ -214,15 +260,15 @@ template <bool Any = false>
 /// estimate refined by one Newton step (about 23 bits, not correctly rounded), as fast SIMD tracers
 /// do. Returns the hit lanes of `valid` with t, u, v (det_out = 1: u, v are the weights already).
 template <bool Any = false>
-[[gnu::always_inline]] inline unsigned tri4_test_mt(const Tri4& p, const RayPre& r, unsigned valid, float tmax, float t_out[4],
+[[gnu::always_inline]] inline unsigned tri4_test_mt(const Tri4& p, const SimdRay& r, unsigned valid, float tmax, float t_out[4],
                                                     float u_out[4], float v_out[4], float det_out[4]) {
   __m128 v0[3], e1[3], e2[3], d[3], s[3];
   for (int a = 0; a < 3; ++a) {
     v0[a] = _mm_load_ps(p.v[a]);
     e1[a] = _mm_sub_ps(_mm_load_ps(p.v[3 + a]), v0[a]);
     e2[a] = _mm_sub_ps(_mm_load_ps(p.v[6 + a]), v0[a]);
-    d[a] = _mm_set1_ps(r.d[a]);
-    s[a] = _mm_sub_ps(_mm_set1_ps(r.o[a]), v0[a]);
+    d[a] = F4::of(r.d8[a]);
+    s[a] = _mm_sub_ps(F4::of(r.o8[a]), v0[a]);
   }
   auto cross = [](const __m128 a[3], const __m128 b[3], __m128 c[3]) {
     c[0] = _mm_fmsub_ps(a[1], b[2], _mm_mul_ps(a[2], b[1]));
@@ -245,7 +291,7 @@ template <bool Any = false>
   __m128 ok = _mm_cmp_ps(det, zero, _CMP_NEQ_OQ);
   ok = _mm_and_ps(ok, _mm_and_ps(_mm_cmp_ps(u, zero, _CMP_GE_OQ), _mm_cmp_ps(v, zero, _CMP_GE_OQ)));
   ok = _mm_and_ps(ok, _mm_cmp_ps(_mm_add_ps(u, v), one, _CMP_LE_OQ));
-  ok = _mm_and_ps(ok, _mm_and_ps(_mm_cmp_ps(t, _mm_set1_ps(r.tmin), _CMP_GE_OQ), _mm_cmp_ps(t, _mm_set1_ps(tmax), _CMP_LE_OQ)));
+  ok = _mm_and_ps(ok, _mm_and_ps(_mm_cmp_ps(t, F4::of(r.tmin8), _CMP_GE_OQ), _mm_cmp_ps(t, _mm_set1_ps(tmax), _CMP_LE_OQ)));
   const unsigned hit = valid & mask4(ok);
   if (Any || hit == 0) return hit;
   _mm_storeu_ps(t_out, t);
@@ -264,10 +310,12 @@ template <bool Fast>
 struct SimdKernelsT {
   static constexpr bool uses_packs = true;
   static constexpr bool fast = Fast;
-  [[gnu::always_inline]] static unsigned test(const Node4& n, const RayPre& r, float tcull, float d[4]) {
+  using Ray = SimdRay;
+  static void finish(Ray& r) { finish_ray(r); }
+  [[gnu::always_inline]] static unsigned test(const Node4& n, const Ray& r, float tcull, float d[4]) {
     return box_test_wide<F4>(n, r, tcull, d);
   }
-  [[gnu::always_inline]] static unsigned test(const Node8& n, const RayPre& r, float tcull, float d[8]) {
+  [[gnu::always_inline]] static unsigned test(const Node8& n, const Ray& r, float tcull, float d[8]) {
     return box_test_wide<F8>(n, r, tcull, d);
   }
   /// The nearest hit slot without a branch per slot: misses set to +inf, a horizontal min, the
@@ -301,17 +349,16 @@ struct SimdKernelsT {
     _mm256_storeu_si256(reinterpret_cast<__m256i*>(stack + sp), _mm256_maskz_compress_epi32(static_cast<__mmask8>(rev), links));
     return sp + static_cast<unsigned>(std::popcount(mask));
 #else
-    while (mask != 0) {
-      const int s = 31 - std::countl_zero(mask);
-      mask &= ~(1u << s);
-      stack[sp++] = child[s];
-    }
-    return sp;
+    // AVX2 has no compress: a table gives each mask's slots highest first, one permute gathers them
+    const __m256i idx = _mm256_cvtepu8_epi32(_mm_cvtsi64_si128(static_cast<long long>(kDescending8[mask & 0xFFu])));
+    const __m256i links = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(child));
+    _mm256_storeu_si256(reinterpret_cast<__m256i*>(stack + sp), _mm256_permutevar8x32_epi32(links, idx));
+    return sp + static_cast<unsigned>(std::popcount(mask));
 #endif
   }
 
   template <bool Any, class St>
-  [[gnu::always_inline]] static bool leaf(const TraceView& v, std::int32_t ref, const RayPre& r, float& tmax, Hit& best,
+  [[gnu::always_inline]] static bool leaf(const TraceView& v, std::int32_t ref, const Ray& r, float& tmax, Hit& best,
                                           St& st) {
     if constexpr (St::on) {
       return detail::visit_leaf<Any, St, Fast>(v, ref, r, tmax, best, st);

@@ -4,6 +4,8 @@
 // Accel's state (Accel::Impl). Backends and tools of this repository include it; users do not.
 #pragma once
 #include <cstdint>
+#include <map>
+#include <memory>
 #include <mutex>
 #include <new>
 #include <type_traits>
@@ -61,6 +63,33 @@ struct TriPacks {
   std::vector<Leaf> leaves;
 };
 
+/// A leaf policy's variant of the one build (TraceOptions::leaf_block; leaf_variant.cpp): the
+/// binary tree with subtrees regrouped into leaves where the SAH prices a leaf in blocks of
+/// `block` triangles, over the build's own triangles in the build's order, and its layouts and
+/// SIMD packs made on first use (thread-safe, as Accel's own).
+struct LeafVariant {
+  unsigned block = 1;
+  Bvh2 bvh2;
+  std::vector<Leaf> leaves;
+  const Mbvh2& mbvh2() const;
+  const Mbvh4& mbvh4() const;
+  const Mbvh8& mbvh8() const;
+  const TriPacks& tri_packs(const AlignedVector<Tri>& tris) const;
+
+private:
+  mutable std::once_flag once2_, once4_, once8_, oncep_;
+  mutable Mbvh2 m2_;
+  mutable Mbvh4 m4_;
+  mutable Mbvh8 m8_;
+  mutable TriPacks packs_;
+};
+
+/// Regroups `bvh`'s subtrees into leaves where a leaf priced in blocks of `block` triangles (at
+/// most `max_leaf`) costs no more than the subtree (node visits at `node_cost`); the root stays an
+/// inner node. Only subtrees whose triangles are one contiguous range are regrouped.
+void regroup_leaves(const Bvh2& bvh, const std::vector<Leaf>& leaves, unsigned block, unsigned max_leaf,
+                    float node_cost, Bvh2& out, std::vector<Leaf>& out_leaves);
+
 /// Accel's state: what build, load and refit write, and the layouts made on first use.
 struct Accel::Impl {
   BuildOptions opt_;
@@ -82,6 +111,9 @@ struct Accel::Impl {
   mutable Mbvh8 mbvh8_;
   mutable Mbvh4Wide mbvh4w_;
   mutable TriPacks packs_;
+  /// Leaf variants by block (Accel::leaf_variant), made on first use; refit drops them.
+  mutable std::mutex variants_m_;
+  mutable std::map<unsigned, std::unique_ptr<LeafVariant>> variants_;
 };
 
 /// Collapses a binary BVH into the layouts (host/core/build/collapse.cpp).

@@ -18,8 +18,29 @@ inline namespace MBVH_ISA_NS {
 
 /// The view of `layout` a traversal reads (makes the layout on first use); with the SIMD leaf
 /// packs when `packs` (a kernel policy's `uses_packs`).
-inline TraceView trace_view(const Accel& acc, Layout layout, bool packs = false) {
+inline TraceView trace_view(const Accel& acc, Layout layout, bool packs = false, unsigned leaf_block = 1) {
   TraceView v;
+  if (leaf_block > 1) {  // a leaf policy's variant: its own nodes, leaves and packs, the same triangles
+    const LeafVariant& lv = acc.leaf_variant(leaf_block);
+    if (layout == Layout::mbvh2) {
+      v.n2 = lv.mbvh2().nodes.data();
+      v.nodes = lv.mbvh2().nodes.size();
+    } else if (layout == Layout::mbvh4) {
+      v.n4 = lv.mbvh4().nodes.data();
+      v.nodes = lv.mbvh4().nodes.size();
+    } else {
+      v.n8 = lv.mbvh8().nodes.data();
+      v.nodes = lv.mbvh8().nodes.size();
+    }
+    v.leaf_count = lv.leaves.size();
+    v.leaves = lv.leaves.data();
+    v.tris = acc.tris().data();
+    if (packs) {
+      v.tri4 = lv.tri_packs(acc.tris()).packs.data();
+      v.leaf4 = lv.tri_packs(acc.tris()).leaves.data();
+    }
+    return v;
+  }
   if (layout == Layout::mbvh2) {
     v.n2 = acc.mbvh2().nodes.data();
     v.nodes = acc.mbvh2().nodes.size();
@@ -41,7 +62,7 @@ inline TraceView trace_view(const Accel& acc, Layout layout, bool packs = false)
 }
 
 template <bool Any, class K, class St>
-inline Hit dispatch(const TraceView& v, const RayPre& r, Layout l, Traversal t, St& st) {
+inline Hit dispatch(const TraceView& v, const typename K::Ray& r, Layout l, Traversal t, St& st) {
   if (l == Layout::mbvh2)
     return t == Traversal::stack ? trace_mbvh2_stack<Any, St, K>(v, r, st) : trace_mbvh2_bitstack<Any, St, K>(v, r, st);
   if (l == Layout::mbvh8) {
@@ -66,18 +87,20 @@ template <bool Any, bool Stats, class K>
 inline void run_batch(const TraceView& v, std::span<const Ray> rays, std::size_t b, std::size_t e,
                       const TraceOptions& opt, TraceOutput& out, std::size_t& invalid) {
   for (std::size_t i = b; i < e; ++i) {
-    RayPre r;
+    typename K::Ray r;
     Hit h = miss_hit();
     if (!prepare_ray(rays[i], r)) {
       ++invalid;
       if constexpr (Stats) out.stats[i] = RayStats{};
     } else if constexpr (Stats) {
       if constexpr (K::fast) relax_ray(r);
+      K::finish(r);
       CountStats st;
       h = dispatch<Any, K>(v, r, opt.layout, opt.traversal, st);
       out.stats[i] = st.s;
     } else {
       if constexpr (K::fast) relax_ray(r);
+      K::finish(r);
       NoStats st;
       h = dispatch<Any, K>(v, r, opt.layout, opt.traversal, st);
     }
@@ -91,7 +114,7 @@ inline void run_batch(const TraceView& v, std::span<const Ray> rays, std::size_t
 template <class K>
 inline void trace_parallel(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out,
                            unsigned threads, const std::function<void(std::size_t)>& progress = {}) {
-  const TraceView v = trace_view(acc, opt.layout, K::uses_packs);
+  const TraceView v = trace_view(acc, opt.layout, K::uses_packs, opt.leaf_block);
   const bool any = opt.query == Query::any;
   out.resize_for(rays.size(), opt);  // every ray's entries are written below
   std::atomic<std::size_t> invalid{0}, done{0};

@@ -106,7 +106,7 @@ Hit trace_one(const Accel& acc, const Ray& ray, const TraceOptions& opt, RayStat
   require_supported(opt);
   RayPre r;
   if (!prepare_ray(ray, r)) return miss_hit();
-  const TraceView v = trace_view(acc, opt.layout);
+  const TraceView v = trace_view(acc, opt.layout, false, opt.leaf_block);
   return opt.precision == Precision::fast ? trace_one_with<ScalarKernelsT<true>>(v, r, opt, stats, leaf_log)
                                           : trace_one_with<ScalarKernels>(v, r, opt, stats, leaf_log);
 }

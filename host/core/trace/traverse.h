@@ -108,7 +108,7 @@ template <class N>
 }
 
 template <class K, class N, class St>
-[[gnu::always_inline]] inline unsigned test_node(const N& n, const RayPre& r, float tcull, float* d, St& st) {
+[[gnu::always_inline]] inline unsigned test_node(const N& n, const typename K::Ray& r, float tcull, float* d, St& st) {
   st.node(node_width<N>());
   return K::test(n, r, tcull, d);
 }
@@ -158,6 +158,10 @@ template <bool Fast>
 struct ScalarKernelsT {
   static constexpr bool uses_packs = false;
   static constexpr bool fast = Fast;
+  /// The ray a traversal carries: a policy may extend RayPre with its own per-ray constants
+  /// (the SIMD policies: broadcast vectors and near-plane offsets), filled once by finish().
+  using Ray = RayPre;
+  static void finish(Ray&) {}
   template <class N>
   [[gnu::always_inline]] static unsigned test(const N& n, const RayPre& r, float tcull, float* d) {
     return detail::test_boxes(n, r, tcull, d);
@@ -186,7 +190,7 @@ using ScalarKernels = ScalarKernelsT<false>;
 /// MBVH2, stack-based (Aila–Laine order without postponed leaves): nearest child first, the far
 /// child pushed when both are hit.
 template <bool Any, class St, class K = ScalarKernels>
-inline Hit trace_mbvh2_stack(const TraceView& v, const RayPre& r, St& st) {
+inline Hit trace_mbvh2_stack(const TraceView& v, const typename K::Ray& r, St& st) {
   Hit best = miss_hit();
   float tmax = r.tmax;
   StepGuard guard(v);
@@ -220,7 +224,7 @@ inline Hit trace_mbvh2_stack(const TraceView& v, const RayPre& r, St& st) {
 /// MBVH2 bitstack (TRAVERSAL.md §4.2): one bit per level, 1 = the sibling is still pending;
 /// backtracking climbs parent links to the deepest pending level and moves to the sibling.
 template <bool Any, class St, class K = ScalarKernels>
-inline Hit trace_mbvh2_bitstack(const TraceView& v, const RayPre& r, St& st) {
+inline Hit trace_mbvh2_bitstack(const TraceView& v, const typename K::Ray& r, St& st) {
   Hit best = miss_hit();
   float tmax = r.tmax;
   StepGuard guard(v);
@@ -266,7 +270,7 @@ inline Hit trace_mbvh2_bitstack(const TraceView& v, const RayPre& r, St& st) {
 /// MBVH4, stack-based twin of the skip-code traversal (TRAVERSAL.md §4.5): enter the nearest
 /// hit child, push the other hit children in reverse cyclic order so they pop in cyclic order.
 template <bool Any, class St, class K = ScalarKernels>
-inline Hit trace_mbvh4_stack(const TraceView& v, const RayPre& r, St& st) {
+inline Hit trace_mbvh4_stack(const TraceView& v, const typename K::Ray& r, St& st) {
   Hit best = miss_hit();
   float tmax = r.tmax;
   StepGuard guard(v);
@@ -307,7 +311,7 @@ inline Hit trace_mbvh4_stack(const TraceView& v, const RayPre& r, St& st) {
 /// sequence as the register form and the stack twin; 7% fewer instructions than the register
 /// form on Sponza's shadow rays (callgrind, issue 14).
 template <bool Any, class St, class K = ScalarKernels>
-inline Hit trace_mbvh4_bitstack(const TraceView& v, const RayPre& r, St& st) {
+inline Hit trace_mbvh4_bitstack(const TraceView& v, const typename K::Ray& r, St& st) {
   Hit best = miss_hit();
   float tmax = r.tmax;
   StepGuard guard(v);
@@ -375,7 +379,7 @@ template <> inline const Node8* nodes_of<Node8>(const TraceView& v) { return v.n
 /// number of hits: 1: no push; 2: push the farther; 3: two pushes, one compare; 4-8: push all
 /// and insertion-sort by (d, slot). A popped entry beyond the current tmax * S is culled.
 template <bool Any, class St, class K = ScalarKernels, class N = Node4>
-inline Hit trace_wide_stack_ordered(const TraceView& v, const RayPre& r, St& st) {
+inline Hit trace_wide_stack_ordered(const TraceView& v, const typename K::Ray& r, St& st) {
   struct Entry {  // 8 bytes, as Embree's (node, distance) entries
     std::int32_t node;
     float d;
@@ -445,7 +449,7 @@ inline Hit trace_wide_stack_ordered(const TraceView& v, const RayPre& r, St& st)
 /// cannot pay), push the other hit children highest slot first (K::push8: one permute, one
 /// compress and one store on AVX-512), so they pop in ascending slot order.
 template <bool Any, class St, class K = ScalarKernels>
-inline Hit trace_mbvh8_stack(const TraceView& v, const RayPre& r, St& st) {
+inline Hit trace_mbvh8_stack(const TraceView& v, const typename K::Ray& r, St& st) {
   Hit best = miss_hit();
   float tmax = r.tmax;
   StepGuard guard(v);
@@ -483,7 +487,7 @@ inline Hit trace_mbvh8_stack(const TraceView& v, const RayPre& r, St& st) {
 /// nothing but the parent's child link; only a climb reads a record (the parent link). State:
 /// node + 128-bit word = 20 bytes against 520 (plain stack twin) and 1032 (ordered stack).
 template <bool Any, class St, class K = ScalarKernels>
-inline Hit trace_mbvh8_bitstack(const TraceView& v, const RayPre& r, St& st) {
+inline Hit trace_mbvh8_bitstack(const TraceView& v, const typename K::Ray& r, St& st) {
   Hit best = miss_hit();
   float tmax = r.tmax;
   StepGuard guard(v);
@@ -534,7 +538,7 @@ inline Hit trace_mbvh8_bitstack(const TraceView& v, const RayPre& r, St& st) {
 /// four boxes against the current tmax, takes the nearest pending child and drops those now
 /// beyond tmax — the visit sequence of the ordered, culling stack above.
 template <bool Any, class St, class K = ScalarKernels>
-inline Hit trace_mbvh4_bitstack_retest(const TraceView& v, const RayPre& r, St& st) {
+inline Hit trace_mbvh4_bitstack_retest(const TraceView& v, const typename K::Ray& r, St& st) {
   Hit best = miss_hit();
   float tmax = r.tmax;
   StepGuard guard(v);

@@ -51,6 +51,7 @@ struct Mbvh4;
 struct Mbvh8;
 struct Mbvh4Wide;
 struct TriPacks;
+struct LeafVariant;
 
 
 enum class Layout { mbvh2, mbvh4, mbvh8 };
@@ -152,6 +153,11 @@ public:
   const Mbvh4Wide& mbvh4_wide() const;  ///< its 16-wide view (OpenCL, TRAVERSAL.md §8), made on first use
   void make_layout(Layout l) const;  ///< makes layout `l` now (its accessor above), not on first trace
   const TriPacks& tri_packs() const;  ///< the leaves as SIMD packs, made on first use
+  /// The build with its leaves regrouped for leaf tests of `block` triangles at a time
+  /// (TraceOptions::leaf_block; host/core/layouts.h), made on first use and kept; thread-safe.
+  const LeafVariant& leaf_variant(unsigned block) const;
+  /// Forgets the leaf variants (refit does: they are remade on next use from the moved tree).
+  void drop_leaf_variants();
   const AlignedVector<Tri>& tris() const;
   const std::vector<Leaf>& leaves() const;
   const Box& bounds() const;

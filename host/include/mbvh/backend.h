@@ -78,9 +78,21 @@ public:
   /// Vulkan timestamps); excludes ray uploads, hit downloads and host copies. Negative when the
   /// backend does not measure it (CPU backends, a device without timestamps) or has not traced.
   virtual double last_device_seconds() const { return -1; }
+  /// The leaf block (TraceOptions::leaf_block) this backend traces for `opt`: opt.leaf_block where
+  /// it has leaf variants and it is set, else its own choice; a backend without variants traces
+  /// the build's own leaves (1) whatever is asked. Compare a backend with the reference at this
+  /// value (with_leaves_of).
+  virtual unsigned leaf_block(const TraceOptions&) const { return 1; }
   /// Bytes of traversal state per ray for these options (TRAVERSAL.md §5).
   virtual std::size_t state_bytes(const TraceOptions& opt) const { return state_bytes_per_ray(opt.layout, opt.traversal); }
 };
+
+/// `opt` with leaf_block set to what `b` traces for it: the options the reference (cpu-scalar,
+/// trace_reference) must trace to give `b`'s answers bit for bit.
+inline TraceOptions with_leaves_of(const Backend& b, TraceOptions opt) {
+  opt.leaf_block = b.leaf_block(opt);
+  return opt;
+}
 
 /// A set of traversal variants: every backend x layout x traversal x query combination.
 struct VariantGrid {

@@ -56,6 +56,12 @@ struct TraceOptions {
   Query query = Query::closest;
   bool stats = false;  ///< fill TraceOutput::stats (costs time; off compiles counters away)
   Precision precision = Precision::robust;  ///< accuracy mode
+  /// Leaf policy: the build's leaves regrouped for leaf tests of this many triangles at once
+  /// (Accel::leaf_variant; the same triangles and boxes, fewer and fuller leaves). 0: the
+  /// backend's own choice (Backend::leaf_block: 4 on the SIMD cpu backends, whose leaves test
+  /// four triangles per instruction; 1, the build's own leaves, elsewhere); 1: the build's own.
+  /// Answers agree across leaf blocks up to classified ties (DESIGN.md), bit for bit within one.
+  unsigned leaf_block = 0;
 };
 
 /// Results in ray order. Closest hit fills `hits`; any hit fills `occluded` (1 = occluded).

@@ -1,0 +1,169 @@
+// SPDX-License-Identifier: MIT
+// leaf_variant.cpp — a backend's leaf policy from the one build (issue 14 item 5, issue 15 item 5):
+// the binary tree with subtrees regrouped into leaves where the SAH, with a leaf priced in blocks
+// of B triangles (Embree's SAH "blocks": one SIMD leaf test covers B triangles), prices the leaf
+// below the subtree; and the layouts made from it on first use. Nothing is rebuilt: the triangles,
+// their leaf order and every box are the build's, a regrouped leaf is the subtree's contiguous
+// range of triangles and its box the subtree's, so the variant traces the same triangles with
+// exact, conservative boxes — only fewer, fuller leaves. O(nodes), deterministic.
+#include <algorithm>
+#include <map>
+#include <memory>
+#include <mutex>
+
+#include "host/core/build/builder.h"
+#include "host/core/layouts.h"
+
+namespace mbvh {
+
+namespace {
+
+struct Regrouper {
+  const Bvh2& in;
+  const std::vector<Leaf>& leaves;
+  unsigned block, max_leaf;
+  float node_cost;
+  std::vector<std::uint32_t> first, count;  // per inner node: its triangle range (when contiguous)
+  std::vector<char> as_leaf;                // per inner node: regrouped into one leaf
+  Bvh2 out;
+  std::vector<Leaf> out_leaves;
+
+  // -- bottom-up: inner nodes are in depth-first order (a child after its parent)
+  void decide() {
+    const std::size_t n = in.nodes.size();
+    first.assign(n, 0);
+    count.assign(n, 0);
+    as_leaf.assign(n, 0);
+    std::vector<float> cost(n, 0.0f);
+    for (std::size_t i = n; i-- > 0;) {
+      const Bvh2::Node& node = in.nodes[i];
+      bool contiguous = true;
+      std::uint32_t f = 0, c = 0;
+      float children = 0;
+      for (int side = 0; side < 2; ++side) {
+        const std::int32_t ref = node.child[side];
+        if (ref == MBVH_EMPTY) continue;
+        std::uint32_t cf, cc;
+        if (ref < 0) {
+          const Leaf& l = leaves[static_cast<std::size_t>(~ref)];
+          cf = l.first;
+          cc = l.count;
+          children += build::blocks(cc, block) * in.leaf_boxes[static_cast<std::size_t>(~ref)].half_area();
+        } else {
+          const std::size_t k = static_cast<std::size_t>(ref);
+          cf = first[k];
+          cc = count[k];
+          contiguous = contiguous && (as_leaf[k] || count[k] != 0);
+          children += cost[k];
+        }
+        if (c != 0 && cf != f + c) contiguous = false;
+        if (c == 0) f = cf;
+        c += cc;
+      }
+      const float area = node.box.half_area();
+      const float split = node_cost * area + children;
+      cost[i] = split;
+      // count[k] == 0 marks a subtree whose triangles are not one range (never regrouped above)
+      if (contiguous) {
+        first[i] = f;
+        count[i] = c;
+      }
+      if (i != 0 && contiguous && c != 0 && c <= max_leaf) {  // the root stays an inner node
+        const float leaf = build::blocks(c, block) * area;
+        if (leaf <= split) {
+          as_leaf[i] = 1;
+          cost[i] = leaf;
+        }
+      }
+    }
+  }
+
+  // -- top-down: the kept inner nodes depth-first, as the build's flatten emits them
+  std::int32_t emit(std::int32_t ref, std::int32_t parent, std::uint32_t& height) {
+    if (ref == MBVH_EMPTY) {
+      height = 0;
+      return MBVH_EMPTY;
+    }
+    if (ref < 0 || as_leaf[static_cast<std::size_t>(ref)]) {
+      Leaf l;
+      Box b;
+      if (ref < 0) {
+        l = leaves[static_cast<std::size_t>(~ref)];
+        b = in.leaf_boxes[static_cast<std::size_t>(~ref)];
+      } else {
+        l = Leaf{first[static_cast<std::size_t>(ref)], count[static_cast<std::size_t>(ref)]};
+        b = in.nodes[static_cast<std::size_t>(ref)].box;
+      }
+      out_leaves.push_back(l);
+      out.leaf_boxes.push_back(b);
+      out.largest_leaf = std::max<std::size_t>(out.largest_leaf, l.count);
+      height = 0;
+      return ~static_cast<std::int32_t>(out_leaves.size() - 1);
+    }
+    const Bvh2::Node& s = in.nodes[static_cast<std::size_t>(ref)];
+    const std::int32_t self = static_cast<std::int32_t>(out.nodes.size());
+    out.nodes.push_back({s.box, {MBVH_EMPTY, MBVH_EMPTY}, parent, 0});
+    std::uint32_t h[2] = {0, 0};
+    for (int side = 0; side < 2; ++side) {
+      const std::int32_t c = emit(s.child[side], self, h[side]);
+      out.nodes[static_cast<std::size_t>(self)].child[side] = c;
+    }
+    height = 1 + std::max(h[0], h[1]);
+    out.nodes[static_cast<std::size_t>(self)].height = height;
+    return self;
+  }
+};
+
+}  // namespace
+
+void regroup_leaves(const Bvh2& bvh, const std::vector<Leaf>& leaves, unsigned block, unsigned max_leaf,
+                    float node_cost, Bvh2& out, std::vector<Leaf>& out_leaves) {
+  Regrouper g{bvh, leaves, std::max(block, 1u), std::max(max_leaf, 1u), node_cost, {}, {}, {}, {}, {}};
+  if (!bvh.nodes.empty()) {
+    g.decide();
+    std::uint32_t h = 0;
+    g.emit(0, MBVH_NONE, h);
+  }
+  g.out.forced_leaves = bvh.forced_leaves;
+  g.out.degenerate = bvh.degenerate;
+  out = std::move(g.out);
+  out_leaves = std::move(g.out_leaves);
+}
+
+const LeafVariant& Accel::leaf_variant(unsigned block) const {
+  std::lock_guard<std::mutex> lock(impl_->variants_m_);
+  std::unique_ptr<LeafVariant>& v = impl_->variants_[block];
+  if (!v) {
+    v = std::make_unique<LeafVariant>();
+    v->block = block;
+    // max leaf: the build's, but at least one full block (a regrouped leaf of B triangles costs
+    // one test)
+    const unsigned max_leaf = std::max(impl_->opt_.max_leaf, block);
+    regroup_leaves(impl_->bvh2_, impl_->leaves_, block, max_leaf, impl_->opt_.traversal_cost, v->bvh2, v->leaves);
+  }
+  return *v;
+}
+
+void Accel::drop_leaf_variants() {
+  std::lock_guard<std::mutex> lock(impl_->variants_m_);
+  impl_->variants_.clear();
+}
+
+const Mbvh2& LeafVariant::mbvh2() const {
+  std::call_once(once2_, [this] { m2_ = make_mbvh2(bvh2, leaves); });
+  return m2_;
+}
+const Mbvh4& LeafVariant::mbvh4() const {
+  std::call_once(once4_, [this] { m4_ = make_mbvh4(bvh2, leaves); });
+  return m4_;
+}
+const Mbvh8& LeafVariant::mbvh8() const {
+  std::call_once(once8_, [this] { m8_ = make_mbvh8(bvh2, leaves); });
+  return m8_;
+}
+const TriPacks& LeafVariant::tri_packs(const AlignedVector<Tri>& tris) const {
+  std::call_once(oncep_, [this, &tris] { packs_ = make_tri_packs(tris, leaves); });
+  return packs_;
+}
+
+}  // namespace mbvh
