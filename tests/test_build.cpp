@@ -201,6 +201,63 @@ TEST_CASE("builder invariants on shared and generated scenes", "[build]") {
   }
 }
 
+TEST_CASE("leaf variants regroup the one build: every triangle once, conservative boxes, fuller leaves, valid layouts", "[build]") {
+  for (const std::string& spec : {mbvh_test::scene_path("cornell_box.obj.zst"), mbvh_test::scene_path("bun_zipper.ply.zst"),
+                                 std::string("gen:soup:50000"), std::string("gen:cube:4")}) {
+    INFO(spec);
+    const Scene s = load_scene(spec);
+    BuildOptions bo;
+    bo.threads = 2;
+    const auto acc = Accel::build(s, bo);
+    for (unsigned block : {4u, 8u}) {
+      INFO("block " << block);
+      const LeafVariant& v = acc->leaf_variant(block);
+      REQUIRE(&v == &acc->leaf_variant(block));  // made once, kept
+      // -- the same triangles, each in exactly one leaf, every leaf a range of the build's order
+      std::vector<int> seen(acc->tris().size(), 0);
+      std::size_t in_leaves = 0, base = 0;
+      for (const Leaf& l : acc->leaves()) base += l.count;
+      for (std::size_t i = 0; i < v.leaves.size(); ++i) {
+        const Leaf& l = v.leaves[i];
+        REQUIRE(l.count >= 1);
+        REQUIRE(l.count <= std::max(bo.max_leaf, block));
+        REQUIRE(l.first + l.count <= acc->tris().size());
+        const Box& lb = v.bvh2.leaf_boxes[i];
+        for (std::uint32_t k = l.first; k < l.first + l.count; ++k) {
+          ++seen[k];
+          const Tri& t = acc->tris()[k];
+          for (const float* p : {t.v0, t.v1, t.v2})
+            for (int a = 0; a < 3; ++a) REQUIRE((p[a] >= (&lb.lo.x)[a] && p[a] <= (&lb.hi.x)[a]));
+        }
+        in_leaves += l.count;
+      }
+      CHECK(in_leaves == base);
+      std::size_t once = 0;
+      for (int c : seen) once += c == 1;
+      CHECK(once == base);
+      CHECK(v.leaves.size() <= acc->leaves().size());
+      if (acc->leaves().size() > 100) CHECK(v.leaves.size() < acc->leaves().size());  // fuller leaves
+      // -- inner boxes contain their children; the layouts made from it are well formed
+      for (std::size_t i = 0; i < v.bvh2.nodes.size(); ++i)
+        for (std::int32_t c : v.bvh2.nodes[i].child)
+          if (c != MBVH_EMPTY) REQUIRE(contains(v.bvh2.nodes[i].box, v.bvh2.box(c)));
+      REQUIRE_NOTHROW(validate_layout(v.mbvh2(), v.leaves.size()));
+      REQUIRE_NOTHROW(validate_layout(v.mbvh4(), v.leaves.size()));
+      REQUIRE_NOTHROW(validate_layout(v.mbvh8(), v.leaves.size()));
+      REQUIRE(v.tri_packs(acc->tris()).leaves.size() == v.leaves.size());
+      // -- deterministic: the same variant from a build at another thread count
+      BuildOptions b3 = bo;
+      b3.threads = 3;
+      const auto acc3 = Accel::build(s, b3);
+      const LeafVariant& v3 = acc3->leaf_variant(block);
+      REQUIRE(v3.leaves.size() == v.leaves.size());
+      CHECK(std::memcmp(v3.leaves.data(), v.leaves.data(), v.leaves.size() * sizeof(Leaf)) == 0);
+      REQUIRE(v3.mbvh8().nodes.size() == v.mbvh8().nodes.size());
+      CHECK(std::memcmp(v3.mbvh8().nodes.data(), v.mbvh8().nodes.data(), v.mbvh8().nodes.size() * sizeof(Node8)) == 0);
+    }
+  }
+}
+
 TEST_CASE("the depth cap holds on a worst-case scene and the capped tree still traces exactly", "[build]") {
   const Scene s = load_scene("gen:exponential:200");  // the deepest tree binned SAH makes
   const auto natural = Accel::build(s);
