@@ -115,6 +115,7 @@ static nlohmann::json report_json(const BenchReport& rep) {
                             {"device_mrays_per_s", r.device_mrays_per_s > 0 ? nlohmann::json(r.device_mrays_per_s)
                                                                             : nlohmann::json(nullptr)},
                             {"state_bytes_per_ray", r.state_bytes_per_ray},
+                            {"leaf_block", r.leaf_block},
                             {"peak_state_bytes_per_ray", r.peak_state_bytes_per_ray},
                             {"nodes_per_ray", r.nodes_per_ray},
                             {"box_tests_per_ray", r.box_tests_per_ray},
@@ -374,6 +375,7 @@ BenchReport run_bench(const Scene& scene, const Accel& acc, const BenchOptions& 
       r.threads = resolve_threads(opt.threads);
       r.passes = passes;
       r.state_bytes_per_ray = b.state_bytes(to);
+      r.leaf_block = b.leaf_block(to);
       TraceOutput out;
       b.trace(acc, k.rays, to, out);
       verify(k, out, to, r);

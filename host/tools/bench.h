@@ -45,6 +45,7 @@ struct BenchRecord {
   /// the trace kernels alone, no transfers); 0 where the backend does not measure it (JSON null).
   double device_mrays_per_s = 0;
   std::size_t state_bytes_per_ray = 0;
+  unsigned leaf_block = 1;  ///< the leaves the backend traced (Backend::leaf_block; 1: the build's own)
   double peak_state_bytes_per_ray = 0;  ///< mean over rays of the state actually used
   double nodes_per_ray = 0, box_tests_per_ray = 0, leaves_per_ray = 0, tris_per_ray = 0, climbs_per_ray = 0;
   /// Histograms of the work per ray, power-of-two buckets: bucket 0 counts rays with 0, bucket
