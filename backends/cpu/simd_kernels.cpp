@@ -90,6 +90,7 @@ struct SimdRay : RayPre {
   __m256 o8[3], inv8[3], inv_far8[3], d8[3], tmin8;
   __m128 tri_o[3], tri_s[3];
   int near4[3], far4[3], near8[3], far8[3];
+  const TraceView* view;  ///< what the ray traverses (for prefetches)
 };
 
 /// For each 8-bit mask, its set slots highest first, one byte each (the AVX2 MBVH8 push).
@@ -140,7 +141,8 @@ struct F8 {
 };
 
 /// Fills SimdRay's constants from its (validated, possibly relaxed) RayPre part.
-inline void finish_ray(SimdRay& r) {
+inline void finish_ray(SimdRay& r, const TraceView& v) {
+  r.view = &v;
   for (int a = 0; a < 3; ++a) {
     r.o8[a] = _mm256_set1_ps(r.o[a]);
     r.d8[a] = _mm256_set1_ps(r.d[a]);
@@ -311,12 +313,27 @@ struct SimdKernelsT {
   static constexpr bool uses_packs = true;
   static constexpr bool fast = Fast;
   using Ray = SimdRay;
-  static void finish(Ray& r) { finish_ray(r); }
+  static void finish(Ray& r, const TraceView& v) { finish_ray(r, v); }
   [[gnu::always_inline]] static unsigned test(const Node4& n, const Ray& r, float tcull, float d[4]) {
     return box_test_wide<F4>(n, r, tcull, d);
   }
   [[gnu::always_inline]] static unsigned test(const Node8& n, const Ray& r, float tcull, float d[8]) {
     return box_test_wide<F8>(n, r, tcull, d);
+  }
+  /// Closest hit: every hit child's record (an inner node's lines, a leaf's pack entry) is asked
+  /// for at once, so the misses of the children visited later overlap the work before them.
+  template <class N>
+  [[gnu::always_inline]] static void prefetch(const N& n, const Ray& r, unsigned mask) {
+    const N* nodes = detail::nodes_of<N>(*r.view);
+    for (unsigned k = mask; k != 0; k &= k - 1) {
+      const std::int32_t c = n.child[std::countr_zero(k)];
+      if (c >= 0) {
+        const char* p = reinterpret_cast<const char*>(nodes + c);
+        for (std::size_t line = 0; line < sizeof(N); line += 64) _mm_prefetch(p + line, _MM_HINT_T0);
+      } else {
+        _mm_prefetch(reinterpret_cast<const char*>(r.view->leaf4 + ~c), _MM_HINT_T0);
+      }
+    }
   }
   /// The nearest hit slot without a branch per slot: misses set to +inf, a horizontal min, the
   /// lowest slot equal to it (entry distances are never NaN: the max chain starts at tmin).

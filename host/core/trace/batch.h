@@ -94,13 +94,13 @@ inline void run_batch(const TraceView& v, std::span<const Ray> rays, std::size_t
       if constexpr (Stats) out.stats[i] = RayStats{};
     } else if constexpr (Stats) {
       if constexpr (K::fast) relax_ray(r);
-      K::finish(r);
+      K::finish(r, v);
       CountStats st;
       h = dispatch<Any, K>(v, r, opt.layout, opt.traversal, st);
       out.stats[i] = st.s;
     } else {
       if constexpr (K::fast) relax_ray(r);
-      K::finish(r);
+      K::finish(r, v);
       NoStats st;
       h = dispatch<Any, K>(v, r, opt.layout, opt.traversal, st);
     }

@@ -107,10 +107,14 @@ template <class N>
   return mask;
 }
 
-template <class K, class N, class St>
+// Closest hit also lets the policy prefetch the hit children (the SIMD policies do: a latency
+// bound walk over incoherent rays; an occlusion query, which stops early, gains nothing).
+template <class K, bool Any, class N, class St>
 [[gnu::always_inline]] inline unsigned test_node(const N& n, const typename K::Ray& r, float tcull, float* d, St& st) {
   st.node(node_width<N>());
-  return K::test(n, r, tcull, d);
+  const unsigned m = K::test(n, r, tcull, d);
+  if constexpr (!Any) K::prefetch(n, r, m);
+  return m;
 }
 
 // MBVH2 child entered first: any hit takes child 0 if hit; closest hit the nearer of two hit
@@ -161,7 +165,9 @@ struct ScalarKernelsT {
   /// The ray a traversal carries: a policy may extend RayPre with its own per-ray constants
   /// (the SIMD policies: broadcast vectors and near-plane offsets), filled once by finish().
   using Ray = RayPre;
-  static void finish(Ray&) {}
+  static void finish(Ray&, const TraceView&) {}
+  template <class N>
+  static void prefetch(const N&, const Ray&, unsigned) {}
   template <class N>
   [[gnu::always_inline]] static unsigned test(const N& n, const RayPre& r, float tcull, float* d) {
     return detail::test_boxes(n, r, tcull, d);
@@ -282,7 +288,7 @@ inline Hit trace_mbvh4_stack(const TraceView& v, const typename K::Ray& r, St& s
     if (cur >= 0) {
       const Node4& n = v.n4[cur];
       float d[4];
-      const unsigned m = detail::test_node<K>(n, r, tmax * kCullSlack, d, st);
+      const unsigned m = detail::test_node<K, Any>(n, r, tmax * kCullSlack, d, st);
       if (m) {
         const int i = detail::first_slot4<Any>(m, d);
         guard.room(sp, 3, MBVH_STACK4_ENTRIES);
@@ -324,7 +330,7 @@ inline Hit trace_mbvh4_bitstack(const TraceView& v, const typename K::Ray& r, St
     if (cur >= 0) {
       const Node4& n = v.n4[cur];
       float d[4];
-      const unsigned m = detail::test_node<K>(n, r, tmax * kCullSlack, d, st);
+      const unsigned m = detail::test_node<K, Any>(n, r, tmax * kCullSlack, d, st);
       if (m) {
         const int i = detail::first_slot4<Any>(m, d);
         bits = (bits << 3) | detail::skip_code(m, i);  // push
@@ -398,7 +404,7 @@ inline Hit trace_wide_stack_ordered(const TraceView& v, const typename K::Ray& r
     if (cur >= 0) {
       const N& n = nodes[cur];
       float d[W];
-      const unsigned m = detail::test_node<K>(n, r, tmax * kCullSlack, d, st);
+      const unsigned m = detail::test_node<K, Any>(n, r, tmax * kCullSlack, d, st);
       if (m) {
         const int q = K::template nearest<W>(m, d);
         unsigned others = m & ~(1u << q);
@@ -461,7 +467,7 @@ inline Hit trace_mbvh8_stack(const TraceView& v, const typename K::Ray& r, St& s
     if (cur >= 0) {
       const Node8& n = v.n8[cur];
       float d[8];
-      const unsigned m = detail::test_node<K>(n, r, tmax * kCullSlack, d, st);
+      const unsigned m = detail::test_node<K, Any>(n, r, tmax * kCullSlack, d, st);
       if (m) {
         const int i = Any ? std::countr_zero(m) : K::template nearest<8>(m, d);
         guard.room(sp, 8, MBVH_STACK8_ENTRIES);
@@ -500,7 +506,7 @@ inline Hit trace_mbvh8_bitstack(const TraceView& v, const typename K::Ray& r, St
     if (cur >= 0) {
       const Node8& n = v.n8[cur];
       float d[8];
-      const unsigned m = detail::test_node<K>(n, r, tmax * kCullSlack, d, st);
+      const unsigned m = detail::test_node<K, Any>(n, r, tmax * kCullSlack, d, st);
       if (m) {
         const int i = Any ? std::countr_zero(m) : K::template nearest<8>(m, d);
         hi = (hi << 8) | (lo >> 56);  // push the pending slots
@@ -551,7 +557,7 @@ inline Hit trace_mbvh4_bitstack_retest(const TraceView& v, const typename K::Ray
     if (cur >= 0) {
       const Node4& n = v.n4[cur];
       float d[4];
-      const unsigned m = detail::test_node<K>(n, r, tmax * kCullSlack, d, st);
+      const unsigned m = detail::test_node<K, Any>(n, r, tmax * kCullSlack, d, st);
       if (m) {
         const int i = detail::nearest_slot(m, d);
         bits = (bits << 3) | detail::skip_code(m, i);  // push
