@@ -7,6 +7,7 @@
 
 #include <atomic>
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <stdexcept>
 #include <thread>
@@ -275,6 +276,41 @@ TEST_CASE("parallel_for on the persistent pool - every chunk once - nested and c
   CHECK(after == 100);
 }
 
+TEST_CASE("cpu.leaf-block chooses the leaves a cpu backend traces - the reference on the same leaves gives its bytes", "[api]") {
+  const Scene s = load_scene(mbvh_test::scene_path("cornell_box.obj.zst"));
+  const auto acc = Accel::build(s);
+  RayGenOptions ro;
+  ro.kind = RayKind::diffuse;
+  ro.count = 20000;
+  const std::vector<Ray> rays = generate_rays(s, *acc, ro);
+  TraceOptions o;
+  o.layout = Layout::mbvh8;
+  o.traversal = Traversal::stack;
+  for (const std::string& name : mbvh_test::all_backends().backends) {
+    if (name.rfind("cpu", 0) != 0) continue;
+    INFO(name);
+    const unsigned own = name == "cpu-scalar" ? 1u : 4u;
+    CHECK(make_backend(name)->leaf_block(o) == own);
+    for (unsigned block : {1u, 2u, 8u}) {
+      auto b = make_backend(name, BackendOptions{}.set("cpu.leaf-block", std::to_string(block)));
+      CHECK(b->leaf_block(o) == block);
+      TraceOptions asked = o;
+      asked.leaf_block = 4;
+      CHECK(b->leaf_block(asked) == 4);  // a call's own choice wins
+      TraceOutput got, want;
+      b->trace(*acc, rays, o, got);
+      trace_reference(*acc, rays, with_leaves_of(*b, o), want, 0);
+      CHECK(std::memcmp(got.hits.data(), want.hits.data(), rays.size() * sizeof(Hit)) == 0);
+    }
+    for (const char* bad : {"0", "65", "four"})
+      CHECK_THROWS_WITH(make_backend(name, BackendOptions{}.set("cpu.leaf-block", bad)), Catch::Contains("cpu.leaf-block"));
+  }
+  TraceOutput out;
+  TraceOptions wrong = o;
+  wrong.leaf_block = 65;
+  CHECK_THROWS_WITH(trace_reference(*acc, rays, wrong, out, 0), Catch::Contains("leaf block 65 is out of range"));
+}
+
 TEST_CASE("backend settings belong to their backend - unknown names are refused by name", "[api]") {
   // another family's setting is not this backend's concern: one options object serves several
   BackendOptions o;
@@ -300,7 +336,7 @@ TEST_CASE("backend settings belong to their backend - unknown names are refused 
                       Catch::Contains("vulkan.max-binding-bytes='-1'"));
   }
   CHECK_THROWS_WITH(make_backend("cpu-scalar", BackendOptions{}.set("cpu.threads", "2")),
-                    Catch::Contains("backend 'cpu-scalar' has no setting 'cpu.threads' (its settings: none)"));
+                    Catch::Contains("backend 'cpu-scalar' has no setting 'cpu.threads' (its settings: cpu.leaf-block)"));
   // the CLI: --set FAMILY.NAME=VALUE reaches the backend; a malformed one is a usage error
   auto r = mbvh_test::run_cli("devices --set vulkan.validation=1");
   CHECK(r.code == 0);

@@ -3,6 +3,7 @@
 #pragma once
 #include <span>
 
+#include "mbvh/backend.h"
 #include "mbvh/trace.h"
 
 namespace mbvh {
@@ -13,6 +14,13 @@ struct CpuKernels {
   const char* isa;
   void (*trace)(const Accel&, std::span<const Ray>, const TraceOptions&, TraceOutput&, unsigned threads);
 };
+
+/// The cpu family's `cpu.leaf-block` setting: the leaf block (TraceOptions::leaf_block) a cpu
+/// backend traces when a call leaves it 0 — `fallback` (4 on the SIMD backends, 1 on cpu-scalar)
+/// when not set. Throws Error naming the setting and value outside 1 to 64.
+unsigned cpu_leaf_block(const BackendOptions& o, unsigned fallback);
+/// Its declaration (BackendInfo::settings), with the backend's default in the help text.
+BackendSetting cpu_leaf_block_setting(const char* fallback);
 
 void register_cpu_scalar_backend();
 void register_cpu_simd_backends();

@@ -1,9 +1,25 @@
 // SPDX-License-Identifier: MIT
-// register.cpp — mbvh::cpu's registration entry point (mbvh/backends.h).
+// register.cpp — mbvh::cpu's registration entry point (mbvh/backends.h) and the cpu family's
+// shared setting, cpu.leaf-block.
+#include <string>
+
 #include "backends/cpu/cpu_backends.h"
 #include "mbvh/backends.h"
+#include "mbvh/error.h"
 
 namespace mbvh {
+
+unsigned cpu_leaf_block(const BackendOptions& o, unsigned fallback) {
+  const std::size_t b = o.get_size("cpu.leaf-block", fallback);
+  if (b < 1 || b > 64)
+    throw Error("backend setting cpu.leaf-block=" + o.get("cpu.leaf-block") + ": the leaf block must be 1 to 64");
+  return static_cast<unsigned>(b);
+}
+
+BackendSetting cpu_leaf_block_setting(const char* fallback) {
+  return {"cpu.leaf-block", std::string("the leaves traced: the build's regrouped for leaf tests of N triangles "
+                                        "(1: the build's own; default ") + fallback + ")"};
+}
 
 void register_cpu_backends() {
   register_cpu_scalar_backend();

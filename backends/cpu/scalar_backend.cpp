@@ -13,7 +13,7 @@ namespace {
 
 class ScalarBackend final : public Backend {
 public:
-  explicit ScalarBackend(const BackendOptions& o) : threads_(resolve_threads(o.threads)) {}
+  explicit ScalarBackend(const BackendOptions& o) : threads_(resolve_threads(o.threads)), own_block_(cpu_leaf_block(o, 1)) {}
   std::string name() const override { return "cpu-scalar"; }
   std::string describe() const override {
     return "cpu-scalar: reference scalar traversals, " + std::to_string(threads_) + " thread(s)";
@@ -21,8 +21,9 @@ public:
   std::string isa() const override { return "scalar"; }
   bool supports(Layout l, Traversal t) const override { return reference_supports(l, t); }
   bool supports_precision(Precision) const override { return true; }
-  /// The reference traces any leaf variant asked for; its own choice is the build's leaves.
-  unsigned leaf_block(const TraceOptions& opt) const override { return std::max(opt.leaf_block, 1u); }
+  /// The reference traces any leaf variant asked for; its own choice is the build's leaves (or
+  /// cpu.leaf-block).
+  unsigned leaf_block(const TraceOptions& opt) const override { return opt.leaf_block ? opt.leaf_block : own_block_; }
   void prepare(const Accel& acc, const TraceOptions& opt) override {
     if (opt.leaf_block > 1) {
       const LeafVariant& v = acc.leaf_variant(opt.leaf_block);
@@ -34,19 +35,22 @@ public:
     }
   }
   void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
-    prepare(acc, opt);
-    trace_reference(acc, rays, opt, out, threads_);
+    const TraceOptions o = with_leaves_of(*this, opt);
+    prepare(acc, o);
+    trace_reference(acc, rays, o, out, threads_);
   }
 
 private:
   unsigned threads_;
+  unsigned own_block_;
 };
 
 }  // namespace
 
 void register_cpu_scalar_backend() {
   register_backend({"cpu-scalar", "scalar reference traversals (MBVH2/MBVH4, stack/bitstack), multi-threaded",
-                    [](const BackendOptions& o) { return std::unique_ptr<Backend>(new ScalarBackend(o)); }, "", {}, "", {}, {}, {}});
+                    [](const BackendOptions& o) { return std::unique_ptr<Backend>(new ScalarBackend(o)); }, "", {}, "", {}, {},
+                    {cpu_leaf_block_setting("1")}});
 }
 
 }  // namespace mbvh

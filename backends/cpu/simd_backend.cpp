@@ -40,11 +40,12 @@ bool has_avx512() {
 class SimdBackend final : public Backend {
 public:
   SimdBackend(std::string name, const CpuKernels& k, const BackendOptions& o)
-      : name_(std::move(name)), kernels_(k), threads_(resolve_threads(o.threads)) {}
+      : name_(std::move(name)), kernels_(k), threads_(resolve_threads(o.threads)),
+        own_block_(cpu_leaf_block(o, kOwnLeafBlock)) {}
   std::string name() const override { return name_; }
   std::string describe() const override {
-    return name_ + ": " + kernels_.isa + " node tests (MBVH4: 4 boxes, MBVH8: 8 at once), 4-wide SIMD leaves, " +
-           std::to_string(threads_) + " thread(s)";
+    return name_ + ": " + kernels_.isa + " node tests (MBVH4: 4 boxes, MBVH8: 8 at once), 4-wide SIMD leaves (leaf block " +
+           std::to_string(own_block_) + "), " + std::to_string(threads_) + " thread(s)";
   }
   std::string isa() const override { return kernels_.isa; }
   bool supports(Layout l, Traversal t) const override { return reference_supports(l, t); }
@@ -53,7 +54,7 @@ public:
   /// leaves and packs (bunny: 37K leaves of 1.9 triangles become 13K of 5.2), fewer cache lines
   /// and nodes per ray (README, "The cpu backend").
   static constexpr unsigned kOwnLeafBlock = 4;
-  unsigned leaf_block(const TraceOptions& opt) const override { return opt.leaf_block ? opt.leaf_block : kOwnLeafBlock; }
+  unsigned leaf_block(const TraceOptions& opt) const override { return opt.leaf_block ? opt.leaf_block : own_block_; }
   /// Everything made once per build happens here, outside the timed trace: the layout and the
   /// leaves' SIMD packs of the leaf variant traced (all kept by the Accel; later calls are free).
   void prepare(const Accel& acc, const TraceOptions& opt) override {
@@ -81,6 +82,7 @@ private:
   std::string name_;
   const CpuKernels& kernels_;
   unsigned threads_;
+  unsigned own_block_;  ///< cpu.leaf-block (default kOwnLeafBlock)
 };
 
 // Registers `name` running kernels `k` where `available()`; elsewhere it refuses to start, saying
@@ -96,6 +98,7 @@ void add(const char* name, const char* summary, const CpuKernels& k, bool (*avai
     return std::make_unique<SimdBackend>(name, k, o);
   };
   info.missing_hardware = [available, missing] { return available() ? std::string() : std::string(missing); };
+  info.settings = {cpu_leaf_block_setting("4")};
   register_backend(std::move(info));
 }
 

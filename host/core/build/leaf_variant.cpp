@@ -10,9 +10,11 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <string>
 
 #include "host/core/build/builder.h"
 #include "host/core/layouts.h"
+#include "mbvh/error.h"
 
 namespace mbvh {
 
@@ -131,6 +133,8 @@ void regroup_leaves(const Bvh2& bvh, const std::vector<Leaf>& leaves, unsigned b
 }
 
 const LeafVariant& Accel::leaf_variant(unsigned block) const {
+  if (block < 1 || block > 64)
+    throw Error("leaf block " + std::to_string(block) + " is out of range (TraceOptions::leaf_block: 0 for the backend's own, or 1 to 64)");
   std::lock_guard<std::mutex> lock(impl_->variants_m_);
   std::unique_ptr<LeafVariant>& v = impl_->variants_[block];
   if (!v) {
