@@ -12,6 +12,8 @@ namespace mbvh::cli {
 
 namespace {
 
+constexpr unsigned kCpuLeafBlock = 4;  // the SIMD cpu backends' own leaf block (backends/cpu)
+
 struct InfoArgs {
   SceneArgs scene;
   std::string json;
@@ -53,6 +55,16 @@ void print_info(const SceneArgs& a, const Loaded& l) {
   print_stats_row(s2, state_bytes_per_ray(Layout::mbvh2, Traversal::stack), state_bytes_per_ray(Layout::mbvh2, Traversal::bitstack));
   print_stats_row(s4, state_bytes_per_ray(Layout::mbvh4, Traversal::stack), state_bytes_per_ray(Layout::mbvh4, Traversal::bitstack));
   print_stats_row(s8, state_bytes_per_ray(Layout::mbvh8, Traversal::stack), state_bytes_per_ray(Layout::mbvh8, Traversal::bitstack));
+  // the cpu backend's own leaves (TraceOptions::leaf_block 4), from this build
+  const LeafVariant& lv = acc.leaf_variant(kCpuLeafBlock);
+  LayoutStats v4 = lv.mbvh4().stats, v8 = lv.mbvh8().stats;
+  v4.layout = "mbvh4:4";
+  v8.layout = "mbvh8:4";
+  print_stats_row(v4, state_bytes_per_ray(Layout::mbvh4, Traversal::stack), state_bytes_per_ray(Layout::mbvh4, Traversal::bitstack));
+  print_stats_row(v8, state_bytes_per_ray(Layout::mbvh8, Traversal::stack), state_bytes_per_ray(Layout::mbvh8, Traversal::bitstack));
+  say("(mbvh4:4, mbvh8:4: what the SIMD cpu backends trace by default: this build's leaves regrouped for leaf tests of\n"
+      " 4 triangles, %zu leaves of up to %zu; MBVH8 by the SAH-optimal collapse)\n",
+      lv.leaves.size(), lv.bvh2.largest_leaf);
   say("\ntraversal state per ray: stack %zu B, bitstack %zu B (%.1fx smaller)\n",
       state_bytes_per_ray(Layout::mbvh2, Traversal::stack), state_bytes_per_ray(Layout::mbvh2, Traversal::bitstack),
       double(state_bytes_per_ray(Layout::mbvh2, Traversal::stack)) / double(state_bytes_per_ray(Layout::mbvh2, Traversal::bitstack)));
@@ -73,7 +85,12 @@ std::string info_json(const Loaded& l) {
                           {"stats_hash", bs.phase_ms[3]}};
   j["references"] = acc.tris().size();
   const LayoutStats &s2 = acc.mbvh2().stats, &s4 = acc.mbvh4().stats, &s8 = acc.mbvh8().stats;
-  for (const LayoutStats* s : {&bs, &s2, &s4, &s8})
+  const LeafVariant& lv = acc.leaf_variant(kCpuLeafBlock);
+  LayoutStats v4 = lv.mbvh4().stats, v8 = lv.mbvh8().stats;
+  v4.layout = "mbvh4:4";
+  v8.layout = "mbvh8:4";
+  const LayoutStats &w4 = v4, &w8 = v8;
+  for (const LayoutStats* s : {&bs, &s2, &s4, &s8, &w4, &w8})
     j["layouts"].push_back({{"layout", s->layout}, {"nodes", s->nodes}, {"leaves", s->leaves}, {"depth", s->depth},
                             {"bitstack_bits", s->bitstack_bits}, {"sah_cost", s->sah_cost}, {"bytes", s->bytes},
                             {"build_ms", s->build_ms}});

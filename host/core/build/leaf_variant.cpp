@@ -140,6 +140,7 @@ const LeafVariant& Accel::leaf_variant(unsigned block) const {
   if (!v) {
     v = std::make_unique<LeafVariant>();
     v->block = block;
+    v->node_cost = impl_->opt_.traversal_cost;
     // max leaf: the build's, but at least one full block (a regrouped leaf of B triangles costs
     // one test)
     const unsigned max_leaf = std::max(impl_->opt_.max_leaf, block);
@@ -162,7 +163,7 @@ const Mbvh4& LeafVariant::mbvh4() const {
   return m4_;
 }
 const Mbvh8& LeafVariant::mbvh8() const {
-  std::call_once(once8_, [this] { m8_ = make_mbvh8(bvh2, leaves); });
+  std::call_once(once8_, [this] { m8_ = make_mbvh8_sah(bvh2, leaves, block, node_cost); });
   return m8_;
 }
 const TriPacks& LeafVariant::tri_packs(const AlignedVector<Tri>& tris) const {
