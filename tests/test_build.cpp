@@ -264,6 +264,9 @@ TEST_CASE("leaf variants regroup the one build: every triangle once, conservativ
       CHECK(cost8(v.mbvh8()) <= cost8(greedy) * (1 + 1e-6));
       CHECK(v.mbvh8().nodes.size() <= greedy.nodes.size());
       CHECK(v.mbvh8().stats.depth <= MBVH_MBVH8_LEVEL_CAP);
+      const Mbvh4 greedy4 = make_mbvh4(v.bvh2, v.leaves);
+      CHECK(v.mbvh4().nodes.size() <= greedy4.nodes.size());
+      CHECK(v.mbvh4().stats.depth <= MBVH_MBVH4_LEVEL_CAP);
       // -- deterministic: the same variant from a build at another thread count
       BuildOptions b3 = bo;
       b3.threads = 3;

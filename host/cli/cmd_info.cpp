@@ -63,7 +63,7 @@ void print_info(const SceneArgs& a, const Loaded& l) {
   print_stats_row(v4, state_bytes_per_ray(Layout::mbvh4, Traversal::stack), state_bytes_per_ray(Layout::mbvh4, Traversal::bitstack));
   print_stats_row(v8, state_bytes_per_ray(Layout::mbvh8, Traversal::stack), state_bytes_per_ray(Layout::mbvh8, Traversal::bitstack));
   say("(mbvh4:4, mbvh8:4: what the SIMD cpu backends trace by default: this build's leaves regrouped for leaf tests of\n"
-      " 4 triangles, %zu leaves of up to %zu; MBVH8 by the SAH-optimal collapse)\n",
+      " 4 triangles, %zu leaves of up to %zu; MBVH4 and MBVH8 by the SAH-optimal collapse)\n",
       lv.leaves.size(), lv.bvh2.largest_leaf);
   say("\ntraversal state per ray: stack %zu B, bitstack %zu B (%.1fx smaller)\n",
       state_bytes_per_ray(Layout::mbvh2, Traversal::stack), state_bytes_per_ray(Layout::mbvh2, Traversal::bitstack),

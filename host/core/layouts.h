@@ -66,8 +66,8 @@ struct TriPacks {
 /// A leaf policy's variant of the one build (TraceOptions::leaf_block; leaf_variant.cpp): the
 /// binary tree with subtrees regrouped into leaves where the SAH prices a leaf in blocks of
 /// `block` triangles, over the build's own triangles in the build's order, and its layouts and
-/// SIMD packs made on first use (thread-safe, as Accel's own); its MBVH8 by the SAH-optimal
-/// collapse (make_mbvh8_sah).
+/// SIMD packs made on first use (thread-safe, as Accel's own); its MBVH4 and MBVH8 by the
+/// SAH-optimal collapse (make_mbvh4_sah, make_mbvh8_sah).
 struct LeafVariant {
   unsigned block = 1;
   float node_cost = 1;  ///< the build's BuildOptions::traversal_cost
@@ -126,6 +126,8 @@ Mbvh8 make_mbvh8(const Bvh2& bvh, const std::vector<Leaf>& leaves);
 /// `block` triangles, node visits at `node_cost`; the greedy make_mbvh8 where it would exceed the
 /// MBVH8 level cap.
 Mbvh8 make_mbvh8_sah(const Bvh2& bvh, const std::vector<Leaf>& leaves, unsigned block, float node_cost);
+/// The same for MBVH4 (with its cyclic sibling links), the greedy make_mbvh4 beyond its level cap.
+Mbvh4 make_mbvh4_sah(const Bvh2& bvh, const std::vector<Leaf>& leaves, unsigned block, float node_cost);
 /// Rewrites the MBVH4 SoA records as the 16-wide view (a permutation of each record's words).
 Mbvh4Wide make_mbvh4_wide(const Mbvh4& m);
 /// Packs each leaf's triangles four at a time (SoA), in leaf order.

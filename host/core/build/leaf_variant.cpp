@@ -159,7 +159,7 @@ const Mbvh2& LeafVariant::mbvh2() const {
   return m2_;
 }
 const Mbvh4& LeafVariant::mbvh4() const {
-  std::call_once(once4_, [this] { m4_ = make_mbvh4(bvh2, leaves); });
+  std::call_once(once4_, [this] { m4_ = make_mbvh4_sah(bvh2, leaves, block, node_cost); });
   return m4_;
 }
 const Mbvh8& LeafVariant::mbvh8() const {

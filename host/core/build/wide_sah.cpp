@@ -1,27 +1,28 @@
 // SPDX-License-Identifier: MIT
-// wide_sah.cpp — the SAH-optimal collapse of a binary BVH into MBVH8 nodes: the dynamic program
+// wide_sah.cpp — the SAH-optimal collapse of a binary BVH into MBVH4 and MBVH8 nodes: the dynamic program
 // of Ylitie, Karras & Laine ("Efficient Incoherent Ray Traversal on GPUs Through Compressed Wide
 // BVHs", HPG 2017, §3.1; their node quantisation is not used). For every binary node n and every
-// slot budget j = 1..8 it finds the cheapest way to hang n's subtree into j slots of a wide node:
-// j = 1 makes n a wide node of its own, whose 8 slots its two children share; j > 1 dissolves n
+// slot budget j = 1..W it finds the cheapest way to hang n's subtree into j slots of a wide node:
+// j = 1 makes n a wide node of its own, whose W slots its two children share; j > 1 dissolves n
 // and gives its children k and j - k slots. The greedy top-down collapse (collapse.cpp) opens the
 // largest child until a node is full, which leaves the nodes above small subtrees half empty
 // (4.1 of 8 slots used on the bunny's leaf-block-4 tree); the program fills them where the SAH
-// says so. Leaves stay the binary tree's (a slot each). O(nodes x 8^2), deterministic. A result
-// deeper than the MBVH8 level cap (the 128-bit bitstack) falls back to the greedy collapse.
+// says so. Leaves stay the binary tree's (a slot each). O(nodes x W^2), deterministic. A result
+// deeper than the layout's level cap (its bitstack word) falls back to the greedy collapse.
 #include <algorithm>
 #include <chrono>
 
 #include "host/core/build/builder.h"
 #include "host/core/layouts.h"
+#include "host/core/trace/view.h"  // node_width
 
 namespace mbvh {
 
 namespace {
 
-constexpr int W = 8;
-
+template <class N>
 struct WideDp {
+  static constexpr int W = node_width<N>();
   const Bvh2& b;
   const std::vector<Leaf>& leaves;
   unsigned block;
@@ -34,7 +35,7 @@ struct WideDp {
     std::uint8_t split[W + 1];
   };
   std::vector<Row> rows;
-  AlignedVector<Node8>* out = nullptr;
+  AlignedVector<N>* out = nullptr;
   unsigned max_level = 0;
   double sah = 0, root_area = 1;
 
@@ -115,7 +116,7 @@ struct WideDp {
     const std::int32_t self = static_cast<std::int32_t>(out->size());
     out->emplace_back();
     Box all;
-    Node8& d0 = (*out)[static_cast<std::size_t>(self)];
+    N& d0 = (*out)[static_cast<std::size_t>(self)];
     for (int s = 0; s < W; ++s) {
       const Box bx = s < static_cast<int>(slots.size()) ? b.box(slots[static_cast<std::size_t>(s)]) : Box();  // empty: never hit
       all.grow(bx);
@@ -138,29 +139,62 @@ struct WideDp {
 
 }  // namespace
 
-Mbvh8 make_mbvh8_sah(const Bvh2& b, const std::vector<Leaf>& leaves, unsigned block, float node_cost) {
-  const auto t0 = std::chrono::steady_clock::now();
-  if (b.nodes.empty()) return make_mbvh8(b, leaves);
-  WideDp dp{b, leaves, std::max(block, 1u), node_cost, {}, nullptr, 0, 0, 1};
+namespace {
+
+// Runs the program for layout M (Mbvh4 or Mbvh8); false when the result exceeds level cap `cap`.
+template <class M>
+bool collapse_sah(const Bvh2& b, const std::vector<Leaf>& leaves, unsigned block, float node_cost, unsigned cap,
+                  const char* name, M& out) {
+  using N = typename decltype(out.nodes)::value_type;
+  WideDp<N> dp{b, leaves, std::max(block, 1u), node_cost, {}, nullptr, 0, 0, 1};
   dp.solve();
-  Mbvh8 out;
   out.nodes.reserve(b.nodes.size() / 3 + 1);
   dp.out = &out.nodes;
   dp.root_area = std::max(1e-30, static_cast<double>(b.nodes[0].box.half_area()));
   dp.emit(0, MBVH_NONE, 0);
-  if (dp.max_level > MBVH_MBVH8_LEVEL_CAP) return make_mbvh8(b, leaves);  // the bitstack's cap wins
+  if (dp.max_level > cap) return false;
   for (std::size_t i = 0; i < leaves.size(); ++i)
     dp.sah += double(leaves[i].count) * b.leaf_boxes[i].half_area() / dp.root_area;
   LayoutStats& st = out.stats;
-  st.layout = "mbvh8";
+  st.layout = name;
   st.nodes = out.nodes.size();
   st.leaves = leaves.size();
   st.depth = dp.max_level;
   st.sah_cost = dp.sah;
-  st.bytes = out.nodes.size() * sizeof(Node8);
-  st.bitstack_bits = 8 * st.depth;
+  st.bytes = out.nodes.size() * sizeof(N);
+  return true;
+}
+
+using Clock = std::chrono::steady_clock;
+double ms_since(Clock::time_point t0) { return std::chrono::duration<double, std::milli>(Clock::now() - t0).count(); }
+
+}  // namespace
+
+Mbvh8 make_mbvh8_sah(const Bvh2& b, const std::vector<Leaf>& leaves, unsigned block, float node_cost) {
+  const auto t0 = Clock::now();
+  Mbvh8 out;
+  if (b.nodes.empty() || !collapse_sah(b, leaves, block, node_cost, MBVH_MBVH8_LEVEL_CAP, "mbvh8", out))
+    return make_mbvh8(b, leaves);  // the bitstack's cap wins
+  out.stats.bitstack_bits = 8 * out.stats.depth;  // 8 pending-slot bits per level (128-bit word)
   validate_layout(out, leaves.size());
-  st.build_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  out.stats.build_ms = ms_since(t0);
+  return out;
+}
+
+Mbvh4 make_mbvh4_sah(const Bvh2& b, const std::vector<Leaf>& leaves, unsigned block, float node_cost) {
+  const auto t0 = Clock::now();
+  Mbvh4 out;
+  if (b.nodes.empty() || !collapse_sah(b, leaves, block, node_cost, MBVH_MBVH4_LEVEL_CAP, "mbvh4", out))
+    return make_mbvh4(b, leaves);
+  // cyclic sibling links, as make_mbvh4: sib[k] = parent.child[(slot + 1 + k) & 3]
+  out.nodes[0].sib[0] = out.nodes[0].sib[1] = out.nodes[0].sib[2] = MBVH_NONE;
+  for (const Node4& p : out.nodes)
+    for (int s = 0; s < 4; ++s)
+      if (p.child[s] >= 0)
+        for (int k = 0; k < 3; ++k) out.nodes[static_cast<std::size_t>(p.child[s])].sib[k] = p.child[(s + 1 + k) & 3];
+  out.stats.bitstack_bits = 3 * out.stats.depth;
+  validate_layout(out, leaves.size());
+  out.stats.build_ms = ms_since(t0);
   return out;
 }
 
