@@ -84,9 +84,10 @@ struct BuildOptions {
   unsigned bins = 32;           ///< SAH bins per axis
   /// Triangles one leaf test costs as one in the SAH: a leaf of n triangles costs ceil(n / B)
   /// (Embree's SAH "blocks"). 1, the default, prices every triangle: the build all backends share.
-  /// 4 prices the cpu backend's four-wide SIMD leaves: fewer, fuller leaves, up to 1.2x faster on
-  /// `cpu` for some scenes and slower for others, and 20-30 % slower on the OpenCL and Vulkan
-  /// backends, which test a leaf's triangles one by one (README, "The cpu backend").
+  /// 4 prices four-wide SIMD leaves for every backend: fewer, fuller leaves, 10-20 % slower on the
+  /// OpenCL and Vulkan backends, which test a leaf's triangles one by one. The SIMD cpu backends
+  /// regroup the default build's leaves for themselves instead (TraceOptions::leaf_block;
+  /// docs/backends.md, "The cpu backend").
   unsigned leaf_block = 1;
   unsigned depth_cap = MBVH_BINARY_DEPTH_CAP;  ///< binary leaf depth limit (root children: 1)
   float traversal_cost = 1.0f;  ///< SAH cost of one node visit, relative to one triangle test
