@@ -94,9 +94,10 @@ static bool prepare_ray(const Ray r, RayPre* p) {
 static float max_nan(float a, float b) { return a > b ? a : b; } /* NaN in a yields b */
 static float min_nan(float a, float b) { return a < b ? a : b; }
 
-/* §6 conservative slab test, host box_test */
+/* §6 conservative slab test, host box_test; chord (occlusion): *entry receives the path length
+ * through the box, max_nan(exit - entry, 0), the order of an any-hit query's children */
 static bool box_test(const RayPre* r, float lox, float hix, float loy, float hiy, float loz, float hiz, float tcull,
-                     float* entry) {
+                     float* entry, const bool chord) {
   const float nx = r->neg[0] ? hix : lox, fx = r->neg[0] ? lox : hix;
   const float ny = r->neg[1] ? hiy : loy, fy = r->neg[1] ? loy : hiy;
   const float nz = r->neg[2] ? hiz : loz, fz = r->neg[2] ? loz : hiz;
@@ -105,7 +106,7 @@ static bool box_test(const RayPre* r, float lox, float hix, float loy, float hiy
   const float tnz = (nz - r->o[2]) * r->inv[2], tfz = (fz - r->o[2]) * r->invf[2];
   const float te = max_nan(tnz, max_nan(tny, max_nan(tnx, r->tmin)));
   const float tx = min_nan(tfz, min_nan(tfy, min_nan(tfx, tcull)));
-  *entry = te;
+  *entry = chord ? max_nan(tx - te, 0.0f) : te;
   return te <= tx;
 }
 
@@ -241,7 +242,7 @@ static float4 min_nan4(float4 a, float4 b) { return select(b, a, a < b); }
 /* Tests the four children of node `cur`; returns the hit mask (bit s = slot s), writes the entry
  * distances and the child references. */
 static uint test4(global const float16* N, int cur, const RayPre* r, const Wide* w, float tcull, float d[4],
-                  int ch[4], Stats* st) {
+                  int ch[4], const bool chord, Stats* st) {
   STAT(++st->nodes; st->boxes += 4;)
   const float16 Lraw = N[2 * cur], Uraw = N[2 * cur + 1];
   const int4 c = as_int4(Lraw.s37bf);
@@ -261,7 +262,7 @@ static uint test4(global const float16* N, int cur, const RayPre* r, const Wide*
   exit = min_nan4(tf.s159d, exit);
   exit = min_nan4(tf.s26ae, exit);
   const int4 hit = entry <= exit;
-  vstore4(entry, 0, d);
+  vstore4(chord ? max_nan4(exit - entry, (float4)(0.0f)) : entry, 0, d);
   return (uint)((hit.x & 1) | (hit.y & 2) | (hit.z & 4) | (hit.w & 8));
 #else
   /* ray-per-lane mapping: four scalar slab tests on the same record */
@@ -269,19 +270,18 @@ static uint test4(global const float16* N, int cur, const RayPre* r, const Wide*
   uint m = 0;
   for (int s = 0; s < 4; ++s)
     if (box_test(r, n[4 * s], n[16 + 4 * s], n[4 * s + 1], n[16 + 4 * s + 1], n[4 * s + 2], n[16 + 4 * s + 2], tcull,
-                 &d[s]))
+                 &d[s], chord))
       m |= 1u << s;
   return m;
 #endif
 }
 
-/* Slot entered first: any hit the lowest hit slot; closest hit the smallest entry, ties to the
- * lower slot. */
+/* Slot entered first: closest hit the smallest entry, any hit the longest chord (d holds chords
+ * then), ties to the lower slot (host first_slot4). */
 static int first_slot4(uint m, const float d[4], const bool any) {
   int i = lowest_slot(m);
-  if (!any)
-    for (int s = i + 1; s < 4; ++s)
-      if (((m >> s) & 1u) && d[s] < d[i]) i = s;
+  for (int s = i + 1; s < 4; ++s)
+    if (((m >> s) & 1u) && (any ? d[s] > d[i] : d[s] < d[i])) i = s;
   return i;
 }
 
@@ -302,7 +302,7 @@ static Hit trace4_bitstack(global const float16* N, global const Leaf* leaves, g
     if (cur >= 0) {
       float d[4];
       int ch[4];
-      const uint m = test4(N, cur, r, &w, tmax * MBVH_CULL_SLACK, d, ch, st);
+      const uint m = test4(N, cur, r, &w, tmax * MBVH_CULL_SLACK, d, ch, any, st);
       if (m) {
         const int i = first_slot4(m, d, any);
         bits = (bits << 3) | skip_code(m, i);
@@ -351,7 +351,7 @@ static Hit trace4_stack(global const float16* N, global const Leaf* leaves, glob
     if (cur >= 0) {
       float d[4];
       int ch[4];
-      const uint m = test4(N, cur, r, &w, tmax * MBVH_CULL_SLACK, d, ch, st);
+      const uint m = test4(N, cur, r, &w, tmax * MBVH_CULL_SLACK, d, ch, any, st);
       if (m) {
         const int i = first_slot4(m, d, any);
         if (sp + 3 > MBVH_STACK4_ENTRIES) {
@@ -376,15 +376,15 @@ static Hit trace4_stack(global const float16* N, global const Leaf* leaves, glob
 
 /* ---------------------------------------------------------------- MBVH2, GPU style (§4.2) */
 
-static uint test2(global const Node2* n, const RayPre* r, float tcull, float d[2], Stats* st) {
+static uint test2(global const Node2* n, const RayPre* r, float tcull, float d[2], const bool chord, Stats* st) {
   STAT(++st->nodes; st->boxes += 2;)
-  const bool h0 = box_test(r, n->c0[0], n->c0[1], n->c0[2], n->c0[3], n->zz[0], n->zz[1], tcull, &d[0]);
-  const bool h1 = box_test(r, n->c1[0], n->c1[1], n->c1[2], n->c1[3], n->zz[2], n->zz[3], tcull, &d[1]);
+  const bool h0 = box_test(r, n->c0[0], n->c0[1], n->c0[2], n->c0[3], n->zz[0], n->zz[1], tcull, &d[0], chord);
+  const bool h1 = box_test(r, n->c1[0], n->c1[1], n->c1[2], n->c1[3], n->zz[2], n->zz[3], tcull, &d[1], chord);
   return (h0 ? 1u : 0u) | (h1 ? 2u : 0u);
 }
 
 static int first_slot2(uint m, const float d[2], const bool any) {
-  if (!any && m == 3u) return d[1] < d[0] ? 1 : 0;
+  if (m == 3u) return any ? (d[1] > d[0] ? 1 : 0) : (d[1] < d[0] ? 1 : 0);
   return (m & 1u) ? 0 : 1;
 }
 
@@ -399,7 +399,7 @@ static Hit trace2_bitstack(global const Node2* N, global const Leaf* leaves, glo
     if (cur >= 0) {
       global const Node2* n = &N[cur];
       float d[2];
-      const uint m = test2(n, r, tmax * MBVH_CULL_SLACK, d, st);
+      const uint m = test2(n, r, tmax * MBVH_CULL_SLACK, d, any, st);
       if (m) {
         const int k = first_slot2(m, d, any);
         bits = (bits << 1) | (m == 3u ? 1u : 0u);
@@ -438,7 +438,7 @@ static Hit trace2_stack(global const Node2* N, global const Leaf* leaves, global
     if (cur >= 0) {
       global const Node2* n = &N[cur];
       float d[2];
-      const uint m = test2(n, r, tmax * MBVH_CULL_SLACK, d, st);
+      const uint m = test2(n, r, tmax * MBVH_CULL_SLACK, d, any, st);
       if (m) {
         const int k = first_slot2(m, d, any);
         if (m == 3u) {

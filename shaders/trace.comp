@@ -186,7 +186,8 @@ bool box_test(RayPre r, float lox, float hix, float loy, float hiy, float loz, f
   precise float tnz = (nz - r.o.z) * r.inv.z, tfz = (fz - r.o.z) * r.invf.z;
   const float te = max_nan(tnz, max_nan(tny, max_nan(tnx, r.tmin)));
   const float tx = min_nan(tfz, min_nan(tfy, min_nan(tfx, tcull)));
-  entry = te;
+  precise float chord = tx - te;
+  entry = ANY ? max_nan(chord, 0.0) : te;  /* any hit: the path length through the box (host box_test) */
   return te <= tx;
 }
 
@@ -306,9 +307,9 @@ uint test2(Node2 n, RayPre r, float tcull, out float d0, out float d1) {
   return (h0 ? 1u : 0u) | (h1 ? 2u : 0u);
 }
 
-/* child entered first: any hit the lower hit child; closest hit the nearer, ties to child 0 */
+/* child entered first: closest hit the nearer, any hit the longer chord, ties to child 0 */
 int first_slot2(uint m, float d0, float d1) {
-  if (!ANY && m == 3u) return d1 < d0 ? 1 : 0;
+  if (m == 3u) return ANY ? (d1 > d0 ? 1 : 0) : (d1 < d0 ? 1 : 0);
   return (m & 1u) != 0u ? 0 : 1;
 }
 
@@ -410,12 +411,17 @@ uint test4(Node4 n, RayPre r, float tcull, out vec4 d) {
   return (h0 ? 1u : 0u) | (h1 ? 2u : 0u) | (h2 ? 4u : 0u) | (h3 ? 8u : 0u);
 }
 
-/* slot entered first (host first_slot4): any hit the lowest hit slot; closest hit the smallest
- * entry distance, ties to the lower slot */
+/* slot entered first (host first_slot4): closest hit the smallest entry distance, any hit the
+ * longest chord, ties to the lower slot */
 int first_slot4(uint m, vec4 d) {
   int i = findLSB(m);
-  if (ANY) return i;
   float di = i == 0 ? d.x : i == 1 ? d.y : i == 2 ? d.z : d.w;
+  if (ANY) {  /* the longest chord (d holds chords), ties to the lower slot */
+    if (i < 1 && (m & 2u) != 0u && d.y > di) { i = 1; di = d.y; }
+    if (i < 2 && (m & 4u) != 0u && d.z > di) { i = 2; di = d.z; }
+    if (i < 3 && (m & 8u) != 0u && d.w > di) i = 3;
+    return i;
+  }
   if (i < 1 && (m & 2u) != 0u && d.y < di) { i = 1; di = d.y; }
   if (i < 2 && (m & 4u) != 0u && d.z < di) { i = 2; di = d.z; }
   if (i < 3 && (m & 8u) != 0u && d.w < di) i = 3;

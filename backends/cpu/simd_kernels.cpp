@@ -166,7 +166,7 @@ inline void finish_ray(SimdRay& r, const TraceView& v) {
 /// A wide node's W slab tests in one pass (W = 4: MBVH4, 8: MBVH8): (plane - o) * inv per axis,
 /// the NaN-discarding max/min chain of box_test (maxps/minps return their second operand on NaN,
 /// exactly like max_nan/min_nan), and an ordered <= compare.
-template <class F, class N>
+template <class F, bool Chord, class N>
 [[gnu::always_inline]] inline unsigned box_test_wide(const N& n, const SimdRay& r, float tcull, float* d) {
   constexpr int W = node_width<N>();
   using V = typename F::V;
@@ -185,7 +185,8 @@ template <class F, class N>
   const V tfz = F::mul(F::sub(fz, oz), F::of(r.inv_far8[2]));
   const V te = F::max(tnz, F::max(tny, F::max(tnx, F::of(r.tmin8))));
   const V tx = F::min(tfz, F::min(tfy, F::min(tfx, F::set1(tcull))));
-  F::store(d, te);
+  if constexpr (Chord) F::store(d, F::max(F::sub(tx, te), F::set1(0.0f)));  // max_nan(tx - te, 0), box_test's
+  else F::store(d, te);
   return F::le(te, tx);
 }
 
@@ -314,11 +315,13 @@ struct SimdKernelsT {
   static constexpr bool fast = Fast;
   using Ray = SimdRay;
   static void finish(Ray& r, const TraceView& v) { finish_ray(r, v); }
+  template <bool Chord = false>
   [[gnu::always_inline]] static unsigned test(const Node4& n, const Ray& r, float tcull, float d[4]) {
-    return box_test_wide<F4>(n, r, tcull, d);
+    return box_test_wide<F4, Chord>(n, r, tcull, d);
   }
+  template <bool Chord = false>
   [[gnu::always_inline]] static unsigned test(const Node8& n, const Ray& r, float tcull, float d[8]) {
-    return box_test_wide<F8>(n, r, tcull, d);
+    return box_test_wide<F8, Chord>(n, r, tcull, d);
   }
   /// Closest hit: every hit child's record (an inner node's lines, a leaf's pack entry) is asked
   /// for at once, so the misses of the children visited later overlap the work before them.
@@ -339,7 +342,12 @@ struct SimdKernelsT {
   /// lowest slot equal to it (entry distances are never NaN: the max chain starts at tmin).
   template <int W>
   [[gnu::always_inline]] static int nearest(unsigned mask, const float* d) {
-    if ((mask & (mask - 1)) == 0) return std::countr_zero(mask);
+    const unsigned rest = mask & (mask - 1);
+    if (rest == 0) return std::countr_zero(mask);
+    if ((rest & (rest - 1)) == 0) {  // two hits, the commonest case: one compare
+      const int a = std::countr_zero(mask), b = std::countr_zero(rest);
+      return d[b] < d[a] ? b : a;
+    }
     if constexpr (W == 8) {
       const __m256 inf = _mm256_set1_ps(INFINITY);
       const __m256 bits = _mm256_castsi256_ps(_mm256_and_si256(_mm256_set1_epi32(static_cast<int>(mask)),
@@ -352,6 +360,31 @@ struct SimdKernelsT {
       return std::countr_zero(eq);
     } else {
       return detail::nearest_slot<W>(mask, d);
+    }
+  }
+
+  /// The hit slot of largest d (an occlusion query's chords, never NaN), ties to the lower slot:
+  /// nearest's reduction with max.
+  template <int W>
+  [[gnu::always_inline]] static int longest(unsigned mask, const float* d) {
+    const unsigned rest = mask & (mask - 1);
+    if (rest == 0) return std::countr_zero(mask);
+    if ((rest & (rest - 1)) == 0) {  // two hits: one compare
+      const int a = std::countr_zero(mask), b = std::countr_zero(rest);
+      return d[b] > d[a] ? b : a;
+    }
+    if constexpr (W == 8) {
+      const __m256 low = _mm256_set1_ps(-INFINITY);
+      const __m256 bits = _mm256_castsi256_ps(_mm256_and_si256(_mm256_set1_epi32(static_cast<int>(mask)),
+                                                               _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128)));
+      const __m256 v = _mm256_blendv_ps(_mm256_loadu_ps(d), low, _mm256_cmp_ps(bits, _mm256_setzero_ps(), _CMP_EQ_OQ));
+      __m256 m = _mm256_max_ps(v, _mm256_permute_ps(v, 0xB1));
+      m = _mm256_max_ps(m, _mm256_permute_ps(m, 0x4E));
+      m = _mm256_max_ps(m, _mm256_permute2f128_ps(m, m, 0x01));
+      const unsigned eq = static_cast<unsigned>(_mm256_movemask_ps(_mm256_cmp_ps(v, m, _CMP_EQ_OQ))) & mask;
+      return std::countr_zero(eq);
+    } else {
+      return detail::longest_slot<W>(mask, d);
     }
   }
 

@@ -73,6 +73,10 @@ inline float min_nan(float a, float b) { return a < b ? a : b; }
 
 /// Conservative slab test of one box against [tmin, tcull], tcull = tmax * kCullSlack.
 /// Returns hit and the entry distance (>= tmin).
+/// With Chord, `entry` receives the length of the ray's path through the box instead,
+/// max_nan(exit - entry, 0) (never NaN: +inf - +inf gives 0): what an occlusion query orders
+/// children by (the longest chord first, traverse.h).
+template <bool Chord = false>
 [[gnu::always_inline]] inline bool box_test(const RayPre& r, float lox, float hix, float loy, float hiy, float loz, float hiz, float tcull,
                      float& entry) {
   const float nx = r.neg[0] ? hix : lox, fx = r.neg[0] ? lox : hix;
@@ -83,7 +87,7 @@ inline float min_nan(float a, float b) { return a < b ? a : b; }
   const float tnz = (nz - r.o[2]) * r.inv[2], tfz = (fz - r.o[2]) * r.inv_far[2];
   const float te = max_nan(tnz, max_nan(tny, max_nan(tnx, r.tmin)));
   const float tx = min_nan(tfz, min_nan(tfy, min_nan(tfx, tcull)));
-  entry = te;
+  entry = Chord ? max_nan(tx - te, 0.0f) : te;
   return te <= tx;
 }
 
