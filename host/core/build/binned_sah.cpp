@@ -20,6 +20,7 @@
 
 #include "host/core/layouts.h"
 #include "host/core/build/builder.h"
+#include "host/core/build/dense_bins.h"
 #include "host/core/build/sbvh.h"
 #include "host/core/build/triangles.h"
 #include "mbvh/error.h"
@@ -76,6 +77,10 @@ constexpr unsigned kMaxBins = 64;
 // path a node takes depends only on its size, so the bytes do not depend on the thread count.
 constexpr std::uint32_t kParallelMin = 65536;
 constexpr std::size_t kGrain = 16384;
+// Nodes of at least kDenseMin records are binned in dense bins (dense_bins.h), smaller ones in
+// sparse bins; both choose the same split, so the threshold changes time, not bytes.
+constexpr std::uint32_t kDenseMin = 64;
+static_assert(DenseBins::kMax == kMaxBins);
 
 struct Bin {  // no initialisers: Bins sets a bin up on its first record; lane 3 unused
   alignas(16) float lo[4];
@@ -98,7 +103,7 @@ struct Bins {
 class SahBuilder {
 public:
   SahBuilder(const BuildOptions& opt, RawVector<PrimRef>& prims)
-      : opt_(opt), prims_(prims), bins_(std::clamp(opt.bins, 2u, kMaxBins)) {}
+      : opt_(opt), prims_(prims), scratch_(prims.size()), bins_(std::clamp(opt.bins, 2u, kMaxBins)) {}
 
   // Splits node n (in `arena`) into two children appended to `arena`, or marks it a leaf.
   // `threads`: workers for a large node's chunks (1 inside a subtree task).
@@ -107,8 +112,7 @@ public:
     const std::uint32_t count = node.end - node.begin;
     const bool at_cap = node.depth >= opt_.depth_cap;
     if (count <= 1 || at_cap) {
-      arena[n].leaf = true;
-      arena[n].forced = count > opt_.max_leaf;
+      make_leaf(arena[n], count > opt_.max_leaf);
       return;
     }
     // -- bin centroids along the three axes: bin = floor((c - lo) * bins / extent), as floats
@@ -119,15 +123,96 @@ public:
       g.scale[a] = ext > 0 ? static_cast<float>(bins_) / ext : 0.0f;
     }
     g.last = bins_ - 1;
-    // Only occupied bins are initialised and swept (a mask per axis): a split between two
-    // occupied bins prices the same at every empty bin between them, and the sweep keeps the
-    // first, so visiting the occupied ones gives the same choice as visiting all.
+    float best_cost = INFINITY;
+    int best_axis = -1;
+    unsigned best_split = 0;
+#if defined(__SSE2__)
+    if (count >= kDenseMin && opt_.leaf_block <= 1) {
+      dense_sweep(g, node, threads, best_cost, best_axis, best_split);
+    } else
+#endif
+      sparse_sweep(g, node, threads, best_cost, best_axis, best_split);
+    const float area = node.box.half_area();
+    const float leaf_cost = blocks(count);
+    const float split_cost = opt_.traversal_cost + (area > 0 ? best_cost / area : 0.0f);
+    TmpNode c[2];
+    std::uint32_t mid;
+    if (best_axis < 0) {
+      // all centroids equal: no spatial split exists; halve by index if the leaf would be too big
+      if (count <= opt_.max_leaf) {
+        make_leaf(arena[n], false);
+        return;
+      }
+      mid = node.begin + count / 2;
+      const PrimRef* src = records(node.depth);
+      PrimRef* dst = records(node.depth + 1);
+      for (std::uint32_t i = node.begin; i < node.end; ++i) {
+        c[i < mid ? 0 : 1].box.grow(src[i]);
+        c[i < mid ? 0 : 1].cbox.grow_centroid(src[i]);
+        dst[i] = src[i];
+      }
+    } else {
+      if (count <= opt_.max_leaf && leaf_cost <= split_cost) {
+        make_leaf(arena[n], false);
+        return;
+      }
+      mid = count >= kParallelMin ? partition_chunked(g, best_axis, best_split, node, c, threads)
+                                  : partition(g, best_axis, best_split, node, c);
+    }
+    // -- children
+    for (int side = 0; side < 2; ++side) {
+      c[side].begin = side == 0 ? node.begin : mid;
+      c[side].end = side == 0 ? mid : node.end;
+      c[side].depth = node.depth + 1;
+      arena[n].child[side] = static_cast<std::int32_t>(arena.size());
+      arena.push_back(c[side]);
+    }
+  }
+
+  float blocks(std::uint32_t n) const {
+    return opt_.leaf_block <= 1 ? static_cast<float>(n) : build::blocks(n, opt_.leaf_block);
+  }
+
+  void build_subtree(std::vector<TmpNode>& arena) {
+    for (std::size_t n = 0; n < arena.size(); ++n) split(arena, n, 1);
+  }
+
+private:
+  // The records of a node at `depth`: partitions move them from one array to the other, so a
+  // node at an even depth finds its records in prims_, one at an odd depth in scratch_.
+  PrimRef* records(std::uint32_t depth) { return depth & 1 ? scratch_.data() : prims_.data(); }
+  const PrimRef* records(std::uint32_t depth) const { return depth & 1 ? scratch_.data() : prims_.data(); }
+
+  // Makes `t` a leaf, its records moved to prims_ (the leaf order the caller reads).
+  void make_leaf(TmpNode& t, bool forced) {
+    t.leaf = true;
+    t.forced = forced;
+    if (t.depth & 1) std::copy(scratch_.begin() + t.begin, scratch_.begin() + t.end, prims_.begin() + t.begin);
+  }
+
+  struct Geometry {
+    float origin[3], scale[3];
+    unsigned last;
+    unsigned bin(const PrimRef& r, int a) const {
+      const float f = (r.centroid(a) - origin[a]) * scale[a];
+      return std::min(last, static_cast<unsigned>(f > 0 ? f : 0));
+    }
+  };
+
+  // Sparse bins (small nodes, and any node where blocks() is not a plain count): only occupied
+  // bins are initialised and swept (a mask per axis): a split between two occupied bins prices
+  // the same at every empty bin between them, and the sweep keeps the first, so visiting the
+  // occupied ones gives the same choice as visiting all. The cheapest SAH split (bin < split to
+  // the left, the first minimum in (axis, split) order) into best_*.
+  void sparse_sweep(const Geometry& g, const TmpNode& node, unsigned threads, float& best_cost, int& best_axis,
+                    unsigned& best_split) const {
+    const std::uint32_t count = node.end - node.begin;
     Bins bins;
     if (count >= kParallelMin) {
       const std::size_t chunks = (count + kGrain - 1) / kGrain;
       std::vector<Bins> partial(chunks);
       parallel_for(count, kGrain, threads, [&](std::size_t b, std::size_t e, unsigned) {
-        bin_range(g, node.begin + b, node.begin + e, partial[b / kGrain]);
+        bin_range(g, records(node.depth), node.begin + b, node.begin + e, partial[b / kGrain]);
       });
       for (std::size_t c = 0; c < chunks; ++c)
         for (int a = 0; a < 3; ++a)
@@ -143,12 +228,8 @@ public:
             }
           }
     } else {
-      bin_range(g, node.begin, node.end, bins);
+      bin_range(g, records(node.depth), node.begin, node.end, bins);
     }
-    // -- sweep for the cheapest SAH split (bin < k to the left), over the occupied bins
-    float best_cost = INFINITY;
-    int best_axis = -1;
-    unsigned best_split = 0;
     for (int a = 0; a < 3; ++a) {
       if (g.scale[a] == 0.0f) continue;
       const std::uint64_t mask = bins.mask[a];
@@ -181,60 +262,35 @@ public:
         }
       }
     }
-    const float area = node.box.half_area();
-    const float leaf_cost = blocks(count);
-    const float split_cost = opt_.traversal_cost + (area > 0 ? best_cost / area : 0.0f);
-    TmpNode c[2];
-    std::uint32_t mid;
-    if (best_axis < 0) {
-      // all centroids equal: no spatial split exists; halve by index if the leaf would be too big
-      if (count <= opt_.max_leaf) {
-        arena[n].leaf = true;
-        return;
-      }
-      mid = node.begin + count / 2;
-      for (std::uint32_t i = node.begin; i < node.end; ++i) {
-        c[i < mid ? 0 : 1].box.grow(prims_[i]);
-        c[i < mid ? 0 : 1].cbox.grow_centroid(prims_[i]);
-      }
+  }
+
+#if defined(__SSE2__)
+  // Dense bins (dense_bins.h) for nodes of at least kDenseMin records: the same choice as
+  // sparse_sweep, in fewer operations per record and per bin.
+  void dense_sweep(const Geometry& g, const TmpNode& node, unsigned threads, float& best_cost, int& best_axis,
+                   unsigned& best_split) const {
+    const std::uint32_t count = node.end - node.begin;
+    DenseBins bins;
+    bins.clear(bins_);
+    if (count >= kParallelMin) {
+      const std::size_t chunks = (count + kGrain - 1) / kGrain;
+      std::vector<DenseBins> partial(chunks);
+      parallel_for(count, kGrain, threads, [&](std::size_t b, std::size_t e, unsigned) {
+        DenseBins& p = partial[b / kGrain];
+        p.clear(bins_);
+        p.bin(records(node.depth), node.begin + b, node.begin + e, g.origin, g.scale, g.last);
+      });
+      for (std::size_t c = 0; c < chunks; ++c) bins.merge(partial[c], bins_);
     } else {
-      if (count <= opt_.max_leaf && leaf_cost <= split_cost) {
-        arena[n].leaf = true;
-        return;
-      }
-      mid = count >= kParallelMin ? partition_chunked(g, best_axis, best_split, node, c, threads)
-                                  : partition(g, best_axis, best_split, node, c);
+      bins.bin(records(node.depth), node.begin, node.end, g.origin, g.scale, g.last);
     }
-    // -- children
-    for (int side = 0; side < 2; ++side) {
-      c[side].begin = side == 0 ? node.begin : mid;
-      c[side].end = side == 0 ? mid : node.end;
-      c[side].depth = node.depth + 1;
-      arena[n].child[side] = static_cast<std::int32_t>(arena.size());
-      arena.push_back(c[side]);
-    }
+    bins.best_split(bins_, best_cost, best_axis, best_split);
   }
-
-  float blocks(std::uint32_t n) const {
-    return opt_.leaf_block <= 1 ? static_cast<float>(n) : build::blocks(n, opt_.leaf_block);
-  }
-
-  void build_subtree(std::vector<TmpNode>& arena) {
-    for (std::size_t n = 0; n < arena.size(); ++n) split(arena, n, 1);
-  }
-
-private:
-  struct Geometry {
-    float origin[3], scale[3];
-    unsigned last;
-    unsigned bin(const PrimRef& r, int a) const {
-      const float f = (r.centroid(a) - origin[a]) * scale[a];
-      return std::min(last, static_cast<unsigned>(f > 0 ? f : 0));
-    }
-  };
+#endif
 
   // Out of line (as partition()), so that profiles show binning and partitioning apart.
-  [[gnu::noinline]] void bin_range(const Geometry& g, std::size_t b, std::size_t e, Bins& out) const {
+  [[gnu::noinline]] void bin_range(const Geometry& g, const PrimRef* src, std::size_t b, std::size_t e,
+                                   Bins& out) const {
 #if defined(__SSE2__)
     // Four lanes at once: the centroid, its bin on each axis (the same float operations as
     // Geometry::bin, so the same bins) and the bin's box as one min and one max.
@@ -244,7 +300,7 @@ private:
     const __m128 xyz = _mm_castsi128_ps(_mm_setr_epi32(-1, -1, -1, 0));  // drops the prim id's lane
     const __m128i last = _mm_set1_epi32(static_cast<int>(g.last));
     for (std::size_t i = b; i < e; ++i) {
-      const PrimRef& r = prims_[i];
+      const PrimRef& r = src[i];
       const __m128 lo = _mm_and_ps(_mm_loadu_ps(r.lo), xyz);
       const __m128 hi = _mm_loadu_ps(r.hi);  // lane 3: pad = 0
       const __m128 f = _mm_max_ps(_mm_mul_ps(_mm_sub_ps(_mm_mul_ps(_mm_add_ps(lo, hi), half), origin), scale), zero);
@@ -270,7 +326,7 @@ private:
     }
 #else
     for (std::size_t i = b; i < e; ++i) {
-      const PrimRef& r = prims_[i];
+      const PrimRef& r = src[i];
       for (int a = 0; a < 3; ++a) {
         const unsigned k = g.bin(r, a);
         Bin& bn = out.bin[a][k];
@@ -290,47 +346,44 @@ private:
 #endif
   }
 
-  // In-place two-sided partition of the node's records (bin < split on `axis` to the left) that
-  // also bounds each side's boxes and centroids; returns the first right record.
+  // Partition of the node's records (bin < split on `axis` to the left) into the other array
+  // (records()), left ones from the front, right ones from the back, without a branch per
+  // record; also bounds each side's boxes and centroids. Returns the first right record.
   [[gnu::noinline]] std::uint32_t partition(const Geometry& g, int axis, unsigned split, const TmpNode& node,
                                             TmpNode (&c)[2]) {
-    PrimRef* p = prims_.data();
-    std::uint32_t i = node.begin, j = node.end;
+    const PrimRef* src = records(node.depth);
+    PrimRef* dst = records(node.depth + 1);
+    std::uint32_t l = node.begin, r = node.end;
 #if defined(__SSE2__)
-    // the four bounds of each side as four-lane min/max (lane 3 unused)
-    const __m128 half = _mm_set1_ps(0.5f);
+    // Geometry::bin's operations on four lanes; no clamp to the last bin, which is never left of
+    // the split. The four bounds of each side as four-lane min/max (lane 3 unused).
+    const __m128 half = _mm_set1_ps(0.5f), zero = _mm_setzero_ps();
+    const __m128 origin = _mm_setr_ps(g.origin[0], g.origin[1], g.origin[2], 0.0f);
+    const __m128 scale = _mm_setr_ps(g.scale[0], g.scale[1], g.scale[2], 0.0f);
     const __m128 xyz = _mm_castsi128_ps(_mm_setr_epi32(-1, -1, -1, 0));
+    const __m128i sp = _mm_set1_epi32(static_cast<int>(split));
     const __m128 inf = _mm_set1_ps(INFINITY), ninf = _mm_set1_ps(-INFINITY);
-    __m128 blo[2] = {inf, inf}, bhi[2] = {ninf, ninf}, clo[2] = {inf, inf}, chi[2] = {ninf, ninf};
-    auto grow = [&](int s, const PrimRef& r) {
-      const __m128 lo = _mm_and_ps(_mm_loadu_ps(r.lo), xyz), hi = _mm_loadu_ps(r.hi);
+    __m128 acc[2][4] = {{inf, ninf, inf, ninf}, {inf, ninf, inf, ninf}};  // box lo, hi; centroid lo, hi
+    for (std::uint32_t i = node.begin; i < node.end; ++i) {
+      const __m128 raw = _mm_loadu_ps(src[i].lo), hi = _mm_loadu_ps(src[i].hi);
+      const __m128 lo = _mm_and_ps(raw, xyz);
       const __m128 ce = _mm_mul_ps(_mm_add_ps(lo, hi), half);
-      blo[s] = _mm_min_ps(blo[s], lo);
-      bhi[s] = _mm_max_ps(bhi[s], hi);
-      clo[s] = _mm_min_ps(clo[s], ce);
-      chi[s] = _mm_max_ps(chi[s], ce);
-    };
-#else
-    auto grow = [&](int s, const PrimRef& r) {
-      c[s].box.grow(r);
-      c[s].cbox.grow_centroid(r);
-    };
-#endif
-    for (;;) {
-      while (i < j && g.bin(p[i], axis) < split) grow(0, p[i++]);
-      while (i < j && g.bin(p[j - 1], axis) >= split) grow(1, p[--j]);
-      if (i >= j) break;
-      std::swap(p[i], p[j - 1]);
-      grow(0, p[i++]);
-      grow(1, p[--j]);
+      const __m128i k = _mm_cvttps_epi32(_mm_max_ps(_mm_mul_ps(_mm_sub_ps(ce, origin), scale), zero));
+      const unsigned right = ~static_cast<unsigned>(_mm_movemask_ps(_mm_castsi128_ps(_mm_cmplt_epi32(k, sp)))) >> axis & 1u;
+      const std::uint32_t at = right ? r - 1 : l;
+      _mm_storeu_ps(dst[at].lo, raw);
+      _mm_storeu_ps(dst[at].hi, hi);
+      l += 1 - right;
+      r -= right;
+      __m128* a = acc[right];
+      a[0] = _mm_min_ps(a[0], lo);
+      a[1] = _mm_max_ps(a[1], hi);
+      a[2] = _mm_min_ps(a[2], ce);
+      a[3] = _mm_max_ps(a[3], ce);
     }
-#if defined(__SSE2__)
     for (int s = 0; s < 2; ++s) {
       alignas(16) float v[4][4];
-      _mm_store_ps(v[0], blo[s]);
-      _mm_store_ps(v[1], bhi[s]);
-      _mm_store_ps(v[2], clo[s]);
-      _mm_store_ps(v[3], chi[s]);
+      for (int q = 0; q < 4; ++q) _mm_store_ps(v[q], acc[s][q]);
       for (int a = 0; a < 3; ++a) {
         c[s].box.lo[a] = v[0][a];
         c[s].box.hi[a] = v[1][a];
@@ -338,23 +391,33 @@ private:
         c[s].cbox.hi[a] = v[3][a];
       }
     }
+#else
+    for (std::uint32_t i = node.begin; i < node.end; ++i) {
+      const PrimRef& p = src[i];
+      const int s = g.bin(p, axis) < split ? 0 : 1;
+      dst[s ? --r : l++] = p;
+      c[s].box.grow(p);
+      c[s].cbox.grow_centroid(p);
+    }
 #endif
-    return i;
+    return l;
   }
 
-  // Stable partition in chunks of kGrain: count and bound each chunk's sides, scatter through
-  // a scratch array by the chunks' prefix sums, copy back; side boxes reduced in chunk order.
+  // Stable partition in chunks of kGrain: count and bound each chunk's sides, scatter into the
+  // other array (records()) by the chunks' prefix sums; side boxes reduced in chunk order.
   std::uint32_t partition_chunked(const Geometry& g, int axis, unsigned split, const TmpNode& node, TmpNode (&c)[2],
                                   unsigned threads) {
     const std::uint32_t count = node.end - node.begin;
     const std::size_t chunks = (count + kGrain - 1) / kGrain;
+    const PrimRef* src = records(node.depth);
+    PrimRef* dst = records(node.depth + 1);
     std::vector<TmpNode> side(2 * chunks);
     std::vector<std::uint32_t> left(chunks);
     parallel_for(count, kGrain, threads, [&](std::size_t b, std::size_t e, unsigned) {
       const std::size_t k = b / kGrain;
       std::uint32_t l = 0;
       for (std::size_t i = node.begin + b; i < node.begin + e; ++i) {
-        const PrimRef& r = prims_[i];
+        const PrimRef& r = src[i];
         const int s = g.bin(r, axis) < split ? 0 : 1;
         side[2 * k + s].box.grow(r);
         side[2 * k + s].cbox.grow_centroid(r);
@@ -375,24 +438,20 @@ private:
         c[s].cbox.grow(side[2 * k + static_cast<std::size_t>(s)].cbox);
       }
     }
-    if (scratch_.size() < prims_.size()) scratch_.resize(prims_.size());
     parallel_for(count, kGrain, threads, [&](std::size_t b, std::size_t e, unsigned) {
       const std::size_t k = b / kGrain;
       std::uint32_t l = node.begin + loff[k], r = node.begin + roff[k];
       for (std::size_t i = node.begin + b; i < node.begin + e; ++i) {
-        const PrimRef& p = prims_[i];
-        scratch_[g.bin(p, axis) < split ? l++ : r++] = p;
+        const PrimRef& p = src[i];
+        dst[g.bin(p, axis) < split ? l++ : r++] = p;
       }
-    });
-    parallel_for(count, kGrain, threads, [&](std::size_t b, std::size_t e, unsigned) {
-      std::copy(scratch_.begin() + node.begin + b, scratch_.begin() + node.begin + e, prims_.begin() + node.begin + b);
     });
     return node.begin + total_left;
   }
 
   const BuildOptions& opt_;
   RawVector<PrimRef>& prims_;
-  RawVector<PrimRef> scratch_;  // chunked partitions (disjoint ranges: safe across tasks)
+  RawVector<PrimRef> scratch_;  // the records of odd depths (disjoint ranges: safe across tasks)
   unsigned bins_;
 };
 
