@@ -82,10 +82,9 @@ constexpr std::size_t kGrain = 16384;
 constexpr std::uint32_t kDenseMin = 64;
 static_assert(DenseBins::kMax == kMaxBins);
 
-struct Bin {  // no initialisers: Bins sets a bin up on its first record; lane 3 unused
+struct Bin {  // lane 3 unused
   alignas(16) float lo[4];
   alignas(16) float hi[4];
-  std::uint32_t count;
   void grow(const float* l, const float* h) {
     for (int a = 0; a < 3; ++a) {
       lo[a] = std::min(lo[a], l[a]);
@@ -94,10 +93,30 @@ struct Bin {  // no initialisers: Bins sets a bin up on its first record; lane 3
   }
 };
 
-// Bins of the three axes; a bin is initialised only when its bit in `mask` is set.
+// Sparse bins of the three axes, one set per task, reused from node to node: every bin is empty
+// between nodes (reset() empties only the bins `mask` marks occupied), so binning a record
+// needs no test whether its bin was set up.
 struct Bins {
   std::uint64_t mask[3] = {0, 0, 0};
   Bin bin[3][kMaxBins];
+  std::uint32_t count[3][kMaxBins];
+  Bins() {
+    for (int a = 0; a < 3; ++a)
+      for (unsigned k = 0; k < kMaxBins; ++k) empty(a, k);
+  }
+  void empty(int a, unsigned k) {
+    for (int d = 0; d < 4; ++d) {
+      bin[a][k].lo[d] = INFINITY;
+      bin[a][k].hi[d] = -INFINITY;
+    }
+    count[a][k] = 0;
+  }
+  void reset() {
+    for (int a = 0; a < 3; ++a) {
+      for (std::uint64_t m = mask[a]; m; m &= m - 1) empty(a, static_cast<unsigned>(std::countr_zero(m)));
+      mask[a] = 0;
+    }
+  }
 };
 
 class SahBuilder {
@@ -107,7 +126,8 @@ public:
 
   // Splits node n (in `arena`) into two children appended to `arena`, or marks it a leaf.
   // `threads`: workers for a large node's chunks (1 inside a subtree task).
-  void split(std::vector<TmpNode>& arena, std::size_t n, unsigned threads) {
+  // `work`: the task's sparse bins.
+  void split(std::vector<TmpNode>& arena, std::size_t n, unsigned threads, Bins& work) {
     const TmpNode node = arena[n];
     const std::uint32_t count = node.end - node.begin;
     const bool at_cap = node.depth >= opt_.depth_cap;
@@ -131,7 +151,7 @@ public:
       dense_sweep(g, node, threads, best_cost, best_axis, best_split);
     } else
 #endif
-      sparse_sweep(g, node, threads, best_cost, best_axis, best_split);
+      sparse_sweep(g, node, threads, work, best_cost, best_axis, best_split);
     const float area = node.box.half_area();
     const float leaf_cost = blocks(count);
     const float split_cost = opt_.traversal_cost + (area > 0 ? best_cost / area : 0.0f);
@@ -174,7 +194,8 @@ public:
   }
 
   void build_subtree(std::vector<TmpNode>& arena) {
-    for (std::size_t n = 0; n < arena.size(); ++n) split(arena, n, 1);
+    Bins work;
+    for (std::size_t n = 0; n < arena.size(); ++n) split(arena, n, 1, work);
   }
 
 private:
@@ -204,10 +225,9 @@ private:
   // the same at every empty bin between them, and the sweep keeps the first, so visiting the
   // occupied ones gives the same choice as visiting all. The cheapest SAH split (bin < split to
   // the left, the first minimum in (axis, split) order) into best_*.
-  void sparse_sweep(const Geometry& g, const TmpNode& node, unsigned threads, float& best_cost, int& best_axis,
-                    unsigned& best_split) const {
+  void sparse_sweep(const Geometry& g, const TmpNode& node, unsigned threads, Bins& bins, float& best_cost,
+                    int& best_axis, unsigned& best_split) const {
     const std::uint32_t count = node.end - node.begin;
-    Bins bins;
     if (count >= kParallelMin) {
       const std::size_t chunks = (count + kGrain - 1) / kGrain;
       std::vector<Bins> partial(chunks);
@@ -218,14 +238,9 @@ private:
         for (int a = 0; a < 3; ++a)
           for (std::uint64_t m = partial[c].mask[a]; m; m &= m - 1) {
             const unsigned k = static_cast<unsigned>(std::countr_zero(m));
-            const Bin& src = partial[c].bin[a][k];
-            if (bins.mask[a] >> k & 1) {
-              bins.bin[a][k].grow(src.lo, src.hi);
-              bins.bin[a][k].count += src.count;
-            } else {
-              bins.bin[a][k] = src;
-              bins.mask[a] |= std::uint64_t(1) << k;
-            }
+            bins.bin[a][k].grow(partial[c].bin[a][k].lo, partial[c].bin[a][k].hi);
+            bins.count[a][k] += partial[c].count[a][k];
+            bins.mask[a] |= std::uint64_t(1) << k;
           }
     } else {
       bin_range(g, records(node.depth), node.begin, node.end, bins);
@@ -241,7 +256,7 @@ private:
         const unsigned k = 63u - static_cast<unsigned>(std::countl_zero(m));
         m &= ~(std::uint64_t(1) << k);
         acc.grow_rows(bins.bin[a][k].lo, bins.bin[a][k].hi);
-        cnt += bins.bin[a][k].count;
+        cnt += bins.count[a][k];
         right_area[k] = acc.half_area();
         right_count[k] = cnt;
       }
@@ -252,7 +267,7 @@ private:
         m &= m - 1;
         if (m == 0) break;  // the last occupied bin: nothing to its right
         acc.grow_rows(bins.bin[a][k].lo, bins.bin[a][k].hi);
-        cnt += bins.bin[a][k].count;
+        cnt += bins.count[a][k];
         const unsigned next = static_cast<unsigned>(std::countr_zero(m));
         const float cost = acc.half_area() * blocks(cnt) + right_area[next] * blocks(right_count[next]);
         if (cost < best_cost) {
@@ -262,6 +277,7 @@ private:
         }
       }
     }
+    bins.reset();
   }
 
 #if defined(__SSE2__)
@@ -293,54 +309,39 @@ private:
                                    Bins& out) const {
 #if defined(__SSE2__)
     // Four lanes at once: the centroid, its bin on each axis (the same float operations as
-    // Geometry::bin, so the same bins) and the bin's box as one min and one max.
+    // Geometry::bin, so the same bins; f <= bins (1 + 2 ulp), so a 16-bit min is the clamp) and
+    // the bin's box as one min and one max.
     const __m128 half = _mm_set1_ps(0.5f), zero = _mm_setzero_ps();
     const __m128 origin = _mm_setr_ps(g.origin[0], g.origin[1], g.origin[2], 0.0f);
     const __m128 scale = _mm_setr_ps(g.scale[0], g.scale[1], g.scale[2], 0.0f);
     const __m128 xyz = _mm_castsi128_ps(_mm_setr_epi32(-1, -1, -1, 0));  // drops the prim id's lane
     const __m128i last = _mm_set1_epi32(static_cast<int>(g.last));
+    std::uint64_t mask[3] = {out.mask[0], out.mask[1], out.mask[2]};
     for (std::size_t i = b; i < e; ++i) {
       const PrimRef& r = src[i];
       const __m128 lo = _mm_and_ps(_mm_loadu_ps(r.lo), xyz);
       const __m128 hi = _mm_loadu_ps(r.hi);  // lane 3: pad = 0
       const __m128 f = _mm_max_ps(_mm_mul_ps(_mm_sub_ps(_mm_mul_ps(_mm_add_ps(lo, hi), half), origin), scale), zero);
-      __m128i k = _mm_cvttps_epi32(f);
-      const __m128i over = _mm_cmpgt_epi32(k, last);
-      k = _mm_or_si128(_mm_and_si128(over, last), _mm_andnot_si128(over, k));
-      alignas(16) std::int32_t ks[4];
-      _mm_store_si128(reinterpret_cast<__m128i*>(ks), k);
+      alignas(16) std::uint32_t ks[4];
+      _mm_store_si128(reinterpret_cast<__m128i*>(ks), _mm_min_epi16(_mm_cvttps_epi32(f), last));
       for (int a = 0; a < 3; ++a) {
-        const unsigned kb = static_cast<unsigned>(ks[a]);
+        const unsigned kb = ks[a];
         Bin& bn = out.bin[a][kb];
-        if (out.mask[a] >> kb & 1) {
-          _mm_store_ps(bn.lo, _mm_min_ps(_mm_load_ps(bn.lo), lo));
-          _mm_store_ps(bn.hi, _mm_max_ps(_mm_load_ps(bn.hi), hi));
-          ++bn.count;
-        } else {
-          out.mask[a] |= std::uint64_t(1) << kb;
-          _mm_store_ps(bn.lo, lo);
-          _mm_store_ps(bn.hi, hi);
-          bn.count = 1;
-        }
+        _mm_store_ps(bn.lo, _mm_min_ps(_mm_load_ps(bn.lo), lo));
+        _mm_store_ps(bn.hi, _mm_max_ps(_mm_load_ps(bn.hi), hi));
+        ++out.count[a][kb];
+        mask[a] |= std::uint64_t(1) << kb;
       }
     }
+    for (int a = 0; a < 3; ++a) out.mask[a] = mask[a];
 #else
     for (std::size_t i = b; i < e; ++i) {
       const PrimRef& r = src[i];
       for (int a = 0; a < 3; ++a) {
         const unsigned k = g.bin(r, a);
-        Bin& bn = out.bin[a][k];
-        if (out.mask[a] >> k & 1) {
-          bn.grow(r.lo, r.hi);
-          ++bn.count;
-        } else {
-          out.mask[a] |= std::uint64_t(1) << k;
-          for (int d = 0; d < 3; ++d) {
-            bn.lo[d] = r.lo[d];
-            bn.hi[d] = r.hi[d];
-          }
-          bn.count = 1;
-        }
+        out.bin[a][k].grow(r.lo, r.hi);
+        ++out.count[a][k];
+        out.mask[a] |= std::uint64_t(1) << k;
       }
     }
 #endif
@@ -512,16 +513,19 @@ void build_binned_sah(RawVector<PrimRef>& prims, const FastBox& root, const Fast
   const unsigned threads = resolve_threads(opt.threads);
   const std::size_t small = std::max<std::size_t>(4096, prims.size() / (8 * std::size_t(threads)));
   std::vector<std::size_t> jobs;
+  Bins work;
   for (std::size_t k = 0; k < upper.size(); ++k) {
     if (k > 0 && upper[k].end - upper[k].begin <= small) {
       jobs.push_back(k);
       continue;
     }
-    builder.split(upper, k, threads);
+    builder.split(upper, k, threads, work);
   }
   // -- remaining subtrees, one per task, largest first
   build_subtrees(out, jobs, opt, [&](std::vector<TmpNode>& subtree) {
-    subtree.reserve(2 * (subtree[0].end - subtree[0].begin) / std::max(1u, opt.max_leaf / 2) + 1);
+    // a binary tree over n records has at most 2n - 1 nodes (leaves of one record are common
+    // here): reserved address space, never a reallocation
+    subtree.reserve(2 * std::size_t(subtree[0].end - subtree[0].begin));
     builder.build_subtree(subtree);
   });
 }

@@ -16,22 +16,25 @@
 
 namespace mbvh::build {
 
-/// The centroid bins of one node on three axes: box rows per axis and bin, counts per bin with
-/// lane a for axis a. 64 bins at most.
+/// The centroid bins of one node on three axes: a box row pair and a count per axis and bin
+/// (one address per update). 64 bins at most.
 struct DenseBins {
   static constexpr unsigned kMax = 64;
-  __m128 lo[3][kMax], hi[3][kMax];
-  alignas(16) std::uint32_t count[kMax][4];
+  struct Row {
+    __m128 lo, hi;
+  };
+  Row row[3][kMax];
+  std::uint32_t count[3][kMax];
 
   /// Empties the first `bins` bins of every axis.
   void clear(unsigned bins) {
     const __m128 inf = _mm_set1_ps(INFINITY), ninf = _mm_set1_ps(-INFINITY);
     for (int a = 0; a < 3; ++a)
       for (unsigned k = 0; k < bins; ++k) {
-        lo[a][k] = inf;
-        hi[a][k] = ninf;
+        row[a][k].lo = inf;
+        row[a][k].hi = ninf;
+        count[a][k] = 0;
       }
-    for (unsigned k = 0; k < bins; ++k) _mm_store_si128(reinterpret_cast<__m128i*>(count[k]), _mm_setzero_si128());
   }
 
   /// Bins records [b, e): bin = min(last, floor(max(0, (centroid - origin) * scale))) per axis.
@@ -42,15 +45,15 @@ struct DenseBins {
     const __m128 xyz = _mm_castsi128_ps(_mm_setr_epi32(-1, -1, -1, 0));  // drops the prim id's lane
     const __m128i lst = _mm_set1_epi32(static_cast<int>(last));
     auto index = [&](__m128 l, __m128 h) {
+      // f <= bins (1 + 2 ulp): the truncated bin fits 16 bits, so a 16-bit min is the clamp
       const __m128 f = _mm_max_ps(_mm_mul_ps(_mm_sub_ps(_mm_mul_ps(_mm_add_ps(l, h), half), o), s), zero);
-      const __m128i k = _mm_cvttps_epi32(f);
-      const __m128i over = _mm_cmpgt_epi32(k, lst);
-      return _mm_or_si128(_mm_and_si128(over, lst), _mm_andnot_si128(over, k));
+      return _mm_min_epi16(_mm_cvttps_epi32(f), lst);
     };
     auto add = [&](int a, unsigned k, __m128 l, __m128 h) {
-      lo[a][k] = _mm_min_ps(lo[a][k], l);
-      hi[a][k] = _mm_max_ps(hi[a][k], h);
-      ++count[k][a];
+      Row& r = row[a][k];
+      r.lo = _mm_min_ps(r.lo, l);
+      r.hi = _mm_max_ps(r.hi, h);
+      ++count[a][k];
     };
     std::size_t i = b;
     for (; i + 2 <= e; i += 2) {  // two records per step: their index math overlaps
@@ -74,13 +77,10 @@ struct DenseBins {
   void merge(const DenseBins& o, unsigned bins) {
     for (int a = 0; a < 3; ++a)
       for (unsigned k = 0; k < bins; ++k) {
-        lo[a][k] = _mm_min_ps(lo[a][k], o.lo[a][k]);
-        hi[a][k] = _mm_max_ps(hi[a][k], o.hi[a][k]);
+        row[a][k].lo = _mm_min_ps(row[a][k].lo, o.row[a][k].lo);
+        row[a][k].hi = _mm_max_ps(row[a][k].hi, o.row[a][k].hi);
+        count[a][k] += o.count[a][k];
       }
-    for (unsigned k = 0; k < bins; ++k) {
-      __m128i* c = reinterpret_cast<__m128i*>(count[k]);
-      _mm_store_si128(c, _mm_add_epi32(_mm_load_si128(c), _mm_load_si128(reinterpret_cast<const __m128i*>(o.count[k]))));
-    }
   }
 
   /// The cheapest split (bins < split to the left) of the three axes, a triangle costing 1:
@@ -92,8 +92,8 @@ struct DenseBins {
       __m128 lx, ly, lz, hx, hy, hz;
     };
     auto rows = [&](unsigned k) {
-      __m128 l0 = lo[0][k], l1 = lo[1][k], l2 = lo[2][k], l3 = _mm_setzero_ps();
-      __m128 h0 = hi[0][k], h1 = hi[1][k], h2 = hi[2][k], h3 = _mm_setzero_ps();
+      __m128 l0 = row[0][k].lo, l1 = row[1][k].lo, l2 = row[2][k].lo, l3 = _mm_setzero_ps();
+      __m128 h0 = row[0][k].hi, h1 = row[1][k].hi, h2 = row[2][k].hi, h3 = _mm_setzero_ps();
       _MM_TRANSPOSE4_PS(l0, l1, l2, l3);
       _MM_TRANSPOSE4_PS(h0, h1, h2, h3);
       return Rows{l0, l1, l2, h0, h1, h2};
@@ -101,6 +101,9 @@ struct DenseBins {
     auto grow = [](Rows& acc, const Rows& r) {
       acc.lx = _mm_min_ps(acc.lx, r.lx), acc.ly = _mm_min_ps(acc.ly, r.ly), acc.lz = _mm_min_ps(acc.lz, r.lz);
       acc.hx = _mm_max_ps(acc.hx, r.hx), acc.hy = _mm_max_ps(acc.hy, r.hy), acc.hz = _mm_max_ps(acc.hz, r.hz);
+    };
+    auto counts = [&](unsigned k) {
+      return _mm_setr_epi32(static_cast<int>(count[0][k]), static_cast<int>(count[1][k]), static_cast<int>(count[2][k]), 0);
     };
     auto area = [](const Rows& r) {  // FastBox::half_area's operations
       const __m128 ex = _mm_sub_ps(r.hx, r.lx), ey = _mm_sub_ps(r.hy, r.ly), ez = _mm_sub_ps(r.hz, r.lz);
@@ -115,7 +118,7 @@ struct DenseBins {
     __m128i cnt = _mm_setzero_si128();
     for (unsigned k = bins - 1; k >= 1; --k) {
       grow(acc, rows(k));
-      cnt = _mm_add_epi32(cnt, _mm_load_si128(reinterpret_cast<const __m128i*>(count[k])));
+      cnt = _mm_add_epi32(cnt, counts(k));
       right_area[k] = area(acc);
       right_count[k] = cnt;
     }
@@ -127,7 +130,7 @@ struct DenseBins {
     __m128i split = zero;
     for (unsigned k = 0; k + 1 < bins; ++k) {
       grow(acc, rows(k));
-      cnt = _mm_add_epi32(cnt, _mm_load_si128(reinterpret_cast<const __m128i*>(count[k])));
+      cnt = _mm_add_epi32(cnt, counts(k));
       const __m128i rc = right_count[k + 1];
       const __m128 cost = _mm_add_ps(_mm_mul_ps(area(acc), _mm_cvtepi32_ps(cnt)),
                                      _mm_mul_ps(right_area[k + 1], _mm_cvtepi32_ps(rc)));
