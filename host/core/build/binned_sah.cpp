@@ -128,12 +128,24 @@ public:
   // `threads`: workers for a large node's chunks (1 inside a subtree task).
   // `work`: the task's sparse bins.
   void split(std::vector<TmpNode>& arena, std::size_t n, unsigned threads, Bins& work) {
-    const TmpNode node = arena[n];
+    TmpNode c[2];
+    if (!split_node(arena[n], c, threads, work)) return;
+    for (int side = 0; side < 2; ++side) {
+      arena[n].child[side] = static_cast<std::int32_t>(arena.size());
+      arena.push_back(c[side]);
+    }
+  }
+
+  // Splits `t` into the children c (their ranges, depths, boxes) and returns true, or marks `t`
+  // a leaf and returns false. Touches only t's records: nodes of disjoint ranges may be split
+  // at the same time.
+  bool split_node(TmpNode& t, TmpNode (&c)[2], unsigned threads, Bins& work) {
+    const TmpNode node = t;
     const std::uint32_t count = node.end - node.begin;
     const bool at_cap = node.depth >= opt_.depth_cap;
     if (count <= 1 || at_cap) {
-      make_leaf(arena[n], count > opt_.max_leaf);
-      return;
+      make_leaf(t, count > opt_.max_leaf);
+      return false;
     }
     // -- bin centroids along the three axes: bin = floor((c - lo) * bins / extent), as floats
     Geometry g;
@@ -155,13 +167,12 @@ public:
     const float area = node.box.half_area();
     const float leaf_cost = blocks(count);
     const float split_cost = opt_.traversal_cost + (area > 0 ? best_cost / area : 0.0f);
-    TmpNode c[2];
     std::uint32_t mid;
     if (best_axis < 0) {
       // all centroids equal: no spatial split exists; halve by index if the leaf would be too big
       if (count <= opt_.max_leaf) {
-        make_leaf(arena[n], false);
-        return;
+        make_leaf(t, false);
+        return false;
       }
       mid = node.begin + count / 2;
       const PrimRef* src = records(node.depth);
@@ -173,8 +184,8 @@ public:
       }
     } else {
       if (count <= opt_.max_leaf && leaf_cost <= split_cost) {
-        make_leaf(arena[n], false);
-        return;
+        make_leaf(t, false);
+        return false;
       }
       mid = count >= kParallelMin ? partition_chunked(g, best_axis, best_split, node, c, threads)
                                   : partition(g, best_axis, best_split, node, c);
@@ -184,9 +195,8 @@ public:
       c[side].begin = side == 0 ? node.begin : mid;
       c[side].end = side == 0 ? mid : node.end;
       c[side].depth = node.depth + 1;
-      arena[n].child[side] = static_cast<std::int32_t>(arena.size());
-      arena.push_back(c[side]);
     }
+    return true;
   }
 
   float blocks(std::uint32_t n) const {
@@ -514,12 +524,39 @@ void build_binned_sah(RawVector<PrimRef>& prims, const FastBox& root, const Fast
   const std::size_t small = std::max<std::size_t>(4096, prims.size() / (8 * std::size_t(threads)));
   std::vector<std::size_t> jobs;
   Bins work;
-  for (std::size_t k = 0; k < upper.size(); ++k) {
-    if (k > 0 && upper[k].end - upper[k].begin <= small) {
-      jobs.push_back(k);
-      continue;
+  std::vector<std::unique_ptr<Bins>> worker_bins(threads);
+  for (auto& b : worker_bins) b = std::make_unique<Bins>();
+  std::vector<std::size_t> batch;
+  std::vector<TmpNode> kids;
+  std::vector<std::uint8_t> split_done;
+  for (std::size_t k = 0; k < upper.size();) {
+    // one level at a time: small nodes become subtree jobs, large ones are split with their
+    // chunks in parallel, the others are split side by side, one per worker; children are
+    // appended in node order, so the arena does not depend on which worker split what
+    const std::size_t level_end = upper.size();
+    batch.clear();
+    for (; k < level_end; ++k) {
+      const std::size_t count = upper[k].end - upper[k].begin;
+      if (k > 0 && count <= small) jobs.push_back(k);
+      else if (k == 0 || count >= kParallelMin) builder.split(upper, k, threads, work);
+      else batch.push_back(k);
     }
-    builder.split(upper, k, threads, work);
+    kids.assign(2 * batch.size(), TmpNode());
+    split_done.assign(batch.size(), 0);
+    parallel_for(batch.size(), 1, threads, [&](std::size_t b, std::size_t e, unsigned worker) {
+      for (std::size_t i = b; i < e; ++i) {
+        TmpNode c[2];
+        split_done[i] = builder.split_node(upper[batch[i]], c, 1, *worker_bins[worker]);
+        kids[2 * i] = c[0];
+        kids[2 * i + 1] = c[1];
+      }
+    });
+    for (std::size_t i = 0; i < batch.size(); ++i)
+      if (split_done[i])
+        for (int side = 0; side < 2; ++side) {
+          upper[batch[i]].child[side] = static_cast<std::int32_t>(upper.size());
+          upper.push_back(kids[2 * i + static_cast<std::size_t>(side)]);
+        }
   }
   // -- remaining subtrees, one per task, largest first
   build_subtrees(out, jobs, opt, [&](std::vector<TmpNode>& subtree) {
