@@ -466,47 +466,113 @@ private:
   unsigned bins_;
 };
 
-// Returns the child reference of arena node n, emitted depth-first into `out`.
+// Emits arena nodes depth-first at fixed places of `out` (inner nodes from `node`, leaves from
+// `leaf`), so that the subtrees can be emitted side by side once their places are known.
+// `sub_ref`/`sub_height`: what each subtree's root became (the upper arena's last pass).
 struct Flattener {
   const Arenas& a;
   Bvh2& out;
   std::vector<Leaf>& leaves;
+  std::size_t node = 0, leaf = 0;
+  std::size_t largest = 0, forced = 0;
+  const std::vector<std::int32_t>* sub_ref = nullptr;
+  const std::vector<std::uint32_t>* sub_height = nullptr;
+  const std::vector<std::pair<std::size_t, std::size_t>>* sub_size = nullptr;  // inner nodes, leaves
 
+  // Returns the child reference of arena node n.
   std::int32_t emit(const std::vector<TmpNode>& arena, std::size_t n, std::int32_t parent, std::uint32_t& height) {
     const TmpNode& t = arena[n];
-    if (&arena == &a.upper && a.subtree_of[n] >= 0)
-      return emit(a.subtrees[static_cast<std::size_t>(a.subtree_of[n])], 0, parent, height);
+    if (&arena == &a.upper && a.subtree_of[n] >= 0) {
+      const std::size_t j = static_cast<std::size_t>(a.subtree_of[n]);
+      node += (*sub_size)[j].first;
+      leaf += (*sub_size)[j].second;
+      height = (*sub_height)[j];
+      return (*sub_ref)[j];
+    }
     if (t.leaf) {
-      leaves.push_back({t.begin, t.end - t.begin});
-      out.leaf_boxes.push_back(t.box.box());
-      out.largest_leaf = std::max<std::size_t>(out.largest_leaf, t.end - t.begin);
-      out.forced_leaves += t.forced ? 1 : 0;
+      leaves[leaf] = {t.begin, t.end - t.begin};
+      out.leaf_boxes[leaf] = t.box.box();
+      largest = std::max<std::size_t>(largest, t.end - t.begin);
+      forced += t.forced ? 1 : 0;
       height = 0;
-      return ~static_cast<std::int32_t>(leaves.size() - 1);
+      return ~static_cast<std::int32_t>(leaf++);
     }
-    const std::int32_t self = static_cast<std::int32_t>(out.nodes.size());
-    out.nodes.push_back({t.box.box(), {MBVH_EMPTY, MBVH_EMPTY}, parent, 0});
+    const std::int32_t self = static_cast<std::int32_t>(node++);
+    Bvh2::Node& d = out.nodes[static_cast<std::size_t>(self)];
+    d = {t.box.box(), {MBVH_EMPTY, MBVH_EMPTY}, parent, 0};
     std::uint32_t h[2] = {0, 0};
-    for (int side = 0; side < 2; ++side) {
-      const std::int32_t ref = emit(arena, static_cast<std::size_t>(t.child[side]), self, h[side]);
-      out.nodes[static_cast<std::size_t>(self)].child[side] = ref;
-    }
+    for (int side = 0; side < 2; ++side)
+      if (t.child[side] >= 0) d.child[side] = emit(arena, static_cast<std::size_t>(t.child[side]), self, h[side]);
     height = 1 + std::max(h[0], h[1]);
-    out.nodes[static_cast<std::size_t>(self)].height = height;
+    d.height = height;
     return self;
+  }
+
+  // Where subtree j's nodes and leaves start and its root's parent, as the depth-first walk of
+  // the upper arena reaches them (nothing written).
+  void place(std::size_t n, std::int32_t parent, std::vector<std::pair<std::size_t, std::size_t>>& at,
+             std::vector<std::int32_t>& parent_of) {
+    const TmpNode& t = a.upper[n];
+    if (a.subtree_of[n] >= 0) {
+      const std::size_t j = static_cast<std::size_t>(a.subtree_of[n]);
+      at[j] = {node, leaf};
+      parent_of[j] = parent;
+      node += (*sub_size)[j].first;
+      leaf += (*sub_size)[j].second;
+      return;
+    }
+    if (t.leaf) {
+      ++leaf;
+      return;
+    }
+    const std::int32_t self = static_cast<std::int32_t>(node++);
+    for (int side = 0; side < 2; ++side)
+      if (t.child[side] >= 0) place(static_cast<std::size_t>(t.child[side]), self, at, parent_of);
   }
 };
 
 }  // namespace
 
-void flatten(const Arenas& a, Bvh2& out, std::vector<Leaf>& leaves) {
-  Flattener fl{a, out, leaves};
-  const TmpNode& r = a.upper[0];
-  out.nodes.push_back({r.box.box(), {MBVH_EMPTY, MBVH_EMPTY}, MBVH_NONE, 0});
-  std::uint32_t h[2] = {0, 0};
-  for (int side = 0; side < 2; ++side)
-    if (r.child[side] >= 0) out.nodes[0].child[side] = fl.emit(a.upper, static_cast<std::size_t>(r.child[side]), 0, h[side]);
-  out.nodes[0].height = 1 + std::max(h[0], h[1]);
+void flatten(const Arenas& a, Bvh2& out, std::vector<Leaf>& leaves, unsigned threads) {
+  // -- each subtree's inner nodes and leaves, then their places in the depth-first order
+  const std::size_t subs = a.subtrees.size();
+  std::vector<std::pair<std::size_t, std::size_t>> size(subs), at(subs);
+  parallel_for(subs, 1, threads, [&](std::size_t b, std::size_t e, unsigned) {
+    for (std::size_t j = b; j < e; ++j) {
+      std::size_t inner = 0;
+      for (const TmpNode& t : a.subtrees[j]) inner += t.leaf ? 0 : 1;
+      size[j] = {inner, a.subtrees[j].size() - inner};
+    }
+  });
+  std::vector<std::int32_t> parent_of(subs, MBVH_NONE), ref(subs, 0);
+  std::vector<std::uint32_t> height(subs, 0);
+  Flattener top{a, out, leaves};
+  top.sub_size = &size;
+  top.place(0, MBVH_NONE, at, parent_of);
+  out.nodes.resize(top.node);
+  out.leaf_boxes.resize(top.leaf);
+  leaves.resize(top.leaf);
+  // -- the subtrees side by side, then the upper nodes around them
+  std::vector<std::size_t> largest(subs, 0), forced(subs, 0);
+  parallel_for(subs, 1, threads, [&](std::size_t b, std::size_t e, unsigned) {
+    for (std::size_t j = b; j < e; ++j) {
+      Flattener fl{a, out, leaves, at[j].first, at[j].second};
+      ref[j] = fl.emit(a.subtrees[j], 0, parent_of[j], height[j]);
+      largest[j] = fl.largest;
+      forced[j] = fl.forced;
+    }
+  });
+  top.node = top.leaf = 0;
+  top.sub_ref = &ref;
+  top.sub_height = &height;
+  std::uint32_t h = 0;
+  top.emit(a.upper, 0, MBVH_NONE, h);
+  out.largest_leaf = top.largest;
+  out.forced_leaves = top.forced;
+  for (std::size_t j = 0; j < subs; ++j) {
+    out.largest_leaf = std::max(out.largest_leaf, largest[j]);
+    out.forced_leaves += forced[j];
+  }
 }
 
 void build_binned_sah(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& croot, const BuildOptions& opt,
@@ -765,10 +831,7 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
     t_tree = Clock::now();
 
     // -- flatten depth-first; leaves come out in record order
-    out.nodes.reserve(prims.size());
-    out.leaf_boxes.reserve(prims.size());  // address space only: pages are touched as written
-    acc->impl_->leaves_.reserve(prims.size());
-    build::flatten(arenas, out, acc->impl_->leaves_);
+    build::flatten(arenas, out, acc->impl_->leaves_, opt.threads);
 
     arenas = build::Arenas();
     acc->impl_->tris_.resize(prims.size());
