@@ -158,6 +158,9 @@ public:
     float best_cost = INFINITY;
     int best_axis = -1;
     unsigned best_split = 0;
+    if (count == 2) {
+      pair_sweep(g, node, best_cost, best_axis, best_split);
+    } else
 #if defined(__SSE2__)
     if (count >= kDenseMin && opt_.leaf_block <= 1) {
       dense_sweep(g, node, threads, best_cost, best_axis, best_split);
@@ -229,6 +232,23 @@ private:
       return std::min(last, static_cast<unsigned>(f > 0 ? f : 0));
     }
   };
+
+  // The sweep's answer for two records (a third of all nodes split), without bins: on every
+  // axis where the centroids differ they fall in bin 0 and a bin >= 1 (the smaller centroid is
+  // the bins' origin), so every such axis offers one split, one record on each side, at the same
+  // cost (a sum of the same two areas); the sweep keeps the first such axis, at split 1.
+  void pair_sweep(const Geometry& g, const TmpNode& node, float& best_cost, int& best_axis,
+                  unsigned& best_split) const {
+    for (int a = 0; a < 3 && best_axis < 0; ++a)
+      if (g.scale[a] != 0.0f) best_axis = a;
+    if (best_axis < 0) return;
+    const PrimRef* p = records(node.depth) + node.begin;
+    FastBox first, second;
+    first.grow(p[0]);
+    second.grow(p[1]);
+    best_cost = first.half_area() * blocks(1) + second.half_area() * blocks(1);
+    best_split = 1;
+  }
 
   // Sparse bins (small nodes, and any node where blocks() is not a plain count): only occupied
   // bins are initialised and swept (a mask per axis): a split between two occupied bins prices
