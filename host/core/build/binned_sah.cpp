@@ -610,8 +610,7 @@ void build_binned_sah(RawVector<PrimRef>& prims, const FastBox& root, const Fast
   const std::size_t small = std::max<std::size_t>(4096, prims.size() / (8 * std::size_t(threads)));
   std::vector<std::size_t> jobs;
   Bins work;
-  std::vector<std::unique_ptr<Bins>> worker_bins(threads);
-  for (auto& b : worker_bins) b = std::make_unique<Bins>();
+  std::vector<std::unique_ptr<Bins>> worker_bins(threads);  // made by their worker on first use
   std::vector<std::size_t> batch;
   std::vector<TmpNode> kids;
   std::vector<std::uint8_t> split_done;
@@ -632,6 +631,7 @@ void build_binned_sah(RawVector<PrimRef>& prims, const FastBox& root, const Fast
     parallel_for(batch.size(), 1, threads, [&](std::size_t b, std::size_t e, unsigned worker) {
       for (std::size_t i = b; i < e; ++i) {
         TmpNode c[2];
+        if (!worker_bins[worker]) worker_bins[worker] = std::make_unique<Bins>();
         split_done[i] = builder.split_node(upper[batch[i]], c, 1, *worker_bins[worker]);
         kids[2 * i] = c[0];
         kids[2 * i + 1] = c[1];
@@ -754,8 +754,9 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
   using build::PrimRef;
   using Clock = std::chrono::steady_clock;
   const auto t0 = Clock::now();
-  // -- what the build is given: indices in range, finite vertices, a usable SAH cost
-  scene.validate();
+  // -- what the build is given: indices in range and finite vertices (checked by the record
+  //    pass below, Scene::validate naming the first fault), a usable SAH cost
+  if (!scene.meshes().empty() && !scene.triangles.empty()) scene.validate();
   if (!std::isfinite(opt_in.traversal_cost) || opt_in.traversal_cost < 0)
     throw Error("BuildOptions::traversal_cost " + std::to_string(opt_in.traversal_cost) + " must be finite and >= 0");
   std::unique_ptr<Accel> acc(new Accel());
@@ -781,6 +782,7 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
   build::RawVector<PrimRef> prims(n);
   std::vector<build::FastBox> cb(chunks), ccb(chunks);
   std::vector<float> mag(chunks, 0.0f);
+  std::atomic<bool> invalid{false};
   build::with_triangles(scene, [&](const auto& src) {
     parallel_for(n, grain, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
       const std::size_t c = b / grain;
@@ -789,7 +791,10 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
       float m = 0;
       for (std::size_t i = b; i < e; ++i) {
         Vec3f v0, v1, v2;
-        src.get(i, v0, v1, v2);
+        if (!src.get_checked(i, v0, v1, v2) || !build::finite(v0, v1, v2)) {
+          invalid = true;
+          continue;
+        }
         if (!build::has_area(v0, v1, v2)) continue;
         const PrimRef r = build::prim_ref(v0, v1, v2, static_cast<std::uint32_t>(i));
         box.grow(r);
@@ -803,6 +808,10 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
       mag[c] = m;
     });
   });
+  if (invalid) {
+    scene.validate();  // throws, naming the first bad triangle
+    throw Error(scene.name + ": internal: a triangle failed the build's index or finiteness check but not Scene::validate");
+  }
   std::size_t kept = 0;  // close the chunks' gaps (in place: a record only moves down)
   for (std::size_t c = 0; c < chunks; ++c) {
     if (kept != c * grain) std::memmove(&prims[kept], &prims[c * grain], kept_in[c] * sizeof(PrimRef));
