@@ -231,6 +231,11 @@ private:
       const float f = (r.centroid(a) - origin[a]) * scale[a];
       return std::min(last, static_cast<unsigned>(f > 0 ? f : 0));
     }
+    // bin(r, a) < split for a split in [1, last]: the clamps and the truncation do not change
+    // the side, so one float compare decides it.
+    bool left(const PrimRef& r, int a, unsigned split) const {
+      return (r.centroid(a) - origin[a]) * scale[a] < static_cast<float>(split);
+    }
   };
 
   // The sweep's answer for two records (a third of all nodes split), without bins: on every
@@ -409,21 +414,23 @@ private:
     PrimRef* dst = records(node.depth + 1);
     std::uint32_t l = node.begin, r = node.end;
 #if defined(__SSE2__)
-    // Geometry::bin's operations on four lanes; no clamp to the last bin, which is never left of
-    // the split. The four bounds of each side as four-lane min/max (lane 3 unused).
-    const __m128 half = _mm_set1_ps(0.5f), zero = _mm_setzero_ps();
+    // f = (centroid - origin) * scale, Geometry::bin's operations on four lanes, and bin(f) <
+    // split exactly when f < split: split is an integer in [1, last], so the clamps to 0 and to
+    // the last bin and the truncation do not change the side. The four bounds of each side as
+    // four-lane min/max (lane 3 unused).
+    const __m128 half = _mm_set1_ps(0.5f);
     const __m128 origin = _mm_setr_ps(g.origin[0], g.origin[1], g.origin[2], 0.0f);
     const __m128 scale = _mm_setr_ps(g.scale[0], g.scale[1], g.scale[2], 0.0f);
     const __m128 xyz = _mm_castsi128_ps(_mm_setr_epi32(-1, -1, -1, 0));
-    const __m128i sp = _mm_set1_epi32(static_cast<int>(split));
+    const __m128 sp = _mm_set1_ps(static_cast<float>(split));
     const __m128 inf = _mm_set1_ps(INFINITY), ninf = _mm_set1_ps(-INFINITY);
     __m128 acc[2][4] = {{inf, ninf, inf, ninf}, {inf, ninf, inf, ninf}};  // box lo, hi; centroid lo, hi
     for (std::uint32_t i = node.begin; i < node.end; ++i) {
       const __m128 raw = _mm_loadu_ps(src[i].lo), hi = _mm_loadu_ps(src[i].hi);
       const __m128 lo = _mm_and_ps(raw, xyz);
       const __m128 ce = _mm_mul_ps(_mm_add_ps(lo, hi), half);
-      const __m128i k = _mm_cvttps_epi32(_mm_max_ps(_mm_mul_ps(_mm_sub_ps(ce, origin), scale), zero));
-      const unsigned right = ~static_cast<unsigned>(_mm_movemask_ps(_mm_castsi128_ps(_mm_cmplt_epi32(k, sp)))) >> axis & 1u;
+      const __m128 f = _mm_mul_ps(_mm_sub_ps(ce, origin), scale);
+      const unsigned right = ~static_cast<unsigned>(_mm_movemask_ps(_mm_cmplt_ps(f, sp))) >> axis & 1u;
       const std::uint32_t at = right ? r - 1 : l;
       _mm_storeu_ps(dst[at].lo, raw);
       _mm_storeu_ps(dst[at].hi, hi);
@@ -448,7 +455,7 @@ private:
 #else
     for (std::uint32_t i = node.begin; i < node.end; ++i) {
       const PrimRef& p = src[i];
-      const int s = g.bin(p, axis) < split ? 0 : 1;
+      const int s = g.left(p, axis, split) ? 0 : 1;
       dst[s ? --r : l++] = p;
       c[s].box.grow(p);
       c[s].cbox.grow_centroid(p);
@@ -472,7 +479,7 @@ private:
       std::uint32_t l = 0;
       for (std::size_t i = node.begin + b; i < node.begin + e; ++i) {
         const PrimRef& r = src[i];
-        const int s = g.bin(r, axis) < split ? 0 : 1;
+        const int s = g.left(r, axis, split) ? 0 : 1;
         side[2 * k + s].box.grow(r);
         side[2 * k + s].cbox.grow_centroid(r);
         l += s == 0 ? 1 : 0;
@@ -497,7 +504,7 @@ private:
       std::uint32_t l = node.begin + loff[k], r = node.begin + roff[k];
       for (std::size_t i = node.begin + b; i < node.begin + e; ++i) {
         const PrimRef& p = src[i];
-        dst[g.bin(p, axis) < split ? l++ : r++] = p;
+        dst[g.left(p, axis, split) ? l++ : r++] = p;
       }
     });
     return node.begin + total_left;
