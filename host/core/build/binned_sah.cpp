@@ -144,6 +144,9 @@ public:
     const std::uint32_t count = node.end - node.begin;
     const bool at_cap = node.depth >= opt_.depth_cap;
     if (count <= 1 || at_cap) {
+      const PrimRef* src = records(node.depth);
+      t.box = FastBox();
+      for (std::uint32_t i = node.begin; i < node.end; ++i) t.box.grow(src[i]);
       make_leaf(t, count > opt_.max_leaf);
       return false;
     }
@@ -158,16 +161,18 @@ public:
     float best_cost = INFINITY;
     int best_axis = -1;
     unsigned best_split = 0;
+    // the sweeps also bound the node's records (the union of its bins; partitions bound only
+    // the children's centroids)
     if (count == 2) {
-      pair_sweep(g, node, best_cost, best_axis, best_split);
+      pair_sweep(g, node, t.box, best_cost, best_axis, best_split);
     } else
 #if defined(__SSE2__)
     if (count >= kDenseMin && opt_.leaf_block <= 1) {
-      dense_sweep(g, node, threads, best_cost, best_axis, best_split);
+      dense_sweep(g, node, threads, t.box, best_cost, best_axis, best_split);
     } else
 #endif
-      sparse_sweep(g, node, threads, work, best_cost, best_axis, best_split);
-    const float area = node.box.half_area();
+      sparse_sweep(g, node, threads, work, t.box, best_cost, best_axis, best_split);
+    const float area = t.box.half_area();
     const float leaf_cost = blocks(count);
     const float split_cost = opt_.traversal_cost + (area > 0 ? best_cost / area : 0.0f);
     std::uint32_t mid;
@@ -181,7 +186,6 @@ public:
       const PrimRef* src = records(node.depth);
       PrimRef* dst = records(node.depth + 1);
       for (std::uint32_t i = node.begin; i < node.end; ++i) {
-        c[i < mid ? 0 : 1].box.grow(src[i]);
         c[i < mid ? 0 : 1].cbox.grow_centroid(src[i]);
         dst[i] = src[i];
       }
@@ -242,15 +246,17 @@ private:
   // axis where the centroids differ they fall in bin 0 and a bin >= 1 (the smaller centroid is
   // the bins' origin), so every such axis offers one split, one record on each side, at the same
   // cost (a sum of the same two areas); the sweep keeps the first such axis, at split 1.
-  void pair_sweep(const Geometry& g, const TmpNode& node, float& best_cost, int& best_axis,
+  void pair_sweep(const Geometry& g, const TmpNode& node, FastBox& box, float& best_cost, int& best_axis,
                   unsigned& best_split) const {
-    for (int a = 0; a < 3 && best_axis < 0; ++a)
-      if (g.scale[a] != 0.0f) best_axis = a;
-    if (best_axis < 0) return;
     const PrimRef* p = records(node.depth) + node.begin;
     FastBox first, second;
     first.grow(p[0]);
     second.grow(p[1]);
+    box = first;
+    box.grow(second);
+    for (int a = 0; a < 3 && best_axis < 0; ++a)
+      if (g.scale[a] != 0.0f) best_axis = a;
+    if (best_axis < 0) return;
     best_cost = first.half_area() * blocks(1) + second.half_area() * blocks(1);
     best_split = 1;
   }
@@ -260,8 +266,8 @@ private:
   // the same at every empty bin between them, and the sweep keeps the first, so visiting the
   // occupied ones gives the same choice as visiting all. The cheapest SAH split (bin < split to
   // the left, the first minimum in (axis, split) order) into best_*.
-  void sparse_sweep(const Geometry& g, const TmpNode& node, unsigned threads, Bins& bins, float& best_cost,
-                    int& best_axis, unsigned& best_split) const {
+  void sparse_sweep(const Geometry& g, const TmpNode& node, unsigned threads, Bins& bins, FastBox& box,
+                    float& best_cost, int& best_axis, unsigned& best_split) const {
     const std::uint32_t count = node.end - node.begin;
     if (count >= kParallelMin) {
       const std::size_t chunks = (count + kGrain - 1) / kGrain;
@@ -279,6 +285,11 @@ private:
           }
     } else {
       bin_range(g, records(node.depth), node.begin, node.end, bins);
+    }
+    box = FastBox();  // every record is in one bin of axis 0
+    for (std::uint64_t m = bins.mask[0]; m; m &= m - 1) {
+      const Bin& b = bins.bin[0][std::countr_zero(m)];
+      box.grow_rows(b.lo, b.hi);
     }
 #if defined(__SSE2__)
     // a running box as two rows; its half area with FastBox::half_area's operations in order:
@@ -341,8 +352,8 @@ private:
 #if defined(__SSE2__)
   // Dense bins (dense_bins.h) for nodes of at least kDenseMin records: the same choice as
   // sparse_sweep, in fewer operations per record and per bin.
-  void dense_sweep(const Geometry& g, const TmpNode& node, unsigned threads, float& best_cost, int& best_axis,
-                   unsigned& best_split) const {
+  void dense_sweep(const Geometry& g, const TmpNode& node, unsigned threads, FastBox& box, float& best_cost,
+                   int& best_axis, unsigned& best_split) const {
     const std::uint32_t count = node.end - node.begin;
     DenseBins bins;
     bins.clear(bins_);
@@ -358,6 +369,7 @@ private:
     } else {
       bins.bin(records(node.depth), node.begin, node.end, g.origin, g.scale, g.last);
     }
+    bins.bounds(bins_, box);
     bins.best_split(bins_, best_cost, best_axis, best_split);
   }
 #endif
@@ -424,7 +436,7 @@ private:
     const __m128 xyz = _mm_castsi128_ps(_mm_setr_epi32(-1, -1, -1, 0));
     const __m128 sp = _mm_set1_ps(static_cast<float>(split));
     const __m128 inf = _mm_set1_ps(INFINITY), ninf = _mm_set1_ps(-INFINITY);
-    __m128 acc[2][4] = {{inf, ninf, inf, ninf}, {inf, ninf, inf, ninf}};  // box lo, hi; centroid lo, hi
+    __m128 acc[2][2] = {{inf, ninf}, {inf, ninf}};  // centroid lo, hi
     for (std::uint32_t i = node.begin; i < node.end; ++i) {
       const __m128 raw = _mm_loadu_ps(src[i].lo), hi = _mm_loadu_ps(src[i].hi);
       const __m128 lo = _mm_and_ps(raw, xyz);
@@ -437,19 +449,15 @@ private:
       l += 1 - right;
       r -= right;
       __m128* a = acc[right];
-      a[0] = _mm_min_ps(a[0], lo);
-      a[1] = _mm_max_ps(a[1], hi);
-      a[2] = _mm_min_ps(a[2], ce);
-      a[3] = _mm_max_ps(a[3], ce);
+      a[0] = _mm_min_ps(a[0], ce);
+      a[1] = _mm_max_ps(a[1], ce);
     }
     for (int s = 0; s < 2; ++s) {
-      alignas(16) float v[4][4];
-      for (int q = 0; q < 4; ++q) _mm_store_ps(v[q], acc[s][q]);
+      alignas(16) float v[2][4];
+      for (int q = 0; q < 2; ++q) _mm_store_ps(v[q], acc[s][q]);
       for (int a = 0; a < 3; ++a) {
-        c[s].box.lo[a] = v[0][a];
-        c[s].box.hi[a] = v[1][a];
-        c[s].cbox.lo[a] = v[2][a];
-        c[s].cbox.hi[a] = v[3][a];
+        c[s].cbox.lo[a] = v[0][a];
+        c[s].cbox.hi[a] = v[1][a];
       }
     }
 #else
@@ -457,7 +465,6 @@ private:
       const PrimRef& p = src[i];
       const int s = g.left(p, axis, split) ? 0 : 1;
       dst[s ? --r : l++] = p;
-      c[s].box.grow(p);
       c[s].cbox.grow_centroid(p);
     }
 #endif
@@ -480,7 +487,6 @@ private:
       for (std::size_t i = node.begin + b; i < node.begin + e; ++i) {
         const PrimRef& r = src[i];
         const int s = g.left(r, axis, split) ? 0 : 1;
-        side[2 * k + s].box.grow(r);
         side[2 * k + s].cbox.grow_centroid(r);
         l += s == 0 ? 1 : 0;
       }
@@ -494,10 +500,7 @@ private:
     }
     for (std::size_t k = 0; k < chunks; ++k) {
       roff[k] = total_left + static_cast<std::uint32_t>(k * kGrain) - loff[k];
-      for (int s = 0; s < 2; ++s) {
-        c[s].box.grow(side[2 * k + static_cast<std::size_t>(s)].box);
-        c[s].cbox.grow(side[2 * k + static_cast<std::size_t>(s)].cbox);
-      }
+      for (int s = 0; s < 2; ++s) c[s].cbox.grow(side[2 * k + static_cast<std::size_t>(s)].cbox);
     }
     parallel_for(count, kGrain, threads, [&](std::size_t b, std::size_t e, unsigned) {
       const std::size_t k = b / kGrain;

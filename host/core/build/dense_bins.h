@@ -83,6 +83,20 @@ struct DenseBins {
       }
   }
 
+  /// The union of the boxes of the first `bins` bins of axis 0 (every record is in one).
+  void bounds(unsigned bins, FastBox& box) const {
+    __m128 l = _mm_set1_ps(INFINITY), h = _mm_set1_ps(-INFINITY);
+    for (unsigned k = 0; k < bins; ++k) {
+      l = _mm_min_ps(l, row[0][k].lo);
+      h = _mm_max_ps(h, row[0][k].hi);
+    }
+    alignas(16) float lo4[4], hi4[4];
+    _mm_store_ps(lo4, l);
+    _mm_store_ps(hi4, h);
+    box = FastBox();
+    box.grow_rows(lo4, hi4);
+  }
+
   /// The cheapest split (bins < split to the left) of the three axes, a triangle costing 1:
   /// cost = half_area(left) * n_left + half_area(right) * n_right, the first minimum in (axis,
   /// split) order among splits with both sides occupied. Returns false when none exists.
