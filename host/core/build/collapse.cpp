@@ -155,7 +155,9 @@ struct Collapser {
 template <unsigned Cap, class M>
 void collapse(const Bvh2& b, const std::vector<Leaf>& leaves, const char* name, M& out) {
   using N = typename decltype(out.nodes)::value_type;
-  out.nodes.reserve(b.nodes.size() / (node_width<N>() / 2) + 1);
+  // every wide node stands for a distinct binary node: reserved address space (pages are
+  // touched as written), never a reallocation (n / (W / 2) was too few on the bunny)
+  out.nodes.reserve(b.nodes.size());
   Collapser<N, Cap> c{b, out.nodes};
   c.root_area = std::max(1e-30, static_cast<double>(b.nodes[0].box.half_area()));
   c.emit(0, MBVH_NONE, 0);
