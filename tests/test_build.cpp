@@ -328,6 +328,8 @@ TEST_CASE("the build is deterministic: the same bytes at any thread count", "[bu
     INFO("quality " << to_string(q));
     std::uint64_t hashes[3];
     AlignedVector<Node4> n4[3];
+    AlignedVector<Node8> n8[3];
+    double sah4[3], sah8[3];
     for (unsigned t = 1; t <= 3; ++t) {
       BuildOptions o;
       o.threads = t;
@@ -335,6 +337,9 @@ TEST_CASE("the build is deterministic: the same bytes at any thread count", "[bu
       const auto acc = Accel::build(s, o);
       hashes[t - 1] = acc->hash();
       n4[t - 1] = acc->mbvh4().nodes;
+      n8[t - 1] = acc->mbvh8().nodes;
+      sah4[t - 1] = acc->mbvh4().stats.sah_cost;
+      sah8[t - 1] = acc->mbvh8().stats.sah_cost;
     }
     CHECK(hashes[0] == hashes[1]);
     CHECK(hashes[0] == hashes[2]);
@@ -342,6 +347,14 @@ TEST_CASE("the build is deterministic: the same bytes at any thread count", "[bu
     REQUIRE(n4[0].size() == n4[2].size());
     CHECK(std::memcmp(n4[0].data(), n4[1].data(), n4[0].size() * sizeof(Node4)) == 0);
     CHECK(std::memcmp(n4[0].data(), n4[2].data(), n4[0].size() * sizeof(Node4)) == 0);
+    REQUIRE(n8[0].size() == n8[1].size());
+    REQUIRE(n8[0].size() == n8[2].size());
+    CHECK(std::memcmp(n8[0].data(), n8[1].data(), n8[0].size() * sizeof(Node8)) == 0);
+    CHECK(std::memcmp(n8[0].data(), n8[2].data(), n8[0].size() * sizeof(Node8)) == 0);
+    CHECK(sah4[0] == sah4[1]);
+    CHECK(sah4[0] == sah4[2]);
+    CHECK(sah8[0] == sah8[1]);
+    CHECK(sah8[0] == sah8[2]);
     BuildOptions o;
     o.quality = q;
     const auto other = Accel::build(load_scene("gen:hairball:400000:2"), o);

@@ -20,6 +20,7 @@
 
 #include "host/core/layouts.h"
 #include "host/core/build/builder.h"
+#include "host/core/build/dense_bins.h"
 #include "host/core/build/sbvh.h"
 #include "host/core/build/triangles.h"
 #include "mbvh/error.h"
@@ -76,11 +77,14 @@ constexpr unsigned kMaxBins = 64;
 // path a node takes depends only on its size, so the bytes do not depend on the thread count.
 constexpr std::uint32_t kParallelMin = 65536;
 constexpr std::size_t kGrain = 16384;
+// Nodes of at least kDenseMin records are binned in dense bins (dense_bins.h), smaller ones in
+// sparse bins; both choose the same split, so the threshold changes time, not bytes.
+constexpr std::uint32_t kDenseMin = 64;
+static_assert(DenseBins::kMax == kMaxBins);
 
-struct Bin {  // no initialisers: Bins sets a bin up on its first record; lane 3 unused
+struct Bin {  // lane 3 unused
   alignas(16) float lo[4];
   alignas(16) float hi[4];
-  std::uint32_t count;
   void grow(const float* l, const float* h) {
     for (int a = 0; a < 3; ++a) {
       lo[a] = std::min(lo[a], l[a]);
@@ -89,27 +93,62 @@ struct Bin {  // no initialisers: Bins sets a bin up on its first record; lane 3
   }
 };
 
-// Bins of the three axes; a bin is initialised only when its bit in `mask` is set.
+// Sparse bins of the three axes, one set per task, reused from node to node: every bin is empty
+// between nodes (reset() empties only the bins `mask` marks occupied), so binning a record
+// needs no test whether its bin was set up.
 struct Bins {
   std::uint64_t mask[3] = {0, 0, 0};
   Bin bin[3][kMaxBins];
+  std::uint32_t count[3][kMaxBins];
+  Bins() {
+    for (int a = 0; a < 3; ++a)
+      for (unsigned k = 0; k < kMaxBins; ++k) empty(a, k);
+  }
+  void empty(int a, unsigned k) {
+    for (int d = 0; d < 4; ++d) {
+      bin[a][k].lo[d] = INFINITY;
+      bin[a][k].hi[d] = -INFINITY;
+    }
+    count[a][k] = 0;
+  }
+  void reset() {
+    for (int a = 0; a < 3; ++a) {
+      for (std::uint64_t m = mask[a]; m; m &= m - 1) empty(a, static_cast<unsigned>(std::countr_zero(m)));
+      mask[a] = 0;
+    }
+  }
 };
 
 class SahBuilder {
 public:
   SahBuilder(const BuildOptions& opt, RawVector<PrimRef>& prims)
-      : opt_(opt), prims_(prims), bins_(std::clamp(opt.bins, 2u, kMaxBins)) {}
+      : opt_(opt), prims_(prims), scratch_(prims.size()), bins_(std::clamp(opt.bins, 2u, kMaxBins)) {}
 
   // Splits node n (in `arena`) into two children appended to `arena`, or marks it a leaf.
   // `threads`: workers for a large node's chunks (1 inside a subtree task).
-  void split(std::vector<TmpNode>& arena, std::size_t n, unsigned threads) {
-    const TmpNode node = arena[n];
+  // `work`: the task's sparse bins.
+  void split(std::vector<TmpNode>& arena, std::size_t n, unsigned threads, Bins& work) {
+    TmpNode c[2];
+    if (!split_node(arena[n], c, threads, work)) return;
+    for (int side = 0; side < 2; ++side) {
+      arena[n].child[side] = static_cast<std::int32_t>(arena.size());
+      arena.push_back(c[side]);
+    }
+  }
+
+  // Splits `t` into the children c (their ranges, depths, boxes) and returns true, or marks `t`
+  // a leaf and returns false. Touches only t's records: nodes of disjoint ranges may be split
+  // at the same time.
+  bool split_node(TmpNode& t, TmpNode (&c)[2], unsigned threads, Bins& work) {
+    const TmpNode node = t;
     const std::uint32_t count = node.end - node.begin;
     const bool at_cap = node.depth >= opt_.depth_cap;
     if (count <= 1 || at_cap) {
-      arena[n].leaf = true;
-      arena[n].forced = count > opt_.max_leaf;
-      return;
+      const PrimRef* src = records(node.depth);
+      t.box = FastBox();
+      for (std::uint32_t i = node.begin; i < node.end; ++i) t.box.grow(src[i]);
+      make_leaf(t, count > opt_.max_leaf);
+      return false;
     }
     // -- bin centroids along the three axes: bin = floor((c - lo) * bins / extent), as floats
     Geometry g;
@@ -119,88 +158,41 @@ public:
       g.scale[a] = ext > 0 ? static_cast<float>(bins_) / ext : 0.0f;
     }
     g.last = bins_ - 1;
-    // Only occupied bins are initialised and swept (a mask per axis): a split between two
-    // occupied bins prices the same at every empty bin between them, and the sweep keeps the
-    // first, so visiting the occupied ones gives the same choice as visiting all.
-    Bins bins;
-    if (count >= kParallelMin) {
-      const std::size_t chunks = (count + kGrain - 1) / kGrain;
-      std::vector<Bins> partial(chunks);
-      parallel_for(count, kGrain, threads, [&](std::size_t b, std::size_t e, unsigned) {
-        bin_range(g, node.begin + b, node.begin + e, partial[b / kGrain]);
-      });
-      for (std::size_t c = 0; c < chunks; ++c)
-        for (int a = 0; a < 3; ++a)
-          for (std::uint64_t m = partial[c].mask[a]; m; m &= m - 1) {
-            const unsigned k = static_cast<unsigned>(std::countr_zero(m));
-            const Bin& src = partial[c].bin[a][k];
-            if (bins.mask[a] >> k & 1) {
-              bins.bin[a][k].grow(src.lo, src.hi);
-              bins.bin[a][k].count += src.count;
-            } else {
-              bins.bin[a][k] = src;
-              bins.mask[a] |= std::uint64_t(1) << k;
-            }
-          }
-    } else {
-      bin_range(g, node.begin, node.end, bins);
-    }
-    // -- sweep for the cheapest SAH split (bin < k to the left), over the occupied bins
     float best_cost = INFINITY;
     int best_axis = -1;
     unsigned best_split = 0;
-    for (int a = 0; a < 3; ++a) {
-      if (g.scale[a] == 0.0f) continue;
-      const std::uint64_t mask = bins.mask[a];
-      float right_area[kMaxBins];
-      std::uint32_t right_count[kMaxBins];
-      FastBox acc;
-      std::uint32_t cnt = 0;
-      for (std::uint64_t m = mask; m;) {  // occupied bins from the top: bounds of bins >= k
-        const unsigned k = 63u - static_cast<unsigned>(std::countl_zero(m));
-        m &= ~(std::uint64_t(1) << k);
-        acc.grow_rows(bins.bin[a][k].lo, bins.bin[a][k].hi);
-        cnt += bins.bin[a][k].count;
-        right_area[k] = acc.half_area();
-        right_count[k] = cnt;
-      }
-      acc = FastBox();
-      cnt = 0;
-      for (std::uint64_t m = mask; m;) {
-        const unsigned k = static_cast<unsigned>(std::countr_zero(m));
-        m &= m - 1;
-        if (m == 0) break;  // the last occupied bin: nothing to its right
-        acc.grow_rows(bins.bin[a][k].lo, bins.bin[a][k].hi);
-        cnt += bins.bin[a][k].count;
-        const unsigned next = static_cast<unsigned>(std::countr_zero(m));
-        const float cost = acc.half_area() * blocks(cnt) + right_area[next] * blocks(right_count[next]);
-        if (cost < best_cost) {
-          best_cost = cost;
-          best_axis = a;
-          best_split = k + 1;
-        }
-      }
-    }
-    const float area = node.box.half_area();
+    // the sweeps also bound the node's records (the union of its bins; partitions bound only
+    // the children's centroids)
+    if (count == 2) {
+      pair_sweep(g, node, t.box, best_cost, best_axis, best_split);
+    } else
+#if defined(__SSE2__)
+    if (count >= kDenseMin && opt_.leaf_block <= 1) {
+      dense_sweep(g, node, threads, t.box, best_cost, best_axis, best_split);
+    } else
+#endif
+      sparse_sweep(g, node, threads, work, t.box, best_cost, best_axis, best_split);
+    const float area = t.box.half_area();
     const float leaf_cost = blocks(count);
     const float split_cost = opt_.traversal_cost + (area > 0 ? best_cost / area : 0.0f);
-    TmpNode c[2];
     std::uint32_t mid;
     if (best_axis < 0) {
       // all centroids equal: no spatial split exists; halve by index if the leaf would be too big
       if (count <= opt_.max_leaf) {
-        arena[n].leaf = true;
-        return;
+        make_leaf(t, false);
+        return false;
       }
       mid = node.begin + count / 2;
+      const PrimRef* src = records(node.depth);
+      PrimRef* dst = records(node.depth + 1);
       for (std::uint32_t i = node.begin; i < node.end; ++i) {
-        c[i < mid ? 0 : 1].box.grow(prims_[i]);
-        c[i < mid ? 0 : 1].cbox.grow_centroid(prims_[i]);
+        c[i < mid ? 0 : 1].cbox.grow_centroid(src[i]);
+        dst[i] = src[i];
       }
     } else {
       if (count <= opt_.max_leaf && leaf_cost <= split_cost) {
-        arena[n].leaf = true;
-        return;
+        make_leaf(t, false);
+        return false;
       }
       mid = count >= kParallelMin ? partition_chunked(g, best_axis, best_split, node, c, threads)
                                   : partition(g, best_axis, best_split, node, c);
@@ -210,9 +202,8 @@ public:
       c[side].begin = side == 0 ? node.begin : mid;
       c[side].end = side == 0 ? mid : node.end;
       c[side].depth = node.depth + 1;
-      arena[n].child[side] = static_cast<std::int32_t>(arena.size());
-      arena.push_back(c[side]);
     }
+    return true;
   }
 
   float blocks(std::uint32_t n) const {
@@ -220,10 +211,23 @@ public:
   }
 
   void build_subtree(std::vector<TmpNode>& arena) {
-    for (std::size_t n = 0; n < arena.size(); ++n) split(arena, n, 1);
+    Bins work;
+    for (std::size_t n = 0; n < arena.size(); ++n) split(arena, n, 1, work);
   }
 
 private:
+  // The records of a node at `depth`: partitions move them from one array to the other, so a
+  // node at an even depth finds its records in prims_, one at an odd depth in scratch_.
+  PrimRef* records(std::uint32_t depth) { return depth & 1 ? scratch_.data() : prims_.data(); }
+  const PrimRef* records(std::uint32_t depth) const { return depth & 1 ? scratch_.data() : prims_.data(); }
+
+  // Makes `t` a leaf, its records moved to prims_ (the leaf order the caller reads).
+  void make_leaf(TmpNode& t, bool forced) {
+    t.leaf = true;
+    t.forced = forced;
+    if (t.depth & 1) std::copy(scratch_.begin() + t.begin, scratch_.begin() + t.end, prims_.begin() + t.begin);
+  }
+
   struct Geometry {
     float origin[3], scale[3];
     unsigned last;
@@ -231,132 +235,258 @@ private:
       const float f = (r.centroid(a) - origin[a]) * scale[a];
       return std::min(last, static_cast<unsigned>(f > 0 ? f : 0));
     }
+    // bin(r, a) < split for a split in [1, last]: the clamps and the truncation do not change
+    // the side, so one float compare decides it.
+    bool left(const PrimRef& r, int a, unsigned split) const {
+      return (r.centroid(a) - origin[a]) * scale[a] < static_cast<float>(split);
+    }
   };
 
+  // The sweep's answer for two records (a third of all nodes split), without bins: on every
+  // axis where the centroids differ they fall in bin 0 and a bin >= 1 (the smaller centroid is
+  // the bins' origin), so every such axis offers one split, one record on each side, at the same
+  // cost (a sum of the same two areas); the sweep keeps the first such axis, at split 1.
+  void pair_sweep(const Geometry& g, const TmpNode& node, FastBox& box, float& best_cost, int& best_axis,
+                  unsigned& best_split) const {
+    const PrimRef* p = records(node.depth) + node.begin;
+    FastBox first, second;
+    first.grow(p[0]);
+    second.grow(p[1]);
+    box = first;
+    box.grow(second);
+    for (int a = 0; a < 3 && best_axis < 0; ++a)
+      if (g.scale[a] != 0.0f) best_axis = a;
+    if (best_axis < 0) return;
+    best_cost = first.half_area() * blocks(1) + second.half_area() * blocks(1);
+    best_split = 1;
+  }
+
+  // Sparse bins (small nodes, and any node where blocks() is not a plain count): only occupied
+  // bins are initialised and swept (a mask per axis): a split between two occupied bins prices
+  // the same at every empty bin between them, and the sweep keeps the first, so visiting the
+  // occupied ones gives the same choice as visiting all. The cheapest SAH split (bin < split to
+  // the left, the first minimum in (axis, split) order) into best_*.
+  void sparse_sweep(const Geometry& g, const TmpNode& node, unsigned threads, Bins& bins, FastBox& box,
+                    float& best_cost, int& best_axis, unsigned& best_split) const {
+    const std::uint32_t count = node.end - node.begin;
+    if (count >= kParallelMin) {
+      const std::size_t chunks = (count + kGrain - 1) / kGrain;
+      std::vector<Bins> partial(chunks);
+      parallel_for(count, kGrain, threads, [&](std::size_t b, std::size_t e, unsigned) {
+        bin_range(g, records(node.depth), node.begin + b, node.begin + e, partial[b / kGrain]);
+      });
+      for (std::size_t c = 0; c < chunks; ++c)
+        for (int a = 0; a < 3; ++a)
+          for (std::uint64_t m = partial[c].mask[a]; m; m &= m - 1) {
+            const unsigned k = static_cast<unsigned>(std::countr_zero(m));
+            bins.bin[a][k].grow(partial[c].bin[a][k].lo, partial[c].bin[a][k].hi);
+            bins.count[a][k] += partial[c].count[a][k];
+            bins.mask[a] |= std::uint64_t(1) << k;
+          }
+    } else {
+      bin_range(g, records(node.depth), node.begin, node.end, bins);
+    }
+    box = FastBox();  // every record is in one bin of axis 0
+    for (std::uint64_t m = bins.mask[0]; m; m &= m - 1) {
+      const Bin& b = bins.bin[0][std::countr_zero(m)];
+      box.grow_rows(b.lo, b.hi);
+    }
+#if defined(__SSE2__)
+    // a running box as two rows; its half area with FastBox::half_area's operations in order:
+    // (e0 e1 + e1 e2) + e2 e0
+    struct Acc {
+      __m128 lo = _mm_set1_ps(INFINITY), hi = _mm_set1_ps(-INFINITY);
+      void grow(const Bin& b) {
+        lo = _mm_min_ps(lo, _mm_load_ps(b.lo));
+        hi = _mm_max_ps(hi, _mm_load_ps(b.hi));
+      }
+      float half_area() const {
+        const __m128 e = _mm_sub_ps(hi, lo);
+        const __m128 p = _mm_mul_ps(e, _mm_shuffle_ps(e, e, _MM_SHUFFLE(3, 0, 2, 1)));
+        const __m128 s = _mm_add_ss(p, _mm_shuffle_ps(p, p, _MM_SHUFFLE(1, 1, 1, 1)));
+        return _mm_cvtss_f32(_mm_add_ss(s, _mm_shuffle_ps(p, p, _MM_SHUFFLE(2, 2, 2, 2))));
+      }
+    };
+#else
+    struct Acc {
+      FastBox box;
+      void grow(const Bin& b) { box.grow_rows(b.lo, b.hi); }
+      float half_area() const { return box.half_area(); }
+    };
+#endif
+    for (int a = 0; a < 3; ++a) {
+      if (g.scale[a] == 0.0f) continue;
+      const std::uint64_t mask = bins.mask[a];
+      float right_area[kMaxBins];
+      std::uint32_t right_count[kMaxBins];
+      Acc acc;
+      std::uint32_t cnt = 0;
+      for (std::uint64_t m = mask; m;) {  // occupied bins from the top: bounds of bins >= k
+        const unsigned k = 63u - static_cast<unsigned>(std::countl_zero(m));
+        m &= ~(std::uint64_t(1) << k);
+        acc.grow(bins.bin[a][k]);
+        cnt += bins.count[a][k];
+        right_area[k] = acc.half_area();
+        right_count[k] = cnt;
+      }
+      acc = Acc();
+      cnt = 0;
+      for (std::uint64_t m = mask; m;) {
+        const unsigned k = static_cast<unsigned>(std::countr_zero(m));
+        m &= m - 1;
+        if (m == 0) break;  // the last occupied bin: nothing to its right
+        acc.grow(bins.bin[a][k]);
+        cnt += bins.count[a][k];
+        const unsigned next = static_cast<unsigned>(std::countr_zero(m));
+        const float cost = acc.half_area() * blocks(cnt) + right_area[next] * blocks(right_count[next]);
+        if (cost < best_cost) {
+          best_cost = cost;
+          best_axis = a;
+          best_split = k + 1;
+        }
+      }
+    }
+    bins.reset();
+  }
+
+#if defined(__SSE2__)
+  // Dense bins (dense_bins.h) for nodes of at least kDenseMin records: the same choice as
+  // sparse_sweep, in fewer operations per record and per bin.
+  void dense_sweep(const Geometry& g, const TmpNode& node, unsigned threads, FastBox& box, float& best_cost,
+                   int& best_axis, unsigned& best_split) const {
+    const std::uint32_t count = node.end - node.begin;
+    DenseBins bins;
+    bins.clear(bins_);
+    if (count >= kParallelMin) {
+      const std::size_t chunks = (count + kGrain - 1) / kGrain;
+      std::vector<DenseBins> partial(chunks);
+      parallel_for(count, kGrain, threads, [&](std::size_t b, std::size_t e, unsigned) {
+        DenseBins& p = partial[b / kGrain];
+        p.clear(bins_);
+        p.bin(records(node.depth), node.begin + b, node.begin + e, g.origin, g.scale, g.last);
+      });
+      for (std::size_t c = 0; c < chunks; ++c) bins.merge(partial[c], bins_);
+    } else {
+      bins.bin(records(node.depth), node.begin, node.end, g.origin, g.scale, g.last);
+    }
+    bins.bounds(bins_, box);
+    bins.best_split(bins_, best_cost, best_axis, best_split);
+  }
+#endif
+
   // Out of line (as partition()), so that profiles show binning and partitioning apart.
-  [[gnu::noinline]] void bin_range(const Geometry& g, std::size_t b, std::size_t e, Bins& out) const {
+  [[gnu::noinline]] void bin_range(const Geometry& g, const PrimRef* src, std::size_t b, std::size_t e,
+                                   Bins& out) const {
 #if defined(__SSE2__)
     // Four lanes at once: the centroid, its bin on each axis (the same float operations as
-    // Geometry::bin, so the same bins) and the bin's box as one min and one max.
+    // Geometry::bin, so the same bins; f <= bins (1 + 2 ulp), so a 16-bit min is the clamp) and
+    // the bin's box as one min and one max.
     const __m128 half = _mm_set1_ps(0.5f), zero = _mm_setzero_ps();
     const __m128 origin = _mm_setr_ps(g.origin[0], g.origin[1], g.origin[2], 0.0f);
     const __m128 scale = _mm_setr_ps(g.scale[0], g.scale[1], g.scale[2], 0.0f);
     const __m128 xyz = _mm_castsi128_ps(_mm_setr_epi32(-1, -1, -1, 0));  // drops the prim id's lane
     const __m128i last = _mm_set1_epi32(static_cast<int>(g.last));
+    std::uint64_t mask[3] = {out.mask[0], out.mask[1], out.mask[2]};
     for (std::size_t i = b; i < e; ++i) {
-      const PrimRef& r = prims_[i];
+      const PrimRef& r = src[i];
       const __m128 lo = _mm_and_ps(_mm_loadu_ps(r.lo), xyz);
       const __m128 hi = _mm_loadu_ps(r.hi);  // lane 3: pad = 0
       const __m128 f = _mm_max_ps(_mm_mul_ps(_mm_sub_ps(_mm_mul_ps(_mm_add_ps(lo, hi), half), origin), scale), zero);
-      __m128i k = _mm_cvttps_epi32(f);
-      const __m128i over = _mm_cmpgt_epi32(k, last);
-      k = _mm_or_si128(_mm_and_si128(over, last), _mm_andnot_si128(over, k));
-      alignas(16) std::int32_t ks[4];
-      _mm_store_si128(reinterpret_cast<__m128i*>(ks), k);
+      alignas(16) std::uint32_t ks[4];
+      _mm_store_si128(reinterpret_cast<__m128i*>(ks), _mm_min_epi16(_mm_cvttps_epi32(f), last));
       for (int a = 0; a < 3; ++a) {
-        const unsigned kb = static_cast<unsigned>(ks[a]);
+        const unsigned kb = ks[a];
         Bin& bn = out.bin[a][kb];
-        if (out.mask[a] >> kb & 1) {
-          _mm_store_ps(bn.lo, _mm_min_ps(_mm_load_ps(bn.lo), lo));
-          _mm_store_ps(bn.hi, _mm_max_ps(_mm_load_ps(bn.hi), hi));
-          ++bn.count;
-        } else {
-          out.mask[a] |= std::uint64_t(1) << kb;
-          _mm_store_ps(bn.lo, lo);
-          _mm_store_ps(bn.hi, hi);
-          bn.count = 1;
-        }
+        _mm_store_ps(bn.lo, _mm_min_ps(_mm_load_ps(bn.lo), lo));
+        _mm_store_ps(bn.hi, _mm_max_ps(_mm_load_ps(bn.hi), hi));
+        ++out.count[a][kb];
+        mask[a] |= std::uint64_t(1) << kb;
       }
     }
+    for (int a = 0; a < 3; ++a) out.mask[a] = mask[a];
 #else
     for (std::size_t i = b; i < e; ++i) {
-      const PrimRef& r = prims_[i];
+      const PrimRef& r = src[i];
       for (int a = 0; a < 3; ++a) {
         const unsigned k = g.bin(r, a);
-        Bin& bn = out.bin[a][k];
-        if (out.mask[a] >> k & 1) {
-          bn.grow(r.lo, r.hi);
-          ++bn.count;
-        } else {
-          out.mask[a] |= std::uint64_t(1) << k;
-          for (int d = 0; d < 3; ++d) {
-            bn.lo[d] = r.lo[d];
-            bn.hi[d] = r.hi[d];
-          }
-          bn.count = 1;
-        }
+        out.bin[a][k].grow(r.lo, r.hi);
+        ++out.count[a][k];
+        out.mask[a] |= std::uint64_t(1) << k;
       }
     }
 #endif
   }
 
-  // In-place two-sided partition of the node's records (bin < split on `axis` to the left) that
-  // also bounds each side's boxes and centroids; returns the first right record.
+  // Partition of the node's records (bin < split on `axis` to the left) into the other array
+  // (records()), left ones from the front, right ones from the back, without a branch per
+  // record; also bounds each side's boxes and centroids. Returns the first right record.
   [[gnu::noinline]] std::uint32_t partition(const Geometry& g, int axis, unsigned split, const TmpNode& node,
                                             TmpNode (&c)[2]) {
-    PrimRef* p = prims_.data();
-    std::uint32_t i = node.begin, j = node.end;
+    const PrimRef* src = records(node.depth);
+    PrimRef* dst = records(node.depth + 1);
+    std::uint32_t l = node.begin, r = node.end;
 #if defined(__SSE2__)
-    // the four bounds of each side as four-lane min/max (lane 3 unused)
+    // f = (centroid - origin) * scale, Geometry::bin's operations on four lanes, and bin(f) <
+    // split exactly when f < split: split is an integer in [1, last], so the clamps to 0 and to
+    // the last bin and the truncation do not change the side. The four bounds of each side as
+    // four-lane min/max (lane 3 unused).
     const __m128 half = _mm_set1_ps(0.5f);
+    const __m128 origin = _mm_setr_ps(g.origin[0], g.origin[1], g.origin[2], 0.0f);
+    const __m128 scale = _mm_setr_ps(g.scale[0], g.scale[1], g.scale[2], 0.0f);
     const __m128 xyz = _mm_castsi128_ps(_mm_setr_epi32(-1, -1, -1, 0));
+    const __m128 sp = _mm_set1_ps(static_cast<float>(split));
     const __m128 inf = _mm_set1_ps(INFINITY), ninf = _mm_set1_ps(-INFINITY);
-    __m128 blo[2] = {inf, inf}, bhi[2] = {ninf, ninf}, clo[2] = {inf, inf}, chi[2] = {ninf, ninf};
-    auto grow = [&](int s, const PrimRef& r) {
-      const __m128 lo = _mm_and_ps(_mm_loadu_ps(r.lo), xyz), hi = _mm_loadu_ps(r.hi);
+    __m128 acc[2][2] = {{inf, ninf}, {inf, ninf}};  // centroid lo, hi
+    for (std::uint32_t i = node.begin; i < node.end; ++i) {
+      const __m128 raw = _mm_loadu_ps(src[i].lo), hi = _mm_loadu_ps(src[i].hi);
+      const __m128 lo = _mm_and_ps(raw, xyz);
       const __m128 ce = _mm_mul_ps(_mm_add_ps(lo, hi), half);
-      blo[s] = _mm_min_ps(blo[s], lo);
-      bhi[s] = _mm_max_ps(bhi[s], hi);
-      clo[s] = _mm_min_ps(clo[s], ce);
-      chi[s] = _mm_max_ps(chi[s], ce);
-    };
-#else
-    auto grow = [&](int s, const PrimRef& r) {
-      c[s].box.grow(r);
-      c[s].cbox.grow_centroid(r);
-    };
-#endif
-    for (;;) {
-      while (i < j && g.bin(p[i], axis) < split) grow(0, p[i++]);
-      while (i < j && g.bin(p[j - 1], axis) >= split) grow(1, p[--j]);
-      if (i >= j) break;
-      std::swap(p[i], p[j - 1]);
-      grow(0, p[i++]);
-      grow(1, p[--j]);
+      const __m128 f = _mm_mul_ps(_mm_sub_ps(ce, origin), scale);
+      const unsigned right = ~static_cast<unsigned>(_mm_movemask_ps(_mm_cmplt_ps(f, sp))) >> axis & 1u;
+      const std::uint32_t at = right ? r - 1 : l;
+      _mm_storeu_ps(dst[at].lo, raw);
+      _mm_storeu_ps(dst[at].hi, hi);
+      l += 1 - right;
+      r -= right;
+      __m128* a = acc[right];
+      a[0] = _mm_min_ps(a[0], ce);
+      a[1] = _mm_max_ps(a[1], ce);
     }
-#if defined(__SSE2__)
     for (int s = 0; s < 2; ++s) {
-      alignas(16) float v[4][4];
-      _mm_store_ps(v[0], blo[s]);
-      _mm_store_ps(v[1], bhi[s]);
-      _mm_store_ps(v[2], clo[s]);
-      _mm_store_ps(v[3], chi[s]);
+      alignas(16) float v[2][4];
+      for (int q = 0; q < 2; ++q) _mm_store_ps(v[q], acc[s][q]);
       for (int a = 0; a < 3; ++a) {
-        c[s].box.lo[a] = v[0][a];
-        c[s].box.hi[a] = v[1][a];
-        c[s].cbox.lo[a] = v[2][a];
-        c[s].cbox.hi[a] = v[3][a];
+        c[s].cbox.lo[a] = v[0][a];
+        c[s].cbox.hi[a] = v[1][a];
       }
     }
+#else
+    for (std::uint32_t i = node.begin; i < node.end; ++i) {
+      const PrimRef& p = src[i];
+      const int s = g.left(p, axis, split) ? 0 : 1;
+      dst[s ? --r : l++] = p;
+      c[s].cbox.grow_centroid(p);
+    }
 #endif
-    return i;
+    return l;
   }
 
-  // Stable partition in chunks of kGrain: count and bound each chunk's sides, scatter through
-  // a scratch array by the chunks' prefix sums, copy back; side boxes reduced in chunk order.
+  // Stable partition in chunks of kGrain: count and bound each chunk's sides, scatter into the
+  // other array (records()) by the chunks' prefix sums; side boxes reduced in chunk order.
   std::uint32_t partition_chunked(const Geometry& g, int axis, unsigned split, const TmpNode& node, TmpNode (&c)[2],
                                   unsigned threads) {
     const std::uint32_t count = node.end - node.begin;
     const std::size_t chunks = (count + kGrain - 1) / kGrain;
+    const PrimRef* src = records(node.depth);
+    PrimRef* dst = records(node.depth + 1);
     std::vector<TmpNode> side(2 * chunks);
     std::vector<std::uint32_t> left(chunks);
     parallel_for(count, kGrain, threads, [&](std::size_t b, std::size_t e, unsigned) {
       const std::size_t k = b / kGrain;
       std::uint32_t l = 0;
       for (std::size_t i = node.begin + b; i < node.begin + e; ++i) {
-        const PrimRef& r = prims_[i];
-        const int s = g.bin(r, axis) < split ? 0 : 1;
-        side[2 * k + s].box.grow(r);
+        const PrimRef& r = src[i];
+        const int s = g.left(r, axis, split) ? 0 : 1;
         side[2 * k + s].cbox.grow_centroid(r);
         l += s == 0 ? 1 : 0;
       }
@@ -370,73 +500,132 @@ private:
     }
     for (std::size_t k = 0; k < chunks; ++k) {
       roff[k] = total_left + static_cast<std::uint32_t>(k * kGrain) - loff[k];
-      for (int s = 0; s < 2; ++s) {
-        c[s].box.grow(side[2 * k + static_cast<std::size_t>(s)].box);
-        c[s].cbox.grow(side[2 * k + static_cast<std::size_t>(s)].cbox);
-      }
+      for (int s = 0; s < 2; ++s) c[s].cbox.grow(side[2 * k + static_cast<std::size_t>(s)].cbox);
     }
-    if (scratch_.size() < prims_.size()) scratch_.resize(prims_.size());
     parallel_for(count, kGrain, threads, [&](std::size_t b, std::size_t e, unsigned) {
       const std::size_t k = b / kGrain;
       std::uint32_t l = node.begin + loff[k], r = node.begin + roff[k];
       for (std::size_t i = node.begin + b; i < node.begin + e; ++i) {
-        const PrimRef& p = prims_[i];
-        scratch_[g.bin(p, axis) < split ? l++ : r++] = p;
+        const PrimRef& p = src[i];
+        dst[g.left(p, axis, split) ? l++ : r++] = p;
       }
-    });
-    parallel_for(count, kGrain, threads, [&](std::size_t b, std::size_t e, unsigned) {
-      std::copy(scratch_.begin() + node.begin + b, scratch_.begin() + node.begin + e, prims_.begin() + node.begin + b);
     });
     return node.begin + total_left;
   }
 
   const BuildOptions& opt_;
   RawVector<PrimRef>& prims_;
-  RawVector<PrimRef> scratch_;  // chunked partitions (disjoint ranges: safe across tasks)
+  RawVector<PrimRef> scratch_;  // the records of odd depths (disjoint ranges: safe across tasks)
   unsigned bins_;
 };
 
-// Returns the child reference of arena node n, emitted depth-first into `out`.
+// Emits arena nodes depth-first at fixed places of `out` (inner nodes from `node`, leaves from
+// `leaf`), so that the subtrees can be emitted side by side once their places are known.
+// `sub_ref`/`sub_height`: what each subtree's root became (the upper arena's last pass).
 struct Flattener {
   const Arenas& a;
   Bvh2& out;
   std::vector<Leaf>& leaves;
+  std::size_t node = 0, leaf = 0;
+  std::size_t largest = 0, forced = 0;
+  const std::vector<std::int32_t>* sub_ref = nullptr;
+  const std::vector<std::uint32_t>* sub_height = nullptr;
+  const std::vector<std::pair<std::size_t, std::size_t>>* sub_size = nullptr;  // inner nodes, leaves
 
+  // Returns the child reference of arena node n.
   std::int32_t emit(const std::vector<TmpNode>& arena, std::size_t n, std::int32_t parent, std::uint32_t& height) {
     const TmpNode& t = arena[n];
-    if (&arena == &a.upper && a.subtree_of[n] >= 0)
-      return emit(a.subtrees[static_cast<std::size_t>(a.subtree_of[n])], 0, parent, height);
+    if (&arena == &a.upper && a.subtree_of[n] >= 0) {
+      const std::size_t j = static_cast<std::size_t>(a.subtree_of[n]);
+      node += (*sub_size)[j].first;
+      leaf += (*sub_size)[j].second;
+      height = (*sub_height)[j];
+      return (*sub_ref)[j];
+    }
     if (t.leaf) {
-      leaves.push_back({t.begin, t.end - t.begin});
-      out.leaf_boxes.push_back(t.box.box());
-      out.largest_leaf = std::max<std::size_t>(out.largest_leaf, t.end - t.begin);
-      out.forced_leaves += t.forced ? 1 : 0;
+      leaves[leaf] = {t.begin, t.end - t.begin};
+      out.leaf_boxes[leaf] = t.box.box();
+      largest = std::max<std::size_t>(largest, t.end - t.begin);
+      forced += t.forced ? 1 : 0;
       height = 0;
-      return ~static_cast<std::int32_t>(leaves.size() - 1);
+      return ~static_cast<std::int32_t>(leaf++);
     }
-    const std::int32_t self = static_cast<std::int32_t>(out.nodes.size());
-    out.nodes.push_back({t.box.box(), {MBVH_EMPTY, MBVH_EMPTY}, parent, 0});
+    const std::int32_t self = static_cast<std::int32_t>(node++);
+    Bvh2::Node& d = out.nodes[static_cast<std::size_t>(self)];
+    d = {t.box.box(), {MBVH_EMPTY, MBVH_EMPTY}, parent, 0};
     std::uint32_t h[2] = {0, 0};
-    for (int side = 0; side < 2; ++side) {
-      const std::int32_t ref = emit(arena, static_cast<std::size_t>(t.child[side]), self, h[side]);
-      out.nodes[static_cast<std::size_t>(self)].child[side] = ref;
-    }
+    for (int side = 0; side < 2; ++side)
+      if (t.child[side] >= 0) d.child[side] = emit(arena, static_cast<std::size_t>(t.child[side]), self, h[side]);
     height = 1 + std::max(h[0], h[1]);
-    out.nodes[static_cast<std::size_t>(self)].height = height;
+    d.height = height;
     return self;
+  }
+
+  // Where subtree j's nodes and leaves start and its root's parent, as the depth-first walk of
+  // the upper arena reaches them (nothing written).
+  void place(std::size_t n, std::int32_t parent, std::vector<std::pair<std::size_t, std::size_t>>& at,
+             std::vector<std::int32_t>& parent_of) {
+    const TmpNode& t = a.upper[n];
+    if (a.subtree_of[n] >= 0) {
+      const std::size_t j = static_cast<std::size_t>(a.subtree_of[n]);
+      at[j] = {node, leaf};
+      parent_of[j] = parent;
+      node += (*sub_size)[j].first;
+      leaf += (*sub_size)[j].second;
+      return;
+    }
+    if (t.leaf) {
+      ++leaf;
+      return;
+    }
+    const std::int32_t self = static_cast<std::int32_t>(node++);
+    for (int side = 0; side < 2; ++side)
+      if (t.child[side] >= 0) place(static_cast<std::size_t>(t.child[side]), self, at, parent_of);
   }
 };
 
 }  // namespace
 
-void flatten(const Arenas& a, Bvh2& out, std::vector<Leaf>& leaves) {
-  Flattener fl{a, out, leaves};
-  const TmpNode& r = a.upper[0];
-  out.nodes.push_back({r.box.box(), {MBVH_EMPTY, MBVH_EMPTY}, MBVH_NONE, 0});
-  std::uint32_t h[2] = {0, 0};
-  for (int side = 0; side < 2; ++side)
-    if (r.child[side] >= 0) out.nodes[0].child[side] = fl.emit(a.upper, static_cast<std::size_t>(r.child[side]), 0, h[side]);
-  out.nodes[0].height = 1 + std::max(h[0], h[1]);
+void flatten(const Arenas& a, Bvh2& out, std::vector<Leaf>& leaves, unsigned threads) {
+  // -- each subtree's inner nodes and leaves, then their places in the depth-first order
+  const std::size_t subs = a.subtrees.size();
+  std::vector<std::pair<std::size_t, std::size_t>> size(subs), at(subs);
+  parallel_for(subs, 1, threads, [&](std::size_t b, std::size_t e, unsigned) {
+    for (std::size_t j = b; j < e; ++j) {
+      std::size_t inner = 0;
+      for (const TmpNode& t : a.subtrees[j]) inner += t.leaf ? 0 : 1;
+      size[j] = {inner, a.subtrees[j].size() - inner};
+    }
+  });
+  std::vector<std::int32_t> parent_of(subs, MBVH_NONE), ref(subs, 0);
+  std::vector<std::uint32_t> height(subs, 0);
+  Flattener top{a, out, leaves};
+  top.sub_size = &size;
+  top.place(0, MBVH_NONE, at, parent_of);
+  out.nodes.resize(top.node);
+  out.leaf_boxes.resize(top.leaf);
+  leaves.resize(top.leaf);
+  // -- the subtrees side by side, then the upper nodes around them
+  std::vector<std::size_t> largest(subs, 0), forced(subs, 0);
+  parallel_for(subs, 1, threads, [&](std::size_t b, std::size_t e, unsigned) {
+    for (std::size_t j = b; j < e; ++j) {
+      Flattener fl{a, out, leaves, at[j].first, at[j].second};
+      ref[j] = fl.emit(a.subtrees[j], 0, parent_of[j], height[j]);
+      largest[j] = fl.largest;
+      forced[j] = fl.forced;
+    }
+  });
+  top.node = top.leaf = 0;
+  top.sub_ref = &ref;
+  top.sub_height = &height;
+  std::uint32_t h = 0;
+  top.emit(a.upper, 0, MBVH_NONE, h);
+  out.largest_leaf = top.largest;
+  out.forced_leaves = top.forced;
+  for (std::size_t j = 0; j < subs; ++j) {
+    out.largest_leaf = std::max(out.largest_leaf, largest[j]);
+    out.forced_leaves += forced[j];
+  }
 }
 
 void build_binned_sah(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& croot, const BuildOptions& opt,
@@ -453,16 +642,46 @@ void build_binned_sah(RawVector<PrimRef>& prims, const FastBox& root, const Fast
   const unsigned threads = resolve_threads(opt.threads);
   const std::size_t small = std::max<std::size_t>(4096, prims.size() / (8 * std::size_t(threads)));
   std::vector<std::size_t> jobs;
-  for (std::size_t k = 0; k < upper.size(); ++k) {
-    if (k > 0 && upper[k].end - upper[k].begin <= small) {
-      jobs.push_back(k);
-      continue;
+  Bins work;
+  std::vector<std::unique_ptr<Bins>> worker_bins(threads);  // made by their worker on first use
+  std::vector<std::size_t> batch;
+  std::vector<TmpNode> kids;
+  std::vector<std::uint8_t> split_done;
+  for (std::size_t k = 0; k < upper.size();) {
+    // one level at a time: small nodes become subtree jobs, large ones are split with their
+    // chunks in parallel, the others are split side by side, one per worker; children are
+    // appended in node order, so the arena does not depend on which worker split what
+    const std::size_t level_end = upper.size();
+    batch.clear();
+    for (; k < level_end; ++k) {
+      const std::size_t count = upper[k].end - upper[k].begin;
+      if (k > 0 && count <= small) jobs.push_back(k);
+      else if (k == 0 || count >= kParallelMin) builder.split(upper, k, threads, work);
+      else batch.push_back(k);
     }
-    builder.split(upper, k, threads);
+    kids.assign(2 * batch.size(), TmpNode());
+    split_done.assign(batch.size(), 0);
+    parallel_for(batch.size(), 1, threads, [&](std::size_t b, std::size_t e, unsigned worker) {
+      for (std::size_t i = b; i < e; ++i) {
+        TmpNode c[2];
+        if (!worker_bins[worker]) worker_bins[worker] = std::make_unique<Bins>();
+        split_done[i] = builder.split_node(upper[batch[i]], c, 1, *worker_bins[worker]);
+        kids[2 * i] = c[0];
+        kids[2 * i + 1] = c[1];
+      }
+    });
+    for (std::size_t i = 0; i < batch.size(); ++i)
+      if (split_done[i])
+        for (int side = 0; side < 2; ++side) {
+          upper[batch[i]].child[side] = static_cast<std::int32_t>(upper.size());
+          upper.push_back(kids[2 * i + static_cast<std::size_t>(side)]);
+        }
   }
   // -- remaining subtrees, one per task, largest first
   build_subtrees(out, jobs, opt, [&](std::vector<TmpNode>& subtree) {
-    subtree.reserve(2 * (subtree[0].end - subtree[0].begin) / std::max(1u, opt.max_leaf / 2) + 1);
+    // a binary tree over n records has at most 2n - 1 nodes (leaves of one record are common
+    // here): reserved address space, never a reallocation
+    subtree.reserve(2 * std::size_t(subtree[0].end - subtree[0].begin));
     builder.build_subtree(subtree);
   });
 }
@@ -568,8 +787,9 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
   using build::PrimRef;
   using Clock = std::chrono::steady_clock;
   const auto t0 = Clock::now();
-  // -- what the build is given: indices in range, finite vertices, a usable SAH cost
-  scene.validate();
+  // -- what the build is given: indices in range and finite vertices (checked by the record
+  //    pass below, Scene::validate naming the first fault), a usable SAH cost
+  if (!scene.meshes().empty() && !scene.triangles.empty()) scene.validate();
   if (!std::isfinite(opt_in.traversal_cost) || opt_in.traversal_cost < 0)
     throw Error("BuildOptions::traversal_cost " + std::to_string(opt_in.traversal_cost) + " must be finite and >= 0");
   std::unique_ptr<Accel> acc(new Accel());
@@ -595,6 +815,7 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
   build::RawVector<PrimRef> prims(n);
   std::vector<build::FastBox> cb(chunks), ccb(chunks);
   std::vector<float> mag(chunks, 0.0f);
+  std::atomic<bool> invalid{false};
   build::with_triangles(scene, [&](const auto& src) {
     parallel_for(n, grain, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
       const std::size_t c = b / grain;
@@ -603,7 +824,10 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
       float m = 0;
       for (std::size_t i = b; i < e; ++i) {
         Vec3f v0, v1, v2;
-        src.get(i, v0, v1, v2);
+        if (!src.get_checked(i, v0, v1, v2) || !build::finite(v0, v1, v2)) {
+          invalid = true;
+          continue;
+        }
         if (!build::has_area(v0, v1, v2)) continue;
         const PrimRef r = build::prim_ref(v0, v1, v2, static_cast<std::uint32_t>(i));
         box.grow(r);
@@ -617,6 +841,10 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
       mag[c] = m;
     });
   });
+  if (invalid) {
+    scene.validate();  // throws, naming the first bad triangle
+    throw Error(scene.name + ": internal: a triangle failed the build's index or finiteness check but not Scene::validate");
+  }
   std::size_t kept = 0;  // close the chunks' gaps (in place: a record only moves down)
   for (std::size_t c = 0; c < chunks; ++c) {
     if (kept != c * grain) std::memmove(&prims[kept], &prims[c * grain], kept_in[c] * sizeof(PrimRef));
@@ -665,10 +893,7 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
     t_tree = Clock::now();
 
     // -- flatten depth-first; leaves come out in record order
-    out.nodes.reserve(prims.size());
-    out.leaf_boxes.reserve(prims.size());  // address space only: pages are touched as written
-    acc->impl_->leaves_.reserve(prims.size());
-    build::flatten(arenas, out, acc->impl_->leaves_);
+    build::flatten(arenas, out, acc->impl_->leaves_, opt.threads);
 
     arenas = build::Arenas();
     acc->impl_->tris_.resize(prims.size());

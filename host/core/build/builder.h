@@ -152,8 +152,9 @@ void build_subtrees(Arenas& out, const std::vector<std::size_t>& jobs, const Bui
 }
 
 /// Flattens the arenas depth-first into `out` (record 0 = root, which is always an inner node)
-/// and `leaves` (in record order: a leaf's triangles are its range of the record array).
-void flatten(const Arenas& a, Bvh2& out, std::vector<Leaf>& leaves);
+/// and `leaves` (in record order: a leaf's triangles are its range of the record array); the
+/// subtrees side by side on up to `threads` workers, the same bytes at any count.
+void flatten(const Arenas& a, Bvh2& out, std::vector<Leaf>& leaves, unsigned threads);
 
 /// Whether the triangle has area (its edges' cross product, in double, is not zero): the build
 /// keeps the others out of leaves.

@@ -39,6 +39,10 @@ namespace {
 
 constexpr char kMagic[8] = {'M', 'B', 'V', 'H', 'B', 'V', 'H', '\0'};
 constexpr std::uint32_t kFormatVersion = 4;  // 2: the build quality in the key and header; 3: hash_bytes; 4: blocks
+// Bumped when a builder makes other bytes from the same scene and options (the key changes, so
+// a file of the older builder is not taken for this one's tree). 1: the medium build's
+// partition into a second record array (same splits, another leaf order).
+constexpr std::uint32_t kTreeRevision = 1;
 
 struct Header {
   char magic[8];
@@ -98,6 +102,7 @@ std::string hex(std::uint64_t v) {
 
 std::uint64_t Accel::cache_key(const Scene& scene, const BuildOptions& opt) {
   std::uint64_t h = hash_bytes(MBVH_VERSION_STRING, sizeof(MBVH_VERSION_STRING), kFormatVersion);
+  h = hash_bytes(&kTreeRevision, sizeof kTreeRevision, h);
   if (scene.meshes().empty()) {
     h = hash_bytes(scene.vertices.data(), scene.vertices.size() * sizeof(Vec3f), h);
     h = hash_bytes(scene.triangles.data(), scene.triangles.size() * sizeof(scene.triangles[0]), h);

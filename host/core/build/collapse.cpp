@@ -107,18 +107,27 @@ struct Collapser {
     kids[0] = bn.child[0];
     kids[1] = bn.child[1];
     int count = bn.child[1] == MBVH_EMPTY ? 1 : 2;
+    // the half area of each inner kid, computed once (only inner kids are ever compared)
+    float area[W];
+    auto area_of = [&](std::int32_t ref) { return ref >= 0 ? b.nodes[static_cast<std::size_t>(ref)].box.half_area() : 0.0f; };
+    for (int k = 0; k < count; ++k) area[k] = area_of(kids[k]);
     while (count < W) {
       int pick = -1;
       for (int k = 0; k < count; ++k)
-        if (violates(kids[k], level + 1) && (pick < 0 || b.box(kids[k]).half_area() > b.box(kids[pick]).half_area())) pick = k;
+        if (violates(kids[k], level + 1) && (pick < 0 || area[k] > area[pick])) pick = k;
       if (pick < 0)
         for (int k = 0; k < count; ++k)
-          if (kids[k] >= 0 && (pick < 0 || b.box(kids[k]).half_area() > b.box(kids[pick]).half_area())) pick = k;
+          if (kids[k] >= 0 && (pick < 0 || area[k] > area[pick])) pick = k;
       if (pick < 0) break;
       const Bvh2::Node& open = b.nodes[static_cast<std::size_t>(kids[pick])];
-      for (int k = count; k > pick + 1; --k) kids[k] = kids[k - 1];
+      for (int k = count; k > pick + 1; --k) {
+        kids[k] = kids[k - 1];
+        area[k] = area[k - 1];
+      }
       kids[pick] = open.child[0];
       kids[pick + 1] = open.child[1];
+      area[pick] = area_of(kids[pick]);
+      area[pick + 1] = area_of(kids[pick + 1]);
       ++count;
     }
     const std::int32_t self = static_cast<std::int32_t>(out.size());
@@ -146,7 +155,9 @@ struct Collapser {
 template <unsigned Cap, class M>
 void collapse(const Bvh2& b, const std::vector<Leaf>& leaves, const char* name, M& out) {
   using N = typename decltype(out.nodes)::value_type;
-  out.nodes.reserve(b.nodes.size() / (node_width<N>() / 2) + 1);
+  // every wide node stands for a distinct binary node: reserved address space (pages are
+  // touched as written), never a reallocation (n / (W / 2) was too few on the bunny)
+  out.nodes.reserve(b.nodes.size());
   Collapser<N, Cap> c{b, out.nodes};
   c.root_area = std::max(1e-30, static_cast<double>(b.nodes[0].box.half_area()));
   c.emit(0, MBVH_NONE, 0);
