@@ -338,55 +338,37 @@ struct SimdKernelsT {
       }
     }
   }
-  /// The nearest hit slot without a branch per slot: misses set to +inf, a horizontal min, the
-  /// lowest slot equal to it (entry distances are never NaN: the max chain starts at tmin).
-  template <int W>
-  [[gnu::always_inline]] static int nearest(unsigned mask, const float* d) {
+  /// The hit slot of `mask` with the smallest d (Largest: the largest; an occlusion query's
+  /// chords), ties to the lower slot, without a branch per slot: two hits by one compare, more by
+  /// a horizontal min (max) over the row with the misses set to +inf (-inf) and the lowest slot
+  /// equal to it (d is never NaN: entries start at tmin, chords are clamped at 0).
+  template <int W, bool Largest>
+  [[gnu::always_inline]] static int extreme(unsigned mask, const float* d) {
     const unsigned rest = mask & (mask - 1);
     if (rest == 0) return std::countr_zero(mask);
     if ((rest & (rest - 1)) == 0) {  // two hits, the commonest case: one compare
       const int a = std::countr_zero(mask), b = std::countr_zero(rest);
-      return d[b] < d[a] ? b : a;
+      return (Largest ? d[b] > d[a] : d[b] < d[a]) ? b : a;
     }
     if constexpr (W == 8) {
-      const __m256 inf = _mm256_set1_ps(INFINITY);
+      const auto pick = [](__m256 x, __m256 y) { return Largest ? _mm256_max_ps(x, y) : _mm256_min_ps(x, y); };
+      const __m256 none = _mm256_set1_ps(Largest ? -INFINITY : INFINITY);
       const __m256 bits = _mm256_castsi256_ps(_mm256_and_si256(_mm256_set1_epi32(static_cast<int>(mask)),
                                                                _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128)));
-      const __m256 v = _mm256_blendv_ps(_mm256_loadu_ps(d), inf, _mm256_cmp_ps(bits, _mm256_setzero_ps(), _CMP_EQ_OQ));
-      __m256 m = _mm256_min_ps(v, _mm256_permute_ps(v, 0xB1));
-      m = _mm256_min_ps(m, _mm256_permute_ps(m, 0x4E));
-      m = _mm256_min_ps(m, _mm256_permute2f128_ps(m, m, 0x01));
+      const __m256 v = _mm256_blendv_ps(_mm256_loadu_ps(d), none, _mm256_cmp_ps(bits, _mm256_setzero_ps(), _CMP_EQ_OQ));
+      __m256 m = pick(v, _mm256_permute_ps(v, 0xB1));
+      m = pick(m, _mm256_permute_ps(m, 0x4E));
+      m = pick(m, _mm256_permute2f128_ps(m, m, 0x01));
       const unsigned eq = static_cast<unsigned>(_mm256_movemask_ps(_mm256_cmp_ps(v, m, _CMP_EQ_OQ))) & mask;
       return std::countr_zero(eq);
     } else {
-      return detail::nearest_slot<W>(mask, d);
+      return Largest ? detail::longest_slot<W>(mask, d) : detail::nearest_slot<W>(mask, d);
     }
   }
-
-  /// The hit slot of largest d (an occlusion query's chords, never NaN), ties to the lower slot:
-  /// nearest's reduction with max.
   template <int W>
-  [[gnu::always_inline]] static int longest(unsigned mask, const float* d) {
-    const unsigned rest = mask & (mask - 1);
-    if (rest == 0) return std::countr_zero(mask);
-    if ((rest & (rest - 1)) == 0) {  // two hits: one compare
-      const int a = std::countr_zero(mask), b = std::countr_zero(rest);
-      return d[b] > d[a] ? b : a;
-    }
-    if constexpr (W == 8) {
-      const __m256 low = _mm256_set1_ps(-INFINITY);
-      const __m256 bits = _mm256_castsi256_ps(_mm256_and_si256(_mm256_set1_epi32(static_cast<int>(mask)),
-                                                               _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128)));
-      const __m256 v = _mm256_blendv_ps(_mm256_loadu_ps(d), low, _mm256_cmp_ps(bits, _mm256_setzero_ps(), _CMP_EQ_OQ));
-      __m256 m = _mm256_max_ps(v, _mm256_permute_ps(v, 0xB1));
-      m = _mm256_max_ps(m, _mm256_permute_ps(m, 0x4E));
-      m = _mm256_max_ps(m, _mm256_permute2f128_ps(m, m, 0x01));
-      const unsigned eq = static_cast<unsigned>(_mm256_movemask_ps(_mm256_cmp_ps(v, m, _CMP_EQ_OQ))) & mask;
-      return std::countr_zero(eq);
-    } else {
-      return detail::longest_slot<W>(mask, d);
-    }
-  }
+  [[gnu::always_inline]] static int nearest(unsigned mask, const float* d) { return extreme<W, false>(mask, d); }
+  template <int W>
+  [[gnu::always_inline]] static int longest(unsigned mask, const float* d) { return extreme<W, true>(mask, d); }
 
   /// MBVH8 pushes (traverse.h: highest slot first): AVX-512 reverses the row of child links,
   /// compresses the hit ones (the mask bit-reversed) in a register and stores the whole row (a

@@ -122,6 +122,9 @@ struct Accel::Impl {
 Mbvh2 make_mbvh2(const Bvh2& bvh, const std::vector<Leaf>& leaves);
 Mbvh4 make_mbvh4(const Bvh2& bvh, const std::vector<Leaf>& leaves);
 Mbvh8 make_mbvh8(const Bvh2& bvh, const std::vector<Leaf>& leaves);
+/// Completes a collapsed MBVH4: the cyclic sibling links (sib[k] = parent.child[(slot + 1 + k) &
+/// 3]), the bitstack bits of its depth, and validate_layout.
+void finish_mbvh4(Mbvh4& m, std::size_t leaf_count);
 /// The SAH-optimal MBVH8 collapse (wide_sah.cpp; Ylitie et al. 2017): leaves priced in blocks of
 /// `block` triangles, node visits at `node_cost`; the greedy make_mbvh8 where it would exceed the
 /// MBVH8 level cap.

@@ -173,10 +173,7 @@ void collapse(const Bvh2& b, const std::vector<Leaf>& leaves, const char* name, 
 
 }  // namespace
 
-Mbvh4 make_mbvh4(const Bvh2& b, const std::vector<Leaf>& leaves) {
-  const auto t0 = Clock::now();
-  Mbvh4 out;
-  collapse<MBVH_MBVH4_LEVEL_CAP>(b, leaves, "mbvh4", out);
+void finish_mbvh4(Mbvh4& out, std::size_t leaf_count) {
   // cyclic sibling links: sib[k] = parent.child[(slot + 1 + k) & 3]
   out.nodes[0].sib[0] = out.nodes[0].sib[1] = out.nodes[0].sib[2] = MBVH_NONE;
   for (const Node4& p : out.nodes)
@@ -184,7 +181,14 @@ Mbvh4 make_mbvh4(const Bvh2& b, const std::vector<Leaf>& leaves) {
       if (p.child[s] >= 0)
         for (int k = 0; k < 3; ++k) out.nodes[static_cast<std::size_t>(p.child[s])].sib[k] = p.child[(s + 1 + k) & 3];
   out.stats.bitstack_bits = 3 * out.stats.depth;
-  validate_layout(out, leaves.size());
+  validate_layout(out, leaf_count);
+}
+
+Mbvh4 make_mbvh4(const Bvh2& b, const std::vector<Leaf>& leaves) {
+  const auto t0 = Clock::now();
+  Mbvh4 out;
+  collapse<MBVH_MBVH4_LEVEL_CAP>(b, leaves, "mbvh4", out);
+  finish_mbvh4(out, leaves.size());
   out.stats.build_ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
   return out;
 }

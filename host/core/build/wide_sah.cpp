@@ -186,14 +186,7 @@ Mbvh4 make_mbvh4_sah(const Bvh2& b, const std::vector<Leaf>& leaves, unsigned bl
   Mbvh4 out;
   if (b.nodes.empty() || !collapse_sah(b, leaves, block, node_cost, MBVH_MBVH4_LEVEL_CAP, "mbvh4", out))
     return make_mbvh4(b, leaves);
-  // cyclic sibling links, as make_mbvh4: sib[k] = parent.child[(slot + 1 + k) & 3]
-  out.nodes[0].sib[0] = out.nodes[0].sib[1] = out.nodes[0].sib[2] = MBVH_NONE;
-  for (const Node4& p : out.nodes)
-    for (int s = 0; s < 4; ++s)
-      if (p.child[s] >= 0)
-        for (int k = 0; k < 3; ++k) out.nodes[static_cast<std::size_t>(p.child[s])].sib[k] = p.child[(s + 1 + k) & 3];
-  out.stats.bitstack_bits = 3 * out.stats.depth;
-  validate_layout(out, leaves.size());
+  finish_mbvh4(out, leaves.size());
   out.stats.build_ms = ms_since(t0);
   return out;
 }

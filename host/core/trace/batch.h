@@ -16,47 +16,45 @@
 namespace mbvh {
 inline namespace MBVH_ISA_NS {
 
+/// Points `v` at `src`'s nodes of `layout` (src: the Accel, or one of its leaf variants; each
+/// makes the layout on first use).
+template <class Src>
+inline void view_nodes(TraceView& v, const Src& src, Layout layout) {
+  if (layout == Layout::mbvh2) {
+    v.n2 = src.mbvh2().nodes.data();
+    v.nodes = src.mbvh2().nodes.size();
+  } else if (layout == Layout::mbvh4) {
+    v.n4 = src.mbvh4().nodes.data();
+    v.nodes = src.mbvh4().nodes.size();
+  } else {
+    v.n8 = src.mbvh8().nodes.data();
+    v.nodes = src.mbvh8().nodes.size();
+  }
+}
+
 /// The view of `layout` a traversal reads (makes the layout on first use); with the SIMD leaf
-/// packs when `packs` (a kernel policy's `uses_packs`).
+/// packs when `packs` (a kernel policy's `uses_packs`); on the build's leaves regrouped for
+/// `leaf_block` (Accel::leaf_variant) when it is above 1: their own nodes, leaves and packs over
+/// the same triangles.
 inline TraceView trace_view(const Accel& acc, Layout layout, bool packs = false, unsigned leaf_block = 1) {
   TraceView v;
-  if (leaf_block > 1) {  // a leaf policy's variant: its own nodes, leaves and packs, the same triangles
+  v.tris = acc.tris().data();
+  const TriPacks* p = nullptr;
+  if (leaf_block > 1) {
     const LeafVariant& lv = acc.leaf_variant(leaf_block);
-    if (layout == Layout::mbvh2) {
-      v.n2 = lv.mbvh2().nodes.data();
-      v.nodes = lv.mbvh2().nodes.size();
-    } else if (layout == Layout::mbvh4) {
-      v.n4 = lv.mbvh4().nodes.data();
-      v.nodes = lv.mbvh4().nodes.size();
-    } else {
-      v.n8 = lv.mbvh8().nodes.data();
-      v.nodes = lv.mbvh8().nodes.size();
-    }
+    view_nodes(v, lv, layout);
     v.leaf_count = lv.leaves.size();
     v.leaves = lv.leaves.data();
-    v.tris = acc.tris().data();
-    if (packs) {
-      v.tri4 = lv.tri_packs(acc.tris()).packs.data();
-      v.leaf4 = lv.tri_packs(acc.tris()).leaves.data();
-    }
-    return v;
-  }
-  if (layout == Layout::mbvh2) {
-    v.n2 = acc.mbvh2().nodes.data();
-    v.nodes = acc.mbvh2().nodes.size();
-  } else if (layout == Layout::mbvh4) {
-    v.n4 = acc.mbvh4().nodes.data();
-    v.nodes = acc.mbvh4().nodes.size();
+    if (packs) p = &lv.tri_packs(acc.tris());
   } else {
-    v.n8 = acc.mbvh8().nodes.data();
-    v.nodes = acc.mbvh8().nodes.size();
+    view_nodes(v, acc, layout);
+    v.leaf_count = acc.leaves().size();
+    v.leaves = acc.leaves().data();
+    if (packs) p = &acc.tri_packs();
   }
-  v.leaf_count = acc.leaves().size();
-  v.leaves = acc.leaves().data();
-  v.tris = acc.tris().data();
-  if (packs) {
-    v.tri4 = acc.tri_packs().packs.data();
-    v.leaf4 = acc.tri_packs().leaves.data();
+  if (p) {
+    v.tri4 = p->packs.data();
+    v.leaf4 = p->leaves.data();
   }
   return v;
 }
