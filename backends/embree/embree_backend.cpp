@@ -157,6 +157,7 @@ public:
   }
 
   void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
+    check_leaf_block(opt, std::string("embree"));  // these trace the build's own leaves, whatever block is asked
     if (!supports(opt.layout, opt.traversal))
       throw Error("embree: answers only as mbvh4/stack (its own BVH and traversal)");
     if (!supports_precision(opt.precision))

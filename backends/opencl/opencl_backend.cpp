@@ -140,6 +140,7 @@ public:
   }
 
   void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
+    check_leaf_block(opt, name_);  // these trace the build's own leaves, whatever block is asked
     if (!supports(opt.layout, opt.traversal))
       throw Error(name_ + ": traversal '" + std::string(to_string(opt.traversal)) + "' is not implemented (stack and bitstack are)");
     device_seconds_ = -1;

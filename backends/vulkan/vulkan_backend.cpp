@@ -146,6 +146,7 @@ public:
   }
 
   void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
+    check_leaf_block(opt, std::string("vulkan"));  // these trace the build's own leaves, whatever block is asked
     if (!supports(opt.layout, opt.traversal))
       throw Error("vulkan: " + std::string(to_string(opt.layout)) + " " + to_string(opt.traversal) +
                   " traversal is not implemented (the GPU path is MBVH2 and MBVH4, stack and bitstack)");

@@ -88,9 +88,10 @@ private:
 
 /// Regroups `bvh`'s subtrees into leaves where a leaf priced in blocks of `block` triangles (at
 /// most `max_leaf`) costs no more than the subtree (node visits at `node_cost`); the root stays an
-/// inner node. Only subtrees whose triangles are one contiguous range are regrouped.
-void regroup_leaves(const Bvh2& bvh, const std::vector<Leaf>& leaves, unsigned block, unsigned max_leaf,
-                    float node_cost, Bvh2& out, std::vector<Leaf>& out_leaves);
+/// inner node. Only subtrees whose triangles are one contiguous range of distinct triangles (a
+/// spatial-split build references one triangle from several leaves) are regrouped.
+void regroup_leaves(const Bvh2& bvh, const std::vector<Leaf>& leaves, const AlignedVector<Tri>& tris, unsigned block,
+                    unsigned max_leaf, float node_cost, Bvh2& out, std::vector<Leaf>& out_leaves);
 
 /// Accel's state: what build, load and refit write, and the layouts made on first use.
 struct Accel::Impl {

@@ -7,6 +7,7 @@
 // range of triangles and its box the subtree's, so the variant traces the same triangles with
 // exact, conservative boxes — only fewer, fuller leaves. O(nodes), deterministic.
 #include <algorithm>
+#include <cstring>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -23,12 +24,23 @@ namespace {
 struct Regrouper {
   const Bvh2& in;
   const std::vector<Leaf>& leaves;
+  const AlignedVector<Tri>& tris;
   unsigned block, max_leaf;
   float node_cost;
   std::vector<std::uint32_t> first, count;  // per inner node: its triangle range (when contiguous)
   std::vector<char> as_leaf;                // per inner node: regrouped into one leaf
   Bvh2 out;
   std::vector<Leaf> out_leaves;
+
+  // Whether the c triangles from f are distinct triangles (a spatial-split build references one
+  // triangle from several leaves: never twice in one leaf, accel.h)
+  bool distinct(std::uint32_t f, std::uint32_t c) const {
+    std::uint32_t ids[64];
+    const std::uint32_t n = std::min<std::uint32_t>(c, 64);
+    for (std::uint32_t k = 0; k < n; ++k) std::memcpy(&ids[k], &tris[f + k].v0[3], 4);
+    std::sort(ids, ids + n);
+    return std::adjacent_find(ids, ids + n) == ids + n;
+  }
 
   // -- bottom-up: inner nodes are in depth-first order (a child after its parent)
   void decide() {
@@ -70,7 +82,7 @@ struct Regrouper {
         first[i] = f;
         count[i] = c;
       }
-      if (i != 0 && contiguous && c != 0 && c <= max_leaf) {  // the root stays an inner node
+      if (i != 0 && contiguous && c != 0 && c <= max_leaf && distinct(f, c)) {  // the root stays inner
         const float leaf = build::blocks(c, block) * area;
         if (leaf <= split) {
           as_leaf[i] = 1;
@@ -118,9 +130,9 @@ struct Regrouper {
 
 }  // namespace
 
-void regroup_leaves(const Bvh2& bvh, const std::vector<Leaf>& leaves, unsigned block, unsigned max_leaf,
-                    float node_cost, Bvh2& out, std::vector<Leaf>& out_leaves) {
-  Regrouper g{bvh, leaves, std::max(block, 1u), std::max(max_leaf, 1u), node_cost, {}, {}, {}, {}, {}};
+void regroup_leaves(const Bvh2& bvh, const std::vector<Leaf>& leaves, const AlignedVector<Tri>& tris, unsigned block,
+                    unsigned max_leaf, float node_cost, Bvh2& out, std::vector<Leaf>& out_leaves) {
+  Regrouper g{bvh, leaves, tris, std::max(block, 1u), std::min(std::max(max_leaf, 1u), 64u), node_cost, {}, {}, {}, {}, {}};
   if (!bvh.nodes.empty()) {
     g.decide();
     std::uint32_t h = 0;
@@ -133,7 +145,7 @@ void regroup_leaves(const Bvh2& bvh, const std::vector<Leaf>& leaves, unsigned b
 }
 
 const LeafVariant& Accel::leaf_variant(unsigned block) const {
-  if (block < 1 || block > 64)
+  if (block < 2 || block > 64)  // block 1 is the build itself (trace_view traces it, not a variant)
     throw Error("leaf block " + std::to_string(block) + " is out of range (TraceOptions::leaf_block: 0 for the backend's own, or 1 to 64)");
   std::lock_guard<std::mutex> lock(impl_->variants_m_);
   std::unique_ptr<LeafVariant>& v = impl_->variants_[block];
@@ -144,7 +156,8 @@ const LeafVariant& Accel::leaf_variant(unsigned block) const {
     // max leaf: the build's, but at least one full block (a regrouped leaf of B triangles costs
     // one test)
     const unsigned max_leaf = std::max(impl_->opt_.max_leaf, block);
-    regroup_leaves(impl_->bvh2_, impl_->leaves_, block, max_leaf, impl_->opt_.traversal_cost, v->bvh2, v->leaves);
+    regroup_leaves(impl_->bvh2_, impl_->leaves_, impl_->tris_, block, max_leaf, impl_->opt_.traversal_cost, v->bvh2,
+                   v->leaves);
   }
   return *v;
 }

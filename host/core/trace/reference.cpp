@@ -79,7 +79,14 @@ bool ray_valid(const Ray& ray) {
   return prepare_ray(ray, p);
 }
 
+void check_leaf_block(const TraceOptions& opt, const std::string& who) {
+  if (opt.leaf_block > 64)
+    throw Error(who + ": leaf block " + std::to_string(opt.leaf_block) +
+                " is out of range (TraceOptions::leaf_block: 0 for the backend's own, or 1 to 64)");
+}
+
 static void require_supported(const TraceOptions& opt) {
+  check_leaf_block(opt, "cpu-scalar");
   if (!reference_supports(opt.layout, opt.traversal))
     throw Error(std::string("traversal '") + to_string(opt.traversal) + "' is not defined for layout " + to_string(opt.layout) +
                 " (variant B is an MBVH4 traversal; MBVH2 has no ordered stack)");

@@ -466,8 +466,8 @@ inline Hit trace_wide_stack_ordered(const TraceView& v, const typename K::Ray& r
 }
 
 /// MBVH8, stack-based twin of the MBVH8 bitstack below: enter the first child (closest hit: the
-/// nearest, ties to the lower slot; any hit: the lowest hit slot — no distance order where it
-/// cannot pay), push the other hit children highest slot first (K::push8: one permute, one
+/// nearest, ties to the lower slot; any hit: the longest chord, longest_slot), push the other hit
+/// children highest slot first (K::push8: one permute, one
 /// compress and one store on AVX-512), so they pop in ascending slot order.
 template <bool Any, class St, class K = ScalarKernels>
 inline Hit trace_mbvh8_stack(const TraceView& v, const typename K::Ray& r, St& st) {

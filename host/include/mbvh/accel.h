@@ -154,11 +154,12 @@ public:
   const Mbvh4Wide& mbvh4_wide() const;  ///< its 16-wide view (OpenCL, TRAVERSAL.md §8), made on first use
   void make_layout(Layout l) const;  ///< makes layout `l` now (its accessor above), not on first trace
   const TriPacks& tri_packs() const;  ///< the leaves as SIMD packs, made on first use
-  /// The build with its leaves regrouped for leaf tests of `block` triangles at a time
-  /// (TraceOptions::leaf_block; host/core/layouts.h), made on first use and kept; thread-safe.
+  /// The build with its leaves regrouped for leaf tests of `block` (2 to 64) triangles at a time
+  /// (TraceOptions::leaf_block above 1; host/core/layouts.h), made on first use and kept;
+  /// thread-safe. refit() drops the variants: the next trace that asks for one regroups the
+  /// refit tree again (O(nodes), the collapse and packs: conference about 20 ms), and may choose
+  /// other leaves, as the boxes moved.
   const LeafVariant& leaf_variant(unsigned block) const;
-  /// Forgets the leaf variants (refit does: they are remade on next use from the moved tree).
-  void drop_leaf_variants();
   const AlignedVector<Tri>& tris() const;
   const std::vector<Leaf>& leaves() const;
   const Box& bounds() const;
@@ -183,7 +184,8 @@ public:
   /// caller may move the vertices in its own buffers and refit with the same Scene.
   /// Recomputes, in place and from the float vertices exactly as the build does, the leaf-ordered
   /// triangles, every leaf box, every binary node box bottom-up, and the boxes of every layout and
-  /// pack already made (MBVH2/4/8, the 16-wide view, the SIMD packs); the topology (nodes, leaves,
+  /// pack already made (MBVH2/4/8, the 16-wide view, the SIMD packs; leaf variants are dropped and
+  /// remade on next use, see leaf_variant); the topology (nodes, leaves,
   /// the triangles' leaf order) is kept, so traversal stays exact but may do more work than a
   /// rebuild's tree (boxes grow as vertices move apart). Updates hash(), the SAH costs and bumps
   /// generation(). O(triangles + nodes), parallel over options().threads, the same bytes at any
@@ -196,6 +198,7 @@ public:
   double last_refit_ms() const;  ///< wall time of the last refit()
 private:
   Accel();
+  void drop_leaf_variants();  ///< refit: forget the leaf variants (remade on next use)
   struct Impl;  ///< host/core/layouts.h
   std::unique_ptr<Impl> impl_;
 };

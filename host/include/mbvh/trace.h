@@ -64,6 +64,10 @@ struct TraceOptions {
   unsigned leaf_block = 0;
 };
 
+/// Throws Error naming `who` and the value when opt.leaf_block is above 64 (every backend's and
+/// the reference's trace call it first).
+void check_leaf_block(const TraceOptions& opt, const std::string& who);
+
 /// Results in ray order. Closest hit fills `hits`; any hit fills `occluded` (1 = occluded).
 struct TraceOutput {
   std::vector<Hit> hits;
