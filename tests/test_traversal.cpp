@@ -84,9 +84,9 @@ void check_scene(const std::string& spec, const BuildOptions& bo = {}, std::size
           for (Query q : grid.queries) {
             if (!backend->supports(l, t)) continue;
             const TraceOptions o{l, t, q, false};
-            const TraceOptions ro = with_leaves_of(*backend, o);
-            auto [it, fresh] = refs.try_emplace({l, t, q, ro.leaf_block});
-            if (fresh) trace_reference(*acc, rays, ro, it->second, 0);
+            const TraceOptions refo = with_leaves_of(*backend, o);
+            auto [it, fresh] = refs.try_emplace({l, t, q, refo.leaf_block});
+            if (fresh) trace_reference(*acc, rays, refo, it->second, 0);
             const TraceOutput& ref = it->second;
             TraceOutput got;
             backend->trace(*acc, rays, o, got);

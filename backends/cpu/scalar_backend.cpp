@@ -25,14 +25,8 @@ public:
   /// cpu.leaf-block).
   unsigned leaf_block(const TraceOptions& opt) const override { return opt.leaf_block ? opt.leaf_block : own_block_; }
   void prepare(const Accel& acc, const TraceOptions& opt) override {
-    if (opt.leaf_block > 1) {
-      const LeafVariant& v = acc.leaf_variant(opt.leaf_block);
-      if (opt.layout == Layout::mbvh2) v.mbvh2();
-      else if (opt.layout == Layout::mbvh4) v.mbvh4();
-      else v.mbvh8();
-    } else {
-      acc.make_layout(opt.layout);
-    }
+    if (opt.leaf_block > 1) acc.leaf_variant(opt.leaf_block).make_layout(opt.layout);
+    else acc.make_layout(opt.layout);
   }
   void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
     const TraceOptions o = with_leaves_of(*this, opt);

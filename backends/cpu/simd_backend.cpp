@@ -61,9 +61,7 @@ public:
     const unsigned block = leaf_block(opt);
     if (block > 1) {
       const LeafVariant& v = acc.leaf_variant(block);
-      if (opt.layout == Layout::mbvh2) v.mbvh2();
-      else if (opt.layout == Layout::mbvh4) v.mbvh4();
-      else v.mbvh8();
+      v.make_layout(opt.layout);
       v.tri_packs(acc.tris());
     } else {
       acc.make_layout(opt.layout);

@@ -70,6 +70,7 @@ namespace {
 
 inline unsigned mask4(__m128 m) { return static_cast<unsigned>(_mm_movemask_ps(m)); }
 
+#if MBVH_CPU_ISA_ID == 2
 /// 8-bit masks bit-reversed (slot s <-> 7 - s).
 constexpr std::array<std::uint8_t, 256> kReverse8 = [] {
   std::array<std::uint8_t, 256> t{};
@@ -81,6 +82,8 @@ constexpr std::array<std::uint8_t, 256> kReverse8 = [] {
   }
   return t;
 }();
+#endif
+
 
 /// The SIMD policies' ray: RayPre plus the per-ray constants in the form the kernels use them,
 /// made once per ray (finish) instead of at every node and leaf: the origin, reciprocals and tmin
@@ -93,6 +96,7 @@ struct SimdRay : RayPre {
   const TraceView* view;  ///< what the ray traverses (for prefetches)
 };
 
+#if MBVH_CPU_ISA_ID != 2
 /// For each 8-bit mask, its set slots highest first, one byte each (the AVX2 MBVH8 push).
 constexpr std::array<std::uint64_t, 256> kDescending8 = [] {
   std::array<std::uint64_t, 256> t{};
@@ -105,6 +109,8 @@ constexpr std::array<std::uint64_t, 256> kDescending8 = [] {
   }
   return t;
 }();
+#endif
+
 
 /// 4 and 8 lanes of float: the operations the box test needs.
 struct F4 {
@@ -342,6 +348,11 @@ struct SimdKernelsT {
   /// chords), ties to the lower slot, without a branch per slot: two hits by one compare, more by
   /// a horizontal min (max) over the row with the misses set to +inf (-inf) and the lowest slot
   /// equal to it (d is never NaN: entries start at tmin, chords are clamped at 0).
+  template <bool Largest>
+  [[gnu::always_inline]] static __m256 pick(__m256 a, __m256 b) {
+    if constexpr (Largest) return _mm256_max_ps(a, b);
+    else return _mm256_min_ps(a, b);
+  }
   template <int W, bool Largest>
   [[gnu::always_inline]] static int extreme(unsigned mask, const float* d) {
     const unsigned rest = mask & (mask - 1);
@@ -351,18 +362,17 @@ struct SimdKernelsT {
       return (Largest ? d[b] > d[a] : d[b] < d[a]) ? b : a;
     }
     if constexpr (W == 8) {
-      const auto pick = [](__m256 x, __m256 y) { return Largest ? _mm256_max_ps(x, y) : _mm256_min_ps(x, y); };
       const __m256 none = _mm256_set1_ps(Largest ? -INFINITY : INFINITY);
       const __m256 bits = _mm256_castsi256_ps(_mm256_and_si256(_mm256_set1_epi32(static_cast<int>(mask)),
                                                                _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128)));
       const __m256 v = _mm256_blendv_ps(_mm256_loadu_ps(d), none, _mm256_cmp_ps(bits, _mm256_setzero_ps(), _CMP_EQ_OQ));
-      __m256 m = pick(v, _mm256_permute_ps(v, 0xB1));
-      m = pick(m, _mm256_permute_ps(m, 0x4E));
-      m = pick(m, _mm256_permute2f128_ps(m, m, 0x01));
+      __m256 m = pick<Largest>(v, _mm256_permute_ps(v, 0xB1));
+      m = pick<Largest>(m, _mm256_permute_ps(m, 0x4E));
+      m = pick<Largest>(m, _mm256_permute2f128_ps(m, m, 0x01));
       const unsigned eq = static_cast<unsigned>(_mm256_movemask_ps(_mm256_cmp_ps(v, m, _CMP_EQ_OQ))) & mask;
       return std::countr_zero(eq);
     } else {
-      return Largest ? detail::longest_slot<W>(mask, d) : detail::nearest_slot<W>(mask, d);
+      return detail::extreme_slot<W, Largest>(mask, d);
     }
   }
   template <int W>

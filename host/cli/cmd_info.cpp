@@ -14,6 +14,15 @@ namespace {
 
 constexpr unsigned kCpuLeafBlock = 4;  // the SIMD cpu backends' own leaf block (backends/cpu)
 
+// The MBVH4 and MBVH8 statistics of the cpu backends' own leaves, named mbvh4:4 and mbvh8:4.
+std::pair<LayoutStats, LayoutStats> cpu_leaf_stats(const Accel& acc) {
+  const LeafVariant& lv = acc.leaf_variant(kCpuLeafBlock);
+  std::pair<LayoutStats, LayoutStats> s{lv.mbvh4().stats, lv.mbvh8().stats};
+  s.first.layout = "mbvh4:4";
+  s.second.layout = "mbvh8:4";
+  return s;
+}
+
 struct InfoArgs {
   SceneArgs scene;
   std::string json;
@@ -57,9 +66,7 @@ void print_info(const SceneArgs& a, const Loaded& l) {
   print_stats_row(s8, state_bytes_per_ray(Layout::mbvh8, Traversal::stack), state_bytes_per_ray(Layout::mbvh8, Traversal::bitstack));
   // the cpu backend's own leaves (TraceOptions::leaf_block 4), from this build
   const LeafVariant& lv = acc.leaf_variant(kCpuLeafBlock);
-  LayoutStats v4 = lv.mbvh4().stats, v8 = lv.mbvh8().stats;
-  v4.layout = "mbvh4:4";
-  v8.layout = "mbvh8:4";
+  const auto [v4, v8] = cpu_leaf_stats(acc);
   print_stats_row(v4, state_bytes_per_ray(Layout::mbvh4, Traversal::stack), state_bytes_per_ray(Layout::mbvh4, Traversal::bitstack));
   print_stats_row(v8, state_bytes_per_ray(Layout::mbvh8, Traversal::stack), state_bytes_per_ray(Layout::mbvh8, Traversal::bitstack));
   say("(mbvh4:4, mbvh8:4: what the SIMD cpu backends trace by default: this build's leaves regrouped for leaf tests of\n"
@@ -85,12 +92,8 @@ std::string info_json(const Loaded& l) {
                           {"stats_hash", bs.phase_ms[3]}};
   j["references"] = acc.tris().size();
   const LayoutStats &s2 = acc.mbvh2().stats, &s4 = acc.mbvh4().stats, &s8 = acc.mbvh8().stats;
-  const LeafVariant& lv = acc.leaf_variant(kCpuLeafBlock);
-  LayoutStats v4 = lv.mbvh4().stats, v8 = lv.mbvh8().stats;
-  v4.layout = "mbvh4:4";
-  v8.layout = "mbvh8:4";
-  const LayoutStats &w4 = v4, &w8 = v8;
-  for (const LayoutStats* s : {&bs, &s2, &s4, &s8, &w4, &w8})
+  const auto [v4, v8] = cpu_leaf_stats(acc);
+  for (const LayoutStats* s : {&bs, &s2, &s4, &s8, &v4, &v8})
     j["layouts"].push_back({{"layout", s->layout}, {"nodes", s->nodes}, {"leaves", s->leaves}, {"depth", s->depth},
                             {"bitstack_bits", s->bitstack_bits}, {"sah_cost", s->sah_cost}, {"bytes", s->bytes},
                             {"build_ms", s->build_ms}});

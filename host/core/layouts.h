@@ -77,6 +77,7 @@ struct LeafVariant {
   const Mbvh4& mbvh4() const;
   const Mbvh8& mbvh8() const;
   const TriPacks& tri_packs(const AlignedVector<Tri>& tris) const;
+  void make_layout(Layout l) const;  ///< makes layout `l` now (as Accel::make_layout)
 
 private:
   mutable std::once_flag once2_, once4_, once8_, oncep_;

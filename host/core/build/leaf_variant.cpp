@@ -179,6 +179,11 @@ const Mbvh8& LeafVariant::mbvh8() const {
   std::call_once(once8_, [this] { m8_ = make_mbvh8_sah(bvh2, leaves, block, node_cost); });
   return m8_;
 }
+void LeafVariant::make_layout(Layout l) const {
+  if (l == Layout::mbvh2) mbvh2();
+  else if (l == Layout::mbvh4) mbvh4();
+  else mbvh8();
+}
 const TriPacks& LeafVariant::tri_packs(const AlignedVector<Tri>& tris) const {
   std::call_once(oncep_, [this, &tris] { packs_ = make_tri_packs(tris, leaves); });
   return packs_;

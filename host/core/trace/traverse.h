@@ -127,37 +127,32 @@ inline int first_slot2(unsigned mask, const float d[2]) {
   return (mask & 1u) ? 0 : 1;
 }
 
-// Slot entered first: closest hit the smallest entry distance, any hit the longest chord
-// (longest_slot); ties to the lower slot (identical in stack and bitstack code).
-template <bool Any>
-inline int first_slot4(unsigned mask, const float d[4]) {
-  int i = std::countr_zero(mask);
-  for (int s = i + 1; s < 4; ++s)
-    if (((mask >> s) & 1u) && (Any ? d[s] > d[i] : d[s] < d[i])) i = s;
-  return i;
-}
-// The hit slot of largest d, ties to the lower slot: for an occlusion query, whose d are chords,
-// the child the ray crosses longest, the likeliest to hold an occluder (the work per shadow ray
-// falls on every shared scene: Sibenik's MBVH8 nodes -27 %, leaves -24 %, the bunny's leaves -20 %,
-// against the lowest slot first). max_nan makes chords never NaN, so any order of comparison
-// finds the same slot (the SIMD policies reduce in registers).
-template <int W>
-inline int longest_slot(unsigned mask, const float* d) {
+// The hit slot of `mask` with the smallest d (Largest: the largest), ties to the lower slot.
+template <int W, bool Largest>
+inline int extreme_slot(unsigned mask, const float* d) {
   int q = std::countr_zero(mask);
   for (int s = q + 1; s < W; ++s)
-    if (((mask >> s) & 1u) && d[s] > d[q]) q = s;
+    if (((mask >> s) & 1u) && (Largest ? d[s] > d[q] : d[s] < d[q])) q = s;
   return q;
 }
 
 // Nearest slot of `mask` by entry distance, ties to the lower slot (variant B and its twin order
 // every child by distance, for both queries).
 template <int W = 4>
-inline int nearest_slot(unsigned mask, const float* d) {
-  int q = std::countr_zero(mask);
-  for (int s = q + 1; s < W; ++s)
-    if (((mask >> s) & 1u) && d[s] < d[q]) q = s;
-  return q;
-}
+inline int nearest_slot(unsigned mask, const float* d) { return extreme_slot<W, false>(mask, d); }
+
+// The hit slot of largest d, ties to the lower slot: for an occlusion query, whose d are chords,
+// the child the ray crosses longest, the likeliest to hold an occluder (the work per shadow ray
+// falls on every shared scene: Sibenik's MBVH8 nodes -27 %, leaves -24 %, the bunny's leaves -20 %,
+// against the lowest slot first). max_nan makes chords never NaN, so any order of comparison
+// finds the same slot (the SIMD policies reduce in registers).
+template <int W>
+inline int longest_slot(unsigned mask, const float* d) { return extreme_slot<W, true>(mask, d); }
+
+// Slot entered first: closest hit the smallest entry distance, any hit the longest chord; ties to
+// the lower slot (identical in stack and bitstack code).
+template <bool Any>
+inline int first_slot4(unsigned mask, const float d[4]) { return extreme_slot<4, Any>(mask, d); }
 
 inline std::uint64_t skip_code(unsigned mask, int i) {  // rot(mask, i), TRAVERSAL.md §3.3
   return ((mask >> (i + 1)) | (mask << (3 - i))) & 7u;
