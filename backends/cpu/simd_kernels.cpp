@@ -91,7 +91,7 @@ constexpr std::array<std::uint8_t, 256> kReverse8 = [] {
 /// nearX/farX), and the triangle test's permuted origin and shear (Woop et al. 2013).
 struct SimdRay : RayPre {
   __m256 o8[3], inv8[3], inv_far8[3], d8[3], tmin8;
-  __m128 tri_o[3], tri_s[3];
+  __m256 tri_o[3], tri_s[3];  ///< the triangle test's permuted origin and shear, broadcast
   int near4[3], far4[3], near8[3], far8[3];
   const TraceView* view;  ///< what the ray traverses (for prefetches)
 };
@@ -123,6 +123,21 @@ struct F4 {
   static V max(V a, V b) { return _mm_max_ps(a, b); }
   static V min(V a, V b) { return _mm_min_ps(a, b); }
   static void store(float* d, V v) { _mm_storeu_ps(d, v); }
+  static V add(V a, V b) { return _mm_add_ps(a, b); }
+  static V div(V a, V b) { return _mm_div_ps(a, b); }
+  static V and_(V a, V b) { return _mm_and_ps(a, b); }
+  static V or_(V a, V b) { return _mm_or_ps(a, b); }
+  static V andnot(V a, V b) { return _mm_andnot_ps(a, b); }
+  static V zero() { return _mm_setzero_ps(); }
+  template <int Cmp>
+  static V cmp(V a, V b) { return _mm_cmp_ps(a, b, Cmp); }
+  static unsigned bits(V m) { return mask4(m); }
+  static V fmsub(V a, V b, V c) { return _mm_fmsub_ps(a, b, c); }
+  static V fmadd(V a, V b, V c) { return _mm_fmadd_ps(a, b, c); }
+  static V fnmadd(V a, V b, V c) { return _mm_fnmadd_ps(a, b, c); }
+  static V rcp(V a) { return _mm_rcp_ps(a); }
+  /// Row `row` of the pack at p: its four lanes.
+  static V row(const Tri4* p, int row) { return _mm_load_ps(p->v[row]); }
 #if MBVH_CPU_ISA_ID == 2
   static unsigned le(V a, V b) { return static_cast<unsigned>(_mm_cmp_ps_mask(a, b, _CMP_LE_OQ)); }
 #else
@@ -139,6 +154,23 @@ struct F8 {
   static V max(V a, V b) { return _mm256_max_ps(a, b); }
   static V min(V a, V b) { return _mm256_min_ps(a, b); }
   static void store(float* d, V v) { _mm256_storeu_ps(d, v); }
+  static V add(V a, V b) { return _mm256_add_ps(a, b); }
+  static V div(V a, V b) { return _mm256_div_ps(a, b); }
+  static V and_(V a, V b) { return _mm256_and_ps(a, b); }
+  static V or_(V a, V b) { return _mm256_or_ps(a, b); }
+  static V andnot(V a, V b) { return _mm256_andnot_ps(a, b); }
+  static V zero() { return _mm256_setzero_ps(); }
+  template <int Cmp>
+  static V cmp(V a, V b) { return _mm256_cmp_ps(a, b, Cmp); }
+  static unsigned bits(V m) { return static_cast<unsigned>(_mm256_movemask_ps(m)); }
+  static V fmsub(V a, V b, V c) { return _mm256_fmsub_ps(a, b, c); }
+  static V fmadd(V a, V b, V c) { return _mm256_fmadd_ps(a, b, c); }
+  static V fnmadd(V a, V b, V c) { return _mm256_fnmadd_ps(a, b, c); }
+  static V rcp(V a) { return _mm256_rcp_ps(a); }
+  /// Row `row` of the two consecutive packs at p: eight lanes, p[0]'s four low, p[1]'s high.
+  static V row(const Tri4* p, int row) {
+    return _mm256_insertf128_ps(_mm256_castps128_ps256(_mm_load_ps(p[0].v[row])), _mm_load_ps(p[1].v[row]), 1);
+  }
 #if MBVH_CPU_ISA_ID == 2
   static unsigned le(V a, V b) { return static_cast<unsigned>(_mm256_cmp_ps_mask(a, b, _CMP_LE_OQ)); }
 #else
@@ -164,8 +196,8 @@ inline void finish_ray(SimdRay& r, const TraceView& v) {
   const int k[3] = {r.kx, r.ky, r.kz};
   const float sh[3] = {r.sx, r.sy, r.sz};
   for (int i = 0; i < 3; ++i) {
-    r.tri_o[i] = _mm_set1_ps(r.o[k[i]]);
-    r.tri_s[i] = _mm_set1_ps(sh[i]);
+    r.tri_o[i] = _mm256_set1_ps(r.o[k[i]]);
+    r.tri_s[i] = _mm256_set1_ps(sh[i]);
   }
 }
 
@@ -196,125 +228,141 @@ template <class F, bool Chord, class N>
   return F::le(te, tx);
 }
 
-/// Four triangles of a pack at once: tri_test (intersect.h) lane by lane, the same operations in
-/// the same order (Woop, Benthin & Wald 2013, watertight; pbrt-v3's error bound on t). Returns the
-/// lanes of `valid` that hit within [tmin, tmax], with t and the barycentrics' numerators and
-/// denominator (u = V / det, v = W / det: divided for the chosen lane only); the lanes this cannot settle in
+/// max(|a|, |b|, |c|) lane by lane (the error bounds' maxima; andnot of -0 clears the sign).
+template <class F>
+[[gnu::always_inline]] inline typename F::V absmax3(typename F::V a, typename F::V b, typename F::V c) {
+  const typename F::V sign = F::set1(-0.0f);
+  return F::max(F::andnot(sign, a), F::max(F::andnot(sign, b), F::andnot(sign, c)));
+}
+/// The fast mode's cross and dot products, with FMA (plain functions, not lambdas: a lambda is
+/// not compiled for the ISA of the pragma around it).
+template <class F>
+[[gnu::always_inline]] inline void cross_fma(const typename F::V a[3], const typename F::V b[3], typename F::V c[3]) {
+  c[0] = F::fmsub(a[1], b[2], F::mul(a[2], b[1]));
+  c[1] = F::fmsub(a[2], b[0], F::mul(a[0], b[2]));
+  c[2] = F::fmsub(a[0], b[1], F::mul(a[1], b[0]));
+}
+template <class F>
+[[gnu::always_inline]] inline typename F::V dot_fma(const typename F::V a[3], const typename F::V b[3]) {
+  return F::fmadd(a[0], b[0], F::fmadd(a[1], b[1], F::mul(a[2], b[2])));
+}
+
+/// The triangles of one pack (F = F4: four lanes) or of two consecutive packs (F8: eight lanes,
+/// a leaf of five to eight triangles in one pass) at once: tri_test (intersect.h) lane by lane,
+/// the same operations in the same order (Woop, Benthin & Wald 2013, watertight; pbrt-v3's error
+/// bound on t), so either width gives every lane the reference's answer. Returns the lanes of
+/// `valid` that hit within [tmin, tmax], with t and the barycentrics' numerators and denominator
+/// (u = V / det, v = W / det: divided for the chosen lane only); the lanes this cannot settle in
 /// float — an edge function exactly 0 (settled in double) or t within its error bound of 0
 /// (settled by the plane distance in double) — go to `fallback` for the scalar test, a rare case.
-/// Any (occlusion): the same decision, but nothing beyond it — no t, barycentrics or
-/// determinant leave the function. The t-error bound stays: it is the decision's last step (a
-/// lane with t within it is no certain hit).
-template <bool Any = false>
-[[gnu::always_inline]] inline unsigned tri4_test(const Tri4& p, const SimdRay& r, unsigned valid, float tmax, float t_out[4],
-                                                 float V_out[4], float W_out[4], float det_out[4], unsigned& fallback) {
-  const __m128 ox = r.tri_o[0], oy = r.tri_o[1], oz = r.tri_o[2];
-  const __m128 sx = r.tri_s[0], sy = r.tri_s[1], sz = r.tri_s[2];
-  __m128 X[3], Y[3], Z[3];
+/// The exact-contract work is deferred to the lanes that can still win: nothing past the edge
+/// tests when no lane is inside its triangle, the error bound on t only for lanes within
+/// [tmin, tmax]. Any (occlusion): the same decision, but nothing beyond it — no t,
+/// barycentrics or determinant leave the function. The t-error bound stays: it is the decision's
+/// last step (a lane with t within it is no certain hit).
+template <class F, bool Any = false>
+[[gnu::always_inline]] inline unsigned tri_test_simd(const Tri4* p, const SimdRay& r, unsigned valid, float tmax, float* t_out,
+                                                     float* V_out, float* W_out, float* det_out, unsigned& fallback) {
+  using V4 = typename F::V;
+  const V4 ox = F::of(r.tri_o[0]), oy = F::of(r.tri_o[1]), oz = F::of(r.tri_o[2]);
+  const V4 sx = F::of(r.tri_s[0]), sy = F::of(r.tri_s[1]), sz = F::of(r.tri_s[2]);
+  V4 X[3], Y[3], Z[3];
   for (int i = 0; i < 3; ++i) {
-    const __m128 ax = _mm_sub_ps(_mm_load_ps(p.v[3 * i + r.kx]), ox);
-    const __m128 ay = _mm_sub_ps(_mm_load_ps(p.v[3 * i + r.ky]), oy);
-    const __m128 az = _mm_sub_ps(_mm_load_ps(p.v[3 * i + r.kz]), oz);
-    X[i] = _mm_sub_ps(ax, _mm_mul_ps(sx, az));
-    Y[i] = _mm_sub_ps(ay, _mm_mul_ps(sy, az));
-    Z[i] = _mm_mul_ps(sz, az);
+    const V4 ax = F::sub(F::row(p, 3 * i + r.kx), ox);
+    const V4 ay = F::sub(F::row(p, 3 * i + r.ky), oy);
+    const V4 az = F::sub(F::row(p, 3 * i + r.kz), oz);
+    X[i] = F::sub(ax, F::mul(sx, az));
+    Y[i] = F::sub(ay, F::mul(sy, az));
+    Z[i] = F::mul(sz, az);
   }
-  const __m128 U = _mm_sub_ps(_mm_mul_ps(X[2], Y[1]), _mm_mul_ps(Y[2], X[1]));
-  const __m128 V = _mm_sub_ps(_mm_mul_ps(X[0], Y[2]), _mm_mul_ps(Y[0], X[2]));
-  const __m128 W = _mm_sub_ps(_mm_mul_ps(X[1], Y[0]), _mm_mul_ps(Y[1], X[0]));
-  const __m128 zero = _mm_setzero_ps();
-  const unsigned exact0 =
-      mask4(_mm_or_ps(_mm_cmpeq_ps(U, zero), _mm_or_ps(_mm_cmpeq_ps(V, zero), _mm_cmpeq_ps(W, zero))));
-  const __m128 neg = _mm_or_ps(_mm_cmplt_ps(U, zero), _mm_or_ps(_mm_cmplt_ps(V, zero), _mm_cmplt_ps(W, zero)));
-  const __m128 pos = _mm_or_ps(_mm_cmpgt_ps(U, zero), _mm_or_ps(_mm_cmpgt_ps(V, zero), _mm_cmpgt_ps(W, zero)));
+  const V4 U = F::sub(F::mul(X[2], Y[1]), F::mul(Y[2], X[1]));
+  const V4 V = F::sub(F::mul(X[0], Y[2]), F::mul(Y[0], X[2]));
+  const V4 W = F::sub(F::mul(X[1], Y[0]), F::mul(Y[1], X[0]));
+  const V4 zero = F::zero();
+  const unsigned exact0 = F::bits(F::or_(F::template cmp<_CMP_EQ_OQ>(U, zero),
+                                         F::or_(F::template cmp<_CMP_EQ_OQ>(V, zero), F::template cmp<_CMP_EQ_OQ>(W, zero))));
+  const V4 neg = F::or_(F::template cmp<_CMP_LT_OQ>(U, zero),
+                        F::or_(F::template cmp<_CMP_LT_OQ>(V, zero), F::template cmp<_CMP_LT_OQ>(W, zero)));
+  const V4 pos = F::or_(F::template cmp<_CMP_GT_OQ>(U, zero),
+                        F::or_(F::template cmp<_CMP_GT_OQ>(V, zero), F::template cmp<_CMP_GT_OQ>(W, zero)));
   fallback = valid & exact0;
-  const unsigned inside = valid & ~exact0 & ~mask4(_mm_and_ps(neg, pos));
-  const __m128 det = _mm_add_ps(_mm_add_ps(U, V), W);
-  const __m128 T = _mm_add_ps(_mm_add_ps(_mm_mul_ps(U, Z[0]), _mm_mul_ps(V, Z[1])), _mm_mul_ps(W, Z[2]));
-  const __m128 t = _mm_div_ps(T, det);
-  const __m128 in = _mm_and_ps(_mm_cmp_ps(t, F4::of(r.tmin8), _CMP_GE_OQ), _mm_cmp_ps(t, _mm_set1_ps(tmax), _CMP_LE_OQ));
-  const unsigned cand = inside & mask4(_mm_and_ps(in, _mm_cmp_ps(det, zero, _CMP_NEQ_UQ)));
+  const unsigned inside = valid & ~exact0 & ~F::bits(F::and_(neg, pos));
+  if (inside == 0) return 0;
+  const V4 det = F::add(F::add(U, V), W);
+  const V4 T = F::add(F::add(F::mul(U, Z[0]), F::mul(V, Z[1])), F::mul(W, Z[2]));
+  const V4 t = F::div(T, det);
+  const V4 in = F::and_(F::template cmp<_CMP_GE_OQ>(t, F::of(r.tmin8)), F::template cmp<_CMP_LE_OQ>(t, F::set1(tmax)));
+  const unsigned cand = inside & F::bits(F::and_(in, F::template cmp<_CMP_NEQ_UQ>(det, zero)));
   if (cand == 0) return 0;
   // conservative t > 0 (pbrt-v3), as tri_test: std::fmax and maxps agree here (no NaN in a
   // candidate lane's inputs: a NaN there makes t NaN)
   constexpr float u = MBVH_UNIT_ROUNDOFF;
   constexpr float g2 = 2 * u / (1 - 2 * u), g3 = 3 * u / (1 - 3 * u), g5 = 5 * u / (1 - 5 * u);
-  const __m128 sign = _mm_set1_ps(-0.0f);
-  auto absmax3 = [&](const __m128 a[3]) {
-    return _mm_max_ps(_mm_andnot_ps(sign, a[0]), _mm_max_ps(_mm_andnot_ps(sign, a[1]), _mm_andnot_ps(sign, a[2])));
-  };
-  const __m128 maxZt = absmax3(Z), maxXt = absmax3(X), maxYt = absmax3(Y);
-  const __m128 maxE = _mm_max_ps(_mm_andnot_ps(sign, U), _mm_max_ps(_mm_andnot_ps(sign, V), _mm_andnot_ps(sign, W)));
-  const __m128 dz = _mm_mul_ps(_mm_set1_ps(g3), maxZt);
-  const __m128 dx = _mm_mul_ps(_mm_set1_ps(g5), _mm_add_ps(maxXt, maxZt));
-  const __m128 dy = _mm_mul_ps(_mm_set1_ps(g5), _mm_add_ps(maxYt, maxZt));
-  const __m128 de = _mm_mul_ps(
-      _mm_set1_ps(2.0f), _mm_add_ps(_mm_add_ps(_mm_mul_ps(_mm_mul_ps(_mm_set1_ps(g2), maxXt), maxYt), _mm_mul_ps(dy, maxXt)),
-                                    _mm_mul_ps(dx, maxYt)));
-  const __m128 sum = _mm_add_ps(_mm_add_ps(_mm_mul_ps(_mm_mul_ps(_mm_set1_ps(g3), maxE), maxZt), _mm_mul_ps(de, maxZt)),
-                                _mm_mul_ps(dz, maxE));
-  const __m128 dt =
-      _mm_mul_ps(_mm_mul_ps(_mm_set1_ps(3.0f), sum), _mm_andnot_ps(sign, _mm_div_ps(_mm_set1_ps(1.0f), det)));
-  const unsigned sure = cand & mask4(_mm_cmp_ps(t, dt, _CMP_GT_OQ));
+  const V4 sign = F::set1(-0.0f);
+  const V4 maxZt = absmax3<F>(Z[0], Z[1], Z[2]), maxXt = absmax3<F>(X[0], X[1], X[2]), maxYt = absmax3<F>(Y[0], Y[1], Y[2]);
+  const V4 maxE = absmax3<F>(U, V, W);
+  const V4 dz = F::mul(F::set1(g3), maxZt);
+  const V4 dx = F::mul(F::set1(g5), F::add(maxXt, maxZt));
+  const V4 dy = F::mul(F::set1(g5), F::add(maxYt, maxZt));
+  const V4 de = F::mul(F::set1(2.0f),
+                       F::add(F::add(F::mul(F::mul(F::set1(g2), maxXt), maxYt), F::mul(dy, maxXt)), F::mul(dx, maxYt)));
+  const V4 sum = F::add(F::add(F::mul(F::mul(F::set1(g3), maxE), maxZt), F::mul(de, maxZt)), F::mul(dz, maxE));
+  const V4 dt = F::mul(F::mul(F::set1(3.0f), sum), F::andnot(sign, F::div(F::set1(1.0f), det)));
+  const unsigned sure = cand & F::bits(F::template cmp<_CMP_GT_OQ>(t, dt));
   fallback |= cand & ~sure;
   if constexpr (Any) return sure;
-  _mm_storeu_ps(t_out, t);
-  _mm_storeu_ps(V_out, V);
-  _mm_storeu_ps(W_out, W);
-  _mm_storeu_ps(det_out, det);
+  F::store(t_out, t);
+  F::store(V_out, V);
+  F::store(W_out, W);
+  F::store(det_out, det);
   return sure;
 }
 
-/// The `fast` mode's four triangles at once: Möller–Trumbore (1997) with FMA and the reciprocal
-/// estimate refined by one Newton step (about 23 bits, not correctly rounded), as fast SIMD tracers
-/// do. Returns the hit lanes of `valid` with t, u, v (det_out = 1: u, v are the weights already).
-template <bool Any = false>
-[[gnu::always_inline]] inline unsigned tri4_test_mt(const Tri4& p, const SimdRay& r, unsigned valid, float tmax, float t_out[4],
-                                                    float u_out[4], float v_out[4], float det_out[4]) {
-  __m128 v0[3], e1[3], e2[3], d[3], s[3];
+/// The `fast` mode's triangles of one pack (F4) or two (F8) at once: Möller–Trumbore (1997) with
+/// FMA and the reciprocal estimate refined by one Newton step (about 23 bits, not correctly
+/// rounded), as fast SIMD tracers do. Returns the hit lanes of `valid` with t, u, v (det_out = 1:
+/// u, v are the weights already).
+template <class F, bool Any = false>
+[[gnu::always_inline]] inline unsigned tri_test_simd_mt(const Tri4* p, const SimdRay& r, unsigned valid, float tmax,
+                                                        float* t_out, float* u_out, float* v_out, float* det_out) {
+  using V4 = typename F::V;
+  V4 v0[3], e1[3], e2[3], d[3], s[3];
   for (int a = 0; a < 3; ++a) {
-    v0[a] = _mm_load_ps(p.v[a]);
-    e1[a] = _mm_sub_ps(_mm_load_ps(p.v[3 + a]), v0[a]);
-    e2[a] = _mm_sub_ps(_mm_load_ps(p.v[6 + a]), v0[a]);
-    d[a] = F4::of(r.d8[a]);
-    s[a] = _mm_sub_ps(F4::of(r.o8[a]), v0[a]);
+    v0[a] = F::row(p, a);
+    e1[a] = F::sub(F::row(p, 3 + a), v0[a]);
+    e2[a] = F::sub(F::row(p, 6 + a), v0[a]);
+    d[a] = F::of(r.d8[a]);
+    s[a] = F::sub(F::of(r.o8[a]), v0[a]);
   }
-  auto cross = [](const __m128 a[3], const __m128 b[3], __m128 c[3]) {
-    c[0] = _mm_fmsub_ps(a[1], b[2], _mm_mul_ps(a[2], b[1]));
-    c[1] = _mm_fmsub_ps(a[2], b[0], _mm_mul_ps(a[0], b[2]));
-    c[2] = _mm_fmsub_ps(a[0], b[1], _mm_mul_ps(a[1], b[0]));
-  };
-  auto dot = [](const __m128 a[3], const __m128 b[3]) {
-    return _mm_fmadd_ps(a[0], b[0], _mm_fmadd_ps(a[1], b[1], _mm_mul_ps(a[2], b[2])));
-  };
-  __m128 pv[3], q[3];
-  cross(d, e2, pv);
-  const __m128 det = dot(e1, pv);
-  __m128 inv = _mm_rcp_ps(det);
-  inv = _mm_mul_ps(inv, _mm_fnmadd_ps(det, inv, _mm_set1_ps(2.0f)));  // one Newton step
-  const __m128 u = _mm_mul_ps(dot(s, pv), inv);
-  cross(s, e1, q);
-  const __m128 v = _mm_mul_ps(dot(d, q), inv);
-  const __m128 t = _mm_mul_ps(dot(e2, q), inv);
-  const __m128 zero = _mm_setzero_ps(), one = _mm_set1_ps(1.0f);
-  __m128 ok = _mm_cmp_ps(det, zero, _CMP_NEQ_OQ);
-  ok = _mm_and_ps(ok, _mm_and_ps(_mm_cmp_ps(u, zero, _CMP_GE_OQ), _mm_cmp_ps(v, zero, _CMP_GE_OQ)));
-  ok = _mm_and_ps(ok, _mm_cmp_ps(_mm_add_ps(u, v), one, _CMP_LE_OQ));
-  ok = _mm_and_ps(ok, _mm_and_ps(_mm_cmp_ps(t, F4::of(r.tmin8), _CMP_GE_OQ), _mm_cmp_ps(t, _mm_set1_ps(tmax), _CMP_LE_OQ)));
-  const unsigned hit = valid & mask4(ok);
+  V4 pv[3], q[3];
+  cross_fma<F>(d, e2, pv);
+  const V4 det = dot_fma<F>(e1, pv);
+  V4 inv = F::rcp(det);
+  inv = F::mul(inv, F::fnmadd(det, inv, F::set1(2.0f)));  // one Newton step
+  const V4 u = F::mul(dot_fma<F>(s, pv), inv);
+  cross_fma<F>(s, e1, q);
+  const V4 v = F::mul(dot_fma<F>(d, q), inv);
+  const V4 t = F::mul(dot_fma<F>(e2, q), inv);
+  const V4 zero = F::zero(), one = F::set1(1.0f);
+  V4 ok = F::template cmp<_CMP_NEQ_OQ>(det, zero);
+  ok = F::and_(ok, F::and_(F::template cmp<_CMP_GE_OQ>(u, zero), F::template cmp<_CMP_GE_OQ>(v, zero)));
+  ok = F::and_(ok, F::template cmp<_CMP_LE_OQ>(F::add(u, v), one));
+  ok = F::and_(ok, F::and_(F::template cmp<_CMP_GE_OQ>(t, F::of(r.tmin8)), F::template cmp<_CMP_LE_OQ>(t, F::set1(tmax))));
+  const unsigned hit = valid & F::bits(ok);
   if (Any || hit == 0) return hit;
-  _mm_storeu_ps(t_out, t);
-  _mm_storeu_ps(u_out, u);
-  _mm_storeu_ps(v_out, v);
-  _mm_storeu_ps(det_out, one);
+  F::store(t_out, t);
+  F::store(u_out, u);
+  F::store(v_out, v);
+  F::store(det_out, one);
   return hit;
 }
 
-/// The cpu backend's kernels: four boxes and four triangles per test (the leaves as Tri4 packs).
+/// The cpu backend's kernels: four or eight boxes per test, four or eight triangles per pass (the
+/// leaves as Tri4 packs).
 /// A leaf's answer is the reference's: any hit takes the first hit triangle in leaf order,
 /// closest hit the smallest (t, prim) — what the sequential loop of visit_leaf keeps, as tmax
 /// only shrinks to the best hit's t. With statistics on, the scalar leaf counts the work. Fast: the
-/// `fast` accuracy mode (relax_ray's box test, tri4_test_mt).
+/// `fast` accuracy mode (relax_ray's box test, tri_test_simd_mt).
 template <bool Fast>
 struct SimdKernelsT {
   static constexpr bool uses_packs = true;
@@ -399,6 +447,55 @@ struct SimdKernelsT {
 #endif
   }
 
+  /// One pass of a leaf's test over the pack at p (F4: lanes k..k+3 of the leaf) or the two packs
+  /// at p (F8: lanes k..k+7), `valid` its lanes that hold a triangle. Closest hit: keeps the
+  /// smallest (t, prim) in best and shrinks tmax; any hit: true at the first certain hit. The rare
+  /// undecided lanes go to the scalar test (occlusion: only while no lane is certain). The
+  /// reference accepts exactly the same lanes, and the smallest (t, prim) of a leaf does not
+  /// depend on how its triangles are grouped into passes.
+  template <class F, bool Any>
+  [[gnu::always_inline]] static bool leaf_pass(const TraceView& v, std::int32_t ref, std::uint32_t k, const Tri4* p,
+                                               unsigned valid, const Ray& r, float& tmax, Hit& best) {
+    constexpr int L = sizeof(typename F::V) / sizeof(float);
+    const auto prim = [p](int lane) { return p[lane >> 2].prim[lane & 3]; };
+    float t[L], u[L], w[L], det[L];
+    unsigned fallback = 0, hit;
+    if constexpr (Fast) hit = tri_test_simd_mt<F, Any>(p, r, valid, tmax, t, u, w, det);
+    else hit = tri_test_simd<F, Any>(p, r, valid, tmax, t, u, w, det, fallback);
+    if constexpr (Any) {
+      if (hit != 0) {
+        best.prim = prim(std::countr_zero(hit));
+        return true;
+      }
+    }
+    for (unsigned f = fallback; f != 0; f &= f - 1) {
+      const int lane = std::countr_zero(f);
+      if (tri_test(r, v.tris[v.leaves[~ref].first + k + static_cast<unsigned>(lane)], tmax, t[lane], u[lane], w[lane])) {
+        if constexpr (Any) {
+          best.prim = prim(lane);
+          return true;
+        }
+        hit |= 1u << lane;
+        det[lane] = 1.0f;  // u, w are the quotients already (x / 1 is exact)
+      }
+    }
+    if constexpr (!Any) {
+      if (hit == 0) return false;
+      int q = std::countr_zero(hit);
+      for (unsigned o = hit & (hit - 1); o != 0; o &= o - 1) {
+        const int s = std::countr_zero(o);
+        if (t[s] < t[q] || (t[s] == t[q] && prim(s) < prim(q))) q = s;
+      }
+      if (t[q] < best.t || prim(q) < best.prim) {  // t[q] <= best.t, as in visit_leaf
+        best = Hit{t[q], u[q] / det[q], w[q] / det[q], prim(q)};
+        tmax = t[q];
+      }
+    }
+    return false;
+  }
+
+  /// A leaf's triangles eight at a time (two packs per pass: the same instructions on 256-bit
+  /// registers, issue 14 item 2), its last one to four in a four-lane pass.
   template <bool Any, class St>
   [[gnu::always_inline]] static bool leaf(const TraceView& v, std::int32_t ref, const Ray& r, float& tmax, Hit& best,
                                           St& st) {
@@ -407,57 +504,12 @@ struct SimdKernelsT {
     } else {
       const Leaf l = v.leaf4[~ref];
       const Tri4* p = v.tri4 + l.first;
-      if constexpr (Any && !Fast) {
-        // occlusion: the first pack with a lane hit for certain answers; the rare undecided lanes
-        // (an exact-zero edge function, t within its error bound) go to the scalar test only while
-        // no lane of the pack is certain. The reference's any hit accepts exactly the same lanes.
-        for (std::uint32_t k = 0; k < l.count; k += 4, ++p) {
-          const unsigned valid = l.count - k >= 4 ? 0xFu : (1u << (l.count - k)) - 1u;
-          float t[4], u[4], w[4], det[4];
-          unsigned fallback = 0;
-          const unsigned hit = tri4_test<true>(*p, r, valid, tmax, t, u, w, det, fallback);
-          if (hit != 0) {
-            best.prim = p->prim[std::countr_zero(hit)];
-            return true;
-          }
-          for (unsigned f = fallback; f != 0; f &= f - 1) {
-            const int lane = std::countr_zero(f);
-            if (tri_test(r, v.tris[v.leaves[~ref].first + k + static_cast<unsigned>(lane)], tmax, t[lane], u[lane], w[lane])) {
-              best.prim = p->prim[lane];
-              return true;
-            }
-          }
-        }
-        return false;
+      std::uint32_t k = 0;
+      for (; k + 4 < l.count; k += 8, p += 2) {
+        const unsigned valid = l.count - k >= 8 ? 0xFFu : (1u << (l.count - k)) - 1u;
+        if (leaf_pass<F8, Any>(v, ref, k, p, valid, r, tmax, best)) return true;
       }
-      for (std::uint32_t k = 0; k < l.count; k += 4, ++p) {
-        const unsigned valid = l.count - k >= 4 ? 0xFu : (1u << (l.count - k)) - 1u;
-        float t[4], u[4], w[4], det[4];
-        unsigned fallback = 0, hit;
-        if constexpr (Fast) hit = tri4_test_mt<Any>(*p, r, valid, tmax, t, u, w, det);
-        else hit = tri4_test(*p, r, valid, tmax, t, u, w, det, fallback);
-        for (unsigned f = fallback; f != 0; f &= f - 1) {
-          const int lane = std::countr_zero(f);
-          if (tri_test(r, v.tris[v.leaves[~ref].first + k + static_cast<unsigned>(lane)], tmax, t[lane], u[lane], w[lane])) {
-            hit |= 1u << lane;
-            det[lane] = 1.0f;  // u, w are the quotients already (x / 1 is exact)
-          }
-        }
-        if (hit == 0) continue;
-        int q = std::countr_zero(hit);
-        if constexpr (Any) {  // fast mode: any lane decides; no division beyond the test's own
-          best.prim = p->prim[q];
-          return true;
-        }
-        for (unsigned o = hit & (hit - 1); o != 0; o &= o - 1) {
-          const int s = std::countr_zero(o);
-          if (t[s] < t[q] || (t[s] == t[q] && p->prim[s] < p->prim[q])) q = s;
-        }
-        if (t[q] < best.t || p->prim[q] < best.prim) {  // t[q] <= best.t, as in visit_leaf
-          best = Hit{t[q], u[q] / det[q], w[q] / det[q], p->prim[q]};
-          tmax = t[q];
-        }
-      }
+      if (k < l.count) return leaf_pass<F4, Any>(v, ref, k, p, (1u << (l.count - k)) - 1u, r, tmax, best);
       return false;
     }
   }
