@@ -127,6 +127,46 @@ TEST_CASE("traversal equivalence: closed sphere", "[traversal]") { check_scene("
 TEST_CASE("traversal equivalence: closed cube", "[traversal]") { check_scene("gen:cube:24"); }
 TEST_CASE("traversal equivalence: triangle soup", "[traversal]") { check_scene("gen:soup:100000"); }
 TEST_CASE("traversal equivalence: hairball", "[traversal]") { check_scene("gen:hairball:300000"); }
+// The SIMD leaves test a leaf's triangles in passes of eight (two packs) and a tail of one to four:
+// on a build of leaves from 1 to 24 triangles (every pass shape, partial masks of both widths),
+// traced on the build's own leaves (cpu.leaf-block=1), every cpu backend gives the reference's bytes.
+TEST_CASE("SIMD leaves of 1 to 24 triangles: eight-wide passes and their tails give the reference's bytes", "[traversal]") {
+  const Scene scene = load_scene(mbvh_test::scene_path("bun_zipper.ply.zst"));
+  BuildOptions bo;
+  bo.max_leaf = 24;
+  bo.traversal_cost = 12.0f;  // leaves cheap against nodes: big leaves
+  const auto acc = Accel::build(scene, bo);
+  std::map<std::uint32_t, std::size_t> sizes;
+  for (const Leaf& l : acc->leaves()) ++sizes[l.count];
+  for (std::uint32_t n : {5u, 8u, 9u, 12u, 13u, 16u, 17u}) {  // 1-4: the default builds' leaves
+    INFO("leaves of " << n << " triangles");
+    CHECK(sizes[n] > 0);
+  }
+  CHECK(acc->bvh2().largest_leaf > 20);
+  const VariantGrid grid = mbvh_test::all_backends();
+  for (RayKind kind : {RayKind::primary, RayKind::shadow, RayKind::diffuse}) {
+    RayGenOptions ro;
+    ro.kind = kind;
+    ro.count = 30000;
+    const std::vector<Ray> rays = generate_rays(scene, *acc, ro);
+    for (const std::string& name : grid.backends) {
+      if (name.rfind("cpu-", 0) != 0 || name == "cpu-scalar") continue;
+      auto b = make_backend(name, BackendOptions{}.set("cpu.leaf-block", "1"));
+      for (Layout l : {Layout::mbvh2, Layout::mbvh4, Layout::mbvh8})
+        for (Traversal t : {Traversal::stack, Traversal::bitstack})
+          for (Query q : {Query::closest, Query::any}) {
+            INFO(name << "/" << to_string(kind) << "/" << to_string(l) << "/" << to_string(t) << "/" << to_string(q));
+            const TraceOptions o{l, t, q, false};
+            TraceOutput got, want;
+            b->trace(*acc, rays, o, got);
+            trace_reference(*acc, rays, with_leaves_of(*b, o), want, 0);
+            if (q == Query::closest) CHECK(std::memcmp(got.hits.data(), want.hits.data(), rays.size() * sizeof(Hit)) == 0);
+            else CHECK(got.occluded == want.occluded);
+          }
+    }
+  }
+}
+
 // the same checks on the fast builder's trees (BuildQuality::low), fewer rays
 BuildOptions low_quality() {
   BuildOptions bo;

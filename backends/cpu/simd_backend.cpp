@@ -44,7 +44,7 @@ public:
         own_block_(cpu_leaf_block(o, kOwnLeafBlock)) {}
   std::string name() const override { return name_; }
   std::string describe() const override {
-    return name_ + ": " + kernels_.isa + " node tests (MBVH4: 4 boxes, MBVH8: 8 at once), 4-wide SIMD leaves (leaf block " +
+    return name_ + ": " + kernels_.isa + " node tests (MBVH4: 4 boxes, MBVH8: 8 at once), SIMD leaves 8 triangles per pass (leaf block " +
            std::to_string(own_block_) + "), " + std::to_string(threads_) + " thread(s)";
   }
   std::string isa() const override { return kernels_.isa; }

@@ -6,7 +6,7 @@
 // at the baseline ISA: TU-wide -mavx512f would also compile the std and host inline functions
 // this file instantiates, and the linker may keep those AVX-512 copies for the portable code too
 // (a crash on a CPU without it). The kernel policy (SimdKernels) tests an MBVH4 node's four boxes
-// or an MBVH8 node's eight at once and a leaf's triangles four at a time from SoA packs
+// or an MBVH8 node's eight at once and a leaf's triangles eight at a time (two SoA packs per pass)
 // (Accel::tri_packs); the traversals are the reference's (traverse.h) — the same operations in
 // the same order, so the answers are bit-identical to cpu-scalar's. Áfra & Szirmay-Kalos 2014
 // for the traversals (Áfra's thesis, ch. 3, for 8-wide MBVH8), Ize 2013 for the conservative slab
