@@ -87,7 +87,7 @@ inline void run_batch(const TraceView& v, std::span<const Ray> rays, std::size_t
   for (std::size_t i = b; i < e; ++i) {
     typename K::Ray r;
     Hit h = miss_hit();
-    if (!prepare_ray(rays[i], r)) {
+    if (!K::prepare(rays[i], r)) {
       ++invalid;
       if constexpr (Stats) out.stats[i] = RayStats{};
     } else if constexpr (Stats) {

@@ -172,6 +172,9 @@ struct ScalarKernelsT {
   /// The ray a traversal carries: a policy may extend RayPre with its own per-ray constants
   /// (the SIMD policies: broadcast vectors and near-plane offsets), filled once by finish().
   using Ray = RayPre;
+  /// Validates `ray` and makes its constants (prepare_ray; a SIMD policy may do it in vector
+  /// registers, with the same checks and bits); false for an invalid ray (a defined miss).
+  [[gnu::always_inline]] static bool prepare(const mbvh::Ray& ray, Ray& r) { return prepare_ray(ray, r); }
   static void finish(Ray&, const TraceView&) {}
   template <class N>
   static void prefetch(const N&, const Ray&, unsigned) {}
