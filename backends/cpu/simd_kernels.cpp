@@ -229,11 +229,13 @@ struct F8 {
 }
 
 /// Fills SimdRay's constants from its (validated, possibly relaxed) RayPre part.
+/// Fast: also the direction broadcast (Möller–Trumbore's; the robust kernels never read d8).
+template <bool Fast>
 inline void finish_ray(SimdRay& r, const TraceView& v) {
   r.view = &v;
   for (int a = 0; a < 3; ++a) {
     r.o8[a] = _mm256_set1_ps(r.o[a]);
-    r.d8[a] = _mm256_set1_ps(r.d[a]);
+    if constexpr (Fast) r.d8[a] = _mm256_set1_ps(r.d[a]);
     r.inv8[a] = _mm256_set1_ps(r.inv[a]);
     r.inv_far8[a] = _mm256_set1_ps(r.inv_far[a]);
     // rows lo_x, hi_x, lo_y, ... are W floats apart: near = (2a + neg) * W, far = near ^ W
@@ -419,7 +421,7 @@ struct SimdKernelsT {
   static constexpr bool fast = Fast;
   using Ray = SimdRay;
   [[gnu::always_inline]] static bool prepare(const mbvh::Ray& ray, Ray& r) { return prepare_ray_simd(ray, r); }
-  static void finish(Ray& r, const TraceView& v) { finish_ray(r, v); }
+  static void finish(Ray& r, const TraceView& v) { finish_ray<Fast>(r, v); }
   template <bool Chord = false>
   [[gnu::always_inline]] static unsigned test(const Node4& n, const Ray& r, float tcull, float d[4]) {
     return box_test_wide<F4, Chord>(n, r, tcull, d);
