@@ -16,6 +16,7 @@
 #include "host/core/trace/traverse.h"
 #include "host/tools/check.h"
 #include "host/tools/raygen.h"
+#include "host/tools/stress.h"
 #include "tests/backends.h"
 #include "tests/helpers.h"
 
@@ -129,44 +130,86 @@ TEST_CASE("traversal equivalence: closed sphere", "[traversal]") { check_scene("
 TEST_CASE("traversal equivalence: closed cube", "[traversal]") { check_scene("gen:cube:24"); }
 TEST_CASE("traversal equivalence: triangle soup", "[traversal]") { check_scene("gen:soup:100000"); }
 TEST_CASE("traversal equivalence: hairball", "[traversal]") { check_scene("gen:hairball:300000"); }
-// The SIMD leaves test a leaf's triangles in passes of eight (two packs) and a tail of one to four:
-// on a build of leaves from 1 to 24 triangles (every pass shape, partial masks of both widths),
-// traced on the build's own leaves (cpu.leaf-block=1), every cpu backend gives the reference's bytes.
-TEST_CASE("SIMD leaves of 1 to 24 triangles: eight-wide passes and their tails give the reference's bytes", "[traversal]") {
-  const Scene scene = load_scene(mbvh_test::scene_path("bun_zipper.ply.zst"));
+// Every SIMD cpu backend on `rays`, on the build's own leaves (cpu.leaf-block=1), every layout,
+// stack and bitstack, closest and any hit: cpu-scalar's bytes (and its count of invalid rays).
+// Returns how many backends ran: none where this run's backends hold no SIMD cpu backend.
+std::size_t check_simd_cpu_bytes(const Accel& acc, const std::vector<Ray>& rays, const std::string& what) {
+  std::size_t tested = 0;
+  for (const std::string& name : mbvh_test::all_backends().backends) {
+    if (name.rfind("cpu-", 0) != 0 || name == "cpu-scalar") continue;
+    ++tested;
+    auto b = make_backend(name, BackendOptions{}.set("cpu.leaf-block", "1"));
+    for (Layout l : {Layout::mbvh2, Layout::mbvh4, Layout::mbvh8})
+      for (Traversal t : {Traversal::stack, Traversal::bitstack})
+        for (Query q : {Query::closest, Query::any}) {
+          INFO(what << ": " << name << "/" << to_string(l) << "/" << to_string(t) << "/" << to_string(q));
+          const TraceOptions o{l, t, q, false};
+          TraceOutput got, want;
+          b->trace(acc, rays, o, got);
+          trace_reference(acc, rays, with_leaves_of(*b, o), want, 0);
+          CHECK(got.invalid == want.invalid);
+          if (q == Query::closest) CHECK(std::memcmp(got.hits.data(), want.hits.data(), rays.size() * sizeof(Hit)) == 0);
+          else CHECK(got.occluded == want.occluded);
+        }
+  }
+  if (tested == 0) WARN("skipped: this run's backends (MBVH_TEST_BACKENDS) hold no SIMD cpu backend");
+  return tested;
+}
+
+BuildOptions big_leaves() {
   BuildOptions bo;
   bo.max_leaf = 24;
   bo.traversal_cost = 12.0f;  // leaves cheap against nodes: big leaves
-  const auto acc = Accel::build(scene, bo);
+  return bo;
+}
+
+// The SIMD leaves test a leaf's triangles in passes of eight (two packs) and a tail of one to four:
+// on builds of leaves from 5 to 24 triangles (every pass shape, partial masks of both widths; 1-4:
+// the default builds' leaves), camera, shadow and diffuse rays, and rays aimed exactly at shared
+// vertices and edges (exact-zero edge functions: the scalar fallback, in either half of an
+// eight-wide pass), every cpu backend gives the reference's bytes.
+TEST_CASE("SIMD leaves of 1 to 24 triangles: eight-wide passes and their tails give the reference's bytes", "[traversal]") {
+  const Scene bunny = load_scene(mbvh_test::scene_path("bun_zipper.ply.zst"));
+  const auto acc = Accel::build(bunny, big_leaves());
   std::map<std::uint32_t, std::size_t> sizes;
   for (const Leaf& l : acc->leaves()) ++sizes[l.count];
-  for (std::uint32_t n : {5u, 8u, 9u, 12u, 13u, 16u, 17u}) {  // 1-4: the default builds' leaves
+  for (std::uint32_t n : {5u, 8u, 9u, 12u, 13u, 16u, 17u}) {
     INFO("leaves of " << n << " triangles");
     CHECK(sizes[n] > 0);
   }
   CHECK(acc->bvh2().largest_leaf > 20);
-  const VariantGrid grid = mbvh_test::all_backends();
   for (RayKind kind : {RayKind::primary, RayKind::shadow, RayKind::diffuse}) {
     RayGenOptions ro;
     ro.kind = kind;
     ro.count = 30000;
-    const std::vector<Ray> rays = generate_rays(scene, *acc, ro);
-    for (const std::string& name : grid.backends) {
-      if (name.rfind("cpu-", 0) != 0 || name == "cpu-scalar") continue;
-      auto b = make_backend(name, BackendOptions{}.set("cpu.leaf-block", "1"));
-      for (Layout l : {Layout::mbvh2, Layout::mbvh4, Layout::mbvh8})
-        for (Traversal t : {Traversal::stack, Traversal::bitstack})
-          for (Query q : {Query::closest, Query::any}) {
-            INFO(name << "/" << to_string(kind) << "/" << to_string(l) << "/" << to_string(t) << "/" << to_string(q));
-            const TraceOptions o{l, t, q, false};
-            TraceOutput got, want;
-            b->trace(*acc, rays, o, got);
-            trace_reference(*acc, rays, with_leaves_of(*b, o), want, 0);
-            if (q == Query::closest) CHECK(std::memcmp(got.hits.data(), want.hits.data(), rays.size() * sizeof(Hit)) == 0);
-            else CHECK(got.occluded == want.occluded);
-          }
-    }
+    check_simd_cpu_bytes(*acc, generate_rays(bunny, *acc, ro), std::string("bunny ") + to_string(kind));
   }
+  const Scene sphere = load_scene("gen:sphere:96");
+  const auto closed = Accel::build(sphere, big_leaves());
+  CHECK(closed->bvh2().largest_leaf > 8);
+  check_simd_cpu_bytes(*closed, feature_rays(sphere, inside_point(sphere), 30000, 2000, 7), "sphere feature rays");
+}
+
+// The SIMD backends validate a ray and make its constants in vector registers (prepare_ray_simd):
+// the same verdict and the same bits as prepare_ray on the edges of validity.
+TEST_CASE("SIMD ray set-up: the reference's verdict and bits on the edges of validity", "[traversal]") {
+  const Scene s = load_scene("gen:cube:4");
+  const auto acc = Accel::build(s);
+  const float inf = INFINITY, nan = NAN, fmin = std::numeric_limits<float>::min();
+  const float below_min = std::nextafter(fmin, 0.0f), sub = std::numeric_limits<float>::denorm_min();
+  const std::vector<Ray> rays = {
+      {0, 0, 0, 0, 1, 0, 0, 0},                {0, 0, 0, 0, 1, 0, 0, -0.0f},         {0, 0, 0, -0.0f, 1, 0, 0, -0.0f},
+      {0, 0, 0, 0, fmin, 0, 0, inf},           {0, 0, 0, 0, below_min, 0, 0, inf},   {0, 0, 0, 0, -fmin, sub, 0, inf},
+      {0, 0, 0, 0, 1, sub, -sub, inf},         {0, 0, 0, 0, 1, -1, 0, inf},          {0, 0, 0, 0, -1, 1, 0, inf},
+      {0, 0, 0, 0, 0.5f, -0.5f, 0.5f, inf},    {0, 0, 0, -inf, 1, 0, 0, inf},        {0, 0, 0, 0, 1, 0, 0, -inf},
+      {0, 0, 0, 0, 1, 0, 0, nan},              {0, 0, 0, 0.5f, 1, 0, 0, 0.25f},      {0, 0, 0, 0, -0.0f, -0.0f, -0.0f, inf},
+      {0, 0, 0, 0, 1, inf, 0, inf},            {0, 0, 0, 0, 1, nan, 0, inf},         {0, nan, 0, 0, 1, 0, 0, inf},
+      {-inf, 0, 0, 0, 1, 0, 0, inf},           {0.1f, 0.2f, 0.3f, 1, -0.0f, 1, -1, 2}, {0.1f, -0.2f, 0.3f, 0, 3, -3, 3, 1e30f},
+  };
+  TraceOutput ref;
+  trace_reference(*acc, rays, TraceOptions{Layout::mbvh4, Traversal::stack, Query::closest, false}, ref, 0);
+  CHECK(ref.invalid == 10);  // subnormal and zero directions, NaN/inf components, tmin -inf, tmax -inf/NaN, tmin > tmax
+  check_simd_cpu_bytes(*acc, rays, "edge rays");
 }
 
 // the same checks on the fast builder's trees (BuildQuality::low), fewer rays

@@ -50,7 +50,7 @@ public:
   std::string isa() const override { return kernels_.isa; }
   bool supports(Layout l, Traversal t) const override { return reference_supports(l, t); }
   bool supports_precision(Precision) const override { return true; }
-  /// Leaves regrouped for the four-wide SIMD leaf test unless asked otherwise: fewer, fuller
+  /// Leaves regrouped for the four-triangle SIMD leaf packs unless asked otherwise: fewer, fuller
   /// leaves and packs (bunny: 37,376 leaves of 1.9 triangles become 15,345 of 4.5), fewer cache lines
   /// and nodes per ray (README, "The cpu backend").
   static constexpr unsigned kOwnLeafBlock = 4;

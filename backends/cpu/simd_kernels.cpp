@@ -307,8 +307,8 @@ template <class F>
 /// (u = V / det, v = W / det: divided for the chosen lane only); the lanes this cannot settle in
 /// float — an edge function exactly 0 (settled in double) or t within its error bound of 0
 /// (settled by the plane distance in double) — go to `fallback` for the scalar test, a rare case.
-/// The exact-contract work is deferred to the lanes that can still win: nothing past the edge
-/// tests when no lane is inside its triangle, the error bound on t only for lanes within
+/// The exact-contract work is deferred until a lane can still win: nothing past the edge tests
+/// when no lane is inside its triangle, the error bound on t only when some lane's t lies within
 /// [tmin, tmax]. Any (occlusion): the same decision, but nothing beyond it — no t,
 /// barycentrics or determinant leave the function. The t-error bound stays: it is the decision's
 /// last step (a lane with t within it is no certain hit).
@@ -430,8 +430,9 @@ struct SimdKernelsT {
   [[gnu::always_inline]] static unsigned test(const Node8& n, const Ray& r, float tcull, float d[8]) {
     return box_test_wide<F8, Chord>(n, r, tcull, d);
   }
-  /// Closest hit: every hit child's record (an inner node's lines, a leaf's pack entry) is asked
-  /// for at once, so the misses of the children visited later overlap the work before them.
+  /// Closest hit: the record of every child in `mask` (traverse.h passes the hit children left
+  /// for later: an inner node's lines, a leaf's pack entry) is asked for at once, so the misses
+  /// of the children visited later overlap the work before them.
   template <class N>
   [[gnu::always_inline]] static void prefetch(const N& n, const Ray& r, unsigned mask) {
     const N* nodes = detail::nodes_of<N>(*r.view);

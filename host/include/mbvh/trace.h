@@ -58,8 +58,8 @@ struct TraceOptions {
   Precision precision = Precision::robust;  ///< accuracy mode
   /// Leaf policy: the build's leaves regrouped for leaf tests of this many triangles at once
   /// (Accel::leaf_variant; the same triangles and boxes, fewer and fuller leaves). 0: the
-  /// backend's own choice (Backend::leaf_block: 4 on the SIMD cpu backends, whose leaves test
-  /// four triangles per instruction; 1, the build's own leaves, elsewhere); 1: the build's own.
+  /// backend's own choice (Backend::leaf_block: 4 on the SIMD cpu backends, whose leaf packs
+  /// hold four triangles, tested eight per pass; 1, the build's own leaves, elsewhere); 1: the build's own.
   /// Answers agree across leaf blocks up to classified ties (DESIGN.md), bit for bit within one.
   unsigned leaf_block = 0;
 };
