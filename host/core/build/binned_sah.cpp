@@ -749,10 +749,8 @@ void fill_tris(const Scene& scene, const Order& order, AlignedVector<Tri>& tris,
 
 namespace build {
 
-// The build's bytes (nodes, leaves, triangles) as 1 MiB blocks, each hashed on its own (in
-// parallel), then the blocks' hashes in order: the same value at any thread count.
-std::uint64_t hash_build(const Bvh2& b, const std::vector<Leaf>& leaves, const AlignedVector<Tri>& tris, unsigned threads) {
-  constexpr std::size_t kBlock = std::size_t(1) << 20;
+std::uint64_t hash_build(const Bvh2& b, const std::vector<Leaf>& leaves, const AlignedVector<Tri>& tris, unsigned threads,
+                         const std::uint64_t* tri_hashes) {
   struct Block {
     const unsigned char* p;
     std::size_t n;
@@ -760,15 +758,17 @@ std::uint64_t hash_build(const Bvh2& b, const std::vector<Leaf>& leaves, const A
   std::vector<Block> blocks;
   auto add = [&](const void* p, std::size_t n) {
     const unsigned char* c = static_cast<const unsigned char*>(p);
-    for (std::size_t o = 0; o < n; o += kBlock) blocks.push_back({c + o, std::min(kBlock, n - o)});
+    for (std::size_t o = 0; o < n; o += kHashBlock) blocks.push_back({c + o, std::min(kHashBlock, n - o)});
   };
   add(b.nodes.data(), b.nodes.size() * sizeof(Bvh2::Node));
   add(leaves.data(), leaves.size() * sizeof(Leaf));
+  const std::size_t given = tri_hashes ? blocks.size() : std::size_t(-1);  // the triangles' blocks from here
   add(tris.data(), tris.size() * sizeof(Tri));
   std::vector<std::uint64_t> h(blocks.size());
-  parallel_for(blocks.size(), 4, threads, [&](std::size_t lo, std::size_t hi, unsigned) {
+  parallel_for(std::min(given, blocks.size()), 4, threads, [&](std::size_t lo, std::size_t hi, unsigned) {
     for (std::size_t i = lo; i < hi; ++i) h[i] = hash_bytes(blocks[i].p, blocks[i].n);
   });
+  for (std::size_t i = given; i < blocks.size(); ++i) h[i] = tri_hashes[i - given];
   return hash_bytes(h.data(), h.size() * sizeof(std::uint64_t));
 }
 

@@ -17,10 +17,6 @@
 #include "host/core/trace/intersect.h"
 
 namespace mbvh {
-namespace build {
-std::uint64_t hash_build(const Bvh2& b, const std::vector<Leaf>& leaves, const AlignedVector<Tri>& tris, unsigned threads);
-double sah_of_binary(const Bvh2& b, const std::vector<Leaf>& leaves, float ct);
-}  // namespace build
 
 namespace {
 
@@ -113,9 +109,12 @@ double refit_tree(const Cut& c, std::size_t count, unsigned threads, Refit&& ref
   std::atomic<bool> inside{c.preorder};
   if (c.preorder)
     parallel_for(c.ranges.size(), 1, threads, [&](std::size_t b, std::size_t e, unsigned) {
-      for (std::size_t r = b; r < e; ++r)
+      for (std::size_t r = b; r < e; ++r) {
+        double a = 0;  // local: neighbouring entries of `area` share a cache line
         for (std::size_t i = c.ranges[r].second; i-- > c.ranges[r].first;)
-          if (!refit(i, c.ranges[r].second, area[r])) inside = false;
+          if (!refit(i, c.ranges[r].second, a)) inside = false;
+        area[r] = a;
+      }
     });
   double sum = 0;
   if (inside) {
@@ -161,6 +160,38 @@ void refit_wide(M& m, const Bvh2& b, double leaves, double root, unsigned thread
   m.stats.sah_cost = (area + leaves) / root;
 }
 
+// A sufficient condition for refit's checks on an owned scene whose every triangle is in a leaf,
+// cheaper than its pass over the triangles (sequential, no gather): every index in range, every
+// vertex, used or not, finite and within kMaxCoordinate, and a triangle, usually the first,
+// reaching kMinSceneScale. False: the exact pass decides (an unused vertex may hold anything).
+bool quick_check(const Scene& s, unsigned threads) {
+  const std::size_t nv = s.vertices.size(), nt = s.triangles.size();
+  constexpr std::size_t grain = 65536;
+  std::vector<std::uint8_t> fine((nv + grain - 1) / grain + (nt + grain - 1) / grain, 0);
+  const std::size_t vchunks = (nv + grain - 1) / grain;
+  parallel_for(nv, grain, threads, [&](std::size_t b, std::size_t e, unsigned) {
+    float finite = 0, m = 0;  // x - x: +0 when finite, NaN otherwise; NaN survives the sum
+    for (std::size_t i = b; i < e; ++i) {
+      const Vec3f& v = s.vertices[i];
+      finite += (v.x - v.x) + (v.y - v.y) + (v.z - v.z);
+      m = std::max(m, std::max(std::fabs(v.x), std::max(std::fabs(v.y), std::fabs(v.z))));
+    }
+    fine[b / grain] = finite == 0.0f && m <= kMaxCoordinate;
+  });
+  parallel_for(nt, grain, threads, [&](std::size_t b, std::size_t e, unsigned) {
+    std::uint32_t top = 0;
+    for (std::size_t i = b; i < e; ++i) top = std::max(top, std::max(s.triangles[i][0], std::max(s.triangles[i][1], s.triangles[i][2])));
+    fine[vchunks + b / grain] = top < nv;
+  });
+  if (std::find(fine.begin(), fine.end(), 0) != fine.end()) return false;
+  for (const auto& t : s.triangles)
+    for (int k = 0; k < 3; ++k) {
+      const Vec3f& v = s.vertices[t[k]];
+      if (std::max(std::fabs(v.x), std::max(std::fabs(v.y), std::fabs(v.z))) >= kMinSceneScale) return true;
+    }
+  return false;
+}
+
 }  // namespace
 
 void Accel::refit(const Scene& moved) {
@@ -184,17 +215,19 @@ void Accel::refit(const Scene& moved) {
 
   // -- the checks a build makes, before anything is written (the Accel stays unchanged if one
   //    fails): Scene::validate's on every triangle, in scene order; the traced range on those in
-  //    leaves; no area on those the build kept out as degenerate (they are in no leaf)
+  //    leaves; no area on those the build kept out as degenerate (they are in no leaf). An owned
+  //    scene with every triangle in a leaf passing quick_check needs no pass over its triangles.
   const std::size_t n = impl_->scene_triangles_;
   std::vector<std::uint8_t> in_leaf;
   if (impl_->bvh2_.degenerate > 0) {
     in_leaf.assign(n, 0);
     for (const Tri& t : impl_->tris_) in_leaf[tri_prim(t)] = 1;
   }
-  const std::size_t chunks = (n + grain - 1) / grain;
+  const bool quick = in_leaf.empty() && moved.meshes().empty() && quick_check(moved, threads);
+  const std::size_t chunks = quick ? 0 : (n + grain - 1) / grain;
   std::vector<float> mag(chunks, 0.0f);
   std::vector<std::uint8_t> bad(chunks, 0), grew(chunks, 0);
-  build::with_triangles(moved, [&](const auto& src) {
+  if (!quick) build::with_triangles(moved, [&](const auto& src) {
     parallel_for(n, grain, threads, [&](std::size_t b, std::size_t e, unsigned) {
       float m = 0;
       for (std::size_t i = b; i < e; ++i) {
@@ -216,7 +249,7 @@ void Accel::refit(const Scene& moved) {
     moved.validate();  // throws, naming the triangle
     throw Error(moved.name + ": refit: a triangle names a missing or non-finite vertex");
   }
-  const float largest = *std::max_element(mag.begin(), mag.end());
+  const float largest = quick ? kMaxCoordinate : *std::max_element(mag.begin(), mag.end());
   if (largest > kMaxCoordinate || largest < kMinSceneScale)
     throw Error(moved.name + ": refit moves a coordinate out of the range mbvh traces exactly (magnitude " +
                 std::to_string(largest) + ", accel.h kMaxCoordinate, kMinSceneScale); rescale the scene");
@@ -225,21 +258,40 @@ void Accel::refit(const Scene& moved) {
                 "leaf; rebuild instead");
 
   // -- the leaf-ordered triangles, the leaf boxes and the SIMD packs if made, in place (their
-  //    pages already mapped), by leaf
+  //    pages already mapped), in chunks of whole hash blocks of triangles, each chunk's blocks
+  //    hashed while they are in cache; a leaf cut by a chunk's edge gets a partial box from each
+  //    chunk it spans, united in order afterwards (min and max of finite floats: the same box)
   const bool with_packs = !impl_->packs_.leaves.empty();
   Bvh2& bvh = impl_->bvh2_;
   const std::vector<Leaf>& leaves = impl_->leaves_;
-  constexpr std::size_t leaf_grain = 4096;
-  const std::size_t leaf_chunks = (leaves.size() + leaf_grain - 1) / leaf_grain;
-  std::vector<double> leaf_areas(leaf_chunks, 0.0);
+  AlignedVector<Tri>& tris = impl_->tris_;
+  constexpr std::size_t kAhead = 16;  // triangles: their vertices fetched this far ahead, their indices twice as far
+  constexpr std::size_t kChunkBlocks = 3;  // 3 MiB: 65536 triangles of 48 bytes
+  constexpr std::size_t tri_grain = kChunkBlocks * build::kHashBlock / sizeof(Tri);
+  static_assert(tri_grain * sizeof(Tri) == kChunkBlocks * build::kHashBlock);
+  const std::size_t tri_chunks = (tris.size() + tri_grain - 1) / tri_grain;
+  std::vector<std::uint64_t> tri_hashes((tris.size() * sizeof(Tri) + build::kHashBlock - 1) / build::kHashBlock);
+  struct Edge {  // a chunk's partial boxes of the leaf it starts inside and of the one it ends inside
+    std::size_t head_leaf = SIZE_MAX, tail_leaf = SIZE_MAX;
+    Box head, tail;
+    double area = 0;  // the leaves wholly inside
+  };
+  std::vector<Edge> edges(tri_chunks);
   build::with_triangles(moved, [&](const auto& src) {
-    parallel_for(leaves.size(), leaf_grain, threads, [&](std::size_t b, std::size_t e, unsigned) {
-      double area = 0;
-      for (std::size_t i = b; i < e; ++i) {
+    parallel_for(tris.size(), tri_grain, threads, [&](std::size_t b, std::size_t e, unsigned) {
+      Edge& edge = edges[b / tri_grain];
+      // the leaf holding triangle b: the last one starting at or before it
+      std::size_t i = static_cast<std::size_t>(
+          std::upper_bound(leaves.begin(), leaves.end(), b, [](std::size_t t, const Leaf& l) { return t < l.first; }) -
+          leaves.begin() - 1);
+      for (; i < leaves.size() && leaves[i].first < e; ++i) {
         const Leaf& l = leaves[i];
+        const std::size_t k0 = std::max<std::size_t>(l.first, b), k1 = std::min<std::size_t>(l.first + l.count, e);
         Box bx;
-        for (std::uint32_t k = l.first; k < l.first + l.count; ++k) {
-          Tri& t = impl_->tris_[k];
+        for (std::size_t k = k0; k < k1; ++k) {
+          if (k + 2 * kAhead < e) src.prefetch_index(tri_prim(tris[k + 2 * kAhead]));
+          if (k + kAhead < e) src.prefetch_vertices(tri_prim(tris[k + kAhead]));
+          Tri& t = tris[k];
           Vec3f v0, v1, v2;
           src.get(tri_prim(t), v0, v1, v2);
           t.v0[0] = v0.x, t.v0[1] = v0.y, t.v0[2] = v0.z;  // lane 3 (prim id, zeros) stays
@@ -247,7 +299,7 @@ void Accel::refit(const Scene& moved) {
           t.v2[0] = v2.x, t.v2[1] = v2.y, t.v2[2] = v2.z;
           unite(bx, tri_box(t));
           if (with_packs) {
-            const std::uint32_t j = k - l.first;
+            const std::size_t j = k - l.first;
             Tri4& o = impl_->packs_.packs[impl_->packs_.leaves[i].first + j / 4];
             const Vec3f* vert[3] = {&v0, &v1, &v2};
             for (int v = 0; v < 3; ++v) {
@@ -257,15 +309,32 @@ void Accel::refit(const Scene& moved) {
             }
           }
         }
-        bvh.leaf_boxes[i] = bx;
-        area += double(l.count) * bx.half_area();
+        if (l.first < b) {
+          edge.head_leaf = i;
+          edge.head = bx;
+        } else if (l.first + l.count > e) {
+          edge.tail_leaf = i;
+          edge.tail = bx;
+        } else {
+          bvh.leaf_boxes[i] = bx;
+          edge.area += double(l.count) * bx.half_area();
+        }
       }
-      leaf_areas[b / leaf_grain] = area;
+      const unsigned char* bytes = reinterpret_cast<const unsigned char*>(tris.data());
+      for (std::size_t o = b * sizeof(Tri); o < e * sizeof(Tri); o += build::kHashBlock)
+        tri_hashes[o / build::kHashBlock] = hash_bytes(bytes + o, std::min(build::kHashBlock, e * sizeof(Tri) - o));
     });
   });
   double leaf_sum = 0;
-  for (double a : leaf_areas) leaf_sum += a;
-
+  for (std::size_t c = 0; c < tri_chunks; ++c) {
+    leaf_sum += edges[c].area;
+    if (edges[c].tail_leaf == SIZE_MAX) continue;
+    const std::size_t i = edges[c].tail_leaf;
+    Box bx = edges[c].tail;
+    for (std::size_t d = c + 1; d < tri_chunks && edges[d].head_leaf == i; ++d) unite(bx, edges[d].head);
+    bvh.leaf_boxes[i] = bx;
+    leaf_sum += double(leaves[i].count) * bx.half_area();
+  }
   // -- the binary nodes bottom-up, each MBVH2 node (its children's boxes) beside its binary node
   const bool with_mbvh2 = !impl_->mbvh2_.nodes.empty();
   const Cut cut = cut_preorder<2>(bvh.nodes.size(), [&](std::size_t i, int s) { return bvh.nodes[i].child[s]; });
@@ -319,7 +388,7 @@ void Accel::refit(const Scene& moved) {
     });
   }
   drop_leaf_variants();  // remade on next use from the refit tree
-  impl_->hash_ = build::hash_build(impl_->bvh2_, impl_->leaves_, impl_->tris_, threads);
+  impl_->hash_ = build::hash_build(impl_->bvh2_, impl_->leaves_, impl_->tris_, threads, tri_hashes.data());
   ++impl_->generation_;
   impl_->refit_ms_ = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
 }
