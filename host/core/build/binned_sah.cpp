@@ -821,7 +821,6 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
       const std::size_t c = b / grain;
       std::size_t o = b;
       build::FastBox box, cbox;
-      float m = 0;
       for (std::size_t i = b; i < e; ++i) {
         Vec3f v0, v1, v2;
         if (!src.get_checked(i, v0, v1, v2) || !build::finite(v0, v1, v2)) {
@@ -832,9 +831,11 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
         const PrimRef r = build::prim_ref(v0, v1, v2, static_cast<std::uint32_t>(i));
         box.grow(r);
         cbox.grow_centroid(r);
-        m = std::max(m, build::magnitude(r));
         prims[o++] = r;
       }
+      float m = 0;  // the largest magnitude of the records: on each axis, their least lo or greatest hi
+      if (o > b)
+        for (int a = 0; a < 3; ++a) m = std::max({m, std::fabs(box.lo[a]), std::fabs(box.hi[a])});
       kept_in[c] = o - b;
       cb[c] = box;
       ccb[c] = cbox;

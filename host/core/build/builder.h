@@ -179,12 +179,6 @@ inline PrimRef prim_ref(const Vec3f& a, const Vec3f& b, const Vec3f& c, std::uin
   return r;
 }
 
-/// The largest coordinate magnitude of a record (the traced range check).
-inline float magnitude(const PrimRef& r) {
-  return std::max({std::fabs(r.lo[0]), std::fabs(r.lo[1]), std::fabs(r.lo[2]), std::fabs(r.hi[0]), std::fabs(r.hi[1]),
-                   std::fabs(r.hi[2])});
-}
-
 /// The triangle record of the leaf-ordered array: three vertex rows, the prim id in v0[3].
 inline void fill_tri(Tri& d, const Vec3f& a, const Vec3f& b, const Vec3f& c, std::uint32_t prim) {
   const Vec3f* v[3] = {&a, &b, &c};
