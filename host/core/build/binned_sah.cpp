@@ -735,7 +735,10 @@ void fill_tris(const Scene& scene, const Order& order, AlignedVector<Tri>& tris,
   constexpr std::size_t grain = 65536;
   build::with_triangles(scene, [&](const auto& src) {
     parallel_for(order.size(), grain, threads, [&](std::size_t b, std::size_t e, unsigned) {
+      constexpr std::size_t ahead = 16;  // triangles: vertices fetched this far ahead, indices twice as far
       for (std::size_t i = b; i < e; ++i) {
+        if (i + 2 * ahead < e) src.prefetch_index(prim_of(order[i + 2 * ahead]));
+        if (i + ahead < e) src.prefetch_vertices(prim_of(order[i + ahead]));
         const std::uint32_t prim = prim_of(order[i]);
         Vec3f v0, v1, v2;
         src.get(prim, v0, v1, v2);

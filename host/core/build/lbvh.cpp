@@ -199,7 +199,10 @@ void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& c
   {
     RawVector<PrimRef> sorted(n);
     parallel_for(n, grain, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
-      for (std::size_t i = b; i < e; ++i) sorted[i] = prims[val[i]];
+      for (std::size_t i = b; i < e; ++i) {
+        if (i + 16 < e) __builtin_prefetch(&prims[val[i + 16]]);
+        sorted[i] = prims[val[i]];
+      }
     });
     prims.swap(sorted);
   }
