@@ -7,6 +7,8 @@
 #include <catch2/catch.hpp>
 
 #include <cstring>
+#include <cmath>
+#include <limits>
 #include <map>
 #include <tuple>
 
@@ -262,7 +264,11 @@ TEST_CASE("invalid rays are defined misses - signed zeros and infinite tmax are 
         CHECK(out.invalid == 0);
         for (std::size_t i = 0; i < valid.size(); ++i) {
           CHECK(out.hits[i].prim != MBVH_MISS_PRIM);
-          CHECK(out.hits[i].t == (i == 3 ? 0.5f : 1.0f));
+          const float want = i == 3 ? 0.5f : 1.0f;
+          // ours are exact; a peer's own triangle test may round (Embree 3's AVX2 Pluecker test
+          // gives 1.0000001 on AMD Zen 2, an ulp off): within 2 ulps
+          if (backend->peer()) CHECK(std::fabs(out.hits[i].t - want) <= 2 * std::numeric_limits<float>::epsilon() * want);
+          else CHECK(out.hits[i].t == want);
         }
       }
   }
