@@ -600,3 +600,145 @@ TEST_CASE("refit: a refitted build traces moved vertices as a fresh build does o
     CHECK(rep.mismatches() == 0);
   }
 }
+
+namespace {
+
+bool same_bits(const Box& a, const Box& b) { return std::memcmp(&a, &b, sizeof(Box)) == 0; }
+
+Box union_of(const Box& a, const Box& b) {  // refit's order of min/max: a first
+  Box u;
+  u.lo = {std::min(a.lo.x, b.lo.x), std::min(a.lo.y, b.lo.y), std::min(a.lo.z, b.lo.z)};
+  u.hi = {std::max(a.hi.x, b.hi.x), std::max(a.hi.y, b.hi.y), std::max(a.hi.z, b.hi.z)};
+  return u;
+}
+
+template <class N>
+Box wide_slot(const N& n, int s) {
+  Box b;
+  b.lo = {n.lo_x[s], n.lo_y[s], n.lo_z[s]};
+  b.hi = {n.hi_x[s], n.hi_y[s], n.hi_z[s]};
+  return b;
+}
+
+// Every box of a wide layout is its child's exactly: a leaf's box, or the union of the child
+// node's slots.
+template <class M>
+std::size_t wide_box_faults(const M& m, const Bvh2& b) {
+  using N = typename decltype(m.nodes)::value_type;
+  constexpr int W = static_cast<int>(sizeof(N::child) / sizeof(N::child[0]));
+  std::size_t bad = 0;
+  for (const N& n : m.nodes)
+    for (int s = 0; s < W; ++s) {
+      const std::int32_t c = n.child[s];
+      if (c == MBVH_EMPTY) continue;
+      Box want;
+      if (c < 0) want = b.leaf_boxes[static_cast<std::size_t>(~c)];
+      else
+        for (int g = 0; g < W; ++g)
+          if (m.nodes[static_cast<std::size_t>(c)].child[g] != MBVH_EMPTY)
+            want = union_of(want, wide_slot(m.nodes[static_cast<std::size_t>(c)], g));
+      bad += !same_bits(want, wide_slot(n, s));
+    }
+  return bad;
+}
+
+template <class V>
+bool same_bytes(const V& a, const V& b) {
+  return a.size() == b.size() && std::memcmp(a.data(), b.data(), a.size() * sizeof(a[0])) == 0;
+}
+
+}  // namespace
+
+TEST_CASE("refit: every box of every layout is exact, the same bytes at 1 2 3 threads, and refitting back restores the build", "[build]") {
+  for (BuildQuality q : {BuildQuality::medium, BuildQuality::low}) {
+    INFO(to_string(q));
+    const Scene a = load_scene(mbvh_test::scene_path("bun_zipper.ply.zst"));
+    Scene b = a;
+    for (Vec3f& v : b.vertices) {
+      const Vec3f p = v;
+      v.x = p.x + 0.01f * std::sin(40.0f * p.y);
+      v.y = p.y + 0.01f * std::sin(30.0f * p.z);
+      v.z = p.z + 0.01f * std::sin(20.0f * p.x);
+    }
+    std::unique_ptr<Accel> first;
+    for (unsigned t = 1; t <= 3; ++t) {
+      INFO(t << " threads");
+      BuildOptions o;
+      o.quality = q;
+      o.threads = t;
+      auto acc = Accel::build(a, o);
+      const std::uint64_t built = acc->hash();
+      for (Layout l : {Layout::mbvh2, Layout::mbvh4, Layout::mbvh8}) acc->make_layout(l);
+      acc->mbvh4_wide();
+      acc->tri_packs();
+      acc->refit(b);
+      const Bvh2& bv = acc->bvh2();
+      REQUIRE(bv.nodes.size() > 3 * 4096);  // the refit's parallel cut has subtrees and upper nodes
+      // exact: leaves from the triangles, nodes from their children, every layout from these
+      std::size_t bad = 0;
+      for (std::size_t i = 0; i < acc->leaves().size(); ++i) {
+        Box want;
+        const Leaf& l = acc->leaves()[i];
+        for (std::uint32_t k = l.first; k < l.first + l.count; ++k) {
+          const Tri& tr = acc->tris()[k];
+          Vec3f p[3];
+          b.triangle(tri_prim(tr), p[0], p[1], p[2]);
+          bad += tr.v0[0] != p[0].x || tr.v1[1] != p[1].y || tr.v2[2] != p[2].z;
+          Box tb;
+          tb.lo = {std::min(std::min(p[0].x, p[1].x), p[2].x), std::min(std::min(p[0].y, p[1].y), p[2].y),
+                   std::min(std::min(p[0].z, p[1].z), p[2].z)};
+          tb.hi = {std::max(std::max(p[0].x, p[1].x), p[2].x), std::max(std::max(p[0].y, p[1].y), p[2].y),
+                   std::max(std::max(p[0].z, p[1].z), p[2].z)};
+          want = union_of(want, tb);
+          const Tri4& pk = acc->tri_packs().packs[acc->tri_packs().leaves[i].first + (k - l.first) / 4];
+          bad += pk.v[3][(k - l.first) % 4] != p[1].x || pk.v[8][(k - l.first) % 4] != p[2].z;
+        }
+        bad += !same_bits(want, bv.leaf_boxes[i]);
+      }
+      for (std::size_t i = 0; i < bv.nodes.size(); ++i) {
+        const Bvh2::Node& nd = bv.nodes[i];
+        Box want;
+        for (int s = 0; s < 2; ++s)
+          if (nd.child[s] != MBVH_EMPTY) want = union_of(want, bv.box(nd.child[s]));
+        bad += !same_bits(want, nd.box);
+        const Node2& m2 = acc->mbvh2().nodes[i];
+        const Box c0 = bv.box(nd.child[0]);
+        bad += m2.c0[0] != c0.lo.x || m2.c0[1] != c0.hi.x || m2.zz[0] != c0.lo.z || m2.zz[1] != c0.hi.z;
+      }
+      CHECK(bad == 0);
+      CHECK(wide_box_faults(acc->mbvh4(), bv) == 0);
+      CHECK(wide_box_faults(acc->mbvh8(), bv) == 0);
+      for (std::size_t i = 0; i < acc->mbvh4().nodes.size(); ++i)
+        for (int s = 0; s < 4; ++s)
+          bad += acc->mbvh4_wide().nodes[i].lo[s][1] != acc->mbvh4().nodes[i].lo_y[s] ||
+                 acc->mbvh4_wide().nodes[i].hi[s][2] != acc->mbvh4().nodes[i].hi_z[s];
+      CHECK(bad == 0);
+      // the same bytes at any thread count
+      if (t == 1) {
+        first = std::move(acc);
+        continue;
+      }
+      CHECK(acc->hash() == first->hash());
+      CHECK(same_bytes(acc->mbvh2().nodes, first->mbvh2().nodes));
+      CHECK(same_bytes(acc->mbvh4().nodes, first->mbvh4().nodes));
+      CHECK(same_bytes(acc->mbvh8().nodes, first->mbvh8().nodes));
+      CHECK(same_bytes(acc->tri_packs().packs, first->tri_packs().packs));
+      CHECK(acc->binary_stats().sah_cost == first->binary_stats().sah_cost);
+      CHECK(acc->mbvh4().stats.sah_cost == first->mbvh4().stats.sah_cost);
+      // a vertex no triangle uses may hold anything (Scene::validate checks the used ones)
+      Scene b2 = b;
+      b2.vertices.push_back({NAN, 0x1p50f, 0});
+      acc->refit(b2);
+      CHECK(acc->hash() == first->hash());
+      // back to the positions it was built for: the build's bytes again
+      acc->refit(a);
+      CHECK(acc->hash() == built);
+      const auto fresh = Accel::build(a, o);
+      CHECK(same_bytes(acc->mbvh4().nodes, fresh->mbvh4().nodes));
+      CHECK(same_bytes(acc->mbvh8().nodes, fresh->mbvh8().nodes));
+      CHECK(same_bytes(acc->mbvh2().nodes, fresh->mbvh2().nodes));
+      CHECK(acc->mbvh4().stats.sah_cost == Approx(fresh->mbvh4().stats.sah_cost).epsilon(1e-9));
+      CHECK(acc->binary_stats().sah_cost == Approx(fresh->binary_stats().sah_cost).epsilon(1e-9));
+    }
+  }
+}

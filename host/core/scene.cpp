@@ -14,22 +14,6 @@
 
 namespace mbvh {
 
-void Box::grow(const Vec3f& p) {
-  lo = {std::min(lo.x, p.x), std::min(lo.y, p.y), std::min(lo.z, p.z)};
-  hi = {std::max(hi.x, p.x), std::max(hi.y, p.y), std::max(hi.z, p.z)};
-}
-
-void Box::grow(const Box& b) {
-  lo = {std::min(lo.x, b.lo.x), std::min(lo.y, b.lo.y), std::min(lo.z, b.lo.z)};
-  hi = {std::max(hi.x, b.hi.x), std::max(hi.y, b.hi.y), std::max(hi.z, b.hi.z)};
-}
-
-float Box::half_area() const {
-  if (empty()) return 0.0f;
-  const Vec3f e = extent();
-  return e.x * e.y + e.y * e.z + e.z * e.x;
-}
-
 std::uint32_t Scene::add_mesh(const MeshView& m) {
   const std::string who = (name.empty() ? std::string("scene") : name) + ": geometry " + std::to_string(meshes_.size());
   if (!triangles.empty())

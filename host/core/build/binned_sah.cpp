@@ -735,7 +735,10 @@ void fill_tris(const Scene& scene, const Order& order, AlignedVector<Tri>& tris,
   constexpr std::size_t grain = 65536;
   build::with_triangles(scene, [&](const auto& src) {
     parallel_for(order.size(), grain, threads, [&](std::size_t b, std::size_t e, unsigned) {
+      constexpr std::size_t ahead = 16;  // triangles: vertices fetched this far ahead, indices twice as far
       for (std::size_t i = b; i < e; ++i) {
+        if (i + 2 * ahead < e) src.prefetch_index(prim_of(order[i + 2 * ahead]));
+        if (i + ahead < e) src.prefetch_vertices(prim_of(order[i + ahead]));
         const std::uint32_t prim = prim_of(order[i]);
         Vec3f v0, v1, v2;
         src.get(prim, v0, v1, v2);
@@ -749,10 +752,8 @@ void fill_tris(const Scene& scene, const Order& order, AlignedVector<Tri>& tris,
 
 namespace build {
 
-// The build's bytes (nodes, leaves, triangles) as 1 MiB blocks, each hashed on its own (in
-// parallel), then the blocks' hashes in order: the same value at any thread count.
-std::uint64_t hash_build(const Bvh2& b, const std::vector<Leaf>& leaves, const AlignedVector<Tri>& tris, unsigned threads) {
-  constexpr std::size_t kBlock = std::size_t(1) << 20;
+std::uint64_t hash_build(const Bvh2& b, const std::vector<Leaf>& leaves, const AlignedVector<Tri>& tris, unsigned threads,
+                         const std::uint64_t* tri_hashes) {
   struct Block {
     const unsigned char* p;
     std::size_t n;
@@ -760,15 +761,17 @@ std::uint64_t hash_build(const Bvh2& b, const std::vector<Leaf>& leaves, const A
   std::vector<Block> blocks;
   auto add = [&](const void* p, std::size_t n) {
     const unsigned char* c = static_cast<const unsigned char*>(p);
-    for (std::size_t o = 0; o < n; o += kBlock) blocks.push_back({c + o, std::min(kBlock, n - o)});
+    for (std::size_t o = 0; o < n; o += kHashBlock) blocks.push_back({c + o, std::min(kHashBlock, n - o)});
   };
   add(b.nodes.data(), b.nodes.size() * sizeof(Bvh2::Node));
   add(leaves.data(), leaves.size() * sizeof(Leaf));
+  const std::size_t given = tri_hashes ? blocks.size() : std::size_t(-1);  // the triangles' blocks from here
   add(tris.data(), tris.size() * sizeof(Tri));
   std::vector<std::uint64_t> h(blocks.size());
-  parallel_for(blocks.size(), 4, threads, [&](std::size_t lo, std::size_t hi, unsigned) {
+  parallel_for(std::min(given, blocks.size()), 4, threads, [&](std::size_t lo, std::size_t hi, unsigned) {
     for (std::size_t i = lo; i < hi; ++i) h[i] = hash_bytes(blocks[i].p, blocks[i].n);
   });
+  for (std::size_t i = given; i < blocks.size(); ++i) h[i] = tri_hashes[i - given];
   return hash_bytes(h.data(), h.size() * sizeof(std::uint64_t));
 }
 
@@ -821,7 +824,6 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
       const std::size_t c = b / grain;
       std::size_t o = b;
       build::FastBox box, cbox;
-      float m = 0;
       for (std::size_t i = b; i < e; ++i) {
         Vec3f v0, v1, v2;
         if (!src.get_checked(i, v0, v1, v2) || !build::finite(v0, v1, v2)) {
@@ -832,9 +834,11 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
         const PrimRef r = build::prim_ref(v0, v1, v2, static_cast<std::uint32_t>(i));
         box.grow(r);
         cbox.grow_centroid(r);
-        m = std::max(m, build::magnitude(r));
         prims[o++] = r;
       }
+      float m = 0;  // the largest magnitude of the records: on each axis, their least lo or greatest hi
+      if (o > b)
+        for (int a = 0; a < 3; ++a) m = std::max({m, std::fabs(box.lo[a]), std::fabs(box.hi[a])});
       kept_in[c] = o - b;
       cb[c] = box;
       ccb[c] = cbox;

@@ -179,12 +179,6 @@ inline PrimRef prim_ref(const Vec3f& a, const Vec3f& b, const Vec3f& c, std::uin
   return r;
 }
 
-/// The largest coordinate magnitude of a record (the traced range check).
-inline float magnitude(const PrimRef& r) {
-  return std::max({std::fabs(r.lo[0]), std::fabs(r.lo[1]), std::fabs(r.lo[2]), std::fabs(r.hi[0]), std::fabs(r.hi[1]),
-                   std::fabs(r.hi[2])});
-}
-
 /// The triangle record of the leaf-ordered array: three vertex rows, the prim id in v0[3].
 inline void fill_tri(Tri& d, const Vec3f& a, const Vec3f& b, const Vec3f& c, std::uint32_t prim) {
   const Vec3f* v[3] = {&a, &b, &c};
@@ -203,6 +197,17 @@ inline float blocks(std::uint32_t n, unsigned leaf_block) {
   const std::uint32_t b = std::max(leaf_block, 1u);
   return static_cast<float>((n + b - 1) / b);
 }
+
+/// The bytes hash_build hashes in blocks of kHashBlock, each on its own (in parallel), then the
+/// blocks' hashes in order: the same value at any thread count.
+inline constexpr std::size_t kHashBlock = std::size_t(1) << 20;
+
+/// Accel::hash of a build: its nodes, leaves and triangles (Accel::hash's contract). With
+/// `tri_hashes`, the triangles' blocks are not read: tri_hashes[k] must be hash_bytes of bytes
+/// [k kHashBlock, (k + 1) kHashBlock) of the triangle array (the last block shorter), as refit
+/// computes them while the triangles it writes are still in cache.
+std::uint64_t hash_build(const Bvh2& b, const std::vector<Leaf>& leaves, const AlignedVector<Tri>& tris, unsigned threads,
+                         const std::uint64_t* tri_hashes = nullptr);
 
 /// The builders: reorder `prims` into leaf order and fill the arenas. `root` bounds every record,
 /// `croot` their centroids. Deterministic: the same arenas at any opt.threads.

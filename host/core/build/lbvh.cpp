@@ -13,6 +13,7 @@
 // Deterministic: the split positions depend only on the sorted codes, the top of the tree is split
 // breadth-first and the subtrees below are built one per task into their own arenas.
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <bit>
 
@@ -71,48 +72,17 @@ public:
     for (std::uint32_t i = t.begin; i < t.end; ++i) t.box.grow(prims_[i]);
   }
 
-  // The SAH cost (area units: node visits traversal_cost, triangles priced by blocks()) and box
-  // of the subtree over [b, e) at `depth` as build() would make it, without making it: a
-  // small range's leaf-or-split choice is priced before any node is written.
-  float price(std::uint32_t b, std::uint32_t e, std::uint32_t depth, FastBox& box) const {
-    TmpNode t;
-    t.begin = b;
-    t.end = e;
-    t.depth = depth;
-    const std::uint32_t mid = split_of(t);
-    box = FastBox();
-    if (mid == 0) {
-      for (std::uint32_t i = b; i < e; ++i) box.grow(prims_[i]);
-      return blocks(e - b, opt_.leaf_block) * box.half_area();
-    }
-    FastBox cb;
-    float cost = price(b, mid, depth + 1, box);
-    cost += price(mid, e, depth + 1, cb);
-    box.grow(cb);
-    const float area = box.half_area();
-    cost += opt_.traversal_cost * area;
-    return std::min(cost, blocks(e - b, opt_.leaf_block) * area);  // a leaf where the SAH prices it lower
-  }
-
   // Builds the subtree of arena node n (its range and depth set).
   void build(std::vector<TmpNode>& arena, std::size_t n) const {
+    if (arena[n].end - arena[n].begin <= opt_.max_leaf) {
+      FastBox box;
+      build_small(arena, n, box);
+      return;
+    }
     const std::uint32_t mid = split_of(arena[n]);
-    const std::uint32_t count = arena[n].end - arena[n].begin;
     if (mid == 0) {
       make_leaf(arena[n]);
       return;
-    }
-    if (count <= opt_.max_leaf) {  // a leaf unless its split subtree prices lower
-      FastBox lb, rb;
-      const std::uint32_t depth = arena[n].depth + 1;
-      const float split = price(arena[n].begin, mid, depth, lb) + price(mid, arena[n].end, depth, rb);
-      lb.grow(rb);
-      const float area = lb.half_area();
-      if (blocks(count, opt_.leaf_block) * area <= split + opt_.traversal_cost * area) {
-        arena[n].leaf = true;
-        arena[n].box = lb;
-        return;
-      }
     }
     const std::size_t first = arena.size();
     push_children(arena, n, mid);
@@ -121,6 +91,38 @@ public:
     TmpNode& t = arena[n];
     t.box = arena[first].box;
     t.box.grow(arena[first + 1].box);
+  }
+
+  // Builds the subtree of arena node n of at most max_leaf records bottom-up and returns its SAH
+  // cost (area units: node visits traversal_cost, triangles priced by blocks()) with its box: its
+  // Morton split is made first, then undone (the children popped from the arena) where one leaf
+  // prices no higher; every node below is priced once.
+  float build_small(std::vector<TmpNode>& arena, std::size_t n, FastBox& box) const {
+    const std::uint32_t mid = split_of(arena[n]);
+    const std::uint32_t count = arena[n].end - arena[n].begin;
+    if (mid == 0) {
+      make_leaf(arena[n]);
+      box = arena[n].box;
+      return blocks(count, opt_.leaf_block) * box.half_area();
+    }
+    const std::size_t first = arena.size();
+    push_children(arena, n, mid);
+    FastBox rb;
+    float split = build_small(arena, first, box);
+    split += build_small(arena, first + 1, rb);
+    box.grow(rb);
+    const float area = box.half_area();
+    const float cost = split + opt_.traversal_cost * area;
+    const float leaf = blocks(count, opt_.leaf_block) * area;
+    TmpNode& t = arena[n];
+    t.box = box;
+    if (leaf <= cost) {
+      arena.resize(first);
+      t.leaf = true;
+      t.child[0] = t.child[1] = -1;
+      return leaf;
+    }
+    return cost;
   }
 
   static void push_children(std::vector<TmpNode>& arena, std::size_t n, std::uint32_t mid) {
@@ -165,28 +167,42 @@ void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& c
       val[i] = static_cast<std::uint32_t>(i);
     }
   });
-  // -- stable LSD radix sort of (code, record) by code: 8, 8, 8 and 6 bits
+  // -- stable LSD radix sort of (code, record) by code, 8, 8, 8 and 6 bits a pass, each pass in
+  //    chunks on the pool: the chunks' digit counts, their offsets in (digit, chunk) order, then
+  //    every chunk scatters its records in order; a stable sort has one result at any thread count
+  const std::size_t chunks = (n + grain - 1) / grain;
+  std::vector<std::array<std::uint32_t, 256>> offset(chunks);
   for (unsigned shift = 0; shift < 30; shift += 8) {
-    std::size_t count[256] = {};
-    for (std::size_t i = 0; i < n; ++i) ++count[(key[i] >> shift) & 255u];
-    std::size_t sum = 0;
-    for (std::size_t& c : count) {
-      const std::size_t k = c;
-      c = sum;
-      sum += k;
-    }
-    for (std::size_t i = 0; i < n; ++i) {
-      const std::size_t d = count[(key[i] >> shift) & 255u]++;
-      key2[d] = key[i];
-      val2[d] = val[i];
-    }
+    parallel_for(n, grain, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
+      std::array<std::uint32_t, 256>& h = offset[b / grain];
+      h.fill(0);
+      for (std::size_t i = b; i < e; ++i) ++h[(key[i] >> shift) & 255u];
+    });
+    std::uint32_t sum = 0;
+    for (unsigned d = 0; d < 256; ++d)
+      for (std::size_t c = 0; c < chunks; ++c) {
+        const std::uint32_t k = offset[c][d];
+        offset[c][d] = sum;
+        sum += k;
+      }
+    parallel_for(n, grain, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
+      std::array<std::uint32_t, 256>& h = offset[b / grain];
+      for (std::size_t i = b; i < e; ++i) {
+        const std::uint32_t d = h[(key[i] >> shift) & 255u]++;
+        key2[d] = key[i];
+        val2[d] = val[i];
+      }
+    });
     key.swap(key2);
     val.swap(val2);
   }
   {
     RawVector<PrimRef> sorted(n);
     parallel_for(n, grain, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
-      for (std::size_t i = b; i < e; ++i) sorted[i] = prims[val[i]];
+      for (std::size_t i = b; i < e; ++i) {
+        if (i + 16 < e) __builtin_prefetch(&prims[val[i + 16]]);
+        sorted[i] = prims[val[i]];
+      }
     });
     prims.swap(sorted);
   }

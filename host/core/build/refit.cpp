@@ -4,6 +4,7 @@
 // its three vertices, a node's the union of its children's), so traversal of a refitted build is
 // exact; only its work per ray may grow (Lauterbach et al. 2006, "RT-DEFORM", refitting).
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <cstring>
@@ -16,10 +17,6 @@
 #include "host/core/trace/intersect.h"
 
 namespace mbvh {
-namespace build {
-std::uint64_t hash_build(const Bvh2& b, const std::vector<Leaf>& leaves, const AlignedVector<Tri>& tris, unsigned threads);
-double sah_of_binary(const Bvh2& b, const std::vector<Leaf>& leaves, float ct);
-}  // namespace build
 
 namespace {
 
@@ -52,22 +49,95 @@ void set_slot(N& n, int s, const Box& b) {
   n.lo_z[s] = b.lo.z; n.hi_z[s] = b.hi.z;
 }
 
-double leaf_sah(const Bvh2& b, const std::vector<Leaf>& leaves, double root) {
-  double c = 0;
-  for (std::size_t i = 0; i < leaves.size(); ++i) c += double(leaves[i].count) * b.leaf_boxes[i].half_area() / root;
+// A tree stored in preorder (a node's subtree is the range of nodes from it to `end`, its
+// children in slot order), cut for a parallel bottom-up pass: subtrees of at most kCut nodes,
+// each refitted on its own from its last node back to its root, and the nodes above them, the
+// `upper` ones, refitted after them in decreasing index order. The cut depends on the tree alone,
+// not on the thread count. All builders and collapses emit their nodes in preorder; `preorder`
+// is false (and the pass must run serially) for a tree that is not.
+struct Cut {
+  std::vector<std::pair<std::size_t, std::size_t>> ranges;  // [root, end) of each subtree
+  std::vector<std::size_t> upper;                           // increasing
+  bool preorder = true;
+};
+constexpr std::size_t kCut = 4096;
+
+// `kid(i, s)`: child reference s of node i (a node when >= 0); W slots.
+template <int W, class Kid>
+Cut cut_preorder(std::size_t count, Kid kid) {
+  Cut c;
+  auto end_of = [&](std::size_t i) {  // past the last node of i's subtree: its last inner child's, down
+    for (;;) {
+      std::int32_t last = -1;
+      for (int s = 0; s < W; ++s)
+        if (kid(i, s) >= 0) last = kid(i, s);
+      if (last < 0) return i + 1;
+      if (static_cast<std::size_t>(last) <= i || static_cast<std::size_t>(last) >= count) return count + 1;
+      i = static_cast<std::size_t>(last);
+    }
+  };
+  std::vector<std::size_t> stack{0};
+  std::size_t covered = 0;
+  while (!stack.empty() && c.preorder) {
+    const std::size_t i = stack.back();
+    stack.pop_back();
+    const std::size_t e = end_of(i);
+    if (e > count) c.preorder = false;
+    else if (e - i <= kCut) {
+      c.ranges.push_back({i, e});
+      covered += e - i;
+    } else {
+      c.upper.push_back(i);
+      ++covered;
+      for (int s = W; s-- > 0;)
+        if (kid(i, s) >= 0) stack.push_back(static_cast<std::size_t>(kid(i, s)));
+    }
+  }
+  c.preorder = c.preorder && covered == count;
+  std::sort(c.upper.begin(), c.upper.end());
   return c;
 }
 
-// A wide layout's slots bottom-up (a child node always follows its parent); its SAH cost as
-// collapse.cpp counts it.
+// Runs refit(i) on every node of a cut tree, children before parents: the subtrees side by side,
+// then the upper nodes; a tree not in preorder, and a subtree whose node names a child outside
+// its range, serially from the last node back. `refit(i)` returns false on such a child (its
+// results are then recomputed) and adds the node's SAH area to `area`. Returns the area sum,
+// added in a fixed order: the same at any thread count.
+template <class Refit>
+double refit_tree(const Cut& c, std::size_t count, unsigned threads, Refit&& refit) {
+  std::vector<double> area(c.ranges.size(), 0.0);
+  std::atomic<bool> inside{c.preorder};
+  if (c.preorder)
+    parallel_for(c.ranges.size(), 1, threads, [&](std::size_t b, std::size_t e, unsigned) {
+      for (std::size_t r = b; r < e; ++r) {
+        double a = 0;  // local: neighbouring entries of `area` share a cache line
+        for (std::size_t i = c.ranges[r].second; i-- > c.ranges[r].first;)
+          if (!refit(i, c.ranges[r].second, a)) inside = false;
+        area[r] = a;
+      }
+    });
+  double sum = 0;
+  if (inside) {
+    for (double a : area) sum += a;
+    for (std::size_t u = c.upper.size(); u-- > 0 && inside;) inside = refit(c.upper[u], count, sum);
+  }
+  if (!inside) {
+    sum = 0;
+    for (std::size_t i = count; i-- > 0;) refit(i, count, sum);
+  }
+  return sum;
+}
+
+// A wide layout's node boxes, bottom-up: slot s of node i is leaf ~child's box or the union of
+// node child's slots; its SAH cost as collapse.cpp counts it (`leaves`: leaf_area of the build).
 template <class M>
-void refit_wide(M& m, const Bvh2& b, const std::vector<Leaf>& leaves) {
+void refit_wide(M& m, const Bvh2& b, double leaves, double root, unsigned threads) {
   using N = typename decltype(m.nodes)::value_type;
   constexpr int W = static_cast<int>(sizeof(N::child) / sizeof(N::child[0]));
-  const double root = std::max(1e-30, static_cast<double>(b.nodes[0].box.half_area()));
-  double cost = 0;
-  for (std::size_t i = m.nodes.size(); i-- > 0;) {
+  const Cut cut = cut_preorder<W>(m.nodes.size(), [&](std::size_t i, int s) { return m.nodes[i].child[s]; });
+  const double area = refit_tree(cut, m.nodes.size(), threads, [&](std::size_t i, std::size_t end, double& sum) {
     N& n = m.nodes[i];
+    bool inside = true;
     Box all;
     for (int s = 0; s < W; ++s) {
       const std::int32_t c = n.child[s];
@@ -76,6 +146,7 @@ void refit_wide(M& m, const Bvh2& b, const std::vector<Leaf>& leaves) {
       if (c < 0) {
         bx = b.leaf_boxes[static_cast<std::size_t>(~c)];
       } else {
+        inside = inside && static_cast<std::size_t>(c) > i && static_cast<std::size_t>(c) < end;
         const N& ch = m.nodes[static_cast<std::size_t>(c)];
         for (int g = 0; g < W; ++g)
           if (ch.child[g] != MBVH_EMPTY) unite(bx, slot_box(ch, g));
@@ -83,9 +154,42 @@ void refit_wide(M& m, const Bvh2& b, const std::vector<Leaf>& leaves) {
       set_slot(n, s, bx);
       unite(all, bx);
     }
-    cost += all.half_area() / root;
-  }
-  m.stats.sah_cost = cost + leaf_sah(b, leaves, root);
+    sum += all.half_area();
+    return inside;
+  });
+  m.stats.sah_cost = (area + leaves) / root;
+}
+
+// A sufficient condition for refit's checks on an owned scene whose every triangle is in a leaf,
+// cheaper than its pass over the triangles (sequential, no gather): every index in range, every
+// vertex, used or not, finite and within kMaxCoordinate, and a triangle, usually the first,
+// reaching kMinSceneScale. False: the exact pass decides (an unused vertex may hold anything).
+bool quick_check(const Scene& s, unsigned threads) {
+  const std::size_t nv = s.vertices.size(), nt = s.triangles.size();
+  constexpr std::size_t grain = 65536;
+  std::vector<std::uint8_t> fine((nv + grain - 1) / grain + (nt + grain - 1) / grain, 0);
+  const std::size_t vchunks = (nv + grain - 1) / grain;
+  parallel_for(nv, grain, threads, [&](std::size_t b, std::size_t e, unsigned) {
+    float finite = 0, m = 0;  // x - x: +0 when finite, NaN otherwise; NaN survives the sum
+    for (std::size_t i = b; i < e; ++i) {
+      const Vec3f& v = s.vertices[i];
+      finite += (v.x - v.x) + (v.y - v.y) + (v.z - v.z);
+      m = std::max(m, std::max(std::fabs(v.x), std::max(std::fabs(v.y), std::fabs(v.z))));
+    }
+    fine[b / grain] = finite == 0.0f && m <= kMaxCoordinate;
+  });
+  parallel_for(nt, grain, threads, [&](std::size_t b, std::size_t e, unsigned) {
+    std::uint32_t top = 0;
+    for (std::size_t i = b; i < e; ++i) top = std::max(top, std::max(s.triangles[i][0], std::max(s.triangles[i][1], s.triangles[i][2])));
+    fine[vchunks + b / grain] = top < nv;
+  });
+  if (std::find(fine.begin(), fine.end(), 0) != fine.end()) return false;
+  for (const auto& t : s.triangles)
+    for (int k = 0; k < 3; ++k) {
+      const Vec3f& v = s.vertices[t[k]];
+      if (std::max(std::fabs(v.x), std::max(std::fabs(v.y), std::fabs(v.z))) >= kMinSceneScale) return true;
+    }
+  return false;
 }
 
 }  // namespace
@@ -109,24 +213,34 @@ void Accel::refit(const Scene& moved) {
     return src.get_checked(i, v0, v1, v2) && build::finite(v0, v1, v2);
   };
 
-  // -- the leaf-ordered triangles, new, and the checks a build makes of them (Scene::validate's
-  //    on the triangles used, the traced range; it names the first problem if there is one)
-  AlignedVector<Tri> tris(impl_->tris_.size());  // not zeroed (CacheAligned): every word written below
-  const std::size_t chunks = (tris.size() + grain - 1) / grain;
+  // -- the checks a build makes, before anything is written (the Accel stays unchanged if one
+  //    fails): Scene::validate's on every triangle, in scene order; the traced range on those in
+  //    leaves; no area on those the build kept out as degenerate (they are in no leaf). An owned
+  //    scene with every triangle in a leaf passing quick_check needs no pass over its triangles.
+  const std::size_t n = impl_->scene_triangles_;
+  std::vector<std::uint8_t> in_leaf;
+  if (impl_->bvh2_.degenerate > 0) {
+    in_leaf.assign(n, 0);
+    for (const Tri& t : impl_->tris_) in_leaf[tri_prim(t)] = 1;
+  }
+  const bool quick = in_leaf.empty() && moved.meshes().empty() && quick_check(moved, threads);
+  const std::size_t chunks = quick ? 0 : (n + grain - 1) / grain;
   std::vector<float> mag(chunks, 0.0f);
-  std::vector<std::uint8_t> bad(chunks, 0);
-  build::with_triangles(moved, [&](const auto& src) {
-    parallel_for(tris.size(), grain, threads, [&](std::size_t b, std::size_t e, unsigned) {
+  std::vector<std::uint8_t> bad(chunks, 0), grew(chunks, 0);
+  if (!quick) build::with_triangles(moved, [&](const auto& src) {
+    parallel_for(n, grain, threads, [&](std::size_t b, std::size_t e, unsigned) {
       float m = 0;
       for (std::size_t i = b; i < e; ++i) {
-        const std::uint32_t prim = tri_prim(impl_->tris_[i]);
-        Vec3f v0, v1, v2;
-        if (!usable(src, prim, v0, v1, v2)) {
+        Vec3f v[3];
+        if (!usable(src, i, v[0], v[1], v[2])) {
           bad[b / grain] = 1;
           return;
         }
-        build::fill_tri(tris[i], v0, v1, v2, prim);
-        m = std::max(m, build::magnitude(build::prim_ref(v0, v1, v2, prim)));
+        if (!in_leaf.empty() && !in_leaf[i]) {
+          if (build::has_area(v[0], v[1], v[2])) grew[b / grain] = 1;
+          continue;
+        }
+        for (const Vec3f& p : v) m = std::max({m, std::fabs(p.x), std::fabs(p.y), std::fabs(p.z)});
       }
       mag[b / grain] = m;
     });
@@ -135,108 +249,146 @@ void Accel::refit(const Scene& moved) {
     moved.validate();  // throws, naming the triangle
     throw Error(moved.name + ": refit: a triangle names a missing or non-finite vertex");
   }
-  const float largest = *std::max_element(mag.begin(), mag.end());
+  const float largest = quick ? kMaxCoordinate : *std::max_element(mag.begin(), mag.end());
   if (largest > kMaxCoordinate || largest < kMinSceneScale)
     throw Error(moved.name + ": refit moves a coordinate out of the range mbvh traces exactly (magnitude " +
                 std::to_string(largest) + ", accel.h kMaxCoordinate, kMinSceneScale); rescale the scene");
-  if (impl_->bvh2_.degenerate > 0) {  // the triangles kept out as degenerate must stay so
-    std::vector<std::uint8_t> in_leaf(impl_->scene_triangles_, 0);
-    for (const Tri& t : impl_->tris_) in_leaf[tri_prim(t)] = 1;
-    const std::size_t all_chunks = (impl_->scene_triangles_ + grain - 1) / grain;
-    std::vector<std::uint8_t> grew(all_chunks, 0);
-    build::with_triangles(moved, [&](const auto& src) {
-      parallel_for(impl_->scene_triangles_, grain, threads, [&](std::size_t b, std::size_t e, unsigned) {
-        for (std::size_t i = b; i < e; ++i) {
-          if (in_leaf[i]) continue;
+  if (std::find(grew.begin(), grew.end(), 1) != grew.end())
+    throw Error(moved.name + ": refit: a triangle the build kept out as degenerate has area now, and is in no "
+                "leaf; rebuild instead");
+
+  // -- the leaf-ordered triangles, the leaf boxes and the SIMD packs if made, in place (their
+  //    pages already mapped), in chunks of whole hash blocks of triangles, each chunk's blocks
+  //    hashed while they are in cache; a leaf cut by a chunk's edge gets a partial box from each
+  //    chunk it spans, united in order afterwards (min and max of finite floats: the same box)
+  const bool with_packs = !impl_->packs_.leaves.empty();
+  Bvh2& bvh = impl_->bvh2_;
+  const std::vector<Leaf>& leaves = impl_->leaves_;
+  AlignedVector<Tri>& tris = impl_->tris_;
+  constexpr std::size_t kAhead = 16;  // triangles: their vertices fetched this far ahead, their indices twice as far
+  constexpr std::size_t kChunkBlocks = 3;  // 3 MiB: 65536 triangles of 48 bytes
+  constexpr std::size_t tri_grain = kChunkBlocks * build::kHashBlock / sizeof(Tri);
+  static_assert(tri_grain * sizeof(Tri) == kChunkBlocks * build::kHashBlock);
+  const std::size_t tri_chunks = (tris.size() + tri_grain - 1) / tri_grain;
+  std::vector<std::uint64_t> tri_hashes((tris.size() * sizeof(Tri) + build::kHashBlock - 1) / build::kHashBlock);
+  struct Edge {  // a chunk's partial boxes of the leaf it starts inside and of the one it ends inside
+    std::size_t head_leaf = SIZE_MAX, tail_leaf = SIZE_MAX;
+    Box head, tail;
+    double area = 0;  // the leaves wholly inside
+  };
+  std::vector<Edge> edges(tri_chunks);
+  build::with_triangles(moved, [&](const auto& src) {
+    parallel_for(tris.size(), tri_grain, threads, [&](std::size_t b, std::size_t e, unsigned) {
+      Edge& edge = edges[b / tri_grain];
+      // the leaf holding triangle b: the last one starting at or before it
+      std::size_t i = static_cast<std::size_t>(
+          std::upper_bound(leaves.begin(), leaves.end(), b, [](std::size_t t, const Leaf& l) { return t < l.first; }) -
+          leaves.begin() - 1);
+      for (; i < leaves.size() && leaves[i].first < e; ++i) {
+        const Leaf& l = leaves[i];
+        const std::size_t k0 = std::max<std::size_t>(l.first, b), k1 = std::min<std::size_t>(l.first + l.count, e);
+        Box bx;
+        for (std::size_t k = k0; k < k1; ++k) {
+          if (k + 2 * kAhead < e) src.prefetch_index(tri_prim(tris[k + 2 * kAhead]));
+          if (k + kAhead < e) src.prefetch_vertices(tri_prim(tris[k + kAhead]));
+          Tri& t = tris[k];
           Vec3f v0, v1, v2;
-          if (!usable(src, i, v0, v1, v2) || build::has_area(v0, v1, v2)) {
-            grew[b / grain] = 1;
-            return;
+          src.get(tri_prim(t), v0, v1, v2);
+          t.v0[0] = v0.x, t.v0[1] = v0.y, t.v0[2] = v0.z;  // lane 3 (prim id, zeros) stays
+          t.v1[0] = v1.x, t.v1[1] = v1.y, t.v1[2] = v1.z;
+          t.v2[0] = v2.x, t.v2[1] = v2.y, t.v2[2] = v2.z;
+          unite(bx, tri_box(t));
+          if (with_packs) {
+            const std::size_t j = k - l.first;
+            Tri4& o = impl_->packs_.packs[impl_->packs_.leaves[i].first + j / 4];
+            const Vec3f* vert[3] = {&v0, &v1, &v2};
+            for (int v = 0; v < 3; ++v) {
+              o.v[3 * v + 0][j % 4] = vert[v]->x;
+              o.v[3 * v + 1][j % 4] = vert[v]->y;
+              o.v[3 * v + 2][j % 4] = vert[v]->z;
+            }
           }
         }
-      });
+        if (l.first < b) {
+          edge.head_leaf = i;
+          edge.head = bx;
+        } else if (l.first + l.count > e) {
+          edge.tail_leaf = i;
+          edge.tail = bx;
+        } else {
+          bvh.leaf_boxes[i] = bx;
+          edge.area += double(l.count) * bx.half_area();
+        }
+      }
+      const unsigned char* bytes = reinterpret_cast<const unsigned char*>(tris.data());
+      for (std::size_t o = b * sizeof(Tri); o < e * sizeof(Tri); o += build::kHashBlock)
+        tri_hashes[o / build::kHashBlock] = hash_bytes(bytes + o, std::min(build::kHashBlock, e * sizeof(Tri) - o));
     });
-    if (std::find(grew.begin(), grew.end(), 1) != grew.end()) {
-      moved.validate();
-      throw Error(moved.name + ": refit: a triangle the build kept out as degenerate has area now, and is in no "
-                  "leaf; rebuild instead");
-    }
-  }
-  impl_->tris_.swap(tris);
-  tris = AlignedVector<Tri>();
-
-  // -- leaf boxes, then the binary nodes bottom-up (depth-first order: children follow parents)
-  parallel_for(impl_->leaves_.size(), 16384, threads, [&](std::size_t b, std::size_t e, unsigned) {
-    for (std::size_t i = b; i < e; ++i) {
-      const Leaf& l = impl_->leaves_[i];
-      Box bx;
-      for (std::uint32_t k = l.first; k < l.first + l.count; ++k) unite(bx, tri_box(impl_->tris_[k]));
-      impl_->bvh2_.leaf_boxes[i] = bx;
-    }
   });
-  for (std::size_t i = impl_->bvh2_.nodes.size(); i-- > 0;) {
-    Bvh2::Node& n = impl_->bvh2_.nodes[i];
+  double leaf_sum = 0;
+  for (std::size_t c = 0; c < tri_chunks; ++c) {
+    leaf_sum += edges[c].area;
+    if (edges[c].tail_leaf == SIZE_MAX) continue;
+    const std::size_t i = edges[c].tail_leaf;
+    Box bx = edges[c].tail;
+    for (std::size_t d = c + 1; d < tri_chunks && edges[d].head_leaf == i; ++d) unite(bx, edges[d].head);
+    bvh.leaf_boxes[i] = bx;
+    leaf_sum += double(leaves[i].count) * bx.half_area();
+  }
+  // -- the binary nodes bottom-up, each MBVH2 node (its children's boxes) beside its binary node
+  const bool with_mbvh2 = !impl_->mbvh2_.nodes.empty();
+  const Cut cut = cut_preorder<2>(bvh.nodes.size(), [&](std::size_t i, int s) { return bvh.nodes[i].child[s]; });
+  const double node_sum = refit_tree(cut, bvh.nodes.size(), threads, [&](std::size_t i, std::size_t end, double& sum) {
+    Bvh2::Node& nd = bvh.nodes[i];
+    bool inside = true;
+    Box cb[2];
+    for (int s = 0; s < 2; ++s) {
+      const std::int32_t c = nd.child[s];
+      if (c == MBVH_EMPTY) continue;
+      inside = inside && (c < 0 || (static_cast<std::size_t>(c) > i && static_cast<std::size_t>(c) < end));
+      cb[s] = bvh.box(c);
+    }
     Box bx;
-    for (int s = 0; s < 2; ++s)
-      if (n.child[s] != MBVH_EMPTY) unite(bx, impl_->bvh2_.box(n.child[s]));
-    n.box = bx;
-  }
-  impl_->bounds_ = impl_->bvh2_.nodes[0].box;
-  impl_->binary_stats_.sah_cost = build::sah_of_binary(impl_->bvh2_, impl_->leaves_, impl_->opt_.traversal_cost);
+    unite(bx, cb[0]);
+    unite(bx, cb[1]);
+    nd.box = bx;
+    sum += bx.half_area();
+    if (with_mbvh2) {
+      Node2& d = impl_->mbvh2_.nodes[i];
+      const Box &b0 = cb[0], &b1 = cb[1];
+      d.c0[0] = b0.lo.x; d.c0[1] = b0.hi.x; d.c0[2] = b0.lo.y; d.c0[3] = b0.hi.y;
+      d.c1[0] = b1.lo.x; d.c1[1] = b1.hi.x; d.c1[2] = b1.lo.y; d.c1[3] = b1.hi.y;
+      d.zz[0] = b0.lo.z; d.zz[1] = b0.hi.z; d.zz[2] = b1.lo.z; d.zz[3] = b1.hi.z;
+    }
+    return inside;
+  });
+  impl_->bounds_ = bvh.nodes[0].box;
+  const double root = bvh.nodes[0].box.half_area();
+  impl_->binary_stats_.sah_cost = root > 0 ? (impl_->opt_.traversal_cost * node_sum + leaf_sum) / root : 0;
+  if (with_mbvh2) impl_->mbvh2_.stats.sah_cost = root > 0 ? (node_sum + leaf_sum) / root : 0;
 
-  // -- the layouts and packs already made, in place
-  if (!impl_->mbvh2_.nodes.empty()) {
-    parallel_for(impl_->bvh2_.nodes.size(), 16384, threads, [&](std::size_t lo, std::size_t hi, unsigned) {
-      for (std::size_t i = lo; i < hi; ++i) {
-        const Bvh2::Node& s = impl_->bvh2_.nodes[i];
-        Node2& d = impl_->mbvh2_.nodes[i];
-        const Box b0 = s.child[0] == MBVH_EMPTY ? Box() : impl_->bvh2_.box(s.child[0]);
-        const Box b1 = s.child[1] == MBVH_EMPTY ? Box() : impl_->bvh2_.box(s.child[1]);
-        d.c0[0] = b0.lo.x; d.c0[1] = b0.hi.x; d.c0[2] = b0.lo.y; d.c0[3] = b0.hi.y;
-        d.c1[0] = b1.lo.x; d.c1[1] = b1.hi.x; d.c1[2] = b1.lo.y; d.c1[3] = b1.hi.y;
-        d.zz[0] = b0.lo.z; d.zz[1] = b0.hi.z; d.zz[2] = b1.lo.z; d.zz[3] = b1.hi.z;
-      }
-    });
-    const double root = impl_->bvh2_.nodes[0].box.half_area();
-    double cost = 0;
-    if (root > 0) {
-      for (const auto& n : impl_->bvh2_.nodes) cost += n.box.half_area() / root;
-      cost += leaf_sah(impl_->bvh2_, impl_->leaves_, root);
-    }
-    impl_->mbvh2_.stats.sah_cost = cost;
-  }
-  if (!impl_->mbvh4_.nodes.empty()) refit_wide(impl_->mbvh4_, impl_->bvh2_, impl_->leaves_);
-  if (!impl_->mbvh8_.nodes.empty()) refit_wide(impl_->mbvh8_, impl_->bvh2_, impl_->leaves_);
+  // -- the wide layouts already made, in place
+  const double wide_root = std::max(1e-30, root);
+  if (!impl_->mbvh4_.nodes.empty()) refit_wide(impl_->mbvh4_, bvh, leaf_sum, wide_root, threads);
+  if (!impl_->mbvh8_.nodes.empty()) refit_wide(impl_->mbvh8_, bvh, leaf_sum, wide_root, threads);
   if (!impl_->mbvh4w_.nodes.empty()) {
-    for (std::size_t i = 0; i < impl_->mbvh4_.nodes.size(); ++i) {
-      const Node4& n = impl_->mbvh4_.nodes[i];
-      Node4W& o = impl_->mbvh4w_.nodes[i];
-      for (int s = 0; s < 4; ++s) {  // the boxes only: the child and link words (lane 3) stay
-        o.lo[s][0] = n.lo_x[s];
-        o.lo[s][1] = n.lo_y[s];
-        o.lo[s][2] = n.lo_z[s];
-        o.hi[s][0] = n.hi_x[s];
-        o.hi[s][1] = n.hi_y[s];
-        o.hi[s][2] = n.hi_z[s];
-      }
-    }
-  }
-  if (!impl_->packs_.leaves.empty()) {
-    parallel_for(impl_->leaves_.size(), 16384, threads, [&](std::size_t b, std::size_t e, unsigned) {
+    parallel_for(impl_->mbvh4_.nodes.size(), 16384, threads, [&](std::size_t b, std::size_t e, unsigned) {
       for (std::size_t i = b; i < e; ++i) {
-        const Leaf& l = impl_->leaves_[i];
-        for (std::uint32_t k = 0; k < l.count; ++k) {
-          const Tri& t = impl_->tris_[l.first + k];
-          Tri4& o = impl_->packs_.packs[impl_->packs_.leaves[i].first + k / 4];
-          const float* vert[3] = {t.v0, t.v1, t.v2};
-          for (int v = 0; v < 3; ++v)
-            for (int a = 0; a < 3; ++a) o.v[3 * v + a][k % 4] = vert[v][a];
+        const Node4& nd = impl_->mbvh4_.nodes[i];
+        Node4W& o = impl_->mbvh4w_.nodes[i];
+        for (int s = 0; s < 4; ++s) {  // the boxes only: the child and link words (lane 3) stay
+          o.lo[s][0] = nd.lo_x[s];
+          o.lo[s][1] = nd.lo_y[s];
+          o.lo[s][2] = nd.lo_z[s];
+          o.hi[s][0] = nd.hi_x[s];
+          o.hi[s][1] = nd.hi_y[s];
+          o.hi[s][2] = nd.hi_z[s];
         }
       }
     });
   }
   drop_leaf_variants();  // remade on next use from the refit tree
-  impl_->hash_ = build::hash_build(impl_->bvh2_, impl_->leaves_, impl_->tris_, threads);
+  impl_->hash_ = build::hash_build(impl_->bvh2_, impl_->leaves_, impl_->tris_, threads, tri_hashes.data());
   ++impl_->generation_;
   impl_->refit_ms_ = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
 }

@@ -31,6 +31,13 @@ struct OwnedTriangles {
     get(i, a, b, c);
     return true;
   }
+  /// Cache hints for a gather in another order than the scene's (refit's, in leaf order):
+  /// triangle i's indices, then, once they have arrived, its vertices. Read nothing else.
+  void prefetch_index(std::size_t i) const { __builtin_prefetch(&triangles[i]); }
+  void prefetch_vertices(std::size_t i) const {
+    const auto& t = triangles[i];
+    for (int k = 0; k < 3; ++k) __builtin_prefetch(&vertices[t[k]]);
+  }
 };
 
 /// The caller's meshes: prim i is triangle i - offset[g] of mesh g, offset[g] <= i < offset[g + 1].
@@ -56,6 +63,8 @@ struct ViewTriangles {
     a = m.vertex(t[0]), b = m.vertex(t[1]), c = m.vertex(t[2]);
     return true;
   }
+  void prefetch_index(std::size_t) const {}  ///< no hints: finding the mesh costs a search
+  void prefetch_vertices(std::size_t) const {}
 };
 
 /// Calls f with the scene's accessor (OwnedTriangles or ViewTriangles) and returns its result.

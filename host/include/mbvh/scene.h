@@ -23,13 +23,24 @@ struct Vec3f {
 struct Box {
   Vec3f lo{INFINITY, INFINITY, INFINITY};
   Vec3f hi{-INFINITY, -INFINITY, -INFINITY};
-  void grow(const Vec3f& p);
-  void grow(const Box& b);
+  void grow(const Vec3f& p) {
+    lo = {std::min(lo.x, p.x), std::min(lo.y, p.y), std::min(lo.z, p.z)};
+    hi = {std::max(hi.x, p.x), std::max(hi.y, p.y), std::max(hi.z, p.z)};
+  }
+  void grow(const Box& b) {
+    lo = {std::min(lo.x, b.lo.x), std::min(lo.y, b.lo.y), std::min(lo.z, b.lo.z)};
+    hi = {std::max(hi.x, b.hi.x), std::max(hi.y, b.hi.y), std::max(hi.z, b.hi.z)};
+  }
   bool empty() const { return !(lo.x <= hi.x); }
   Vec3f center() const { return {0.5f * (lo.x + hi.x), 0.5f * (lo.y + hi.y), 0.5f * (lo.z + hi.z)}; }
   Vec3f extent() const { return {hi.x - lo.x, hi.y - lo.y, hi.z - lo.z}; }
-  /// Half the surface area (the SAH only needs ratios); 0 for an empty box.
-  float half_area() const;
+  /// Half the surface area (the SAH only needs ratios); 0 for an empty box. Inline: the builders
+  /// and collapses call it per node.
+  float half_area() const {
+    if (empty()) return 0.0f;
+    const Vec3f e = extent();
+    return e.x * e.y + e.y * e.z + e.z * e.x;
+  }
 };
 
 /// The geometry that holds prim id `prim`, from the geometries' prim offsets (`count` + 1
