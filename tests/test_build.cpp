@@ -605,13 +605,6 @@ namespace {
 
 bool same_bits(const Box& a, const Box& b) { return std::memcmp(&a, &b, sizeof(Box)) == 0; }
 
-Box union_of(const Box& a, const Box& b) {  // refit's order of min/max: a first
-  Box u;
-  u.lo = {std::min(a.lo.x, b.lo.x), std::min(a.lo.y, b.lo.y), std::min(a.lo.z, b.lo.z)};
-  u.hi = {std::max(a.hi.x, b.hi.x), std::max(a.hi.y, b.hi.y), std::max(a.hi.z, b.hi.z)};
-  return u;
-}
-
 template <class N>
 Box wide_slot(const N& n, int s) {
   Box b;
@@ -636,7 +629,7 @@ std::size_t wide_box_faults(const M& m, const Bvh2& b) {
       else
         for (int g = 0; g < W; ++g)
           if (m.nodes[static_cast<std::size_t>(c)].child[g] != MBVH_EMPTY)
-            want = union_of(want, wide_slot(m.nodes[static_cast<std::size_t>(c)], g));
+            want.grow(wide_slot(m.nodes[static_cast<std::size_t>(c)], g));  // Box::grow, refit's union
       bad += !same_bits(want, wide_slot(n, s));
     }
   return bad;
@@ -689,7 +682,7 @@ TEST_CASE("refit: every box of every layout is exact, the same bytes at 1 2 3 th
                    std::min(std::min(p[0].z, p[1].z), p[2].z)};
           tb.hi = {std::max(std::max(p[0].x, p[1].x), p[2].x), std::max(std::max(p[0].y, p[1].y), p[2].y),
                    std::max(std::max(p[0].z, p[1].z), p[2].z)};
-          want = union_of(want, tb);
+          want.grow(tb);
           const Tri4& pk = acc->tri_packs().packs[acc->tri_packs().leaves[i].first + (k - l.first) / 4];
           bad += pk.v[3][(k - l.first) % 4] != p[1].x || pk.v[8][(k - l.first) % 4] != p[2].z;
         }
@@ -699,7 +692,7 @@ TEST_CASE("refit: every box of every layout is exact, the same bytes at 1 2 3 th
         const Bvh2::Node& nd = bv.nodes[i];
         Box want;
         for (int s = 0; s < 2; ++s)
-          if (nd.child[s] != MBVH_EMPTY) want = union_of(want, bv.box(nd.child[s]));
+          if (nd.child[s] != MBVH_EMPTY) want.grow(bv.box(nd.child[s]));
         bad += !same_bits(want, nd.box);
         const Node2& m2 = acc->mbvh2().nodes[i];
         const Box c0 = bv.box(nd.child[0]);

@@ -29,11 +29,6 @@ inline Box tri_box(const Tri& t) {
   return b;
 }
 
-inline void unite(Box& d, const Box& s) {
-  d.lo = {std::min(d.lo.x, s.lo.x), std::min(d.lo.y, s.lo.y), std::min(d.lo.z, s.lo.z)};
-  d.hi = {std::max(d.hi.x, s.hi.x), std::max(d.hi.y, s.hi.y), std::max(d.hi.z, s.hi.z)};
-}
-
 template <class N>
 Box slot_box(const N& n, int s) {
   Box b;
@@ -149,10 +144,10 @@ void refit_wide(M& m, const Bvh2& b, double leaves, double root, unsigned thread
         inside = inside && static_cast<std::size_t>(c) > i && static_cast<std::size_t>(c) < end;
         const N& ch = m.nodes[static_cast<std::size_t>(c)];
         for (int g = 0; g < W; ++g)
-          if (ch.child[g] != MBVH_EMPTY) unite(bx, slot_box(ch, g));
+          if (ch.child[g] != MBVH_EMPTY) bx.grow(slot_box(ch, g));
       }
       set_slot(n, s, bx);
-      unite(all, bx);
+      all.grow(bx);
     }
     sum += all.half_area();
     return inside;
@@ -297,7 +292,7 @@ void Accel::refit(const Scene& moved) {
           t.v0[0] = v0.x, t.v0[1] = v0.y, t.v0[2] = v0.z;  // lane 3 (prim id, zeros) stays
           t.v1[0] = v1.x, t.v1[1] = v1.y, t.v1[2] = v1.z;
           t.v2[0] = v2.x, t.v2[1] = v2.y, t.v2[2] = v2.z;
-          unite(bx, tri_box(t));
+          bx.grow(tri_box(t));
           if (with_packs) {
             const std::size_t j = k - l.first;
             Tri4& o = impl_->packs_.packs[impl_->packs_.leaves[i].first + j / 4];
@@ -331,7 +326,7 @@ void Accel::refit(const Scene& moved) {
     if (edges[c].tail_leaf == SIZE_MAX) continue;
     const std::size_t i = edges[c].tail_leaf;
     Box bx = edges[c].tail;
-    for (std::size_t d = c + 1; d < tri_chunks && edges[d].head_leaf == i; ++d) unite(bx, edges[d].head);
+    for (std::size_t d = c + 1; d < tri_chunks && edges[d].head_leaf == i; ++d) bx.grow(edges[d].head);
     bvh.leaf_boxes[i] = bx;
     leaf_sum += double(leaves[i].count) * bx.half_area();
   }
@@ -349,8 +344,8 @@ void Accel::refit(const Scene& moved) {
       cb[s] = bvh.box(c);
     }
     Box bx;
-    unite(bx, cb[0]);
-    unite(bx, cb[1]);
+    bx.grow(cb[0]);
+    bx.grow(cb[1]);
     nd.box = bx;
     sum += bx.half_area();
     if (with_mbvh2) {
