@@ -115,6 +115,7 @@ int run_build_bench(const BuildBenchArgs& a) {
   const BuildOptions bo = a.scene.build_options();
   // -- ours: build and MBVH4, each from scratch
   std::vector<double> ours;
+  std::vector<double> phase[5];  // records, tree, flatten, stats and hash, MBVH4
   std::unique_ptr<Accel> acc;
   for (unsigned r = 0; r < a.repeats; ++r) {
     acc.reset();
@@ -122,6 +123,8 @@ int run_build_bench(const BuildBenchArgs& a) {
     acc = Accel::build(scene, bo);
     acc->mbvh4();
     ours.push_back(ms_since(t0));
+    for (int k = 0; k < 4; ++k) phase[k].push_back(acc->binary_stats().phase_ms[k]);
+    phase[4].push_back(acc->mbvh4().stats.build_ms);
   }
   nlohmann::json j;
   j["scene"] = scene.name;
@@ -135,9 +138,13 @@ int run_build_bench(const BuildBenchArgs& a) {
   j["sah_mbvh4"] = acc->mbvh4().stats.sah_cost;
   j["build_ms"] = median(ours);
   j["build_ms_all"] = ours;
+  j["phases_ms"] = {{"records", median(phase[0])}, {"tree", median(phase[1])}, {"flatten", median(phase[2])},
+                    {"stats_hash", median(phase[3])}, {"mbvh4", median(phase[4])}};
   say("%s, %zu triangles, quality %s, %u threads: ours %.1f ms (build + MBVH4, median of %u), SAH %.2f, %zu references\n",
       scene.name.c_str(), scene.triangle_count(), to_string(bo.quality), resolve_threads(a.scene.threads), median(ours),
       a.repeats, acc->binary_stats().sah_cost, acc->tris().size());
+  say("  ours by phase (medians): records %.1f, tree %.1f, flatten %.1f, stats and hash %.1f, MBVH4 %.1f ms\n",
+      median(phase[0]), median(phase[1]), median(phase[2]), median(phase[3]), median(phase[4]));
   // -- embree's, where it is built in
   bool have_embree = false;
   for (const BackendInfo& b : list_backends()) have_embree |= b.name == "embree" && b.make != nullptr;

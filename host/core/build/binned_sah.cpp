@@ -78,7 +78,10 @@ constexpr unsigned kMaxBins = 64;
 constexpr std::uint32_t kParallelMin = 65536;
 constexpr std::size_t kGrain = 16384;
 // Nodes of at least kDenseMin records are binned in dense bins (dense_bins.h), smaller ones in
-// sparse bins; both choose the same split, so the threshold changes time, not bytes.
+// sparse bins; both choose the same split (a node box may differ in the sign of a zero bound:
+// min(+0, -0) keeps the operand order, which differs; Sibenik's tree bytes change with the
+// threshold, its splits do not). Sparse bins cost fewer instructions below 64 records (callgrind,
+// conference and Sibenik: thresholds 8, 16, 32 take 23 %, 7 % and 1.6 % more).
 constexpr std::uint32_t kDenseMin = 64;
 static_assert(DenseBins::kMax == kMaxBins);
 
