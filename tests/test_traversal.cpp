@@ -6,6 +6,7 @@
 // in the same order; invalid rays are defined misses.
 #include <catch2/catch.hpp>
 
+#include <algorithm>
 #include <cstring>
 #include <cmath>
 #include <limits>
@@ -13,6 +14,7 @@
 #include <tuple>
 
 #include "host/core/layouts.h"
+#include "host/core/trace/batch.h"
 #include "host/core/trace/traverse.h"
 #include "host/tools/check.h"
 #include "host/tools/raygen.h"
@@ -133,12 +135,15 @@ TEST_CASE("traversal equivalence: hairball", "[traversal]") { check_scene("gen:h
 // Every SIMD cpu backend on `rays`, on the build's own leaves (cpu.leaf-block=1), every layout,
 // stack and bitstack, closest and any hit: cpu-scalar's bytes (and its count of invalid rays).
 // Returns how many backends ran: none where this run's backends hold no SIMD cpu backend.
-std::size_t check_simd_cpu_bytes(const Accel& acc, const std::vector<Ray>& rays, const std::string& what) {
+// `leaf_block`: the backends' cpu.leaf-block (1: the build's leaves; above 1: a regrouped variant,
+// whose nodes' leaf references locate the packs where every leaf holds at most eight).
+std::size_t check_simd_cpu_bytes(const Accel& acc, const std::vector<Ray>& rays, const std::string& what,
+                                 const char* leaf_block = "1") {
   std::size_t tested = 0;
   for (const std::string& name : mbvh_test::all_backends().backends) {
     if (name.rfind("cpu-", 0) != 0 || name == "cpu-scalar") continue;
     ++tested;
-    auto b = make_backend(name, BackendOptions{}.set("cpu.leaf-block", "1"));
+    auto b = make_backend(name, BackendOptions{}.set("cpu.leaf-block", leaf_block));
     for (Layout l : {Layout::mbvh2, Layout::mbvh4, Layout::mbvh8})
       for (Traversal t : {Traversal::stack, Traversal::bitstack})
         for (Query q : {Query::closest, Query::any}) {
@@ -182,12 +187,68 @@ TEST_CASE("SIMD leaves of 1 to 24 triangles: eight-wide passes and their tails g
     RayGenOptions ro;
     ro.kind = kind;
     ro.count = 30000;
-    check_simd_cpu_bytes(*acc, generate_rays(bunny, *acc, ro), std::string("bunny ") + to_string(kind));
+    const std::vector<Ray> rays = generate_rays(bunny, *acc, ro);
+    check_simd_cpu_bytes(*acc, rays, std::string("bunny ") + to_string(kind));
+    // regrouped in blocks of 4 (up to the build's 24): leaves too big for packed references
+    check_simd_cpu_bytes(*acc, rays, std::string("bunny, leaf block 4, ") + to_string(kind), "4");
   }
   const Scene sphere = load_scene("gen:sphere:96");
   const auto closed = Accel::build(sphere, big_leaves());
   CHECK(closed->bvh2().largest_leaf > 8);
   check_simd_cpu_bytes(*closed, feature_rays(sphere, inside_point(sphere), 30000, 2000, 7), "sphere feature rays");
+}
+
+// The cpu backend's uncounted traversals read nodes whose leaf references locate the SIMD packs
+// (TraceView::packed_refs): each decodes to its leaf's (first pack, count) in every layout, the
+// references to inner nodes and the empty slots are unchanged, and a variant with a leaf of more
+// than eight triangles keeps the leaf table (nullptr). The traced bytes of both paths are checked
+// against the reference by the equivalence tests and the test above.
+TEST_CASE("packed leaf references locate each leaf's packs; leaves over eight keep the table", "[traversal]") {
+  const Scene bunny = load_scene(mbvh_test::scene_path("bun_zipper.ply.zst"));
+  const auto acc = Accel::build(bunny);
+  const LeafVariant& lv = acc->leaf_variant(4);
+  const TriPacks& p = lv.tri_packs(acc->tris());
+  auto same = [&](std::int32_t plain, std::int32_t packed) {
+    if (plain >= 0 || plain == MBVH_EMPTY) return plain == packed;
+    const auto code = static_cast<std::uint32_t>(~packed);
+    const Leaf& l = p.leaves[static_cast<std::size_t>(~plain)];
+    return packed < 0 && code >> 3 == l.first && (code & 7u) + 1 == l.count;
+  };
+  std::size_t leaf_refs = 0, bad = 0;
+  const auto* k2 = static_cast<const Node2*>(lv.packed_nodes(Layout::mbvh2, acc->tris()));
+  const auto* k4 = static_cast<const Node4*>(lv.packed_nodes(Layout::mbvh4, acc->tris()));
+  const auto* k8 = static_cast<const Node8*>(lv.packed_nodes(Layout::mbvh8, acc->tris()));
+  REQUIRE(k2 != nullptr);
+  REQUIRE(k4 != nullptr);
+  REQUIRE(k8 != nullptr);
+  for (std::size_t i = 0; i < lv.mbvh2().nodes.size(); ++i) {
+    const Node2& n = lv.mbvh2().nodes[i];
+    bad += n.link[0] != k2[i].link[0];
+    for (int f = 1; f < 4; ++f) bad += !(i == 0 && f == 1 ? n.link[f] == k2[i].link[f] : same(n.link[f], k2[i].link[f]));
+    for (int f = 2; f < 4; ++f) leaf_refs += n.link[f] < 0 && n.link[f] != MBVH_EMPTY;
+  }
+  for (std::size_t i = 0; i < lv.mbvh4().nodes.size(); ++i) {
+    const Node4& n = lv.mbvh4().nodes[i];
+    bad += n.parent != k4[i].parent || std::memcmp(n.lo_x, k4[i].lo_x, 6 * sizeof n.lo_x) != 0;
+    for (int s = 0; s < 4; ++s) bad += !same(n.child[s], k4[i].child[s]);
+    for (int s = 0; s < 3; ++s) bad += !(i == 0 ? n.sib[s] == k4[i].sib[s] : same(n.sib[s], k4[i].sib[s]));
+  }
+  for (std::size_t i = 0; i < lv.mbvh8().nodes.size(); ++i) {
+    const Node8& n = lv.mbvh8().nodes[i];
+    bad += n.parent != k8[i].parent || std::memcmp(n.lo_x, k8[i].lo_x, 6 * sizeof n.lo_x) != 0;
+    for (int s = 0; s < 8; ++s) bad += !same(n.child[s], k8[i].child[s]);
+  }
+  CHECK(leaf_refs == lv.leaves.size());
+  CHECK(bad == 0);
+  // the view the cpu backend's uncounted traversals read, and the counted ones (the leaf table)
+  CHECK(trace_view(*acc, Layout::mbvh8, true, 4, true).packed_refs);
+  CHECK(trace_view(*acc, Layout::mbvh8, true, 4, true).n8 == k8);
+  CHECK_FALSE(trace_view(*acc, Layout::mbvh8, true, 4, false).packed_refs);
+  const auto big = Accel::build(bunny, big_leaves());
+  const LeafVariant& bv = big->leaf_variant(4);
+  REQUIRE(std::any_of(bv.leaves.begin(), bv.leaves.end(), [](const Leaf& l) { return l.count > 8; }));
+  CHECK(bv.packed_nodes(Layout::mbvh8, big->tris()) == nullptr);
+  CHECK_FALSE(trace_view(*big, Layout::mbvh4, true, 4, true).packed_refs);
 }
 
 // The SIMD backends validate a ray and make its constants in vector registers (prepare_ray_simd):

@@ -228,6 +228,19 @@ struct F8 {
   return true;
 }
 
+/// Lane `lane` of a pack as a Tri (the same float bits as the leaf-ordered triangle it was made
+/// from), for the scalar test of an undecided lane: a pack alone then settles its leaf.
+inline Tri tri_of(const Tri4& p, int lane) {
+  Tri t;
+  float* rows[3] = {t.v0, t.v1, t.v2};
+  for (int i = 0; i < 3; ++i) {
+    for (int a = 0; a < 3; ++a) rows[i][a] = p.v[3 * i + a][lane];
+    rows[i][3] = 0.0f;
+  }
+  std::memcpy(&t.v0[3], &p.prim[lane], 4);
+  return t;
+}
+
 /// Fills SimdRay's constants from its (validated, possibly relaxed) RayPre part.
 /// Fast: also the direction broadcast (Möller–Trumbore's; the robust kernels never read d8).
 template <bool Fast>
@@ -441,6 +454,9 @@ struct SimdKernelsT {
       if (c >= 0) {
         const char* p = reinterpret_cast<const char*>(nodes + c);
         for (std::size_t line = 0; line < sizeof(N); line += 64) _mm_prefetch(p + line, _MM_HINT_T0);
+      } else if (r.view->packed_refs) {  // the leaf's first pack (160 bytes)
+        const char* p = reinterpret_cast<const char*>(r.view->tri4 + (static_cast<std::uint32_t>(~c) >> 3));
+        for (std::size_t line = 0; line < sizeof(Tri4); line += 64) _mm_prefetch(p + line, _MM_HINT_T0);
       } else {
         _mm_prefetch(reinterpret_cast<const char*>(r.view->leaf4 + ~c), _MM_HINT_T0);
       }
@@ -508,8 +524,7 @@ struct SimdKernelsT {
   /// reference accepts exactly the same lanes, and the smallest (t, prim) of a leaf does not
   /// depend on how its triangles are grouped into passes.
   template <class F, bool Any>
-  [[gnu::always_inline]] static bool leaf_pass(const TraceView& v, std::int32_t ref, std::uint32_t k, const Tri4* p,
-                                               unsigned valid, const Ray& r, float& tmax, Hit& best) {
+  [[gnu::always_inline]] static bool leaf_pass(const Tri4* p, unsigned valid, const Ray& r, float& tmax, Hit& best) {
     constexpr int L = sizeof(typename F::V) / sizeof(float);
     const auto prim = [p](int lane) { return p[lane >> 2].prim[lane & 3]; };
     float t[L], u[L], w[L], det[L];
@@ -524,7 +539,7 @@ struct SimdKernelsT {
     }
     for (unsigned f = fallback; f != 0; f &= f - 1) {
       const int lane = std::countr_zero(f);
-      if (tri_test(r, v.tris[v.leaves[~ref].first + k + static_cast<unsigned>(lane)], tmax, t[lane], u[lane], w[lane])) {
+      if (tri_test(r, tri_of(p[lane >> 2], lane & 3), tmax, t[lane], u[lane], w[lane])) {
         if constexpr (Any) {
           best.prim = prim(lane);
           return true;
@@ -556,14 +571,20 @@ struct SimdKernelsT {
     if constexpr (St::on) {
       return detail::visit_leaf<Any, St, Fast>(v, ref, r, tmax, best, st);
     } else {
-      const Leaf l = v.leaf4[~ref];
+      Leaf l;
+      if (v.packed_refs) {  // TraceView::packed_refs: the reference locates the packs
+        const auto code = static_cast<std::uint32_t>(~ref);
+        l = Leaf{code >> 3, (code & 7u) + 1u};
+      } else {
+        l = v.leaf4[~ref];
+      }
       const Tri4* p = v.tri4 + l.first;
       std::uint32_t k = 0;
       for (; k + 4 < l.count; k += 8, p += 2) {
         const unsigned valid = l.count - k >= 8 ? 0xFFu : (1u << (l.count - k)) - 1u;
-        if (leaf_pass<F8, Any>(v, ref, k, p, valid, r, tmax, best)) return true;
+        if (leaf_pass<F8, Any>(p, valid, r, tmax, best)) return true;
       }
-      if (k < l.count) return leaf_pass<F4, Any>(v, ref, k, p, (1u << (l.count - k)) - 1u, r, tmax, best);
+      if (k < l.count) return leaf_pass<F4, Any>(p, (1u << (l.count - k)) - 1u, r, tmax, best);
       return false;
     }
   }

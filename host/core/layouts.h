@@ -78,13 +78,21 @@ struct LeafVariant {
   const Mbvh8& mbvh8() const;
   const TriPacks& tri_packs(const AlignedVector<Tri>& tris) const;
   void make_layout(Layout l) const;  ///< makes layout `l` now (as Accel::make_layout)
+  /// Layout `l`'s nodes (Node2, Node4 or Node8) with every leaf reference replaced by
+  /// ~(first pack << 3 | count - 1) (TraceView::packed_refs), made on first use; nullptr when a
+  /// leaf holds more than 8 triangles (a leaf the depth cap forced) or the packs pass 2^28 - 2.
+  const void* packed_nodes(Layout l, const AlignedVector<Tri>& tris) const;
 
 private:
-  mutable std::once_flag once2_, once4_, once8_, oncep_;
+  mutable std::once_flag once2_, once4_, once8_, oncep_, oncek_[3];
   mutable Mbvh2 m2_;
   mutable Mbvh4 m4_;
   mutable Mbvh8 m8_;
   mutable TriPacks packs_;
+  mutable bool packable_ = false;  ///< every leaf fits a packed reference (set with packs_)
+  mutable AlignedVector<Node2> k2_;
+  mutable AlignedVector<Node4> k4_;
+  mutable AlignedVector<Node8> k8_;
 };
 
 /// Regroups `bvh`'s subtrees into leaves where a leaf priced in blocks of `block` triangles (at

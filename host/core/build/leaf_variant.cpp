@@ -185,8 +185,52 @@ void LeafVariant::make_layout(Layout l) const {
   else mbvh8();
 }
 const TriPacks& LeafVariant::tri_packs(const AlignedVector<Tri>& tris) const {
-  std::call_once(oncep_, [this, &tris] { packs_ = make_tri_packs(tris, leaves); });
+  std::call_once(oncep_, [this, &tris] {
+    packs_ = make_tri_packs(tris, leaves);
+    packable_ = true;  // every code below 2^31 - 1: never MBVH_EMPTY
+    for (const Leaf& f : packs_.leaves) packable_ = packable_ && f.count >= 1 && f.count <= 8 && f.first < (1u << 28) - 1;
+  });
   return packs_;
+}
+
+namespace {
+
+// The packed reference of reference `ref` (leaves only; nodes, MBVH_EMPTY and the root's
+// MBVH_NONE links are not passed here).
+std::int32_t packed_ref(std::int32_t ref, const std::vector<Leaf>& leaf4) {
+  if (ref >= 0 || ref == MBVH_EMPTY) return ref;
+  const Leaf& l = leaf4[static_cast<std::size_t>(~ref)];
+  return ~static_cast<std::int32_t>(l.first << 3 | (l.count - 1));
+}
+
+}  // namespace
+
+const void* LeafVariant::packed_nodes(Layout l, const AlignedVector<Tri>& tris) const {
+  const TriPacks& p = tri_packs(tris);
+  if (!packable_) return nullptr;
+  const int k = l == Layout::mbvh2 ? 0 : l == Layout::mbvh4 ? 1 : 2;
+  std::call_once(oncek_[k], [&] {
+    // the root's parent and sibling links are MBVH_NONE, every other link field a reference
+    if (l == Layout::mbvh2) {
+      k2_ = mbvh2().nodes;
+      for (std::size_t i = 0; i < k2_.size(); ++i)
+        for (int f = i == 0 ? 2 : 1; f < 4; ++f) k2_[i].link[f] = packed_ref(k2_[i].link[f], p.leaves);
+    } else if (l == Layout::mbvh4) {
+      k4_ = mbvh4().nodes;
+      for (std::size_t i = 0; i < k4_.size(); ++i) {
+        for (std::int32_t& c : k4_[i].child) c = packed_ref(c, p.leaves);
+        if (i > 0)
+          for (std::int32_t& c : k4_[i].sib) c = packed_ref(c, p.leaves);
+      }
+    } else {
+      k8_ = mbvh8().nodes;
+      for (Node8& n : k8_)
+        for (std::int32_t& c : n.child) c = packed_ref(c, p.leaves);
+    }
+  });
+  if (k == 0) return k2_.data();
+  if (k == 1) return k4_.data();
+  return k8_.data();
 }
 
 }  // namespace mbvh

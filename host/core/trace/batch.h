@@ -36,7 +36,10 @@ inline void view_nodes(TraceView& v, const Src& src, Layout layout) {
 /// packs when `packs` (a kernel policy's `uses_packs`); on the build's leaves regrouped for
 /// `leaf_block` (Accel::leaf_variant) when it is above 1: their own nodes, leaves and packs over
 /// the same triangles.
-inline TraceView trace_view(const Accel& acc, Layout layout, bool packs = false, unsigned leaf_block = 1) {
+/// `packed_refs`: nodes whose leaf references locate the packs (TraceView::packed_refs) where the
+/// variant's leaves allow them.
+inline TraceView trace_view(const Accel& acc, Layout layout, bool packs = false, unsigned leaf_block = 1,
+                            bool packed_refs = false) {
   TraceView v;
   v.tris = acc.tris().data();
   const TriPacks* p = nullptr;
@@ -46,6 +49,14 @@ inline TraceView trace_view(const Accel& acc, Layout layout, bool packs = false,
     v.leaf_count = lv.leaves.size();
     v.leaves = lv.leaves.data();
     if (packs) p = &lv.tri_packs(acc.tris());
+    if (packs && packed_refs) {
+      if (const void* k = lv.packed_nodes(layout, acc.tris())) {
+        if (layout == Layout::mbvh2) v.n2 = static_cast<const Node2*>(k);
+        else if (layout == Layout::mbvh4) v.n4 = static_cast<const Node4*>(k);
+        else v.n8 = static_cast<const Node8*>(k);
+        v.packed_refs = true;
+      }
+    }
   } else {
     view_nodes(v, acc, layout);
     v.leaf_count = acc.leaves().size();
@@ -112,7 +123,8 @@ inline void run_batch(const TraceView& v, std::span<const Ray> rays, std::size_t
 template <class K>
 inline void trace_parallel(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out,
                            unsigned threads, const std::function<void(std::size_t)>& progress = {}) {
-  const TraceView v = trace_view(acc, opt.layout, K::uses_packs, opt.leaf_block);
+  // counted traversals visit leaves through the reference's visit_leaf (the leaf table)
+  const TraceView v = trace_view(acc, opt.layout, K::uses_packs, opt.leaf_block, K::uses_packs && !opt.stats);
   const bool any = opt.query == Query::any;
   out.resize_for(rays.size(), opt);  // every ray's entries are written below
   std::atomic<std::size_t> invalid{0}, done{0};

@@ -24,6 +24,11 @@ struct TraceView {
   const Tri* tris = nullptr;
   const Tri4* tri4 = nullptr;   ///< SIMD leaf packs (Accel::tri_packs), where a kernel uses them
   const Leaf* leaf4 = nullptr;  ///< per leaf: (first pack, triangle count)
+  /// The nodes' leaf references locate the packs themselves: ~(first pack << 3 | count - 1) (a
+  /// leaf of 1 to 8 triangles; LeafVariant::packed_nodes), so a leaf costs no leaf4 look-up, one
+  /// dependent load less (Embree's tagged child pointers do the same). Only the SIMD kernels'
+  /// uncounted traversals read such a view.
+  bool packed_refs = false;
   std::size_t nodes = 0, leaf_count = 0;  ///< sizes, for the termination guard
 };
 
