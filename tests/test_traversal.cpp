@@ -7,6 +7,7 @@
 #include <catch2/catch.hpp>
 
 #include <algorithm>
+#include <cstddef>
 #include <cstring>
 #include <cmath>
 #include <limits>
@@ -195,7 +196,13 @@ TEST_CASE("SIMD leaves of 1 to 24 triangles: eight-wide passes and their tails g
   const Scene sphere = load_scene("gen:sphere:96");
   const auto closed = Accel::build(sphere, big_leaves());
   CHECK(closed->bvh2().largest_leaf > 8);
-  check_simd_cpu_bytes(*closed, feature_rays(sphere, inside_point(sphere), 30000, 2000, 7), "sphere feature rays");
+  const std::vector<Ray> features = feature_rays(sphere, inside_point(sphere), 30000, 2000, 7);
+  check_simd_cpu_bytes(*closed, features, "sphere feature rays");
+  // the default build regrouped in blocks of 4: packed leaf references (TraceView::packed_refs),
+  // the scalar test of undecided lanes reading the packs
+  const auto plain = Accel::build(sphere);
+  REQUIRE(trace_view(*plain, Layout::mbvh4, true, 4, true).packed_refs);
+  check_simd_cpu_bytes(*plain, features, "sphere feature rays, default build, leaf block 4", "4");
 }
 
 // The cpu backend's uncounted traversals read nodes whose leaf references locate the SIMD packs
@@ -223,7 +230,7 @@ TEST_CASE("packed leaf references locate each leaf's packs; leaves over eight ke
   REQUIRE(k8 != nullptr);
   for (std::size_t i = 0; i < lv.mbvh2().nodes.size(); ++i) {
     const Node2& n = lv.mbvh2().nodes[i];
-    bad += n.link[0] != k2[i].link[0];
+    bad += n.link[0] != k2[i].link[0] || std::memcmp(&n, &k2[i], offsetof(Node2, link)) != 0;
     for (int f = 1; f < 4; ++f) bad += !(i == 0 && f == 1 ? n.link[f] == k2[i].link[f] : same(n.link[f], k2[i].link[f]));
     for (int f = 2; f < 4; ++f) leaf_refs += n.link[f] < 0 && n.link[f] != MBVH_EMPTY;
   }
@@ -243,6 +250,12 @@ TEST_CASE("packed leaf references locate each leaf's packs; leaves over eight ke
   // the view the cpu backend's uncounted traversals read, and the counted ones (the leaf table)
   CHECK(trace_view(*acc, Layout::mbvh8, true, 4, true).packed_refs);
   CHECK(trace_view(*acc, Layout::mbvh8, true, 4, true).n8 == k8);
+  CHECK(trace_view(*acc, Layout::mbvh4, true, 4, true).n4 == k4);
+  CHECK(trace_view(*acc, Layout::mbvh2, true, 4, true).n2 == k2);
+  // the root's links stay MBVH_NONE (its first leaf's code is -1 too only for one triangle)
+  CHECK(k2[0].link[1] == MBVH_NONE);
+  CHECK((k4[0].sib[0] == MBVH_NONE && k4[0].sib[1] == MBVH_NONE && k4[0].sib[2] == MBVH_NONE));
+  CHECK(p.leaves[0].count > 1);  // so a root link packed by mistake would show
   CHECK_FALSE(trace_view(*acc, Layout::mbvh8, true, 4, false).packed_refs);
   const auto big = Accel::build(bunny, big_leaves());
   const LeafVariant& bv = big->leaf_variant(4);

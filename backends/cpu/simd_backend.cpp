@@ -56,13 +56,15 @@ public:
   static constexpr unsigned kOwnLeafBlock = 4;
   unsigned leaf_block(const TraceOptions& opt) const override { return opt.leaf_block ? opt.leaf_block : own_block_; }
   /// Everything made once per build happens here, outside the timed trace: the layout and the
-  /// leaves' SIMD packs of the leaf variant traced (all kept by the Accel; later calls are free).
+  /// leaves' SIMD packs of the leaf variant traced, and the copy of its nodes whose leaf
+  /// references locate the packs (TraceView::packed_refs; all kept by the Accel; later calls
+  /// are free).
   void prepare(const Accel& acc, const TraceOptions& opt) override {
     const unsigned block = leaf_block(opt);
     if (block > 1) {
       const LeafVariant& v = acc.leaf_variant(block);
       v.make_layout(opt.layout);
-      v.tri_packs(acc.tris());
+      v.packed_nodes(opt.layout, acc.tris());  // also the packs
     } else {
       acc.make_layout(opt.layout);
       acc.tri_packs();
