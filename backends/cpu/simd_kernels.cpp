@@ -444,7 +444,8 @@ struct SimdKernelsT {
     return box_test_wide<F8, Chord>(n, r, tcull, d);
   }
   /// Closest hit: the record of every child in `mask` (traverse.h passes the hit children left
-  /// for later: an inner node's lines, a leaf's pack entry) is asked for at once, so the misses
+  /// for later: an inner node's lines, a leaf's first pack, or its leaf4 entry where the references
+  /// are not packed) is asked for at once, so the misses
   /// of the children visited later overlap the work before them.
   template <class N>
   [[gnu::always_inline]] static void prefetch(const N& n, const Ray& r, unsigned mask) {
