@@ -217,9 +217,9 @@ TEST_CASE("packed leaf references locate each leaf's packs; leaves over eight ke
   const TriPacks& p = lv.tri_packs(acc->tris());
   auto same = [&](std::int32_t plain, std::int32_t packed) {
     if (plain >= 0 || plain == MBVH_EMPTY) return plain == packed;
-    const auto code = static_cast<std::uint32_t>(~packed);
     const Leaf& l = p.leaves[static_cast<std::size_t>(~plain)];
-    return packed < 0 && code >> 3 == l.first && (code & 7u) + 1 == l.count;
+    const Leaf d = packed_leaf(packed);  // the kernels' decoding
+    return packed < 0 && d.first == l.first && d.count == l.count;
   };
   std::size_t leaf_refs = 0, bad = 0;
   const auto* k2 = static_cast<const Node2*>(lv.packed_nodes(Layout::mbvh2, acc->tris()));

@@ -456,7 +456,7 @@ struct SimdKernelsT {
         const char* p = reinterpret_cast<const char*>(nodes + c);
         for (std::size_t line = 0; line < sizeof(N); line += 64) _mm_prefetch(p + line, _MM_HINT_T0);
       } else if (r.view->packed_refs) {  // the leaf's first pack (160 bytes)
-        const char* p = reinterpret_cast<const char*>(r.view->tri4 + (static_cast<std::uint32_t>(~c) >> 3));
+        const char* p = reinterpret_cast<const char*>(r.view->tri4 + packed_leaf(c).first);
         for (std::size_t line = 0; line < sizeof(Tri4); line += 64) _mm_prefetch(p + line, _MM_HINT_T0);
       } else {
         _mm_prefetch(reinterpret_cast<const char*>(r.view->leaf4 + ~c), _MM_HINT_T0);
@@ -573,12 +573,8 @@ struct SimdKernelsT {
       return detail::visit_leaf<Any, St, Fast>(v, ref, r, tmax, best, st);
     } else {
       Leaf l;
-      if (v.packed_refs) {  // TraceView::packed_refs: the reference locates the packs
-        const auto code = static_cast<std::uint32_t>(~ref);
-        l = Leaf{code >> 3, (code & 7u) + 1u};
-      } else {
-        l = v.leaf4[~ref];
-      }
+      if (v.packed_refs) l = packed_leaf(ref);  // TraceView::packed_refs: the reference locates the packs
+      else l = v.leaf4[~ref];
       const Tri4* p = v.tri4 + l.first;
       std::uint32_t k = 0;
       for (; k + 4 < l.count; k += 8, p += 2) {

@@ -15,6 +15,7 @@
 
 #include "host/core/build/builder.h"
 #include "host/core/layouts.h"
+#include "host/core/trace/view.h"  // the packed leaf references
 #include "mbvh/error.h"
 
 namespace mbvh {
@@ -187,8 +188,7 @@ void LeafVariant::make_layout(Layout l) const {
 const TriPacks& LeafVariant::tri_packs(const AlignedVector<Tri>& tris) const {
   std::call_once(oncep_, [this, &tris] {
     packs_ = make_tri_packs(tris, leaves);
-    packable_ = true;  // every code below 2^31 - 1: never MBVH_EMPTY
-    for (const Leaf& f : packs_.leaves) packable_ = packable_ && f.count >= 1 && f.count <= 8 && f.first < (1u << 28) - 1;
+    packable_ = std::all_of(packs_.leaves.begin(), packs_.leaves.end(), [](const Leaf& f) { return packable(f); });
   });
   return packs_;
 }
@@ -199,8 +199,7 @@ namespace {
 // MBVH_NONE links are not passed here).
 std::int32_t packed_ref(std::int32_t ref, const std::vector<Leaf>& leaf4) {
   if (ref >= 0 || ref == MBVH_EMPTY) return ref;
-  const Leaf& l = leaf4[static_cast<std::size_t>(~ref)];
-  return ~static_cast<std::int32_t>(l.first << 3 | (l.count - 1));
+  return packed_leaf_ref(leaf4[static_cast<std::size_t>(~ref)]);
 }
 
 }  // namespace

@@ -15,6 +15,19 @@ namespace mbvh {
 template <class N>
 constexpr int node_width() { return sizeof(N::child) / sizeof(N::child[0]); }
 
+/// TraceView::packed_refs' leaf references: ~(first pack << 3 | count - 1) for a leaf of 1 to
+/// kPackedLeafMax triangles whose packs start below kPackedFirstEnd (every code then stays below
+/// 2^31 - 1, so no reference becomes MBVH_EMPTY). The one encoding LeafVariant::packed_nodes
+/// writes and the SIMD kernels read.
+constexpr std::uint32_t kPackedLeafMax = 8;
+constexpr std::uint32_t kPackedFirstEnd = (1u << 28) - 1;
+inline bool packable(const Leaf& l) { return l.count >= 1 && l.count <= kPackedLeafMax && l.first < kPackedFirstEnd; }
+inline std::int32_t packed_leaf_ref(const Leaf& l) { return ~static_cast<std::int32_t>(l.first << 3 | (l.count - 1)); }
+inline Leaf packed_leaf(std::int32_t ref) {
+  const auto code = static_cast<std::uint32_t>(~ref);
+  return Leaf{code >> 3, (code & 7u) + 1u};
+}
+
 /// What a traversal reads: one layout's nodes plus the shared leaves and triangles.
 struct TraceView {
   const Node2* n2 = nullptr;
