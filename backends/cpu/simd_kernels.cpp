@@ -13,6 +13,7 @@
 // test, Woop, Benthin & Wald 2013 for the watertight triangle test.
 #include <immintrin.h>
 
+#include <algorithm>
 #include <array>
 #include <atomic>
 #include <bit>
@@ -21,6 +22,7 @@
 #include <cstring>
 #include <functional>
 #include <limits>
+#include <memory>
 #include <span>
 #include <stdexcept>
 #include <utility>
@@ -587,7 +589,84 @@ struct SimdKernelsT {
   }
 };
 
+#include "backends/cpu/packet.h"  // the packet traversals, in this namespace
+
+/// One packet's trace with the statistics policy and the traversal chosen at run time.
+template <bool Any, bool Stats, bool Partition, bool UniformK>
+inline void trace_packet_signs(const TraceView& v, packet::Packet& P, RayStats* st) {
+  if (P.same_sign) packet::trace_packet<Any, Partition, UniformK, true, Stats>(v, P, st);
+  else packet::trace_packet<Any, Partition, UniformK, false, Stats>(v, P, st);
+}
+template <bool Any, bool Stats>
+inline void trace_one_packet(const TraceView& v, packet::Packet& P, bool partition, RayStats* st) {
+  if (partition) {
+    if (P.uniform_k) trace_packet_signs<Any, Stats, true, true>(v, P, st);
+    else trace_packet_signs<Any, Stats, true, false>(v, P, st);
+  } else {
+    if (P.uniform_k) trace_packet_signs<Any, Stats, false, true>(v, P, st);
+    else trace_packet_signs<Any, Stats, false, false>(v, P, st);
+  }
+}
+
+/// The packet traversals' batch driver: rays in arrival order, MBVH_PACKET_RAYS at a time; a
+/// coherent packet walks the MBVH2 nodes of the leaves traced, an incoherent one goes ray by ray
+/// through opt.layout with the stack traversal (the hybrid switch, packet.h).
+template <class K>
+void trace_packets(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out, unsigned threads) {
+  const TraceView pv = trace_view(acc, Layout::mbvh2, false, opt.leaf_block, false);
+  const TraceView sv = trace_view(acc, opt.layout, true, opt.leaf_block, !opt.stats);
+  const bool any = opt.query == Query::any;
+  const bool partition = opt.traversal == Traversal::packet_partition;
+  out.resize_for(rays.size(), opt);
+  std::atomic<std::size_t> invalid{0};
+  constexpr std::size_t kN = MBVH_PACKET_RAYS;
+  parallel_for(rays.size(), 2048, threads, [&](std::size_t b, std::size_t e, unsigned) {
+    static_assert(2048 % kN == 0, "chunks hold whole packets");
+    auto P = std::make_unique<packet::Packet>();
+    std::array<RayStats, kN> st{};
+    std::size_t inv = 0;
+    for (std::size_t s = b; s < e; s += kN) {
+      const int n = static_cast<int>(std::min(kN, e - s));
+      std::size_t bad = 0;
+      if (!packet::coherent(rays.data() + s, n)) {
+        std::size_t again = 0;
+        if (any) {
+          if (opt.stats) run_batch<true, true, K>(sv, rays, s, s + n, opt, out, again);
+          else run_batch<true, false, K>(sv, rays, s, s + n, opt, out, again);
+        } else {
+          if (opt.stats) run_batch<false, true, K>(sv, rays, s, s + n, opt, out, again);
+          else run_batch<false, false, K>(sv, rays, s, s + n, opt, out, again);
+        }
+        inv += again;
+        continue;
+      }
+      packet::load_packet<K::fast>(*P, rays.data() + s, n, bad);
+      inv += bad;
+      if (opt.stats) {
+        st.fill(RayStats{});
+        if (any) trace_one_packet<true, true>(pv, *P, partition, st.data());
+        else trace_one_packet<false, true>(pv, *P, partition, st.data());
+        for (int i = 0; i < n; ++i) out.stats[s + i] = st[i];
+      } else {
+        if (any) trace_one_packet<true, false>(pv, *P, partition, nullptr);
+        else trace_one_packet<false, false>(pv, *P, partition, nullptr);
+      }
+      for (int i = 0; i < n; ++i) {
+        if (any) out.occluded[s + i] = P->prim[i] != MBVH_MISS_PRIM ? 1 : 0;
+        else out.hits[s + i] = P->prim[i] != MBVH_MISS_PRIM ? Hit{P->t[i], P->u[i], P->v[i], P->prim[i]} : miss_hit();
+      }
+    }
+    invalid += inv;
+  });
+  out.invalid = invalid;
+}
+
 void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out, unsigned threads) {
+  if (is_packet(opt.traversal)) {
+    if (opt.precision == Precision::fast) trace_packets<SimdKernelsT<true>>(acc, rays, opt, out, threads);
+    else trace_packets<SimdKernelsT<false>>(acc, rays, opt, out, threads);
+    return;
+  }
   if (opt.precision == Precision::fast) trace_parallel<SimdKernelsT<true>>(acc, rays, opt, out, threads);
   else trace_parallel<SimdKernelsT<false>>(acc, rays, opt, out, threads);
 }

@@ -174,11 +174,17 @@ std::vector<Ray> generate_rays(const Scene& scene, const Accel& acc, const RayGe
   rays.reserve(opt.count);
   Rng rng(opt.seed * 4 + static_cast<std::uint64_t>(opt.kind));
   if (opt.kind == RayKind::primary) {
-    // a square image of at least `count` pixels, one jittered sample per pixel, row by row
-    const std::size_t w = static_cast<std::size_t>(std::ceil(std::sqrt(static_cast<double>(std::max<std::size_t>(opt.count, 1)))));
+    // a square image of at least `count` pixels, one jittered sample per pixel, in 8x8 tiles
+    // (rows of tiles, each tile row by row), the order a tiled renderer traces: 64 consecutive
+    // rays are one tile, the cpu backend's packet (MBVH_PACKET_RAYS)
+    constexpr std::size_t kTile = 8;
+    std::size_t w = static_cast<std::size_t>(std::ceil(std::sqrt(static_cast<double>(std::max<std::size_t>(opt.count, 1)))));
+    w = (w + kTile - 1) / kTile * kTile;
     for (std::size_t i = 0; i < opt.count; ++i) {
-      const double px = (static_cast<double>(i % w) + rng.uniform_d()) / static_cast<double>(w);
-      const double py = (static_cast<double>(i / w) + rng.uniform_d()) / static_cast<double>(w);
+      const std::size_t tile = i / (kTile * kTile), in = i % (kTile * kTile);
+      const std::size_t x = tile % (w / kTile) * kTile + in % kTile, y = tile / (w / kTile) * kTile + in / kTile;
+      const double px = (static_cast<double>(x) + rng.uniform_d()) / static_cast<double>(w);
+      const double py = (static_cast<double>(y) + rng.uniform_d()) / static_cast<double>(w);
       rays.push_back(camera_ray(cam, px, py));
     }
     return rays;

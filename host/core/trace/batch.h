@@ -72,6 +72,7 @@ inline TraceView trace_view(const Accel& acc, Layout layout, bool packs = false,
 
 template <bool Any, class K, class St>
 inline Hit dispatch(const TraceView& v, const typename K::Ray& r, Layout l, Traversal t, St& st) {
+  if (is_packet(t)) t = Traversal::stack;  // a packet traversal's answers, ray by ray
   if (l == Layout::mbvh2)
     return t == Traversal::stack ? trace_mbvh2_stack<Any, St, K>(v, r, st) : trace_mbvh2_bitstack<Any, St, K>(v, r, st);
   if (l == Layout::mbvh8) {
@@ -80,6 +81,7 @@ inline Hit dispatch(const TraceView& v, const typename K::Ray& r, Layout l, Trav
       case Traversal::bitstack: return trace_mbvh8_bitstack<Any, St, K>(v, r, st);
       case Traversal::stack_ordered: return trace_wide_stack_ordered<Any, St, K, Node8>(v, r, st);
       case Traversal::bitstack_retest: return miss_hit();
+      case Traversal::packet_ranged: case Traversal::packet_partition: case Traversal::packet: break;  // mapped above
     }
     return miss_hit();
   }
@@ -88,6 +90,7 @@ inline Hit dispatch(const TraceView& v, const typename K::Ray& r, Layout l, Trav
     case Traversal::bitstack: return trace_mbvh4_bitstack<Any, St, K>(v, r, st);
     case Traversal::stack_ordered: return trace_wide_stack_ordered<Any, St, K>(v, r, st);
     case Traversal::bitstack_retest: return trace_mbvh4_bitstack_retest<Any, St, K>(v, r, st);
+    case Traversal::packet_ranged: case Traversal::packet_partition: case Traversal::packet: break;  // mapped above
   }
   return miss_hit();
 }

@@ -34,6 +34,9 @@ const char* to_string(Traversal t) {
     case Traversal::bitstack: return "bitstack";
     case Traversal::stack_ordered: return "stack-ordered";
     case Traversal::bitstack_retest: return "bitstack-retest";
+    case Traversal::packet_ranged: return "packet-ranged";
+    case Traversal::packet_partition: return "packet-partition";
+    case Traversal::packet: return "packet";
   }
   return "?";
 }
@@ -41,10 +44,12 @@ const char* to_string(Traversal t) {
 Traversal stack_twin(Traversal t) {
   if (t == Traversal::bitstack) return Traversal::stack;
   if (t == Traversal::bitstack_retest) return Traversal::stack_ordered;
+  if (is_packet(t)) return Traversal::stack;
   return t;
 }
 
 bool reference_supports(Layout layout, Traversal traversal) {
+  if (is_packet(traversal)) return true;  // the stack traversal of `layout`, ray by ray
   if (layout == Layout::mbvh8) return traversal != Traversal::bitstack_retest;  // no variant B on MBVH8
   return layout == Layout::mbvh4 || traversal == Traversal::stack || traversal == Traversal::bitstack;
 }
@@ -60,10 +65,20 @@ Traversal parse_traversal(const std::string& s) {
   if (s == "bitstack") return Traversal::bitstack;
   if (s == "stack-ordered") return Traversal::stack_ordered;
   if (s == "bitstack-retest") return Traversal::bitstack_retest;
-  throw Error("unknown traversal '" + s + "' (known: stack, bitstack, stack-ordered, bitstack-retest)");
+  if (s == "packet-ranged") return Traversal::packet_ranged;
+  if (s == "packet-partition") return Traversal::packet_partition;
+  if (s == "packet") return Traversal::packet;
+  throw Error("unknown traversal '" + s +
+              "' (known: stack, bitstack, stack-ordered, bitstack-retest, packet-ranged, packet-partition, packet)");
 }
 
 std::size_t state_bytes_per_ray(Layout layout, Traversal traversal) {
+  // packets (backends/cpu/packet.h): a stack of MBVH_STACK2_ENTRIES entries of (node, range or
+  // count, a group list and one 8-lane mask per group), shared by the packet's rays
+  if (is_packet(traversal)) {
+    constexpr std::size_t groups = MBVH_PACKET_RAYS / 8;
+    return (MBVH_STACK2_ENTRIES * (4 + 4 + 2 * groups) + 4 + 4) / MBVH_PACKET_RAYS;
+  }
   // MBVH8 bitstack: node + a 128-bit word (8 pending-slot bits per level, traverse.h)
   if (traversal == Traversal::bitstack && layout == Layout::mbvh8) return 4 + 16;
   if (traversal == Traversal::bitstack || traversal == Traversal::bitstack_retest) return 4 + 8;

@@ -30,8 +30,19 @@ enum class Query { closest, any };
 /// stack / bitstack: the skip-code bitstack of Áfra & Szirmay-Kalos and its stack twin (cyclic
 /// order after the nearest child); bitstack_retest / stack_ordered: variant B (parent re-test,
 /// full distance order, culling) and its Embree-like ordered stack twin, MBVH4 only.
-enum class Traversal { stack, bitstack, stack_ordered, bitstack_retest };
-/// The stack-based twin a bitstack traversal must reproduce (itself for stack traversals).
+/// packet_ranged / packet_partition: coherent packets of rays (Áfra's thesis, ch. 2) over the
+/// binary tree (MBVH2) of the build — ranged (Wald, Boulos & Shirley 2007) or partition
+/// traversal (Overbeck, Ramamoorthi & Mark 2008) with interval-arithmetic frustum culling; an
+/// incoherent packet goes ray by ray through `layout` with the stack traversal (the hybrid
+/// switch). packet: the faster of the two. Every ray's answer is its stack traversal's: the
+/// reference (cpu-scalar) traces packet traversals as their stack twin, ray by ray.
+enum class Traversal { stack, bitstack, stack_ordered, bitstack_retest, packet_ranged, packet_partition, packet };
+/// Whether `t` traces packets of rays (the cpu backend's packet traversals).
+inline bool is_packet(Traversal t) {
+  return t == Traversal::packet_ranged || t == Traversal::packet_partition || t == Traversal::packet;
+}
+/// The stack-based twin a bitstack traversal must reproduce (itself for stack traversals; stack
+/// for the packet traversals, whose every ray's answer is the stack traversal's).
 Traversal stack_twin(Traversal t);
 /// Whether the reference traversals implement the pair (variant B and its twin: MBVH4 only).
 bool reference_supports(Layout layout, Traversal traversal);

@@ -1,0 +1,533 @@
+// SPDX-License-Identifier: MIT
+// packet.h — the cpu backend's coherent packet traversals (Áfra's thesis, ch. 2), included by
+// simd_kernels.cpp under its ISA pragma, inside its namespace mbvh::MBVH_ISA_NS::(anonymous).
+//
+// A packet is MBVH_PACKET_RAYS rays in an array-of-structures-of-arrays layout: G SIMD rays of
+// 8 lanes (a row of 8 consecutive rays each). It walks the binary tree (MBVH2) of the one build:
+// - ranged traversal (Wald, Boulos & Shirley, "Ray Tracing Deformable Scenes Using Dynamic
+//   Bounding Volume Hierarchies", TOG 2007): the SIMD rays from the first to the last active one;
+// - partition traversal (Overbeck, Ramamoorthi & Mark, "Large Ray Packets for Real-Time Whitted
+//   Ray Tracing", IRT 2008): a list of the active SIMD rays, partitioned at every node;
+// both cull a node for the whole packet first with interval arithmetic over the packet's origins
+// and reciprocal directions (Boulos, Wald & Shirley 2006's frustum test).
+//
+// Exact per ray. Every lane carries its own mask along the path: a ray is tested against a box
+// only where it passed every box above it, with its own conservative slab test (Ize 2013, the
+// same operations as box_test), and against a triangle only in a leaf it reached so, with the
+// watertight test lane by lane (tri_test's operations; the undecided lanes go to tri_test
+// itself). So each ray visits the reference's nodes and leaves (fewer where its own tmax culls
+// more) and keeps the smallest (t, prim): its answer is its stack traversal's, bit for bit. The
+// frustum test only skips boxes no ray of the packet can pass: rounding is monotone, so the
+// interval's bounds bound every lane's computed entry and exit (see frustum_miss).
+//
+// Hybrid (as Embree's hybrid traversal drops to single rays): a packet whose rays do not share
+// the signs of their directions has no frustum and little coherence; it is traced ray by ray
+// with the single-ray kernels on the caller's layout instead.
+#pragma once
+
+namespace packet {
+
+constexpr int kLanes = 8;
+constexpr int kGroups = MBVH_PACKET_RAYS / kLanes;
+static_assert(kGroups * kLanes == MBVH_PACKET_RAYS && kGroups <= 32, "a packet is whole SIMD rays, at most 32");
+
+/// One packet's rays, SoA per SIMD ray (lane l of SIMD ray g is ray g * 8 + l of the packet).
+struct Packet {
+  static constexpr int N = MBVH_PACKET_RAYS;
+  alignas(32) float o[3][N], d[3][N], inv[3][N], invf[3][N], tmin[N];
+  alignas(32) float t[N], u[N], v[N];  ///< the best hit so far; t is the lane's tmax
+  alignas(32) std::uint32_t prim[N];
+  alignas(32) float to[3][N], ts[3][N];            ///< the triangle test's permuted origin and shear
+  alignas(32) std::int32_t k1[3][N], k2[3][N];     ///< role x, y, z reads coordinate 1 / 2 (all ones)
+  RayPre pre[N];
+  std::uint8_t live[kGroups];  ///< valid lanes; any hit: not yet occluded
+  int count = 0;               ///< rays in this packet (the last one of a batch may be short)
+  bool uniform_k = false;      ///< every valid lane has the same kx, ky, kz
+  int k[3] = {0, 1, 2};
+  // the frustum: interval bounds of the valid lanes, per axis (lane 3 unused)
+  bool frustum = false;
+  bool same_sign = false;  ///< every valid lane has the same direction signs (neg below)
+  alignas(16) std::int32_t axis_off[4];  ///< all ones on an axis the frustum cannot bound
+  alignas(16) float o_lo[4], o_hi[4], inv_lo[4], inv_hi[4], invf_lo[4], invf_hi[4];
+  std::int32_t neg[3] = {0, 0, 0};  ///< the common sign of each axis (frustum only)
+  float tmin_lo = 0, tcull_hi = 0;
+};
+
+/// The hybrid switch: whether rays[0, n) are coherent enough to trace as a packet — their unit
+/// directions span less than kSpread on every axis (a packet of a 64-pixel row of a primary
+/// image spans about 0.1; diffuse rays span nearly 2). Invalid rays do not count.
+constexpr float kSpread = 0.5f;
+inline bool coherent(const mbvh::Ray* rays, int n) {
+  __m128 lo = _mm_set1_ps(INFINITY), hi = _mm_set1_ps(-INFINITY);
+  for (int i = 0; i < n; ++i) {
+    const __m128 d = _mm_and_ps(_mm_loadu_ps(&rays[i].dx), _mm_castsi128_ps(_mm_setr_epi32(-1, -1, -1, 0)));
+    const float len2 = _mm_cvtss_f32(_mm_dp_ps(d, d, 0x71));
+    if (!(len2 > 0.0f && len2 < INFINITY)) continue;
+    const __m128 u = _mm_div_ps(d, _mm_set1_ps(std::sqrt(len2)));
+    lo = _mm_min_ps(lo, u);
+    hi = _mm_max_ps(hi, u);
+  }
+  alignas(16) float w[4];
+  _mm_store_ps(w, _mm_sub_ps(hi, lo));
+  return !(w[0] >= kSpread || w[1] >= kSpread || w[2] >= kSpread);  // true when no ray counted: a packet of misses
+}
+
+/// Loads packet lane i from `ray` (false: an invalid ray, a defined miss, its lane off).
+template <bool Fast>
+inline bool load_lane(Packet& P, int i, const mbvh::Ray& ray) {
+  RayPre& p = P.pre[i];
+  if (!prepare_ray_simd(ray, p)) {
+    for (int a = 0; a < 3; ++a) P.o[a][i] = P.d[a][i] = P.inv[a][i] = P.invf[a][i] = P.to[a][i] = P.ts[a][i] = 0.0f;
+    for (int a = 0; a < 3; ++a) P.k1[a][i] = P.k2[a][i] = 0;
+    P.tmin[i] = 0.0f;
+    P.t[i] = -1.0f;  // below every tmin: no box or triangle accepts it
+    return false;
+  }
+  if constexpr (Fast) relax_ray(p);
+  const int k[3] = {p.kx, p.ky, p.kz};
+  const float sh[3] = {p.sx, p.sy, p.sz};
+  for (int a = 0; a < 3; ++a) {
+    P.o[a][i] = p.o[a];
+    P.d[a][i] = p.d[a];
+    P.inv[a][i] = p.inv[a];
+    P.invf[a][i] = p.inv_far[a];
+    P.to[a][i] = p.o[k[a]];
+    P.ts[a][i] = sh[a];
+    P.k1[a][i] = k[a] == 1 ? -1 : 0;
+    P.k2[a][i] = k[a] == 2 ? -1 : 0;
+  }
+  P.tmin[i] = p.tmin;
+  P.t[i] = p.tmax;
+  return true;
+}
+
+/// Fills the packet from rays[0, n) and sets up its frustum; returns whether any axis bounds it.
+template <bool Fast>
+inline bool load_packet(Packet& P, const mbvh::Ray* rays, int n, std::size_t& invalid) {
+  P.count = n;
+  for (int i = 0; i < Packet::N; ++i) {
+    P.u[i] = P.v[i] = 0.0f;
+    P.prim[i] = MBVH_MISS_PRIM;
+  }
+  int first = -1;
+  bool same_k = true, same_sign = true;
+  for (int g = 0; g < kGroups; ++g) P.live[g] = 0;
+  for (int i = 0; i < Packet::N; ++i) {
+    if (i >= n || !load_lane<Fast>(P, i, rays[i])) {
+      if (i >= n) load_lane<Fast>(P, i, mbvh::Ray{NAN, 0, 0, 0, 0, 0, 0, 0});
+      else ++invalid;
+      continue;
+    }
+    P.live[i / kLanes] |= static_cast<std::uint8_t>(1u << (i % kLanes));
+    const RayPre& p = P.pre[i];
+    if (first < 0) {
+      first = i;
+      P.k[0] = p.kx;
+      P.k[1] = p.ky;
+      P.k[2] = p.kz;
+      for (int a = 0; a < 3; ++a) {
+        P.neg[a] = p.neg[a];
+        P.o_lo[a] = P.o_hi[a] = p.o[a];
+        P.inv_lo[a] = P.inv_hi[a] = p.inv[a];
+        P.invf_lo[a] = P.invf_hi[a] = p.inv_far[a];
+      }
+      P.tmin_lo = p.tmin;
+      P.tcull_hi = p.tmax * kCullSlack;
+      continue;
+    }
+    same_k = same_k && p.kx == P.k[0] && p.ky == P.k[1] && p.kz == P.k[2];
+    for (int a = 0; a < 3; ++a) {
+      same_sign = same_sign && p.neg[a] == P.neg[a];
+      P.o_lo[a] = std::min(P.o_lo[a], p.o[a]);
+      P.o_hi[a] = std::max(P.o_hi[a], p.o[a]);
+      P.inv_lo[a] = std::min(P.inv_lo[a], p.inv[a]);
+      P.inv_hi[a] = std::max(P.inv_hi[a], p.inv[a]);
+      P.invf_lo[a] = std::min(P.invf_lo[a], p.inv_far[a]);
+      P.invf_hi[a] = std::max(P.invf_hi[a], p.inv_far[a]);
+    }
+    P.tmin_lo = std::min(P.tmin_lo, p.tmin);
+    P.tcull_hi = std::max(P.tcull_hi, p.tmax * kCullSlack);
+  }
+  P.uniform_k = same_k;
+  P.same_sign = same_sign;
+  // the frustum bounds each lane's entry and exit on an axis where the lanes share the sign of
+  // the direction (so their near plane) and the reciprocals are finite (a zero direction
+  // component makes (plane - o) * inv infinite or NaN); another axis, and lane 3, bound nothing
+  P.frustum = false;
+  for (int a = 0; a < 4; ++a) {
+    bool ok = false;
+    if (a < 3 && first >= 0) {
+      ok = std::fabs(P.inv_lo[a]) < INFINITY && std::fabs(P.inv_hi[a]) < INFINITY && std::fabs(P.invf_lo[a]) < INFINITY &&
+           std::fabs(P.invf_hi[a]) < INFINITY;
+      for (int i = 0; i < n && ok; ++i)
+        if ((P.live[i / kLanes] >> (i % kLanes)) & 1u) ok = P.pre[i].neg[a] == P.neg[a];
+    }
+    P.axis_off[a] = ok ? 0 : -1;
+    if (!ok) P.o_lo[a] = P.o_hi[a] = P.inv_lo[a] = P.inv_hi[a] = P.invf_lo[a] = P.invf_hi[a] = 0.0f;
+    P.frustum = P.frustum || ok;
+  }
+  return P.frustum;
+}
+
+/// A child box of a Node2, as broadcast rows (lo, hi per axis) and its scalar planes.
+struct Box8 {
+  __m256 lo[3], hi[3];
+  __m256 nearv[3], farv[3];  ///< the near and far planes broadcast, where the packet's signs agree
+  alignas(16) float near[4], far[4];  ///< the frustum's planes (the packet's common signs)
+};
+
+inline void load_box(Box8& b, const float lox, const float hix, const float loy, const float hiy, const float loz,
+                     const float hiz, const Packet& P) {
+  const float lo[3] = {lox, loy, loz}, hi[3] = {hix, hiy, hiz};
+  for (int a = 0; a < 3; ++a) {
+    b.lo[a] = _mm256_set1_ps(lo[a]);
+    b.hi[a] = _mm256_set1_ps(hi[a]);
+    b.near[a] = P.neg[a] ? hi[a] : lo[a];
+    b.far[a] = P.neg[a] ? lo[a] : hi[a];
+    b.nearv[a] = P.neg[a] ? b.hi[a] : b.lo[a];
+    b.farv[a] = P.neg[a] ? b.lo[a] : b.hi[a];
+  }
+  b.near[3] = b.far[3] = 0.0f;
+}
+
+/// The frustum test (Boulos, Wald & Shirley 2006; interval arithmetic): true when no ray of the
+/// packet can pass box_test on `b`. Each lane computes tn = (near - o) * inv rounded; rounding is
+/// monotone, so the rounded corner products of [near - o_hi, near - o_lo] x [inv_lo, inv_hi]
+/// bound every lane's tn (and likewise tf with inv_far); a lane's entry is at least the largest
+/// lower bound and its exit at most the smallest upper bound, so when those cross, every lane
+/// misses, as its own test would say.
+inline bool frustum_miss(const Packet& P, const Box8& b) {
+  const __m128 n = _mm_load_ps(b.near), f = _mm_load_ps(b.far);
+  const __m128 olo = _mm_load_ps(P.o_lo), ohi = _mm_load_ps(P.o_hi);
+  const __m128 alo = _mm_sub_ps(n, ohi), ahi = _mm_sub_ps(n, olo);
+  const __m128 ilo = _mm_load_ps(P.inv_lo), ihi = _mm_load_ps(P.inv_hi);
+  const __m128 tn0 = _mm_min_ps(_mm_min_ps(_mm_mul_ps(alo, ilo), _mm_mul_ps(alo, ihi)),
+                                _mm_min_ps(_mm_mul_ps(ahi, ilo), _mm_mul_ps(ahi, ihi)));
+  const __m128 blo = _mm_sub_ps(f, ohi), bhi = _mm_sub_ps(f, olo);
+  const __m128 jlo = _mm_load_ps(P.invf_lo), jhi = _mm_load_ps(P.invf_hi);
+  const __m128 tf0 = _mm_max_ps(_mm_max_ps(_mm_mul_ps(blo, jlo), _mm_mul_ps(blo, jhi)),
+                                _mm_max_ps(_mm_mul_ps(bhi, jlo), _mm_mul_ps(bhi, jhi)));
+  const __m128 off = _mm_castsi128_ps(_mm_load_si128(reinterpret_cast<const __m128i*>(P.axis_off)));
+  const __m128 tn = _mm_blendv_ps(tn0, _mm_set1_ps(-INFINITY), off);
+  const __m128 tf = _mm_blendv_ps(tf0, _mm_set1_ps(INFINITY), off);
+  alignas(16) float lo[4], hi[4];
+  _mm_store_ps(lo, tn);
+  _mm_store_ps(hi, tf);
+  const float entry = std::max(std::max(lo[0], lo[1]), std::max(lo[2], P.tmin_lo));
+  const float exit = std::min(std::min(hi[0], hi[1]), std::min(hi[2], P.tcull_hi));
+  return entry > exit;
+}
+
+/// box_test (intersect.h) on the 8 lanes of SIMD ray g against two boxes at once: each lane's
+/// near and far planes by the sign of its direction, the same operations in the same order.
+/// Returns the hit lanes of each box and their entry distances. SameSign: every lane has the
+/// packet's signs, so the planes are the box's broadcast ones.
+template <bool SameSign>
+[[gnu::always_inline]] inline void box2_group(const Packet& P, int g, const Box8& b0, const Box8& b1, unsigned& h0,
+                                              unsigned& h1, __m256& te0, __m256& te1) {
+  const int i = g * kLanes;
+  const __m256 tcull = _mm256_mul_ps(_mm256_load_ps(P.t + i), _mm256_set1_ps(kCullSlack));
+  const __m256 tmin = _mm256_load_ps(P.tmin + i);
+  __m256 e0 = tmin, e1 = tmin, x0 = tcull, x1 = tcull;
+  for (int a = 0; a < 3; ++a) {
+    const __m256 o = _mm256_load_ps(P.o[a] + i);
+    const __m256 inv = _mm256_load_ps(P.inv[a] + i), invf = _mm256_load_ps(P.invf[a] + i);
+    __m256 n0, f0, n1, f1;
+    if constexpr (SameSign) {
+      n0 = b0.nearv[a], f0 = b0.farv[a], n1 = b1.nearv[a], f1 = b1.farv[a];
+    } else {
+      const __m256 s = _mm256_load_ps(P.d[a] + i);  // the sign bit selects the planes
+      n0 = _mm256_blendv_ps(b0.lo[a], b0.hi[a], s), f0 = _mm256_blendv_ps(b0.hi[a], b0.lo[a], s);
+      n1 = _mm256_blendv_ps(b1.lo[a], b1.hi[a], s), f1 = _mm256_blendv_ps(b1.hi[a], b1.lo[a], s);
+    }
+    // box_test's order: te = max(tnz, max(tny, max(tnx, tmin))), tx likewise from tcull
+    e0 = _mm256_max_ps(_mm256_mul_ps(_mm256_sub_ps(n0, o), inv), e0);
+    x0 = _mm256_min_ps(_mm256_mul_ps(_mm256_sub_ps(f0, o), invf), x0);
+    e1 = _mm256_max_ps(_mm256_mul_ps(_mm256_sub_ps(n1, o), inv), e1);
+    x1 = _mm256_min_ps(_mm256_mul_ps(_mm256_sub_ps(f1, o), invf), x1);
+  }
+  h0 = static_cast<unsigned>(_mm256_movemask_ps(_mm256_cmp_ps(e0, x0, _CMP_LE_OQ)));
+  h1 = static_cast<unsigned>(_mm256_movemask_ps(_mm256_cmp_ps(e1, x1, _CMP_LE_OQ)));
+  te0 = e0;
+  te1 = e1;
+}
+
+/// Per lane: c == 0 ? a : c == 1 ? b : c2 (c as the masks k1 / k2).
+[[gnu::always_inline]] inline __m256 select3(__m256 a, __m256 b, __m256 c, __m256 is1, __m256 is2) {
+  return _mm256_blendv_ps(_mm256_blendv_ps(a, b, is1), c, is2);
+}
+
+/// Lanes i..i+7's coordinate of `role` (their kx, ky or kz) of the vertex rows v.
+[[gnu::always_inline]] inline __m256 select_role(const Packet& P, int i, int role, const __m256 (&v)[3]) {
+  return select3(v[0], v[1], v[2], _mm256_castsi256_ps(_mm256_load_si256(reinterpret_cast<const __m256i*>(P.k1[role] + i))),
+                 _mm256_castsi256_ps(_mm256_load_si256(reinterpret_cast<const __m256i*>(P.k2[role] + i))));
+}
+
+/// One triangle against the lanes `m` of SIMD ray g: tri_test (intersect.h) lane by lane — the
+/// shear of each lane's own axes, the same operations in the same order, the undecided lanes by
+/// tri_test itself. Closest hit: keeps each lane's smallest (t, prim) as visit_leaf does. Any
+/// hit: returns the lanes that hit.
+template <bool Any, bool UniformK>
+[[gnu::always_inline]] inline unsigned tri_group(Packet& P, int g, const Tri& tri, const __m256 (&vb)[3][3], unsigned m) {
+  const int i = g * kLanes;
+  const __m256 ox = _mm256_load_ps(P.to[0] + i), oy = _mm256_load_ps(P.to[1] + i), oz = _mm256_load_ps(P.to[2] + i);
+  const __m256 sx = _mm256_load_ps(P.ts[0] + i), sy = _mm256_load_ps(P.ts[1] + i), sz = _mm256_load_ps(P.ts[2] + i);
+  __m256 X[3], Y[3], Z[3];
+  for (int q = 0; q < 3; ++q) {
+    __m256 px, py, pz;
+    if constexpr (UniformK) {
+      px = vb[q][P.k[0]];
+      py = vb[q][P.k[1]];
+      pz = vb[q][P.k[2]];
+    } else {
+      px = select_role(P, i, 0, vb[q]);
+      py = select_role(P, i, 1, vb[q]);
+      pz = select_role(P, i, 2, vb[q]);
+    }
+    const __m256 ax = _mm256_sub_ps(px, ox), ay = _mm256_sub_ps(py, oy), az = _mm256_sub_ps(pz, oz);
+    X[q] = _mm256_sub_ps(ax, _mm256_mul_ps(sx, az));
+    Y[q] = _mm256_sub_ps(ay, _mm256_mul_ps(sy, az));
+    Z[q] = _mm256_mul_ps(sz, az);
+  }
+  const __m256 U = _mm256_sub_ps(_mm256_mul_ps(X[2], Y[1]), _mm256_mul_ps(Y[2], X[1]));
+  const __m256 V = _mm256_sub_ps(_mm256_mul_ps(X[0], Y[2]), _mm256_mul_ps(Y[0], X[2]));
+  const __m256 W = _mm256_sub_ps(_mm256_mul_ps(X[1], Y[0]), _mm256_mul_ps(Y[1], X[0]));
+  const __m256 zero = _mm256_setzero_ps();
+  const unsigned exact0 = static_cast<unsigned>(_mm256_movemask_ps(_mm256_or_ps(
+      _mm256_cmp_ps(U, zero, _CMP_EQ_OQ), _mm256_or_ps(_mm256_cmp_ps(V, zero, _CMP_EQ_OQ), _mm256_cmp_ps(W, zero, _CMP_EQ_OQ)))));
+  const __m256 neg = _mm256_or_ps(_mm256_cmp_ps(U, zero, _CMP_LT_OQ),
+                                  _mm256_or_ps(_mm256_cmp_ps(V, zero, _CMP_LT_OQ), _mm256_cmp_ps(W, zero, _CMP_LT_OQ)));
+  const __m256 pos = _mm256_or_ps(_mm256_cmp_ps(U, zero, _CMP_GT_OQ),
+                                  _mm256_or_ps(_mm256_cmp_ps(V, zero, _CMP_GT_OQ), _mm256_cmp_ps(W, zero, _CMP_GT_OQ)));
+  unsigned fallback = m & exact0;
+  const unsigned inside = m & ~exact0 & ~static_cast<unsigned>(_mm256_movemask_ps(_mm256_and_ps(neg, pos)));
+  unsigned sure = 0;
+  if (inside != 0) {
+    const __m256 det = _mm256_add_ps(_mm256_add_ps(U, V), W);
+    const __m256 T = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(U, Z[0]), _mm256_mul_ps(V, Z[1])), _mm256_mul_ps(W, Z[2]));
+    const __m256 t = _mm256_div_ps(T, det);
+    const __m256 tmax = _mm256_load_ps(P.t + i);
+    const __m256 in = _mm256_and_ps(_mm256_cmp_ps(t, _mm256_load_ps(P.tmin + i), _CMP_GE_OQ), _mm256_cmp_ps(t, tmax, _CMP_LE_OQ));
+    const unsigned cand =
+        inside & static_cast<unsigned>(_mm256_movemask_ps(_mm256_and_ps(in, _mm256_cmp_ps(det, zero, _CMP_NEQ_UQ))));
+    if (cand != 0) {
+      // conservative t > 0 (pbrt-v3), tri_test's bound
+      constexpr float ur = MBVH_UNIT_ROUNDOFF;
+      constexpr float g2 = 2 * ur / (1 - 2 * ur), g3 = 3 * ur / (1 - 3 * ur), g5 = 5 * ur / (1 - 5 * ur);
+      using F = F8;
+      const __m256 maxZt = absmax3<F>(Z[0], Z[1], Z[2]), maxXt = absmax3<F>(X[0], X[1], X[2]),
+                   maxYt = absmax3<F>(Y[0], Y[1], Y[2]);
+      const __m256 maxE = absmax3<F>(U, V, W);
+      const __m256 dz = F::mul(F::set1(g3), maxZt);
+      const __m256 dx = F::mul(F::set1(g5), F::add(maxXt, maxZt));
+      const __m256 dy = F::mul(F::set1(g5), F::add(maxYt, maxZt));
+      const __m256 de = F::mul(F::set1(2.0f), F::add(F::add(F::mul(F::mul(F::set1(g2), maxXt), maxYt), F::mul(dy, maxXt)),
+                                                     F::mul(dx, maxYt)));
+      const __m256 sum = F::add(F::add(F::mul(F::mul(F::set1(g3), maxE), maxZt), F::mul(de, maxZt)), F::mul(dz, maxE));
+      const __m256 dt = F::mul(F::mul(F::set1(3.0f), sum), F::andnot(F::set1(-0.0f), F::div(F::set1(1.0f), det)));
+      sure = cand & static_cast<unsigned>(_mm256_movemask_ps(_mm256_cmp_ps(t, dt, _CMP_GT_OQ)));
+      fallback |= cand & ~sure;
+      if constexpr (!Any) {
+        if (sure != 0) {
+          // visit_leaf's rule: t <= best t holds; replace on t < best t or a smaller prim
+          const __m256i bias = _mm256_set1_epi32(INT32_MIN);
+          const __m256i pr = _mm256_set1_epi32(static_cast<int>(tri_prim(tri)));
+          const __m256i bp = _mm256_load_si256(reinterpret_cast<const __m256i*>(P.prim + i));
+          const __m256 smaller = _mm256_castsi256_ps(
+              _mm256_cmpgt_epi32(_mm256_xor_si256(bp, bias), _mm256_xor_si256(pr, bias)));  // prim < best prim
+          const unsigned upd = sure & static_cast<unsigned>(_mm256_movemask_ps(_mm256_or_ps(_mm256_cmp_ps(t, tmax, _CMP_LT_OQ), smaller)));
+          if (upd != 0) {
+            const __m256 lanes = _mm256_castsi256_ps(_mm256_cmpgt_epi32(
+                _mm256_and_si256(_mm256_set1_epi32(static_cast<int>(upd)), _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128)),
+                _mm256_setzero_si256()));
+            _mm256_store_ps(P.t + i, _mm256_blendv_ps(tmax, t, lanes));
+            _mm256_store_ps(P.u + i, _mm256_blendv_ps(_mm256_load_ps(P.u + i), _mm256_div_ps(V, det), lanes));
+            _mm256_store_ps(P.v + i, _mm256_blendv_ps(_mm256_load_ps(P.v + i), _mm256_div_ps(W, det), lanes));
+            _mm256_store_si256(reinterpret_cast<__m256i*>(P.prim + i),
+                               _mm256_castps_si256(_mm256_blendv_ps(_mm256_castsi256_ps(bp), _mm256_castsi256_ps(pr), lanes)));
+          }
+        }
+      }
+    }
+  }
+  for (unsigned f = fallback; f != 0; f &= f - 1) {  // the rare undecided lanes: tri_test itself
+    const int l = i + std::countr_zero(f);
+    float tt, uu, vv;
+    if (tri_test(P.pre[l], tri, P.t[l], tt, uu, vv)) {
+      if constexpr (Any) {
+        sure |= 1u << (l - i);
+      } else {
+        const std::uint32_t pr = tri_prim(tri);
+        if (tt < P.t[l] || pr < P.prim[l]) {
+          P.t[l] = tt;
+          P.u[l] = uu;
+          P.v[l] = vv;
+          P.prim[l] = pr;
+        }
+      }
+    }
+  }
+  return sure;
+}
+
+/// The active SIMD rays of a traversal step: ranged, the span [first, last] of SIMD rays (those
+/// between with no lane left are skipped); partition, the list of those with a lane left.
+template <bool Partition>
+struct Active {
+  std::uint8_t n = 0;            ///< partition: SIMD rays listed; ranged: last + 1
+  std::uint8_t first = 0;        ///< ranged
+  std::uint8_t ids[kGroups]{};   ///< partition
+  std::uint8_t mask[kGroups]{};  ///< lanes per SIMD ray
+  // the SIMD rays to visit: g = at(k) for k in [begin(), end()), skipping mask[g] == 0
+  int begin() const { return Partition ? 0 : first; }
+  int end() const { return n; }
+  int at(int k) const { return Partition ? ids[k] : k; }
+  void clear() {
+    n = 0;
+    first = kGroups;
+  }
+  /// Records SIMD ray g's lanes `m` (g rising between clears).
+  [[gnu::always_inline]] void add(int g, unsigned m) {
+    mask[g] = static_cast<std::uint8_t>(m);
+    if (m == 0) return;
+    if constexpr (Partition) {
+      ids[n++] = static_cast<std::uint8_t>(g);
+    } else {
+      if (first == kGroups) first = static_cast<std::uint8_t>(g);
+      n = static_cast<std::uint8_t>(g + 1);
+    }
+  }
+  bool empty() const { return Partition ? n == 0 : first >= n; }
+};
+
+/// Adds to the counters of SIMD ray g's lanes `m`.
+inline void count_lanes(RayStats* st, int g, unsigned m, unsigned nodes, unsigned boxes, unsigned leaves = 0, unsigned tris = 0) {
+  for (; m != 0; m &= m - 1) {
+    RayStats& s = st[g * kLanes + std::countr_zero(m)];
+    s.nodes += nodes;
+    s.box_tests += boxes;
+    s.leaves += leaves;
+    s.tris += tris;
+  }
+}
+
+/// Traces the packet through the MBVH2 nodes of v: ranged or partition traversal with the
+/// frustum test, the nearer child (the smaller entry over the packet's hit lanes) first.
+/// Stats: st[i] counts lane i's work — the nodes and leaves it was active in, the triangles
+/// tested for it (as its own traversal would count them), and the peak stack depth.
+template <bool Any, bool Partition, bool UniformK, bool SameSign, bool Stats>
+inline void trace_packet(const TraceView& v, Packet& P, RayStats* st) {
+  using A = Active<Partition>;
+  struct Entry {
+    std::int32_t node;
+    A act;
+  };
+  Entry stack[MBVH_STACK2_ENTRIES + 1];
+  unsigned sp = 0;
+  std::int32_t cur = 0;
+  A act;
+  act.clear();
+  for (int g = 0; g < kGroups; ++g) {
+    act.mask[g] = 0;
+    act.add(g, P.live[g]);
+  }
+  if (act.empty()) return;
+  for (;;) {
+    if (cur >= 0) {
+      const Node2& n = v.n2[cur];
+      Box8 b0, b1;
+      load_box(b0, n.c0[0], n.c0[1], n.c0[2], n.c0[3], n.zz[0], n.zz[1], P);
+      load_box(b1, n.c1[0], n.c1[1], n.c1[2], n.c1[3], n.zz[2], n.zz[3], P);
+      const bool f0 = !(P.frustum && frustum_miss(P, b0));
+      const bool f1 = !(P.frustum && frustum_miss(P, b1));
+      if (f0 || f1) {
+        A a0, a1;
+        a0.clear();
+        a1.clear();
+        __m256 near0 = _mm256_set1_ps(INFINITY), near1 = near0;
+        for (int k = act.begin(); k < act.end(); ++k) {
+          const int g = act.at(k);
+          unsigned lanes = act.mask[g];
+          if constexpr (Any) lanes &= P.live[g];
+          if (lanes == 0) continue;
+          if constexpr (Stats) count_lanes(st, g, lanes, 1, 2);
+          unsigned h0, h1;
+          __m256 te0, te1;
+          box2_group<SameSign>(P, g, b0, b1, h0, h1, te0, te1);
+          h0 = f0 ? h0 & lanes : 0u;
+          h1 = f1 ? h1 & lanes : 0u;
+          a0.add(g, h0);
+          a1.add(g, h1);
+          const __m256i bits = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
+          const __m256 m0 = _mm256_castsi256_ps(_mm256_cmpgt_epi32(_mm256_and_si256(_mm256_set1_epi32(static_cast<int>(h0)), bits), _mm256_setzero_si256()));
+          const __m256 m1 = _mm256_castsi256_ps(_mm256_cmpgt_epi32(_mm256_and_si256(_mm256_set1_epi32(static_cast<int>(h1)), bits), _mm256_setzero_si256()));
+          near0 = _mm256_min_ps(near0, _mm256_blendv_ps(_mm256_set1_ps(INFINITY), te0, m0));
+          near1 = _mm256_min_ps(near1, _mm256_blendv_ps(_mm256_set1_ps(INFINITY), te1, m1));
+        }
+        const bool e0 = a0.empty(), e1 = a1.empty();
+        if (!e0 || !e1) {
+          int k = e0 ? 1 : 0;
+          if (!e0 && !e1) {
+            __m256 m0 = _mm256_min_ps(near0, _mm256_permute_ps(near0, 0xB1));
+            m0 = _mm256_min_ps(m0, _mm256_permute_ps(m0, 0x4E));
+            m0 = _mm256_min_ps(m0, _mm256_permute2f128_ps(m0, m0, 0x01));
+            __m256 m1 = _mm256_min_ps(near1, _mm256_permute_ps(near1, 0xB1));
+            m1 = _mm256_min_ps(m1, _mm256_permute_ps(m1, 0x4E));
+            m1 = _mm256_min_ps(m1, _mm256_permute2f128_ps(m1, m1, 0x01));
+            k = _mm256_cvtss_f32(m1) < _mm256_cvtss_f32(m0) ? 1 : 0;
+            if (sp >= MBVH_STACK2_ENTRIES) throw std::runtime_error("packet traversal stack overflow: the tree is deeper than its cap");
+            stack[sp].node = n.link[2 + (1 - k)];
+            stack[sp].act = k ? a0 : a1;
+            ++sp;
+            if constexpr (Stats)
+              for (int i = 0; i < Packet::N; ++i) st[i].max_depth = std::max(st[i].max_depth, static_cast<std::uint32_t>(sp));
+          }
+          cur = n.link[2 + k];
+          act = k ? a1 : a0;
+          continue;
+        }
+      }
+    } else if (cur != MBVH_EMPTY) {
+      const Leaf l = v.leaves[~cur];
+      for (std::uint32_t j = l.first; j < l.first + l.count; ++j) {
+        const Tri& tri = v.tris[j];
+        __m256 vb[3][3];
+        const float* rows[3] = {tri.v0, tri.v1, tri.v2};
+        for (int q = 0; q < 3; ++q)
+          for (int a = 0; a < 3; ++a) vb[q][a] = _mm256_set1_ps(rows[q][a]);
+        bool any_left = false;
+        for (int k = act.begin(); k < act.end(); ++k) {
+          const int g = act.at(k);
+          unsigned lanes = act.mask[g];
+          if constexpr (Any) lanes &= P.live[g];
+          if (lanes == 0) continue;
+          if constexpr (Stats) count_lanes(st, g, lanes, 0, 0, j == l.first ? 1 : 0, 1);
+          const unsigned hit = tri_group<Any, UniformK>(P, g, tri, vb, lanes);
+          if constexpr (Any) {
+            for (unsigned h = hit; h != 0; h &= h - 1) P.prim[g * kLanes + std::countr_zero(h)] = tri_prim(tri);
+            P.live[g] = static_cast<std::uint8_t>(P.live[g] & ~hit);
+            any_left = any_left || (lanes & ~hit) != 0;
+          }
+        }
+        if constexpr (Any) {
+          if (!any_left) break;
+        }
+      }
+    }
+    // pop the next entry with a lane left
+    for (;;) {
+      if (sp == 0) return;
+      --sp;
+      cur = stack[sp].node;
+      act = stack[sp].act;
+      if constexpr (Any) {
+        bool left = false;
+        for (int k = act.begin(); k < act.end() && !left; ++k) left = (act.mask[act.at(k)] & P.live[act.at(k)]) != 0;
+        if (!left) continue;
+      }
+      break;
+    }
+  }
+}
+
+}  // namespace packet
