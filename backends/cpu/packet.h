@@ -39,7 +39,7 @@ struct Packet {
   alignas(32) std::uint32_t prim[N];
   alignas(32) float to[3][N], ts[3][N];            ///< the triangle test's permuted origin and shear
   alignas(32) std::int32_t k1[3][N], k2[3][N];     ///< role x, y, z reads coordinate 1 / 2 (all ones)
-  RayPre pre[N];
+  const mbvh::Ray* src = nullptr;  ///< the packet's rays (the scalar test of an undecided lane prepares its own)
   std::uint8_t live[kGroups];  ///< valid lanes; any hit: not yet occluded
   int count = 0;               ///< rays in this packet (the last one of a batch may be short)
   bool uniform_k = false;      ///< every valid lane has the same kx, ky, kz
@@ -53,120 +53,186 @@ struct Packet {
   float tmin_lo = 0, tcull_hi = 0;
 };
 
-/// The hybrid switch: whether rays[0, n) are coherent enough to trace as a packet — their unit
-/// directions span less than kSpread on every axis (a packet of a 64-pixel row of a primary
-/// image spans about 0.1; diffuse rays span nearly 2). Invalid rays do not count.
+/// The hybrid switch: a packet is traced as one when its rays' unit directions span less than
+/// kSpread on every axis (a packet of an 8x8 tile of a primary image spans about 0.05; diffuse
+/// rays span nearly 2); otherwise ray by ray. Invalid rays do not count.
 constexpr float kSpread = 0.5f;
-inline bool coherent(const mbvh::Ray* rays, int n) {
-  __m128 lo = _mm_set1_ps(INFINITY), hi = _mm_set1_ps(-INFINITY);
-  for (int i = 0; i < n; ++i) {
-    const __m128 d = _mm_and_ps(_mm_loadu_ps(&rays[i].dx), _mm_castsi128_ps(_mm_setr_epi32(-1, -1, -1, 0)));
-    const float len2 = _mm_cvtss_f32(_mm_dp_ps(d, d, 0x71));
-    if (!(len2 > 0.0f && len2 < INFINITY)) continue;
-    const __m128 u = _mm_div_ps(d, _mm_set1_ps(std::sqrt(len2)));
-    lo = _mm_min_ps(lo, u);
-    hi = _mm_max_ps(hi, u);
-  }
-  alignas(16) float w[4];
-  _mm_store_ps(w, _mm_sub_ps(hi, lo));
-  return !(w[0] >= kSpread || w[1] >= kSpread || w[2] >= kSpread);  // true when no ray counted: a packet of misses
+
+/// Transposes 8 rows of 8 floats (row r, lane l -> row l, lane r).
+[[gnu::always_inline]] inline void transpose8(__m256 (&r)[8]) {
+  const __m256 t0 = _mm256_unpacklo_ps(r[0], r[1]), t1 = _mm256_unpackhi_ps(r[0], r[1]);
+  const __m256 t2 = _mm256_unpacklo_ps(r[2], r[3]), t3 = _mm256_unpackhi_ps(r[2], r[3]);
+  const __m256 t4 = _mm256_unpacklo_ps(r[4], r[5]), t5 = _mm256_unpackhi_ps(r[4], r[5]);
+  const __m256 t6 = _mm256_unpacklo_ps(r[6], r[7]), t7 = _mm256_unpackhi_ps(r[6], r[7]);
+  const __m256 u0 = _mm256_shuffle_ps(t0, t2, 0x44), u1 = _mm256_shuffle_ps(t0, t2, 0xEE);
+  const __m256 u2 = _mm256_shuffle_ps(t1, t3, 0x44), u3 = _mm256_shuffle_ps(t1, t3, 0xEE);
+  const __m256 u4 = _mm256_shuffle_ps(t4, t6, 0x44), u5 = _mm256_shuffle_ps(t4, t6, 0xEE);
+  const __m256 u6 = _mm256_shuffle_ps(t5, t7, 0x44), u7 = _mm256_shuffle_ps(t5, t7, 0xEE);
+  r[0] = _mm256_permute2f128_ps(u0, u4, 0x20);
+  r[1] = _mm256_permute2f128_ps(u1, u5, 0x20);
+  r[2] = _mm256_permute2f128_ps(u2, u6, 0x20);
+  r[3] = _mm256_permute2f128_ps(u3, u7, 0x20);
+  r[4] = _mm256_permute2f128_ps(u0, u4, 0x31);
+  r[5] = _mm256_permute2f128_ps(u1, u5, 0x31);
+  r[6] = _mm256_permute2f128_ps(u2, u6, 0x31);
+  r[7] = _mm256_permute2f128_ps(u3, u7, 0x31);
 }
 
-/// Loads packet lane i from `ray` (false: an invalid ray, a defined miss, its lane off).
-template <bool Fast>
-inline bool load_lane(Packet& P, int i, const mbvh::Ray& ray) {
-  RayPre& p = P.pre[i];
-  if (!prepare_ray_simd(ray, p)) {
-    for (int a = 0; a < 3; ++a) P.o[a][i] = P.d[a][i] = P.inv[a][i] = P.invf[a][i] = P.to[a][i] = P.ts[a][i] = 0.0f;
-    for (int a = 0; a < 3; ++a) P.k1[a][i] = P.k2[a][i] = 0;
-    P.tmin[i] = 0.0f;
-    P.t[i] = -1.0f;  // below every tmin: no box or triangle accepts it
-    return false;
-  }
-  if constexpr (Fast) relax_ray(p);
-  const int k[3] = {p.kx, p.ky, p.kz};
-  const float sh[3] = {p.sx, p.sy, p.sz};
-  for (int a = 0; a < 3; ++a) {
-    P.o[a][i] = p.o[a];
-    P.d[a][i] = p.d[a];
-    P.inv[a][i] = p.inv[a];
-    P.invf[a][i] = p.inv_far[a];
-    P.to[a][i] = p.o[k[a]];
-    P.ts[a][i] = sh[a];
-    P.k1[a][i] = k[a] == 1 ? -1 : 0;
-    P.k2[a][i] = k[a] == 2 ? -1 : 0;
-  }
-  P.tmin[i] = p.tmin;
-  P.t[i] = p.tmax;
-  return true;
+/// Horizontal min / max of 8 lanes.
+[[gnu::always_inline]] inline float hmin8(__m256 v) {
+  v = _mm256_min_ps(v, _mm256_permute_ps(v, 0xB1));
+  v = _mm256_min_ps(v, _mm256_permute_ps(v, 0x4E));
+  return _mm256_cvtss_f32(_mm256_min_ps(v, _mm256_permute2f128_ps(v, v, 0x01)));
+}
+[[gnu::always_inline]] inline float hmax8(__m256 v) {
+  v = _mm256_max_ps(v, _mm256_permute_ps(v, 0xB1));
+  v = _mm256_max_ps(v, _mm256_permute_ps(v, 0x4E));
+  return _mm256_cvtss_f32(_mm256_max_ps(v, _mm256_permute2f128_ps(v, v, 0x01)));
 }
 
-/// Fills the packet from rays[0, n) and sets up its frustum; returns whether any axis bounds it.
+/// Per lane: the row of (x, y, z) that k (0, 1, 2, as the masks k == 1, k == 2) names.
+[[gnu::always_inline]] inline __m256 pick3(const __m256 (&v)[3], __m256i k) {
+  const __m256 is1 = _mm256_castsi256_ps(_mm256_cmpeq_epi32(k, _mm256_set1_epi32(1)));
+  const __m256 is2 = _mm256_castsi256_ps(_mm256_cmpeq_epi32(k, _mm256_set1_epi32(2)));
+  return _mm256_blendv_ps(_mm256_blendv_ps(v[0], v[1], is1), v[2], is2);
+}
+
+/// Fills the packet from rays[0, n), eight rays at a time in vector registers: prepare_ray's
+/// checks and per-ray constants (prepare_ray_simd's, the same IEEE operations, so every bit is
+/// the scalar's) as SoA rows, and the frustum. Counts the invalid rays in `invalid`. Returns
+/// false when the rays are too incoherent for a packet (kSpread): the caller traces them ray by
+/// ray instead (the packet is then incomplete).
 template <bool Fast>
 inline bool load_packet(Packet& P, const mbvh::Ray* rays, int n, std::size_t& invalid) {
   P.count = n;
-  for (int i = 0; i < Packet::N; ++i) {
-    P.u[i] = P.v[i] = 0.0f;
-    P.prim[i] = MBVH_MISS_PRIM;
-  }
-  int first = -1;
-  bool same_k = true, same_sign = true;
-  for (int g = 0; g < kGroups; ++g) P.live[g] = 0;
-  for (int i = 0; i < Packet::N; ++i) {
-    if (i >= n || !load_lane<Fast>(P, i, rays[i])) {
-      if (i >= n) load_lane<Fast>(P, i, mbvh::Ray{NAN, 0, 0, 0, 0, 0, 0, 0});
-      else ++invalid;
-      continue;
-    }
-    P.live[i / kLanes] |= static_cast<std::uint8_t>(1u << (i % kLanes));
-    const RayPre& p = P.pre[i];
-    if (first < 0) {
-      first = i;
-      P.k[0] = p.kx;
-      P.k[1] = p.ky;
-      P.k[2] = p.kz;
-      for (int a = 0; a < 3; ++a) {
-        P.neg[a] = p.neg[a];
-        P.o_lo[a] = P.o_hi[a] = p.o[a];
-        P.inv_lo[a] = P.inv_hi[a] = p.inv[a];
-        P.invf_lo[a] = P.invf_hi[a] = p.inv_far[a];
-      }
-      P.tmin_lo = p.tmin;
-      P.tcull_hi = p.tmax * kCullSlack;
-      continue;
-    }
-    same_k = same_k && p.kx == P.k[0] && p.ky == P.k[1] && p.kz == P.k[2];
+  P.src = rays;
+  const __m256 inf = _mm256_set1_ps(INFINITY), ninf = _mm256_set1_ps(-INFINITY), zero = _mm256_setzero_ps();
+  const __m256 sign = _mm256_set1_ps(-0.0f);
+  __m256 ulo[3] = {inf, inf, inf}, uhi[3] = {ninf, ninf, ninf};  // unit directions
+  __m256 olo[3] = {inf, inf, inf}, ohi[3] = {ninf, ninf, ninf}, ilo[3] = {inf, inf, inf}, ihi[3] = {ninf, ninf, ninf};
+  __m256 jlo[3] = {inf, inf, inf}, jhi[3] = {ninf, ninf, ninf}, tmin_lo = inf, tcull_hi = ninf;
+  unsigned neg_any[3] = {0, 0, 0}, pos_any[3] = {0, 0, 0};
+  __m256i codes = _mm256_setzero_si256();
+  bool any_valid = false;
+  for (int g = 0; g < kGroups; ++g) {
+    const int i = g * kLanes;
+    __m256 r[8];
+    for (int l = 0; l < kLanes; ++l)
+      r[l] = i + l < n ? _mm256_loadu_ps(&rays[i + l].ox) : zero;  // a missing ray: d = 0, invalid
+    transpose8(r);
+    const __m256 o[3] = {r[0], r[1], r[2]}, d[3] = {r[4], r[5], r[6]};
+    const __m256 tmin = r[3], tmax = r[7];
+    // prepare_ray's checks: o, tmin, d finite, tmax not NaN, 0 <= tmin <= tmax, the largest
+    // direction component normal
+    __m256 ok = _mm256_cmp_ps(tmax, tmax, _CMP_ORD_Q);
+    for (const __m256& x : {o[0], o[1], o[2], tmin, d[0], d[1], d[2]}) ok = _mm256_and_ps(ok, _mm256_cmp_ps(_mm256_andnot_ps(sign, x), inf, _CMP_LT_OQ));
+    ok = _mm256_and_ps(ok, _mm256_and_ps(_mm256_cmp_ps(tmin, zero, _CMP_GE_OQ), _mm256_cmp_ps(tmin, tmax, _CMP_LE_OQ)));
+    const __m256 ad[3] = {_mm256_andnot_ps(sign, d[0]), _mm256_andnot_ps(sign, d[1]), _mm256_andnot_ps(sign, d[2])};
+    const __m256 y_gt = _mm256_cmp_ps(ad[1], ad[0], _CMP_GT_OQ);
+    const __m256 amax01 = _mm256_blendv_ps(ad[0], ad[1], y_gt);
+    const __m256 z_gt = _mm256_cmp_ps(ad[2], amax01, _CMP_GT_OQ);
+    const __m256 amax = _mm256_blendv_ps(amax01, ad[2], z_gt);
+    ok = _mm256_and_ps(ok, _mm256_cmp_ps(amax, _mm256_set1_ps(std::numeric_limits<float>::min()), _CMP_GE_OQ));
+    const unsigned valid = static_cast<unsigned>(_mm256_movemask_ps(ok)) & (i + kLanes <= n ? 0xFFu : (1u << std::max(0, n - i)) - 1u);
+    const unsigned in_batch = i + kLanes <= n ? 0xFFu : (1u << std::max(0, n - i)) - 1u;
+    invalid += static_cast<std::size_t>(std::popcount(in_batch & ~valid));
+    P.live[g] = static_cast<std::uint8_t>(valid);
+    const __m256 vm = _mm256_castsi256_ps(_mm256_cmpgt_epi32(
+        _mm256_and_si256(_mm256_set1_epi32(static_cast<int>(valid)), _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128)),
+        _mm256_setzero_si256()));
+    // kz = the largest |d| (ties to the lower axis), kx, ky the next two, swapped when d[kz] < 0
+    const __m256i one = _mm256_set1_epi32(1), two = _mm256_set1_epi32(2);
+    const __m256i kz = _mm256_blendv_epi8(_mm256_and_si256(_mm256_castps_si256(y_gt), one), two, _mm256_castps_si256(z_gt));
+    const __m256i kx0 = _mm256_blendv_epi8(_mm256_add_epi32(kz, one), _mm256_setzero_si256(), _mm256_cmpeq_epi32(kz, two));
+    const __m256i ky0 = _mm256_blendv_epi8(_mm256_add_epi32(kx0, one), _mm256_setzero_si256(), _mm256_cmpeq_epi32(kx0, two));
+    const __m256 dkz = pick3(d, kz);
+    const __m256i swap = _mm256_castps_si256(_mm256_cmp_ps(dkz, zero, _CMP_LT_OQ));
+    const __m256i kx = _mm256_blendv_epi8(kx0, ky0, swap), ky = _mm256_blendv_epi8(ky0, kx0, swap);
+    const __m256i k[3] = {kx, ky, kz};
+    codes = _mm256_or_si256(codes, _mm256_and_si256(_mm256_sllv_epi32(one, _mm256_add_epi32(_mm256_slli_epi32(kx, 2), kz)),
+                                                    _mm256_castps_si256(vm)));
+    const __m256 sh[3] = {_mm256_div_ps(pick3(d, kx), dkz), _mm256_div_ps(pick3(d, ky), dkz),
+                          _mm256_div_ps(_mm256_set1_ps(1.0f), dkz)};
     for (int a = 0; a < 3; ++a) {
-      same_sign = same_sign && p.neg[a] == P.neg[a];
-      P.o_lo[a] = std::min(P.o_lo[a], p.o[a]);
-      P.o_hi[a] = std::max(P.o_hi[a], p.o[a]);
-      P.inv_lo[a] = std::min(P.inv_lo[a], p.inv[a]);
-      P.inv_hi[a] = std::max(P.inv_hi[a], p.inv[a]);
-      P.invf_lo[a] = std::min(P.invf_lo[a], p.inv_far[a]);
-      P.invf_hi[a] = std::max(P.invf_hi[a], p.inv_far[a]);
+      const __m256 inv = _mm256_div_ps(_mm256_set1_ps(1.0f), d[a]);
+      const __m256 invf = Fast ? inv : _mm256_mul_ps(inv, _mm256_set1_ps(kFarFactor));
+      _mm256_store_ps(P.o[a] + i, _mm256_and_ps(o[a], vm));
+      _mm256_store_ps(P.d[a] + i, _mm256_and_ps(d[a], vm));
+      _mm256_store_ps(P.inv[a] + i, _mm256_and_ps(inv, vm));
+      _mm256_store_ps(P.invf[a] + i, _mm256_and_ps(invf, vm));
+      _mm256_store_ps(P.to[a] + i, _mm256_and_ps(pick3(o, k[a]), vm));
+      _mm256_store_ps(P.ts[a] + i, _mm256_and_ps(sh[a], vm));
+      _mm256_store_si256(reinterpret_cast<__m256i*>(P.k1[a] + i), _mm256_cmpeq_epi32(k[a], one));
+      _mm256_store_si256(reinterpret_cast<__m256i*>(P.k2[a] + i), _mm256_cmpeq_epi32(k[a], two));
+      // the frustum's intervals and the signs, over the valid lanes
+      olo[a] = _mm256_min_ps(olo[a], _mm256_blendv_ps(inf, o[a], vm));
+      ohi[a] = _mm256_max_ps(ohi[a], _mm256_blendv_ps(ninf, o[a], vm));
+      ilo[a] = _mm256_min_ps(ilo[a], _mm256_blendv_ps(inf, inv, vm));
+      ihi[a] = _mm256_max_ps(ihi[a], _mm256_blendv_ps(ninf, inv, vm));
+      jlo[a] = _mm256_min_ps(jlo[a], _mm256_blendv_ps(inf, invf, vm));
+      jhi[a] = _mm256_max_ps(jhi[a], _mm256_blendv_ps(ninf, invf, vm));
+      const unsigned s = static_cast<unsigned>(_mm256_movemask_ps(d[a]));
+      neg_any[a] |= s & valid;
+      pos_any[a] |= ~s & valid;
     }
-    P.tmin_lo = std::min(P.tmin_lo, p.tmin);
-    P.tcull_hi = std::max(P.tcull_hi, p.tmax * kCullSlack);
+    // the unit directions' spread (the hybrid switch)
+    const __m256 len = _mm256_sqrt_ps(_mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(d[0], d[0]), _mm256_mul_ps(d[1], d[1])),
+                                                    _mm256_mul_ps(d[2], d[2])));
+    const __m256 lm = _mm256_and_ps(vm, _mm256_and_ps(_mm256_cmp_ps(len, zero, _CMP_GT_OQ), _mm256_cmp_ps(len, inf, _CMP_LT_OQ)));
+    for (int a = 0; a < 3; ++a) {
+      const __m256 u = _mm256_div_ps(d[a], len);
+      ulo[a] = _mm256_min_ps(ulo[a], _mm256_blendv_ps(inf, u, lm));
+      uhi[a] = _mm256_max_ps(uhi[a], _mm256_blendv_ps(ninf, u, lm));
+    }
+    const __m256 tmin0 = _mm256_add_ps(tmin, zero);  // -0 becomes +0
+    _mm256_store_ps(P.tmin + i, _mm256_and_ps(tmin0, vm));
+    _mm256_store_ps(P.t + i, _mm256_blendv_ps(_mm256_set1_ps(-1.0f), tmax, vm));  // below every tmin: no box or triangle accepts it
+    _mm256_store_ps(P.u + i, zero);
+    _mm256_store_ps(P.v + i, zero);
+    _mm256_store_si256(reinterpret_cast<__m256i*>(P.prim + i), _mm256_set1_epi32(-1));  // MBVH_MISS_PRIM
+    tmin_lo = _mm256_min_ps(tmin_lo, _mm256_blendv_ps(inf, tmin0, vm));
+    tcull_hi = _mm256_max_ps(tcull_hi, _mm256_blendv_ps(ninf, _mm256_mul_ps(tmax, _mm256_set1_ps(kCullSlack)), vm));
+    any_valid = any_valid || valid != 0;
   }
-  P.uniform_k = same_k;
-  P.same_sign = same_sign;
+  for (int a = 0; a < 3; ++a)
+    if (!(hmax8(uhi[a]) - hmin8(ulo[a]) < kSpread) && any_valid) return false;
+  // uniform kx, ky, kz: one code among the valid lanes
+  alignas(32) std::uint32_t c[8];
+  _mm256_store_si256(reinterpret_cast<__m256i*>(c), codes);
+  const std::uint32_t all = c[0] | c[1] | c[2] | c[3] | c[4] | c[5] | c[6] | c[7];
+  P.uniform_k = std::popcount(all) <= 1;
+  if (all != 0) {
+    const int code = std::countr_zero(all);
+    P.k[0] = code >> 2;
+    P.k[2] = code & 3;
+    P.k[1] = 3 - P.k[0] - P.k[2];
+  }
   // the frustum bounds each lane's entry and exit on an axis where the lanes share the sign of
   // the direction (so their near plane) and the reciprocals are finite (a zero direction
   // component makes (plane - o) * inv infinite or NaN); another axis, and lane 3, bound nothing
+  P.same_sign = true;
   P.frustum = false;
   for (int a = 0; a < 4; ++a) {
     bool ok = false;
-    if (a < 3 && first >= 0) {
-      ok = std::fabs(P.inv_lo[a]) < INFINITY && std::fabs(P.inv_hi[a]) < INFINITY && std::fabs(P.invf_lo[a]) < INFINITY &&
-           std::fabs(P.invf_hi[a]) < INFINITY;
-      for (int i = 0; i < n && ok; ++i)
-        if ((P.live[i / kLanes] >> (i % kLanes)) & 1u) ok = P.pre[i].neg[a] == P.neg[a];
+    if (a < 3 && any_valid) {
+      P.neg[a] = neg_any[a] != 0 ? 1 : 0;
+      P.same_sign = P.same_sign && (neg_any[a] == 0 || pos_any[a] == 0);
+      P.o_lo[a] = hmin8(olo[a]);
+      P.o_hi[a] = hmax8(ohi[a]);
+      P.inv_lo[a] = hmin8(ilo[a]);
+      P.inv_hi[a] = hmax8(ihi[a]);
+      P.invf_lo[a] = hmin8(jlo[a]);
+      P.invf_hi[a] = hmax8(jhi[a]);
+      ok = (neg_any[a] == 0 || pos_any[a] == 0) && std::fabs(P.inv_lo[a]) < INFINITY && std::fabs(P.inv_hi[a]) < INFINITY &&
+           std::fabs(P.invf_lo[a]) < INFINITY && std::fabs(P.invf_hi[a]) < INFINITY;
     }
     P.axis_off[a] = ok ? 0 : -1;
     if (!ok) P.o_lo[a] = P.o_hi[a] = P.inv_lo[a] = P.inv_hi[a] = P.invf_lo[a] = P.invf_hi[a] = 0.0f;
     P.frustum = P.frustum || ok;
   }
-  return P.frustum;
+  P.tmin_lo = hmin8(tmin_lo);
+  P.tcull_hi = hmax8(tcull_hi);
+  return true;
 }
 
 /// A child box of a Node2, as broadcast rows (lo, hi per axis) and its scalar planes.
@@ -353,7 +419,9 @@ template <bool Any, bool UniformK>
   for (unsigned f = fallback; f != 0; f &= f - 1) {  // the rare undecided lanes: tri_test itself
     const int l = i + std::countr_zero(f);
     float tt, uu, vv;
-    if (tri_test(P.pre[l], tri, P.t[l], tt, uu, vv)) {
+    RayPre pre{};
+    prepare_ray_simd(P.src[l], pre);  // valid: only live lanes are tested
+    if (tri_test(pre, tri, P.t[l], tt, uu, vv)) {
       if constexpr (Any) {
         sure |= 1u << (l - i);
       } else {

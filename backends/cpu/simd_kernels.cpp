@@ -628,7 +628,7 @@ void trace_packets(const Accel& acc, std::span<const Ray> rays, const TraceOptio
     for (std::size_t s = b; s < e; s += kN) {
       const int n = static_cast<int>(std::min(kN, e - s));
       std::size_t bad = 0;
-      if (!packet::coherent(rays.data() + s, n)) {
+      if (!packet::load_packet<K::fast>(*P, rays.data() + s, n, bad)) {
         std::size_t again = 0;
         if (any) {
           if (opt.stats) run_batch<true, true, K>(sv, rays, s, s + n, opt, out, again);
@@ -640,7 +640,6 @@ void trace_packets(const Accel& acc, std::span<const Ray> rays, const TraceOptio
         inv += again;
         continue;
       }
-      packet::load_packet<K::fast>(*P, rays.data() + s, n, bad);
       inv += bad;
       if (opt.stats) {
         st.fill(RayStats{});

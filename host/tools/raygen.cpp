@@ -173,11 +173,11 @@ std::vector<Ray> generate_rays(const Scene& scene, const Accel& acc, const RayGe
   std::vector<Ray> rays;
   rays.reserve(opt.count);
   Rng rng(opt.seed * 4 + static_cast<std::uint64_t>(opt.kind));
+  // primary rays: a square image of at least `count` pixels, one jittered sample per pixel, in
+  // 8x8 tiles (rows of tiles, each tile row by row), the order a tiled renderer traces: 64
+  // consecutive rays are one tile, the cpu backend's packet (MBVH_PACKET_RAYS)
+  constexpr std::size_t kTile = 8;
   if (opt.kind == RayKind::primary) {
-    // a square image of at least `count` pixels, one jittered sample per pixel, in 8x8 tiles
-    // (rows of tiles, each tile row by row), the order a tiled renderer traces: 64 consecutive
-    // rays are one tile, the cpu backend's packet (MBVH_PACKET_RAYS)
-    constexpr std::size_t kTile = 8;
     std::size_t w = static_cast<std::size_t>(std::ceil(std::sqrt(static_cast<double>(std::max<std::size_t>(opt.count, 1)))));
     w = (w + kTile - 1) / kTile * kTile;
     for (std::size_t i = 0; i < opt.count; ++i) {
@@ -200,16 +200,26 @@ std::vector<Ray> generate_rays(const Scene& scene, const Accel& acc, const RayGe
     }
     return rays;
   }
-  // -- shadow and diffuse: from hit points of primary rays at random image positions
+  // -- shadow and diffuse: from hit points of primary rays at jittered pixels of the same tiled
+  // image (8x8 tiles, as above; passes over it until there are enough hits), in that order: the
+  // secondary rays of a tiled renderer, whose neighbours start at neighbouring points
   const Vec3f light = default_light(bounds);
   TraceOptions topt;
   topt.layout = Layout::mbvh4;
   topt.traversal = Traversal::stack;
   std::size_t tried = 0;
+  const std::size_t w = (static_cast<std::size_t>(std::ceil(std::sqrt(static_cast<double>(std::max<std::size_t>(opt.count, 1))))) +
+                         kTile - 1) / kTile * kTile;
   while (rays.size() < opt.count) {
     const std::size_t batch = std::max<std::size_t>(4096, (opt.count - rays.size()) * 2);
     std::vector<Ray> prim(batch);
-    for (std::size_t i = 0; i < batch; ++i) prim[i] = camera_ray(cam, rng.uniform_d(), rng.uniform_d());
+    for (std::size_t i = 0; i < batch; ++i) {
+      const std::size_t j = (tried + i) % (w * w);
+      const std::size_t tile = j / (kTile * kTile), in = j % (kTile * kTile);
+      const std::size_t x = tile % (w / kTile) * kTile + in % kTile, y = tile / (w / kTile) * kTile + in / kTile;
+      const double px = (static_cast<double>(x) + rng.uniform_d()) / static_cast<double>(w);
+      prim[i] = camera_ray(cam, px, (static_cast<double>(y) + rng.uniform_d()) / static_cast<double>(w));
+    }
     TraceOutput out;
     trace_reference(acc, prim, topt, out, opt.threads);
     for (std::size_t i = 0; i < batch && rays.size() < opt.count; ++i) {

@@ -96,7 +96,23 @@ public:
     ao_radius_ = 0.1f * std::sqrt(diag2_);
   }
 
+  /// The pixels in the order their paths are traced: 8x8 tiles, rows of tiles, each tile row by
+  /// row (clipped at the image's edges), as tiled renderers trace them: 64 consecutive camera rays
+  /// are one tile, a packet of the cpu backend's packet traversals (MBVH_PACKET_RAYS), and the
+  /// shadow and next rays keep the order of their paths.
+  static std::vector<std::uint32_t> tile_order(unsigned w, unsigned h) {
+    constexpr unsigned kTile = 8;
+    std::vector<std::uint32_t> order;
+    order.reserve(static_cast<std::size_t>(w) * h);
+    for (unsigned ty = 0; ty < h; ty += kTile)
+      for (unsigned tx = 0; tx < w; tx += kTile)
+        for (unsigned y = ty; y < std::min(h, ty + kTile); ++y)
+          for (unsigned x = tx; x < std::min(w, tx + kTile); ++x) order.push_back(y * w + x);
+    return order;
+  }
+
   RenderResult run(const std::function<void(unsigned, unsigned)>& progress) {
+    tile_order_ = tile_order(opt_.width, opt_.height);
     const auto t0 = std::chrono::steady_clock::now();
     res_.width = opt_.width;
     res_.height = opt_.height;
@@ -156,10 +172,11 @@ private:
     std::vector<Ray> rays(pixels);
     for_each(pixels, [&](std::size_t i) {
       Path& p = paths[i];
-      p.pixel = static_cast<std::uint32_t>(i);
-      p.rng = path_rng(opt_.seed, i, sample);
-      const double px = (double(i % opt_.width) + p.rng.uniform_d()) / opt_.width;
-      const double py = (double(i / opt_.width) + p.rng.uniform_d()) / opt_.height;
+      const std::uint32_t pixel = tile_order_[i];
+      p.pixel = pixel;
+      p.rng = path_rng(opt_.seed, pixel, sample);
+      const double px = (double(pixel % opt_.width) + p.rng.uniform_d()) / opt_.width;
+      const double py = (double(pixel / opt_.width) + p.rng.uniform_d()) / opt_.height;
       rays[i] = camera_ray(cam_, px, py, aspect);
     });
     const unsigned bounces = opt_.mode == RenderMode::path ? opt_.bounces + 1 : 1;
@@ -253,6 +270,7 @@ private:
   Vec3f light_;
   float diag2_ = 1, light_power_ = 1, ao_radius_ = 1;
   RenderResult res_;
+  std::vector<std::uint32_t> tile_order_;  ///< tile_order(), made by run
 };
 
 }  // namespace
