@@ -50,7 +50,8 @@ struct Packet {
   alignas(16) std::int32_t axis_off[4];  ///< all ones on an axis the frustum cannot bound
   alignas(16) float o_lo[4], o_hi[4], inv_lo[4], inv_hi[4], invf_lo[4], invf_hi[4];
   std::int32_t neg[3] = {0, 0, 0};  ///< the common sign of each axis (frustum only)
-  float tmin_lo = 0, tcull_hi = 0;
+  float tmin_lo = 0, tmin_hi = 0, tcull_hi = 0;
+  float tcull_lo = 0;  ///< at most every valid lane's t * kCullSlack (lowered as hits shrink t)
 };
 
 /// The hybrid switch: a packet is traced as one when its rays' unit directions span less than
@@ -110,7 +111,7 @@ inline bool load_packet(Packet& P, const mbvh::Ray* rays, int n, std::size_t& in
   const __m256 sign = _mm256_set1_ps(-0.0f);
   __m256 ulo[3] = {inf, inf, inf}, uhi[3] = {ninf, ninf, ninf};  // unit directions
   __m256 olo[3] = {inf, inf, inf}, ohi[3] = {ninf, ninf, ninf}, ilo[3] = {inf, inf, inf}, ihi[3] = {ninf, ninf, ninf};
-  __m256 jlo[3] = {inf, inf, inf}, jhi[3] = {ninf, ninf, ninf}, tmin_lo = inf, tcull_hi = ninf;
+  __m256 jlo[3] = {inf, inf, inf}, jhi[3] = {ninf, ninf, ninf}, tmin_lo = inf, tmin_hi = ninf, tcull_hi = ninf, tcull_lo = inf;
   unsigned neg_any[3] = {0, 0, 0}, pos_any[3] = {0, 0, 0};
   __m256i codes = _mm256_setzero_si256();
   bool any_valid = false;
@@ -191,7 +192,10 @@ inline bool load_packet(Packet& P, const mbvh::Ray* rays, int n, std::size_t& in
     _mm256_store_ps(P.v + i, zero);
     _mm256_store_si256(reinterpret_cast<__m256i*>(P.prim + i), _mm256_set1_epi32(-1));  // MBVH_MISS_PRIM
     tmin_lo = _mm256_min_ps(tmin_lo, _mm256_blendv_ps(inf, tmin0, vm));
-    tcull_hi = _mm256_max_ps(tcull_hi, _mm256_blendv_ps(ninf, _mm256_mul_ps(tmax, _mm256_set1_ps(kCullSlack)), vm));
+    tmin_hi = _mm256_max_ps(tmin_hi, _mm256_blendv_ps(ninf, tmin0, vm));
+    const __m256 tcull = _mm256_mul_ps(tmax, _mm256_set1_ps(kCullSlack));
+    tcull_hi = _mm256_max_ps(tcull_hi, _mm256_blendv_ps(ninf, tcull, vm));
+    tcull_lo = _mm256_min_ps(tcull_lo, _mm256_blendv_ps(inf, tcull, vm));
     any_valid = any_valid || valid != 0;
   }
   for (int a = 0; a < 3; ++a)
@@ -231,7 +235,9 @@ inline bool load_packet(Packet& P, const mbvh::Ray* rays, int n, std::size_t& in
     P.frustum = P.frustum || ok;
   }
   P.tmin_lo = hmin8(tmin_lo);
+  P.tmin_hi = hmax8(tmin_hi);
   P.tcull_hi = hmax8(tcull_hi);
+  P.tcull_lo = hmin8(tcull_lo);
   return true;
 }
 
@@ -256,32 +262,43 @@ inline void load_box(Box8& b, const float lox, const float hix, const float loy,
   b.near[3] = b.far[3] = 0.0f;
 }
 
-/// The frustum test (Boulos, Wald & Shirley 2006; interval arithmetic): true when no ray of the
-/// packet can pass box_test on `b`. Each lane computes tn = (near - o) * inv rounded; rounding is
-/// monotone, so the rounded corner products of [near - o_hi, near - o_lo] x [inv_lo, inv_hi]
-/// bound every lane's tn (and likewise tf with inv_far); a lane's entry is at least the largest
-/// lower bound and its exit at most the smallest upper bound, so when those cross, every lane
-/// misses, as its own test would say.
-inline bool frustum_miss(const Packet& P, const Box8& b) {
+/// What the frustum says of a box for the whole packet.
+enum class Cover { some, none, all };
+
+/// The frustum test (Boulos, Wald & Shirley 2006; interval arithmetic) of box `b`, exact for
+/// every lane: a lane computes tn = (near - o) * inv rounded; rounding is monotone, so the
+/// rounded corner products of [near - o_hi, near - o_lo] x [inv_lo, inv_hi] bound every lane's
+/// tn from both sides (likewise tf with inv_far), and a lane's entry max(tn, tmin) and exit
+/// min(tf, tcull) lie within the bounds taken over the axes. none: the lowest entry exceeds the
+/// highest exit, every lane misses (its own test would say so). all: the highest entry is at most
+/// the lowest exit on a frustum of all three axes, every lane hits. `entry` receives the lowest
+/// entry (the packet's order of children).
+inline Cover frustum_cover(const Packet& P, const Box8& b, float& entry) {
   const __m128 n = _mm_load_ps(b.near), f = _mm_load_ps(b.far);
   const __m128 olo = _mm_load_ps(P.o_lo), ohi = _mm_load_ps(P.o_hi);
   const __m128 alo = _mm_sub_ps(n, ohi), ahi = _mm_sub_ps(n, olo);
   const __m128 ilo = _mm_load_ps(P.inv_lo), ihi = _mm_load_ps(P.inv_hi);
-  const __m128 tn0 = _mm_min_ps(_mm_min_ps(_mm_mul_ps(alo, ilo), _mm_mul_ps(alo, ihi)),
-                                _mm_min_ps(_mm_mul_ps(ahi, ilo), _mm_mul_ps(ahi, ihi)));
+  const __m128 p0 = _mm_mul_ps(alo, ilo), p1 = _mm_mul_ps(alo, ihi), p2 = _mm_mul_ps(ahi, ilo), p3 = _mm_mul_ps(ahi, ihi);
   const __m128 blo = _mm_sub_ps(f, ohi), bhi = _mm_sub_ps(f, olo);
   const __m128 jlo = _mm_load_ps(P.invf_lo), jhi = _mm_load_ps(P.invf_hi);
-  const __m128 tf0 = _mm_max_ps(_mm_max_ps(_mm_mul_ps(blo, jlo), _mm_mul_ps(blo, jhi)),
-                                _mm_max_ps(_mm_mul_ps(bhi, jlo), _mm_mul_ps(bhi, jhi)));
+  const __m128 q0 = _mm_mul_ps(blo, jlo), q1 = _mm_mul_ps(blo, jhi), q2 = _mm_mul_ps(bhi, jlo), q3 = _mm_mul_ps(bhi, jhi);
   const __m128 off = _mm_castsi128_ps(_mm_load_si128(reinterpret_cast<const __m128i*>(P.axis_off)));
-  const __m128 tn = _mm_blendv_ps(tn0, _mm_set1_ps(-INFINITY), off);
-  const __m128 tf = _mm_blendv_ps(tf0, _mm_set1_ps(INFINITY), off);
-  alignas(16) float lo[4], hi[4];
-  _mm_store_ps(lo, tn);
-  _mm_store_ps(hi, tf);
-  const float entry = std::max(std::max(lo[0], lo[1]), std::max(lo[2], P.tmin_lo));
-  const float exit = std::min(std::min(hi[0], hi[1]), std::min(hi[2], P.tcull_hi));
-  return entry > exit;
+  const __m128 pinf = _mm_set1_ps(INFINITY), ninf = _mm_set1_ps(-INFINITY);
+  const __m128 tn_lo = _mm_blendv_ps(_mm_min_ps(_mm_min_ps(p0, p1), _mm_min_ps(p2, p3)), ninf, off);
+  const __m128 tn_hi = _mm_blendv_ps(_mm_max_ps(_mm_max_ps(p0, p1), _mm_max_ps(p2, p3)), pinf, off);
+  const __m128 tf_lo = _mm_blendv_ps(_mm_min_ps(_mm_min_ps(q0, q1), _mm_min_ps(q2, q3)), ninf, off);
+  const __m128 tf_hi = _mm_blendv_ps(_mm_max_ps(_mm_max_ps(q0, q1), _mm_max_ps(q2, q3)), pinf, off);
+  alignas(16) float nl[4], nh[4], fl[4], fh[4];
+  _mm_store_ps(nl, tn_lo);
+  _mm_store_ps(nh, tn_hi);
+  _mm_store_ps(fl, tf_lo);
+  _mm_store_ps(fh, tf_hi);
+  entry = std::max(std::max(nl[0], nl[1]), std::max(nl[2], P.tmin_lo));
+  const float exit_hi = std::min(std::min(fh[0], fh[1]), std::min(fh[2], P.tcull_hi));
+  if (entry > exit_hi) return Cover::none;
+  const float entry_hi = std::max(std::max(nh[0], nh[1]), std::max(nh[2], P.tmin_hi));
+  const float exit_lo = std::min(std::min(fl[0], fl[1]), std::min(fl[2], P.tcull_lo));
+  return entry_hi <= exit_lo ? Cover::all : Cover::some;
 }
 
 /// box_test (intersect.h) on the 8 lanes of SIMD ray g against two boxes at once: each lane's
@@ -407,6 +424,7 @@ template <bool Any, bool UniformK>
                 _mm256_and_si256(_mm256_set1_epi32(static_cast<int>(upd)), _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128)),
                 _mm256_setzero_si256()));
             _mm256_store_ps(P.t + i, _mm256_blendv_ps(tmax, t, lanes));
+            P.tcull_lo = std::min(P.tcull_lo, hmin8(_mm256_blendv_ps(_mm256_set1_ps(INFINITY), t, lanes)) * kCullSlack);
             _mm256_store_ps(P.u + i, _mm256_blendv_ps(_mm256_load_ps(P.u + i), _mm256_div_ps(V, det), lanes));
             _mm256_store_ps(P.v + i, _mm256_blendv_ps(_mm256_load_ps(P.v + i), _mm256_div_ps(W, det), lanes));
             _mm256_store_si256(reinterpret_cast<__m256i*>(P.prim + i),
@@ -428,6 +446,7 @@ template <bool Any, bool UniformK>
         const std::uint32_t pr = tri_prim(tri);
         if (tt < P.t[l] || pr < P.prim[l]) {
           P.t[l] = tt;
+          P.tcull_lo = std::min(P.tcull_lo, tt * kCullSlack);
           P.u[l] = uu;
           P.v[l] = vv;
           P.prim[l] = pr;
@@ -468,6 +487,13 @@ struct Active {
   bool empty() const { return Partition ? n == 0 : first >= n; }
 };
 
+/// All ones in the lanes of `m`.
+[[gnu::always_inline]] inline __m256 lane_mask(unsigned m) {
+  return _mm256_castsi256_ps(_mm256_cmpgt_epi32(
+      _mm256_and_si256(_mm256_set1_epi32(static_cast<int>(m)), _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128)),
+      _mm256_setzero_si256()));
+}
+
 /// Adds to the counters of SIMD ray g's lanes `m`.
 inline void count_lanes(RayStats* st, int g, unsigned m, unsigned nodes, unsigned boxes, unsigned leaves = 0, unsigned tris = 0) {
   for (; m != 0; m &= m - 1) {
@@ -506,43 +532,52 @@ inline void trace_packet(const TraceView& v, Packet& P, RayStats* st) {
       Box8 b0, b1;
       load_box(b0, n.c0[0], n.c0[1], n.c0[2], n.c0[3], n.zz[0], n.zz[1], P);
       load_box(b1, n.c1[0], n.c1[1], n.c1[2], n.c1[3], n.zz[2], n.zz[3], P);
-      const bool f0 = !(P.frustum && frustum_miss(P, b0));
-      const bool f1 = !(P.frustum && frustum_miss(P, b1));
-      if (f0 || f1) {
+      if constexpr (Stats) {
+        for (int k = act.begin(); k < act.end(); ++k) {
+          const int g = act.at(k);
+          count_lanes(st, g, Any ? act.mask[g] & P.live[g] : act.mask[g], 1, 2);
+        }
+      }
+      Cover c0 = Cover::some, c1 = Cover::some;
+      float ent0 = 0, ent1 = 0;
+      if (P.frustum) {
+        c0 = frustum_cover(P, b0, ent0);
+        c1 = frustum_cover(P, b1, ent1);
+      }
+      if (c0 != Cover::none || c1 != Cover::none) {
         A a0, a1;
         a0.clear();
         a1.clear();
-        __m256 near0 = _mm256_set1_ps(INFINITY), near1 = near0;
-        for (int k = act.begin(); k < act.end(); ++k) {
-          const int g = act.at(k);
-          unsigned lanes = act.mask[g];
-          if constexpr (Any) lanes &= P.live[g];
-          if (lanes == 0) continue;
-          if constexpr (Stats) count_lanes(st, g, lanes, 1, 2);
-          unsigned h0, h1;
-          __m256 te0, te1;
-          box2_group<SameSign>(P, g, b0, b1, h0, h1, te0, te1);
-          h0 = f0 ? h0 & lanes : 0u;
-          h1 = f1 ? h1 & lanes : 0u;
-          a0.add(g, h0);
-          a1.add(g, h1);
-          const __m256i bits = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
-          const __m256 m0 = _mm256_castsi256_ps(_mm256_cmpgt_epi32(_mm256_and_si256(_mm256_set1_epi32(static_cast<int>(h0)), bits), _mm256_setzero_si256()));
-          const __m256 m1 = _mm256_castsi256_ps(_mm256_cmpgt_epi32(_mm256_and_si256(_mm256_set1_epi32(static_cast<int>(h1)), bits), _mm256_setzero_si256()));
-          near0 = _mm256_min_ps(near0, _mm256_blendv_ps(_mm256_set1_ps(INFINITY), te0, m0));
-          near1 = _mm256_min_ps(near1, _mm256_blendv_ps(_mm256_set1_ps(INFINITY), te1, m1));
+        if (c0 == Cover::all) a0 = act;
+        if (c1 == Cover::all) a1 = act;
+        if (c0 == Cover::some || c1 == Cover::some) {
+          // the lanes' own tests, for the boxes the frustum leaves open
+          __m256 near0 = _mm256_set1_ps(INFINITY), near1 = near0;
+          for (int k = act.begin(); k < act.end(); ++k) {
+            const int g = act.at(k);
+            unsigned lanes = act.mask[g];
+            if constexpr (Any) lanes &= P.live[g];
+            if (lanes == 0) continue;
+            unsigned h0, h1;
+            __m256 te0, te1;
+            box2_group<SameSign>(P, g, b0, b1, h0, h1, te0, te1);
+            if (c0 == Cover::some) a0.add(g, h0 & lanes);
+            if (c1 == Cover::some) a1.add(g, h1 & lanes);
+            if (!P.frustum) {  // the order of children from the lanes' entries
+              near0 = _mm256_min_ps(near0, _mm256_blendv_ps(_mm256_set1_ps(INFINITY), te0, lane_mask(h0 & lanes)));
+              near1 = _mm256_min_ps(near1, _mm256_blendv_ps(_mm256_set1_ps(INFINITY), te1, lane_mask(h1 & lanes)));
+            }
+          }
+          if (!P.frustum) {
+            ent0 = hmin8(near0);
+            ent1 = hmin8(near1);
+          }
         }
         const bool e0 = a0.empty(), e1 = a1.empty();
         if (!e0 || !e1) {
           int k = e0 ? 1 : 0;
           if (!e0 && !e1) {
-            __m256 m0 = _mm256_min_ps(near0, _mm256_permute_ps(near0, 0xB1));
-            m0 = _mm256_min_ps(m0, _mm256_permute_ps(m0, 0x4E));
-            m0 = _mm256_min_ps(m0, _mm256_permute2f128_ps(m0, m0, 0x01));
-            __m256 m1 = _mm256_min_ps(near1, _mm256_permute_ps(near1, 0xB1));
-            m1 = _mm256_min_ps(m1, _mm256_permute_ps(m1, 0x4E));
-            m1 = _mm256_min_ps(m1, _mm256_permute2f128_ps(m1, m1, 0x01));
-            k = _mm256_cvtss_f32(m1) < _mm256_cvtss_f32(m0) ? 1 : 0;
+            k = ent1 < ent0 ? 1 : 0;
             if (sp >= MBVH_STACK2_ENTRIES) throw std::runtime_error("packet traversal stack overflow: the tree is deeper than its cap");
             stack[sp].node = n.link[2 + (1 - k)];
             stack[sp].act = k ? a0 : a1;
