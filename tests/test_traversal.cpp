@@ -31,6 +31,36 @@ constexpr std::size_t kRays = 100000;
 constexpr std::size_t kBrute = 2000;
 constexpr std::size_t kLeafOrderRays = 3000;
 
+using RefOutputs = std::map<std::tuple<Layout, Traversal, Query, unsigned>, TraceOutput>;
+
+/// The packet traversals (packet-ranged, packet-partition; MBVH2 and MBVH8 for the hybrid's single
+/// rays) of every SIMD cpu backend in `grid`, with the hybrid switch on and off (every packet a
+/// packet): each gives the reference stack traversal's bytes on the leaves it traces. `refs`
+/// caches the reference outputs by (layout, traversal, query, leaf block).
+void check_packets(const Accel& acc, const std::vector<Ray>& rays, const VariantGrid& grid, RefOutputs& refs) {
+  for (const std::string& name : grid.backends) {
+    if (name.rfind("cpu-", 0) != 0 || name == "cpu-scalar") continue;
+    for (const char* hybrid : {"1", "0"}) {
+      auto backend = make_backend(name, BackendOptions{}.set("cpu.packet-hybrid", hybrid));
+      for (Layout l : {Layout::mbvh2, Layout::mbvh8})
+        for (Traversal t : {Traversal::packet_ranged, Traversal::packet_partition})
+          for (Query q : {Query::closest, Query::any}) {
+            REQUIRE(backend->supports(l, t));
+            const TraceOptions refo = with_leaves_of(*backend, TraceOptions{l, Traversal::stack, q, false});
+            auto [it, fresh] = refs.try_emplace({l, Traversal::stack, q, refo.leaf_block});
+            if (fresh) trace_reference(acc, rays, refo, it->second, 0);
+            const TraceOutput& ref = it->second;
+            TraceOutput got;
+            backend->trace(acc, rays, TraceOptions{l, t, q, false}, got);
+            INFO(name << "/" << to_string(l) << "/" << to_string(t) << "/" << to_string(q) << ", cpu.packet-hybrid=" << hybrid);
+            CHECK(got.invalid == ref.invalid);
+            if (q == Query::closest) CHECK(std::memcmp(ref.hits.data(), got.hits.data(), rays.size() * sizeof(Hit)) == 0);
+            else CHECK(ref.occluded == got.occluded);
+          }
+    }
+  }
+}
+
 void check_scene(const std::string& spec, const BuildOptions& bo = {}, std::size_t n_rays = kRays) {
   const VariantGrid grid = mbvh_test::all_backends();
   const Scene scene = load_scene(spec);
@@ -80,7 +110,7 @@ void check_scene(const std::string& spec, const BuildOptions& bo = {}, std::size
     // -- every other backend gives cpu-scalar's bytes on every variant (same kernels, same order)
     //    on the leaves it traces (its own leaf policy, with_leaves_of); the reference output of
     //    each variant is computed once, for all backends
-    std::map<std::tuple<Layout, Traversal, Query, unsigned>, TraceOutput> refs;
+    RefOutputs refs;
     for (const std::string& name : grid.backends) {
       if (name == "cpu-scalar") continue;
       auto backend = make_backend(name);
@@ -101,6 +131,10 @@ void check_scene(const std::string& spec, const BuildOptions& bo = {}, std::size
             else CHECK(ref.occluded == got.occluded);
           }
     }
+
+    // -- the packet traversals of the SIMD cpu backends: every ray's answer is its stack
+    //    traversal's bytes, with the hybrid switch and with every packet traced as a packet
+    check_packets(*acc, rays, grid, refs);
 
     // -- same leaves in the same order
     for (std::size_t i : spread_indices(rays.size(), kLeafOrderRays))
@@ -400,7 +434,7 @@ TEST_CASE("invalid rays are defined misses - signed zeros and infinite tmax are 
   for (const std::string& name : mbvh_test::all_backends().backends) {
     auto backend = make_backend(name);
     for (Layout l : {Layout::mbvh2, Layout::mbvh4})
-      for (Traversal t : {Traversal::stack, Traversal::bitstack}) {
+      for (Traversal t : {Traversal::stack, Traversal::bitstack, Traversal::packet_ranged, Traversal::packet_partition}) {
         if (!backend->supports(l, t)) continue;
         for (Query q : {Query::closest, Query::any}) {
           INFO(name << "/" << to_string(l) << "/" << to_string(t) << "/" << to_string(q));
@@ -512,4 +546,41 @@ TEST_CASE("statistics count work and stay out of the answers", "[traversal]") {
   CHECK(state_bytes_per_ray(Layout::mbvh8, Traversal::stack) == 520);    // 128 int32 entries
   CHECK(state_bytes_per_ray(Layout::mbvh8, Traversal::stack) / state_bytes_per_ray(Layout::mbvh8, Traversal::bitstack) >= 22);
   CHECK(state_bytes_per_ray(Layout::mbvh8, Traversal::stack_ordered) / state_bytes_per_ray(Layout::mbvh8, Traversal::bitstack) >= 51);
+}
+
+TEST_CASE("packets of mixed rays - invalid, axis-aligned, clipped and incoherent lanes - keep the reference's answers",
+          "[traversal][packet]") {
+  const VariantGrid grid = mbvh_test::all_backends();
+  for (const std::string spec : {mbvh_test::scene_path("cornell_box.obj.zst"), std::string("gen:sphere:64")}) {
+    INFO(spec);
+    const Scene scene = load_scene(spec);
+    const auto acc = Accel::build(scene);
+    RayGenOptions ro;
+    ro.count = 64 * 64;
+    const std::vector<Ray> primary = generate_rays(scene, *acc, ro);
+    ro.kind = RayKind::special;
+    const std::vector<Ray> special = generate_rays(scene, *acc, ro);
+    ro.kind = RayKind::random;
+    const std::vector<Ray> random = generate_rays(scene, *acc, ro);
+    // every packet of 64 mixes coherent camera rays with lanes of every other sort
+    std::vector<Ray> mixed;
+    for (std::size_t i = 0; i < primary.size(); ++i) {
+      Ray r = primary[i];
+      switch (i % 11) {
+        case 3: r = special[i % special.size()]; break;                      // NaN, zero, huge, degenerate
+        case 5: r.tmax = 0.5f + 0.001f * static_cast<float>(i % 97); break;  // clipped before most hits
+        case 6: r.tmin = 0.01f * static_cast<float>(i % 53); break;         // starting inside the scene
+        case 7: r.dy = (i & 1) ? 0.0f : -0.0f; break;                       // an axis-parallel component
+        case 8: r.dx = -r.dx; break;                                        // a mixed sign
+        case 10: r = random[i]; break;                                      // incoherent
+        default: break;
+      }
+      mixed.push_back(r);
+    }
+    RefOutputs refs;
+    check_packets(*acc, mixed, grid, refs);
+    std::size_t invalid = 0;
+    for (const Ray& r : mixed) invalid += ray_valid(r) ? 0 : 1;
+    CHECK(invalid > 0);  // the batch holds invalid rays (each packet does)
+  }
 }

@@ -12,7 +12,9 @@ namespace mbvh {
 /// `trace` after CPUID says the ISA is there.
 struct CpuKernels {
   const char* isa;
-  void (*trace)(const Accel&, std::span<const Ray>, const TraceOptions&, TraceOutput&, unsigned threads);
+  /// hybrid: the packet traversals trace an incoherent packet ray by ray (the `cpu.packet-hybrid`
+  /// setting; off: every packet as a packet, for tests and measurements).
+  void (*trace)(const Accel&, std::span<const Ray>, const TraceOptions&, TraceOutput&, unsigned threads, bool hybrid);
 };
 
 /// The cpu family's `cpu.leaf-block` setting: the leaf block (TraceOptions::leaf_block) a cpu

@@ -101,10 +101,10 @@ constexpr float kSpread = 0.5f;
 /// Fills the packet from rays[0, n), eight rays at a time in vector registers: prepare_ray's
 /// checks and per-ray constants (prepare_ray_simd's, the same IEEE operations, so every bit is
 /// the scalar's) as SoA rows, and the frustum. Counts the invalid rays in `invalid`. Returns
-/// false when the rays are too incoherent for a packet (kSpread): the caller traces them ray by
-/// ray instead (the packet is then incomplete).
+/// false when `hybrid` and the rays are too incoherent for a packet (kSpread): the caller traces
+/// them ray by ray instead (the packet is then incomplete).
 template <bool Fast>
-inline bool load_packet(Packet& P, const mbvh::Ray* rays, int n, std::size_t& invalid) {
+inline bool load_packet(Packet& P, const mbvh::Ray* rays, int n, std::size_t& invalid, bool hybrid = true) {
   P.count = n;
   P.src = rays;
   const __m256 inf = _mm256_set1_ps(INFINITY), ninf = _mm256_set1_ps(-INFINITY), zero = _mm256_setzero_ps();
@@ -198,7 +198,7 @@ inline bool load_packet(Packet& P, const mbvh::Ray* rays, int n, std::size_t& in
     tcull_lo = _mm256_min_ps(tcull_lo, _mm256_blendv_ps(inf, tcull, vm));
     any_valid = any_valid || valid != 0;
   }
-  for (int a = 0; a < 3; ++a)
+  for (int a = 0; a < 3 && hybrid; ++a)
     if (!(hmax8(uhi[a]) - hmin8(ulo[a]) < kSpread) && any_valid) return false;
   // uniform kx, ky, kz: one code among the valid lanes
   alignas(32) std::uint32_t c[8];

@@ -41,11 +41,12 @@ class SimdBackend final : public Backend {
 public:
   SimdBackend(std::string name, const CpuKernels& k, const BackendOptions& o)
       : name_(std::move(name)), kernels_(k), threads_(resolve_threads(o.threads)),
-        own_block_(cpu_leaf_block(o, kOwnLeafBlock)) {}
+        own_block_(cpu_leaf_block(o, kOwnLeafBlock)), hybrid_(o.get_flag("cpu.packet-hybrid", true)) {}
   std::string name() const override { return name_; }
   std::string describe() const override {
     return name_ + ": " + kernels_.isa + " node tests (MBVH4: 4 boxes, MBVH8: 8 at once), SIMD leaves 8 triangles per pass (leaf block " +
-           std::to_string(own_block_) + "), " + std::to_string(threads_) + " thread(s)";
+           std::to_string(own_block_) + "), packets of " + std::to_string(MBVH_PACKET_RAYS) + " rays" +
+           (hybrid_ ? "" : " (no hybrid switch)") + ", " + std::to_string(threads_) + " thread(s)";
   }
   std::string isa() const override { return kernels_.isa; }
   bool supports(Layout l, Traversal t) const override { return reference_supports(l, t); }
@@ -76,7 +77,7 @@ public:
       throw Error(name_ + ": traversal '" + to_string(opt.traversal) + "' is not defined for " + to_string(opt.layout));
     const TraceOptions o = with_leaves_of(*this, opt);
     prepare(acc, o);
-    kernels_.trace(acc, rays, o, out, threads_);
+    kernels_.trace(acc, rays, o, out, threads_, hybrid_);
   }
 
 private:
@@ -84,6 +85,7 @@ private:
   const CpuKernels& kernels_;
   unsigned threads_;
   unsigned own_block_;  ///< cpu.leaf-block (default kOwnLeafBlock)
+  bool hybrid_;         ///< cpu.packet-hybrid (default on)
 };
 
 // Registers `name` running kernels `k` where `available()`; elsewhere it refuses to start, saying
@@ -99,7 +101,9 @@ void add(const char* name, const char* summary, const CpuKernels& k, bool (*avai
     return std::make_unique<SimdBackend>(name, k, o);
   };
   info.missing_hardware = [available, missing] { return available() ? std::string() : std::string(missing); };
-  info.settings = {cpu_leaf_block_setting("4")};
+  info.settings = {cpu_leaf_block_setting("4"),
+                   {"cpu.packet-hybrid", "packet traversals: trace a packet of incoherent rays ray by ray (1, the default) "
+                                         "or every packet as a packet (0)"}};
   register_backend(std::move(info));
 }
 

@@ -612,7 +612,8 @@ inline void trace_one_packet(const TraceView& v, packet::Packet& P, bool partiti
 /// coherent packet walks the MBVH2 nodes of the leaves traced, an incoherent one goes ray by ray
 /// through opt.layout with the stack traversal (the hybrid switch, packet.h).
 template <class K>
-void trace_packets(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out, unsigned threads) {
+void trace_packets(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out, unsigned threads,
+                   bool hybrid) {
   const TraceView pv = trace_view(acc, Layout::mbvh2, false, opt.leaf_block, false);
   const TraceView sv = trace_view(acc, opt.layout, true, opt.leaf_block, !opt.stats);
   const bool any = opt.query == Query::any;
@@ -628,7 +629,7 @@ void trace_packets(const Accel& acc, std::span<const Ray> rays, const TraceOptio
     for (std::size_t s = b; s < e; s += kN) {
       const int n = static_cast<int>(std::min(kN, e - s));
       std::size_t bad = 0;
-      if (!packet::load_packet<K::fast>(*P, rays.data() + s, n, bad)) {
+      if (!packet::load_packet<K::fast>(*P, rays.data() + s, n, bad, hybrid)) {
         std::size_t again = 0;
         if (any) {
           if (opt.stats) run_batch<true, true, K>(sv, rays, s, s + n, opt, out, again);
@@ -660,10 +661,11 @@ void trace_packets(const Accel& acc, std::span<const Ray> rays, const TraceOptio
   out.invalid = invalid;
 }
 
-void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out, unsigned threads) {
+void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out, unsigned threads,
+           bool hybrid) {
   if (is_packet(opt.traversal)) {
-    if (opt.precision == Precision::fast) trace_packets<SimdKernelsT<true>>(acc, rays, opt, out, threads);
-    else trace_packets<SimdKernelsT<false>>(acc, rays, opt, out, threads);
+    if (opt.precision == Precision::fast) trace_packets<SimdKernelsT<true>>(acc, rays, opt, out, threads, hybrid);
+    else trace_packets<SimdKernelsT<false>>(acc, rays, opt, out, threads, hybrid);
     return;
   }
   if (opt.precision == Precision::fast) trace_parallel<SimdKernelsT<true>>(acc, rays, opt, out, threads);
