@@ -53,6 +53,18 @@ inline mbvh::VariantGrid all_backends() {
   return g;
 }
 
+/// `g` with the packet traversals added (cpu-scalar traces them as their stack twin, the SIMD
+/// cpu backends as packets; the other backends do not have them).
+inline mbvh::VariantGrid with_packets(mbvh::VariantGrid g) {
+  g.traversals.push_back(mbvh::Traversal::packet_ranged);
+  g.traversals.push_back(mbvh::Traversal::packet_partition);
+  return g;
+}
+
+/// Backend options that make the SIMD cpu backends trace every packet as a packet (no hybrid
+/// switch to single rays): the stress tests' adversarial rays are incoherent.
+inline mbvh::BackendOptions packets_always() { return mbvh::BackendOptions{}.set("cpu.packet-hybrid", "0"); }
+
 /// The device flag of a device backend, through the real program: `--FLAG GOOD` traces and
 /// prints PRINTED (the choice); a name that matches nothing fails with an error that lists the
 /// devices, LISTED among them.

@@ -24,6 +24,10 @@ unsigned cpu_leaf_block(const BackendOptions& o, unsigned fallback);
 /// Its declaration (BackendInfo::settings), with the backend's default in the help text.
 BackendSetting cpu_leaf_block_setting(const char* fallback);
 
+/// The cpu family's `cpu.packet-hybrid` setting (the packet traversals' hybrid switch; read by the
+/// SIMD backends, accepted by cpu-scalar, which traces every ray alone), `note` appended to its help.
+BackendSetting cpu_packet_hybrid_setting(const char* note = "");
+
 void register_cpu_scalar_backend();
 void register_cpu_simd_backends();
 

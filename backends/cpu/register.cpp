@@ -21,6 +21,11 @@ BackendSetting cpu_leaf_block_setting(const char* fallback) {
                                         "(1: the build's own; default ") + fallback + ")"};
 }
 
+BackendSetting cpu_packet_hybrid_setting(const char* note) {
+  return {"cpu.packet-hybrid", std::string("packet traversals: a packet of incoherent rays is traced ray by ray (1, the default) "
+                                           "or every packet as a packet (0)") + note};
+}
+
 void register_cpu_backends() {
   register_cpu_scalar_backend();
   register_cpu_simd_backends();

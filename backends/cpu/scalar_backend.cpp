@@ -44,7 +44,7 @@ private:
 void register_cpu_scalar_backend() {
   register_backend({"cpu-scalar", "scalar reference traversals (MBVH2/MBVH4, stack/bitstack), multi-threaded",
                     [](const BackendOptions& o) { return std::unique_ptr<Backend>(new ScalarBackend(o)); }, "", {}, "", {}, {},
-                    {cpu_leaf_block_setting("1")}});
+                    {cpu_leaf_block_setting("1"), cpu_packet_hybrid_setting("; cpu-scalar traces every ray alone")}});
 }
 
 }  // namespace mbvh

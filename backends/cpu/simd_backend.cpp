@@ -101,9 +101,7 @@ void add(const char* name, const char* summary, const CpuKernels& k, bool (*avai
     return std::make_unique<SimdBackend>(name, k, o);
   };
   info.missing_hardware = [available, missing] { return available() ? std::string() : std::string(missing); };
-  info.settings = {cpu_leaf_block_setting("4"),
-                   {"cpu.packet-hybrid", "packet traversals: trace a packet of incoherent rays ray by ray (1, the default) "
-                                         "or every packet as a packet (0)"}};
+  info.settings = {cpu_leaf_block_setting("4"), cpu_packet_hybrid_setting()};
   register_backend(std::move(info));
 }
 
