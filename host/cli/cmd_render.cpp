@@ -109,7 +109,7 @@ Command add_render(CLI::App& app) {
   a->scene.add(c);
   c->add_option("--backend", a->backend, "backend (see `mbvh devices`)");
   c->add_option("--layout", a->layout, "mbvh2, mbvh4 or mbvh8 (default: mbvh4, or mbvh2 where the backend has only that)");
-  c->add_option("--traversal", a->traversal, "stack, bitstack, stack-ordered or bitstack-retest");
+  c->add_option("--traversal", a->traversal, "stack, bitstack, stack-ordered, bitstack-retest, or packet-ranged, packet-partition, packet (cpu: 8x8-tile packets)");
   c->add_option("--mode", a->mode, "path (8-bounce diffuse, point light and sky), ao or normals");
   c->add_option("--spp", o.spp, "samples per pixel")->check(integer_in(1, 1u << 20));
   c->add_option("--bounces", o.bounces, "path mode: diffuse bounces after the primary hit")->check(integer_in(0, 1024));

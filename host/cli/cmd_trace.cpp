@@ -99,7 +99,7 @@ Command add_trace(CLI::App& app) {
   a->rays.add(c, true);
   c->add_option("--backend", a->backend, "backend (see `mbvh devices`)");
   c->add_option("--layout", a->layout, "mbvh2, mbvh4 or mbvh8 (default: mbvh4, or mbvh2 where the backend has only that)");
-  c->add_option("--traversal", a->traversal, "stack, bitstack, stack-ordered or bitstack-retest (bitstack-retest: MBVH4 only)");
+  c->add_option("--traversal", a->traversal, "stack, bitstack, stack-ordered or bitstack-retest (bitstack-retest: MBVH4 only); packet-ranged, packet-partition or packet (cpu: packets of 64 rays over MBVH2, the layout for the hybrid's single rays)");
   c->add_option("--query", a->query, "closest (writes hits, 16 B/ray) or any (writes occlusion, 1 B/ray)");
   c->add_option("-o,--output", a->out, "output file ('-': standard output)");
   c->add_flag("--stats", a->stats, "also count work per ray (slower)");
