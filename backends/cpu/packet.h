@@ -487,6 +487,15 @@ struct Active {
   bool empty() const { return Partition ? n == 0 : first >= n; }
 };
 
+/// Counts one SIMD operation on SIMD ray g, lanes `m` active (RayStats::lane_ops, group_ops).
+inline void count_op(RayStats* st, int g, unsigned m) {
+  for (int l = 0; l < kLanes; ++l) {
+    RayStats& s = st[g * kLanes + l];
+    ++s.group_ops;
+    s.lane_ops += (m >> l) & 1u;
+  }
+}
+
 /// All ones in the lanes of `m`.
 [[gnu::always_inline]] inline __m256 lane_mask(unsigned m) {
   return _mm256_castsi256_ps(_mm256_cmpgt_epi32(
@@ -558,6 +567,7 @@ inline void trace_packet(const TraceView& v, Packet& P, RayStats* st) {
             unsigned lanes = act.mask[g];
             if constexpr (Any) lanes &= P.live[g];
             if (lanes == 0) continue;
+            if constexpr (Stats) count_op(st, g, lanes);
             unsigned h0, h1;
             __m256 te0, te1;
             box2_group<SameSign>(P, g, b0, b1, h0, h1, te0, te1);
@@ -604,7 +614,10 @@ inline void trace_packet(const TraceView& v, Packet& P, RayStats* st) {
           unsigned lanes = act.mask[g];
           if constexpr (Any) lanes &= P.live[g];
           if (lanes == 0) continue;
-          if constexpr (Stats) count_lanes(st, g, lanes, 0, 0, j == l.first ? 1 : 0, 1);
+          if constexpr (Stats) {
+            count_lanes(st, g, lanes, 0, 0, j == l.first ? 1 : 0, 1);
+            count_op(st, g, lanes);
+          }
           const unsigned hit = tri_group<Any, UniformK>(P, g, tri, vb, lanes);
           if constexpr (Any) {
             for (unsigned h = hit; h != 0; h &= h - 1) P.prim[g * kLanes + std::countr_zero(h)] = tri_prim(tri);

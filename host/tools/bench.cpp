@@ -51,10 +51,12 @@ std::string BenchReport::table() const {
   for (const auto& r : records) errors = errors || r.error_rays > 0;
   bool device = false;  // a "dev Mr/s" column only when some backend measured its device time
   for (const auto& r : records) device = device || r.device_mrays_per_s > 0;
-  std::snprintf(line, sizeof line, "%-12s %-6s %-15s %-7s %-8s %-6s %9s %15s%s %8s %7s %8s %7s %7s %7s %9s%s%s\n", "backend",
+  bool util = false;  // a "util" column (packets' SIMD utilisation) only when some record has it
+  for (const auto& r : records) util = util || r.simd_utilisation >= 0;
+  std::snprintf(line, sizeof line, "%-12s %-6s %-15s %-7s %-8s %-6s %9s %15s%s %8s %7s %8s %7s %7s %7s%s %9s%s%s\n", "backend",
                 "layout", "traversal", "query", "rays", "prec", "Mrays/s", "(min-max)", device ? "  dev Mr/s" : "", "vs twin",
-                "vs cpu", "state B", "nodes", "leaves", "tris", "verified", errors ? "  genuine  wrong/checked  leaks" : "",
-                scaled ? "  1 thr   x/1thr" : "");
+                "vs cpu", "state B", "nodes", "leaves", "tris", util ? "    util" : "", "verified",
+                errors ? "  genuine  wrong/checked  leaks" : "", scaled ? "  1 thr   x/1thr" : "");
   s += line;
   for (const auto& r : records) {
     char ratio[32] = "";
@@ -66,10 +68,13 @@ std::string BenchReport::table() const {
     char dev[32] = "";
     if (device && r.device_mrays_per_s > 0) std::snprintf(dev, sizeof dev, " %9.3f", r.device_mrays_per_s);
     else if (device) std::snprintf(dev, sizeof dev, " %9s", "");
-    std::snprintf(line, sizeof line, "%-12s %-6s %-15s %-7s %-8s %-6s %9.3f %15s%s %8s %7s %8zu %7.1f %7.2f %7.1f %9s\n",
+    char ut[32] = "";
+    if (util && r.simd_utilisation >= 0) std::snprintf(ut, sizeof ut, " %6.1f%%", 100.0 * r.simd_utilisation);
+    else if (util) std::snprintf(ut, sizeof ut, " %7s", "");
+    std::snprintf(line, sizeof line, "%-12s %-6s %-15s %-7s %-8s %-6s %9.3f %15s%s %8s %7s %8zu %7.1f %7.2f %7.1f%s %9s\n",
                   r.backend.c_str(), r.layout.c_str(), r.traversal.c_str(), r.query.c_str(), r.ray_kind.c_str(),
                   r.precision.c_str(), r.mrays_per_s, spread, dev, ratio, vcpu, r.state_bytes_per_ray, r.nodes_per_ray,
-                  r.leaves_per_ray, r.tris_per_ray,
+                  r.leaves_per_ray, r.tris_per_ray, ut,
                   !r.verified() ? "MISMATCH" : r.verify_mismatches ? "differs" : "yes");
     s += line;
     if (errors) {
@@ -122,6 +127,7 @@ static nlohmann::json report_json(const BenchReport& rep) {
                             {"leaves_per_ray", r.leaves_per_ray},
                             {"triangles_per_ray", r.tris_per_ray},
                             {"climbs_per_ray", r.climbs_per_ray},
+                            {"simd_utilisation", r.simd_utilisation >= 0 ? nlohmann::json(r.simd_utilisation) : nlohmann::json(nullptr)},
                             {"verify_mismatches", r.verify_mismatches},
                             {"verified", r.verified()},
                             {"error_rays", r.error_rays},
@@ -294,7 +300,7 @@ void count_work(const Accel& acc, const std::vector<Ray>& rays, Backend& b, cons
   so.stats = true;
   TraceOutput st;
   b.trace(acc, rays, so, st);
-  double n = 0, bt = 0, lf = 0, tr = 0, cl = 0, peak = 0;
+  double n = 0, bt = 0, lf = 0, tr = 0, cl = 0, peak = 0, lane = 0, group = 0;
   const auto count = [](std::vector<std::uint64_t>& h, std::uint32_t v) {
     const std::size_t k = static_cast<std::size_t>(std::bit_width(v));  // 0 -> 0, [2^(k-1), 2^k) -> k
     if (h.size() <= k) h.resize(k + 1, 0);
@@ -302,6 +308,7 @@ void count_work(const Accel& acc, const std::vector<Ray>& rays, Backend& b, cons
   };
   for (const RayStats& s : st.stats) {
     n += s.nodes; bt += s.box_tests; lf += s.leaves; tr += s.tris; cl += s.climbs;
+    lane += s.lane_ops; group += s.group_ops;
     count(r.hist_nodes, s.nodes);
     count(r.hist_leaves, s.leaves);
     count(r.hist_tris, s.tris);
@@ -316,6 +323,7 @@ void count_work(const Accel& acc, const std::vector<Ray>& rays, Backend& b, cons
   r.tris_per_ray = tr / k;
   r.climbs_per_ray = cl / k;
   r.peak_state_bytes_per_ray = peak / k;
+  r.simd_utilisation = group > 0 ? lane / group : -1;
 }
 
 // The machine, compiler and BVH a report was measured on.

@@ -48,6 +48,9 @@ struct BenchRecord {
   unsigned leaf_block = 1;  ///< the leaves the backend traced (Backend::leaf_block; 1: the build's own)
   double peak_state_bytes_per_ray = 0;  ///< mean over rays of the state actually used
   double nodes_per_ray = 0, box_tests_per_ray = 0, leaves_per_ray = 0, tris_per_ray = 0, climbs_per_ray = 0;
+  /// Packet traversals: the share of SIMD lanes doing an active ray's work (RayStats::lane_ops
+  /// over group_ops); -1 for single-ray traversals.
+  double simd_utilisation = -1;
   /// Histograms of the work per ray, power-of-two buckets: bucket 0 counts rays with 0, bucket
   /// k >= 1 rays with [2^(k-1), 2^k) (trailing empty buckets dropped).
   std::vector<std::uint64_t> hist_nodes, hist_leaves, hist_tris, hist_climbs;

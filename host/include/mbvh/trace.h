@@ -24,6 +24,11 @@ struct RayStats {
   std::uint32_t climbs = 0;     ///< parent reads while backtracking (bitstack only)
   std::uint32_t retests = 0;    ///< parent nodes re-tested on a sibling move (variant B only)
   std::uint32_t max_depth = 0;  ///< peak stack entries (stack) or bitstack levels (bitstack)
+  /// Packet traversals only (0 elsewhere): the SIMD operations (a node's pair of box tests, a
+  /// triangle test) made on this ray's SIMD ray while the ray was active in it, and all made on
+  /// its SIMD ray; the packets' SIMD utilisation is the sum of the first over the sum of the second.
+  std::uint32_t lane_ops = 0;
+  std::uint32_t group_ops = 0;
 };
 
 enum class Query { closest, any };

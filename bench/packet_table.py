@@ -1,0 +1,77 @@
+#!/usr/bin/env python3
+# SPDX-License-Identifier: MIT
+"""packet_table.py — the Markdown table of bench/packets.sh from its `mbvh bench --scaling --json`
+files: per scene x rays x threads, the cpu backend's best single-ray traversal (the fastest of
+MBVH4/MBVH8 stack and ordered stack), its packet traversals (MBVH2 packets; the layout is the
+hybrid's single rays: the faster of the two is shown), Embree's single-ray query (robust mode),
+Mrays/s medians, and the ratios issue 18 sets targets for:
+  best packet / best single-ray cpu  (primary >= 2, shadow >= 1.3, diffuse >= 0.95),
+  best packet / Embree;
+with the packets' SIMD utilisation and nodes per ray (MBVH2 nodes the ray was active in). Only
+verified records count (zero mismatches against cpu-scalar).
+    python3 bench/packet_table.py bench/out-packets/*.json
+"""
+import json
+import os
+import sys
+
+KINDS = ["primary", "shadow", "diffuse"]
+SINGLE = [("mbvh4", "stack"), ("mbvh4", "stack-ordered"), ("mbvh8", "stack"), ("mbvh8", "stack-ordered")]
+PACKET = ["packet-ranged", "packet-partition"]
+TARGET = {"primary": 2.0, "shadow": 1.3, "diffuse": 0.95}
+
+
+def main(paths):
+    speed, info, order = {}, {}, []
+    for p in paths:
+        with open(p) as f:
+            doc = json.load(f)
+        for r in doc["records"]:
+            if r.get("precision", "robust") != "robust" or r.get("verify_mismatches", 0) != 0:
+                continue
+            scene = os.path.basename(r["scene"]).split(".")[0]
+            v = (r["backend"], r["layout"], r["traversal"])
+            for threads, mr in ((1, r.get("mrays_per_s_1_thread", 0)), (r["threads"], r["mrays_per_s"])):
+                if not mr:
+                    continue
+                key = (scene, r["ray_kind"], threads)
+                if key not in order:
+                    order.append(key)
+                speed[key + v] = mr
+            info[(scene, r["ray_kind"]) + v] = (r.get("simd_utilisation"), r.get("nodes_per_ray"))
+    if not speed:
+        sys.exit("packet_table.py: no usable records in " + " ".join(paths))
+    order.sort(key=lambda k: (k[0], KINDS.index(k[1]) if k[1] in KINDS else 9, k[2]))
+    print("| scene | rays | threads | best single-ray cpu | packet-ranged | packet-partition | embree "
+          "| packet / single | packet / embree | target | SIMD utilisation | nodes/ray packet (single) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    met = total = 0
+    for key in order:
+        scene, kind, threads = key
+        singles = [(speed.get(key + ("cpu",) + s, 0), s) for s in SINGLE]
+        best_single, single_v = max(singles)
+        packets = {t: max(speed.get(key + ("cpu", l, t), 0) for l in ("mbvh4", "mbvh8")) for t in PACKET}
+        best_packet_t = max(PACKET, key=lambda t: packets[t])
+        best_packet = packets[best_packet_t]
+        embree = speed.get(key + ("embree", "mbvh4", "stack"), 0)
+        ratio = best_packet / best_single if best_single and best_packet else 0
+        ratio_e = best_packet / embree if embree and best_packet else 0
+        target = TARGET.get(kind, 0)
+        ok = ratio >= target
+        total += 1
+        met += ok
+        # utilisation and nodes: the best packet traversal on MBVH8 single rays (the counts do not
+        # depend on the hybrid's layout), the best single-ray variant's nodes
+        util, nodes = info.get((scene, kind, "cpu", "mbvh8", best_packet_t), (None, None))
+        snodes = info.get((scene, kind, "cpu") + single_v, (None, None))[1]
+        util_s = "–" if util is None else f"{100 * util:.0f} %"
+        nodes_s = "–" if nodes is None else f"{nodes:.1f} ({snodes:.1f} {single_v[0].upper()})"
+        print(f"| {scene} | {kind} | {threads} | {best_single:.2f} ({single_v[0].upper()} {single_v[1]}) "
+              f"| {packets['packet-ranged']:.2f} | {packets['packet-partition']:.2f} | {embree:.2f} "
+              f"| **{ratio:.2f}×** | {ratio_e:.2f}× | {'≥' if kind != 'diffuse' else '≥'} {target} {'met' if ok else 'missed'} "
+              f"| {util_s} | {nodes_s} |")
+    print(f"\npacket / best single-ray at its target on {met} of {total} rows")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
