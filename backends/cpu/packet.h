@@ -98,6 +98,14 @@ constexpr float kSpread = 0.5f;
   return _mm256_blendv_ps(_mm256_blendv_ps(v[0], v[1], is1), v[2], is2);
 }
 
+/// Whether the unit directions bounded by [lo, hi] (per axis, per lane) span kSpread or more on
+/// some axis (no valid direction yet: no).
+[[gnu::always_inline]] inline bool spread_exceeds(const __m256 (&lo)[3], const __m256 (&hi)[3]) {
+  for (int a = 0; a < 3; ++a)
+    if (hmax8(hi[a]) - hmin8(lo[a]) >= kSpread) return true;  // -inf - inf when none: false
+  return false;
+}
+
 /// Fills the packet from rays[0, n), eight rays at a time in vector registers: prepare_ray's
 /// checks and per-ray constants (prepare_ray_simd's, the same IEEE operations, so every bit is
 /// the scalar's) as SoA rows, and the frustum. Counts the invalid rays in `invalid`. Returns
@@ -185,6 +193,8 @@ inline bool load_packet(Packet& P, const mbvh::Ray* rays, int n, std::size_t& in
       ulo[a] = _mm256_min_ps(ulo[a], _mm256_blendv_ps(inf, u, lm));
       uhi[a] = _mm256_max_ps(uhi[a], _mm256_blendv_ps(ninf, u, lm));
     }
+    // incoherent rays usually show it in the first SIMD rays: stop loading then
+    if (hybrid && (g == 0 || g == 2) && spread_exceeds(ulo, uhi)) return false;
     const __m256 tmin0 = _mm256_add_ps(tmin, zero);  // -0 becomes +0
     _mm256_store_ps(P.tmin + i, _mm256_and_ps(tmin0, vm));
     _mm256_store_ps(P.t + i, _mm256_blendv_ps(_mm256_set1_ps(-1.0f), tmax, vm));  // below every tmin: no box or triangle accepts it
@@ -198,8 +208,7 @@ inline bool load_packet(Packet& P, const mbvh::Ray* rays, int n, std::size_t& in
     tcull_lo = _mm256_min_ps(tcull_lo, _mm256_blendv_ps(inf, tcull, vm));
     any_valid = any_valid || valid != 0;
   }
-  for (int a = 0; a < 3 && hybrid; ++a)
-    if (!(hmax8(uhi[a]) - hmin8(ulo[a]) < kSpread) && any_valid) return false;
+  if (hybrid && spread_exceeds(ulo, uhi)) return false;
   // uniform kx, ky, kz: one code among the valid lanes
   alignas(32) std::uint32_t c[8];
   _mm256_store_si256(reinterpret_cast<__m256i*>(c), codes);

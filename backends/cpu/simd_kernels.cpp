@@ -610,13 +610,17 @@ inline void trace_one_packet(const TraceView& v, packet::Packet& P, bool partiti
 
 /// The packet traversals' batch driver: rays in arrival order, MBVH_PACKET_RAYS at a time; a
 /// coherent packet walks the MBVH2 nodes of the leaves traced, an incoherent one goes ray by ray
-/// through opt.layout with the stack traversal (the hybrid switch, packet.h).
+/// through opt.layout (the hybrid switch, packet.h).
 template <class K>
 void trace_packets(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out, unsigned threads,
                    bool hybrid) {
   const TraceView pv = trace_view(acc, Layout::mbvh2, false, opt.leaf_block, false);
   const TraceView sv = trace_view(acc, opt.layout, true, opt.leaf_block, !opt.stats);
   const bool any = opt.query == Query::any;
+  // the hybrid's single rays: the ordered stack on a wide layout for closest hit (the faster
+  // here, docs/benchmarks.md), else the stack; the answers are the same bits either way
+  TraceOptions single = opt;
+  single.traversal = !any && opt.layout != Layout::mbvh2 ? Traversal::stack_ordered : Traversal::stack;
   const bool partition = opt.traversal != Traversal::packet_ranged;  // packet: partition, the faster here (docs/benchmarks.md)
   out.resize_for(rays.size(), opt);
   std::atomic<std::size_t> invalid{0};
@@ -632,11 +636,11 @@ void trace_packets(const Accel& acc, std::span<const Ray> rays, const TraceOptio
       if (!packet::load_packet<K::fast>(*P, rays.data() + s, n, bad, hybrid)) {
         std::size_t again = 0;
         if (any) {
-          if (opt.stats) run_batch<true, true, K>(sv, rays, s, s + n, opt, out, again);
-          else run_batch<true, false, K>(sv, rays, s, s + n, opt, out, again);
+          if (opt.stats) run_batch<true, true, K>(sv, rays, s, s + n, single, out, again);
+          else run_batch<true, false, K>(sv, rays, s, s + n, single, out, again);
         } else {
-          if (opt.stats) run_batch<false, true, K>(sv, rays, s, s + n, opt, out, again);
-          else run_batch<false, false, K>(sv, rays, s, s + n, opt, out, again);
+          if (opt.stats) run_batch<false, true, K>(sv, rays, s, s + n, single, out, again);
+          else run_batch<false, false, K>(sv, rays, s, s + n, single, out, again);
         }
         inv += again;
         continue;
