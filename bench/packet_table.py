@@ -3,10 +3,10 @@
 """packet_table.py — the Markdown table of bench/packets.sh from its `mbvh bench --scaling --json`
 files: per scene x rays x threads, the cpu backend's best single-ray traversal (the fastest of
 MBVH4/MBVH8 stack and ordered stack), its packet traversals (MBVH2 packets; the layout is the
-hybrid's single rays: the faster of the two is shown), Embree's single-ray query (robust mode),
-Mrays/s medians, and the ratios issue 18 sets targets for:
+hybrid's single rays: the faster of the two is shown), Embree's single-ray and packet queries
+(robust mode), Mrays/s medians, and the ratios issue 18 sets targets for:
   best packet / best single-ray cpu  (primary >= 2, shadow >= 1.3, diffuse >= 0.95),
-  best packet / Embree;
+  best packet / Embree's faster query (primary >= 1.0);
 with the packets' SIMD utilisation and nodes per ray (MBVH2 nodes the ray was active in). Only
 verified records count (zero mismatches against cpu-scalar).
     python3 bench/packet_table.py bench/out-packets/*.json
@@ -42,10 +42,10 @@ def main(paths):
     if not speed:
         sys.exit("packet_table.py: no usable records in " + " ".join(paths))
     order.sort(key=lambda k: (k[0], KINDS.index(k[1]) if k[1] in KINDS else 9, k[2]))
-    print("| scene | rays | threads | best single-ray cpu | packet-ranged | packet-partition | embree "
-          "| packet / single | packet / embree | target | SIMD utilisation | nodes/ray packet (single) |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
-    met = total = 0
+    print("| scene | rays | threads | best single-ray cpu | packet-ranged | packet-partition | embree 1 | embree 8 "
+          "| packet / single | target | packet / embree's faster | SIMD utilisation | nodes/ray packet (single) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    met = total = met_e = total_e = 0
     for key in order:
         scene, kind, threads = key
         singles = [(speed.get(key + ("cpu",) + s, 0), s) for s in SINGLE]
@@ -53,13 +53,18 @@ def main(paths):
         packets = {t: max(speed.get(key + ("cpu", l, t), 0) for l in ("mbvh4", "mbvh8")) for t in PACKET}
         best_packet_t = max(PACKET, key=lambda t: packets[t])
         best_packet = packets[best_packet_t]
-        embree = speed.get(key + ("embree", "mbvh4", "stack"), 0)
+        embree1 = speed.get(key + ("embree", "mbvh4", "stack"), 0)
+        embree8 = speed.get(key + ("embree", "mbvh4", "packet"), 0)
+        embree = max(embree1, embree8)
         ratio = best_packet / best_single if best_single and best_packet else 0
         ratio_e = best_packet / embree if embree and best_packet else 0
         target = TARGET.get(kind, 0)
         ok = ratio >= target
         total += 1
         met += ok
+        if kind == "primary":
+            total_e += 1
+            met_e += ratio_e >= 1.0
         # utilisation and nodes: the best packet traversal on MBVH8 single rays (the counts do not
         # depend on the hybrid's layout), the best single-ray variant's nodes
         util, nodes = info.get((scene, kind, "cpu", "mbvh8", best_packet_t), (None, None))
@@ -67,10 +72,11 @@ def main(paths):
         util_s = "–" if util is None else f"{100 * util:.0f} %"
         nodes_s = "–" if nodes is None else f"{nodes:.1f} ({snodes:.1f} {single_v[0].upper()})"
         print(f"| {scene} | {kind} | {threads} | {best_single:.2f} ({single_v[0].upper()} {single_v[1]}) "
-              f"| {packets['packet-ranged']:.2f} | {packets['packet-partition']:.2f} | {embree:.2f} "
-              f"| **{ratio:.2f}×** | {ratio_e:.2f}× | {'≥' if kind != 'diffuse' else '≥'} {target} {'met' if ok else 'missed'} "
+              f"| {packets['packet-ranged']:.2f} | {packets['packet-partition']:.2f} | {embree1:.2f} | {embree8:.2f} "
+              f"| **{ratio:.2f}×** | ≥ {target} {'met' if ok else 'missed'} | {ratio_e:.2f}× "
               f"| {util_s} | {nodes_s} |")
-    print(f"\npacket / best single-ray at its target on {met} of {total} rows")
+    print(f"\npacket / best single-ray at its target on {met} of {total} rows; "
+          f"packet >= Embree's faster query on primary rays on {met_e} of {total_e} rows")
 
 
 if __name__ == "__main__":

@@ -16,6 +16,7 @@
 #include <embree3/rtcore.h>
 
 #include <algorithm>
+#include <cfloat>
 #include <cmath>
 #include <cstdio>
 #include <mutex>
@@ -58,7 +59,11 @@ std::string beyond_embree(const Ray& r) {
 
 class EmbreeBackend final : public Backend {
 public:
-  explicit EmbreeBackend(const BackendOptions& o) : threads_(resolve_threads(o.threads)), quality_(parse_quality(o.get("embree.quality", "medium"))) {
+  explicit EmbreeBackend(const BackendOptions& o)
+      : threads_(resolve_threads(o.threads)), quality_(parse_quality(o.get("embree.quality", "medium"))),
+        packet_(static_cast<unsigned>(o.get_size("embree.packet", 8))), coherent_(o.get_flag("embree.coherent")) {
+    if (packet_ != 4 && packet_ != 8 && packet_ != 16)
+      throw Error("backend setting embree.packet=" + o.get("embree.packet") + ": Embree's packets hold 4, 8 or 16 rays");
     const std::string config = "threads=" + std::to_string(threads_);
     device_ = rtcNewDevice(config.c_str());
     if (!device_)
@@ -77,13 +82,19 @@ public:
   std::string describe() const override {
     return std::string("embree: Embree ") + RTC_VERSION_STRING +
            " robust mode (RTC_SCENE_FLAG_ROBUST; --precision fast: its default mode), its own BVH (build quality " +
-           to_string(quality_) + "), rtcIntersect1/rtcOccluded1, " + std::to_string(threads_) + " thread(s)";
+           to_string(quality_) + "), rtcIntersect1/rtcOccluded1 (packet: rtcIntersect" + std::to_string(packet_) + "/rtcOccluded" +
+           std::to_string(packet_) + "), " + std::to_string(threads_) + " thread(s)";
   }
   /// robust: Embree's robust mode (RTC_SCENE_FLAG_ROBUST); fast: Embree's default mode (the flag
   /// off: faster box and triangle tests that may miss an edge), the peer of mbvh's fast mode.
   /// exact is mbvh's own contract: refused.
   bool supports_precision(Precision p) const override { return p != Precision::exact; }
-  bool supports(Layout l, Traversal t) const override { return l == Layout::mbvh4 && t == Traversal::stack; }
+  /// Its single-ray queries as mbvh4/stack; its packet queries (rtcIntersect4/8/16,
+  /// rtcOccluded4/8/16 on consecutive rays, `embree.packet`) as mbvh4/packet: Embree's own BVH
+  /// and traversals either way.
+  bool supports(Layout l, Traversal t) const override {
+    return l == Layout::mbvh4 && (t == Traversal::stack || t == Traversal::packet);
+  }
   bool peer() const override { return true; }
   /// Embree's stack is internal: not reported.
   std::size_t state_bytes(const TraceOptions&) const override { return 0; }
@@ -159,7 +170,7 @@ public:
   void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
     check_leaf_block(opt, std::string("embree"));  // these trace the build's own leaves, whatever block is asked
     if (!supports(opt.layout, opt.traversal))
-      throw Error("embree: answers only as mbvh4/stack (its own BVH and traversal)");
+      throw Error("embree: answers only as mbvh4/stack (its single-ray queries) and mbvh4/packet (its packet queries)");
     if (!supports_precision(opt.precision))
       throw Error(std::string("embree: precision '") + to_string(opt.precision) +
                   "' is not available (Embree has its robust mode, --precision robust, and its default mode, "
@@ -170,7 +181,13 @@ public:
     out.reset(rays.size(), opt);
     std::vector<std::size_t> invalid(threads_, 0);         // per worker
     std::vector<std::size_t> too_large(threads_, SIZE_MAX);  // per worker: the first ray Embree refuses
-    parallel_for(rays.size(), 2048, threads_, [&](std::size_t b, std::size_t e, unsigned worker) {
+    if (opt.traversal == Traversal::packet) {
+      parallel_for(rays.size(), 2048, threads_, [&](std::size_t b, std::size_t e, unsigned worker) {
+        if (packet_ == 4) trace_packets<RTCRayHit4, RTCRay4, 4>(scene, rays, b, e, any, out, invalid[worker], too_large[worker]);
+        else if (packet_ == 16) trace_packets<RTCRayHit16, RTCRay16, 16>(scene, rays, b, e, any, out, invalid[worker], too_large[worker]);
+        else trace_packets<RTCRayHit8, RTCRay8, 8>(scene, rays, b, e, any, out, invalid[worker], too_large[worker]);
+      });
+    } else parallel_for(rays.size(), 2048, threads_, [&](std::size_t b, std::size_t e, unsigned worker) {
       RTCIntersectContext ctx;
       rtcInitIntersectContext(&ctx);
       for (std::size_t i = b; i < e; ++i) {
@@ -214,6 +231,72 @@ public:
   }
 
 private:
+  static void query(RTCScene sc, RTCIntersectContext* c, const int* valid, RTCRayHit4& rh) { rtcIntersect4(valid, sc, c, &rh); }
+  static void query(RTCScene sc, RTCIntersectContext* c, const int* valid, RTCRayHit8& rh) { rtcIntersect8(valid, sc, c, &rh); }
+  static void query(RTCScene sc, RTCIntersectContext* c, const int* valid, RTCRayHit16& rh) { rtcIntersect16(valid, sc, c, &rh); }
+  static void occluded(RTCScene sc, RTCIntersectContext* c, const int* valid, RTCRay4& r) { rtcOccluded4(valid, sc, c, &r); }
+  static void occluded(RTCScene sc, RTCIntersectContext* c, const int* valid, RTCRay8& r) { rtcOccluded8(valid, sc, c, &r); }
+  static void occluded(RTCScene sc, RTCIntersectContext* c, const int* valid, RTCRay16& r) { rtcOccluded16(valid, sc, c, &r); }
+
+  /// rays[b, e) as Embree packets of W consecutive rays (the invalid ones and those Embree
+  /// refuses as inactive lanes); with Embree's coherent flag where `embree.coherent` asks for it.
+  template <class RH, class R, int W>
+  void trace_packets(RTCScene scene, std::span<const Ray> rays, std::size_t b, std::size_t e, bool any, TraceOutput& out,
+                     std::size_t& invalid, std::size_t& too_large) {
+    RTCIntersectContext plain, coherent;
+    rtcInitIntersectContext(&plain);
+    rtcInitIntersectContext(&coherent);
+    coherent.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
+    for (std::size_t i = b; i < e; i += W) {
+      bool tiny = false;  // a direction component below FLT_MIN (zero or subnormal) in an active lane
+      alignas(64) int valid[W];
+      alignas(64) RH rh{};
+      for (int l = 0; l < W; ++l) {
+        const std::size_t k = i + static_cast<std::size_t>(l);
+        valid[l] = 0;  // an inactive lane: a finite ray of no length
+        rh.ray.dir_x[l] = rh.ray.dir_y[l] = rh.ray.dir_z[l] = 1.0f;
+        rh.ray.tfar[l] = -INFINITY;
+        rh.hit.geomID[l] = RTC_INVALID_GEOMETRY_ID;
+        if (k >= e) continue;
+        const Ray& r = rays[k];
+        RayPre p;
+        if (!prepare_ray(r, p)) {
+          ++invalid;
+          continue;
+        }
+        if (!within_embree(r)) {
+          too_large = std::min(too_large, k);
+          continue;
+        }
+        valid[l] = -1;
+        tiny = tiny || !(std::fabs(r.dx) >= FLT_MIN && std::fabs(r.dy) >= FLT_MIN && std::fabs(r.dz) >= FLT_MIN);
+        rh.ray.org_x[l] = r.ox;
+        rh.ray.org_y[l] = r.oy;
+        rh.ray.org_z[l] = r.oz;
+        rh.ray.tnear[l] = p.tmin;
+        rh.ray.dir_x[l] = r.dx;
+        rh.ray.dir_y[l] = r.dy;
+        rh.ray.dir_z[l] = r.dz;
+        rh.ray.tfar[l] = r.tmax;
+        rh.ray.mask[l] = 0xFFFFFFFFu;
+        rh.hit.instID[0][l] = RTC_INVALID_GEOMETRY_ID;
+      }
+      // Embree's coherent traversal stops on an assertion (`child != BVH::emptyNode`, Debian's
+      // 3.13.5) for a packet with a subnormal direction component: such packets go without it
+      RTCIntersectContext* ctx = coherent_ && !tiny ? &coherent : &plain;
+      if (any) {
+        occluded(scene, ctx, valid, rh.ray);
+        for (int l = 0; l < W && i + static_cast<std::size_t>(l) < e; ++l)
+          out.occluded[i + static_cast<std::size_t>(l)] = valid[l] && rh.ray.tfar[l] == -INFINITY ? 1 : 0;
+      } else {
+        query(scene, ctx, valid, rh);
+        for (int l = 0; l < W && i + static_cast<std::size_t>(l) < e; ++l)
+          if (valid[l] && rh.hit.geomID[l] != RTC_INVALID_GEOMETRY_ID)
+            out.hits[i + static_cast<std::size_t>(l)] = Hit{rh.ray.tfar[l], rh.hit.u[l], rh.hit.v[l], prims_[rh.hit.primID[l]]};
+      }
+    }
+  }
+
   static std::string error_name(RTCError e) {
     switch (e) {
       case RTC_ERROR_NONE: return "RTC_ERROR_NONE";
@@ -245,6 +328,8 @@ private:
 
   unsigned threads_;
   BuildQuality quality_;
+  unsigned packet_;  ///< embree.packet: rays per packet query (4, 8 or 16)
+  bool coherent_;    ///< embree.coherent
   RTCDevice device_ = nullptr;
   RTCScene scene_[2] = {nullptr, nullptr};  // robust mode, default (fast) mode
   const Accel* acc_ = nullptr;
@@ -260,10 +345,13 @@ private:
 void register_embree_backend() {
   BackendInfo info;
   info.name = "embree";
-  info.summary = "peer: Embree 3 robust rtcIntersect1/rtcOccluded1 on the same triangles and rays";
+  info.summary = "peer: Embree 3 robust rtcIntersect1/rtcOccluded1 (and packets: rtcIntersect8/rtcOccluded8) on the same triangles and rays";
   info.make = [](const BackendOptions& o) -> std::unique_ptr<Backend> { return std::make_unique<EmbreeBackend>(o); };
   info.settings = {{"embree.quality", "Embree's own build quality: low, medium (the default) or high "
-                                      "(rtcSetSceneBuildQuality; `--quality`)"}};
+                                      "(rtcSetSceneBuildQuality; `--quality`)"},
+                   {"embree.packet", "rays per packet query of --traversal packet: 4, 8 (the default) or 16 "
+                                     "(rtcIntersect4/8/16, rtcOccluded4/8/16)"},
+                   {"embree.coherent", "packet queries with Embree's coherent flag (RTC_INTERSECT_CONTEXT_FLAG_COHERENT): 1 or 0 (the default)"}};
   register_backend(std::move(info));
 }
 
