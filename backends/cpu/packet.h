@@ -404,19 +404,7 @@ template <bool Any, bool UniformK>
         inside & static_cast<unsigned>(_mm256_movemask_ps(_mm256_and_ps(in, _mm256_cmp_ps(det, zero, _CMP_NEQ_UQ))));
     if (cand != 0) {
       // conservative t > 0 (pbrt-v3), tri_test's bound
-      constexpr float ur = MBVH_UNIT_ROUNDOFF;
-      constexpr float g2 = 2 * ur / (1 - 2 * ur), g3 = 3 * ur / (1 - 3 * ur), g5 = 5 * ur / (1 - 5 * ur);
-      using F = F8;
-      const __m256 maxZt = absmax3<F>(Z[0], Z[1], Z[2]), maxXt = absmax3<F>(X[0], X[1], X[2]),
-                   maxYt = absmax3<F>(Y[0], Y[1], Y[2]);
-      const __m256 maxE = absmax3<F>(U, V, W);
-      const __m256 dz = F::mul(F::set1(g3), maxZt);
-      const __m256 dx = F::mul(F::set1(g5), F::add(maxXt, maxZt));
-      const __m256 dy = F::mul(F::set1(g5), F::add(maxYt, maxZt));
-      const __m256 de = F::mul(F::set1(2.0f), F::add(F::add(F::mul(F::mul(F::set1(g2), maxXt), maxYt), F::mul(dy, maxXt)),
-                                                     F::mul(dx, maxYt)));
-      const __m256 sum = F::add(F::add(F::mul(F::mul(F::set1(g3), maxE), maxZt), F::mul(de, maxZt)), F::mul(dz, maxE));
-      const __m256 dt = F::mul(F::mul(F::set1(3.0f), sum), F::andnot(F::set1(-0.0f), F::div(F::set1(1.0f), det)));
+      const __m256 dt = t_error_bound<F8>(X, Y, Z, U, V, W, det);
       sure = cand & static_cast<unsigned>(_mm256_movemask_ps(_mm256_cmp_ps(t, dt, _CMP_GT_OQ)));
       fallback |= cand & ~sure;
       if constexpr (!Any) {

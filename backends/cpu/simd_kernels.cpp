@@ -314,6 +314,28 @@ template <class F>
   return F::fmadd(a[0], b[0], F::fmadd(a[1], b[1], F::mul(a[2], b[2])));
 }
 
+/// tri_test's error bound δt on t (pbrt-v3's Triangle::Intersect), lane by lane, from the sheared
+/// vertices X, Y, Z, the edge functions U, V, W and det: a lane whose t exceeds it has a certain
+/// positive t. std::fmax and maxps agree here (no NaN in a candidate lane's inputs: a NaN there
+/// makes t NaN). Shared by the SIMD leaves and the packets' per-lane test (packet.h).
+template <class F>
+[[gnu::always_inline]] inline typename F::V t_error_bound(const typename F::V (&X)[3], const typename F::V (&Y)[3],
+                                                          const typename F::V (&Z)[3], typename F::V U, typename F::V V,
+                                                          typename F::V W, typename F::V det) {
+  using V4 = typename F::V;
+  constexpr float u = MBVH_UNIT_ROUNDOFF;
+  constexpr float g2 = 2 * u / (1 - 2 * u), g3 = 3 * u / (1 - 3 * u), g5 = 5 * u / (1 - 5 * u);
+  const V4 maxZt = absmax3<F>(Z[0], Z[1], Z[2]), maxXt = absmax3<F>(X[0], X[1], X[2]), maxYt = absmax3<F>(Y[0], Y[1], Y[2]);
+  const V4 maxE = absmax3<F>(U, V, W);
+  const V4 dz = F::mul(F::set1(g3), maxZt);
+  const V4 dx = F::mul(F::set1(g5), F::add(maxXt, maxZt));
+  const V4 dy = F::mul(F::set1(g5), F::add(maxYt, maxZt));
+  const V4 de = F::mul(F::set1(2.0f),
+                       F::add(F::add(F::mul(F::mul(F::set1(g2), maxXt), maxYt), F::mul(dy, maxXt)), F::mul(dx, maxYt)));
+  const V4 sum = F::add(F::add(F::mul(F::mul(F::set1(g3), maxE), maxZt), F::mul(de, maxZt)), F::mul(dz, maxE));
+  return F::mul(F::mul(F::set1(3.0f), sum), F::andnot(F::set1(-0.0f), F::div(F::set1(1.0f), det)));
+}
+
 /// The triangles of one pack (F = F4: four lanes) or of two consecutive packs (F8: eight lanes,
 /// a leaf of five to eight triangles in one pass) at once: tri_test (intersect.h) lane by lane,
 /// the same operations in the same order (Woop, Benthin & Wald 2013, watertight; pbrt-v3's error
@@ -361,21 +383,7 @@ template <class F, bool Any = false>
   const V4 in = F::and_(F::template cmp<_CMP_GE_OQ>(t, F::of(r.tmin8)), F::template cmp<_CMP_LE_OQ>(t, F::set1(tmax)));
   const unsigned cand = inside & F::bits(F::and_(in, F::template cmp<_CMP_NEQ_UQ>(det, zero)));
   if (cand == 0) return 0;
-  // conservative t > 0 (pbrt-v3), as tri_test: std::fmax and maxps agree here (no NaN in a
-  // candidate lane's inputs: a NaN there makes t NaN)
-  constexpr float u = MBVH_UNIT_ROUNDOFF;
-  constexpr float g2 = 2 * u / (1 - 2 * u), g3 = 3 * u / (1 - 3 * u), g5 = 5 * u / (1 - 5 * u);
-  const V4 sign = F::set1(-0.0f);
-  const V4 maxZt = absmax3<F>(Z[0], Z[1], Z[2]), maxXt = absmax3<F>(X[0], X[1], X[2]), maxYt = absmax3<F>(Y[0], Y[1], Y[2]);
-  const V4 maxE = absmax3<F>(U, V, W);
-  const V4 dz = F::mul(F::set1(g3), maxZt);
-  const V4 dx = F::mul(F::set1(g5), F::add(maxXt, maxZt));
-  const V4 dy = F::mul(F::set1(g5), F::add(maxYt, maxZt));
-  const V4 de = F::mul(F::set1(2.0f),
-                       F::add(F::add(F::mul(F::mul(F::set1(g2), maxXt), maxYt), F::mul(dy, maxXt)), F::mul(dx, maxYt)));
-  const V4 sum = F::add(F::add(F::mul(F::mul(F::set1(g3), maxE), maxZt), F::mul(de, maxZt)), F::mul(dz, maxE));
-  const V4 dt = F::mul(F::mul(F::set1(3.0f), sum), F::andnot(sign, F::div(F::set1(1.0f), det)));
-  const unsigned sure = cand & F::bits(F::template cmp<_CMP_GT_OQ>(t, dt));
+  const unsigned sure = cand & F::bits(F::template cmp<_CMP_GT_OQ>(t, t_error_bound<F>(X, Y, Z, U, V, W, det)));
   fallback |= cand & ~sure;
   if constexpr (Any) return sure;
   F::store(t_out, t);
