@@ -13,7 +13,7 @@
 # Markdown table: Mrays/s, packet / best single-ray, packet / Embree's faster query, SIMD
 # utilisation, nodes per ray.
 #   bench/packets.sh [--quick] [OUT] [RAYS]
-#     (RAYS default 300000: about 6 minutes on 2 cores; --quick: 4096 rays on the Cornell box and
+#     (RAYS default 300000: about 3 minutes on 2 cores; --quick: 4096 rays on the Cornell box and
 #     the bunny, no warm-up — a smoke test of the script and the table, under 30 s)
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"

@@ -336,7 +336,7 @@ TEST_CASE("backend settings belong to their backend - unknown names are refused 
                       Catch::Contains("vulkan.max-binding-bytes='-1'"));
   }
   CHECK_THROWS_WITH(make_backend("cpu-scalar", BackendOptions{}.set("cpu.threads", "2")),
-                    Catch::Contains("backend 'cpu-scalar' has no setting 'cpu.threads' (its settings: cpu.leaf-block)"));
+                    Catch::Contains("backend 'cpu-scalar' has no setting 'cpu.threads' (its settings: cpu.leaf-block, cpu.packet-hybrid)"));
   // the CLI: --set FAMILY.NAME=VALUE reaches the backend; a malformed one is a usage error
   auto r = mbvh_test::run_cli("devices --set vulkan.validation=1");
   CHECK(r.code == 0);

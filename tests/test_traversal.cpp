@@ -35,8 +35,9 @@ using RefOutputs = std::map<std::tuple<Layout, Traversal, Query, unsigned>, Trac
 
 /// The packet traversals (packet-ranged, packet-partition; MBVH2 and MBVH8 for the hybrid's single
 /// rays) of every SIMD cpu backend in `grid`, with the hybrid switch on and off (every packet a
-/// packet): each gives the reference stack traversal's bytes on the leaves it traces. `refs`
-/// caches the reference outputs by (layout, traversal, query, leaf block).
+/// packet): each gives the reference stack traversal's bytes on the leaves it traces, but for
+/// rare order-dependent ties. `refs` caches the reference outputs by (layout, traversal, query,
+/// leaf block).
 void check_packets(const Accel& acc, const std::vector<Ray>& rays, const VariantGrid& grid, RefOutputs& refs) {
   for (const std::string& name : grid.backends) {
     if (name.rfind("cpu-", 0) != 0 || name == "cpu-scalar") continue;
@@ -54,8 +55,27 @@ void check_packets(const Accel& acc, const std::vector<Ray>& rays, const Variant
             backend->trace(acc, rays, TraceOptions{l, t, q, false}, got);
             INFO(name << "/" << to_string(l) << "/" << to_string(t) << "/" << to_string(q) << ", cpu.packet-hybrid=" << hybrid);
             CHECK(got.invalid == ref.invalid);
-            if (q == Query::closest) CHECK(std::memcmp(ref.hits.data(), got.hits.data(), rays.size() * sizeof(Hit)) == 0);
-            else CHECK(ref.occluded == got.occluded);
+            // the reference's bytes on every ray but where its own answer depends on the order it
+            // visits boxes in (two hits within rounding of each other at a corner, where a box's
+            // slab entry and a triangle's watertight t disagree by a few ulps: the packet's order
+            // may keep the other one): such a ray must be a classified tie, and rare
+            std::size_t differ = 0;
+            Comparison c;
+            if (q == Query::closest) {
+              c = compare_hit_arrays(got.hits, ref.hits, {}, oracle_settlement(acc, rays, oracle_tie_rule(acc, rays)));
+              differ = rays.size() - c.bit_identical;
+            } else {
+              auto [ci, cfresh] = refs.try_emplace({l, Traversal::stack, Query::closest, refo.leaf_block});
+              if (cfresh) trace_reference(acc, rays, TraceOptions{l, Traversal::stack, Query::closest, false, Precision::robust, refo.leaf_block}, ci->second, 0);
+              c = compare_occlusion_arrays(got.occluded, ref.occluded, ci->second.hits, rays, {}, {},
+                                           oracle_settlement(acc, rays, oracle_tie_rule(acc, rays)));
+              for (std::size_t i = 0; i < rays.size(); ++i) differ += got.occluded[i] != ref.occluded[i];
+            }
+            CHECK(c.mismatches == 0);
+            CHECK(differ <= std::max<std::size_t>(1, rays.size() / 10000));
+            if (differ)
+              std::printf("packets: %s/%s/%s/%s hybrid=%s: %zu of %zu rays differ from the stack traversal's bytes (order-dependent ties)\n",
+                          name.c_str(), to_string(l), to_string(t), to_string(q), hybrid, differ, rays.size());
           }
     }
   }
@@ -80,7 +100,16 @@ void check_scene(const std::string& spec, const BuildOptions& bo = {}, std::size
     const CheckReport rep = run_check(*acc, rays, co);
     INFO(rep.table(rays));
     CHECK(rep.brute_rays == kBrute);
-    CHECK(rep.mismatches() == 0);
+    // every answer of ours is clean; a peer library's genuine mismatches are measured and
+    // reported, not required away (README, the embree peer; as the stress suite does): Embree's
+    // robust occlusion differs on one of the hairball's 100K shadow rays of 8x8 image tiles
+    for (const Comparison& c : rep.comparisons) {
+      const bool peer = c.a.rfind("embree/", 0) == 0 || c.b.rfind("embree/", 0) == 0;
+      if (!peer) CHECK(c.mismatches == 0);
+      else if (c.mismatches)
+        std::printf("peer %s vs %s: %zu genuine mismatches of %zu rays (%s, %s rays)\n", c.a.c_str(), c.b.c_str(),
+                    c.mismatches, c.rays, spec.c_str(), to_string(kind));
+    }
     std::size_t hits = 0;
 
     // -- twins are bit-identical: each bitstack and its stack twin, per layout and query
@@ -551,7 +580,7 @@ TEST_CASE("statistics count work and stay out of the answers", "[traversal]") {
 TEST_CASE("packets of mixed rays - invalid, axis-aligned, clipped and incoherent lanes - keep the reference's answers",
           "[traversal][packet]") {
   const VariantGrid grid = mbvh_test::all_backends();
-  for (const std::string spec : {mbvh_test::scene_path("cornell_box.obj.zst"), std::string("gen:sphere:64")}) {
+  for (const std::string& spec : {mbvh_test::scene_path("cornell_box.obj.zst"), std::string("gen:sphere:64")}) {
     INFO(spec);
     const Scene scene = load_scene(spec);
     const auto acc = Accel::build(scene);
@@ -584,6 +613,25 @@ TEST_CASE("packets of mixed rays - invalid, axis-aligned, clipped and incoherent
     }
     RefOutputs refs;
     check_packets(*acc, mixed, grid, refs);
+    // fast precision: a packet ray's answer is the same backend's single-ray fast answer (both run
+    // tri_test_simd_mt's operations), whether its packet is traced as one or ray by ray
+    for (const std::string& name : grid.backends) {
+      if (name.rfind("cpu-", 0) != 0 || name == "cpu-scalar") continue;
+      for (const char* hybrid : {"1", "0"}) {
+        auto backend = make_backend(name, BackendOptions{}.set("cpu.packet-hybrid", hybrid));
+        for (Query q : {Query::closest, Query::any}) {
+          TraceOptions o{Layout::mbvh8, Traversal::stack, q, false};
+          o.precision = Precision::fast;
+          TraceOutput single, packets;
+          backend->trace(*acc, mixed, o, single);
+          o.traversal = Traversal::packet;
+          backend->trace(*acc, mixed, o, packets);
+          INFO(name << " fast/" << to_string(q) << ", cpu.packet-hybrid=" << hybrid);
+          if (q == Query::closest) CHECK(std::memcmp(single.hits.data(), packets.hits.data(), mixed.size() * sizeof(Hit)) == 0);
+          else CHECK(single.occluded == packets.occluded);
+        }
+      }
+    }
     std::size_t invalid = 0;
     for (const Ray& r : mixed) invalid += ray_valid(r) ? 0 : 1;
     CHECK(invalid > 0);  // the batch holds invalid rays (each packet does)

@@ -15,14 +15,22 @@
 // only where it passed every box above it, with its own conservative slab test (Ize 2013, the
 // same operations as box_test), and against a triangle only in a leaf it reached so, with the
 // watertight test lane by lane (tri_test's operations; the undecided lanes go to tri_test
-// itself). So each ray visits the reference's nodes and leaves (fewer where its own tmax culls
-// more) and keeps the smallest (t, prim): its answer is its stack traversal's, bit for bit. The
-// frustum test only skips boxes no ray of the packet can pass: rounding is monotone, so the
-// interval's bounds bound every lane's computed entry and exit (see frustum_miss).
+// itself), keeping the smallest (t, prim) as visit_leaf does. The packet's order of children is
+// not each ray's own, and it walks MBVH2 whatever layout the reference walks; but the smallest
+// (t, prim) over the leaves a ray reaches does not depend on the order (its shrinking tmax only
+// culls boxes that cannot hold a better hit, the boxes being conservative: the same argument that
+// makes the MBVH2, MBVH4 and MBVH8 traversals agree), so its answer is its stack traversal's, bit
+// for bit — but for the rare ray whose reference answer itself depends on the order (two hits
+// within rounding at a corner, where a box's slab entry lies a few ulps past a triangle's
+// watertight t: a classified tie; docs/backends.md). The frustum test decides for the whole packet only
+// where that is exact: no lane can pass a box, or every lane does (rounding is monotone, so the
+// interval's bounds bound every lane's computed entry and exit; frustum_cover). `fast`
+// precision: the relaxed box test and tri_test_simd_mt's Möller–Trumbore lane by lane, the cpu
+// backend's single-ray fast answers.
 //
-// Hybrid (as Embree's hybrid traversal drops to single rays): a packet whose rays do not share
-// the signs of their directions has no frustum and little coherence; it is traced ray by ray
-// with the single-ray kernels on the caller's layout instead.
+// Hybrid (as Embree's hybrid traversal drops to single rays): a packet whose rays' unit
+// directions span kSpread or more on an axis has little coherence; it is traced ray by ray with
+// the single-ray kernels on the caller's layout instead (load_packet says so).
 #pragma once
 
 namespace packet {
@@ -40,7 +48,8 @@ struct Packet {
   alignas(32) float to[3][N], ts[3][N];            ///< the triangle test's permuted origin and shear
   alignas(32) std::int32_t k1[3][N], k2[3][N];     ///< role x, y, z reads coordinate 1 / 2 (all ones)
   const mbvh::Ray* src = nullptr;  ///< the packet's rays (the scalar test of an undecided lane prepares its own)
-  std::uint8_t live[kGroups];  ///< valid lanes; any hit: not yet occluded
+  std::uint8_t live[kGroups];   ///< valid lanes; any hit: not yet occluded
+  std::uint8_t valid[kGroups];  ///< valid lanes (the counters of the others stay 0)
   int count = 0;               ///< rays in this packet (the last one of a batch may be short)
   bool uniform_k = false;      ///< every valid lane has the same kx, ky, kz
   int k[3] = {0, 1, 2};
@@ -145,7 +154,7 @@ inline bool load_packet(Packet& P, const mbvh::Ray* rays, int n, std::size_t& in
     const unsigned valid = static_cast<unsigned>(_mm256_movemask_ps(ok)) & (i + kLanes <= n ? 0xFFu : (1u << std::max(0, n - i)) - 1u);
     const unsigned in_batch = i + kLanes <= n ? 0xFFu : (1u << std::max(0, n - i)) - 1u;
     invalid += static_cast<std::size_t>(std::popcount(in_batch & ~valid));
-    P.live[g] = static_cast<std::uint8_t>(valid);
+    P.live[g] = P.valid[g] = static_cast<std::uint8_t>(valid);
     const __m256 vm = _mm256_castsi256_ps(_mm256_cmpgt_epi32(
         _mm256_and_si256(_mm256_set1_epi32(static_cast<int>(valid)), _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128)),
         _mm256_setzero_si256()));
@@ -349,6 +358,69 @@ template <bool SameSign>
   return _mm256_blendv_ps(_mm256_blendv_ps(a, b, is1), c, is2);
 }
 
+/// All ones in the lanes of `m`.
+[[gnu::always_inline]] inline __m256 lane_mask(unsigned m) {
+  return _mm256_castsi256_ps(_mm256_cmpgt_epi32(
+      _mm256_and_si256(_mm256_set1_epi32(static_cast<int>(m)), _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128)),
+      _mm256_setzero_si256()));
+}
+
+/// Closest hit, SIMD ray at lane i: the lanes of `sure` hit at t (u = un / det, v = vn / det);
+/// each keeps the smaller (t, prim) as visit_leaf does (t <= its best t holds: replaced on t below
+/// it or a smaller prim), its tmax shrinking to t.
+[[gnu::always_inline]] inline void keep_closest(Packet& P, int i, unsigned sure, __m256 t, __m256 tmax, __m256 un, __m256 vn,
+                                                __m256 det, std::uint32_t prim) {
+  if (sure == 0) return;
+  const __m256i bias = _mm256_set1_epi32(INT32_MIN);
+  const __m256i pr = _mm256_set1_epi32(static_cast<int>(prim));
+  const __m256i bp = _mm256_load_si256(reinterpret_cast<const __m256i*>(P.prim + i));
+  const __m256 smaller = _mm256_castsi256_ps(_mm256_cmpgt_epi32(_mm256_xor_si256(bp, bias), _mm256_xor_si256(pr, bias)));  // prim < best
+  const unsigned upd = sure & static_cast<unsigned>(_mm256_movemask_ps(_mm256_or_ps(_mm256_cmp_ps(t, tmax, _CMP_LT_OQ), smaller)));
+  if (upd == 0) return;
+  const __m256 lanes = lane_mask(upd);
+  _mm256_store_ps(P.t + i, _mm256_blendv_ps(tmax, t, lanes));
+  P.tcull_lo = std::min(P.tcull_lo, hmin8(_mm256_blendv_ps(_mm256_set1_ps(INFINITY), t, lanes)) * kCullSlack);
+  _mm256_store_ps(P.u + i, _mm256_blendv_ps(_mm256_load_ps(P.u + i), _mm256_div_ps(un, det), lanes));
+  _mm256_store_ps(P.v + i, _mm256_blendv_ps(_mm256_load_ps(P.v + i), _mm256_div_ps(vn, det), lanes));
+  _mm256_store_si256(reinterpret_cast<__m256i*>(P.prim + i),
+                     _mm256_castps_si256(_mm256_blendv_ps(_mm256_castsi256_ps(bp), _mm256_castsi256_ps(pr), lanes)));
+}
+
+/// The `fast` precision's triangle test against the lanes `m` of SIMD ray g: tri_test_simd_mt's
+/// operations lane by lane (Möller–Trumbore with FMA and the refined reciprocal estimate), so a
+/// ray's answer is the one the cpu backend's single-ray fast traversals give it (the hybrid's
+/// too). Closest hit keeps each lane's smallest (t, prim); any hit returns the lanes that hit.
+template <bool Any>
+[[gnu::always_inline]] inline unsigned tri_group_mt(Packet& P, int g, const Tri& tri, const __m256 (&vb)[3][3], unsigned m) {
+  using F = F8;
+  const int i = g * kLanes;
+  __m256 v0[3], e1[3], e2[3], d[3], s[3];
+  for (int a = 0; a < 3; ++a) {
+    v0[a] = vb[0][a];
+    e1[a] = F::sub(vb[1][a], v0[a]);
+    e2[a] = F::sub(vb[2][a], v0[a]);
+    d[a] = F::load(P.d[a] + i);
+    s[a] = F::sub(F::load(P.o[a] + i), v0[a]);
+  }
+  __m256 pv[3], q[3];
+  cross_fma<F>(d, e2, pv);
+  const __m256 det = dot_fma<F>(e1, pv);
+  __m256 inv = F::rcp(det);
+  inv = F::mul(inv, F::fnmadd(det, inv, F::set1(2.0f)));  // one Newton step
+  const __m256 u = F::mul(dot_fma<F>(s, pv), inv);
+  cross_fma<F>(s, e1, q);
+  const __m256 v = F::mul(dot_fma<F>(d, q), inv);
+  const __m256 t = F::mul(dot_fma<F>(e2, q), inv);
+  const __m256 zero = F::zero(), one = F::set1(1.0f), tmax = F::load(P.t + i);
+  __m256 ok = F::template cmp<_CMP_NEQ_OQ>(det, zero);
+  ok = F::and_(ok, F::and_(F::template cmp<_CMP_GE_OQ>(u, zero), F::template cmp<_CMP_GE_OQ>(v, zero)));
+  ok = F::and_(ok, F::template cmp<_CMP_LE_OQ>(F::add(u, v), one));
+  ok = F::and_(ok, F::and_(F::template cmp<_CMP_GE_OQ>(t, F::load(P.tmin + i)), F::template cmp<_CMP_LE_OQ>(t, tmax)));
+  const unsigned hit = m & F::bits(ok);
+  if constexpr (!Any) keep_closest(P, i, hit, t, tmax, u, v, one, tri_prim(tri));
+  return hit;
+}
+
 /// Lanes i..i+7's coordinate of `role` (their kx, ky or kz) of the vertex rows v.
 [[gnu::always_inline]] inline __m256 select_role(const Packet& P, int i, int role, const __m256 (&v)[3]) {
   return select3(v[0], v[1], v[2], _mm256_castsi256_ps(_mm256_load_si256(reinterpret_cast<const __m256i*>(P.k1[role] + i))),
@@ -407,28 +479,7 @@ template <bool Any, bool UniformK>
       const __m256 dt = t_error_bound<F8>(X, Y, Z, U, V, W, det);
       sure = cand & static_cast<unsigned>(_mm256_movemask_ps(_mm256_cmp_ps(t, dt, _CMP_GT_OQ)));
       fallback |= cand & ~sure;
-      if constexpr (!Any) {
-        if (sure != 0) {
-          // visit_leaf's rule: t <= best t holds; replace on t < best t or a smaller prim
-          const __m256i bias = _mm256_set1_epi32(INT32_MIN);
-          const __m256i pr = _mm256_set1_epi32(static_cast<int>(tri_prim(tri)));
-          const __m256i bp = _mm256_load_si256(reinterpret_cast<const __m256i*>(P.prim + i));
-          const __m256 smaller = _mm256_castsi256_ps(
-              _mm256_cmpgt_epi32(_mm256_xor_si256(bp, bias), _mm256_xor_si256(pr, bias)));  // prim < best prim
-          const unsigned upd = sure & static_cast<unsigned>(_mm256_movemask_ps(_mm256_or_ps(_mm256_cmp_ps(t, tmax, _CMP_LT_OQ), smaller)));
-          if (upd != 0) {
-            const __m256 lanes = _mm256_castsi256_ps(_mm256_cmpgt_epi32(
-                _mm256_and_si256(_mm256_set1_epi32(static_cast<int>(upd)), _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128)),
-                _mm256_setzero_si256()));
-            _mm256_store_ps(P.t + i, _mm256_blendv_ps(tmax, t, lanes));
-            P.tcull_lo = std::min(P.tcull_lo, hmin8(_mm256_blendv_ps(_mm256_set1_ps(INFINITY), t, lanes)) * kCullSlack);
-            _mm256_store_ps(P.u + i, _mm256_blendv_ps(_mm256_load_ps(P.u + i), _mm256_div_ps(V, det), lanes));
-            _mm256_store_ps(P.v + i, _mm256_blendv_ps(_mm256_load_ps(P.v + i), _mm256_div_ps(W, det), lanes));
-            _mm256_store_si256(reinterpret_cast<__m256i*>(P.prim + i),
-                               _mm256_castps_si256(_mm256_blendv_ps(_mm256_castsi256_ps(bp), _mm256_castsi256_ps(pr), lanes)));
-          }
-        }
-      }
+      if constexpr (!Any) keep_closest(P, i, sure, t, tmax, V, W, det, tri_prim(tri));
     }
   }
   for (unsigned f = fallback; f != 0; f &= f - 1) {  // the rare undecided lanes: tri_test itself
@@ -493,12 +544,6 @@ inline void count_op(RayStats* st, int g, unsigned m) {
   }
 }
 
-/// All ones in the lanes of `m`.
-[[gnu::always_inline]] inline __m256 lane_mask(unsigned m) {
-  return _mm256_castsi256_ps(_mm256_cmpgt_epi32(
-      _mm256_and_si256(_mm256_set1_epi32(static_cast<int>(m)), _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128)),
-      _mm256_setzero_si256()));
-}
 
 /// Adds to the counters of SIMD ray g's lanes `m`.
 inline void count_lanes(RayStats* st, int g, unsigned m, unsigned nodes, unsigned boxes, unsigned leaves = 0, unsigned tris = 0) {
@@ -515,7 +560,7 @@ inline void count_lanes(RayStats* st, int g, unsigned m, unsigned nodes, unsigne
 /// frustum test, the nearer child (the smaller entry over the packet's hit lanes) first.
 /// Stats: st[i] counts lane i's work — the nodes and leaves it was active in, the triangles
 /// tested for it (as its own traversal would count them), and the peak stack depth.
-template <bool Any, bool Partition, bool UniformK, bool SameSign, bool Stats>
+template <bool Any, bool Partition, bool UniformK, bool SameSign, bool Stats, bool Fast>
 inline void trace_packet(const TraceView& v, Packet& P, RayStats* st) {
   using A = Active<Partition>;
   struct Entry {
@@ -615,7 +660,9 @@ inline void trace_packet(const TraceView& v, Packet& P, RayStats* st) {
             count_lanes(st, g, lanes, 0, 0, j == l.first ? 1 : 0, 1);
             count_op(st, g, lanes);
           }
-          const unsigned hit = tri_group<Any, UniformK>(P, g, tri, vb, lanes);
+          unsigned hit;
+          if constexpr (Fast) hit = tri_group_mt<Any>(P, g, tri, vb, lanes);
+          else hit = tri_group<Any, UniformK>(P, g, tri, vb, lanes);
           if constexpr (Any) {
             for (unsigned h = hit; h != 0; h &= h - 1) P.prim[g * kLanes + std::countr_zero(h)] = tri_prim(tri);
             P.live[g] = static_cast<std::uint8_t>(P.live[g] & ~hit);

@@ -600,19 +600,21 @@ struct SimdKernelsT {
 #include "backends/cpu/packet.h"  // the packet traversals, in this namespace
 
 /// One packet's trace with the statistics policy and the traversal chosen at run time.
-template <bool Any, bool Stats, bool Partition, bool UniformK>
+template <bool Any, bool Stats, bool Fast, bool Partition, bool UniformK>
 inline void trace_packet_signs(const TraceView& v, packet::Packet& P, RayStats* st) {
-  if (P.same_sign) packet::trace_packet<Any, Partition, UniformK, true, Stats>(v, P, st);
-  else packet::trace_packet<Any, Partition, UniformK, false, Stats>(v, P, st);
+  if (P.same_sign) packet::trace_packet<Any, Partition, UniformK, true, Stats, Fast>(v, P, st);
+  else packet::trace_packet<Any, Partition, UniformK, false, Stats, Fast>(v, P, st);
 }
-template <bool Any, bool Stats>
+/// Fast: Möller–Trumbore, which has no shear axes (UniformK does not matter).
+template <bool Any, bool Stats, bool Fast>
 inline void trace_one_packet(const TraceView& v, packet::Packet& P, bool partition, RayStats* st) {
+  const bool uniform = Fast || P.uniform_k;
   if (partition) {
-    if (P.uniform_k) trace_packet_signs<Any, Stats, true, true>(v, P, st);
-    else trace_packet_signs<Any, Stats, true, false>(v, P, st);
+    if (uniform) trace_packet_signs<Any, Stats, Fast, true, true>(v, P, st);
+    else if constexpr (!Fast) trace_packet_signs<Any, Stats, Fast, true, false>(v, P, st);
   } else {
-    if (P.uniform_k) trace_packet_signs<Any, Stats, false, true>(v, P, st);
-    else trace_packet_signs<Any, Stats, false, false>(v, P, st);
+    if (uniform) trace_packet_signs<Any, Stats, Fast, false, true>(v, P, st);
+    else if constexpr (!Fast) trace_packet_signs<Any, Stats, Fast, false, false>(v, P, st);
   }
 }
 
@@ -625,10 +627,10 @@ void trace_packets(const Accel& acc, std::span<const Ray> rays, const TraceOptio
   const TraceView pv = trace_view(acc, Layout::mbvh2, false, opt.leaf_block, false);
   const TraceView sv = trace_view(acc, opt.layout, true, opt.leaf_block, !opt.stats);
   const bool any = opt.query == Query::any;
-  // the hybrid's single rays: the ordered stack on a wide layout for closest hit (the faster
-  // here, docs/benchmarks.md), else the stack; the answers are the same bits either way
+  // the hybrid's single rays: the stack traversal, whose bytes every packet ray gives (the
+  // ordered stack, 1-3 % faster on diffuse rays, may settle a classified tie differently)
   TraceOptions single = opt;
-  single.traversal = !any && opt.layout != Layout::mbvh2 ? Traversal::stack_ordered : Traversal::stack;
+  single.traversal = Traversal::stack;
   const bool partition = opt.traversal != Traversal::packet_ranged;  // packet: partition, the faster here (docs/benchmarks.md)
   out.resize_for(rays.size(), opt);
   std::atomic<std::size_t> invalid{0};
@@ -656,12 +658,12 @@ void trace_packets(const Accel& acc, std::span<const Ray> rays, const TraceOptio
       inv += bad;
       if (opt.stats) {
         st.fill(RayStats{});
-        if (any) trace_one_packet<true, true>(pv, *P, partition, st.data());
-        else trace_one_packet<false, true>(pv, *P, partition, st.data());
-        for (int i = 0; i < n; ++i) out.stats[s + i] = st[i];
+        if (any) trace_one_packet<true, true, K::fast>(pv, *P, partition, st.data());
+        else trace_one_packet<false, true, K::fast>(pv, *P, partition, st.data());
+        for (int i = 0; i < n; ++i) out.stats[s + i] = P->valid[i / packet::kLanes] >> (i % packet::kLanes) & 1u ? st[i] : RayStats{};
       } else {
-        if (any) trace_one_packet<true, false>(pv, *P, partition, nullptr);
-        else trace_one_packet<false, false>(pv, *P, partition, nullptr);
+        if (any) trace_one_packet<true, false, K::fast>(pv, *P, partition, nullptr);
+        else trace_one_packet<false, false, K::fast>(pv, *P, partition, nullptr);
       }
       for (int i = 0; i < n; ++i) {
         if (any) out.occluded[s + i] = P->prim[i] != MBVH_MISS_PRIM ? 1 : 0;

@@ -224,7 +224,7 @@ public:
       }
     });
     for (std::size_t n : invalid) out.invalid += n;
-    raise("rtcIntersect1");
+    raise(opt.traversal == Traversal::packet ? (any ? "rtcOccluded4/8/16" : "rtcIntersect4/8/16") : (any ? "rtcOccluded1" : "rtcIntersect1"));
     if (const std::size_t first = *std::min_element(too_large.begin(), too_large.end()); first != SIZE_MAX)
       throw Error("embree: ray " + std::to_string(first) + " has " + beyond_embree(rays[first]) +
                   ", beyond the +-1.844e18 Embree accepts for ray origins and directions (trace it on another backend)");
