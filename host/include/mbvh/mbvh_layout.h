@@ -80,8 +80,11 @@ typedef uint mbvh_uint;
 #define MBVH_STACK4_ENTRIES 64
 /* MBVH8 ordered stack: 1 + 7 * 14 = 99 entries at most. */
 #define MBVH_STACK8_ENTRIES 128
-/* Rays per packet of the cpu backend's packet traversals (8 SIMD rays of 8 lanes). */
+/* Rays per packet of the cpu backend's packet traversals (8 SIMD rays of 8 lanes; a build may
+ * set 128 or 256 to measure larger packets). */
+#ifndef MBVH_PACKET_RAYS
 #define MBVH_PACKET_RAYS 64
+#endif
 
 /* Storage-buffer bindings per split array on Vulkan (nodes, triangles): an array larger than a
  * device's maxStorageBufferRange is bound as up to this many power-of-two chunks (TRAVERSAL.md §9). */
