@@ -386,8 +386,8 @@ template <bool SameSign>
                      _mm256_castps_si256(_mm256_blendv_ps(_mm256_castsi256_ps(bp), _mm256_castsi256_ps(pr), lanes)));
 }
 
-/// The `fast` precision's triangle test against the lanes `m` of SIMD ray g: tri_test_simd_mt's
-/// operations lane by lane (Möller–Trumbore with FMA and the refined reciprocal estimate), so a
+/// The `fast` precision's triangle test against the lanes `m` of SIMD ray g: mt_lanes, the
+/// operations of tri_test_simd_mt, lane by lane (Möller–Trumbore with FMA and the refined reciprocal estimate), so a
 /// ray's answer is the one the cpu backend's single-ray fast traversals give it (the hybrid's
 /// too). Closest hit keeps each lane's smallest (t, prim); any hit returns the lanes that hit.
 template <bool Any>
@@ -402,20 +402,10 @@ template <bool Any>
     d[a] = F::load(P.d[a] + i);
     s[a] = F::sub(F::load(P.o[a] + i), v0[a]);
   }
-  __m256 pv[3], q[3];
-  cross_fma<F>(d, e2, pv);
-  const __m256 det = dot_fma<F>(e1, pv);
-  __m256 inv = F::rcp(det);
-  inv = F::mul(inv, F::fnmadd(det, inv, F::set1(2.0f)));  // one Newton step
-  const __m256 u = F::mul(dot_fma<F>(s, pv), inv);
-  cross_fma<F>(s, e1, q);
-  const __m256 v = F::mul(dot_fma<F>(d, q), inv);
-  const __m256 t = F::mul(dot_fma<F>(e2, q), inv);
-  const __m256 zero = F::zero(), one = F::set1(1.0f), tmax = F::load(P.t + i);
-  __m256 ok = F::template cmp<_CMP_NEQ_OQ>(det, zero);
-  ok = F::and_(ok, F::and_(F::template cmp<_CMP_GE_OQ>(u, zero), F::template cmp<_CMP_GE_OQ>(v, zero)));
-  ok = F::and_(ok, F::template cmp<_CMP_LE_OQ>(F::add(u, v), one));
-  ok = F::and_(ok, F::and_(F::template cmp<_CMP_GE_OQ>(t, F::load(P.tmin + i)), F::template cmp<_CMP_LE_OQ>(t, tmax)));
+  __m256 t, u, v;
+  const __m256 tmax = F::load(P.t + i);
+  const __m256 ok = mt_lanes<F>(e1, e2, d, s, F::load(P.tmin + i), tmax, t, u, v);
+  const __m256 one = F::set1(1.0f);
   const unsigned hit = m & F::bits(ok);
   if constexpr (!Any) keep_closest(P, i, hit, t, tmax, u, v, one, tri_prim(tri));
   return hit;

@@ -393,6 +393,33 @@ template <class F, bool Any = false>
   return sure;
 }
 
+/// Möller–Trumbore lane by lane from the edges e1, e2, the direction d and
+/// s = o - v0, with FMA and the reciprocal estimate refined by one Newton step: returns the lanes
+/// that hit within [tmin, tmax] (all ones) with t and the weights u, v. The one sequence of
+/// operations of the fast mode's SIMD leaves (a pack's triangles against one ray) and of its
+/// packets (one triangle against a SIMD ray, packet.h), so both give a ray the same bits.
+template <class F>
+[[gnu::always_inline]] inline typename F::V mt_lanes(const typename F::V (&e1)[3],
+                                                     const typename F::V (&e2)[3], const typename F::V (&d)[3],
+                                                     const typename F::V (&s)[3], typename F::V tmin, typename F::V tmax,
+                                                     typename F::V& t, typename F::V& u, typename F::V& v) {
+  using V4 = typename F::V;
+  V4 pv[3], q[3];
+  cross_fma<F>(d, e2, pv);
+  const V4 det = dot_fma<F>(e1, pv);
+  V4 inv = F::rcp(det);
+  inv = F::mul(inv, F::fnmadd(det, inv, F::set1(2.0f)));  // one Newton step
+  u = F::mul(dot_fma<F>(s, pv), inv);
+  cross_fma<F>(s, e1, q);
+  v = F::mul(dot_fma<F>(d, q), inv);
+  t = F::mul(dot_fma<F>(e2, q), inv);
+  const V4 zero = F::zero(), one = F::set1(1.0f);
+  V4 ok = F::template cmp<_CMP_NEQ_OQ>(det, zero);
+  ok = F::and_(ok, F::and_(F::template cmp<_CMP_GE_OQ>(u, zero), F::template cmp<_CMP_GE_OQ>(v, zero)));
+  ok = F::and_(ok, F::template cmp<_CMP_LE_OQ>(F::add(u, v), one));
+  return F::and_(ok, F::and_(F::template cmp<_CMP_GE_OQ>(t, tmin), F::template cmp<_CMP_LE_OQ>(t, tmax)));
+}
+
 /// The `fast` mode's triangles of one pack (F4) or two (F8) at once: Möller–Trumbore (1997) with
 /// FMA and the reciprocal estimate refined by one Newton step (about 23 bits, not correctly
 /// rounded), as fast SIMD tracers do. Returns the hit lanes of `valid` with t, u, v (det_out = 1:
@@ -409,20 +436,9 @@ template <class F, bool Any = false>
     d[a] = F::of(r.d8[a]);
     s[a] = F::sub(F::of(r.o8[a]), v0[a]);
   }
-  V4 pv[3], q[3];
-  cross_fma<F>(d, e2, pv);
-  const V4 det = dot_fma<F>(e1, pv);
-  V4 inv = F::rcp(det);
-  inv = F::mul(inv, F::fnmadd(det, inv, F::set1(2.0f)));  // one Newton step
-  const V4 u = F::mul(dot_fma<F>(s, pv), inv);
-  cross_fma<F>(s, e1, q);
-  const V4 v = F::mul(dot_fma<F>(d, q), inv);
-  const V4 t = F::mul(dot_fma<F>(e2, q), inv);
-  const V4 zero = F::zero(), one = F::set1(1.0f);
-  V4 ok = F::template cmp<_CMP_NEQ_OQ>(det, zero);
-  ok = F::and_(ok, F::and_(F::template cmp<_CMP_GE_OQ>(u, zero), F::template cmp<_CMP_GE_OQ>(v, zero)));
-  ok = F::and_(ok, F::template cmp<_CMP_LE_OQ>(F::add(u, v), one));
-  ok = F::and_(ok, F::and_(F::template cmp<_CMP_GE_OQ>(t, F::of(r.tmin8)), F::template cmp<_CMP_LE_OQ>(t, F::set1(tmax))));
+  V4 t, u, v;
+  const V4 ok = mt_lanes<F>(e1, e2, d, s, F::of(r.tmin8), F::set1(tmax), t, u, v);
+  const V4 one = F::set1(1.0f);
   const unsigned hit = valid & F::bits(ok);
   if (Any || hit == 0) return hit;
   F::store(t_out, t);
