@@ -37,7 +37,8 @@ hairball10m|gen:hairball:10000000|"; fi
 fi
 mkdir -p "$OUT"
 BACKENDS=cpu
-"$MBVH" devices 2>/dev/null | grep -q '^embree  *ready' && BACKENDS=cpu,embree || true
+devices="$("$MBVH" devices 2>/dev/null || true)"  # captured: `| grep -q` can SIGPIPE under pipefail
+grep -q '^embree  *ready' <<<"$devices" && BACKENDS=cpu,embree || true
 while IFS='|' read -r name scene camera; do
   for q in low medium high; do
     "$MBVH" build-bench "$scene" --quality "$q" --threads 2 --repeats "$REPEATS" --json "$OUT/build-$name-$q.json" >&2

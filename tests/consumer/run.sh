@@ -26,7 +26,10 @@ cmake --install "$BUILD" --prefix "$WORK/full" >/dev/null
 for f in include/mbvh/mbvh.h include/mbvh/config.h lib/cmake/mbvh/mbvhConfig.cmake lib/pkgconfig/mbvh.pc bin/mbvh; do
   [ -e "$WORK/full/$f" ] || { echo "error: $WORK/full/$f was not installed" >&2; exit 1; }
 done
-if ls "$WORK/full/include/mbvh" | grep -qE "traverse|layouts|intersect"; then
+# Outputs are captured before grep reads them: `cmd | grep -q` under pipefail fails at random when
+# grep exits at its first match and cmd is killed by SIGPIPE writing the rest (a CI run failed so).
+installed="$(ls "$WORK/full/include/mbvh")"
+if grep -qE "traverse|layouts|intersect" <<<"$installed"; then
   echo "error: private headers were installed: $(ls "$WORK/full/include/mbvh")" >&2
   exit 1
 fi
@@ -58,8 +61,9 @@ cmake --build "$WORK/sub" >/dev/null
 "$WORK/sub/trace_scene"
 # the program and the tests are not built for a consumer; the core library links no backend
 [ ! -e "$WORK/sub/mbvh/mbvh" ] && [ ! -e "$WORK/sub/mbvh/mbvh-tests" ]
-ldd "$WORK/sub/trace_scene" | grep -q "libmbvh_core.so"
-if ldd "$WORK/sub/trace_scene" | grep -qE "libOpenCL|libvulkan|libembree"; then
+libs="$(ldd "$WORK/sub/trace_scene")"
+grep -q "libmbvh_core.so" <<<"$libs" || { echo "error: the shared consumer does not link libmbvh_core.so: $libs" >&2; exit 1; }
+if grep -qE "libOpenCL|libvulkan|libembree" <<<"$libs"; then
   echo "error: the CPU-only consumer links a device library" >&2
   exit 1
 fi
