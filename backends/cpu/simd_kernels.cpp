@@ -676,14 +676,18 @@ void trace_packets(const Accel& acc, std::span<const Ray> rays, const TraceOptio
         st.fill(RayStats{});
         if (any) trace_one_packet<true, true, K::fast>(pv, *P, partition, st.data());
         else trace_one_packet<false, true, K::fast>(pv, *P, partition, st.data());
-        for (int i = 0; i < n; ++i) out.stats[s + i] = P->valid[i / packet::kLanes] >> (i % packet::kLanes) & 1u ? st[i] : RayStats{};
+        for (int i = 0; i < int(kN); ++i)
+          if (const int at = packet::ray_of(i); at < n)
+            out.stats[s + at] = P->valid[i / packet::kLanes] >> (i % packet::kLanes) & 1u ? st[i] : RayStats{};
       } else {
         if (any) trace_one_packet<true, false, K::fast>(pv, *P, partition, nullptr);
         else trace_one_packet<false, false, K::fast>(pv, *P, partition, nullptr);
       }
-      for (int i = 0; i < n; ++i) {
-        if (any) out.occluded[s + i] = P->prim[i] != MBVH_MISS_PRIM ? 1 : 0;
-        else out.hits[s + i] = P->prim[i] != MBVH_MISS_PRIM ? Hit{P->t[i], P->u[i], P->v[i], P->prim[i]} : miss_hit();
+      for (int i = 0; i < int(kN); ++i) {  // slot i holds ray ray_of(i) of the packet
+        const int at = packet::ray_of(i);
+        if (at >= n) continue;
+        if (any) out.occluded[s + at] = P->prim[i] != MBVH_MISS_PRIM ? 1 : 0;
+        else out.hits[s + at] = P->prim[i] != MBVH_MISS_PRIM ? Hit{P->t[i], P->u[i], P->v[i], P->prim[i]} : miss_hit();
       }
     }
     invalid += inv;
