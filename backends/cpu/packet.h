@@ -212,17 +212,20 @@ inline bool load_packet(Packet& P, const mbvh::Ray* rays, int n, std::size_t& in
       neg_any[a] |= s & valid;
       pos_any[a] |= ~s & valid;
     }
-    // the unit directions' spread (the hybrid switch)
-    const __m256 len = _mm256_sqrt_ps(_mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(d[0], d[0]), _mm256_mul_ps(d[1], d[1])),
-                                                    _mm256_mul_ps(d[2], d[2])));
-    const __m256 lm = _mm256_and_ps(vm, _mm256_and_ps(_mm256_cmp_ps(len, zero, _CMP_GT_OQ), _mm256_cmp_ps(len, inf, _CMP_LT_OQ)));
-    for (int a = 0; a < 3; ++a) {
-      const __m256 u = _mm256_div_ps(d[a], len);
-      ulo[a] = _mm256_min_ps(ulo[a], _mm256_blendv_ps(inf, u, lm));
-      uhi[a] = _mm256_max_ps(uhi[a], _mm256_blendv_ps(ninf, u, lm));
+    if (hybrid) {
+      // the unit directions' spread (the hybrid switch; one division per lane, a heuristic's)
+      const __m256 len = _mm256_sqrt_ps(_mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(d[0], d[0]), _mm256_mul_ps(d[1], d[1])),
+                                                      _mm256_mul_ps(d[2], d[2])));
+      const __m256 lm = _mm256_and_ps(vm, _mm256_and_ps(_mm256_cmp_ps(len, zero, _CMP_GT_OQ), _mm256_cmp_ps(len, inf, _CMP_LT_OQ)));
+      const __m256 rlen = _mm256_div_ps(_mm256_set1_ps(1.0f), len);
+      for (int a = 0; a < 3; ++a) {
+        const __m256 u = _mm256_mul_ps(d[a], rlen);
+        ulo[a] = _mm256_min_ps(ulo[a], _mm256_blendv_ps(inf, u, lm));
+        uhi[a] = _mm256_max_ps(uhi[a], _mm256_blendv_ps(ninf, u, lm));
+      }
+      // incoherent rays usually show it in the first SIMD rays: stop loading then
+      if ((g == 0 || g == 2) && spread_exceeds(ulo, uhi)) return false;
     }
-    // incoherent rays usually show it in the first SIMD rays: stop loading then
-    if (hybrid && (g == 0 || g == 2) && spread_exceeds(ulo, uhi)) return false;
     const __m256 tmin0 = _mm256_add_ps(tmin, zero);  // -0 becomes +0
     _mm256_store_ps(P.tmin + i, _mm256_and_ps(tmin0, vm));
     _mm256_store_ps(P.t + i, _mm256_blendv_ps(_mm256_set1_ps(-1.0f), tmax, vm));  // below every tmin: no box or triangle accepts it
@@ -534,10 +537,11 @@ struct Active {
   /// Records SIMD ray g's lanes `m` (g rising between clears).
   [[gnu::always_inline]] void add(int g, unsigned m) {
     mask[g] = static_cast<std::uint8_t>(m);
-    if (m == 0) return;
-    if constexpr (Partition) {
-      ids[n++] = static_cast<std::uint8_t>(g);
+    if constexpr (Partition) {  // without a branch: the list grows by one only when m != 0
+      ids[n] = static_cast<std::uint8_t>(g);  // n <= g < kGroups: one add per g between clears
+      n = static_cast<std::uint8_t>(n + (m != 0 ? 1 : 0));
     } else {
+      if (m == 0) return;
       if (first == kGroups) first = static_cast<std::uint8_t>(g);
       n = static_cast<std::uint8_t>(g + 1);
     }
