@@ -3,7 +3,7 @@
 // simd_kernels.cpp under its ISA pragma, inside its namespace mbvh::MBVH_ISA_NS::(anonymous).
 //
 // A packet is MBVH_PACKET_RAYS rays in an array-of-structures-of-arrays layout: G SIMD rays of
-// 8 lanes (a row of 8 consecutive rays each). It walks the binary tree (MBVH2) of the one build:
+// 8 lanes (a 4x2 block of an 8x8 tile each: ray_of). It walks the binary tree (MBVH2) of the one build:
 // - ranged traversal (Wald, Boulos & Shirley, "Ray Tracing Deformable Scenes Using Dynamic
 //   Bounding Volume Hierarchies", TOG 2007): the SIMD rays from the first to the last active one;
 // - partition traversal (Overbeck, Ramamoorthi & Mark, "Large Ray Packets for Real-Time Whitted
@@ -19,7 +19,7 @@
 // not each ray's own, and it walks MBVH2 whatever layout the reference walks; but the smallest
 // (t, prim) over the leaves a ray reaches does not depend on the order (its shrinking tmax only
 // culls boxes that cannot hold a better hit, the boxes being conservative: the same argument that
-// makes the MBVH2, MBVH4 and MBVH8 traversals agree), so its answer is its stack traversal's, bit
+// makes the MBVH2, MBVH4 and MBVH8 traversals agree), so its answer is its single-ray traversal's (packet_single_ray), bit
 // for bit — but for the rare ray whose reference answer itself depends on the order (two hits
 // within rounding at a corner, where a box's slab entry lies a few ulps past a triangle's
 // watertight t: a classified tie; docs/backends.md). The frustum test decides for the whole packet only

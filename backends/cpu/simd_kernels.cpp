@@ -643,10 +643,10 @@ void trace_packets(const Accel& acc, std::span<const Ray> rays, const TraceOptio
   const TraceView pv = trace_view(acc, Layout::mbvh2, false, opt.leaf_block, false);
   const TraceView sv = trace_view(acc, opt.layout, true, opt.leaf_block, !opt.stats);
   const bool any = opt.query == Query::any;
-  // the hybrid's single rays: the stack traversal, whose bytes every packet ray gives (the
-  // ordered stack, 1-3 % faster on diffuse rays, may settle a classified tie differently)
+  // the hybrid's single rays: packet_single_ray's traversal, whose bytes every packet ray gives
+  // (but for classified ties, packet.h)
   TraceOptions single = opt;
-  single.traversal = Traversal::stack;
+  single.traversal = packet_single_ray(opt.layout, any);
   const bool partition = opt.traversal != Traversal::packet_ranged;  // packet: partition, the faster here (docs/benchmarks.md)
   out.resize_for(rays.size(), opt);
   std::atomic<std::size_t> invalid{0};

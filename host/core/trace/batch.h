@@ -70,9 +70,17 @@ inline TraceView trace_view(const Accel& acc, Layout layout, bool packs = false,
   return v;
 }
 
+/// The single-ray traversal whose answers a packet traversal gives, and which its hybrid switch
+/// traces incoherent packets with: closest hit the ordered stack (the faster single-ray closest
+/// hit on MBVH4 and MBVH8, docs/benchmarks.md), any hit and MBVH2 (no ordered stack) the stack.
+/// The reference traces packet traversals as this traversal, ray by ray.
+constexpr Traversal packet_single_ray(Layout l, bool any) {
+  return any || l == Layout::mbvh2 ? Traversal::stack : Traversal::stack_ordered;
+}
+
 template <bool Any, class K, class St>
 inline Hit dispatch(const TraceView& v, const typename K::Ray& r, Layout l, Traversal t, St& st) {
-  if (is_packet(t)) t = Traversal::stack;  // a packet traversal's answers, ray by ray
+  if (is_packet(t)) t = packet_single_ray(l, Any);  // a packet traversal's answers, ray by ray
   if (l == Layout::mbvh2)
     return t == Traversal::stack ? trace_mbvh2_stack<Any, St, K>(v, r, st) : trace_mbvh2_bitstack<Any, St, K>(v, r, st);
   if (l == Layout::mbvh8) {

@@ -39,9 +39,10 @@ enum class Query { closest, any };
 /// binary tree (MBVH2) of the build — ranged (Wald, Boulos & Shirley 2007) or partition
 /// traversal (Overbeck, Ramamoorthi & Mark 2008) with interval-arithmetic frustum culling; an
 /// incoherent packet goes ray by ray through `layout` (the hybrid switch). packet: the faster of
-/// the two. In the robust and exact precisions every ray's answer is its stack traversal's but for
-/// rare order-dependent ties (docs/backends.md): the reference (cpu-scalar) traces packet
-/// traversals as their stack twin, ray by ray.
+/// the two. In the robust and exact precisions every ray's answer is its single-ray traversal's
+/// (closest hit: stack_ordered, any hit and MBVH2: stack) but for rare order-dependent ties
+/// (docs/backends.md): the reference (cpu-scalar) traces packet traversals as that traversal,
+/// ray by ray.
 enum class Traversal { stack, bitstack, stack_ordered, bitstack_retest, packet_ranged, packet_partition, packet };
 /// Whether `t` traces packets of rays (the cpu backend's packet traversals).
 inline bool is_packet(Traversal t) {
