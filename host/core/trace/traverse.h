@@ -404,6 +404,9 @@ template <> inline const Node8* nodes_of<Node8>(const TraceView& v) { return v.n
 /// distances, the nearest entered, the rest popped nearest first — sorting specialised by the
 /// number of hits: 1: no push; 2: push the farther; 3: two pushes, one compare; 4-8: push all
 /// and insertion-sort by (d, slot). A popped entry beyond the current tmax * S is culled.
+/// Any hit: d is the chord (as the stack's longest_slot), the longest entered and popped first,
+/// nothing culled (the query ends at its first hit, so tmax never shrinks): nearest-first made
+/// a shadow ray test the boxes it only grazes leaving its surface (Sibenik 1.6x slower).
 template <bool Any, class St, class K = ScalarKernels, class N = Node4>
 inline Hit trace_wide_stack_ordered(const TraceView& v, const typename K::Ray& r, St& st) {
   struct Entry {  // 8 bytes, as Embree's (node, distance) entries
@@ -424,9 +427,9 @@ inline Hit trace_wide_stack_ordered(const TraceView& v, const typename K::Ray& r
     if (cur >= 0) {
       const N& n = nodes[cur];
       float d[W];
-      const unsigned m = detail::test_node<K, Any, false>(n, r, tmax * kCullSlack, d, st);
+      const unsigned m = detail::test_node<K, Any, Any>(n, r, tmax * kCullSlack, d, st);
       if (m) {
-        const int q = K::template nearest<W>(m, d);
+        const int q = Any ? K::template longest<W>(m, d) : K::template nearest<W>(m, d);
         detail::prefetch_pending<K, Any>(n, r, m, q);
         unsigned others = m & ~(1u << q);
         guard.room(sp, W - 1, kEntries);
@@ -437,7 +440,7 @@ inline Hit trace_wide_stack_ordered(const TraceView& v, const typename K::Ray& r
             stack[sp++] = Entry{n.child[a], d[a]};
           } else if ((others & (others - 1)) == 0) {
             const int b = std::countr_zero(others);  // b < a: pop b first unless d[a] < d[b]
-            if (d[a] < d[b]) {
+            if (Any ? d[a] > d[b] : d[a] < d[b]) {
               stack[sp++] = Entry{n.child[b], d[b]};
               stack[sp++] = Entry{n.child[a], d[a]};
             } else {
@@ -450,7 +453,8 @@ inline Hit trace_wide_stack_ordered(const TraceView& v, const typename K::Ray& r
             for (int s = a - 1; s >= 0; --s)  // reverse slot order, then a stable sort by d
               if ((others >> s) & 1u) stack[sp++] = Entry{n.child[s], d[s]};
             for (unsigned i = base + 1; i < sp; ++i)
-              for (unsigned j = i; j > base && stack[j - 1].d < stack[j].d; --j) std::swap(stack[j - 1], stack[j]);
+              for (unsigned j = i; j > base && (Any ? stack[j - 1].d > stack[j].d : stack[j - 1].d < stack[j].d); --j)
+                std::swap(stack[j - 1], stack[j]);
           }
         }
         st.depth(sp);
@@ -464,7 +468,7 @@ inline Hit trace_wide_stack_ordered(const TraceView& v, const typename K::Ray& r
     for (;;) {
       if (sp == 0) return best;
       const Entry e = stack[--sp];
-      if (e.d > tmax * kCullSlack) continue;
+      if (!Any && e.d > tmax * kCullSlack) continue;
       cur = e.node;
       break;
     }
@@ -565,7 +569,8 @@ inline Hit trace_mbvh8_bitstack(const TraceView& v, const typename K::Ray& r, St
 /// MBVH4 bitstack, variant B (TRAVERSAL.md §3.4, §4.4; mbvh's extension of Áfra &
 /// Szirmay-Kalos 2014): the same skip codes, but each move to a sibling re-tests the parent's
 /// four boxes against the current tmax, takes the nearest pending child and drops those now
-/// beyond tmax — the visit sequence of the ordered, culling stack above.
+/// beyond tmax — the visit sequence of the ordered, culling stack above (any hit: the longest
+/// chord first, as there).
 template <bool Any, class St, class K = ScalarKernels>
 inline Hit trace_mbvh4_bitstack_retest(const TraceView& v, const typename K::Ray& r, St& st) {
   Hit best = miss_hit();
@@ -580,9 +585,9 @@ inline Hit trace_mbvh4_bitstack_retest(const TraceView& v, const typename K::Ray
     if (cur >= 0) {
       const Node4& n = v.n4[cur];
       float d[4];
-      const unsigned m = detail::test_node<K, Any, false>(n, r, tmax * kCullSlack, d, st);
+      const unsigned m = detail::test_node<K, Any, Any>(n, r, tmax * kCullSlack, d, st);
       if (m) {
-        const int i = detail::nearest_slot(m, d);
+        const int i = detail::first_slot4<Any>(m, d);
         detail::prefetch_pending<K, Any>(n, r, m, i);
         bits = (bits << 3) | detail::skip_code(m, i);  // push
         if constexpr (St::on) st.depth(++level);
@@ -603,13 +608,13 @@ inline Hit trace_mbvh4_bitstack_retest(const TraceView& v, const typename K::Ray
         const Node4& p = v.n4[par];
         float d[4];
         st.retest();
-        const unsigned m = K::template test<false>(p, r, tmax * kCullSlack, d);
+        const unsigned m = K::template test<Any>(p, r, tmax * kCullSlack, d);
         unsigned pending = 0;
         for (int k = 0; k < 3; ++k)
           if ((code >> k) & 1u) pending |= 1u << ((slot + 1 + k) & 3);
         const unsigned live = pending & m;
         if (live != 0) {
-          const int q = detail::nearest_slot(live, d);
+          const int q = detail::first_slot4<Any>(live, d);
           bits ^= code ^ detail::skip_code(live & ~(1u << q), q);
           cur = p.child[q];
           slot = q;
