@@ -35,9 +35,9 @@ using RefOutputs = std::map<std::tuple<Layout, Traversal, Query, unsigned>, Trac
 
 /// The packet traversals (packet-ranged, packet-partition; MBVH2 and MBVH8 for the hybrid's single
 /// rays) of every SIMD cpu backend in `grid`, with the hybrid switch on and off (every packet a
-/// packet): each gives the reference stack traversal's bytes on the leaves it traces, but for
-/// rare order-dependent ties. `refs` caches the reference outputs by (layout, traversal, query,
-/// leaf block).
+/// packet): each gives the bytes of the reference's packet_single_ray traversal on the leaves it
+/// traces, but for rare order-dependent ties. `refs` caches the reference outputs by (layout,
+/// traversal, query, leaf block).
 void check_packets(const Accel& acc, const std::vector<Ray>& rays, const VariantGrid& grid, RefOutputs& refs) {
   for (const std::string& name : grid.backends) {
     if (name.rfind("cpu-", 0) != 0 || name == "cpu-scalar") continue;

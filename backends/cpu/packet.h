@@ -19,11 +19,11 @@
 // not each ray's own, and it walks MBVH2 whatever layout the reference walks; but the smallest
 // (t, prim) over the leaves a ray reaches does not depend on the order (its shrinking tmax only
 // culls boxes that cannot hold a better hit, the boxes being conservative: the same argument that
-// makes the MBVH2, MBVH4 and MBVH8 traversals agree), so its answer is its single-ray traversal's (packet_single_ray), bit
-// for bit — but for the rare ray whose reference answer itself depends on the order (two hits
-// within rounding at a corner, where a box's slab entry lies a few ulps past a triangle's
-// watertight t: a classified tie; docs/backends.md). The frustum test decides for the whole packet only
-// where that is exact: no lane can pass a box, or every lane does (rounding is monotone, so the
+// makes the MBVH2, MBVH4 and MBVH8 traversals agree), so its answer is its single-ray
+// traversal's (packet_single_ray), bit for bit — but for the rare ray whose reference answer
+// itself depends on the order (two hits within rounding at a corner, where a box's slab entry
+// lies a few ulps past a triangle's watertight t: a classified tie; docs/backends.md). The
+// frustum test decides for the whole packet only where that is exact: no lane can pass a box, or every lane does (rounding is monotone, so the
 // interval's bounds bound every lane's computed entry and exit; frustum_cover). `fast`
 // precision: the relaxed box test and tri_test_simd_mt's Möller–Trumbore lane by lane, the cpu
 // backend's single-ray fast answers.
@@ -42,7 +42,7 @@ static_assert(kGroups * kLanes == MBVH_PACKET_RAYS && kGroups <= 32, "a packet i
 /// The packet's ray in slot g * 8 + l (lane l of SIMD ray g). Rays arrive in 8x8 image tiles,
 /// row by row (raygen, render); a SIMD ray is a 4x2 block of a tile, as in the thesis (ch. 2: 4x2
 /// SIMD rays), not a row of 8: its lanes lie closer together, so more of them take the same
-/// branch (bunny primary rays: utilisation 49 % -> 54 %, docs/benchmarks.md). Slot -> ray within
+/// branch (bunny primary rays: utilisation 49 % -> 59 %, docs/benchmarks.md). Slot -> ray within
 /// each 64 rays: block (g & 1, g >> 1) of 4x2, lane (l & 3, l >> 2) within it. Rays that are no
 /// tile (secondary rays in arrival order) are as coherent either way. A permutation: every ray
 /// of the packet has one slot.
@@ -66,7 +66,6 @@ struct Packet {
   const mbvh::Ray* src = nullptr;  ///< the packet's rays (the scalar test of an undecided lane prepares its own)
   std::uint8_t live[kGroups];   ///< valid lanes; any hit: not yet occluded
   std::uint8_t valid[kGroups];  ///< valid lanes (the counters of the others stay 0)
-  int count = 0;               ///< rays in this packet (the last one of a batch may be short)
   bool uniform_k = false;      ///< every valid lane has the same kx, ky, kz
   int k[3] = {0, 1, 2};
   // the frustum: interval bounds of the valid lanes, per axis (lane 3 unused)
@@ -138,7 +137,6 @@ constexpr float kSpread = 0.5f;
 /// them ray by ray instead (the packet is then incomplete).
 template <bool Fast>
 inline bool load_packet(Packet& P, const mbvh::Ray* rays, int n, std::size_t& invalid, bool hybrid = true) {
-  P.count = n;
   P.src = rays;
   const __m256 inf = _mm256_set1_ps(INFINITY), ninf = _mm256_set1_ps(-INFINITY), zero = _mm256_setzero_ps();
   const __m256 sign = _mm256_set1_ps(-0.0f);
@@ -557,7 +555,6 @@ inline void count_op(RayStats* st, int g, unsigned m) {
     s.lane_ops += (m >> l) & 1u;
   }
 }
-
 
 /// Adds to the counters of SIMD ray g's lanes `m`.
 inline void count_lanes(RayStats* st, int g, unsigned m, unsigned nodes, unsigned boxes, unsigned leaves = 0, unsigned tris = 0) {

@@ -643,10 +643,8 @@ void trace_packets(const Accel& acc, std::span<const Ray> rays, const TraceOptio
   const TraceView pv = trace_view(acc, Layout::mbvh2, false, opt.leaf_block, false);
   const TraceView sv = trace_view(acc, opt.layout, true, opt.leaf_block, !opt.stats);
   const bool any = opt.query == Query::any;
-  // the hybrid's single rays: packet_single_ray's traversal, whose bytes every packet ray gives
-  // (but for classified ties, packet.h)
-  TraceOptions single = opt;
-  single.traversal = packet_single_ray(opt.layout, any);
+  // the hybrid's single rays: run_batch's dispatch traces a packet traversal ray by ray as
+  // packet_single_ray's traversal, whose bytes every packet ray gives (but for classified ties)
   const bool partition = opt.traversal != Traversal::packet_ranged;  // packet: partition, the faster here (docs/benchmarks.md)
   out.resize_for(rays.size(), opt);
   std::atomic<std::size_t> invalid{0};
@@ -662,11 +660,11 @@ void trace_packets(const Accel& acc, std::span<const Ray> rays, const TraceOptio
       if (!packet::load_packet<K::fast>(*P, rays.data() + s, n, bad, hybrid)) {
         std::size_t again = 0;
         if (any) {
-          if (opt.stats) run_batch<true, true, K>(sv, rays, s, s + n, single, out, again);
-          else run_batch<true, false, K>(sv, rays, s, s + n, single, out, again);
+          if (opt.stats) run_batch<true, true, K>(sv, rays, s, s + n, opt, out, again);
+          else run_batch<true, false, K>(sv, rays, s, s + n, opt, out, again);
         } else {
-          if (opt.stats) run_batch<false, true, K>(sv, rays, s, s + n, single, out, again);
-          else run_batch<false, false, K>(sv, rays, s, s + n, single, out, again);
+          if (opt.stats) run_batch<false, true, K>(sv, rays, s, s + n, opt, out, again);
+          else run_batch<false, false, K>(sv, rays, s, s + n, opt, out, again);
         }
         inv += again;
         continue;
