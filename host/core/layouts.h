@@ -130,8 +130,10 @@ struct Accel::Impl {
 
 /// Collapses a binary BVH into the layouts (host/core/build/collapse.cpp).
 Mbvh2 make_mbvh2(const Bvh2& bvh, const std::vector<Leaf>& leaves);
-Mbvh4 make_mbvh4(const Bvh2& bvh, const std::vector<Leaf>& leaves);
-Mbvh8 make_mbvh8(const Bvh2& bvh, const std::vector<Leaf>& leaves);
+/// The wide collapses run on up to `threads` workers (0: every hardware thread); the same bytes at
+/// any count.
+Mbvh4 make_mbvh4(const Bvh2& bvh, const std::vector<Leaf>& leaves, unsigned threads = 0);
+Mbvh8 make_mbvh8(const Bvh2& bvh, const std::vector<Leaf>& leaves, unsigned threads = 0);
 /// Completes a collapsed MBVH4: the cyclic sibling links (sib[k] = parent.child[(slot + 1 + k) &
 /// 3]), the bitstack bits of its depth, and validate_layout.
 void finish_mbvh4(Mbvh4& m, std::size_t leaf_count);

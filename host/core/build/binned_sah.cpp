@@ -965,12 +965,12 @@ void Accel::make_layout(Layout l) const {
 }
 
 const Mbvh8& Accel::mbvh8() const {
-  std::call_once(impl_->once8_, [this] { impl_->mbvh8_ = make_mbvh8(impl_->bvh2_, impl_->leaves_); });
+  std::call_once(impl_->once8_, [this] { impl_->mbvh8_ = make_mbvh8(impl_->bvh2_, impl_->leaves_, impl_->opt_.threads); });
   return impl_->mbvh8_;
 }
 
 const Mbvh4& Accel::mbvh4() const {
-  std::call_once(impl_->once4_, [this] { impl_->mbvh4_ = make_mbvh4(impl_->bvh2_, impl_->leaves_); });
+  std::call_once(impl_->once4_, [this] { impl_->mbvh4_ = make_mbvh4(impl_->bvh2_, impl_->leaves_, impl_->opt_.threads); });
   return impl_->mbvh4_;
 }
 

@@ -3,12 +3,15 @@
 // sibling links the stackless bitstack traversal needs (Áfra & Szirmay-Kalos, "Stackless
 // Multi-BVH Traversal for CPU, MIC and GPU Ray Tracing", CGF 2014; TRAVERSAL.md §2).
 #include <algorithm>
+#include <atomic>
+#include <memory>
 #include <bit>
 #include <cstring>
 #include <limits>
 #include <chrono>
 
 #include "host/core/layouts.h"
+#include "host/core/parallel.h"
 #include "host/core/trace/view.h"
 #include "mbvh/error.h"
 
@@ -79,14 +82,32 @@ namespace {
 // B levels down achieves), else the child of largest surface area (the SAH greedy of Wald et al.
 // 2008). With the binary cap of 42 the root satisfies ceil(42/B) <= cap and the invariant carries
 // down: MBVH4 never exceeds 21 levels (63 bits of a 64-bit word), MBVH8 never 14.
+//
+// Nodes are numbered depth-first (a node, then its children's subtrees in slot order), the same
+// at any thread count: the top of the tree is walked once to cut it into subtrees of at most
+// kTaskSpan binary nodes, the subtrees' wide nodes are counted on the pool, the top is written
+// with every subtree's index range known, and the subtrees are written into their ranges on the
+// pool. A collapse on one worker writes everything in the top walk.
 template <class N, unsigned Cap>
 struct Collapser {
   static constexpr int W = node_width<N>();
   static constexpr unsigned B = static_cast<unsigned>(std::countr_zero(static_cast<unsigned>(W)));  // log2(W)
+  static constexpr std::size_t kTaskSpan = 4096;  // binary nodes of a subtree task (at most)
   const Bvh2& b;
-  AlignedVector<N>& out;
-  unsigned max_level = 0;
-  double cost = 0, root_area = 1;
+  N* out = nullptr;      // the node array, sized by the count
+  float* area = nullptr; // per wide node: half area of its box (summed in node order: the SAH stat)
+
+  struct Tally {
+    std::size_t nodes = 0;
+    unsigned max_level = 0;
+  };
+  struct Task {
+    std::int32_t bref;
+    std::int32_t parent;
+    unsigned level;
+    std::size_t first = 0;  // its root's index
+    Tally tally;
+  };
 
   bool violates(std::int32_t ref, unsigned level) const {
     if (ref < 0) return false;
@@ -94,79 +115,183 @@ struct Collapser {
     return level + (h + B - 1) / B > Cap;
   }
 
-  static void set_box(N& n, int s, const Box& bx) {
-    n.lo_x[s] = bx.lo.x; n.hi_x[s] = bx.hi.x;
-    n.lo_y[s] = bx.lo.y; n.hi_y[s] = bx.hi.y;
-    n.lo_z[s] = bx.lo.z; n.hi_z[s] = bx.hi.z;
-  }
-
-  std::int32_t emit(std::int32_t bref, std::int32_t parent, unsigned level) {
+  // The children (binary references, in binary in-order) of the wide node made of binary node
+  // `bref` at `level`; unused slots MBVH_EMPTY.
+  void choose(std::int32_t bref, unsigned level, std::int32_t (&kids)[W]) const {
     const Bvh2::Node& bn = b.nodes[static_cast<std::size_t>(bref)];
-    std::int32_t kids[W];
     for (int k = 0; k < W; ++k) kids[k] = MBVH_EMPTY;
     kids[0] = bn.child[0];
     kids[1] = bn.child[1];
     int count = bn.child[1] == MBVH_EMPTY ? 1 : 2;
     // the half area of each inner kid, computed once (only inner kids are ever compared)
-    float area[W];
+    float area_k[W];
     auto area_of = [&](std::int32_t ref) { return ref >= 0 ? b.nodes[static_cast<std::size_t>(ref)].box.half_area() : 0.0f; };
-    for (int k = 0; k < count; ++k) area[k] = area_of(kids[k]);
+    for (int k = 0; k < count; ++k) area_k[k] = area_of(kids[k]);
     while (count < W) {
       int pick = -1;
       for (int k = 0; k < count; ++k)
-        if (violates(kids[k], level + 1) && (pick < 0 || area[k] > area[pick])) pick = k;
+        if (violates(kids[k], level + 1) && (pick < 0 || area_k[k] > area_k[pick])) pick = k;
       if (pick < 0)
         for (int k = 0; k < count; ++k)
-          if (kids[k] >= 0 && (pick < 0 || area[k] > area[pick])) pick = k;
+          if (kids[k] >= 0 && (pick < 0 || area_k[k] > area_k[pick])) pick = k;
       if (pick < 0) break;
       const Bvh2::Node& open = b.nodes[static_cast<std::size_t>(kids[pick])];
       for (int k = count; k > pick + 1; --k) {
         kids[k] = kids[k - 1];
-        area[k] = area[k - 1];
+        area_k[k] = area_k[k - 1];
       }
       kids[pick] = open.child[0];
       kids[pick + 1] = open.child[1];
-      area[pick] = area_of(kids[pick]);
-      area[pick + 1] = area_of(kids[pick + 1]);
+      area_k[pick] = area_of(kids[pick]);
+      area_k[pick + 1] = area_of(kids[pick + 1]);
       ++count;
     }
-    const std::int32_t self = static_cast<std::int32_t>(out.size());
-    out.emplace_back();
+  }
+
+  // Binary nodes in the subtree of inner node r (depth-first: it ends at its last inner descendant).
+  std::size_t span(std::int32_t r) const {
+    std::int32_t e = r;
+    for (;;) {
+      const Bvh2::Node& n = b.nodes[static_cast<std::size_t>(e)];
+      if (n.child[1] >= 0) e = n.child[1];
+      else if (n.child[0] >= 0) e = n.child[0];
+      else return static_cast<std::size_t>(e - r) + 1;
+    }
+  }
+
+  void count(std::int32_t bref, unsigned level, Tally& t) const {
+    std::int32_t kids[W];
+    choose(bref, level, kids);
+    ++t.nodes;
+    for (int s = 0; s < W; ++s) {
+      if (kids[s] >= 0) count(kids[s], level + 1, t);
+      else if (kids[s] != MBVH_EMPTY) t.max_level = std::max(t.max_level, level + 1);
+    }
+  }
+
+  // Writes wide node `self` of binary node `bref` (children references in `child`).
+  void write(std::size_t self, const std::int32_t (&kids)[W], const std::int32_t (&child)[W], std::int32_t parent) {
+    N& n = out[self];
     Box all;
     for (int s = 0; s < W; ++s) {
       const Box bx = kids[s] == MBVH_EMPTY ? empty_box() : b.box(kids[s]);
       all.grow(bx);
-      set_box(out[static_cast<std::size_t>(self)], s, bx);
+      n.lo_x[s] = bx.lo.x; n.hi_x[s] = bx.hi.x;
+      n.lo_y[s] = bx.lo.y; n.hi_y[s] = bx.hi.y;
+      n.lo_z[s] = bx.lo.z; n.hi_z[s] = bx.hi.z;
+      n.child[s] = child[s];
     }
-    cost += all.half_area() / root_area;
-    out[static_cast<std::size_t>(self)].parent = parent;
+    n.parent = parent;
+    if constexpr (W == 4) n.sib[0] = n.sib[1] = n.sib[2] = MBVH_NONE;  // set by the parent (links)
+    else std::memset(n.pad, 0, sizeof(n.pad));
+    area[self] = all.half_area();
+  }
+
+  // The cyclic sibling links of node self's children (MBVH4: sib[k] = child[(slot + 1 + k) & 3]).
+  void links(std::size_t self) {
+    if constexpr (W == 4) {
+      const N& p = out[self];
+      for (int s = 0; s < 4; ++s)
+        if (p.child[s] >= 0)
+          for (int k = 0; k < 3; ++k) out[static_cast<std::size_t>(p.child[s])].sib[k] = p.child[(s + 1 + k) & 3];
+    }
+  }
+
+  // Writes the subtree of bref depth-first from index `next`; returns its root's index.
+  std::int32_t emit(std::int32_t bref, std::int32_t parent, unsigned level, std::size_t& next, Tally& t) {
+    const std::size_t self = next++;
+    std::int32_t kids[W], child[W];
+    choose(bref, level, kids);
     for (int s = 0; s < W; ++s) {
-      std::int32_t ref = kids[s];
-      if (ref >= 0) ref = emit(ref, self, level + 1);
-      else if (ref != MBVH_EMPTY) max_level = std::max(max_level, level + 1);
-      out[static_cast<std::size_t>(self)].child[s] = ref;
+      child[s] = kids[s];
+      if (kids[s] >= 0) child[s] = emit(kids[s], static_cast<std::int32_t>(self), level + 1, next, t);
+      else if (kids[s] != MBVH_EMPTY) t.max_level = std::max(t.max_level, level + 1);
     }
-    return self;
+    write(self, kids, child, parent);
+    links(self);
+    return static_cast<std::int32_t>(self);
+  }
+
+  // The top walk: children of at most kTaskSpan binary nodes become tasks (in depth-first order).
+  void plan(std::int32_t bref, unsigned level, std::vector<Task>& tasks) const {
+    std::int32_t kids[W];
+    choose(bref, level, kids);
+    for (int s = 0; s < W; ++s)
+      if (kids[s] >= 0) {
+        if (span(kids[s]) <= kTaskSpan) tasks.push_back(Task{kids[s], -1, level + 1, 0, {}});
+        else plan(kids[s], level + 1, tasks);
+      }
+  }
+
+  // Writes the top (every node above the tasks), giving each task its range and parent.
+  std::int32_t emit_top(std::int32_t bref, std::int32_t parent, unsigned level, std::size_t& next, Tally& t,
+                        std::vector<Task>& tasks, std::size_t& cursor, std::vector<std::size_t>& top) {
+    const std::size_t self = next++;
+    top.push_back(self);
+    std::int32_t kids[W], child[W];
+    choose(bref, level, kids);
+    for (int s = 0; s < W; ++s) {
+      child[s] = kids[s];
+      if (kids[s] >= 0) {
+        if (cursor < tasks.size() && tasks[cursor].bref == kids[s]) {
+          Task& k = tasks[cursor++];
+          k.first = next;
+          k.parent = static_cast<std::int32_t>(self);
+          next += k.tally.nodes;
+          child[s] = static_cast<std::int32_t>(k.first);
+        } else {
+          child[s] = emit_top(kids[s], static_cast<std::int32_t>(self), level + 1, next, t, tasks, cursor, top);
+        }
+      } else if (kids[s] != MBVH_EMPTY) {
+        t.max_level = std::max(t.max_level, level + 1);
+      }
+    }
+    write(self, kids, child, parent);
+    return static_cast<std::int32_t>(self);
   }
 };
 
-// Collapses `b` into `out` (nodes and stats of a wide layout named `name`; nodes are
-// value-initialised, so unused words are zero).
+// Collapses `b` into `out` (nodes and stats of a wide layout named `name`; every word of a node
+// written) on up to `threads` workers.
 template <unsigned Cap, class M>
-void collapse(const Bvh2& b, const std::vector<Leaf>& leaves, const char* name, M& out) {
+void collapse(const Bvh2& b, const std::vector<Leaf>& leaves, const char* name, M& out, unsigned threads) {
   using N = typename decltype(out.nodes)::value_type;
-  // every wide node stands for a distinct binary node: reserved address space (pages are
-  // touched as written), never a reallocation (n / (W / 2) was too few on the bunny)
-  out.nodes.reserve(b.nodes.size());
-  Collapser<N, Cap> c{b, out.nodes};
-  c.root_area = std::max(1e-30, static_cast<double>(b.nodes[0].box.half_area()));
-  c.emit(0, MBVH_NONE, 0);
+  using C = Collapser<N, Cap>;
+  C c{b};
+  std::vector<typename C::Task> tasks;
+  if (resolve_threads(threads) > 1 && b.nodes.size() > 2 * C::kTaskSpan) c.plan(0, 0, tasks);
+  parallel_for(tasks.size(), 1, threads, [&](std::size_t lo, std::size_t hi, unsigned) {
+    for (std::size_t k = lo; k < hi; ++k) c.count(tasks[k].bref, tasks[k].level, tasks[k].tally);
+  });
+  out.nodes.resize(std::max<std::size_t>(b.nodes.size(), 1));
+  std::vector<float> area(out.nodes.size());
+  c.out = out.nodes.data();
+  c.area = area.data();
+  typename C::Tally top_tally;
+  std::size_t next = 0, cursor = 0;
+  std::vector<std::size_t> top;
+  c.emit_top(0, MBVH_NONE, 0, next, top_tally, tasks, cursor, top);
+  parallel_for(tasks.size(), 1, threads, [&](std::size_t lo, std::size_t hi, unsigned) {
+    for (std::size_t k = lo; k < hi; ++k) {
+      auto& t = tasks[k];
+      std::size_t at = t.first;
+      typename C::Tally tally;
+      c.emit(t.bref, t.parent, t.level, at, tally);
+    }
+  });
+  for (const std::size_t n : top) c.links(n);
+  out.nodes.resize(next);
+  unsigned max_level = top_tally.max_level;
+  for (const auto& k : tasks) max_level = std::max(max_level, k.tally.max_level);
+  const double root_area = std::max(1e-30, static_cast<double>(b.nodes[0].box.half_area()));
+  double cost = 0;
+  for (std::size_t i = 0; i < next; ++i) cost += area[i] / root_area;  // in node order, as written before
   LayoutStats& st = out.stats;
   st.layout = name;
   st.nodes = out.nodes.size();
   st.leaves = leaves.size();
-  st.depth = c.max_level;
-  st.sah_cost = c.cost + leaf_sah(b, leaves, c.root_area);
+  st.depth = max_level;
+  st.sah_cost = cost + leaf_sah(b, leaves, root_area);
   st.bytes = out.nodes.size() * sizeof(N);
   if (st.depth > Cap) throw Error(std::string("internal: ") + name + " depth exceeds its level cap");
 }
@@ -184,19 +309,20 @@ void finish_mbvh4(Mbvh4& out, std::size_t leaf_count) {
   validate_layout(out, leaf_count);
 }
 
-Mbvh4 make_mbvh4(const Bvh2& b, const std::vector<Leaf>& leaves) {
+Mbvh4 make_mbvh4(const Bvh2& b, const std::vector<Leaf>& leaves, unsigned threads) {
   const auto t0 = Clock::now();
   Mbvh4 out;
-  collapse<MBVH_MBVH4_LEVEL_CAP>(b, leaves, "mbvh4", out);
-  finish_mbvh4(out, leaves.size());
+  collapse<MBVH_MBVH4_LEVEL_CAP>(b, leaves, "mbvh4", out, threads);  // with the sibling links
+  out.stats.bitstack_bits = 3 * out.stats.depth;
+  validate_layout(out, leaves.size());
   out.stats.build_ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
   return out;
 }
 
-Mbvh8 make_mbvh8(const Bvh2& b, const std::vector<Leaf>& leaves) {
+Mbvh8 make_mbvh8(const Bvh2& b, const std::vector<Leaf>& leaves, unsigned threads) {
   const auto t0 = Clock::now();
   Mbvh8 out;
-  collapse<MBVH_MBVH8_LEVEL_CAP>(b, leaves, "mbvh8", out);
+  collapse<MBVH_MBVH8_LEVEL_CAP>(b, leaves, "mbvh8", out, threads);
   out.stats.bitstack_bits = 8 * out.stats.depth;  // 8 pending-slot bits per level, in a 128-bit word
   validate_layout(out, leaves.size());
   out.stats.build_ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
@@ -295,8 +421,53 @@ TriPacks make_tri_packs(const AlignedVector<Tri>& tris, const std::vector<Leaf>&
 namespace {
 
 // The checks of a W-wide layout; `links_ok(child, parent node, slot)` checks a child's own links.
+// Whether a W-wide layout passes validate_wide, checked on the pool without a per-node count:
+// every child reference of node i is a later node naming i as its parent (with matching links),
+// no node lists a child twice, and every node but the root names an earlier parent that lists
+// it; by induction on the index every node is then reachable from the root, once. Leaves are
+// counted atomically. validate_wide runs only where this fails, for its first fault's message.
+template <class N, class LinksOk>
+bool wide_ok(const AlignedVector<N>& nodes, std::size_t leaf_count, LinksOk links_ok) {
+  constexpr int W = node_width<N>();
+  const std::size_t n = nodes.size();
+  if (n == 0 || nodes[0].parent != MBVH_NONE) return false;
+  std::unique_ptr<std::atomic<std::uint8_t>[]> leaf_seen(new std::atomic<std::uint8_t>[leaf_count]);
+  parallel_for(leaf_count, 65536, 0, [&](std::size_t b, std::size_t e, unsigned) {
+    for (std::size_t i = b; i < e; ++i) leaf_seen[i].store(0, std::memory_order_relaxed);
+  });
+  std::atomic<bool> ok{true};
+  parallel_for(n, 8192, 0, [&](std::size_t b, std::size_t e, unsigned) {
+    bool good = true;
+    for (std::size_t i = b; i < e && good; ++i) {
+      const N& p = nodes[i];
+      for (int s = 0; s < W; ++s) {
+        const std::int32_t c = p.child[s];
+        if (c == MBVH_EMPTY) continue;
+        if (c >= 0) {
+          const std::size_t ci = static_cast<std::size_t>(c);
+          if (ci <= i || ci >= n || nodes[ci].parent != static_cast<std::int32_t>(i) || !links_ok(nodes[ci], p, s)) good = false;
+          for (int t = 0; t < s; ++t) good = good && p.child[t] != c;
+        } else {
+          const std::size_t li = static_cast<std::size_t>(~c);
+          good = good && li < leaf_count && leaf_seen[li].exchange(1, std::memory_order_relaxed) == 0;
+        }
+      }
+      if (i > 0) {
+        const std::int32_t q = p.parent;
+        bool listed = false;
+        if (q >= 0 && static_cast<std::size_t>(q) < i)
+          for (int s = 0; s < W; ++s) listed = listed || nodes[static_cast<std::size_t>(q)].child[s] == static_cast<std::int32_t>(i);
+        good = good && listed;
+      }
+    }
+    if (!good) ok = false;
+  });
+  return ok;
+}
+
 template <class N, class LinksOk>
 void validate_wide(const AlignedVector<N>& nodes, const char* name, std::size_t leaf_count, LinksOk links_ok) {
+  if (wide_ok(nodes, leaf_count, links_ok)) return;
   const std::size_t n = nodes.size();
   if (n == 0) corrupt(name, 0, "no root");
   if (nodes[0].parent != MBVH_NONE) corrupt(name, 0, "the root has a parent");
@@ -313,6 +484,7 @@ void validate_wide(const AlignedVector<N>& nodes, const char* name, std::size_t 
     }
   for (std::size_t i = 1; i < n; ++i)
     if (!seen[i]) corrupt(name, i, "unreachable");
+  throw Error(std::string("internal: ") + name + " layout failed the parallel check but not the serial one");
 }
 
 }  // namespace

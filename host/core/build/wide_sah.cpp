@@ -11,6 +11,7 @@
 // deeper than the layout's level cap (its bitstack word) falls back to the greedy collapse.
 #include <algorithm>
 #include <chrono>
+#include <cstring>
 
 #include "host/core/build/builder.h"
 #include "host/core/layouts.h"
@@ -126,6 +127,8 @@ struct WideDp {
       d0.child[s] = MBVH_EMPTY;
     }
     d0.parent = parent;
+    if constexpr (W == 4) d0.sib[0] = d0.sib[1] = d0.sib[2] = MBVH_NONE;  // finish_mbvh4 links them
+    else std::memset(d0.pad, 0, sizeof(d0.pad));  // every word written (CacheAligned leaves nodes uninitialised)
     sah += all.half_area() / root_area;
     for (std::size_t s = 0; s < slots.size(); ++s) {
       std::int32_t ref = slots[s];

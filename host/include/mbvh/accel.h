@@ -29,12 +29,14 @@ struct CacheAligned {
   CacheAligned(const CacheAligned<U>&) {}
   T* allocate(std::size_t n) { return static_cast<T*>(::operator new(n * sizeof(T), align)); }
   void deallocate(T* p, std::size_t) { ::operator delete(p, align); }
-  /// Value-initialises (zero words in unused slots of nodes), except Tri: a triangle array is
-  /// sized and then every word written by parallel passes (build, refit), which then also first
-  /// touch its pages, instead of one thread zeroing it beforehand.
+  /// Value-initialises, except Tri, Node4 and Node8: a triangle array and the collapse's wide
+  /// node arrays are sized and then every word written by parallel passes (build, refit,
+  /// collapse), which then also first touch their pages, instead of one thread zeroing them
+  /// beforehand (a first touch cost 3-4 us a page on our Firecracker hosts).
   template <class U, class... Args>
   void construct(U* p, Args&&... args) {
-    if constexpr (sizeof...(Args) == 0 && std::is_same_v<U, Tri>) ::new (static_cast<void*>(p)) U;
+    if constexpr (sizeof...(Args) == 0 && (std::is_same_v<U, Tri> || std::is_same_v<U, Node4> || std::is_same_v<U, Node8>))
+      ::new (static_cast<void*>(p)) U;
     else ::new (static_cast<void*>(p)) U(std::forward<Args>(args)...);
   }
   template <class U>
