@@ -123,14 +123,20 @@ struct Collapser {
     kids[0] = bn.child[0];
     kids[1] = bn.child[1];
     int count = bn.child[1] == MBVH_EMPTY ? 1 : 2;
-    // the half area of each inner kid, computed once (only inner kids are ever compared)
+    // each kid's half area and whether it breaks the level cap, computed once as it enters
+    // (only inner kids are ever compared)
     float area_k[W];
-    auto area_of = [&](std::int32_t ref) { return ref >= 0 ? b.nodes[static_cast<std::size_t>(ref)].box.half_area() : 0.0f; };
-    for (int k = 0; k < count; ++k) area_k[k] = area_of(kids[k]);
+    bool viol[W];
+    auto enter = [&](int k) {
+      const std::int32_t ref = kids[k];
+      area_k[k] = ref >= 0 ? b.nodes[static_cast<std::size_t>(ref)].box.half_area() : 0.0f;
+      viol[k] = violates(ref, level + 1);
+    };
+    for (int k = 0; k < count; ++k) enter(k);
     while (count < W) {
       int pick = -1;
       for (int k = 0; k < count; ++k)
-        if (violates(kids[k], level + 1) && (pick < 0 || area_k[k] > area_k[pick])) pick = k;
+        if (viol[k] && (pick < 0 || area_k[k] > area_k[pick])) pick = k;
       if (pick < 0)
         for (int k = 0; k < count; ++k)
           if (kids[k] >= 0 && (pick < 0 || area_k[k] > area_k[pick])) pick = k;
@@ -139,11 +145,12 @@ struct Collapser {
       for (int k = count; k > pick + 1; --k) {
         kids[k] = kids[k - 1];
         area_k[k] = area_k[k - 1];
+        viol[k] = viol[k - 1];
       }
       kids[pick] = open.child[0];
       kids[pick + 1] = open.child[1];
-      area_k[pick] = area_of(kids[pick]);
-      area_k[pick + 1] = area_of(kids[pick + 1]);
+      enter(pick);
+      enter(pick + 1);
       ++count;
     }
   }
