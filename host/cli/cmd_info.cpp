@@ -50,7 +50,7 @@ void print_info(const SceneArgs& a, const Loaded& l) {
       static_cast<unsigned>(resolve_threads(a.threads)), static_cast<unsigned long long>(acc.hash()));
   {
     const double* ph = acc.binary_stats().phase_ms;
-    say("build ms   records %.1f, tree %.1f, flatten %.1f, stats and hash %.1f\n", ph[0], ph[1], ph[2], ph[3]);
+    say("build ms   records %.1f, tree %.1f, flatten %.1f, stats %.1f\n", ph[0], ph[1], ph[2], ph[3]);
   }
   say("leaves     largest %zu triangles, %zu forced by the depth cap or equal centroids; %zu references (%.1f %% more than triangles)\n\n",
       acc.bvh2().largest_leaf, acc.bvh2().forced_leaves, acc.tris().size(),
@@ -89,7 +89,7 @@ std::string info_json(const Loaded& l) {
   j["hash"] = h;
   j["quality"] = to_string(acc.options().quality);
   j["build_phases_ms"] = {{"records", bs.phase_ms[0]}, {"tree", bs.phase_ms[1]}, {"flatten", bs.phase_ms[2]},
-                          {"stats_hash", bs.phase_ms[3]}};
+                          {"stats", bs.phase_ms[3]}};
   j["references"] = acc.tris().size();
   const LayoutStats &s2 = acc.mbvh2().stats, &s4 = acc.mbvh4().stats, &s8 = acc.mbvh8().stats;
   const auto [v4, v8] = cpu_leaf_stats(acc);

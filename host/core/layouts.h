@@ -3,6 +3,7 @@
 // layouts and their views, the SIMD triangle packs, the collapse and validation functions, and
 // Accel's state (Accel::Impl). Backends and tools of this repository include it; users do not.
 #pragma once
+#include <atomic>
 #include <cstdint>
 #include <map>
 #include <memory>
@@ -114,7 +115,11 @@ struct Accel::Impl {
   /// for an owned scene or a build loaded without its scene (Accel::load).
   std::vector<std::uint64_t> geometry_offsets_{0, 0};
   LayoutStats binary_stats_;
-  std::uint64_t hash_ = 0;
+  /// Accel::hash, computed on its first call (a trace never needs it) unless refit or load
+  /// wrote it: hash_ is valid once hash_known_ is set.
+  mutable std::uint64_t hash_ = 0;
+  mutable std::atomic<bool> hash_known_{false};
+  mutable std::mutex hash_m_;
   std::uint64_t generation_ = 0;
   double refit_ms_ = 0;
   mutable std::once_flag once2_, once4_, once8_, once4w_, oncep_;

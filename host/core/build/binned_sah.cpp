@@ -909,7 +909,7 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
   acc->impl_->bounds_ = out.nodes[0].box;
   const auto t_flat = Clock::now();
 
-  // -- statistics and hash
+  // -- statistics (the hash is made on first use: Accel::hash)
   LayoutStats& st = acc->impl_->binary_stats_;
   st.layout = "binary";
   st.nodes = out.nodes.size();
@@ -920,7 +920,6 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
              acc->impl_->tris_.size() * sizeof(Tri);
   st.bitstack_bits = st.depth;
   if (st.depth > opt.depth_cap) throw Error("internal: binary depth " + std::to_string(st.depth) + " exceeds the cap");
-  acc->impl_->hash_ = build::hash_build(out, acc->impl_->leaves_, acc->impl_->tris_, opt.threads);
   const auto t1 = Clock::now();
   auto ms = [](Clock::time_point a, Clock::time_point b) { return std::chrono::duration<double, std::milli>(b - a).count(); };
   st.build_ms = ms(t0, t1);
@@ -949,7 +948,16 @@ GeomPrim Accel::geometry_of(std::uint32_t prim) const {
 }
 const LayoutStats& Accel::binary_stats() const { return impl_->binary_stats_; }
 const BuildOptions& Accel::options() const { return impl_->opt_; }
-std::uint64_t Accel::hash() const { return impl_->hash_; }
+std::uint64_t Accel::hash() const {
+  if (!impl_->hash_known_.load(std::memory_order_acquire)) {
+    std::lock_guard<std::mutex> lock(impl_->hash_m_);
+    if (!impl_->hash_known_.load(std::memory_order_relaxed)) {
+      impl_->hash_ = build::hash_build(impl_->bvh2_, impl_->leaves_, impl_->tris_, impl_->opt_.threads);
+      impl_->hash_known_.store(true, std::memory_order_release);
+    }
+  }
+  return impl_->hash_;
+}
 std::uint64_t Accel::generation() const { return impl_->generation_; }
 double Accel::last_refit_ms() const { return impl_->refit_ms_; }
 

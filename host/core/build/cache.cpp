@@ -133,7 +133,7 @@ void Accel::save(const std::string& path, std::uint64_t key) const {
   hd.sizes[2] = sizeof(Leaf);
   hd.sizes[3] = sizeof(Tri);
   hd.key = key;
-  hd.accel_hash = impl_->hash_;
+  hd.accel_hash = hash();
   hd.nodes = impl_->bvh2_.nodes.size();
   hd.leaf_boxes = impl_->bvh2_.leaf_boxes.size();
   hd.leaves = impl_->leaves_.size();
@@ -275,6 +275,7 @@ std::unique_ptr<Accel> Accel::load(const std::string& path, std::uint64_t key) {
   acc->impl_->scene_triangles_ = hd.scene_triangles;
   acc->impl_->geometry_offsets_ = {0, hd.scene_triangles};
   acc->impl_->hash_ = hd.accel_hash;
+  acc->impl_->hash_known_.store(true, std::memory_order_release);
   LayoutStats& st = acc->impl_->binary_stats_;
   st.layout = "binary";
   st.nodes = hd.st_nodes;

@@ -384,6 +384,7 @@ void Accel::refit(const Scene& moved) {
   }
   drop_leaf_variants();  // remade on next use from the refit tree
   impl_->hash_ = build::hash_build(impl_->bvh2_, impl_->leaves_, impl_->tris_, threads, tri_hashes.data());
+  impl_->hash_known_.store(true, std::memory_order_release);
   ++impl_->generation_;
   impl_->refit_ms_ = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
 }

@@ -108,7 +108,7 @@ struct LayoutStats {
   double build_ms = 0;
   /// The binary build's phases, ms (binary stats only): records (boxes, degenerate triangles,
   /// range check), tree (binning and partition, or Morton codes and splits), flatten (Bvh2 and
-  /// the leaf-ordered triangles), stats and hash.
+  /// the leaf-ordered triangles), stats (the hash is computed on first use: Accel::hash).
   double phase_ms[4] = {0, 0, 0, 0};
   unsigned bitstack_bits = 0;    ///< bits of the bitstack word the deepest path needs
 };
@@ -174,7 +174,8 @@ public:
   const LayoutStats& binary_stats() const;
   const BuildOptions& options() const;
   /// 64-bit hash of the build's bytes (nodes, leaves, triangles); equal across thread counts.
-  /// Changes when refit() moves a vertex.
+  /// Changes when refit() moves a vertex. Computed on the first call (thread-safe; O(bytes),
+  /// parallel over options().threads) and kept: a build that is only traced never pays for it.
   std::uint64_t hash() const;
   /// Starts at 0 and is bumped by every refit(): a backend that copied the build to a device
   /// re-uploads it when (&accel, hash(), generation()) changes since its last prepare().
