@@ -20,7 +20,15 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
-Box empty_box() { return Box(); }  // lo = +inf, hi = -inf: never hit (TRAVERSAL.md §2.1)
+Box empty_box() { return Box(); }
+
+// The cyclic sibling links of MBVH4 node p's children: sib[k] = p.child[(slot + 1 + k) & 3].
+void link_children(Node4* nodes, std::size_t p) {
+  const Node4& n = nodes[p];
+  for (int s = 0; s < 4; ++s)
+    if (n.child[s] >= 0)
+      for (int k = 0; k < 3; ++k) nodes[static_cast<std::size_t>(n.child[s])].sib[k] = n.child[(s + 1 + k) & 3];
+}  // lo = +inf, hi = -inf: never hit (TRAVERSAL.md §2.1)
 
 double leaf_sah(const Bvh2& b, const std::vector<Leaf>& leaves, double root) {
   double c = 0;
@@ -194,29 +202,8 @@ struct Collapser {
     area[self] = all.half_area();
   }
 
-  // The cyclic sibling links of node self's children (MBVH4: sib[k] = child[(slot + 1 + k) & 3]).
   void links(std::size_t self) {
-    if constexpr (W == 4) {
-      const N& p = out[self];
-      for (int s = 0; s < 4; ++s)
-        if (p.child[s] >= 0)
-          for (int k = 0; k < 3; ++k) out[static_cast<std::size_t>(p.child[s])].sib[k] = p.child[(s + 1 + k) & 3];
-    }
-  }
-
-  // Writes the subtree of bref depth-first from index `next`; returns its root's index.
-  std::int32_t emit(std::int32_t bref, std::int32_t parent, unsigned level, std::size_t& next, Tally& t) {
-    const std::size_t self = next++;
-    std::int32_t kids[W], child[W];
-    choose(bref, level, kids);
-    for (int s = 0; s < W; ++s) {
-      child[s] = kids[s];
-      if (kids[s] >= 0) child[s] = emit(kids[s], static_cast<std::int32_t>(self), level + 1, next, t);
-      else if (kids[s] != MBVH_EMPTY) t.max_level = std::max(t.max_level, level + 1);
-    }
-    write(self, kids, child, parent);
-    links(self);
-    return static_cast<std::int32_t>(self);
+    if constexpr (W == 4) link_children(out, self);
   }
 
   // The top walk: children of at most kTaskSpan binary nodes become tasks (in depth-first order).
@@ -230,30 +217,40 @@ struct Collapser {
       }
   }
 
-  // Writes the top (every node above the tasks), giving each task its range and parent.
-  std::int32_t emit_top(std::int32_t bref, std::int32_t parent, unsigned level, std::size_t& next, Tally& t,
-                        std::vector<Task>& tasks, std::size_t& cursor, std::vector<std::size_t>& top) {
+  // Where the top walk stands: the tasks in depth-first order, the next one to meet, and the top
+  // nodes written (their children's links wait until the tasks are written).
+  struct Top {
+    std::vector<Task>& tasks;
+    std::size_t cursor = 0;
+    std::vector<std::size_t> nodes;
+  };
+
+  // Writes the subtree of bref depth-first from index `next` and returns its root's index. With
+  // `top` (the top walk), a child that is the next task gets that task's range and parent
+  // instead of being written.
+  std::int32_t emit(std::int32_t bref, std::int32_t parent, unsigned level, std::size_t& next, Tally& t, Top* top) {
     const std::size_t self = next++;
-    top.push_back(self);
     std::int32_t kids[W], child[W];
     choose(bref, level, kids);
     for (int s = 0; s < W; ++s) {
       child[s] = kids[s];
       if (kids[s] >= 0) {
-        if (cursor < tasks.size() && tasks[cursor].bref == kids[s]) {
-          Task& k = tasks[cursor++];
+        if (top && top->cursor < top->tasks.size() && top->tasks[top->cursor].bref == kids[s]) {
+          Task& k = top->tasks[top->cursor++];
           k.first = next;
           k.parent = static_cast<std::int32_t>(self);
           next += k.tally.nodes;
           child[s] = static_cast<std::int32_t>(k.first);
         } else {
-          child[s] = emit_top(kids[s], static_cast<std::int32_t>(self), level + 1, next, t, tasks, cursor, top);
+          child[s] = emit(kids[s], static_cast<std::int32_t>(self), level + 1, next, t, top);
         }
       } else if (kids[s] != MBVH_EMPTY) {
         t.max_level = std::max(t.max_level, level + 1);
       }
     }
     write(self, kids, child, parent);
+    if (top) top->nodes.push_back(self);
+    else links(self);
     return static_cast<std::int32_t>(self);
   }
 };
@@ -275,18 +272,18 @@ void collapse(const Bvh2& b, const std::vector<Leaf>& leaves, const char* name, 
   c.out = out.nodes.data();
   c.area = area.data();
   typename C::Tally top_tally;
-  std::size_t next = 0, cursor = 0;
-  std::vector<std::size_t> top;
-  c.emit_top(0, MBVH_NONE, 0, next, top_tally, tasks, cursor, top);
+  std::size_t next = 0;
+  typename C::Top top{tasks, 0, {}};
+  c.emit(0, MBVH_NONE, 0, next, top_tally, &top);
   parallel_for(tasks.size(), 1, threads, [&](std::size_t lo, std::size_t hi, unsigned) {
     for (std::size_t k = lo; k < hi; ++k) {
       auto& t = tasks[k];
       std::size_t at = t.first;
       typename C::Tally tally;
-      c.emit(t.bref, t.parent, t.level, at, tally);
+      c.emit(t.bref, t.parent, t.level, at, tally, nullptr);
     }
   });
-  for (const std::size_t n : top) c.links(n);
+  for (const std::size_t n : top.nodes) c.links(n);
   out.nodes.resize(next);
   unsigned max_level = top_tally.max_level;
   for (const auto& k : tasks) max_level = std::max(max_level, k.tally.max_level);
@@ -308,10 +305,7 @@ void collapse(const Bvh2& b, const std::vector<Leaf>& leaves, const char* name, 
 void finish_mbvh4(Mbvh4& out, std::size_t leaf_count) {
   // cyclic sibling links: sib[k] = parent.child[(slot + 1 + k) & 3]
   out.nodes[0].sib[0] = out.nodes[0].sib[1] = out.nodes[0].sib[2] = MBVH_NONE;
-  for (const Node4& p : out.nodes)
-    for (int s = 0; s < 4; ++s)
-      if (p.child[s] >= 0)
-        for (int k = 0; k < 3; ++k) out.nodes[static_cast<std::size_t>(p.child[s])].sib[k] = p.child[(s + 1 + k) & 3];
+  for (std::size_t p = 0; p < out.nodes.size(); ++p) link_children(out.nodes.data(), p);
   out.stats.bitstack_bits = 3 * out.stats.depth;
   validate_layout(out, leaf_count);
 }
@@ -427,7 +421,6 @@ TriPacks make_tri_packs(const AlignedVector<Tri>& tris, const std::vector<Leaf>&
 
 namespace {
 
-// The checks of a W-wide layout; `links_ok(child, parent node, slot)` checks a child's own links.
 // Whether a W-wide layout passes validate_wide, checked on the pool without a per-node count:
 // every child reference of node i is a later node naming i as its parent (with matching links),
 // no node lists a child twice, and every node but the root names an earlier parent that lists
@@ -438,10 +431,7 @@ bool wide_ok(const AlignedVector<N>& nodes, std::size_t leaf_count, LinksOk link
   constexpr int W = node_width<N>();
   const std::size_t n = nodes.size();
   if (n == 0 || nodes[0].parent != MBVH_NONE) return false;
-  std::unique_ptr<std::atomic<std::uint8_t>[]> leaf_seen(new std::atomic<std::uint8_t>[leaf_count]);
-  parallel_for(leaf_count, 65536, 0, [&](std::size_t b, std::size_t e, unsigned) {
-    for (std::size_t i = b; i < e; ++i) leaf_seen[i].store(0, std::memory_order_relaxed);
-  });
+  const auto leaf_seen = std::make_unique<std::atomic<std::uint8_t>[]>(leaf_count);  // value-initialised: 0
   std::atomic<bool> ok{true};
   parallel_for(n, 8192, 0, [&](std::size_t b, std::size_t e, unsigned) {
     bool good = true;
@@ -472,6 +462,7 @@ bool wide_ok(const AlignedVector<N>& nodes, std::size_t leaf_count, LinksOk link
   return ok;
 }
 
+// The checks of a W-wide layout; `links_ok(child, parent node, slot)` checks a child's own links.
 template <class N, class LinksOk>
 void validate_wide(const AlignedVector<N>& nodes, const char* name, std::size_t leaf_count, LinksOk links_ok) {
   if (wide_ok(nodes, leaf_count, links_ok)) return;
