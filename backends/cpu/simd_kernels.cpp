@@ -348,10 +348,15 @@ template <class F>
 /// when no lane is inside its triangle, the error bound on t only when some lane's t lies within
 /// [tmin, tmax]. Any (occlusion): the same decision, but nothing beyond it — no t,
 /// barycentrics or determinant leave the function. The t-error bound stays: it is the decision's
-/// last step (a lane with t within it is no certain hit).
+/// last step (a lane with t within it is no certain hit). Such a lane (`near0`: inside, t in
+/// [tmin, tmax], t <= δt — a secondary ray's own surface, about one ray in three) has every value
+/// tri_test would compute, so only its last step is left to the caller: the plane distance in
+/// double (plane_t_double); only `fallback` lanes (an edge function exactly 0) need the whole
+/// scalar test. Closest hit stores t, V, W and det for every lane.
 template <class F, bool Any = false>
 [[gnu::always_inline]] inline unsigned tri_test_simd(const Tri4* p, const SimdRay& r, unsigned valid, float tmax, float* t_out,
-                                                     float* V_out, float* W_out, float* det_out, unsigned& fallback) {
+                                                     float* V_out, float* W_out, float* det_out, unsigned& fallback,
+                                                     unsigned& near0) {
   using V4 = typename F::V;
   const V4 ox = F::of(r.tri_o[0]), oy = F::of(r.tri_o[1]), oz = F::of(r.tri_o[2]);
   const V4 sx = F::of(r.tri_s[0]), sy = F::of(r.tri_s[1]), sz = F::of(r.tri_s[2]);
@@ -375,6 +380,7 @@ template <class F, bool Any = false>
   const V4 pos = F::or_(F::template cmp<_CMP_GT_OQ>(U, zero),
                         F::or_(F::template cmp<_CMP_GT_OQ>(V, zero), F::template cmp<_CMP_GT_OQ>(W, zero)));
   fallback = valid & exact0;
+  near0 = 0;
   const unsigned inside = valid & ~exact0 & ~F::bits(F::and_(neg, pos));
   if (inside == 0) return 0;
   const V4 det = F::add(F::add(U, V), W);
@@ -384,7 +390,7 @@ template <class F, bool Any = false>
   const unsigned cand = inside & F::bits(F::and_(in, F::template cmp<_CMP_NEQ_UQ>(det, zero)));
   if (cand == 0) return 0;
   const unsigned sure = cand & F::bits(F::template cmp<_CMP_GT_OQ>(t, t_error_bound<F>(X, Y, Z, U, V, W, det)));
-  fallback |= cand & ~sure;
+  near0 = cand & ~sure;
   if constexpr (Any) return sure;
   F::store(t_out, t);
   F::store(V_out, V);
@@ -546,22 +552,34 @@ struct SimdKernelsT {
 
   /// One pass of a leaf's test over the pack at p (F4: lanes k..k+3 of the leaf) or the two packs
   /// at p (F8: lanes k..k+7), `valid` its lanes that hold a triangle. Closest hit: keeps the
-  /// smallest (t, prim) in best and shrinks tmax; any hit: true at the first certain hit. The rare
-  /// undecided lanes go to the scalar test (occlusion: only while no lane is certain). The
-  /// reference accepts exactly the same lanes, and the smallest (t, prim) of a leaf does not
-  /// depend on how its triangles are grouped into passes.
+  /// smallest (t, prim) in best and shrinks tmax; any hit: true at the first certain hit. The
+  /// undecided lanes (occlusion: only while no lane is certain) are settled as tri_test settles
+  /// them: a lane with t within its error bound of 0 by the plane distance in double, a lane with
+  /// an edge function exactly 0 by the scalar test itself (rare). The reference accepts exactly
+  /// the same lanes, and the smallest (t, prim) of a leaf does not depend on how its triangles
+  /// are grouped into passes.
   template <class F, bool Any>
   [[gnu::always_inline]] static bool leaf_pass(const Tri4* p, unsigned valid, const Ray& r, float& tmax, Hit& best) {
     constexpr int L = sizeof(typename F::V) / sizeof(float);
     const auto prim = [p](int lane) { return p[lane >> 2].prim[lane & 3]; };
     float t[L], u[L], w[L], det[L];
-    unsigned fallback = 0, hit;
+    unsigned fallback = 0, near0 = 0, hit;
     if constexpr (Fast) hit = tri_test_simd_mt<F, Any>(p, r, valid, tmax, t, u, w, det);
-    else hit = tri_test_simd<F, Any>(p, r, valid, tmax, t, u, w, det, fallback);
+    else hit = tri_test_simd<F, Any>(p, r, valid, tmax, t, u, w, det, fallback, near0);
     if constexpr (Any) {
       if (hit != 0) {
         best.prim = prim(std::countr_zero(hit));
         return true;
+      }
+    }
+    for (unsigned f = near0; f != 0; f &= f - 1) {  // tri_test's last step: t's sign in double
+      const int lane = std::countr_zero(f);
+      if (plane_t_double(r, tri_of(p[lane >> 2], lane & 3)) > 0.0) {
+        if constexpr (Any) {
+          best.prim = prim(lane);
+          return true;
+        }
+        hit |= 1u << lane;  // t, V, W and det as tri_test's: u = V / det, v = W / det below
       }
     }
     for (unsigned f = fallback; f != 0; f &= f - 1) {
