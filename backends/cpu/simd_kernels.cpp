@@ -90,14 +90,15 @@ constexpr std::array<std::uint8_t, 256> kReverse8 = [] {
 #endif
 
 
-/// The SIMD policies' ray: RayPre plus the per-ray constants in the form the kernels use them,
-/// made once per ray (finish) instead of at every node and leaf: the origin, reciprocals and tmin
-/// broadcast, the offsets of each axis' near and far plane rows in a Node4 and a Node8 (Embree's
-/// nearX/farX), and the triangle test's permuted origin and shear (Woop et al. 2013).
+/// The SIMD policies' ray: RayPre plus the per-ray constants the kernels need beyond it, made
+/// once per ray (finish) instead of at every node and leaf: the offsets of each axis' near and far
+/// plane rows in a Node4 and a Node8 (Embree's nearX/farX) and the triangle test's permuted origin
+/// (Woop et al. 2013). The kernels broadcast RayPre's scalars where they use them (a broadcast
+/// from memory is one load, as a load of a stored broadcast is): a ray once kept 14 broadcast
+/// vectors, 448 bytes written per ray, a fifth of the set-up's instructions.
 struct SimdRay : RayPre {
-  __m256 o8[3], inv8[3], inv_far8[3], d8[3], tmin8;
-  __m256 tri_o[3], tri_s[3];  ///< the triangle test's permuted origin and shear, broadcast
-  int near4[3], far4[3], near8[3], far8[3];
+  float tri_o[3];  ///< the triangle test's permuted origin (o[kx], o[ky], o[kz])
+  int near4[4], far4[4], near8[4], far8[4];  ///< three axes (the fourth entry unused)
   const TraceView* view;  ///< what the ray traverses (for prefetches)
 };
 
@@ -122,7 +123,7 @@ struct F4 {
   using V = __m128;
   static V load(const float* p) { return _mm_load_ps(p); }
   static V set1(float x) { return _mm_set1_ps(x); }
-  static V of(const __m256& v) { return _mm256_castps256_ps128(v); }  // the low 4 lanes of a broadcast
+  static V bcast(const float* p) { return _mm_broadcast_ss(p); }
   static V sub(V a, V b) { return _mm_sub_ps(a, b); }
   static V mul(V a, V b) { return _mm_mul_ps(a, b); }
   static V max(V a, V b) { return _mm_max_ps(a, b); }
@@ -153,7 +154,7 @@ struct F8 {
   using V = __m256;
   static V load(const float* p) { return _mm256_load_ps(p); }
   static V set1(float x) { return _mm256_set1_ps(x); }
-  static V of(const __m256& v) { return v; }
+  static V bcast(const float* p) { return _mm256_broadcast_ss(p); }
   static V sub(V a, V b) { return _mm256_sub_ps(a, b); }
   static V mul(V a, V b) { return _mm256_mul_ps(a, b); }
   static V max(V a, V b) { return _mm256_max_ps(a, b); }
@@ -245,27 +246,20 @@ inline Tri tri_of(const Tri4& p, int lane) {
 
 /// Fills SimdRay's constants from its (validated, possibly relaxed) RayPre part.
 /// Fast: also the direction broadcast (Möller–Trumbore's; the robust kernels never read d8).
-template <bool Fast>
 inline void finish_ray(SimdRay& r, const TraceView& v) {
   r.view = &v;
-  for (int a = 0; a < 3; ++a) {
-    r.o8[a] = _mm256_set1_ps(r.o[a]);
-    if constexpr (Fast) r.d8[a] = _mm256_set1_ps(r.d[a]);
-    r.inv8[a] = _mm256_set1_ps(r.inv[a]);
-    r.inv_far8[a] = _mm256_set1_ps(r.inv_far[a]);
-    // rows lo_x, hi_x, lo_y, ... are W floats apart: near = (2a + neg) * W, far = near ^ W
-    r.near4[a] = (2 * a + r.neg[a]) * 4;
-    r.far4[a] = r.near4[a] ^ 4;
-    r.near8[a] = (2 * a + r.neg[a]) * 8;
-    r.far8[a] = r.near8[a] ^ 8;
-  }
-  r.tmin8 = _mm256_set1_ps(r.tmin);
-  const int k[3] = {r.kx, r.ky, r.kz};
-  const float sh[3] = {r.sx, r.sy, r.sz};
-  for (int i = 0; i < 3; ++i) {
-    r.tri_o[i] = _mm256_set1_ps(r.o[k[i]]);
-    r.tri_s[i] = _mm256_set1_ps(sh[i]);
-  }
+  // rows lo_x, hi_x, lo_y, ... are W floats apart: near = (2a + neg) * W, far = near ^ W, the
+  // three axes at once (neg's fourth lane is tmin's bits: its entries are never read)
+  const __m128i near8 = _mm_slli_epi32(_mm_add_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(r.neg)),
+                                                     _mm_setr_epi32(0, 2, 4, 0)), 3);
+  const __m128i near4 = _mm_srli_epi32(near8, 1);
+  _mm_storeu_si128(reinterpret_cast<__m128i*>(r.near8), near8);
+  _mm_storeu_si128(reinterpret_cast<__m128i*>(r.far8), _mm_xor_si128(near8, _mm_set1_epi32(8)));
+  _mm_storeu_si128(reinterpret_cast<__m128i*>(r.near4), near4);
+  _mm_storeu_si128(reinterpret_cast<__m128i*>(r.far4), _mm_xor_si128(near4, _mm_set1_epi32(4)));
+  r.tri_o[0] = r.o[r.kx];
+  r.tri_o[1] = r.o[r.ky];
+  r.tri_o[2] = r.o[r.kz];
 }
 
 /// A wide node's W slab tests in one pass (W = 4: MBVH4, 8: MBVH8): (plane - o) * inv per axis,
@@ -281,14 +275,14 @@ template <class F, bool Chord, class N>
   const V nx = F::load(p + near[0]), fx = F::load(p + far[0]);
   const V ny = F::load(p + near[1]), fy = F::load(p + far[1]);
   const V nz = F::load(p + near[2]), fz = F::load(p + far[2]);
-  const V ox = F::of(r.o8[0]), oy = F::of(r.o8[1]), oz = F::of(r.o8[2]);
-  const V tnx = F::mul(F::sub(nx, ox), F::of(r.inv8[0]));
-  const V tny = F::mul(F::sub(ny, oy), F::of(r.inv8[1]));
-  const V tnz = F::mul(F::sub(nz, oz), F::of(r.inv8[2]));
-  const V tfx = F::mul(F::sub(fx, ox), F::of(r.inv_far8[0]));
-  const V tfy = F::mul(F::sub(fy, oy), F::of(r.inv_far8[1]));
-  const V tfz = F::mul(F::sub(fz, oz), F::of(r.inv_far8[2]));
-  const V te = F::max(tnz, F::max(tny, F::max(tnx, F::of(r.tmin8))));
+  const V ox = F::bcast(&r.o[0]), oy = F::bcast(&r.o[1]), oz = F::bcast(&r.o[2]);
+  const V tnx = F::mul(F::sub(nx, ox), F::bcast(&r.inv[0]));
+  const V tny = F::mul(F::sub(ny, oy), F::bcast(&r.inv[1]));
+  const V tnz = F::mul(F::sub(nz, oz), F::bcast(&r.inv[2]));
+  const V tfx = F::mul(F::sub(fx, ox), F::bcast(&r.inv_far[0]));
+  const V tfy = F::mul(F::sub(fy, oy), F::bcast(&r.inv_far[1]));
+  const V tfz = F::mul(F::sub(fz, oz), F::bcast(&r.inv_far[2]));
+  const V te = F::max(tnz, F::max(tny, F::max(tnx, F::bcast(&r.tmin))));
   const V tx = F::min(tfz, F::min(tfy, F::min(tfx, F::set1(tcull))));
   if constexpr (Chord) F::store(d, F::max(F::sub(tx, te), F::set1(0.0f)));  // max_nan(tx - te, 0), box_test's
   else F::store(d, te);
@@ -358,8 +352,8 @@ template <class F, bool Any = false>
                                                      float* V_out, float* W_out, float* det_out, unsigned& fallback,
                                                      unsigned& near0) {
   using V4 = typename F::V;
-  const V4 ox = F::of(r.tri_o[0]), oy = F::of(r.tri_o[1]), oz = F::of(r.tri_o[2]);
-  const V4 sx = F::of(r.tri_s[0]), sy = F::of(r.tri_s[1]), sz = F::of(r.tri_s[2]);
+  const V4 ox = F::bcast(&r.tri_o[0]), oy = F::bcast(&r.tri_o[1]), oz = F::bcast(&r.tri_o[2]);
+  const V4 sx = F::bcast(&r.sx), sy = F::bcast(&r.sy), sz = F::bcast(&r.sz);
   V4 X[3], Y[3], Z[3];
   for (int i = 0; i < 3; ++i) {
     const V4 ax = F::sub(F::row(p, 3 * i + r.kx), ox);
@@ -386,7 +380,7 @@ template <class F, bool Any = false>
   const V4 det = F::add(F::add(U, V), W);
   const V4 T = F::add(F::add(F::mul(U, Z[0]), F::mul(V, Z[1])), F::mul(W, Z[2]));
   const V4 t = F::div(T, det);
-  const V4 in = F::and_(F::template cmp<_CMP_GE_OQ>(t, F::of(r.tmin8)), F::template cmp<_CMP_LE_OQ>(t, F::set1(tmax)));
+  const V4 in = F::and_(F::template cmp<_CMP_GE_OQ>(t, F::bcast(&r.tmin)), F::template cmp<_CMP_LE_OQ>(t, F::set1(tmax)));
   const unsigned cand = inside & F::bits(F::and_(in, F::template cmp<_CMP_NEQ_UQ>(det, zero)));
   if (cand == 0) return 0;
   const unsigned sure = cand & F::bits(F::template cmp<_CMP_GT_OQ>(t, t_error_bound<F>(X, Y, Z, U, V, W, det)));
@@ -439,11 +433,11 @@ template <class F, bool Any = false>
     v0[a] = F::row(p, a);
     e1[a] = F::sub(F::row(p, 3 + a), v0[a]);
     e2[a] = F::sub(F::row(p, 6 + a), v0[a]);
-    d[a] = F::of(r.d8[a]);
-    s[a] = F::sub(F::of(r.o8[a]), v0[a]);
+    d[a] = F::bcast(&r.d[a]);
+    s[a] = F::sub(F::bcast(&r.o[a]), v0[a]);
   }
   V4 t, u, v;
-  const V4 ok = mt_lanes<F>(e1, e2, d, s, F::of(r.tmin8), F::set1(tmax), t, u, v);
+  const V4 ok = mt_lanes<F>(e1, e2, d, s, F::bcast(&r.tmin), F::set1(tmax), t, u, v);
   const V4 one = F::set1(1.0f);
   const unsigned hit = valid & F::bits(ok);
   if (Any || hit == 0) return hit;
@@ -466,7 +460,7 @@ struct SimdKernelsT {
   static constexpr bool fast = Fast;
   using Ray = SimdRay;
   [[gnu::always_inline]] static bool prepare(const mbvh::Ray& ray, Ray& r) { return prepare_ray_simd(ray, r); }
-  static void finish(Ray& r, const TraceView& v) { finish_ray<Fast>(r, v); }
+  static void finish(Ray& r, const TraceView& v) { finish_ray(r, v); }
   template <bool Chord = false>
   [[gnu::always_inline]] static unsigned test(const Node4& n, const Ray& r, float tcull, float d[4]) {
     return box_test_wide<F4, Chord>(n, r, tcull, d);
