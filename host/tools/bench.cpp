@@ -259,37 +259,49 @@ void verify(const KindRays& k, const TraceOutput& out, const TraceOptions& to, B
       r.leaks += out.hits[i].prim == MBVH_MISS_PRIM && ray_valid(k.rays[i]);
 }
 
-// Warms up for BenchOptions::warmup_seconds, 0.25 s by default (JIT-compiled backends such as
-// PoCL reach their speed only after a few dispatches), then times `passes` passes: the median and
-// spread of Mrays/s, by the host's and (where the backend measures it) the device's clock, and
-// with `single`, the 1-thread backend, passes interleaved.
-void time_variant(const Accel& acc, const std::vector<Ray>& rays, Backend& b, Backend* single, const TraceOptions& to,
-                  unsigned passes, double warmup_seconds, TraceOutput& out, BenchRecord& r) {
+// One variant's timing: its backends and options, and its passes' Mrays/s by the host's clock,
+// on one thread (`single`, --scaling) and by the device's clock where the backend measures it.
+struct Timing {
+  Backend* b;
+  Backend* single;
+  TraceOptions to;
+  std::size_t record;  ///< its BenchRecord in the report
+  std::vector<double> mr, m1, md;
+};
+
+// Warms a variant up for BenchOptions::warmup_seconds, 0.25 s by default (JIT-compiled backends
+// such as PoCL reach their speed only after a few dispatches; `single` one pass).
+void warm_up(const Accel& acc, const std::vector<Ray>& rays, Timing& v, double warmup_seconds, TraceOutput& out) {
   for (auto w0 = Clock::now(); std::chrono::duration<double>(Clock::now() - w0).count() < warmup_seconds;)
-    b.trace(acc, rays, to, out);
+    v.b->trace(acc, rays, v.to, out);
+  if (v.single) v.single->trace(acc, rays, v.to, out);
+}
+
+// One timed pass of a variant (and of its 1-thread backend right after it).
+void time_pass(const Accel& acc, const std::vector<Ray>& rays, Timing& v, TraceOutput& out) {
   const auto timed = [&](Backend& be) {
     const auto t0 = Clock::now();
-    be.trace(acc, rays, to, out);
+    be.trace(acc, rays, v.to, out);
     return static_cast<double>(rays.size()) / std::chrono::duration<double>(Clock::now() - t0).count() * 1e-6;
   };
-  std::vector<double> mr, m1, md;  // md: by the device's clock, where the backend measures it
-  if (single) single->trace(acc, rays, to, out);  // its warm-up
-  for (unsigned p = 0; p < passes; ++p) {
-    mr.push_back(timed(b));
-    if (const double ds = b.last_device_seconds(); ds > 0) md.push_back(static_cast<double>(rays.size()) / ds * 1e-6);
-    if (single) m1.push_back(timed(*single));
+  v.mr.push_back(timed(*v.b));
+  if (const double ds = v.b->last_device_seconds(); ds > 0) v.md.push_back(static_cast<double>(rays.size()) / ds * 1e-6);
+  if (v.single) v.m1.push_back(timed(*v.single));
+}
+
+// The median and spread of a variant's passes into its record.
+void finish_timing(Timing& v, BenchRecord& r) {
+  std::sort(v.mr.begin(), v.mr.end());
+  r.mrays_per_s = v.mr[v.mr.size() / 2];
+  r.mrays_min = v.mr.front();
+  r.mrays_max = v.mr.back();
+  if (v.md.size() == v.mr.size()) {  // every pass measured
+    std::sort(v.md.begin(), v.md.end());
+    r.device_mrays_per_s = v.md[v.md.size() / 2];
   }
-  std::sort(mr.begin(), mr.end());
-  r.mrays_per_s = mr[mr.size() / 2];
-  r.mrays_min = mr.front();
-  r.mrays_max = mr.back();
-  if (md.size() == mr.size()) {  // every pass measured
-    std::sort(md.begin(), md.end());
-    r.device_mrays_per_s = md[md.size() / 2];
-  }
-  if (single) {
-    std::sort(m1.begin(), m1.end());
-    r.mrays_one_thread = m1[m1.size() / 2];
+  if (v.single) {
+    std::sort(v.m1.begin(), v.m1.end());
+    r.mrays_one_thread = v.m1[v.m1.size() / 2];
     r.thread_scaling = r.mrays_per_s / r.mrays_one_thread;
   }
 }
@@ -361,9 +373,15 @@ BenchReport run_bench(const Scene& scene, const Accel& acc, const BenchOptions& 
   const unsigned passes = std::max(5u, opt.passes);
   const std::size_t total = opt.kinds.size() * opt.grid.size();
   std::size_t done = 0;
-  // -- every ray kind x variant: verify (also the warm-up pass), time, count the work
+  // -- every ray kind: each variant verified (also a warm-up pass), warmed up and its work
+  // counted; then timed in rounds, one pass of every variant per round, so a machine whose load
+  // drifts (other guests on the host) slows every variant alike and the ratios of one run hold:
+  // timed one variant after another, the MBVH8 bitstack/stack ratios of one run spread over
+  // 0.85-1.36 on a loaded host
   for (RayKind kind : opt.kinds) {
     KindRays k(scene, acc, opt, kind);
+    std::vector<Timing> timings;
+    TraceOutput scratch;
     for_each_variant(opt.grid, backends, [&](const std::string& bn, Backend& b, const TraceOptions& to) {
       if (opt.first_layout &&
           std::any_of(opt.grid.layouts.begin(), std::find(opt.grid.layouts.begin(), opt.grid.layouts.end(), to.layout),
@@ -388,11 +406,15 @@ BenchReport run_bench(const Scene& scene, const Accel& acc, const BenchOptions& 
       TraceOutput out;
       b.trace(acc, k.rays, to, out);
       verify(k, out, to, r);
-      time_variant(acc, k.rays, b, scaling ? single.at(bn).get() : nullptr, to, passes, opt.warmup_seconds, out, r);
       count_work(acc, k.rays, b, to, r);
+      timings.push_back(Timing{&b, scaling ? single.at(bn).get() : nullptr, to, rep.records.size(), {}, {}, {}});
+      warm_up(acc, k.rays, timings.back(), opt.warmup_seconds, scratch);
       rep.records.push_back(r);
       if (progress) progress(++done, total);
     });
+    for (unsigned p = 0; p < passes; ++p)
+      for (Timing& v : timings) time_pass(acc, k.rays, v, scratch);
+    for (Timing& v : timings) finish_timing(v, rep.records[v.record]);
   }
   // -- ratios side by side from the same run: bitstack / its stack twin, each backend / `cpu`
   for (auto& r : rep.records) {
