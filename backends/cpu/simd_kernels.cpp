@@ -245,7 +245,6 @@ inline Tri tri_of(const Tri4& p, int lane) {
 }
 
 /// Fills SimdRay's constants from its (validated, possibly relaxed) RayPre part.
-/// Fast: also the direction broadcast (Möller–Trumbore's; the robust kernels never read d8).
 inline void finish_ray(SimdRay& r, const TraceView& v) {
   r.view = &v;
   // rows lo_x, hi_x, lo_y, ... are W floats apart: near = (2a + neg) * W, far = near ^ W, the

@@ -403,7 +403,7 @@ BenchReport run_bench(const Scene& scene, const Accel& acc, const BenchOptions& 
       r.passes = passes;
       r.state_bytes_per_ray = b.state_bytes(to);
       r.leaf_block = b.leaf_block(to);
-      TraceOutput out;
+      TraceOutput out;  // fresh: an entry the backend leaves unwritten cannot pass as another variant's answer
       b.trace(acc, k.rays, to, out);
       verify(k, out, to, r);
       count_work(acc, k.rays, b, to, r);

@@ -20,7 +20,7 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
-Box empty_box() { return Box(); }
+Box empty_box() { return Box(); }  // lo = +inf, hi = -inf: never hit (TRAVERSAL.md §2.1)
 
 // The cyclic sibling links of MBVH4 node p's children: sib[k] = p.child[(slot + 1 + k) & 3].
 void link_children(Node4* nodes, std::size_t p) {
@@ -28,7 +28,7 @@ void link_children(Node4* nodes, std::size_t p) {
   for (int s = 0; s < 4; ++s)
     if (n.child[s] >= 0)
       for (int k = 0; k < 3; ++k) nodes[static_cast<std::size_t>(n.child[s])].sib[k] = n.child[(s + 1 + k) & 3];
-}  // lo = +inf, hi = -inf: never hit (TRAVERSAL.md §2.1)
+}
 
 double leaf_sah(const Bvh2& b, const std::vector<Leaf>& leaves, double root) {
   double c = 0;
