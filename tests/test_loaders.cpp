@@ -216,7 +216,7 @@ TEST_CASE("bounded resources: zstd bombs generated scenes and PFM headers are re
   const std::string cube = dir.write("cube.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");
   {
     MemoryLimit limit("16");
-    CHECK_THAT(error_of([&] { load_scene(cube); }), Catch::Contains("cube.obj: needs about 32 bytes") && Catch::Contains("to read"));
+    CHECK_THAT(error_of([&] { load_scene(cube); }), Catch::Contains("cube.obj: needs about 60 bytes") && Catch::Contains("to hold the 3 vertices and 1 triangles"));
   }
   {
     MemoryLimit limit("100");

@@ -7,8 +7,11 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <optional>
 
 #include "mbvh/error.h"
+#include "host/core/io/input.h"
+#include "host/core/io/obj.h"
 #include "host/core/layouts.h"  // hash_bytes
 #include "host/core/resources.h"
 
@@ -151,17 +154,45 @@ Scene load_scene(const std::string& path) {
     s.name = path;
     return s;
   }
-  std::vector<char> data = read_file(path);
   std::string base = ends_with(path, ".zst") ? path.substr(0, path.size() - 4) : path;
   std::transform(base.begin(), base.end(), base.begin(), [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
-  const std::size_t bom = data.size() >= 3 && std::memcmp(data.data(), "\xEF\xBB\xBF", 3) == 0 ? 3 : 0;
-  const bool ply_magic = data.size() >= bom + 3 && std::memcmp(data.data() + bom, "ply", 3) == 0;
+  // -- an OBJ file is parsed as it streams in (decompressed as it is read), so it costs what its
+  // geometry costs, never its size; a PLY file is read whole (its size checked before reading)
+  bool ply = ends_with(base, ".ply");
   Scene s;
-  if (ends_with(base, ".ply") || ply_magic) s = parse_ply(path, data.data(), data.size());
-  else if (ends_with(base, ".obj")) s = parse_obj(path, data.data(), data.size());
-  else throw Error(path + ": unknown scene format (expected .obj, .ply, optionally .zst, or gen:NAME:PARAMS)");
+  if (!ply) {
+    const bool obj = ends_with(base, ".obj");
+    std::string head;  // the first bytes, until the format is known: a "ply" magic after an optional BOM
+    std::optional<ObjParser> parser;
+    auto decide = [&] {
+      const std::size_t bom = head.size() >= 3 && std::memcmp(head.data(), "\xEF\xBB\xBF", 3) == 0 ? 3 : 0;
+      ply = head.size() >= bom + 3 && std::memcmp(head.data() + bom, "ply", 3) == 0;
+      if (ply) return false;
+      if (!obj) throw Error(path + ": unknown scene format (expected .obj, .ply, optionally .zst, or gen:NAME:PARAMS)");
+      parser.emplace(path);
+      parser->feed(head.data(), head.size());
+      return true;
+    };
+    stream_file(path, [&](const char* data, std::size_t size) {
+      if (parser) {
+        parser->feed(data, size);
+        return true;
+      }
+      const std::size_t take = std::min<std::size_t>(size, 6 - head.size());
+      head.append(data, take);
+      if (head.size() < 6) return true;
+      if (!decide()) return false;
+      parser->feed(data + take, size - take);
+      return true;
+    });
+    if (!parser && !ply) decide();  // a file shorter than 6 bytes
+    if (!ply) s = parser->finish();
+  }
+  if (ply) {
+    std::vector<char> data = read_file(path);
+    s = parse_ply(path, data.data(), data.size());
+  }
   // -- the build comes next in every command: refuse it here rather than run out of memory there
-  data = {};
   require_memory(path, build_memory_estimate(s.triangles.size(), s.vertices.size()),
                  "to build its " + std::to_string(s.triangles.size()) + " triangles");
   return s;
