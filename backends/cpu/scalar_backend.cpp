@@ -24,13 +24,13 @@ public:
   /// The reference traces any leaf variant asked for; its own choice is the build's leaves (or
   /// cpu.leaf-block).
   unsigned leaf_block(const TraceOptions& opt) const override { return opt.leaf_block ? opt.leaf_block : own_block_; }
-  void prepare(const Accel& acc, const TraceOptions& opt) override {
+  void do_prepare(const Accel& acc, const TraceOptions& opt) override {
     if (opt.leaf_block > 1) acc.leaf_variant(opt.leaf_block).make_layout(opt.layout);
     else acc.make_layout(opt.layout);
   }
-  void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
+  void do_trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
     const TraceOptions o = with_leaves_of(*this, opt);
-    prepare(acc, o);
+    do_prepare(acc, o);
     trace_reference(acc, rays, o, out, threads_);
   }
 

@@ -60,7 +60,7 @@ public:
   /// leaves' SIMD packs of the leaf variant traced, and the copy of its nodes whose leaf
   /// references locate the packs (TraceView::packed_refs; all kept by the Accel; later calls
   /// are free).
-  void prepare(const Accel& acc, const TraceOptions& opt) override {
+  void do_prepare(const Accel& acc, const TraceOptions& opt) override {
     const unsigned block = leaf_block(opt);
     if (block > 1) {
       const LeafVariant& v = acc.leaf_variant(block);
@@ -71,12 +71,11 @@ public:
       acc.tri_packs();
     }
   }
-  void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
-    check_leaf_block(opt, name_);
+  void do_trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
     if (!reference_supports(opt.layout, opt.traversal))
       throw Error(name_ + ": traversal '" + to_string(opt.traversal) + "' is not defined for " + to_string(opt.layout));
     const TraceOptions o = with_leaves_of(*this, opt);
-    prepare(acc, o);
+    do_prepare(acc, o);
     kernels_.trace(acc, rays, o, out, threads_, hybrid_);
   }
 

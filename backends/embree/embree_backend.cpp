@@ -99,7 +99,7 @@ public:
   /// Embree's stack is internal: not reported.
   std::size_t state_bytes(const TraceOptions&) const override { return 0; }
 
-  void prepare(const Accel& acc, const TraceOptions& opt) override {
+  void do_prepare(const Accel& acc, const TraceOptions& opt) override {
     const int mode = opt.precision == Precision::fast ? 1 : 0;
     if (&acc != acc_ || acc.hash() != hash_ || acc.generation() != generation_) {  // both modes' scenes are stale
       for (RTCScene& sc : scene_) {
@@ -167,15 +167,14 @@ public:
     generation_ = acc.generation();
   }
 
-  void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
-    check_leaf_block(opt, std::string("embree"));  // these trace the build's own leaves, whatever block is asked
+  void do_trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
     if (!supports(opt.layout, opt.traversal))
       throw Error("embree: answers only as mbvh4/stack (its single-ray queries) and mbvh4/packet (its packet queries)");
     if (!supports_precision(opt.precision))
       throw Error(std::string("embree: precision '") + to_string(opt.precision) +
                   "' is not available (Embree has its robust mode, --precision robust, and its default mode, "
                   "--precision fast)");
-    prepare(acc, opt);
+    do_prepare(acc, opt);
     RTCScene scene = scene_[opt.precision == Precision::fast ? 1 : 0];
     const bool any = opt.query == Query::any;
     out.reset(rays.size(), opt);

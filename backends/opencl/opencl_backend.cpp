@@ -118,7 +118,7 @@ public:
   bool supports_precision(Precision) const override { return true; }
   double last_device_seconds() const override { return device_seconds_; }
 
-  void prepare(const Accel& acc, const TraceOptions& opt) override {
+  void do_prepare(const Accel& acc, const TraceOptions& opt) override {
     program(opt.stats, opt.precision == Precision::fast);
     if (&acc != acc_ || acc.hash() != hash_ || acc.generation() != generation_) {
       n2_.reset();
@@ -139,12 +139,11 @@ public:
     }
   }
 
-  void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
-    check_leaf_block(opt, name_);  // these trace the build's own leaves, whatever block is asked
+  void do_trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
     if (!supports(opt.layout, opt.traversal))
       throw Error(name_ + ": traversal '" + std::string(to_string(opt.traversal)) + "' is not implemented (stack and bitstack are)");
     device_seconds_ = -1;
-    prepare(acc, opt);
+    do_prepare(acc, opt);
     const bool any = opt.query == Query::any;
     out.reset(rays.size(), opt);
     if (rays.empty()) return;

@@ -105,7 +105,7 @@ public:
 
   /// Uploads the build's leaves and triangles (once per build) and the node array of
   /// `opt.layout` (once per build and layout), and binds that layout's nodes.
-  void prepare(const Accel& acc, const TraceOptions& opt) override {
+  void do_prepare(const Accel& acc, const TraceOptions& opt) override {
     if (opt.layout != Layout::mbvh2 && opt.layout != Layout::mbvh4)
       throw Error("vulkan: layout " + std::string(to_string(opt.layout)) + " is not implemented (the GPU path is MBVH2 "
                   "and MBVH4)");
@@ -145,13 +145,12 @@ public:
     report_validation();
   }
 
-  void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
-    check_leaf_block(opt, std::string("vulkan"));  // these trace the build's own leaves, whatever block is asked
+  void do_trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
     if (!supports(opt.layout, opt.traversal))
       throw Error("vulkan: " + std::string(to_string(opt.layout)) + " " + to_string(opt.traversal) +
                   " traversal is not implemented (the GPU path is MBVH2 and MBVH4, stack and bitstack)");
     device_seconds_ = -1;
-    prepare(acc, opt);
+    do_prepare(acc, opt);
     const bool any = opt.query == Query::any;
     out.reset(rays.size(), opt);
     if (rays.empty()) return;

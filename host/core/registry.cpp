@@ -37,6 +37,18 @@ std::vector<BackendInfo> list_backends() {
   return table();
 }
 
+void Backend::prepare(const Accel& acc, const TraceOptions& opt) {
+  check_trace_options(opt, name());
+  std::lock_guard<std::mutex> lock(mutex_);
+  do_prepare(acc, opt);
+}
+
+void Backend::trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) {
+  check_trace_options(opt, name());
+  std::lock_guard<std::mutex> lock(mutex_);
+  do_trace(acc, rays, opt, out);
+}
+
 std::string BackendOptions::get(const std::string& name, const std::string& fallback) const {
   const auto it = settings.find(name);
   return it == settings.end() ? fallback : it->second;

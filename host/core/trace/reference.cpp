@@ -5,6 +5,7 @@
 #include <cmath>
 
 #include "mbvh/error.h"
+#include "host/core/enum_check.h"
 #include "host/core/parallel.h"
 #include "host/core/trace/batch.h"
 #include "mbvh/trace.h"
@@ -100,8 +101,16 @@ void check_leaf_block(const TraceOptions& opt, const std::string& who) {
                 " is out of range (TraceOptions::leaf_block: 0 for the backend's own, or 1 to 64)");
 }
 
+void check_trace_options(const TraceOptions& opt, const std::string& who) {
+  check_enum(opt.layout, who, "TraceOptions::layout");
+  check_enum(opt.traversal, who, "TraceOptions::traversal");
+  check_enum(opt.query, who, "TraceOptions::query");
+  check_enum(opt.precision, who, "TraceOptions::precision");
+  check_leaf_block(opt, who);
+}
+
 static void require_supported(const TraceOptions& opt) {
-  check_leaf_block(opt, "cpu-scalar");
+  check_trace_options(opt, "cpu-scalar");
   if (!reference_supports(opt.layout, opt.traversal))
     throw Error(std::string("traversal '") + to_string(opt.traversal) + "' is not defined for layout " + to_string(opt.layout) +
                 " (variant B is an MBVH4 traversal; MBVH2 has no ordered stack)");

@@ -7,6 +7,7 @@
 #include <functional>
 #include <map>
 #include <memory>
+#include <mutex>
 #include <span>
 #include <string>
 #include <vector>
@@ -64,9 +65,14 @@ public:
   virtual bool supports_precision(Precision p) const { return p == Precision::robust; }
   /// Makes the backend ready to trace `acc` with these options (uploads only the layout needed;
   /// repeated calls with the same build are free). Called by trace() if not done before.
-  virtual void prepare(const Accel& acc, const TraceOptions& opt) = 0;
-  /// Traces `rays`, filling `out` in ray order (TraceOutput). Throws Error on failure.
-  virtual void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) = 0;
+  /// Checks `opt` first (check_trace_options, naming this backend).
+  void prepare(const Accel& acc, const TraceOptions& opt);
+  /// Traces `rays`, filling `out` in ray order (TraceOutput). Throws Error on failure. Checks
+  /// `opt` first (check_trace_options, naming this backend). One backend object may be used from
+  /// several threads: its prepare and trace calls take the object's lock, so they run one at a
+  /// time (a CPU backend still spreads each call over its workers); for calls that overlap, use
+  /// one backend object per thread.
+  void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out);
   /// The instruction set the traversal runs on a CPU backend ("scalar", "avx2", "avx512"); ""
   /// for a device backend or a library that picks its own (the device line says more).
   virtual std::string isa() const { return ""; }
@@ -85,6 +91,16 @@ public:
   virtual unsigned leaf_block(const TraceOptions&) const { return 1; }
   /// Bytes of traversal state per ray for these options (TRAVERSAL.md §5).
   virtual std::size_t state_bytes(const TraceOptions& opt) const { return state_bytes_per_ray(opt.layout, opt.traversal); }
+
+protected:
+  /// What prepare() does, with `opt` checked and the object's lock held.
+  virtual void do_prepare(const Accel& acc, const TraceOptions& opt) = 0;
+  /// What trace() does, with `opt` checked and the object's lock held (call do_prepare, not
+  /// prepare, from here: the lock is not recursive).
+  virtual void do_trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) = 0;
+
+private:
+  std::mutex mutex_;  ///< serialises prepare and trace on one object (its device state, its caches)
 };
 
 /// `opt` with leaf_block set to what `b` traces for it: the options the reference (cpu-scalar,

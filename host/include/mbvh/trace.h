@@ -85,6 +85,11 @@ struct TraceOptions {
 /// Throws Error naming `who` and the value when opt.leaf_block is above 64 (every backend's and
 /// the reference's trace call it first).
 void check_leaf_block(const TraceOptions& opt, const std::string& who);
+/// Throws Error naming `who`, the field and its value when one of opt's enums (layout,
+/// traversal, query, precision) holds none of its enumerators (a value cast from an int), or
+/// its leaf block is out of range (check_leaf_block). Backend::prepare and Backend::trace, the
+/// reference's trace and the library's other entry points taking TraceOptions call it first.
+void check_trace_options(const TraceOptions& opt, const std::string& who);
 
 /// Results in ray order. Closest hit fills `hits`; any hit fills `occluded` (1 = occluded).
 struct TraceOutput {
