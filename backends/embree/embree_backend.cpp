@@ -172,8 +172,8 @@ public:
       throw Error("embree: answers only as mbvh4/stack (its single-ray queries) and mbvh4/packet (its packet queries)");
     if (!supports_precision(opt.precision))
       throw Error(std::string("embree: precision '") + to_string(opt.precision) +
-                  "' is not available (Embree has its robust mode, --precision robust, and its default mode, "
-                  "--precision fast)");
+                  "' is not available (Embree has its robust mode, Precision::robust, and its default mode, "
+                  "Precision::fast)");
     do_prepare(acc, opt);
     RTCScene scene = scene_[opt.precision == Precision::fast ? 1 : 0];
     const bool any = opt.query == Query::any;

@@ -18,7 +18,7 @@
 namespace mbvh {
 
 std::uint32_t Scene::add_mesh(const MeshView& m) {
-  const std::string who = (name.empty() ? std::string("scene") : name) + ": geometry " + std::to_string(meshes_.size());
+  const std::string who = display_name() + ": geometry " + std::to_string(meshes_.size());
   if (!triangles.empty())
     throw Error(who + ": add_mesh on a scene with owned triangles; a scene holds owned arrays or mesh views, not both");
   if (!m.vertices && m.vertex_count > 0)
@@ -59,7 +59,7 @@ std::string coordinate_text(float c) {
 }  // namespace
 
 void Scene::validate() const {
-  const std::string who = name.empty() ? std::string("scene") : name;
+  const std::string who = display_name();
   if (!meshes_.empty()) {
     if (!triangles.empty()) throw Error(who + ": the scene has both owned triangles and mesh views; use one or the other");
     for (std::size_t g = 0; g < meshes_.size(); ++g) {

@@ -24,6 +24,7 @@
 #include "host/core/build/sbvh.h"
 #include "host/core/build/triangles.h"
 #include "mbvh/error.h"
+#include "host/core/enum_check.h"
 #include "host/core/parallel.h"
 
 namespace mbvh {
@@ -714,7 +715,7 @@ void check_traceable_range(const Scene& scene, const build::RawVector<build::Pri
                           ": coordinate %.9g of vertex %u (triangle %u%s) is beyond +-2^40 (%.3g), the range mbvh traces "
                           "exactly (float products of three coordinates would overflow); rescale the scene",
                           double(c), index[k], r.prim, where.c_str(), double(kMaxCoordinate));
-            throw Error(scene.name + buf);
+            throw Error(scene.display_name() + buf);
           }
     }
   }
@@ -724,7 +725,7 @@ void check_traceable_range(const Scene& scene, const build::RawVector<build::Pri
                   ": the largest coordinate magnitude is %.9g, below 2^-36 (%.3g), the smallest scene scale mbvh traces "
                   "exactly (float products of three coordinates would underflow); rescale the scene",
                   double(largest), double(kMinSceneScale));
-    throw Error(scene.name + buf);
+    throw Error(scene.display_name() + buf);
   }
 }
 
@@ -795,6 +796,7 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
   const auto t0 = Clock::now();
   // -- what the build is given: indices in range and finite vertices (checked by the record
   //    pass below, Scene::validate naming the first fault), a usable SAH cost
+  check_enum(opt_in.quality, "Accel::build: " + scene.display_name(), "BuildOptions::quality");
   if (!scene.meshes().empty() && !scene.triangles.empty()) scene.validate();
   if (!std::isfinite(opt_in.traversal_cost) || opt_in.traversal_cost < 0)
     throw Error("BuildOptions::traversal_cost " + std::to_string(opt_in.traversal_cost) + " must be finite and >= 0");
@@ -814,7 +816,7 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
   //    their kept triangles, then write them at their prefix offsets with the chunk's bounds;
   //    compiled once for the owned arrays and once for mesh views (triangles.h)
   const std::size_t n = scene.triangle_count();
-  if (n > kMaxTriangles) throw Error(scene.name + ": too many triangles for 32-bit references");
+  if (n > kMaxTriangles) throw Error(scene.display_name() + ": too many triangles for 32-bit references");
   constexpr std::size_t grain = 65536;
   const std::size_t chunks = (n + grain - 1) / grain;
   std::vector<std::size_t> kept_in(chunks, 0);
@@ -850,7 +852,7 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
   });
   if (invalid) {
     scene.validate();  // throws, naming the first bad triangle
-    throw Error(scene.name + ": internal: a triangle failed the build's index or finiteness check but not Scene::validate");
+    throw Error(scene.display_name() + ": internal: a triangle failed the build's index or finiteness check but not Scene::validate");
   }
   std::size_t kept = 0;  // close the chunks' gaps (in place: a record only moves down)
   for (std::size_t c = 0; c < chunks; ++c) {
@@ -860,7 +862,7 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
   prims.resize(kept);
   acc->impl_->bvh2_.degenerate = n - kept;
   if (kept == 0)
-    throw Error(scene.name + ": the scene has no non-degenerate triangle (" + std::to_string(n) + " triangles, " +
+    throw Error(scene.display_name() + ": the scene has no non-degenerate triangle (" + std::to_string(n) + " triangles, " +
                 std::to_string(acc->impl_->bvh2_.degenerate) + " degenerate)");
   build::FastBox root, croot;
   float largest = 0;
@@ -967,6 +969,7 @@ const Mbvh2& Accel::mbvh2() const {
 }
 
 void Accel::make_layout(Layout l) const {
+  check_enum(l, "Accel::make_layout", "the layout");
   if (l == Layout::mbvh2) mbvh2();
   else if (l == Layout::mbvh4) mbvh4();
   else mbvh8();

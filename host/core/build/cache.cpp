@@ -29,6 +29,7 @@
 #include "host/core/layouts.h"
 #include "mbvh/error.h"
 #include "host/core/io/output.h"
+#include "host/core/enum_check.h"
 #include "host/core/parallel.h"
 #include "host/core/resources.h"
 #include "mbvh/version.h"
@@ -101,6 +102,7 @@ std::string hex(std::uint64_t v) {
 }  // namespace
 
 std::uint64_t Accel::cache_key(const Scene& scene, const BuildOptions& opt) {
+  check_enum(opt.quality, "Accel::cache_key: " + scene.display_name(), "BuildOptions::quality");
   std::uint64_t h = hash_bytes(MBVH_VERSION_STRING, sizeof(MBVH_VERSION_STRING), kFormatVersion);
   h = hash_bytes(&kTreeRevision, sizeof kTreeRevision, h);
   if (scene.meshes().empty()) {
@@ -332,7 +334,7 @@ std::unique_ptr<Accel> Accel::build_cached(const Scene& scene, const BuildOption
   CacheReport rep;
   std::error_code ec;
   std::filesystem::create_directories(dir, ec);
-  if (!std::filesystem::is_directory(dir)) throw Error("--cache " + dir + ": not a directory and cannot be made one");
+  if (!std::filesystem::is_directory(dir)) throw Error("BVH cache directory " + dir + ": not a directory and cannot be made one");
   const std::uint64_t key = cache_key(scene, opt);
   rep.path = (std::filesystem::path(dir) / (hex(key) + ".mbvh")).string();
   std::unique_ptr<Accel> acc;

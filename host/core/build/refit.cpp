@@ -192,13 +192,13 @@ bool quick_check(const Scene& s, unsigned threads) {
 void Accel::refit(const Scene& moved) {
   const auto t0 = std::chrono::steady_clock::now();
   if (moved.triangle_count() != impl_->scene_triangles_)
-    throw Error(moved.name + ": refit needs the scene the build was made from (" + std::to_string(impl_->scene_triangles_) +
+    throw Error(moved.display_name() + ": refit needs the scene the build was made from (" + std::to_string(impl_->scene_triangles_) +
                 " triangles), not " + std::to_string(moved.triangle_count()) + " triangles; rebuild instead");
   const std::vector<std::uint64_t>& geoms = impl_->geometry_offsets_;  // {0, n} for an owned scene
   bool same = moved.geometry_count() + 1 == geoms.size();
   for (std::size_t g = 0; same && g < geoms.size(); ++g) same = moved.geometry_offset(g) == geoms[g];
   if (!same)
-    throw Error(moved.name + ": refit needs the geometries the build was made from (" + std::to_string(geoms.size() - 1) +
+    throw Error(moved.display_name() + ": refit needs the geometries the build was made from (" + std::to_string(geoms.size() - 1) +
                 " with the same triangle counts each), not these " + std::to_string(moved.geometry_count()) + "; rebuild instead");
   const unsigned threads = impl_->opt_.threads;
   constexpr std::size_t grain = 65536;
@@ -242,14 +242,14 @@ void Accel::refit(const Scene& moved) {
   });
   if (std::find(bad.begin(), bad.end(), 1) != bad.end()) {
     moved.validate();  // throws, naming the triangle
-    throw Error(moved.name + ": refit: a triangle names a missing or non-finite vertex");
+    throw Error(moved.display_name() + ": refit: a triangle names a missing or non-finite vertex");
   }
   const float largest = quick ? kMaxCoordinate : *std::max_element(mag.begin(), mag.end());
   if (largest > kMaxCoordinate || largest < kMinSceneScale)
-    throw Error(moved.name + ": refit moves a coordinate out of the range mbvh traces exactly (magnitude " +
+    throw Error(moved.display_name() + ": refit moves a coordinate out of the range mbvh traces exactly (magnitude " +
                 std::to_string(largest) + ", accel.h kMaxCoordinate, kMinSceneScale); rescale the scene");
   if (std::find(grew.begin(), grew.end(), 1) != grew.end())
-    throw Error(moved.name + ": refit: a triangle the build kept out as degenerate has area now, and is in no "
+    throw Error(moved.display_name() + ": refit: a triangle the build kept out as degenerate has area now, and is in no "
                 "leaf; rebuild instead");
 
   // -- the leaf-ordered triangles, the leaf boxes and the SIMD packs if made, in place (their

@@ -74,6 +74,8 @@ Traversal parse_traversal(const std::string& s) {
 }
 
 std::size_t state_bytes_per_ray(Layout layout, Traversal traversal) {
+  check_enum(layout, "state_bytes_per_ray", "the layout");
+  check_enum(traversal, "state_bytes_per_ray", "the traversal");
   // packets (backends/cpu/packet.h): a stack of MBVH_STACK2_ENTRIES entries of (node, range or
   // count, a group list and one 8-lane mask per group), shared by the packet's rays
   if (is_packet(traversal)) {

@@ -98,6 +98,8 @@ struct GeomPrim {
 /// views, not the caller's buffers they point to.
 struct Scene {
   std::string name;                              ///< the path or generator spec it came from
+  /// `name`, or "scene (unnamed)" when it is empty: what the library's messages call the scene.
+  std::string display_name() const { return name.empty() ? std::string("scene (unnamed)") : name; }
   std::vector<Vec3f> vertices;
   std::vector<std::array<std::uint32_t, 3>> triangles;
 
