@@ -111,6 +111,8 @@ nlohmann::json versus(const Scene& scene, const Accel& acc, const BuildOptions& 
 }
 
 int run_build_bench(const BuildBenchArgs& a) {
+  if (!a.scene.cache.empty())
+    throw Error("--cache " + a.scene.cache + ": build-bench times builds from scratch and never reads or writes the BVH cache");
   prepare_outputs({{"--json", a.json, true}}, {{"scene", a.scene.scene}});
   const Scene scene = load_scene(a.scene.scene);
   const BuildOptions bo = a.scene.build_options();

@@ -41,7 +41,7 @@ nlohmann::json check_json(const CheckReport& rep, const std::string& kind) {
 
 int run_check_command(const CheckArgs& a) {
   const OutputTarget json_to{"--json", a.json, true};
-  if (!a.json.empty()) prepare_outputs({json_to}, {{"scene", a.scene.scene}, {"--rays", a.rays.rays_file}});
+  prepare_outputs({json_to}, {{"scene", a.scene.scene}, {"--rays", a.rays.rays_file}});
   // -- the options, the scene and the ray kinds
   CheckOptions co;
   co.grid = a.grid.parse();

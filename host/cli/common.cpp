@@ -23,6 +23,8 @@ namespace {
 // standard output ('-'), so the two never mix.
 FILE* g_report = stdout;
 bool g_quiet = false;
+// The command's input and output files (prepare_outputs): the BVH cache entry is none of them.
+std::vector<std::string> g_command_files;
 
 }  // namespace
 
@@ -42,6 +44,8 @@ void prepare_outputs(std::vector<OutputTarget> outputs, std::vector<InputFile> i
   std::erase_if(outputs, [](const OutputTarget& o) { return o.path.empty(); });
   std::erase_if(inputs, [](const InputFile& i) { return i.path.empty() || i.path.rfind("gen:", 0) == 0; });
   check_outputs(outputs, inputs);
+  for (const OutputTarget& o : outputs) g_command_files.push_back(o.path);
+  for (const InputFile& i : inputs) g_command_files.push_back(i.path);
   for (const OutputTarget& o : outputs)
     if (o.path == "-") g_report = stderr;
 }
@@ -148,7 +152,8 @@ Loaded load_and_build(const SceneArgs& a, bool verbose) {
   bo.progress = [&p](double f) { p.update(static_cast<std::size_t>(f * 1000)); };
   const auto t1 = Clock::now();
   Accel::CacheReport cr;
-  l.acc = a.cache.empty() ? Accel::build(l.scene, bo) : Accel::build_cached(l.scene, bo, a.cache, &cr);
+  l.acc = a.cache.empty() ? Accel::build(l.scene, bo)
+                          : Accel::build_cached(l.scene, bo, Accel::CacheOptions{a.cache, g_command_files}, &cr);
   const double ms = ms_since(t1);
   p.finish();
   // -- report

@@ -44,7 +44,8 @@ __attribute__((format(printf, 1, 2))) void say(const char* format, ...);
 
 /// Checks a command's outputs against each other and its inputs before any work (check_outputs),
 /// and sends the report to standard error if one of them is '-'. Empty paths are options not
-/// given; a generated scene (gen:...) is no input file.
+/// given; a generated scene (gen:...) is no input file. The files are kept for load_and_build:
+/// the --cache entry may be none of them.
 void prepare_outputs(std::vector<OutputTarget> outputs, std::vector<InputFile> inputs);
 /// Writes one output (write_outputs).
 void write_bytes_to(const OutputTarget& to, const void* data, std::size_t size);

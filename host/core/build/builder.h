@@ -209,6 +209,9 @@ inline constexpr std::size_t kHashBlock = std::size_t(1) << 20;
 std::uint64_t hash_build(const Bvh2& b, const std::vector<Leaf>& leaves, const AlignedVector<Tri>& tris, unsigned threads,
                          const std::uint64_t* tri_hashes = nullptr);
 
+/// LayoutStats::sah_cost of a binary tree: nodes priced at `ct`, triangles at 1.
+double sah_of_binary(const Bvh2& b, const std::vector<Leaf>& leaves, float ct);
+
 /// The builders: reorder `prims` into leaf order and fill the arenas. `root` bounds every record,
 /// `croot` their centroids. Deterministic: the same arenas at any opt.threads.
 void build_binned_sah(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& croot, const BuildOptions& opt,

@@ -20,12 +20,18 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <sys/types.h>
+
+#include <cerrno>
 #include <cstdio>
 #include <cstring>
 #include <atomic>
+#include <chrono>
 #include <filesystem>
 #include <type_traits>
 
+#include "host/core/build/builder.h"
+#include "host/core/build/cache_check.h"
 #include "host/core/layouts.h"
 #include "mbvh/error.h"
 #include "host/core/io/output.h"
@@ -149,7 +155,7 @@ void Accel::save(const std::string& path, std::uint64_t key) const {
   hd.st_leaves = impl_->binary_stats_.leaves;
   hd.st_bytes = impl_->binary_stats_.bytes;
   hd.st_sah = impl_->binary_stats_.sah_cost;
-  hd.st_build_ms = impl_->binary_stats_.build_ms;
+  hd.st_build_ms = 0;  // not kept: an entry's bytes are a function of the build alone (concurrent writers write equal files)
   hd.st_depth = impl_->binary_stats_.depth;
   hd.st_bits = impl_->binary_stats_.bitstack_bits;
   hd.max_leaf = impl_->opt_.max_leaf;
@@ -183,28 +189,37 @@ void Accel::save(const std::string& path, std::uint64_t key) const {
   });
   const std::uint64_t sum = hash_bytes(h.data(), h.size() * sizeof(std::uint64_t));
   append(out, &sum, 1);
-  const OutputWrite w{{"cache", path, false}, out.data(), out.size()};
+  // never through a link at the entry's name; other writers of the same entry write the same bytes
+  const OutputWrite w{{"BVH cache entry", path, false, /*follow_links=*/false, /*shared=*/true}, out.data(), out.size()};
   write_outputs({&w, 1});
 }
 
-std::unique_ptr<Accel> Accel::load(const std::string& path, std::uint64_t key) {
-  const std::uint64_t size = regular_file_size(path, "BVH cache");
+std::unique_ptr<Accel> Accel::load(const std::string& path, std::uint64_t key) { return load_entry(path, key, nullptr); }
+
+std::unique_ptr<Accel> Accel::load_entry(const std::string& path, std::uint64_t key, const Scene* scene) {
   auto bad = [&path](const std::string& why) { return Error(path + ": not a usable BVH cache file: " + why); };
-  if (size < sizeof(Header) + 8) throw bad("truncated (" + std::to_string(size) + " bytes)");
-  require_memory(path, size, "the BVH cache file");
   // read straight into the build's arrays (no staging copy of the file), block by block in
-  // parallel: page faults and copies are most of a load's time
+  // parallel: page faults and copies are most of a load's time. Never through a link: O_NOFOLLOW.
   struct Fd {
     int fd;
     ~Fd() {
       if (fd >= 0) ::close(fd);
     }
-  } f{::open(path.c_str(), O_RDONLY | O_CLOEXEC)};
-  if (f.fd < 0) throw bad("cannot be opened");
+  } f{::open(path.c_str(), O_RDONLY | O_CLOEXEC | O_NOFOLLOW | O_NONBLOCK)};
+  if (f.fd < 0) {
+    if (errno == ELOOP) throw bad("a symbolic link (a cache entry is never read through a link)");
+    throw bad(std::string("cannot be opened: ") + std::strerror(errno));
+  }
+  struct stat fst {};
+  if (::fstat(f.fd, &fst) != 0) throw bad(std::string("cannot be inspected: ") + std::strerror(errno));
+  if (!S_ISREG(fst.st_mode)) throw bad("not a regular file");
+  const std::uint64_t size = static_cast<std::uint64_t>(fst.st_size);
+  if (size < sizeof(Header) + 8) throw bad("truncated (" + std::to_string(size) + " bytes)");
   auto read_at = [&](void* dst, std::uint64_t bytes, std::uint64_t off) {
     char* d = static_cast<char*>(dst);
     while (bytes > 0) {
       const ssize_t got = ::pread(f.fd, d, bytes, static_cast<off_t>(off));
+      if (got < 0 && errno == EINTR) continue;
       if (got <= 0) throw bad("cannot be read");
       d += got;
       off += static_cast<std::uint64_t>(got);
@@ -221,6 +236,18 @@ std::unique_ptr<Accel> Accel::load(const std::string& path, std::uint64_t key) {
     throw bad("written by a build with other record sizes");
   const std::uint64_t limit = size;  // every count is bounded by the file it came from
   if (hd.nodes > limit || hd.leaf_boxes > limit || hd.leaves > limit || hd.tris > limit) throw bad("counts out of range");
+  if (hd.quality > static_cast<std::uint32_t>(BuildQuality::high)) throw bad("unknown build quality");
+  // ... and by the scene's triangles, before anything is allocated: a build holds at most one
+  // record per triangle (SBVH: 1.3 per triangle), at most one leaf per record and fewer inner nodes
+  if (scene) {
+    const std::uint64_t n = scene->triangle_count();
+    const std::uint64_t max_tris = hd.quality == static_cast<std::uint32_t>(BuildQuality::high) ? 2 * n : n;
+    if (hd.scene_triangles != n)
+      throw bad("made for " + std::to_string(hd.scene_triangles) + " triangles, the scene has " + std::to_string(n));
+    if (hd.tris > max_tris || hd.leaves > hd.tris || hd.leaf_boxes != hd.leaves || hd.nodes > std::max<std::uint64_t>(hd.leaves, 1))
+      throw bad("its counts (" + std::to_string(hd.nodes) + " nodes, " + std::to_string(hd.leaves) + " leaves, " +
+                std::to_string(hd.tris) + " triangle records) do not fit a scene of " + std::to_string(n) + " triangles");
+  }
   std::vector<Segment> segs{{0, sizeof hd}};
   for (std::uint64_t bytes : {hd.nodes * sizeof(Bvh2::Node), hd.leaf_boxes * sizeof(Box), hd.leaves * sizeof(Leaf),
                               hd.tris * sizeof(Tri)})
@@ -228,11 +255,16 @@ std::unique_ptr<Accel> Accel::load(const std::string& path, std::uint64_t key) {
   const std::uint64_t need = segs.back().offset + segs.back().bytes + 8;
   if (need != size) throw bad("size " + std::to_string(size) + " does not match its counts (" + std::to_string(need) + "): truncated or damaged");
 
+  require_memory(path, size, "the BVH cache file");
   std::unique_ptr<Accel> acc(new Accel());
-  acc->impl_->bvh2_.nodes.resize(hd.nodes);
-  acc->impl_->bvh2_.leaf_boxes.resize(hd.leaf_boxes);
-  acc->impl_->leaves_.resize(hd.leaves);
-  acc->impl_->tris_.resize(hd.tris);
+  try {
+    acc->impl_->bvh2_.nodes.resize(hd.nodes);
+    acc->impl_->bvh2_.leaf_boxes.resize(hd.leaf_boxes);
+    acc->impl_->leaves_.resize(hd.leaves);
+    acc->impl_->tris_.resize(hd.tris);
+  } catch (const std::bad_alloc&) {
+    throw bad("out of memory allocating its " + std::to_string(size) + " bytes");
+  }
   char* const dst[5] = {reinterpret_cast<char*>(&hd), reinterpret_cast<char*>(acc->impl_->bvh2_.nodes.data()),
                         reinterpret_cast<char*>(acc->impl_->bvh2_.leaf_boxes.data()),
                         reinterpret_cast<char*>(acc->impl_->leaves_.data()), reinterpret_cast<char*>(acc->impl_->tris_.data())};
@@ -273,11 +305,10 @@ std::unique_ptr<Accel> Accel::load(const std::string& path, std::uint64_t key) {
   acc->impl_->bvh2_.forced_leaves = hd.forced_leaves;
   acc->impl_->bvh2_.largest_leaf = hd.largest_leaf;
   acc->impl_->bvh2_.degenerate = hd.degenerate;
-  acc->impl_->bounds_ = hd.bounds;
+  acc->impl_->bounds_ = acc->impl_->bvh2_.nodes[0].box;  // never the header's: the tree's, checked below
   acc->impl_->scene_triangles_ = hd.scene_triangles;
   acc->impl_->geometry_offsets_ = {0, hd.scene_triangles};
-  acc->impl_->hash_ = hd.accel_hash;
-  acc->impl_->hash_known_.store(true, std::memory_order_release);
+  // the hash is computed from the loaded bytes on first use (Accel::hash), not read from the header
   LayoutStats& st = acc->impl_->binary_stats_;
   st.layout = "binary";
   st.nodes = hd.st_nodes;
@@ -292,68 +323,110 @@ std::unique_ptr<Accel> Accel::load(const std::string& path, std::uint64_t key) {
   acc->impl_->opt_.leaf_block = hd.leaf_block;
   acc->impl_->opt_.depth_cap = hd.depth_cap;
   acc->impl_->opt_.traversal_cost = hd.traversal_cost;
-  if (hd.quality > static_cast<std::uint32_t>(BuildQuality::high)) throw bad("unknown build quality");
   acc->impl_->opt_.quality = static_cast<BuildQuality>(hd.quality);
 
-  // Structure, as a build leaves it: the checksum catches damage; this catches a file whose
-  // checksum was recomputed over a broken tree. Every reference in range, every inner node but
-  // the root and every leaf referenced exactly once, each from a node of smaller index (so descent
-  // terminates), leaves inside the triangle array, depth within the cap.
+  // -- structure, as a build leaves it (cache_check.h): the checksum catches damage, this a file
+  //    whose checksum was recomputed over a broken tree
   const Bvh2& b = acc->impl_->bvh2_;
-  if (b.nodes.empty() || b.leaf_boxes.size() != acc->impl_->leaves_.size()) throw bad("inconsistent tree");
-  std::vector<std::uint8_t> seen_node(b.nodes.size(), 0), seen_leaf(acc->impl_->leaves_.size(), 0);
-  for (std::size_t i = 0; i < b.nodes.size(); ++i)
-    for (std::int32_t c : b.nodes[i].child) {
-      if (c == MBVH_EMPTY) continue;
-      if (c >= 0) {
-        const auto ci = static_cast<std::size_t>(c);
-        if (ci <= i || ci >= b.nodes.size() || seen_node[ci]++) throw bad("node " + std::to_string(i) + " has a bad child");
-      } else {
-        const auto li = static_cast<std::size_t>(~c);
-        if (li >= seen_leaf.size() || seen_leaf[li]++) throw bad("node " + std::to_string(i) + " has a bad leaf");
-      }
-    }
-  for (std::size_t i = 1; i < b.nodes.size(); ++i)
-    if (!seen_node[i]) throw bad("node " + std::to_string(i) + " is unreachable");
-  for (std::size_t i = 0; i < seen_leaf.size(); ++i) {
-    const Leaf& l = acc->impl_->leaves_[i];
-    if (!seen_leaf[i] || l.first > acc->impl_->tris_.size() || l.count > acc->impl_->tris_.size() - l.first)
-      throw bad("leaf " + std::to_string(i) + " is unreachable or out of range");
-  }
-  if (st.depth > MBVH_BINARY_DEPTH_CAP || b.nodes[0].height > MBVH_BINARY_DEPTH_CAP) throw bad("deeper than the depth cap");
-  for (std::size_t i = 0; i < b.nodes.size(); ++i) {
-    const std::uint32_t h = b.nodes[i].height;
-    for (std::int32_t c : b.nodes[i].child)
-      if (c >= 0 && b.nodes[static_cast<std::size_t>(c)].height >= h) throw bad("node heights are inconsistent");
-  }
+  if (const std::string why = build::check_tree(b, acc->impl_->leaves_, acc->impl_->tris_.size()); !why.empty())
+    throw bad(why);
+  if (st.nodes != b.nodes.size() || st.leaves != acc->impl_->leaves_.size() || st.depth != b.nodes[0].height ||
+      st.bitstack_bits != st.depth || hd.forced_leaves > st.leaves)
+    throw bad("its statistics do not match its tree");
+  std::size_t largest = 0;
+  for (const Leaf& l : acc->impl_->leaves_) largest = std::max<std::size_t>(largest, l.count);
+  acc->impl_->bvh2_.largest_leaf = largest;
+  st.bytes = b.nodes.size() * sizeof(Bvh2::Node) + acc->impl_->leaves_.size() * (sizeof(Leaf) + sizeof(Box)) +
+             acc->impl_->tris_.size() * sizeof(Tri);
   return acc;
 }
 
+namespace {
+
+std::string normalised(const std::string& path) {
+  std::error_code ec;
+  const auto p = std::filesystem::weakly_canonical(path, ec);
+  return ec ? path : p.string();
+}
+
+// The entry's name, spelled without following a link at its last component.
+std::string entry_name(const std::string& path) {
+  const std::filesystem::path p(path);
+  return (std::filesystem::path(normalised(p.parent_path().empty() ? "." : p.parent_path().string())) / p.filename()).string();
+}
+
+}  // namespace
+
 std::unique_ptr<Accel> Accel::build_cached(const Scene& scene, const BuildOptions& opt, const std::string& dir,
                                            CacheReport* report) {
+  return build_cached(scene, opt, CacheOptions{dir, {}}, report);
+}
+
+std::unique_ptr<Accel> Accel::build_cached(const Scene& scene, const BuildOptions& opt, const CacheOptions& cache,
+                                           CacheReport* report) {
+  const std::string& dir = cache.dir;
   CacheReport rep;
+  if (dir.empty()) throw Error("BVH cache directory: empty path");
   std::error_code ec;
   std::filesystem::create_directories(dir, ec);
-  if (!std::filesystem::is_directory(dir)) throw Error("BVH cache directory " + dir + ": not a directory and cannot be made one");
+  if (!std::filesystem::is_directory(dir))
+    throw Error("BVH cache directory " + dir + ": not a directory and cannot be made one" + (ec ? ": " + ec.message() : ""));
   const std::uint64_t key = cache_key(scene, opt);
   rep.path = (std::filesystem::path(dir) / (hex(key) + ".mbvh")).string();
+  // -- the entry is none of the command's own files (inputs, outputs): by inode where both exist,
+  //    else by name (an output not written yet)
+  struct stat es {};
+  const bool exists = ::lstat(rep.path.c_str(), &es) == 0;
+  const bool is_link = exists && S_ISLNK(es.st_mode);
+  const std::string name = entry_name(rep.path);
+  for (const std::string& other : cache.other_files) {
+    if (other.empty() || other == "-") continue;
+    struct stat os {};
+    const bool same = exists && !is_link && ::stat(other.c_str(), &os) == 0 ? os.st_dev == es.st_dev && os.st_ino == es.st_ino
+                                                                            : normalised(other) == name;
+    if (same)
+      throw Error("BVH cache entry " + rep.path + " is " + other + ", a file this command also reads or writes; use another "
+                  "cache directory");
+  }
+  // -- read it: never through a link (a link there is left unread and replaced by the entry)
   std::unique_ptr<Accel> acc;
-  struct stat sb;
-  if (::stat(rep.path.c_str(), &sb) == 0) {
+  if (is_link) {
+    rep.problem = rep.path + ": a symbolic link, not a BVH cache file; not followed (its target is left untouched)";
+  } else if (exists) {
     try {
-      acc = load(rep.path, key);
-      if (acc->scene_triangles() != scene.triangle_count())
-        throw Error(rep.path + ": not a usable BVH cache file: made for " + std::to_string(acc->scene_triangles()) +
-                    " triangles, the scene has " + std::to_string(scene.triangle_count()));
+      const auto t0 = std::chrono::steady_clock::now();
+      acc = load_entry(rep.path, key, &scene);
+      // the triangle records are the scene's, and the options the caller's (the key holds them)
+      Impl& im = *acc->impl_;
+      Box bounds;
+      const std::string why = build::check_records(scene, im.bvh2_, im.leaves_, im.tris_, im.opt_.quality == BuildQuality::high,
+                                                   im.bvh2_.degenerate, opt.threads, bounds);
+      if (!why.empty()) throw Error(rep.path + ": not a usable BVH cache file: " + why);
+      if (std::memcmp(&bounds, &im.bvh2_.nodes[0].box, sizeof(Box)) != 0)
+        throw Error(rep.path + ": not a usable BVH cache file: its root box is not the box of its triangles");
+      if (im.opt_.quality != opt.quality) throw Error(rep.path + ": not a usable BVH cache file: made with another build quality");
+      const BuildQuality q = im.opt_.quality;
+      im.opt_ = opt;
+      im.opt_.quality = q;
+      im.opt_.depth_cap = std::clamp(opt.depth_cap, 1u, static_cast<unsigned>(MBVH_BINARY_DEPTH_CAP));
+      im.opt_.max_leaf = std::max(opt.max_leaf, 1u);
+      im.binary_stats_.sah_cost = build::sah_of_binary(im.bvh2_, im.leaves_, im.opt_.traversal_cost);
+      im.binary_stats_.build_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
       rep.loaded = true;
     } catch (const Error& e) {
+      acc.reset();
       rep.problem = e.what();  // rebuilt and replaced below
     }
   }
   if (!acc) {
     acc = build(scene, opt);
     acc->impl_->opt_.threads = opt.threads;
-    acc->save(rep.path, key);
+    try {
+      acc->save(rep.path, key);
+    } catch (const Error& e) {
+      if (rep.problem.empty()) throw;
+      throw Error(rep.problem + "; rebuilt, and it cannot be replaced: " + e.what());
+    }
   }
   acc->impl_->opt_.threads = opt.threads;
   acc->impl_->opt_.progress = opt.progress;

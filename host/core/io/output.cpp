@@ -8,9 +8,11 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
 #include <cerrno>
 #include <climits>
+#include <cstdint>
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
@@ -110,6 +112,7 @@ std::string directory_of(const std::string& path) {
 struct Resolved {
   std::string path;
   bool exists = false;
+  bool replaces_link = false;  // a link at a target that does not follow links
   struct stat st {};
 };
 
@@ -120,6 +123,10 @@ Resolved resolve(const OutputTarget& t) {
   r.path = t.path;
   struct stat ls {};
   if (::lstat(t.path.c_str(), &ls) == 0) {
+    if (S_ISLNK(ls.st_mode) && !t.follow_links) {
+      r.replaces_link = true;  // the link is replaced, never followed: nothing of its target is read or written
+      return r;
+    }
     if (S_ISLNK(ls.st_mode)) {
       if (::stat(t.path.c_str(), &r.st) != 0)
         throw Error(where + ": is a symbolic link to a missing file (" + std::strerror(errno) +
@@ -180,7 +187,9 @@ public:
       temp_ = tmpl;
       claim_slot();
     }
-    if (r.exists) replaced_ = r.st;
+    if (r.exists && t.follow_links) replaced_ = r.st;
+    follow_ = t.follow_links;
+    shared_ = t.shared;
   }
   Staged(const Staged&) = delete;
   Staged& operator=(const Staged&) = delete;
@@ -200,6 +209,8 @@ public:
     }
     if (::fchmod(fd_, replaced_ ? (replaced_->st_mode & 07777) : (0666 & ~g_umask)) != 0)
       fail("cannot set the mode of the temporary file");
+    data_ = data;
+    size_ = size;
     if (const int e = write_all(fd_, data, size)) {
       errno = e;
       fail("write failed");
@@ -221,12 +232,31 @@ public:
     renamed_ = true;
     release_slot();
     struct stat st {};
-    if (::stat(target_.c_str(), &st) != 0 || !same_file(st, written_))
+    const int got = follow_ ? ::stat(target_.c_str(), &st) : ::lstat(target_.c_str(), &st);
+    if ((got != 0 || !same_file(st, written_)) && !(shared_ && holds_written_bytes()))
       throw Error(where_ + ": another writer replaced the output just after this run wrote it; the file holds "
                            "the other run's data, not this run's");
   }
 
 private:
+  // True when the target (not followed if it is a link) is a regular file holding exactly the
+  // bytes this run wrote: another writer of a shared target renamed an equal file over ours.
+  bool holds_written_bytes() const {
+    const int fd = ::open(target_.c_str(), O_RDONLY | O_CLOEXEC | O_NOFOLLOW);
+    if (fd < 0) return false;
+    struct stat st {};
+    bool equal = ::fstat(fd, &st) == 0 && S_ISREG(st.st_mode) && static_cast<std::uint64_t>(st.st_size) == size_;
+    std::vector<char> buf(std::size_t(1) << 20);
+    for (std::size_t off = 0; equal && off < size_;) {
+      const ssize_t n = ::pread(fd, buf.data(), std::min(buf.size(), size_ - off), static_cast<off_t>(off));
+      if (n < 0 && errno == EINTR) continue;
+      if (n <= 0 || std::memcmp(buf.data(), static_cast<const char*>(data_) + off, static_cast<std::size_t>(n)) != 0)
+        equal = false;
+      off += n > 0 ? static_cast<std::size_t>(n) : 0;
+    }
+    ::close(fd);
+    return equal;
+  }
   [[noreturn]] void fail(const std::string& what) {
     throw Error(where_ + ": " + what + ": " + std::strerror(errno));
   }
@@ -252,7 +282,9 @@ private:
 
   std::string where_, target_, temp_;
   int fd_ = -1, slot_ = -1;
-  bool renamed_ = false;
+  bool renamed_ = false, follow_ = true, shared_ = false;
+  const void* data_ = nullptr;  // the bytes written (shared targets compare them after the rename)
+  std::size_t size_ = 0;
   std::optional<struct stat> replaced_;  // the file this output replaces, if it exists
   struct stat written_ {};
 };
@@ -282,7 +314,11 @@ void check_outputs(std::span<const OutputTarget> outputs, std::span<const InputF
       continue;
     }
     const Resolved r = resolve(t);
-    Seen s{label(t), normalised(r.path), r.exists, r.st};
+    // a link that is replaced, not followed, is compared by its own name, not its target's
+    const std::string key = r.replaces_link ? (std::filesystem::path(normalised(directory_of(r.path))) /
+                                               std::filesystem::path(r.path).filename()).string()
+                                            : normalised(r.path);
+    Seen s{label(t), key, r.exists, r.st};
     const auto same = [&s](const Seen& o) { return s.exists && o.exists ? same_file(s.st, o.st) : s.key == o.key; };
     for (const Seen& in : ins)
       if (same(in))

@@ -11,10 +11,17 @@ namespace mbvh {
 /// Where one output of a command goes: the option that named it (for messages; may be empty),
 /// its path ("-": standard output) and whether the format is text (JSON, CSV), which may go to a
 /// terminal, or binary (rays, hits, occlusion, PNG, PFM), which may not.
+/// `follow_links` false (BVH cache entries): a symbolic link at `path` is never followed; it is
+/// replaced by the new file (its target untouched), and the new file gets the umask's mode, not
+/// the replaced file's mode or owner. `shared` (BVH cache entries): other writers may write the
+/// same bytes to `path` at the same time; another writer's rename of an equal file over this
+/// one's is not an error.
 struct OutputTarget {
   std::string option;
   std::string path;
   bool text = false;
+  bool follow_links = true;
+  bool shared = false;
 };
 
 /// One input file of a command, for check_outputs: the option that named it and its path.
@@ -43,12 +50,13 @@ void check_outputs(std::span<const OutputTarget> outputs, std::span<const InputF
 /// (mkstemp, in the target's directory) whose mode is the replaced file's (and its owner, where
 /// permitted), or 0666 minus the umask for a new file; every write, fsync and close is checked;
 /// "-" is written to standard output once every file is staged; then each temporary is renamed
-/// over its target. A symbolic link is followed: the regular file it finally names is replaced and
-/// the link stays. On any failure no target has been touched (up to a failing rename, the last
+/// over its target. A symbolic link is followed (unless `follow_links` is false: then the link
+/// itself is replaced): the regular file it finally names is replaced and the link stays. On any failure no target has been touched (up to a failing rename, the last
 /// step), the temporaries are removed and Error names the option and path; SIGINT, SIGTERM,
 /// SIGHUP and SIGPIPE (where not ignored) remove them too before the signal ends the process.
 /// After its rename each target must still be the file written: if another writer renamed over it
-/// in between, Error says so — a run never reports another run's data as its own.
+/// in between, Error says so — a run never reports another run's data as its own (a `shared`
+/// target holding the same bytes as this run wrote is fine).
 void write_outputs(std::span<const OutputWrite> outputs);
 
 }  // namespace mbvh

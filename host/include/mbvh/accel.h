@@ -126,16 +126,32 @@ public:
   static std::unique_ptr<Accel> build(const Scene& scene, const BuildOptions& opt = {});
 
   /// The BVH cache (host/core/build/cache.cpp). build_cached returns the build of `scene` with `opt`
-  /// from DIR/<key>.mbvh when that file holds it, else builds and writes it there (atomically; DIR
-  /// is made if missing). A file that is truncated, damaged, of another format version or made for
-  /// other triangles, options or library version is never traced from: it is rebuilt and replaced,
-  /// and `report->problem` says what was wrong. Throws Error when DIR cannot be made or the file
-  /// cannot be written, and as build does.
+  /// from DIR/<key>.mbvh when that file holds it, else builds and writes it there (atomically, by
+  /// a rename over the entry's name; DIR is made if missing). An entry is never read or written
+  /// through a symbolic link: a link at the entry's name is left unread and replaced by the entry
+  /// (its target untouched). A file that is truncated, damaged, of another format version, made for
+  /// other triangles, options or library version, or not exactly the tree and triangle records a
+  /// build makes of this scene (cache_check.h: every reference, empty slot, parent link, height,
+  /// box and leaf range; every record compared with the scene's triangle) is never traced from: it
+  /// is rebuilt and replaced, and `report->problem` says what was wrong. Concurrent calls with one
+  /// DIR (threads or processes) are safe. Throws Error when DIR cannot be made, when the entry is
+  /// one of `other_files` (same file, by inode or path), when the file cannot be written (saying
+  /// what was wrong with the old one, if anything), and as build does. Cost of a hit: reading the
+  /// file and O(triangles) checks, far less than a build.
+  struct CacheOptions {
+    std::string dir;  ///< the cache directory
+    /// The files the calling command reads or writes (scene, rays, outputs): an entry that is one
+    /// of them is an error before anything is read or written.
+    std::vector<std::string> other_files;
+  };
   struct CacheReport {
     std::string path;     ///< the cache file
     bool loaded = false;  ///< true: read from the file; false: built (and written)
     std::string problem;  ///< why an existing file was not used, or empty
   };
+  static std::unique_ptr<Accel> build_cached(const Scene& scene, const BuildOptions& opt, const CacheOptions& cache,
+                                             CacheReport* report = nullptr);
+  /// build_cached with CacheOptions{dir}.
   static std::unique_ptr<Accel> build_cached(const Scene& scene, const BuildOptions& opt, const std::string& dir,
                                              CacheReport* report = nullptr);
   /// The cache key: a content hash of the scene's vertices and triangles, the options that shape
@@ -144,8 +160,9 @@ public:
   /// Writes this build to `path` (atomically, through a temporary) under `key`.
   void save(const std::string& path, std::uint64_t key) const;
   /// Reads a build written by save; throws Error naming the path and what is wrong when the file
-  /// is truncated, damaged (checksum), of another format version or record size, of another key,
-  /// or not a well-formed tree. O(file size).
+  /// is a symbolic link (never followed), truncated, damaged (checksum), of another format version
+  /// or record size, of another key, or not a well-formed tree (build::check_tree). Its triangle
+  /// records are checked against a scene only by build_cached. O(file size).
   static std::unique_ptr<Accel> load(const std::string& path, std::uint64_t key);
 
   ~Accel();
@@ -201,6 +218,9 @@ public:
   double last_refit_ms() const;  ///< wall time of the last refit()
 private:
   Accel();
+  /// load, with the counts in the header bounded by `scene`'s triangle count (when given) before
+  /// anything is allocated.
+  static std::unique_ptr<Accel> load_entry(const std::string& path, std::uint64_t key, const Scene* scene);
   void drop_leaf_variants();  ///< refit: forget the leaf variants (remade on next use)
   struct Impl;  ///< host/core/layouts.h
   std::unique_ptr<Impl> impl_;
