@@ -58,21 +58,21 @@ std::string check_tree(const Bvh2& b, const std::vector<Leaf>& leaves, std::size
   std::vector<std::uint8_t> seen_node(n, 0), seen_leaf(nl, 0);
   for (std::size_t i = 0; i < n; ++i) {
     const Bvh2::Node& d = b.nodes[i];
-    const std::string node = "node " + std::to_string(i);
-    if (!box_in_range(d.box)) return node + "'s box is empty, not finite or beyond the traced range";
+    auto node = [i] { return "node " + std::to_string(i); };
+    if (!box_in_range(d.box)) return node() + "'s box is empty, not finite or beyond the traced range";
     std::uint32_t h = 0;
     for (int k = 0; k < 2; ++k) {
       const std::int32_t c = d.child[k];
-      const std::string slot = node + "'s child " + std::to_string(k);
+      auto slot = [&node, k] { return node() + "'s child " + std::to_string(k); };
       if (c == MBVH_EMPTY) {
-        if (i != 0 || k != 1 || n != 1) return slot + " is empty (only a one-leaf root's second slot may be)";
+        if (i != 0 || k != 1 || n != 1) return slot() + " is empty (only a one-leaf root's second slot may be)";
         continue;
       }
       const Box* cb;
       std::uint32_t ch;
       if (c >= 0) {
         const auto ci = static_cast<std::size_t>(c);
-        if (ci <= i || ci >= n || seen_node[ci]++) return slot + " (node " + std::to_string(c) + ") is out of order, out of range or shared";
+        if (ci <= i || ci >= n || seen_node[ci]++) return slot() + " (node " + std::to_string(c) + ") is out of order, out of range or shared";
         if (b.nodes[ci].parent != static_cast<std::int32_t>(i))
           return "node " + std::to_string(ci) + "'s parent link is " + std::to_string(b.nodes[ci].parent) + ", not its parent " +
                  std::to_string(i);
@@ -80,14 +80,14 @@ std::string check_tree(const Bvh2& b, const std::vector<Leaf>& leaves, std::size
         ch = b.nodes[ci].height;
       } else {
         const auto li = static_cast<std::size_t>(~c);
-        if (li >= nl || seen_leaf[li]++) return slot + " (leaf " + std::to_string(li) + ") is out of range or shared";
+        if (li >= nl || seen_leaf[li]++) return slot() + " (leaf " + std::to_string(li) + ") is out of range or shared";
         cb = &b.leaf_boxes[li];
         ch = 0;
       }
-      if (!contains(d.box, *cb)) return node + "'s box does not contain its child " + std::to_string(k) + "'s";
+      if (!contains(d.box, *cb)) return node() + "'s box does not contain its child " + std::to_string(k) + "'s";
       h = std::max(h, ch + 1);
     }
-    if (d.height != h) return node + "'s height is " + std::to_string(d.height) + ", its children make it " + std::to_string(h);
+    if (d.height != h) return node() + "'s height is " + std::to_string(d.height) + ", its children make it " + std::to_string(h);
   }
   for (std::size_t i = 1; i < n; ++i)
     if (!seen_node[i]) return "node " + std::to_string(i) + " is unreachable";
@@ -95,12 +95,12 @@ std::string check_tree(const Bvh2& b, const std::vector<Leaf>& leaves, std::size
   std::vector<std::uint8_t> covered(tris, 0);
   for (std::size_t i = 0; i < nl; ++i) {
     const Leaf& l = leaves[i];
-    const std::string leaf = "leaf " + std::to_string(i);
-    if (!seen_leaf[i]) return leaf + " is unreachable";
-    if (!box_in_range(b.leaf_boxes[i])) return leaf + "'s box is empty, not finite or beyond the traced range";
-    if (l.count == 0 || l.first > tris || l.count > tris - l.first) return leaf + "'s triangle range is empty or out of range";
+    auto leaf = [i] { return "leaf " + std::to_string(i); };
+    if (!seen_leaf[i]) return leaf() + " is unreachable";
+    if (!box_in_range(b.leaf_boxes[i])) return leaf() + "'s box is empty, not finite or beyond the traced range";
+    if (l.count == 0 || l.first > tris || l.count > tris - l.first) return leaf() + "'s triangle range is empty or out of range";
     for (std::size_t t = l.first; t < std::size_t(l.first) + l.count; ++t)
-      if (covered[t]++) return leaf + " shares triangle record " + std::to_string(t) + " with another leaf";
+      if (covered[t]++) return leaf() + " shares triangle record " + std::to_string(t) + " with another leaf";
   }
   for (std::size_t t = 0; t < tris; ++t)
     if (!covered[t]) return "triangle record " + std::to_string(t) + " is in no leaf";
@@ -161,9 +161,9 @@ std::string check_records(const Scene& scene, const Bvh2& b, const std::vector<L
           const Tri& r = tris[t];
           std::uint32_t prim;
           std::memcpy(&prim, &r.v0[3], 4);
-          const std::string rec = "triangle record " + std::to_string(t);
+          auto rec = [t] { return "triangle record " + std::to_string(t); };
           if (prim >= n || !state[prim]) {
-            bad.set(t, rec + " names " + (prim >= n ? "no triangle of the scene" : "a degenerate triangle") + " (" + std::to_string(prim) + ")");
+            bad.set(t, rec() + " names " + (prim >= n ? "no triangle of the scene" : "a degenerate triangle") + " (" + std::to_string(prim) + ")");
             break;
           }
           Vec3f v0, v1, v2;
@@ -171,7 +171,7 @@ std::string check_records(const Scene& scene, const Bvh2& b, const std::vector<L
           Tri want;
           fill_tri(want, v0, v1, v2, prim);
           if (std::memcmp(&want, &r, sizeof(Tri)) != 0) {
-            bad.set(t, rec + " is not the scene's triangle " + std::to_string(prim));
+            bad.set(t, rec() + " is not the scene's triangle " + std::to_string(prim));
             break;
           }
           const float* v[3] = {r.v0, r.v1, r.v2};
@@ -179,12 +179,12 @@ std::string check_records(const Scene& scene, const Bvh2& b, const std::vector<L
           for (int k = 0; k < 3; ++k)
             if (contains(lb, v[k])) mask = static_cast<std::uint8_t>(mask | (2u << k));
           if (!spatial && mask != 0xE) {
-            bad.set(t, rec + " lies outside the box of leaf " + std::to_string(li));
+            bad.set(t, rec() + " lies outside the box of leaf " + std::to_string(li));
             break;
           }
           const std::uint8_t was = std::atomic_ref<std::uint8_t>(state[prim]).fetch_or(static_cast<std::uint8_t>(mask | 0x10));
           if (!spatial && (was & 0x10)) {
-            bad.set(t, rec + " repeats triangle " + std::to_string(prim));
+            bad.set(t, rec() + " repeats triangle " + std::to_string(prim));
             break;
           }
         }
