@@ -729,6 +729,39 @@ void check_traceable_range(const Scene& scene, const build::RawVector<build::Pri
   }
 }
 
+}  // namespace
+
+namespace build {
+
+void throw_too_small(const Scene& scene, std::uint32_t prim, const char* who) {
+  Vec3f p[3];
+  scene.triangle(prim, p[0], p[1], p[2]);
+  double edge[3];
+  for (int k = 0; k < 3; ++k) {
+    const Vec3f& a = p[k];
+    const Vec3f& b = p[(k + 1) % 3];
+    const double d[3] = {double(b.x) - a.x, double(b.y) - a.y, double(b.z) - a.z};
+    edge[k] = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+  }
+  std::string where;
+  if (!scene.meshes().empty()) {
+    const GeomPrim g = scene.geometry_of(prim);
+    where = " (geometry " + std::to_string(g.geom_id) + " triangle " + std::to_string(g.prim_id) + ")";
+  }
+  char buf[512];
+  std::snprintf(buf, sizeof buf,
+                ": %striangle %u%s has area %.3g (edges %.3g, %.3g, %.3g), below 2^-110 (%.3g, accel.h "
+                "kMinTriangleArea), the smallest triangle mbvh traces exactly (float products of its edges would "
+                "underflow and rays pass through it); rescale the scene or remove the triangle",
+                who, prim, where.c_str(), 0.5 * std::sqrt(twice_area_sq(p[0], p[1], p[2])), edge[0], edge[1], edge[2],
+                double(kMinTriangleArea));
+  throw Error(scene.name + buf);
+}
+
+}  // namespace build
+
+namespace {
+
 // The leaf-ordered triangle records: tris[i] is the triangle `prim(order[i])` of the scene.
 // `order` holds prim ids (SBVH) or the leaf-ordered records (binned SAH, LBVH).
 std::uint32_t prim_of(std::uint32_t p) { return p; }
@@ -823,6 +856,7 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
   build::RawVector<PrimRef> prims(n);
   std::vector<build::FastBox> cb(chunks), ccb(chunks);
   std::vector<float> mag(chunks, 0.0f);
+  std::vector<std::size_t> tiny(chunks, SIZE_MAX);  // per chunk: its first triangle too small to trace
   std::atomic<bool> invalid{false};
   build::with_triangles(scene, [&](const auto& src) {
     parallel_for(n, grain, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
@@ -835,7 +869,12 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
           invalid = true;
           continue;
         }
-        if (!build::has_area(v0, v1, v2)) continue;
+        const double a2 = build::twice_area_sq(v0, v1, v2);
+        if (a2 == 0) continue;  // degenerate: in no leaf
+        if (build::too_small(a2)) {  // refused below, the first in scene order named
+          tiny[c] = std::min(tiny[c], i);
+          continue;
+        }
         const PrimRef r = build::prim_ref(v0, v1, v2, static_cast<std::uint32_t>(i));
         box.grow(r);
         cbox.grow_centroid(r);
@@ -854,6 +893,8 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
     scene.validate();  // throws, naming the first bad triangle
     throw Error(scene.display_name() + ": internal: a triangle failed the build's index or finiteness check but not Scene::validate");
   }
+  if (const std::size_t first = chunks ? *std::min_element(tiny.begin(), tiny.end()) : SIZE_MAX; first != SIZE_MAX)
+    build::throw_too_small(scene, static_cast<std::uint32_t>(first), "");
   std::size_t kept = 0;  // close the chunks' gaps (in place: a record only moves down)
   for (std::size_t c = 0; c < chunks; ++c) {
     if (kept != c * grain) std::memmove(&prims[kept], &prims[c * grain], kept_in[c] * sizeof(PrimRef));

@@ -15,6 +15,8 @@
 
 #include "host/core/layouts.h"
 #include "host/core/parallel.h"
+#include "mbvh/accel.h"
+#include "mbvh/scene.h"
 
 namespace mbvh::build {
 
@@ -156,14 +158,28 @@ void build_subtrees(Arenas& out, const std::vector<std::size_t>& jobs, const Bui
 /// subtrees side by side on up to `threads` workers, the same bytes at any count.
 void flatten(const Arenas& a, Bvh2& out, std::vector<Leaf>& leaves, unsigned threads);
 
-/// Whether the triangle has area (its edges' cross product, in double, is not zero): the build
-/// keeps the others out of leaves.
-inline bool has_area(const Vec3f& a, const Vec3f& bb, const Vec3f& c) {
+/// The square of twice the triangle's area: its edges' cross product, in double, squared (no
+/// square root; the squares of float products cannot underflow a double). 0: degenerate.
+inline double twice_area_sq(const Vec3f& a, const Vec3f& bb, const Vec3f& c) {
   const double e1[3] = {double(bb.x) - a.x, double(bb.y) - a.y, double(bb.z) - a.z};
   const double e2[3] = {double(c.x) - a.x, double(c.y) - a.y, double(c.z) - a.z};
   const double cx = e1[1] * e2[2] - e1[2] * e2[1], cy = e1[2] * e2[0] - e1[0] * e2[2], cz = e1[0] * e2[1] - e1[1] * e2[0];
-  return cx != 0 || cy != 0 || cz != 0;
+  return cx * cx + cy * cy + cz * cz;
 }
+
+/// Whether the triangle has area (its edges' cross product, in double, is not zero): the build
+/// keeps the others out of leaves.
+inline bool has_area(const Vec3f& a, const Vec3f& bb, const Vec3f& c) { return twice_area_sq(a, bb, c) != 0; }
+
+/// twice_area_sq below which a triangle with area is too small to trace (accel.h kMinTriangleArea).
+constexpr double kMinTwiceAreaSq = 4.0 * double(kMinTriangleArea) * double(kMinTriangleArea);
+
+/// Whether a triangle of twice_area_sq `a2` has area but less than kMinTriangleArea.
+inline bool too_small(double a2) { return a2 > 0 && a2 < kMinTwiceAreaSq; }
+
+/// The Error of Accel::build and Accel::refit (`who`: "" or "refit: ") for triangle `prim` of
+/// `scene`, too small to trace exactly: its index (and geometry), area, edge lengths and the limit.
+[[noreturn]] void throw_too_small(const Scene& scene, std::uint32_t prim, const char* who);
 
 /// The record of a triangle: the box of its three vertices.
 inline PrimRef prim_ref(const Vec3f& a, const Vec3f& b, const Vec3f& c, std::uint32_t prim) {

@@ -157,8 +157,10 @@ void refit_wide(M& m, const Bvh2& b, double leaves, double root, unsigned thread
 
 // A sufficient condition for refit's checks on an owned scene whose every triangle is in a leaf,
 // cheaper than its pass over the triangles (sequential, no gather): every index in range, every
-// vertex, used or not, finite and within kMaxCoordinate, and a triangle, usually the first,
-// reaching kMinSceneScale. False: the exact pass decides (an unused vertex may hold anything).
+// vertex, used or not, finite and within kMaxCoordinate, every coordinate 0 or of magnitude at
+// least 2^-31 (so a multiple of 2^-54: a triangle's edges' cross product is then 0 or at least
+// 2^-108, no triangle has an area below kMinTriangleArea but 0), and a triangle, usually the
+// first, reaching kMinSceneScale. False: the exact pass decides (an unused vertex may hold anything).
 bool quick_check(const Scene& s, unsigned threads) {
   const std::size_t nv = s.vertices.size(), nt = s.triangles.size();
   constexpr std::size_t grain = 65536;
@@ -166,12 +168,14 @@ bool quick_check(const Scene& s, unsigned threads) {
   const std::size_t vchunks = (nv + grain - 1) / grain;
   parallel_for(nv, grain, threads, [&](std::size_t b, std::size_t e, unsigned) {
     float finite = 0, m = 0;  // x - x: +0 when finite, NaN otherwise; NaN survives the sum
+    bool tiny = false;        // a coordinate that is neither 0 nor of magnitude >= 2^-31
     for (std::size_t i = b; i < e; ++i) {
       const Vec3f& v = s.vertices[i];
       finite += (v.x - v.x) + (v.y - v.y) + (v.z - v.z);
       m = std::max(m, std::max(std::fabs(v.x), std::max(std::fabs(v.y), std::fabs(v.z))));
+      for (float c : {v.x, v.y, v.z}) tiny |= c != 0.0f && std::fabs(c) < 0x1p-31f;
     }
-    fine[b / grain] = finite == 0.0f && m <= kMaxCoordinate;
+    fine[b / grain] = finite == 0.0f && m <= kMaxCoordinate && !tiny;
   });
   parallel_for(nt, grain, threads, [&](std::size_t b, std::size_t e, unsigned) {
     std::uint32_t top = 0;
@@ -222,6 +226,7 @@ void Accel::refit(const Scene& moved) {
   const std::size_t chunks = quick ? 0 : (n + grain - 1) / grain;
   std::vector<float> mag(chunks, 0.0f);
   std::vector<std::uint8_t> bad(chunks, 0), grew(chunks, 0);
+  std::vector<std::size_t> tiny(chunks, SIZE_MAX);  // per chunk: its first leaf triangle too small to trace
   if (!quick) build::with_triangles(moved, [&](const auto& src) {
     parallel_for(n, grain, threads, [&](std::size_t b, std::size_t e, unsigned) {
       float m = 0;
@@ -236,6 +241,7 @@ void Accel::refit(const Scene& moved) {
           continue;
         }
         for (const Vec3f& p : v) m = std::max({m, std::fabs(p.x), std::fabs(p.y), std::fabs(p.z)});
+        if (build::too_small(build::twice_area_sq(v[0], v[1], v[2]))) tiny[b / grain] = std::min(tiny[b / grain], i);
       }
       mag[b / grain] = m;
     });
@@ -248,6 +254,8 @@ void Accel::refit(const Scene& moved) {
   if (largest > kMaxCoordinate || largest < kMinSceneScale)
     throw Error(moved.display_name() + ": refit moves a coordinate out of the range mbvh traces exactly (magnitude " +
                 std::to_string(largest) + ", accel.h kMaxCoordinate, kMinSceneScale); rescale the scene");
+  if (const std::size_t first = chunks ? *std::min_element(tiny.begin(), tiny.end()) : SIZE_MAX; first != SIZE_MAX)
+    build::throw_too_small(moved, static_cast<std::uint32_t>(first), "refit: ");
   if (std::find(grew.begin(), grew.end(), 1) != grew.end())
     throw Error(moved.display_name() + ": refit: a triangle the build kept out as degenerate has area now, and is in no "
                 "leaf; rebuild instead");

@@ -67,6 +67,12 @@ Layout parse_layout(const std::string& s);  ///< throws Error on an unknown name
 /// or whose largest coordinate magnitude is below kMinSceneScale: rescale such a scene.
 constexpr float kMaxCoordinate = 0x1p40f;   // 1.1e12
 constexpr float kMinSceneScale = 0x1p-36f;  // 1.5e-11
+/// The smallest triangle area traced exactly: the watertight test's float products of a
+/// triangle's edges underflow below it, and a ray passes through the triangle to whatever lies
+/// behind (measured beside a unit triangle: hits lost from an area of 2^-145 on, none at 2^-110
+/// and above on any backend). Accel::build and Accel::refit refuse a triangle whose area is
+/// below it but not zero (a zero-area triangle is degenerate: kept out of the leaves, never hit).
+constexpr float kMinTriangleArea = 0x1p-110f;  // 7.7e-34
 
 /// Which builder makes the binary BVH (`--quality`). All three produce the same structures (Bvh2,
 /// leaves, leaf-ordered triangles), so every layout and backend traces any of them. With `high`
