@@ -755,7 +755,7 @@ void throw_too_small(const Scene& scene, std::uint32_t prim, const char* who) {
                 "underflow and rays pass through it); rescale the scene or remove the triangle",
                 who, prim, where.c_str(), 0.5 * std::sqrt(twice_area_sq(p[0], p[1], p[2])), edge[0], edge[1], edge[2],
                 double(kMinTriangleArea));
-  throw Error(scene.name + buf);
+  throw Error(scene.display_name() + buf);
 }
 
 }  // namespace build
