@@ -161,3 +161,60 @@ TEST_CASE("zstd is decompressed into the parser: a bomb costs what its geometry 
   const std::string framed = skippable_frame("meta") + zstd_frame(raw_block(kTriangle, true));
   CHECK(maybe_decompress("skip.obj.zst", std::vector<char>(framed.begin(), framed.end())).size() == kTriangle.size());
 }
+
+TEST_CASE("PLY: the counts a header declares are checked against the memory budget before allocating",
+          "[reliability][memory]") {
+  TempDir dir;
+  // 1M vertices of zero bytes (a sparse 12 MB file): fits a 16 MiB budget to read, not to hold beside the file
+  const std::string header = "ply\nformat binary_little_endian 1.0\nelement vertex 1000000\nproperty float x\n"
+                             "property float y\nproperty float z\nelement face 0\nproperty list uchar int vertex_indices\nend_header\n";
+  const std::string big = sparse(dir, "big.ply", header, header.size() + 12'000'000);
+  MemoryLimit limit("16M");
+  CHECK_THAT(error_of([&] { load_scene(big); }),
+             Catch::Contains("big.ply: needs about 23 MiB") && Catch::Contains("1000000 vertices its header declares (line 3)") &&
+                 Catch::Contains("16 MiB available (MBVH_MEMORY_LIMIT)"));
+}
+
+TEST_CASE("allocation failures are errors naming what was allocated: under ulimit -v, never a bare std::bad_alloc",
+          "[reliability][memory]") {
+  CHECK_THAT(error_of([] { allocating("the test's array", 123, []() -> int { throw std::bad_alloc(); }); }),
+             Catch::Contains("the test's array: out of memory: allocating about 123 bytes failed"));
+  CHECK(allocating("nothing", 1, [] { return 7; }) == 7);
+  // the budget knows the address-space limit: refused by the estimate, before allocating
+  auto r = run_cli_limited(600 << 10, "info gen:soup:3000000");
+  CHECK(r.code == 2);
+  CHECK_THAT(r.output, Catch::Contains("gen:soup:3000000: needs about") && Catch::Contains("ulimit -v") &&
+                           !Catch::Contains("bad_alloc"));
+  // estimates told to allow a terabyte: the allocation that fails is named
+  r = mbvh_test::run_shell("bash -c 'ulimit -c 0; ulimit -v " + std::to_string(600 << 10) + "; MBVH_MEMORY_LIMIT=1T exec " +
+                           mbvh_test::cli_path() + " info gen:soup:3000000'");
+  CHECK(r.code == 2);
+  CHECK_THAT(r.output, Catch::Contains("gen:soup:3000000") && Catch::Contains("out of memory") && !Catch::Contains("bad_alloc"));
+}
+
+TEST_CASE("ray counts, ray files and image sizes are checked against MBVH_MEMORY_LIMIT before anything is allocated",
+          "[reliability][memory]") {
+  TempDir dir;
+  const std::string env = "MBVH_MEMORY_LIMIT=64M";
+  // 2M rays need 128 MB (64 bytes a ray): refused naming the option and the limit (before: traced)
+  for (const std::string& cmd : std::vector<std::string>{"trace gen:sphere:8 --count 2000000", "check gen:sphere:8 --count 2000000 --backend cpu",
+                                "rays gen:sphere:8 --count 2000000 -o " + dir.file("r.rays"),
+                                "bench gen:sphere:8 --count 2000000 --backend cpu",
+                                "build-bench gen:sphere:8 --versus medium --versus-count 2000000 --repeats 1"}) {
+    const auto r = mbvh_test::run_cli(cmd, env, 120);
+    INFO(cmd);
+    CHECK(r.code == 2);
+    CHECK_THAT(r.output, Catch::Contains("count 2000000: needs about 122 MiB") && Catch::Contains("2000000 rays") &&
+                             Catch::Contains("64 MiB available (MBVH_MEMORY_LIMIT)"));
+  }
+  // a ray file by its size: 1.5M rays (48 MB, a sparse file) fit to read, not with their hits
+  const std::string rays = sparse(dir, "zero.rays", "", 1'500'000ull * 32);
+  auto r = mbvh_test::run_cli("trace gen:sphere:8 --rays " + rays, env, 120);
+  CHECK(r.code == 2);
+  CHECK_THAT(r.output, Catch::Contains("--rays " + rays + ": needs about 92 MiB") && Catch::Contains("MBVH_MEMORY_LIMIT"));
+  // an image: 600 x 600 pixels of 256 bytes
+  r = mbvh_test::run_cli("render gen:sphere:8 --width 600 --height 600 -o " + dir.file("i.pfm"), env, 120);
+  CHECK(r.code == 2);
+  CHECK_THAT(r.output, Catch::Contains("--width 600 --height 600: needs about 88 MiB") && Catch::Contains("360000 pixels") &&
+                           Catch::Contains("MBVH_MEMORY_LIMIT"));
+}

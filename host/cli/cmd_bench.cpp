@@ -59,6 +59,7 @@ int run_bench_command(const BenchArgs& a) {
   prepare_outputs(outs, {{"scene", a.scene.scene}});
   // -- run
   const BenchOptions bo = bench_options(a);
+  require_ray_memory("--count " + std::to_string(a.count), std::uint64_t(a.count) + a.error_rays);
   Loaded l = load_and_build(a.scene);
   Progress p("benchmarking", bo.kinds.size() * bo.grid.size());
   BenchReport rep = run_bench(l.scene, *l.acc, bo, [&p](std::size_t d, std::size_t) { p.update(d); });

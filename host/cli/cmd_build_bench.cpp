@@ -114,6 +114,7 @@ int run_build_bench(const BuildBenchArgs& a) {
   if (!a.scene.cache.empty())
     throw Error("--cache " + a.scene.cache + ": build-bench times builds from scratch and never reads or writes the BVH cache");
   prepare_outputs({{"--json", a.json, true}}, {{"scene", a.scene.scene}});
+  if (!a.versus.quality.empty()) require_ray_memory("--versus-count " + std::to_string(a.versus.count), a.versus.count);
   const Scene scene = load_scene(a.scene.scene);
   const BuildOptions bo = a.scene.build_options();
   // -- ours: build and MBVH4, each from scratch

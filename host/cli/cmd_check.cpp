@@ -48,6 +48,7 @@ int run_check_command(const CheckArgs& a) {
   co.threads = a.scene.threads;
   co.backend = a.grid.dev.options(a.scene.threads, a.scene.quality);
   co.brute_rays = a.brute == "all" ? SIZE_MAX : std::strtoull(a.brute.c_str(), nullptr, 10);  // checked: an integer
+  a.rays.check_memory();  // one kind's rays at a time
   Loaded l = load_and_build(a.scene);
   std::vector<std::string> kinds = a.kinds.empty() ? std::vector<std::string>{a.rays.kind} : split_list(a.kinds);
   if (!a.rays.rays_file.empty()) kinds = {"file"};

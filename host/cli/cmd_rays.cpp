@@ -15,6 +15,7 @@ struct RaysArgs {
 int run_rays(const RaysArgs& a) {
   const OutputTarget out{"-o", a.out};
   prepare_outputs({out}, {{"scene", a.scene.scene}});
+  a.rays.check_memory();
   Loaded l = load_and_build(a.scene);
   const std::vector<Ray> r = generate_rays(l.scene, *l.acc, a.rays.generator(a.rays.kind, a.scene.threads));
   write_bytes_to(out, r.data(), r.size() * sizeof(Ray));

@@ -28,6 +28,8 @@ RenderOptions render_options(const RenderArgs& a, std::vector<float>& reference)
     throw Error("--width " + std::to_string(a.o.width) + " --height " + std::to_string(a.o.height) + ": " +
                 std::to_string(pixels) + " pixels of " + std::to_string(kBytesPerPixel) +
                 " bytes each do not fit in this machine's memory");
+  require_ray_memory("--width " + std::to_string(a.o.width) + " --height " + std::to_string(a.o.height),
+                     std::uint64_t(a.o.width) * a.o.height, kBytesPerPixel, "pixels");
   RenderOptions o = a.o;
   o.mode = parse_render_mode(a.mode);
   o.traversal = parse_traversal(a.traversal);

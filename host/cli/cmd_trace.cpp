@@ -61,6 +61,7 @@ int run_trace(TraceArgs& a, const CLI::App& cmd) {
   if (!backend->supports_precision(o.precision))
     throw Error("backend '" + a.backend + "' does not support precision '" + a.precision + "'");
   // -- scene, rays, trace
+  a.rays.check_memory();
   Loaded l = load_and_build(a.scene);
   const std::vector<Ray> r = a.rays.get(l, a.scene.threads);
   if (!quiet()) std::fprintf(stderr, "backend: %s\n", backend->describe().c_str());

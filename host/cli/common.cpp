@@ -13,6 +13,7 @@
 
 #include "host/cli/progress.h"
 #include "host/core/parallel.h"
+#include "host/core/resources.h"
 #include "mbvh/backends.h"
 
 namespace mbvh::cli {
@@ -113,6 +114,11 @@ std::uint64_t fits_in_memory(std::uint64_t bytes_each) {
 CLI::Validator ray_count() {
   return integer_in(1, fits_in_memory(kBytesPerRay),
                     " (" + std::to_string(kBytesPerRay) + " bytes per ray must fit in this machine's memory)");
+}
+
+void require_ray_memory(const std::string& what, std::uint64_t items, std::uint64_t bytes_each, const char* unit) {
+  const std::uint64_t bytes = items > UINT64_MAX / bytes_each ? UINT64_MAX : items * bytes_each;
+  require_memory(what, bytes, std::to_string(items) + " " + unit + ", " + std::to_string(bytes_each) + " bytes each");
 }
 
 // -- the scene and its BVH
@@ -295,6 +301,12 @@ RayGenOptions RayArgs::generator(const std::string& ray_kind, unsigned threads) 
   o.threads = threads;
   set_camera(camera, o.has_camera, o.camera);
   return o;
+}
+
+void RayArgs::check_memory() const {
+  if (rays_file.empty()) return require_ray_memory("--count " + std::to_string(count), count);
+  const std::uint64_t size = regular_file_size(rays_file, "ray");
+  require_ray_memory("--rays " + rays_file, size / sizeof(Ray));
 }
 
 std::vector<Ray> RayArgs::get(const Loaded& l, unsigned threads) const {

@@ -83,6 +83,11 @@ constexpr std::uint64_t kBytesPerRay = 64;
 constexpr std::uint64_t kBytesPerPixel = 256;
 /// A ray count: at least 1, kBytesPerRay each within this machine's memory.
 CLI::Validator ray_count();
+/// Throws Error "WHAT: needs about X of memory (N rays, B bytes each ...), more than the Y available
+/// (SOURCE)" when `items` of `bytes_each` exceed the memory budget (MBVH_MEMORY_LIMIT, else the
+/// available memory): the check a command makes before it loads the scene and allocates its rays.
+void require_ray_memory(const std::string& what, std::uint64_t items, std::uint64_t bytes_each = kBytesPerRay,
+                        const char* unit = "rays");
 
 // -- the scene and its BVH
 
@@ -159,6 +164,9 @@ struct RayArgs {
   RayGenOptions generator(const std::string& ray_kind, unsigned threads) const;
   /// The rays: read from --rays, or generated (--kind).
   std::vector<Ray> get(const Loaded& l, unsigned threads) const;
+  /// Refuses --count, or the rays of the --rays file (by its size), beyond the memory budget
+  /// (require_ray_memory): called before the scene is loaded and anything allocated.
+  void check_memory() const;
 };
 
 }  // namespace mbvh::cli

@@ -7,6 +7,7 @@
 #include <cstdio>
 #include <cstring>
 #include <exception>
+#include <new>
 
 #include "host/cli/commands.h"
 #include "host/cli/progress.h"
@@ -38,6 +39,10 @@ int run(int argc, char** argv) {
   try {
     for (const Command& c : commands)
       if (*c.app) return c.run();
+  } catch (const std::bad_alloc&) {  // one no wrapper named (resources.h allocating)
+    std::fprintf(stderr, "mbvh: error: out of memory: an allocation failed (the system refused it: an address-space or "
+                         "cgroup limit, or memory taken by others; MBVH_MEMORY_LIMIT bounds what mbvh plans to use)\n");
+    return 2;
   } catch (const std::exception& e) {
     std::fprintf(stderr, "mbvh: error: %s\n", e.what());
     return 2;

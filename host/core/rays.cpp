@@ -38,7 +38,8 @@ std::vector<T> read_records(const std::string& path, const char* what) {
   require_memory(path, size, std::string("to read the ") + what + " file");
   std::unique_ptr<FILE, int (*)(FILE*)> f(std::fopen(path.c_str(), "rb"), &std::fclose);
   if (!f) throw Error(path + ": cannot open " + what + " file: " + std::strerror(errno));
-  std::vector<T> out(static_cast<std::size_t>(size) / sizeof(T));
+  std::vector<T> out = allocating(path + ": the " + std::to_string(size / sizeof(T)) + " records of the " + what + " file", size,
+                                  [&] { return std::vector<T>(static_cast<std::size_t>(size) / sizeof(T)); });
   if (!out.empty() && std::fread(out.data(), sizeof(T), out.size(), f.get()) != out.size())
     throw Error(path + ": read error in " + what + " file");
   return out;

@@ -3,6 +3,7 @@
 // and the regular-file check for inputs.
 #include "host/core/resources.h"
 
+#include <sys/resource.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -55,16 +56,50 @@ std::uint64_t mem_available() {
   return 0;
 }
 
-}  // namespace
+// The address space an address-space limit (RLIMIT_AS, ulimit -v) leaves: the limit less the
+// process's VmSize; UINT64_MAX without a limit.
+std::uint64_t address_space_left() {
+  rlimit rl {};
+  if (getrlimit(RLIMIT_AS, &rl) != 0 || rl.rlim_cur == RLIM_INFINITY) return UINT64_MAX;
+  std::ifstream f("/proc/self/status");
+  std::string key, unit;
+  std::uint64_t kib = 0;
+  while (f >> key) {
+    if (key == "VmSize:" && f >> kib) break;
+    std::getline(f, unit);
+  }
+  const std::uint64_t used = kib * 1024;
+  return used < rl.rlim_cur ? rl.rlim_cur - used : 0;
+}
 
-MemoryBudget memory_budget() {
-  if (const std::uint64_t env = limit_from_env()) return {env, "MBVH_MEMORY_LIMIT"};
+MemoryBudget system_budget() {
   if (const std::uint64_t avail = mem_available()) return {avail, "MemAvailable in /proc/meminfo; set MBVH_MEMORY_LIMIT to change"};
   const long pages = sysconf(_SC_PHYS_PAGES), page = sysconf(_SC_PAGESIZE);
   if (pages > 0 && page > 0)
     return {static_cast<std::uint64_t>(pages) * static_cast<std::uint64_t>(page),
             "physical memory; set MBVH_MEMORY_LIMIT to change"};
   return {UINT64_MAX, "unknown"};
+}
+
+}  // namespace
+
+MemoryBudget memory_budget() {
+  if (const std::uint64_t env = limit_from_env()) return {env, "MBVH_MEMORY_LIMIT"};
+  const MemoryBudget b = system_budget();
+  if (const std::uint64_t as = address_space_left(); as < b.bytes)
+    return {as, "the address-space limit (ulimit -v) less what the process has mapped"};
+  return b;
+}
+
+void throw_out_of_memory(const std::string& what, std::uint64_t bytes) {
+  std::string budget;
+  try {
+    const MemoryBudget b = memory_budget();
+    budget = ", though within the " + format_bytes(b.bytes) + " the estimates allowed (" + b.source + ")";
+  } catch (const Error&) {
+  }
+  throw Error(what + ": out of memory: " + (bytes ? "allocating about " + format_bytes(bytes) : std::string("an allocation")) +
+              " failed (the system refused it: an address-space or cgroup limit, or memory taken by others" + budget + ")");
 }
 
 void require_memory(const std::string& what, std::uint64_t bytes, const std::string& how, const MemoryBudget& b) {

@@ -3,6 +3,7 @@
 // the checks that refuse an input which is not a regular file (a FIFO would block, /dev/zero never ends).
 #pragma once
 #include <cstdint>
+#include <new>
 #include <string>
 
 namespace mbvh {
@@ -14,7 +15,8 @@ struct MemoryBudget {
 };
 
 /// MBVH_MEMORY_LIMIT when set (bytes, or with a K, M, G or T suffix, powers of 1024), else
-/// MemAvailable from /proc/meminfo, else the physical memory (sysconf). Read at every call (a few
+/// MemAvailable from /proc/meminfo, else the physical memory (sysconf); without MBVH_MEMORY_LIMIT,
+/// no more than the address space an address-space limit (ulimit -v) leaves unmapped. Read at every call (a few
 /// microseconds): take it once before allocating, as MemAvailable falls with every allocation.
 /// Throws Error on a malformed MBVH_MEMORY_LIMIT.
 MemoryBudget memory_budget();
@@ -23,6 +25,23 @@ MemoryBudget memory_budget();
 /// `bytes` exceeds `budget`; allocates nothing.
 void require_memory(const std::string& what, std::uint64_t bytes, const std::string& how,
                     const MemoryBudget& budget = memory_budget());
+
+/// Throws Error "WHAT: out of memory: allocating about X failed (...)": what a std::bad_alloc
+/// becomes, naming what was being allocated and how much (0: not known), and the budget the
+/// estimates allowed.
+[[noreturn]] void throw_out_of_memory(const std::string& what, std::uint64_t bytes);
+
+/// Runs `fn`, turning a std::bad_alloc out of it into throw_out_of_memory(what, bytes): wraps the
+/// big allocations (scene, build, ray and hit arrays), whose estimates passed the budget but which
+/// the system still refused (ulimit -v, a cgroup, memory taken since).
+template <class F>
+decltype(auto) allocating(const std::string& what, std::uint64_t bytes, F&& fn) {
+  try {
+    return fn();
+  } catch (const std::bad_alloc&) {
+    throw_out_of_memory(what, bytes);
+  }
+}
 
 /// Bytes one build of a scene costs beyond the scene (the builder's references, the BVH2 and the
 /// MBVH2, MBVH4 and MBVH8 layouts): 128 a triangle and 56 a vertex, fitted to the peak RSS of

@@ -148,7 +148,7 @@ static bool ends_with(const std::string& s, const std::string& suffix) {
   return s.size() >= suffix.size() && s.compare(s.size() - suffix.size(), suffix.size(), suffix) == 0;
 }
 
-Scene load_scene(const std::string& path) {
+Scene load_scene(const std::string& path) try {
   if (path.rfind("gen:", 0) == 0) {
     Scene s = generate_scene(path.substr(4));
     s.name = path;
@@ -196,6 +196,8 @@ Scene load_scene(const std::string& path) {
   require_memory(path, build_memory_estimate(s.triangles.size(), s.vertices.size()),
                  "to build its " + std::to_string(s.triangles.size()) + " triangles");
   return s;
+} catch (const std::bad_alloc&) {  // the scene's arrays or a PLY file's bytes: named, the amount unknown
+  throw_out_of_memory(path + ": loading the scene", 0);
 }
 
 }  // namespace mbvh

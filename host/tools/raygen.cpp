@@ -156,7 +156,7 @@ Ray spawn_ray(const Vec3f& p0, const Vec3f& p1, const Vec3f& p2, float u, float 
   return Ray{o.x, o.y, o.z, 0.0f, dir.x, dir.y, dir.z, tmax};
 }
 
-std::vector<Ray> generate_rays(const Scene& scene, const Accel& acc, const RayGenOptions& opt) {
+std::vector<Ray> generate_rays(const Scene& scene, const Accel& acc, const RayGenOptions& opt) try {
   const Box bounds = acc.bounds();
   const Camera cam = opt.has_camera ? opt.camera : default_camera(bounds);
   if (const std::string p = camera_problem(cam); !p.empty()) throw Error("camera: " + p);
@@ -246,6 +246,8 @@ std::vector<Ray> generate_rays(const Scene& scene, const Accel& acc, const RayGe
       throw Error(scene.name + ": the camera sees no geometry; no " + to_string(opt.kind) + " rays can start from hits");
   }
   return rays;
+} catch (const std::bad_alloc&) {  // the rays (and the generator's own arrays): named
+  throw_out_of_memory(std::to_string(opt.count) + " generated " + to_string(opt.kind) + " rays", opt.count * sizeof(Ray));
 }
 
 }  // namespace mbvh

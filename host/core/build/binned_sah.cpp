@@ -26,6 +26,7 @@
 #include "mbvh/error.h"
 #include "host/core/enum_check.h"
 #include "host/core/parallel.h"
+#include "host/core/resources.h"
 
 namespace mbvh {
 
@@ -823,7 +824,7 @@ double sah_of_binary(const Bvh2& b, const std::vector<Leaf>& leaves, float ct) {
 
 }  // namespace build
 
-std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_in) {
+std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_in) try {
   using build::PrimRef;
   using Clock = std::chrono::steady_clock;
   const auto t0 = Clock::now();
@@ -972,6 +973,10 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
   st.phase_ms[3] = ms(t_flat, t1);
   report(1.0);
   return acc;
+} catch (const std::bad_alloc&) {  // the build's arrays, beyond the scene: named, not a bare std::bad_alloc
+  throw_out_of_memory((scene.name.empty() ? "the scene" : scene.name) + ": the BVH build of its " +
+                          std::to_string(scene.triangle_count()) + " triangles",
+                      build_memory_estimate(scene.triangle_count(), scene.vertices.size()));
 }
 
 Accel::Accel() : impl_(std::make_unique<Impl>()) {}

@@ -1,8 +1,8 @@
 // SPDX-License-Identifier: MIT
 // ply.cpp — a PLY reader: ascii, binary_little_endian and binary_big_endian; any extra vertex
 // properties and elements; faces as a list property (vertex_indices / vertex_index),
-// fan-triangulated (0, k, k+1). Counts are checked against the bytes left before anything
-// is allocated, so a lying header cannot exhaust memory. Nothing is dropped silently: a UTF-8
+// fan-triangulated (0, k, k+1). Counts are checked against the bytes left and the memory budget
+// before anything is allocated, so a lying header cannot exhaust memory. Nothing is dropped silently: a UTF-8
 // byte-order mark before "ply" is skipped and CRLF header lines are read, but a header line with
 // more words than its keyword takes, an ascii element line with more values than its properties,
 // and data after the last element are errors naming the line (or the byte count, in binary).
@@ -13,6 +13,7 @@
 #include <cstring>
 #include <sstream>
 
+#include "host/core/resources.h"
 #include "mbvh/error.h"
 #include "mbvh/scene.h"
 
@@ -241,6 +242,7 @@ Scene parse_ply(const std::string& name, const char* data, std::size_t size) {
 
   // -- body
   Reader rd(name, p, end, format, line);
+  const MemoryBudget budget = memory_budget();
   for (const Element& e : elements) {
     const bool is_vertex = e.name == "vertex";
     const bool is_face = e.name == "face";
@@ -263,6 +265,12 @@ Scene parse_ply(const std::string& name, const char* data, std::size_t size) {
     if (e.count > rd.bytes_left() / per + (rd.ascii() ? 1 : 0))
       fail_at(name, e.header_line, "truncated file: element '" + e.name + "' claims " + std::to_string(e.count) +
                                        " entries but the file has only " + std::to_string(rd.bytes_left()) + " bytes left");
+    // the counts the bytes allow may still exceed the memory budget: refused before allocating
+    if (is_vertex || is_face)
+      require_memory(name, size + 12 * (e.count + (is_vertex ? s.triangles.size() : s.vertices.size())),
+                     "to hold the " + std::to_string(e.count) + (is_vertex ? " vertices" : " faces, a triangle or more each,") +
+                         " its header declares (line " + std::to_string(e.header_line) + ") beside the file's " + format_bytes(size),
+                     budget);
     if (is_vertex) s.vertices.reserve(static_cast<std::size_t>(e.count));
     std::vector<std::uint32_t> face;
     for (std::uint64_t i = 0; i < e.count; ++i) {

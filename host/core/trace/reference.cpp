@@ -7,6 +7,7 @@
 #include "mbvh/error.h"
 #include "host/core/enum_check.h"
 #include "host/core/parallel.h"
+#include "host/core/resources.h"
 #include "host/core/trace/batch.h"
 #include "mbvh/trace.h"
 
@@ -95,6 +96,11 @@ std::size_t state_bytes_per_ray(Layout layout, Traversal traversal) {
 bool ray_valid(const Ray& ray) {
   RayPre p;
   return prepare_ray(ray, p);
+}
+
+void throw_trace_output_out_of_memory(std::size_t n, const TraceOptions& opt) {
+  const std::uint64_t each = (opt.query == Query::any ? 1 : sizeof(Hit)) + (opt.stats ? sizeof(RayStats) : 0);
+  throw_out_of_memory("the trace results of " + std::to_string(n) + " rays", std::uint64_t(n) * each);
 }
 
 void check_leaf_block(const TraceOptions& opt, const std::string& who) {

@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstdint>
 #include <functional>
+#include <new>
 #include <span>
 #include <string>
 #include <vector>
@@ -91,6 +92,10 @@ void check_leaf_block(const TraceOptions& opt, const std::string& who);
 /// reference's trace and the library's other entry points taking TraceOptions call it first.
 void check_trace_options(const TraceOptions& opt, const std::string& who);
 
+/// Throws Error naming the trace results of `n` rays (hits or occlusion flags, statistics if
+/// asked) and their bytes: what a std::bad_alloc sizing a TraceOutput becomes.
+[[noreturn]] void throw_trace_output_out_of_memory(std::size_t n, const TraceOptions& opt);
+
 /// Results in ray order. Closest hit fills `hits`; any hit fills `occluded` (1 = occluded).
 struct TraceOutput {
   std::vector<Hit> hits;
@@ -100,23 +105,27 @@ struct TraceOutput {
 
   /// Sized for `n` rays of these options (hits or occlusion flags, statistics if asked), all
   /// misses, no invalid rays: what every backend starts a trace from.
-  void reset(std::size_t n, const TraceOptions& opt) {
+  void reset(std::size_t n, const TraceOptions& opt) try {
     const bool any = opt.query == Query::any;
     hits.assign(any ? 0 : n, Hit{INFINITY, 0.0f, 0.0f, MBVH_MISS_PRIM});  // miss_hit(), spelled out: no ISA code here
     occluded.assign(any ? n : 0, 0);
     stats.assign(opt.stats ? n : 0, RayStats{});
     invalid = 0;
+  } catch (const std::bad_alloc&) {
+    throw_trace_output_out_of_memory(n, opt);
   }
 
   /// As reset, for a backend that writes every ray's answer (and statistics, when asked) itself:
   /// sizes the arrays without filling them, so no serial pass over the output precedes a parallel
   /// trace (a reused output is not touched at all). Contents are unspecified until written.
-  void resize_for(std::size_t n, const TraceOptions& opt) {
+  void resize_for(std::size_t n, const TraceOptions& opt) try {
     const bool any = opt.query == Query::any;
     hits.resize(any ? 0 : n);
     occluded.resize(any ? n : 0);
     stats.resize(opt.stats ? n : 0);
     invalid = 0;
+  } catch (const std::bad_alloc&) {
+    throw_trace_output_out_of_memory(n, opt);
   }
 };
 
