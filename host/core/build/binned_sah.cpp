@@ -974,7 +974,7 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
   report(1.0);
   return acc;
 } catch (const std::bad_alloc&) {  // the build's arrays, beyond the scene: named, not a bare std::bad_alloc
-  throw_out_of_memory((scene.name.empty() ? "the scene" : scene.name) + ": the BVH build of its " +
+  throw_out_of_memory(scene.display_name() + ": the BVH build of its " +
                           std::to_string(scene.triangle_count()) + " triangles",
                       build_memory_estimate(scene.triangle_count(), scene.vertices.size()));
 }
