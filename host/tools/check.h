@@ -48,7 +48,8 @@ CheckReport run_check(const Accel& acc, std::span<const Ray> rays, const CheckOp
 /// The oracle's tie rule for comparisons with brute_force (answer a, oracle b): a tie when a's
 /// prim, evaluated in double on the same ray, lies at the oracle's distance within 4 ulp
 /// (coplanar overlapping triangles: equal t that float arithmetic cannot resolve), or when only
-/// one side hits, within 4 ulp of the ray's tmin or tmax (the closed interval's ends), or when
+/// one side hits, or both on other prims, within 4 ulp of the ray's tmin or tmax (the closed
+/// interval's ends: the nearer hit at tmin, the farther at tmax), or when
 /// either hit is ill-conditioned: the ray lies in the triangle's plane within the rounding of
 /// its own direction, or the hit point lies within 16 ulps (of the coordinates) of an edge.
 TieRule oracle_tie_rule(const Accel& acc, std::span<const Ray> rays);
