@@ -57,10 +57,18 @@ std::string beyond_embree(const Ray& r) {
   return "";
 }
 
+// The embree.quality setting, refused by its name when it is none of low, medium, high.
+BuildQuality embree_quality(const BackendOptions& o) {
+  const std::string v = o.get("embree.quality", "medium");
+  for (BuildQuality q : {BuildQuality::low, BuildQuality::medium, BuildQuality::high})
+    if (v == to_string(q)) return q;
+  throw Error("backend setting embree.quality='" + v + "': expected low, medium or high (Embree's own build quality)");
+}
+
 class EmbreeBackend final : public Backend {
 public:
   explicit EmbreeBackend(const BackendOptions& o)
-      : threads_(resolve_threads(o.threads)), quality_(parse_quality(o.get("embree.quality", "medium"))),
+      : threads_(resolve_threads(o.threads)), quality_(embree_quality(o)),
         packet_(static_cast<unsigned>(o.get_size("embree.packet", 8))), coherent_(o.get_flag("embree.coherent")) {
     if (packet_ != 4 && packet_ != 8 && packet_ != 16)
       throw Error("backend setting embree.packet=" + o.get("embree.packet") + ": Embree's packets hold 4, 8 or 16 rays");

@@ -85,7 +85,13 @@ void Device::init(const Instance& instance, const DeviceRequest& o) {
   limits_.max_alloc = p11.maxMemoryAllocationSize;
   limits_.max_batch = std::min<std::size_t>({o.max_batch, limits_.range / 32, limits_.max_alloc / 32,
                                              std::size_t(lim.maxComputeWorkGroupCount[0]) * o.local_size});
-  if (limits_.max_batch < o.local_size) throw Error("Vulkan device " + name + ": storage-buffer range too small");
+  if (limits_.max_batch < o.local_size)
+    throw Error("Vulkan device " + name + ": a storage-buffer binding of " + std::to_string(limits_.range) + " bytes" +
+                (o.max_binding_bytes && o.max_binding_bytes < lim.maxStorageBufferRange
+                     ? std::string(" (the vulkan.max-binding-bytes cap)")
+                     : std::string(" (maxStorageBufferRange)")) +
+                " holds fewer rays than one work-group of " + std::to_string(o.local_size) + " (" +
+                std::to_string(std::size_t(o.local_size) * 32) + " bytes needed at least)");
   vkGetPhysicalDeviceMemoryProperties(pd, &memory_);
 
   // a queue family with compute

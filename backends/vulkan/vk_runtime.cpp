@@ -4,6 +4,9 @@
 
 #include <cstdlib>
 #include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <iterator>
 #include <mutex>
 #include <string_view>
 #include <utility>
@@ -109,6 +112,66 @@ void keep_vulkan_modules_mapped() {
 }
 #endif
 
+// What is wrong with the driver manifests the loader reads (VK_ICD_FILENAMES or VK_DRIVER_FILES,
+// else the system's icd.d folders), "" when nothing is: a truncated or empty manifest makes the
+// loader fail with a code that names something else (VK_ERROR_OUT_OF_HOST_MEMORY, no device).
+// A cheap completeness check, not a JSON parser: the braces outside strings must balance.
+std::string manifest_problems() {
+  std::vector<std::string> files;
+  const char* env = std::getenv("VK_ICD_FILENAMES");
+  const char* which = "VK_ICD_FILENAMES";
+  if (!env || !*env) env = std::getenv("VK_DRIVER_FILES"), which = "VK_DRIVER_FILES";
+  if (env && *env) {
+    std::string list = env;
+    for (std::size_t a = 0; a <= list.size();) {
+      std::size_t b = list.find(':', a);
+      if (b == std::string::npos) b = list.size();
+      if (b > a) files.push_back(list.substr(a, b - a));
+      a = b + 1;
+    }
+  } else {
+    which = nullptr;
+    for (const char* dir : {"/etc/vulkan/icd.d", "/usr/share/vulkan/icd.d", "/usr/local/share/vulkan/icd.d"}) {
+      std::error_code ec;
+      for (const auto& e : std::filesystem::directory_iterator(dir, ec))
+        if (e.path().extension() == ".json") files.push_back(e.path().string());
+    }
+  }
+  std::string out;
+  for (const std::string& f : files) {
+    std::error_code ec;
+    if (std::filesystem::is_directory(f, ec)) continue;  // the loader reads a folder's manifests itself
+    std::ifstream in(f, std::ios::binary);
+    std::string problem;
+    if (!in) {
+      problem = "cannot be read";
+    } else {
+      std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+      int depth = 0;
+      bool str = false, esc = false, opened = false;
+      for (char c : text) {
+        if (str) {
+          if (esc) esc = false;
+          else if (c == '\\') esc = true;
+          else if (c == '"') str = false;
+        } else if (c == '"') {
+          str = true;
+        } else if (c == '{') {
+          ++depth, opened = true;
+        } else if (c == '}') {
+          --depth;
+        }
+      }
+      if (text.find_first_not_of(" \t\r\n") == std::string::npos) problem = "is empty";
+      else if (!opened || depth != 0 || str) problem = "is not complete JSON (truncated? its braces do not balance)";
+    }
+    if (!problem.empty())
+      out += std::string("\n  the driver manifest ") + f + (which ? std::string(" (") + which + ")" : std::string()) + " " +
+             problem + ": the Vulkan loader cannot use it";
+  }
+  return out;
+}
+
 }  // namespace
 
 std::vector<std::string> take_validation_messages() {
@@ -151,7 +214,7 @@ Instance::Instance(bool validation) : validation_(validation) {
          (r == VK_ERROR_INCOMPATIBLE_DRIVER ? "no Vulkan driver found: install one, e.g. Debian's mesa-vulkan-drivers "
                                               "(lavapipe; scripts/demo and scripts/test do)"
                                             : std::string("")) +
-             said);
+             said + manifest_problems());
   }
 #if defined(__SANITIZE_ADDRESS__)
   keep_vulkan_modules_mapped();
@@ -200,7 +263,8 @@ std::vector<DeviceEntry> list_devices(VkInstance instance) {
     if (!icd) icd = std::getenv("VK_DRIVER_FILES");
     throw Error(std::string("no Vulkan device found: install a Vulkan driver, e.g. Debian's mesa-vulkan-drivers "
                             "(lavapipe; scripts/demo and scripts/test do); the loader looks for drivers in ") +
-                (icd ? std::string("VK_ICD_FILENAMES/VK_DRIVER_FILES=") + icd : std::string("/usr/share/vulkan/icd.d")));
+                (icd ? std::string("VK_ICD_FILENAMES/VK_DRIVER_FILES=") + icd : std::string("/usr/share/vulkan/icd.d")) +
+                manifest_problems());
   }
   std::vector<VkPhysicalDevice> pds(n);
   check(vkEnumeratePhysicalDevices(instance, &n, pds.data()), "vkEnumeratePhysicalDevices");

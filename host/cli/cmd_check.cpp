@@ -50,7 +50,7 @@ int run_check_command(const CheckArgs& a) {
   co.brute_rays = a.brute == "all" ? SIZE_MAX : std::strtoull(a.brute.c_str(), nullptr, 10);  // checked: an integer
   a.rays.check_memory();  // one kind's rays at a time
   Loaded l = load_and_build(a.scene);
-  std::vector<std::string> kinds = a.kinds.empty() ? std::vector<std::string>{a.rays.kind} : split_list(a.kinds);
+  std::vector<std::string> kinds = a.kinds.empty() ? std::vector<std::string>{a.rays.kind} : split_list(a.kinds, "--kinds");
   if (!a.rays.rays_file.empty()) kinds = {"file"};
   // -- one check per kind
   std::size_t genuine = 0;

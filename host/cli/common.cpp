@@ -62,13 +62,16 @@ double ms_since(Clock::time_point t0) { return std::chrono::duration<double, std
 
 // -- lists
 
-std::vector<std::string> split_list(const std::string& s) {
+std::vector<std::string> split_list(const std::string& s, const std::string& option) {
   std::vector<std::string> out;
   std::size_t a = 0;
   while (a <= s.size()) {
     std::size_t b = s.find(',', a);
     if (b == std::string::npos) b = s.size();
-    if (b > a) out.push_back(s.substr(a, b - a));
+    if (b == a)  // ",", "a,,b", "a,": a list that names nothing, or less than it seems to
+      throw Error((option.empty() ? std::string("the list") : option) + " '" + s +
+                  "': an empty name in the comma-separated list (write the names separated by single commas)");
+    out.push_back(s.substr(a, b - a));
     a = b + 1;
   }
   return out;
@@ -250,7 +253,7 @@ void GridArgs::add(CLI::App* c) {
 
 VariantGrid GridArgs::parse() const {
   VariantGrid g;
-  g.backends = backends == "all" ? all_backends() : split_list(backends);
+  g.backends = backends == "all" ? all_backends() : split_list(backends, "--backend");
   g.layouts = parse_list<Layout>(layouts, parse_layout);
   g.traversals = parse_list<Traversal>(traversals, parse_traversal);
   g.queries = parse_list<Query>(queries, parse_query);

@@ -55,8 +55,9 @@ double ms_since(Clock::time_point t0);
 
 // -- lists
 
-/// The non-empty items of a comma-separated list.
-std::vector<std::string> split_list(const std::string& s);
+/// The items of a comma-separated list; throws Error naming `option` (when given) and the list
+/// when an item is empty (",", "a,,b", "a,", ""): such a list would name less than it seems to.
+std::vector<std::string> split_list(const std::string& s, const std::string& option = "");
 /// The items of a comma-separated list, each parsed by `parse`; throws Error on an empty list.
 template <class T, class F>
 std::vector<T> parse_list(const std::string& s, F parse) {

@@ -2,8 +2,11 @@
 // rays.cpp — the ray, hit and occlusion files of DESIGN.md (little-endian records, no header).
 #include "mbvh/rays.h"
 
+#include <algorithm>
 #include <bit>
+#include <cmath>
 #include <cstring>
+#include <type_traits>
 
 #include "mbvh/error.h"
 #include "host/core/io/output.h"
@@ -22,11 +25,66 @@ void check_record_size(const std::string& name, const char* what, std::size_t si
                 "-byte " + what + " record");
 }
 
+// The files have no header, so any bytes of the right size would pass as records: the first
+// bytes are compared with the formats an mbvh user has at hand (images, compressed scenes, the
+// BVH cache, PLY, text), which no ray, hit or occlusion file starts with in practice.
+const char* foreign_format(const unsigned char* b, std::size_t n) {
+  auto starts = [&](const char* m, std::size_t k) { return n >= k && std::memcmp(b, m, k) == 0; };
+  if (starts("\x89PNG", 4)) return "a PNG image";
+  if (starts("\x28\xB5\x2F\xFD", 4)) return "a zstd-compressed file";
+  if (n >= 4 && (b[0] & 0xF0) == 0x50 && std::memcmp(b + 1, "\x2A\x4D\x18", 3) == 0) return "a zstd-compressed file (skippable frame)";
+  if (starts("\x1F\x8B", 2)) return "a gzip-compressed file";
+  if (starts("MBVHBVH", 7)) return "an mbvh BVH cache file";
+  if (starts("ply\n", 4) || starts("ply\r", 4)) return "a PLY scene";
+  if (starts("PF\n", 3) || starts("Pf\n", 3)) return "a PFM image";
+  // text: the first 64 bytes (or all) printable ASCII or whitespace; a float record almost always
+  // holds a byte below 0x20 or above 0x7E (1.0f is 00 00 80 3F)
+  const std::size_t k = std::min<std::size_t>(n, 64);
+  if (k == 0) return nullptr;
+  for (std::size_t i = 0; i < k; ++i)
+    if (!((b[i] >= 0x20 && b[i] < 0x7F) || b[i] == '\n' || b[i] == '\r' || b[i] == '\t')) return nullptr;
+  return "a text file";
+}
+
+void check_not_foreign(const std::string& name, const char* what, const void* data, std::size_t size) {
+  if (const char* f = foreign_format(static_cast<const unsigned char*>(data), size))
+    throw Error(name + ": this is " + f + ", not a " + what + " file (" + what + " files are raw little-endian records, "
+                "DESIGN.md)");
+}
+
+// Rays: every value finite, except tmax, which may be +inf (the default: no far limit). A NaN,
+// an infinite origin, direction or tmin, or tmax = -inf is no ray a program meant to write.
+void check_ray_values(const std::string& name, std::span<const Ray> rays) {
+  static const char* const field[8] = {"origin x", "origin y", "origin z", "tmin", "direction x", "direction y", "direction z", "tmax"};
+  for (std::size_t i = 0; i < rays.size(); ++i) {
+    const float v[8] = {rays[i].ox, rays[i].oy, rays[i].oz, rays[i].tmin, rays[i].dx, rays[i].dy, rays[i].dz, rays[i].tmax};
+    for (int k = 0; k < 8; ++k)
+      if (!std::isfinite(v[k]) && !(k == 7 && v[k] > 0))
+        throw Error(name + ": ray " + std::to_string(i) + " has " + field[k] + " = " + std::to_string(v[k]) +
+                    " (a ray file holds finite values; only tmax may be +inf); is this a ray file?");
+  }
+}
+
+void check_occlusion_values(const std::string& name, std::span<const std::uint8_t> occ) {
+  for (std::size_t i = 0; i < occ.size(); ++i)
+    if (occ[i] > 1)
+      throw Error(name + ": byte " + std::to_string(i) + " is " + std::to_string(occ[i]) +
+                  ", not an occlusion flag (0 or 1); is this an occlusion file?");
+}
+
+template <class T>
+void check_records(const std::string& name, const char* what, std::span<const T> r) {
+  check_not_foreign(name, what, r.data(), r.size_bytes());
+  if constexpr (std::is_same_v<T, Ray>) check_ray_values(name, r);
+  if constexpr (std::is_same_v<T, std::uint8_t>) check_occlusion_values(name, r);
+}
+
 template <class T>
 std::vector<T> records_from_bytes(const std::string& name, const char* what, const char* data, std::size_t size) {
   check_record_size(name, what, size, sizeof(T));
   std::vector<T> out(size / sizeof(T));
   if (size) std::memcpy(out.data(), data, size);
+  check_records<T>(name, what, out);
   return out;
 }
 
@@ -42,6 +100,7 @@ std::vector<T> read_records(const std::string& path, const char* what) {
                                   [&] { return std::vector<T>(static_cast<std::size_t>(size) / sizeof(T)); });
   if (!out.empty() && std::fread(out.data(), sizeof(T), out.size(), f.get()) != out.size())
     throw Error(path + ": read error in " + what + " file");
+  check_records<T>(path, what, out);
   return out;
 }
 

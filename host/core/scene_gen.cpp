@@ -263,12 +263,9 @@ Scene needles(std::uint64_t count, std::uint64_t seed) {
 }
 
 // "@scale=S" and "@offset=O" modifiers: every coordinate becomes v * S + O.
+// An empty modifier (a trailing or doubled '@') is refused, as is any other unknown one.
 void transform(Scene& s, const std::string& mods, const std::string& spec) {
-  std::size_t a = 0;
-  while (a < mods.size()) {
-    std::size_t b = mods.find('@', a);
-    if (b == std::string::npos) b = mods.size();
-    const std::string m = mods.substr(a, b - a);
+  for (const std::string& m : split(mods, '@')) {
     const std::size_t eq = m.find('=');
     const std::string key = m.substr(0, eq);
     float value = 0;
@@ -283,7 +280,6 @@ void transform(Scene& s, const std::string& mods, const std::string& spec) {
         if (!std::isfinite(v[k]))
           throw Error("gen:" + spec + ": '@" + m + "' takes a coordinate beyond the float range (" + std::to_string(v[k]) + ")");
       }
-    a = b + 1;
   }
 }
 
@@ -323,9 +319,25 @@ void require_fit(const std::string& spec, std::uint64_t triangles, std::uint64_t
                  std::to_string(triangles) + " triangles, " + std::to_string(vertices) + " vertices, and their build");
 }
 
+// Refuses a spec with more parameters than its generator takes (`usage`: its form in
+// generator_help), rather than ignoring the rest.
+void at_most(const std::vector<std::string>& p, std::size_t params, const std::string& spec, const char* usage) {
+  if (p.size() > params + 1)
+    throw Error("gen:" + spec + ": " + std::to_string(p.size() - 1) + " parameters, but " + usage + " takes at most " +
+                std::to_string(params) + " (parameter " + std::to_string(params + 1) + " is '" + p[params + 1] + "')");
+}
+
 Scene generate_base(const std::string& spec) {
   const std::vector<std::string> p = split(spec, ':');
   const std::string& n = p[0];
+  static const struct { const char* name; std::size_t params; const char* usage; } forms[] = {
+      {"sphere", 1, "gen:sphere:SEGMENTS"},          {"cube", 1, "gen:cube:N"},
+      {"soup", 2, "gen:soup:COUNT:SEED"},            {"hairball", 2, "gen:hairball:COUNT:SEED"},
+      {"exponential", 1, "gen:exponential:N"},       {"torus", 1, "gen:torus:SEGMENTS"},
+      {"grid", 1, "gen:grid:N"},                     {"plane", 1, "gen:plane:N"},
+      {"needles", 2, "gen:needles:COUNT:SEED"}};
+  for (const auto& f : forms)
+    if (n == f.name) at_most(p, f.params, spec, f.usage);
   if (n == "sphere") {
     const std::uint64_t seg = param(p, 1, 64, 3, 1u << 15, spec), rings = std::max<std::uint64_t>(2, seg / 2);
     require_fit(spec, 2 * seg * (rings - 1), 2 + (rings - 1) * seg);

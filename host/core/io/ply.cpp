@@ -87,6 +87,26 @@ public:
     return 0;
   }
 
+  // A vertex coordinate, rounded once to float: in ascii the decimal is parsed straight to float
+  // (as the OBJ reader does), so the same text gives the same float in both formats; a decimal
+  // beyond the float range reads as infinite (refused by the caller, naming the vertex).
+  float read_float(Type t, const char* what) {
+    if (format_ != Format::ascii) return static_cast<float>(read(t, what));
+    const char* b = token(what);
+    const char* te = p_;
+    float v = 0;
+    const char* d = (*b == '+') ? b + 1 : b;
+    auto r = std::from_chars(d, te, v);
+    if (r.ec == std::errc::result_out_of_range && r.ptr == te) {
+      double big = 0;  // out of float range: its sign and size decide infinity or zero
+      std::from_chars(d, te, big);
+      v = std::fabs(big) > 1 ? (big < 0 ? -INFINITY : INFINITY) : static_cast<float>(big);
+    } else if (r.ec != std::errc() || r.ptr != te) {
+      fail_at(name_, line_, "bad number '" + std::string(b, te) + "' for " + what);
+    }
+    return v;
+  }
+
   // ascii: each element is one line; called at the start of an element's line
   void begin_element() {
     if (format_ != Format::ascii) return;
@@ -131,20 +151,25 @@ public:
   bool ascii() const { return format_ == Format::ascii; }
 
 private:
-  double read_ascii(const char* what) {
+  // ascii: skips to the next value of the element's line and past it; returns where it starts
+  const char* token(const char* what) {
     while (p_ < eol_ && (*p_ == ' ' || *p_ == '\t' || *p_ == '\r')) ++p_;
     if (p_ >= eol_) {
       if (p_ >= end_) fail_at(name_, line_, std::string("truncated file: data ends before ") + what);
       fail_at(name_, line_, std::string("line ends before ") + what);
     }
+    const char* b = p_;
+    while (p_ < eol_ && !(*p_ == ' ' || *p_ == '\t' || *p_ == '\r')) ++p_;
+    return b;
+  }
+  double read_ascii(const char* what) {
+    const char* b = token(what);
     const char* te = p_;
-    while (te < eol_ && !(*te == ' ' || *te == '\t' || *te == '\r')) ++te;
     double v = 0;
-    const char* b = (*p_ == '+') ? p_ + 1 : p_;
-    auto r = std::from_chars(b, te, v);
+    const char* d = (*b == '+') ? b + 1 : b;
+    auto r = std::from_chars(d, te, v);
     if (r.ec != std::errc() || r.ptr != te)
-      fail_at(name_, line_, "bad number '" + std::string(p_, te) + "' for " + what);
-    p_ = te;
+      fail_at(name_, line_, "bad number '" + std::string(b, te) + "' for " + what);
     return v;
   }
 
@@ -214,6 +239,10 @@ Scene parse_ply(const std::string& name, const char* data, std::size_t size) {
       if (e.name.empty() || r.ec != std::errc() || r.ptr != count.data() + count.size())
         fail_at(name, line, "bad element line '" + l + "'");
       no_more_words();
+      for (const Element& o : elements)
+        if (o.name == e.name)
+          fail_at(name, line, "element '" + e.name + "' declared a second time (first on line " + std::to_string(o.header_line) +
+                                  "); a PLY file declares each element once");
       e.header_line = line;
       elements.push_back(e);
     } else if (kw == "property") {
@@ -233,7 +262,22 @@ Scene parse_ply(const std::string& name, const char* data, std::size_t size) {
       }
       if (pr.name.empty()) fail_at(name, line, "property without a name");
       no_more_words();
-      elements.back().props.push_back(pr);
+      Element& e = elements.back();
+      auto is_index_list = [](const Property& q) { return q.is_list && (q.name == "vertex_indices" || q.name == "vertex_index"); };
+      for (std::size_t k = 0; k < e.props.size(); ++k) {
+        if (e.props[k].name == pr.name)
+          fail_at(name, line, "property '" + pr.name + "' of element '" + e.name + "' declared a second time (which to read is ambiguous)");
+        if (e.name == "face" && is_index_list(pr) && is_index_list(e.props[k]))
+          fail_at(name, line, "a second vertex index list '" + pr.name + "' in element 'face' (it has '" + e.props[k].name +
+                                  "'; which to read is ambiguous)");
+      }
+      e.props.push_back(pr);
+    } else if (!std::isalpha(static_cast<unsigned char>(kw[0])) ||
+               std::any_of(l.begin(), l.end(), [](char c) { return static_cast<unsigned char>(c) < 0x20 && c != '\t'; })) {
+      // numbers or binary bytes where a keyword should be: the data, with no end_header before it
+      fail_at(name, line, "no end_header before the data: this line holds '" +
+                              std::string(l, 0, std::min<std::size_t>(l.size(), 24)) + "', not a header keyword; the header "
+                              "must end with an end_header line");
     } else {
       fail_at(name, line, "unknown header keyword '" + kw + "'");
     }
@@ -243,6 +287,10 @@ Scene parse_ply(const std::string& name, const char* data, std::size_t size) {
   // -- body
   Reader rd(name, p, end, format, line);
   const MemoryBudget budget = memory_budget();
+  // faces may come before the vertices (the order of elements is free): their indices are then
+  // checked once the vertices are read, against the largest index and the face that holds it
+  bool vertices_read = false;
+  struct { std::uint32_t index = 0; std::uint64_t face = 0; std::size_t line = 0; bool any = false; } largest;
   for (const Element& e : elements) {
     const bool is_vertex = e.name == "vertex";
     const bool is_face = e.name == "face";
@@ -279,7 +327,7 @@ Scene parse_ply(const std::string& name, const char* data, std::size_t size) {
       auto where = [&](const std::string& msg) {
         fail_at(name, at_line, e.name + " " + std::to_string(i) + ": " + msg);
       };
-      double c[3] = {0, 0, 0};
+      float c[3] = {0, 0, 0};
       face.clear();
       for (std::size_t k = 0; k < e.props.size(); ++k) {
         const Property& pr = e.props[k];
@@ -296,28 +344,33 @@ Scene parse_ply(const std::string& name, const char* data, std::size_t size) {
             }
           }
         } else {
-          const double v = rd.read(pr.type, pr.name.c_str());
-          if (static_cast<int>(k) == ix) c[0] = v;
-          if (static_cast<int>(k) == iy) c[1] = v;
-          if (static_cast<int>(k) == iz) c[2] = v;
+          const int axis = static_cast<int>(k) == ix ? 0 : static_cast<int>(k) == iy ? 1 : static_cast<int>(k) == iz ? 2 : -1;
+          if (axis >= 0) c[axis] = rd.read_float(pr.type, pr.name.c_str());
+          else rd.read(pr.type, pr.name.c_str());
         }
       }
       rd.end_element(e.name + " " + std::to_string(i));
       if (is_vertex) {
-        Vec3f v{static_cast<float>(c[0]), static_cast<float>(c[1]), static_cast<float>(c[2])};
+        const Vec3f v{c[0], c[1], c[2]};
         if (!std::isfinite(v.x) || !std::isfinite(v.y) || !std::isfinite(v.z))
           where("NaN or infinite coordinate (or beyond float range)");
         s.vertices.push_back(v);
       } else if (is_face) {
         if (face.size() < 3) where("face has " + std::to_string(face.size()) + " vertices (at least 3 needed)");
-        for (std::uint32_t v : face)
-          if (v >= s.vertices.size())
+        for (std::uint32_t v : face) {
+          if (vertices_read && v >= s.vertices.size())
             where("vertex index " + std::to_string(v) + " is out of range (" + std::to_string(s.vertices.size()) +
                   " vertices)");
+          if (!vertices_read && (!largest.any || v > largest.index)) largest = {v, i, at_line, true};
+        }
         for (std::size_t k = 1; k + 1 < face.size(); ++k) s.triangles.push_back({face[0], face[k], face[k + 1]});
       }
     }
+    vertices_read |= is_vertex;
   }
+  if (largest.any && largest.index >= s.vertices.size())
+    fail_at(name, largest.line, "face " + std::to_string(largest.face) + ": vertex index " + std::to_string(largest.index) +
+                                    " is out of range (" + std::to_string(s.vertices.size()) + " vertices)");
   rd.end_data();
   return s;
 }

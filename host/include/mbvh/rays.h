@@ -13,11 +13,14 @@ namespace mbvh {
 
 /// Files (little-endian, no header): rays 32 B, hits 16 B, occlusion 1 B per ray. Writers go
 /// through write_outputs (io/output.h): a unique temporary renamed on success, regular files only.
+/// The readers throw Error naming the file when its size is not a multiple of the record, when it
+/// starts like another format (PNG, PFM, zstd, gzip, PLY, the BVH cache, text), when a ray holds a
+/// NaN or infinite value (tmax = +inf excepted: no far limit) and when an occlusion byte is not 0 or 1.
 std::vector<Ray> read_rays(const std::string& path);
 /// Writes `bytes` bytes to `path` ("-": standard output) as write_outputs does: a unique temporary
 /// beside it renamed on success; refuses anything but a regular file; Error on any failure.
 void write_bytes(const std::string& path, const void* data, std::size_t bytes);
-/// The ray records in `size` bytes; throws Error (naming `name`) unless size is a multiple of 32.
+/// The ray records in `size` bytes; throws Error (naming `name`) as read_rays does.
 std::vector<Ray> rays_from_bytes(const std::string& name, const char* data, std::size_t size);
 void write_rays(const std::string& path, std::span<const Ray> rays);
 std::vector<Hit> read_hits(const std::string& path);
