@@ -695,6 +695,15 @@ void build_binned_sah(RawVector<PrimRef>& prims, const FastBox& root, const Fast
 
 namespace {
 
+[[noreturn]] void throw_below_scene_scale(const Scene& scene, float largest) {
+  char buf[256];
+  std::snprintf(buf, sizeof buf,
+                ": the largest coordinate magnitude is %.9g, below 2^-36 (%.3g), the smallest scene scale mbvh traces "
+                "exactly (float products of three coordinates would underflow); rescale the scene",
+                double(largest), double(kMinSceneScale));
+  throw Error(scene.display_name() + buf);
+}
+
 // The scene's non-degenerate triangles must lie in the exactly traced range (accel.h): a
 // coordinate beyond ±kMaxCoordinate is named with its triangle; a scene whose largest magnitude
 // is below kMinSceneScale is refused as a whole. `largest`: the largest magnitude of the records.
@@ -720,14 +729,7 @@ void check_traceable_range(const Scene& scene, const build::RawVector<build::Pri
           }
     }
   }
-  if (largest < kMinSceneScale) {
-    char buf[256];
-    std::snprintf(buf, sizeof buf,
-                  ": the largest coordinate magnitude is %.9g, below 2^-36 (%.3g), the smallest scene scale mbvh traces "
-                  "exactly (float products of three coordinates would underflow); rescale the scene",
-                  double(largest), double(kMinSceneScale));
-    throw Error(scene.display_name() + buf);
-  }
+  if (largest < kMinSceneScale) throw_below_scene_scale(scene, largest);
 }
 
 }  // namespace
@@ -857,6 +859,7 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
   build::RawVector<PrimRef> prims(n);
   std::vector<build::FastBox> cb(chunks), ccb(chunks);
   std::vector<float> mag(chunks, 0.0f);
+  std::vector<float> tiny_mag(chunks, 0.0f);  // per chunk: the largest magnitude of its too-small triangles
   std::vector<std::size_t> tiny(chunks, SIZE_MAX);  // per chunk: its first triangle too small to trace
   std::atomic<bool> invalid{false};
   build::with_triangles(scene, [&](const auto& src) {
@@ -874,6 +877,8 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
         if (a2 == 0) continue;  // degenerate: in no leaf
         if (build::too_small(a2)) {  // refused below, the first in scene order named
           tiny[c] = std::min(tiny[c], i);
+          for (const Vec3f& v : {v0, v1, v2})
+            tiny_mag[c] = std::max({tiny_mag[c], std::fabs(v.x), std::fabs(v.y), std::fabs(v.z)});
           continue;
         }
         const PrimRef r = build::prim_ref(v0, v1, v2, static_cast<std::uint32_t>(i));
@@ -894,8 +899,13 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
     scene.validate();  // throws, naming the first bad triangle
     throw Error(scene.display_name() + ": internal: a triangle failed the build's index or finiteness check but not Scene::validate");
   }
-  if (const std::size_t first = chunks ? *std::min_element(tiny.begin(), tiny.end()) : SIZE_MAX; first != SIZE_MAX)
+  if (const std::size_t first = chunks ? *std::min_element(tiny.begin(), tiny.end()) : SIZE_MAX; first != SIZE_MAX) {
+    // a scene too small as a whole is named as such before any of its triangles
+    float all = 0;
+    for (std::size_t c = 0; c < chunks; ++c) all = std::max({all, mag[c], tiny_mag[c]});
+    if (all < kMinSceneScale) throw_below_scene_scale(scene, all);
     build::throw_too_small(scene, static_cast<std::uint32_t>(first), "");
+  }
   std::size_t kept = 0;  // close the chunks' gaps (in place: a record only moves down)
   for (std::size_t c = 0; c < chunks; ++c) {
     if (kept != c * grain) std::memmove(&prims[kept], &prims[c * grain], kept_in[c] * sizeof(PrimRef));
