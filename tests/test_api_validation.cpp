@@ -201,7 +201,7 @@ TEST_CASE("the embree peer reports a ray beyond what Embree accepts as an Error 
   TraceOutput out;
   embree->trace(*acc, rays, o, out);  // fine rays: hits
   CHECK(out.hits[0].prim != MBVH_MISS_PRIM);
-  rays[3] = Ray{2e18f, 0, 0, 0, -1, 0, 0, INFINITY};  // valid by the contract; Embree asserts ray.valid()
+  rays[3] = Ray{0, 0, 5, 0, -2e18f, 0, 0, INFINITY};  // valid by the contract; Embree asserts ray.valid()
   rays[2] = Ray{0, 0, 5, 0, 0, 0, -1e20f, INFINITY};
   for (Query q : {Query::closest, Query::any}) {
     TraceOptions oq = o;
@@ -210,17 +210,22 @@ TEST_CASE("the embree peer reports a ray beyond what Embree accepts as an Error 
                       Catch::Contains("embree: ray 2 has direction z = -1e+20") && Catch::Contains("1.844e18"));
   }
   rays[2] = rays[0];
-  CHECK_THROWS_WITH(embree->trace(*acc, rays, o, out), Catch::Contains("embree: ray 3 has origin x = 2e+18"));
-  rays[3] = Ray{1.8e18f, 0, 0, 0, -1, 0, 0, INFINITY};  // within Embree's range: traced
+  CHECK_THROWS_WITH(embree->trace(*acc, rays, o, out), Catch::Contains("embree: ray 3 has direction x = -2e+18"));
+  rays[3] = Ray{0, 0, 5, 0, -1.8e18f, 0, 0, INFINITY};  // within Embree's range: traced
   CHECK_NOTHROW(embree->trace(*acc, rays, o, out));
   // invalid rays stay defined misses, whatever their size
   rays[3] = Ray{INFINITY, 0, 0, 0, -1, 0, 0, INFINITY};
   CHECK_NOTHROW(embree->trace(*acc, rays, o, out));
   CHECK(out.invalid == 1);
   // mbvh's own backends trace the ray Embree refuses
-  rays[3] = Ray{2e18f, 0, 0, 0, -1, 0, 0, INFINITY};
+  rays[3] = Ray{0, 0, 5, 0, -2e18f, 0, 0, INFINITY};
   auto scalar = make_backend("cpu-scalar");
   CHECK_NOTHROW(scalar->trace(*acc, rays, o, out));
+  // an origin at 2e18 leaves the range traced exactly (check_ray_range): every backend refuses it
+  // before Embree sees it
+  rays[3] = Ray{2e18f, 0, 0, 0, -1, 0, 0, INFINITY};
+  CHECK_THROWS_WITH(scalar->trace(*acc, rays, o, out), Catch::Contains("cpu-scalar: ray 3") && Catch::Contains("leaves the range traced exactly"));
+  CHECK_THROWS_WITH(embree->trace(*acc, rays, o, out), Catch::Contains("embree: ray 3") && Catch::Contains("leaves the range traced exactly"));
   // a scene beyond Embree's range never reaches it: the build refuses anything beyond ±2^40
   // (kMaxCoordinate), far inside Embree's ±1.844e18 (the peer's own vertex check stays as a guard)
   CHECK_THROWS_WITH(Accel::build(load_scene("gen:sphere:8@scale=1e19")), Catch::Contains("is beyond +-2^40"));

@@ -5,6 +5,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <chrono>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
@@ -414,4 +415,85 @@ TEST_CASE("cache: build-bench refuses --cache", "[reliability][cache-safety][cli
   INFO(r.output);
   CHECK(r.code == 2);
   CHECK_THAT(r.output, Catch::Contains("--cache") && Catch::Contains("build-bench"));
+}
+
+// Issue 30, "an optional size bound with eviction": CacheOptions::max_bytes / --cache-max-size.
+TEST_CASE("cache: a size bound removes the least recently used entries - a hit counts as a use - nothing else in the directory",
+          "[reliability][cache-safety]") {
+  TempDir dir, outside;
+  const std::string cache = dir.file("c");
+  std::filesystem::create_directories(cache);
+  // what the bound must never count or remove: a user's file, an entry-like name in upper case, a
+  // link named as an entry (to a file outside)
+  const std::string victim = outside.write("victim.txt", "keep me");
+  put(cache + "/notes.txt", std::string(1 << 16, 'n'));
+  put(cache + "/ABCDEF0123456789.mbvh", std::string(1 << 16, 'u'));
+  REQUIRE(::symlink(victim.c_str(), (cache + "/0123456789abcdef.mbvh").c_str()) == 0);
+  const Scene a = load_scene("gen:sphere:12"), b = load_scene("gen:sphere:14"), c = load_scene("gen:sphere:16"),
+              d = load_scene("gen:sphere:18");
+  const auto path_of = [&](const Scene& s) {
+    Accel::CacheReport r;
+    Accel::build_cached(s, {}, Accel::CacheOptions{cache, {}, 0}, &r);
+    return r.path;
+  };
+  const std::string pa = path_of(a), pb = path_of(b), pc = path_of(c);
+  // a oldest, then b, then c; a hit on a makes it the most recent
+  const auto age = [](const std::string& p, int seconds_ago) {
+    const auto t = std::filesystem::file_time_type::clock::now() - std::chrono::seconds(seconds_ago);
+    std::filesystem::last_write_time(p, t);
+  };
+  age(pa, 400), age(pb, 300), age(pc, 200);
+  Accel::CacheReport ra;
+  Accel::build_cached(a, {}, Accel::CacheOptions{cache, {}, 0}, &ra);
+  REQUIRE(ra.loaded);
+  const auto size = [](const std::string& p) { return std::filesystem::file_size(p); };
+  // d written under a bound that holds a, c and d: b, now the least recently used, goes
+  Accel::CacheReport rd;
+  const auto sa = size(pa), sb = size(pb), sc = size(pc);
+  const std::uint64_t bound = sa + sc + 2 * sc;  // d (sphere 18) is below 2x c's size
+  const auto acc = Accel::build_cached(d, {}, Accel::CacheOptions{cache, {}, bound}, &rd);
+  INFO("sizes " << sa << " " << sb << " " << sc << " " << size(rd.path) << ", bound " << bound);
+  REQUIRE(size(rd.path) < 2 * sc);
+  CHECK(rd.evicted == 1);
+  CHECK(rd.evicted_bytes == sb);
+  CHECK_FALSE(std::filesystem::exists(pb));
+  CHECK(std::filesystem::exists(pa));
+  CHECK(std::filesystem::exists(pc));
+  CHECK(std::filesystem::exists(rd.path));
+  CHECK(bytes_of(victim) == "keep me");
+  CHECK(std::filesystem::is_symlink(cache + "/0123456789abcdef.mbvh"));
+  CHECK(std::filesystem::file_size(cache + "/notes.txt") == (1u << 16));
+  CHECK(std::filesystem::file_size(cache + "/ABCDEF0123456789.mbvh") == (1u << 16));
+  // a bound below one entry keeps only the entry just used
+  Accel::CacheReport r1;
+  Accel::build_cached(c, {}, Accel::CacheOptions{cache, {}, 1}, &r1);
+  CHECK(r1.loaded);
+  CHECK(r1.evicted == 2);
+  CHECK(std::filesystem::exists(pc));
+  CHECK_FALSE(std::filesystem::exists(pa));
+  CHECK_FALSE(std::filesystem::exists(rd.path));
+  CHECK(bytes_of(victim) == "keep me");
+}
+
+TEST_CASE("cache: --cache-max-size bounds the directory; a bad size or one without --cache exits 2 naming it",
+          "[reliability][cache-safety][cli]") {
+  TempDir dir;
+  const std::string cache = dir.file("c");
+  for (const char* spec : {"gen:sphere:12", "gen:sphere:14"}) {
+    const auto r = run_cli(std::string("info ") + spec + " --cache " + cache);
+    REQUIRE(r.code == 0);
+  }
+  const auto r = run_cli("info gen:sphere:16 --cache " + cache + " --cache-max-size 1K");
+  INFO(r.output);
+  CHECK(r.code == 0);
+  CHECK_THAT(r.output, Catch::Contains("removed 2 least recently used entries") && Catch::Contains("--cache-max-size 1K"));
+  std::size_t entries = 0;
+  for (const auto& e : std::filesystem::directory_iterator(cache)) entries += e.path().extension() == ".mbvh";
+  CHECK(entries == 1);
+  const auto bad = run_cli("info gen:sphere:16 --cache " + cache + " --cache-max-size 12Q");
+  CHECK(bad.code == 2);
+  CHECK_THAT(bad.output, Catch::Contains("'12Q' is not a size"));
+  const auto alone = run_cli("info gen:sphere:16 --cache-max-size 1G");
+  CHECK(alone.code == 2);
+  CHECK_THAT(alone.output, Catch::Contains("--cache-max-size") && Catch::Contains("--cache"));
 }

@@ -211,3 +211,90 @@ TEST_CASE("range: check's brute force counts a hit at tmin as a tie, not a genui
   CHECK(r.code == 0);
   CHECK(r.output.find("result: zero genuine mismatches") != std::string::npos);
 }
+
+namespace {
+// `rays` with directions scaled by 2^k (t, tmin and tmax scale by 2^-k: the same points of space).
+std::vector<Ray> scaled_directions(std::vector<Ray> rays, int k) {
+  for (Ray& r : rays) {
+    r.dx = std::ldexp(r.dx, k), r.dy = std::ldexp(r.dy, k), r.dz = std::ldexp(r.dz, k);
+    r.tmin = std::ldexp(r.tmin, -k);
+    if (std::isfinite(r.tmax)) r.tmax = std::ldexp(r.tmax, -k);
+  }
+  return rays;
+}
+}  // namespace
+
+// Issue 30, defect 5: a direction of 1e37 or 1e-37 was traced as valid and gave 128-4,928
+// mismatches. A direction scales the triangle test's products by 1/D (accel.h, kMaxRayCube):
+// such a ray is refused by every backend and the reference, naming it and the limits; inside the
+// limits, at the ends of the scene range, every backend is exact.
+TEST_CASE("range: rays whose direction leaves the traced range are refused by every backend - inside it they are exact",
+          "[reliability][range]") {
+  const Scene unit = load_scene("gen:sphere:24");
+  const auto acc = Accel::build(unit);
+  RayGenOptions ro;
+  ro.count = 64;
+  const std::vector<Ray> base = generate_rays(unit, *acc, ro);
+  const VariantGrid grid = mbvh_test::all_backends();
+  for (const float len : {1e37f, 1e-37f}) {
+    std::vector<Ray> rays = base;
+    rays[17].dx *= len, rays[17].dy *= len, rays[17].dz *= len;
+    for (const std::string& name : grid.backends) {
+      INFO(name << ", direction x " << len);
+      auto b = make_backend(name);
+      TraceOutput out;
+      for (const Query q : {Query::closest, Query::any}) {
+        const TraceOptions o{Layout::mbvh4, Traversal::stack, q, false};
+        CHECK_THROWS_WITH(b->trace(*acc, rays, o, out), Catch::Contains(name + ": ray 17 (origin") &&
+                                                             Catch::Contains("leaves the range traced exactly") &&
+                                                             Catch::Contains("kMaxRayCube"));
+      }
+    }
+    TraceOutput out;
+    CHECK_THROWS_WITH(trace_reference(*acc, rays, TraceOptions{}, out, 1), Catch::Contains("ray 17"));
+    CHECK_THROWS_WITH(trace_one(*acc, rays[17], TraceOptions{}), Catch::Contains("leaves the range traced exactly"));
+    // an invalid ray of any size stays a defined miss
+    rays[17].dx = NAN;
+    CHECK_NOTHROW(trace_reference(*acc, rays, TraceOptions{}, out, 1));
+    CHECK(out.invalid == 1);
+  }
+  // an origin far beyond the scene (the old "not covered": origins beyond +-2^40)
+  {
+    std::vector<Ray> rays = base;
+    rays[3].ox = 1e14f;
+    TraceOutput out;
+    CHECK_THROWS_WITH(trace_reference(*acc, rays, TraceOptions{}, out, 1), Catch::Contains("ray 3 (origin 1e+14"));
+  }
+  // inside the limits: directions scaled by 2^k at the ends of the scene range and at unit scale
+  struct Case {
+    const char* spec;
+    int k;
+  };
+  for (const Case c : {Case{"gen:sphere:24@scale=1e12", -2}, Case{"gen:sphere:24@scale=2e-11", 8}, Case{"gen:sphere:24", 60},
+                       Case{"gen:sphere:24", -90}}) {
+    const Scene s = load_scene(c.spec);
+    const auto a = Accel::build(s);
+    for (const RayKind kind : {RayKind::primary, RayKind::diffuse, RayKind::shadow, RayKind::random}) {
+      RayGenOptions g;
+      g.kind = kind;
+      g.count = 300;
+      const std::vector<Ray> rays = scaled_directions(generate_rays(s, *a, g), c.k);
+      const std::string what = std::string(c.spec) + ", " + to_string(kind) + " rays, directions x 2^" + std::to_string(c.k);
+      CHECK(mismatches_vs_brute(*a, rays, what) == 0);
+    }
+  }
+}
+
+TEST_CASE("range: the CLI refuses a ray file whose direction leaves the traced range with exit 2, naming the ray",
+          "[reliability][range][cli]") {
+  mbvh_test::TempDir dir;
+  const std::vector<Ray> rays{Ray{0, 0, 5, 0, 0, 0, -1, INFINITY}, Ray{0, 0, 5, 0, 0, 0, -1e-37f, INFINITY}};
+  write_rays(dir.file("small.rays"), rays);
+  for (const char* cmd : {"trace", "check"}) {
+    const auto r = mbvh_test::run_cli(std::string(cmd) + " gen:sphere:8 --backend cpu --rays " + dir.file("small.rays") +
+                                      (std::string(cmd) == "trace" ? " -o " + dir.file("h.hits") : std::string()));
+    INFO(r.output);
+    CHECK(r.code == 2);
+    CHECK_THAT(r.output, Catch::Contains("ray 1 (origin 0 0 5, direction 0 0 -1e-37)") && Catch::Contains("at most 2^128"));
+  }
+}

@@ -132,9 +132,20 @@ void SceneArgs::add(CLI::App* c) {
   c->add_option("--max-leaf", max_leaf, "largest leaf the SAH may choose")->check(integer_in(1, 1024));
   c->add_option("--leaf-block", leaf_block, "triangles the SAH prices as one leaf test (4: SIMD leaves)")
       ->check(integer_in(1, 64));
-  c->add_option("--cache", cache,
-                "BVH cache directory: the build is read from it when it holds this scene's with these options, "
-                "else built and written there (a damaged or mismatched file is rebuilt)");
+  CLI::Option* cache_opt =
+      c->add_option("--cache", cache,
+                    "BVH cache directory: the build is read from it when it holds this scene's with these options, "
+                    "else built and written there (a damaged or mismatched file is rebuilt)");
+  c->add_option("--cache-max-size", cache_max_size,
+                "bound the --cache directory's entries to SIZE (bytes, or K, M, G, T): the least recently used "
+                "others are removed after this run's entry is read or written")
+      ->needs(cache_opt)
+      ->check(CLI::Validator(
+          [](std::string& v) {
+            std::uint64_t b = 0;
+            return parse_size(v, b) ? std::string() : "'" + v + "' is not a size (bytes, or with a K, M, G or T suffix, e.g. 2G)";
+          },
+          "SIZE"));
   c->add_option("--quality", quality,
                 "builder: low (Morton-code LBVH, fastest build), medium (binned SAH, the default) or high (SBVH)")
       ->check(CLI::IsMember({"low", "medium", "high"}));
@@ -161,8 +172,10 @@ Loaded load_and_build(const SceneArgs& a, bool verbose) {
   bo.progress = [&p](double f) { p.update(static_cast<std::size_t>(f * 1000)); };
   const auto t1 = Clock::now();
   Accel::CacheReport cr;
+  std::uint64_t max_bytes = 0;
+  if (!a.cache_max_size.empty()) parse_size(a.cache_max_size, max_bytes);  // checked by the option's validator
   l.acc = a.cache.empty() ? Accel::build(l.scene, bo)
-                          : Accel::build_cached(l.scene, bo, Accel::CacheOptions{a.cache, g_command_files}, &cr);
+                          : Accel::build_cached(l.scene, bo, Accel::CacheOptions{a.cache, g_command_files, max_bytes}, &cr);
   const double ms = ms_since(t1);
   p.finish();
   // -- report
@@ -172,6 +185,9 @@ Loaded load_and_build(const SceneArgs& a, bool verbose) {
                  a.scene.c_str(), l.scene.triangle_count(), l.load_ms, cr.loaded ? "read from the cache" : "built",
                  cr.loaded ? ms : l.acc->binary_stats().build_ms, a.cache.empty() ? "" : cr.loaded ? ": " : ", cached in ",
                  cr.path.c_str(), static_cast<unsigned long long>(l.acc->hash()));
+  if (!g_quiet && cr.evicted)
+    std::fprintf(stderr, "BVH cache %s: removed %zu least recently used entries (%.1f MiB) to stay within --cache-max-size %s\n",
+                 a.cache.c_str(), cr.evicted, double(cr.evicted_bytes) / (1 << 20), a.cache_max_size.c_str());
   return l;
 }
 

@@ -99,6 +99,7 @@ struct SceneArgs {
   unsigned max_leaf = BuildOptions{}.max_leaf;
   unsigned leaf_block = BuildOptions{}.leaf_block;
   std::string cache;
+  std::string cache_max_size;  ///< --cache-max-size: empty for no bound
   std::string quality = to_string(BuildOptions{}.quality);
   void add(CLI::App* c);
   /// The build options of these arguments (no progress callback).

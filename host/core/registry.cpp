@@ -45,6 +45,7 @@ void Backend::prepare(const Accel& acc, const TraceOptions& opt) {
 
 void Backend::trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) {
   check_trace_options(opt, name());
+  check_ray_range(acc, rays, name());
   std::lock_guard<std::mutex> lock(mutex_);
   do_trace(acc, rays, opt, out);
 }

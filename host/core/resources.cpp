@@ -18,30 +18,40 @@
 #include "mbvh/error.h"
 
 namespace mbvh {
-namespace {
 
-// MBVH_MEMORY_LIMIT: "123", "64K", "512M", "8G", "1T" (powers of 1024); 0 if unset.
-std::uint64_t limit_from_env() {
-  const char* env = std::getenv("MBVH_MEMORY_LIMIT");
-  if (!env || !*env) return 0;
-  const char* end = env + std::strlen(env);
+bool parse_size(std::string_view text, std::uint64_t& bytes) {
+  const char* const begin = text.data();
+  const char* const end = begin + text.size();
   std::uint64_t v = 0;
-  auto r = std::from_chars(env, end, v);
+  const auto r = std::from_chars(begin, end, v);
+  if (r.ec != std::errc() || r.ptr == begin) return false;
   int shift = 0;
-  if (r.ec == std::errc() && r.ptr + 1 == end) {
+  if (r.ptr + 1 == end) {
     switch (*r.ptr) {
       case 'K': case 'k': shift = 10; break;
       case 'M': case 'm': shift = 20; break;
       case 'G': case 'g': shift = 30; break;
       case 'T': case 't': shift = 40; break;
-      default: shift = -1;
+      default: return false;
     }
-  } else if (r.ec != std::errc() || r.ptr != end) {
-    shift = -1;
+  } else if (r.ptr != end) {
+    return false;
   }
-  if (shift < 0 || v == 0 || (shift > 0 && v > (UINT64_MAX >> shift)))
+  if (v == 0 || (shift > 0 && v > (UINT64_MAX >> shift))) return false;
+  bytes = v << shift;
+  return true;
+}
+
+namespace {
+
+// MBVH_MEMORY_LIMIT: a size (parse_size); 0 if unset.
+std::uint64_t limit_from_env() {
+  const char* env = std::getenv("MBVH_MEMORY_LIMIT");
+  if (!env || !*env) return 0;
+  std::uint64_t v = 0;
+  if (!parse_size(env, v))
     throw Error(std::string("MBVH_MEMORY_LIMIT=") + env + " is not a size (use bytes or a K, M, G or T suffix, e.g. 8G)");
-  return v << shift;
+  return v;
 }
 
 // MemAvailable in bytes, 0 when /proc/meminfo lacks it.

@@ -5,8 +5,13 @@
 #include <cstdint>
 #include <new>
 #include <string>
+#include <string_view>
 
 namespace mbvh {
+
+/// A positive size: bytes, or with a K, M, G or T suffix (powers of 1024), e.g. "512M", "8G".
+/// False (and `bytes` untouched) for anything else, 0 and a value that overflows 64 bits.
+bool parse_size(std::string_view text, std::uint64_t& bytes);
 
 /// The memory a command may plan to use and where that number came from.
 struct MemoryBudget {

@@ -22,6 +22,8 @@
 
 #include <sys/types.h>
 
+#include <algorithm>
+#include <cctype>
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
@@ -29,6 +31,7 @@
 #include <chrono>
 #include <filesystem>
 #include <type_traits>
+#include <vector>
 
 #include "host/core/build/builder.h"
 #include "host/core/build/cache_check.h"
@@ -355,11 +358,57 @@ std::string entry_name(const std::string& path) {
   return (std::filesystem::path(normalised(p.parent_path().empty() ? "." : p.parent_path().string())) / p.filename()).string();
 }
 
+// True for a name the cache writes: 16 lower-case hex digits and ".mbvh" (never a temporary,
+// a user's file or a link's name in the directory).
+bool is_entry_name(const std::string& name) {
+  if (name.size() != 21 || name.compare(16, 5, ".mbvh") != 0) return false;
+  for (int i = 0; i < 16; ++i)
+    if (!std::isxdigit(static_cast<unsigned char>(name[i])) || std::isupper(static_cast<unsigned char>(name[i]))) return false;
+  return true;
+}
+
+// The size bound (CacheOptions::max_bytes): the least recently used entries (by modification time;
+// a hit touches its entry) are removed until the directory's entries total at most `max_bytes`.
+// Only regular files named as entries are counted or removed (lstat: a link is neither); `keep`,
+// the entry this call used, stays even when it alone exceeds the bound. Another process removing
+// the same entry first is fine; an entry another process has open stays readable (POSIX unlink).
+void evict(const std::string& dir, const std::string& keep, std::uint64_t max_bytes, Accel::CacheReport& rep) {
+  struct Entry {
+    std::int64_t mtime_ns;
+    std::uint64_t bytes;
+    std::string path;
+  };
+  std::vector<Entry> entries;
+  std::uint64_t total = 0;
+  std::error_code ec;
+  for (auto it = std::filesystem::directory_iterator(dir, ec); !ec && it != std::filesystem::directory_iterator(); it.increment(ec)) {
+    const std::string name = it->path().filename().string();
+    if (!is_entry_name(name)) continue;
+    struct stat st {};
+    if (::lstat(it->path().c_str(), &st) != 0 || !S_ISREG(st.st_mode)) continue;
+    total += static_cast<std::uint64_t>(st.st_size);
+    if (name == keep) continue;
+    entries.push_back({std::int64_t(st.st_mtim.tv_sec) * 1000000000 + st.st_mtim.tv_nsec, static_cast<std::uint64_t>(st.st_size),
+                       it->path().string()});
+  }
+  std::sort(entries.begin(), entries.end(), [](const Entry& a, const Entry& b) {
+    return a.mtime_ns != b.mtime_ns ? a.mtime_ns < b.mtime_ns : a.path < b.path;
+  });
+  for (const Entry& e : entries) {
+    if (total <= max_bytes) break;
+    if (::unlink(e.path.c_str()) == 0 || errno == ENOENT) {
+      total -= e.bytes;
+      ++rep.evicted;
+      rep.evicted_bytes += e.bytes;
+    }
+  }
+}
+
 }  // namespace
 
 std::unique_ptr<Accel> Accel::build_cached(const Scene& scene, const BuildOptions& opt, const std::string& dir,
                                            CacheReport* report) {
-  return build_cached(scene, opt, CacheOptions{dir, {}}, report);
+  return build_cached(scene, opt, CacheOptions{dir, {}, 0}, report);
 }
 
 std::unique_ptr<Accel> Accel::build_cached(const Scene& scene, const BuildOptions& opt, const CacheOptions& cache,
@@ -413,6 +462,7 @@ std::unique_ptr<Accel> Accel::build_cached(const Scene& scene, const BuildOption
       im.binary_stats_.sah_cost = build::sah_of_binary(im.bvh2_, im.leaves_, im.opt_.traversal_cost);
       im.binary_stats_.build_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
       rep.loaded = true;
+      ::utimensat(AT_FDCWD, rep.path.c_str(), nullptr, AT_SYMLINK_NOFOLLOW);  // recently used (the size bound's order); may fail read-only
     } catch (const Error& e) {
       acc.reset();
       rep.problem = e.what();  // rebuilt and replaced below
@@ -428,6 +478,7 @@ std::unique_ptr<Accel> Accel::build_cached(const Scene& scene, const BuildOption
       throw Error(rep.problem + "; rebuilt, and it cannot be replaced: " + e.what());
     }
   }
+  if (cache.max_bytes) evict(dir, std::filesystem::path(rep.path).filename().string(), cache.max_bytes, rep);
   acc->impl_->opt_.threads = opt.threads;
   acc->impl_->opt_.progress = opt.progress;
   acc->impl_->geometry_offsets_.resize(scene.geometry_count() + 1);  // a loaded build knows only its triangle count

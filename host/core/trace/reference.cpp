@@ -1,8 +1,11 @@
 // SPDX-License-Identifier: MIT
 // reference.cpp — the scalar reference traversals over ray batches (one instantiation per
 // layout x traversal x query x statistics), and the double-precision brute-force oracle.
+#include <algorithm>
 #include <atomic>
+#include <charconv>
 #include <cmath>
+#include <cstdio>
 
 #include "mbvh/error.h"
 #include "host/core/enum_check.h"
@@ -98,6 +101,40 @@ bool ray_valid(const Ray& ray) {
   return prepare_ray(ray, p);
 }
 
+void check_ray_range(const Accel& acc, std::span<const Ray> rays, const std::string& who) {
+  const Box& b = acc.bounds();
+  if (b.empty()) return;  // no triangle to hit
+  const double S = std::max({std::fabs(b.lo.x), std::fabs(b.lo.y), std::fabs(b.lo.z), std::fabs(b.hi.x),
+                             std::fabs(b.hi.y), std::fabs(b.hi.z)});
+  if (!(S > 0)) return;
+  const double S3 = S * S * S;
+  for (std::size_t i = 0; i < rays.size(); ++i) {
+    const Ray& r = rays[i];
+    const double D = std::max({std::fabs(r.dx), std::fabs(r.dy), std::fabs(r.dz)});
+    const double M = std::max({S, double(std::fabs(r.ox)), double(std::fabs(r.oy)), double(std::fabs(r.oz))});
+    // NaN and infinite values fail no comparison here: such a ray is invalid, tested below
+    if (!(M * M * M > kMaxRayCube * D || S3 < kMinRayCube * D || M > kMaxRayRatio * D || S * kMaxRayRatio < D)) continue;
+    if (!ray_valid(r)) continue;  // a defined miss
+    const auto f = [](double v) {  // the shortest spelling that reads back as the float
+      char b[32];
+      const auto r = std::to_chars(b, b + sizeof b, static_cast<float>(v));
+      return std::string(b, r.ptr);
+    };
+    const auto p2 = [](double v) {
+      char b[32];
+      std::snprintf(b, sizeof b, "2^%.1f", std::log2(v));
+      return std::string(b);
+    };
+    throw Error(who + ": ray " + std::to_string(i) + " (origin " + f(r.ox) + " " + f(r.oy) + " " + f(r.oz) + ", direction " +
+                f(r.dx) + " " + f(r.dy) + " " + f(r.dz) + ") leaves the range traced exactly in this scene: with D = " + f(D) +
+                " its direction's largest component, S = " + f(S) + " the scene's largest coordinate and M = " + f(M) +
+                " the larger of S and the origin's, M^3/D = " + p2(M * M * M / D) + " must be at most 2^128, S^3/D = " +
+                p2(S3 / D) + " at least 2^-116, M/D = " + p2(M / D) + " at most 2^100 and S/D = " + p2(S / D) +
+                " at least 2^-100 (mbvh/accel.h, kMaxRayCube); scale the direction by a power of two nearer unit length "
+                "(t, tmin and tmax scale inversely) or move the origin nearer the scene");
+  }
+}
+
 void throw_trace_output_out_of_memory(std::size_t n, const TraceOptions& opt) {
   const std::uint64_t each = (opt.query == Query::any ? 1 : sizeof(Hit)) + (opt.stats ? sizeof(RayStats) : 0);
   throw_out_of_memory("the trace results of " + std::to_string(n) + " rays", std::uint64_t(n) * each);
@@ -143,6 +180,7 @@ static Hit trace_one_with(const TraceView& v, RayPre& r, const TraceOptions& opt
 Hit trace_one(const Accel& acc, const Ray& ray, const TraceOptions& opt, RayStats* stats,
               std::vector<std::int32_t>* leaf_log) {
   require_supported(opt);
+  check_ray_range(acc, std::span<const Ray>(&ray, 1), "cpu-scalar");
   RayPre r;
   if (!prepare_ray(ray, r)) return miss_hit();
   const TraceView v = trace_view(acc, opt.layout, false, opt.leaf_block);
@@ -153,6 +191,7 @@ Hit trace_one(const Accel& acc, const Ray& ray, const TraceOptions& opt, RayStat
 void trace_reference(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out,
                      unsigned threads, const std::function<void(std::size_t)>& progress) {
   require_supported(opt);
+  check_ray_range(acc, rays, "cpu-scalar");
   if (opt.precision == Precision::fast) trace_parallel<ScalarKernelsT<true>>(acc, rays, opt, out, threads, progress);
   else trace_parallel<ScalarKernels>(acc, rays, opt, out, threads, progress);
 }

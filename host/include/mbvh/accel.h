@@ -73,6 +73,20 @@ constexpr float kMinSceneScale = 0x1p-36f;  // 1.5e-11
 /// and above on any backend). Accel::build and Accel::refit refuse a triangle whose area is
 /// below it but not zero (a zero-area triangle is degenerate: kept out of the leaves, never hit).
 constexpr float kMinTriangleArea = 0x1p-110f;  // 7.7e-34
+/// A ray's share of the range. The watertight test divides by the direction's largest component
+/// D (its sheared z), so its products scale as M^3 / D, where M = max(the scene's largest
+/// coordinate S, the origin's largest coordinate), and t as M / D: a direction of 1e37 or 1e-37
+/// leaves the float range as a scene at 1e30 does. Measured on closed spheres at both ends of the
+/// range and at unit scale, primary, diffuse, shadow and random rays with directions scaled by
+/// 2^k, against the double brute force: hits lost from M^3 / D = 2^135 and S^3 / D = 2^-124.6 on
+/// (none at 2^133 and 2^-122.6), and at unit scale from M / D = 2^124 (none at 2^122.4). A traced
+/// ray must keep M^3 / D <= kMaxRayCube, S^3 / D >= kMinRayCube, M / D <= kMaxRayRatio and
+/// S / D >= 1 / kMaxRayRatio; Backend::trace, trace_reference and trace_one refuse one that does
+/// not (check_ray_range). In a scene Accel::build accepts, a unit direction from an origin within
+/// 4x the scene's largest coordinate never leaves them.
+constexpr double kMaxRayCube = 0x1p128;
+constexpr double kMinRayCube = 0x1p-116;
+constexpr double kMaxRayRatio = 0x1p100;
 
 /// Which builder makes the binary BVH (`--quality`). All three produce the same structures (Bvh2,
 /// leaves, leaf-ordered triangles), so every layout and backend traces any of them. With `high`
@@ -149,11 +163,18 @@ public:
     /// The files the calling command reads or writes (scene, rays, outputs): an entry that is one
     /// of them is an error before anything is read or written.
     std::vector<std::string> other_files;
+    /// A size bound on the directory, 0 for none: after the entry is read or written, the least
+    /// recently used other entries (by modification time; a hit touches its entry) are removed
+    /// until the directory's entries (regular files named <16 hex digits>.mbvh; nothing else in
+    /// DIR is counted or removed) total at most max_bytes. The entry just used is always kept.
+    std::uint64_t max_bytes = 0;
   };
   struct CacheReport {
     std::string path;     ///< the cache file
     bool loaded = false;  ///< true: read from the file; false: built (and written)
     std::string problem;  ///< why an existing file was not used, or empty
+    std::size_t evicted = 0;            ///< entries removed for CacheOptions::max_bytes
+    std::uint64_t evicted_bytes = 0;    ///< their bytes
   };
   static std::unique_ptr<Accel> build_cached(const Scene& scene, const BuildOptions& opt, const CacheOptions& cache,
                                              CacheReport* report = nullptr);

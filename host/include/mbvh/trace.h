@@ -152,4 +152,10 @@ Hit brute_force(const Accel& acc, const Ray& ray);
 /// True if the ray is valid (see prepare_ray).
 bool ray_valid(const Ray& ray);
 
+/// Throws Error naming `who`, the ray's index, its direction and origin, and the limit, when a
+/// valid ray of `rays` leaves the range traced exactly against `acc` (kMaxRayCube, kMinRayCube,
+/// kMaxRayRatio in accel.h): a direction far from unit length for the scene's scale, or an origin
+/// far beyond the scene. Invalid rays (defined misses) pass. Cost: a few operations a ray.
+void check_ray_range(const Accel& acc, std::span<const Ray> rays, const std::string& who);
+
 }  // namespace mbvh
