@@ -76,6 +76,7 @@ TEST_CASE("mbvh check info and bench report - bench writes JSON records", "[cli]
   CHECK_THAT(r.output, !Catch::Contains("dev Mr/s"));  // no record measured device time
   const auto j = nlohmann::json::parse(std::ifstream(json));
   REQUIRE(j["records"].size() == 2 * 2 * (2 + 4 + 3));  // kinds x queries x (MBVH2: 2 traversals, MBVH4: 4, MBVH8: 3)
+  CHECK_FALSE(j["flags"].get<std::string>().empty());  // MBVH_COMPILE_FLAGS: this build type's flags
   for (const auto& rec : j["records"]) {
     for (const char* key : {"backend", "isa", "layout", "traversal", "query", "ray_kind", "rays", "threads",
                             "mrays_per_s", "state_bytes_per_ray", "nodes_per_ray", "leaves_per_ray", "triangles_per_ray",
@@ -90,6 +91,8 @@ TEST_CASE("mbvh check info and bench report - bench writes JSON records", "[cli]
                      : rec["traversal"] == "stack-ordered" ? (m8 ? 1032 : 520)
                                                            : (m8 ? 20 : 12);
     CHECK(rec["state_bytes_per_ray"].get<int>() == want);
+    if (rec["traversal"] == "bitstack" || rec["traversal"] == "bitstack-retest")  // a fixed state: its peak is its size
+      CHECK(rec["peak_state_bytes_per_ray"].get<double>() == want);
     // work histograms: every ray in one bucket of each; the nodes' mean lies within the buckets
     for (const char* h : {"nodes", "leaves", "triangles", "climbs"}) {
       std::uint64_t rays = 0;

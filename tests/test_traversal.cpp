@@ -27,7 +27,9 @@ using namespace mbvh;
 
 namespace {
 
-constexpr std::size_t kRays = 100000;
+// Rays a kind: every backend, layout, traversal and query traces them all and is compared ray by
+// ray; the edges (shared vertices and edges, grazing and degenerate rays) are the stress suite's.
+constexpr std::size_t kRays = 50000;
 constexpr std::size_t kBrute = 2000;
 constexpr std::size_t kLeafOrderRays = 3000;
 
@@ -103,7 +105,7 @@ void check_scene(const std::string& spec, const BuildOptions& bo = {}, std::size
     CHECK(rep.brute_rays == kBrute);
     // every answer of ours is clean; a peer library's genuine mismatches are measured and
     // reported, not required away (README, the embree peer; as the stress suite does): Embree's
-    // robust occlusion differs on one of the hairball's 100K shadow rays of 8x8 image tiles
+    // robust occlusion differed on one of the hairball's 100K shadow rays of 8x8 image tiles
     for (const Comparison& c : rep.comparisons) {
       const bool peer = c.a.rfind("embree/", 0) == 0 || c.b.rfind("embree/", 0) == 0;
       if (!peer) CHECK(c.mismatches == 0);

@@ -327,7 +327,8 @@ void count_work(const Accel& acc, const std::vector<Ray>& rays, Backend& b, cons
     count(r.hist_climbs, s.climbs);
     peak += is_packet(to.traversal) ? double(state_bytes_per_ray(to.layout, to.traversal))  // a packet's stack, shared
             : to.traversal == Traversal::stack ? 8.0 + 4.0 * s.max_depth
-            : to.traversal == Traversal::stack_ordered ? 8.0 + 8.0 * s.max_depth : 12.0;
+            : to.traversal == Traversal::stack_ordered ? 8.0 + 8.0 * s.max_depth
+                                                        : double(state_bytes_per_ray(to.layout, to.traversal));  // bitstacks: fixed
   }
   const double k = rays.empty() ? 1.0 : static_cast<double>(rays.size());
   r.nodes_per_ray = n / k;

@@ -9,6 +9,9 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <random>
 #include <atomic>
 #include <cerrno>
 #include <climits>
@@ -19,6 +22,7 @@
 #include <memory>
 #include <mutex>
 #include <optional>
+#include <string>
 #include <vector>
 
 #include "mbvh/error.h"
@@ -64,6 +68,15 @@ void install_cleanup_handlers() {
       ::sigaction(sig, &sa, nullptr);
     }
   });
+}
+
+// 16 random hex digits for a temporary's name (O_EXCL decides; the randomness only keeps retries rare).
+std::string random_hex() {
+  thread_local std::mt19937_64 rng{std::random_device{}() ^ (std::uint64_t(::getpid()) << 32) ^
+                                   std::uint64_t(std::chrono::steady_clock::now().time_since_epoch().count())};
+  char b[17];
+  std::snprintf(b, sizeof b, "%016llx", static_cast<unsigned long long>(rng()));
+  return b;
 }
 
 // Blocks the cleanup signals in this thread for its lifetime, so that a temporary is never created
@@ -178,14 +191,25 @@ class Staged {
 public:
   Staged(const OutputTarget& t, const Resolved& r) : where_(label(t)), target_(r.path) {
     const std::string dir = directory_of(r.path);
-    std::string tmpl = dir + "/." + std::filesystem::path(r.path).filename().string().substr(0, 200) + ".XXXXXX.partial";
+    const std::string stem = dir + "/." + std::filesystem::path(r.path).filename().string().substr(0, 200) + ".";
     install_cleanup_handlers();
     {
+      // The slot is armed with the name before the file exists: a process-directed signal may be
+      // handled on any thread (the worker pool's, a driver's), not only this one, whose signals
+      // are blocked here; the handler then removes the file or finds none. O_EXCL makes the file
+      // ours; a name taken already is drawn again.
       CleanupSignalsBlocked blocked;
-      fd_ = ::mkostemps(tmpl.data(), 8, O_CLOEXEC);
-      if (fd_ < 0) throw Error(where_ + ": cannot create a temporary file in " + dir + ": " + std::strerror(errno));
-      temp_ = tmpl;
-      claim_slot();
+      for (int attempt = 0;; ++attempt) {
+        temp_ = stem + random_hex() + ".partial";
+        claim_slot();
+        fd_ = ::open(temp_.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0600);
+        if (fd_ >= 0) break;
+        const int err = errno;
+        release_slot();
+        temp_.clear();
+        if (err != EEXIST || attempt == 99)
+          throw Error(where_ + ": cannot create a temporary file in " + dir + ": " + std::strerror(err));
+      }
     }
     if (r.exists && t.follow_links) replaced_ = r.st;
     follow_ = t.follow_links;

@@ -102,10 +102,10 @@ bool ray_valid(const Ray& ray) {
 }
 
 void check_ray_range(const Accel& acc, std::span<const Ray> rays, const std::string& who) {
-  const Box& b = acc.bounds();
-  if (b.empty()) return;  // no triangle to hit
-  const double S = std::max({std::fabs(b.lo.x), std::fabs(b.lo.y), std::fabs(b.lo.z), std::fabs(b.hi.x),
-                             std::fabs(b.hi.y), std::fabs(b.hi.z)});
+  const Box& box = acc.bounds();
+  if (box.empty()) return;  // no triangle to hit
+  const double S = std::max({std::fabs(box.lo.x), std::fabs(box.lo.y), std::fabs(box.lo.z), std::fabs(box.hi.x),
+                             std::fabs(box.hi.y), std::fabs(box.hi.z)});
   if (!(S > 0)) return;
   const double S3 = S * S * S;
   for (std::size_t i = 0; i < rays.size(); ++i) {
@@ -117,8 +117,8 @@ void check_ray_range(const Accel& acc, std::span<const Ray> rays, const std::str
     if (!ray_valid(r)) continue;  // a defined miss
     const auto f = [](double v) {  // the shortest spelling that reads back as the float
       char b[32];
-      const auto r = std::to_chars(b, b + sizeof b, static_cast<float>(v));
-      return std::string(b, r.ptr);
+      const auto end = std::to_chars(b, b + sizeof b, static_cast<float>(v)).ptr;
+      return std::string(b, end);
     };
     const auto p2 = [](double v) {
       char b[32];

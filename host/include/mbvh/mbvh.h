@@ -6,8 +6,10 @@
 // MBVH_VERSION_STRING, mbvh::version()).
 //
 // Rules: every function throws mbvh::Error on failure (never exits). An Accel is immutable after
-// build (refit excepted) and may be traced from several threads at once; a Backend object is
-// used by one thread at a time (make one per thread, or serialise). Nothing keeps a pointer to
+// build (refit excepted) and may be traced from several threads at once; a Backend object may be
+// called from several threads, and its calls run one at a time (make one per thread to trace in
+// parallel). A ray outside the exactly traced range is refused (check_ray_range in
+// mbvh/trace.h), an invalid one is a defined miss. Nothing keeps a pointer to
 // the caller's arrays after the call returns, except a Scene's mesh views (Scene::add_mesh; the
 // rules atop mbvh/geometry.h).
 #pragma once
