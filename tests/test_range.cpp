@@ -277,7 +277,7 @@ TEST_CASE("range: rays whose direction leaves the traced range are refused by ev
     for (const RayKind kind : {RayKind::primary, RayKind::diffuse, RayKind::shadow, RayKind::random}) {
       RayGenOptions g;
       g.kind = kind;
-      g.count = 200;
+      g.count = 100;
       const std::vector<Ray> rays = scaled_directions(generate_rays(s, *a, g), c.k);
       const std::string what = std::string(c.spec) + ", " + to_string(kind) + " rays, directions x 2^" + std::to_string(c.k);
       CHECK(mismatches_vs_brute(*a, rays, what) == 0);
