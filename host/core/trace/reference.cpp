@@ -120,18 +120,21 @@ void check_ray_range(const Accel& acc, std::span<const Ray> rays, const std::str
       const auto end = std::to_chars(b, b + sizeof b, static_cast<float>(v)).ptr;
       return std::string(b, end);
     };
-    const auto p2 = [](double v) {
+    const auto p2 = [](double v, const char* format) {  // v as a power of two
       char b[32];
-      std::snprintf(b, sizeof b, "2^%.1f", std::log2(v));
+      std::snprintf(b, sizeof b, format, std::log2(v));
       return std::string(b);
     };
+    const auto value = [&](double v) { return p2(v, "2^%.1f"); };
+    const auto limit = [&](double v) { return p2(v, "2^%g"); };
     throw Error(who + ": ray " + std::to_string(i) + " (origin " + f(r.ox) + " " + f(r.oy) + " " + f(r.oz) + ", direction " +
                 f(r.dx) + " " + f(r.dy) + " " + f(r.dz) + ") leaves the range traced exactly in this scene: with D = " + f(D) +
                 " its direction's largest component, S = " + f(S) + " the scene's largest coordinate and M = " + f(M) +
-                " the larger of S and the origin's, M^3/D = " + p2(M * M * M / D) + " must be at most 2^128, S^3/D = " +
-                p2(S3 / D) + " at least 2^-116, M/D = " + p2(M / D) + " at most 2^100 and S/D = " + p2(S / D) +
-                " at least 2^-100 (mbvh/accel.h, kMaxRayCube); scale the direction by a power of two nearer unit length "
-                "(t, tmin and tmax scale inversely) or move the origin nearer the scene");
+                " the larger of S and the origin's, M^3/D = " + value(M * M * M / D) + " must be at most " +
+                limit(kMaxRayCube) + ", S^3/D = " + value(S3 / D) + " at least " + limit(kMinRayCube) + ", M/D = " +
+                value(M / D) + " at most " + limit(kMaxRayRatio) + " and S/D = " + value(S / D) + " at least " +
+                limit(1 / kMaxRayRatio) + " (mbvh/accel.h, kMaxRayCube); scale the direction by a power of two nearer "
+                "unit length (t, tmin and tmax scale inversely) or move the origin nearer the scene");
   }
 }
 
