@@ -133,7 +133,7 @@ struct Accel::Impl {
   mutable std::map<unsigned, std::unique_ptr<LeafVariant>> variants_;
 };
 
-/// Collapses a binary BVH into the layouts (host/core/build/collapse.cpp).
+/// Collapses a binary BVH into the layouts (host/core/bvh/collapse.cpp).
 Mbvh2 make_mbvh2(const Bvh2& bvh, const std::vector<Leaf>& leaves);
 /// The wide collapses run on up to `threads` workers (0: every hardware thread); the same bytes at
 /// any count.

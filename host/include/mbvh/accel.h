@@ -95,7 +95,7 @@ constexpr double kMaxRayRatio = 0x1p100;
 enum class BuildQuality {
   low,     ///< Morton-code LBVH (Karras 2012): several times faster to build, slower to trace
   medium,  ///< binned SAH (Wald 2007): the default
-  high,    ///< spatial splits (SBVH, Stich et al. 2009); host/core/build/sbvh.cpp
+  high,    ///< spatial splits (SBVH, Stich et al. 2009); host/core/bvh/sbvh.cpp
 };
 const char* to_string(BuildQuality q);
 BuildQuality parse_quality(const std::string& s);  ///< throws Error on an unknown name
@@ -145,7 +145,7 @@ public:
   /// Cost: O(n log n), parallel over `opt.threads`; the bytes do not depend on the thread count.
   static std::unique_ptr<Accel> build(const Scene& scene, const BuildOptions& opt = {});
 
-  /// The BVH cache (host/core/build/cache.cpp). build_cached returns the build of `scene` with `opt`
+  /// The BVH cache (host/core/bvh/cache.cpp). build_cached returns the build of `scene` with `opt`
   /// from DIR/<key>.mbvh when that file holds it, else builds and writes it there (atomically, by
   /// a rename over the entry's name; DIR is made if missing). An entry is never read or written
   /// through a symbolic link: a link at the entry's name is left unread and replaced by the entry

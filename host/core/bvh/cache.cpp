@@ -33,8 +33,8 @@
 #include <type_traits>
 #include <vector>
 
-#include "host/core/build/builder.h"
-#include "host/core/build/cache_check.h"
+#include "host/core/bvh/builder.h"
+#include "host/core/bvh/cache_check.h"
 #include "host/core/layouts.h"
 #include "mbvh/error.h"
 #include "host/core/io/output.h"

@@ -1,5 +1,5 @@
 // SPDX-License-Identifier: MIT
-// builder.h — what the binary builders share (internal to host/core/build/): the primitive records
+// builder.h — what the binary builders share (internal to host/core/bvh/): the primitive records
 // they reorder, the temporary node arena they fill and its depth-first flattening into Bvh2.
 // Accel::build (binned_sah.cpp) prepares the records, calls one builder by BuildOptions::quality
 // and turns the leaf-ordered records into the triangles, statistics and hash.

@@ -19,10 +19,10 @@
 #endif
 
 #include "host/core/layouts.h"
-#include "host/core/build/builder.h"
-#include "host/core/build/dense_bins.h"
-#include "host/core/build/sbvh.h"
-#include "host/core/build/triangles.h"
+#include "host/core/bvh/builder.h"
+#include "host/core/bvh/dense_bins.h"
+#include "host/core/bvh/sbvh.h"
+#include "host/core/bvh/triangles.h"
 #include "mbvh/error.h"
 #include "host/core/enum_check.h"
 #include "host/core/parallel.h"

@@ -1,5 +1,5 @@
 // SPDX-License-Identifier: MIT
-// dense_bins.h — the binned-SAH bins of a large node as SSE rows (internal to host/core/build/):
+// dense_bins.h — the binned-SAH bins of a large node as SSE rows (internal to host/core/bvh/):
 // every bin cleared up front, a record binned on all three axes without a branch, and the SAH
 // sweep run on the three axes at once, one axis per lane (the layout of Embree's binning,
 // Wald 2007 / Wald, "Fast Construction of SAH BVHs on the Intel MIC Architecture", 2012).
@@ -12,7 +12,7 @@
 
 #include <cstdint>
 
-#include "host/core/build/builder.h"
+#include "host/core/bvh/builder.h"
 
 namespace mbvh::build {
 

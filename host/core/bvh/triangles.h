@@ -1,5 +1,5 @@
 // SPDX-License-Identifier: MIT
-// triangles.h — how the builders read a scene's triangles (internal to host/core/build/): one
+// triangles.h — how the builders read a scene's triangles (internal to host/core/bvh/): one
 // accessor type for the owned arrays and one for the caller's mesh views (mbvh/geometry.h), so a
 // pass over the triangles is written once, as a generic lambda, and compiled once per kind;
 // the owned scene's pass is the plain array walk it always was.

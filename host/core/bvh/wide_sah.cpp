@@ -13,7 +13,7 @@
 #include <chrono>
 #include <cstring>
 
-#include "host/core/build/builder.h"
+#include "host/core/bvh/builder.h"
 #include "host/core/layouts.h"
 #include "host/core/trace/view.h"  // node_width
 

@@ -23,7 +23,7 @@
 // share what it leaves in proportion to their references. Every decision is a function of the
 // node's references alone, so the bytes do not depend on the thread count (the top of the tree is
 // split in order, then subtrees are built one per task, as in binned_sah.cpp).
-#include "host/core/build/sbvh.h"
+#include "host/core/bvh/sbvh.h"
 
 #include <algorithm>
 #include <atomic>

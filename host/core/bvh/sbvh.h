@@ -1,6 +1,6 @@
 // SPDX-License-Identifier: MIT
 // sbvh.h — the high-quality build (BuildQuality::high): a binary BVH with spatial splits
-// (host/core/build/sbvh.cpp). Internal to Accel::build.
+// (host/core/bvh/sbvh.cpp). Internal to Accel::build.
 #pragma once
 #include <cstdint>
 #include <vector>

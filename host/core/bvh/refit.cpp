@@ -10,8 +10,8 @@
 #include <cstring>
 
 #include "host/core/layouts.h"
-#include "host/core/build/builder.h"
-#include "host/core/build/triangles.h"
+#include "host/core/bvh/builder.h"
+#include "host/core/bvh/triangles.h"
 #include "mbvh/error.h"
 #include "host/core/parallel.h"
 #include "host/core/trace/intersect.h"

@@ -13,7 +13,7 @@
 #include <mutex>
 #include <string>
 
-#include "host/core/build/builder.h"
+#include "host/core/bvh/builder.h"
 #include "host/core/layouts.h"
 #include "host/core/trace/view.h"  // the packed leaf references
 #include "mbvh/error.h"

@@ -17,7 +17,7 @@
 #include <atomic>
 #include <bit>
 
-#include "host/core/build/builder.h"
+#include "host/core/bvh/builder.h"
 #include "host/core/parallel.h"
 
 namespace mbvh::build {

@@ -1,7 +1,7 @@
 // SPDX-License-Identifier: MIT
 // cache_check.cpp — a loaded BVH cache entry's tree and triangle records checked against what a
 // build makes (cache_check.h): nothing in a file, checksum or not, is trusted before this passes.
-#include "host/core/build/cache_check.h"
+#include "host/core/bvh/cache_check.h"
 
 #include <algorithm>
 #include <atomic>
@@ -9,8 +9,8 @@
 #include <cstring>
 #include <mutex>
 
-#include "host/core/build/builder.h"
-#include "host/core/build/triangles.h"
+#include "host/core/bvh/builder.h"
+#include "host/core/bvh/triangles.h"
 #include "host/core/parallel.h"
 #include "mbvh/accel.h"
 
