@@ -287,7 +287,7 @@ TEST_CASE("mbvh refuses FIFOs directories and devices as inputs without hanging 
 }
 
 TEST_CASE("MBVH_CPU_ISA=avx2 runs the cpu backend as an AVX2-only machine would - a bad value is a clear error",
-          "[cli]") {
+          "[cli][isa]") {
   const auto capped = run_cli("devices", "MBVH_CPU_ISA=avx2");
   INFO(capped.output);
   REQUIRE(capped.code == 0);

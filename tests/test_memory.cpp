@@ -108,7 +108,7 @@ TEST_CASE("OBJ streamed: a file parsed in pieces split anywhere gives the scene 
   }
 }
 
-TEST_CASE("a sparse 4 GiB OBJ file is refused at its first NUL byte, not read whole first", "[reliability][memory]") {
+TEST_CASE("a sparse 4 GiB OBJ file is refused at its first NUL byte, not read whole first", "[reliability][memory][sanitizer-skip]") {
   TempDir dir;
   const std::string zeros = sparse(dir, "big.obj", "", 4ull << 30);
   const std::string tail = sparse(dir, "tail.obj", kTriangle, 4ull << 30);
@@ -125,7 +125,7 @@ TEST_CASE("a sparse 4 GiB OBJ file is refused at its first NUL byte, not read wh
 }
 
 TEST_CASE("zstd is decompressed into the parser: a bomb costs what its geometry costs - skippable frames are read",
-          "[reliability][memory]") {
+          "[reliability][memory][sanitizer-skip]") {
   TempDir dir;
   // 512 MiB of comments after one triangle, 40 KiB compressed: loads under a 64 MiB budget (before:
   // "needs about 64 MiB ... the zstd stream goes on")
@@ -176,7 +176,7 @@ TEST_CASE("PLY: the counts a header declares are checked against the memory budg
 }
 
 TEST_CASE("allocation failures are errors naming what was allocated: under ulimit -v, never a bare std::bad_alloc",
-          "[reliability][memory]") {
+          "[reliability][memory][sanitizer-skip]") {
   CHECK_THAT(error_of([] { allocating("the test's array", 123, []() -> int { throw std::bad_alloc(); }); }),
              Catch::Contains("the test's array: out of memory: allocating about 123 bytes failed"));
   CHECK(allocating("nothing", 1, [] { return 7; }) == 7);

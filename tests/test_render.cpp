@@ -80,7 +80,7 @@ Png decode_png(const std::vector<std::uint8_t>& b) {
 
 }  // namespace
 
-TEST_CASE("render: the same seed gives the same image on every backend and thread count", "[render]") {
+TEST_CASE("render: the same seed gives the same image on every backend and thread count", "[render][isa]") {
   const Scene s = load_scene(mbvh_test::scene_path("cornell_box.obj.zst"));
   const auto acc = Accel::build(s);
   for (RenderMode mode : {RenderMode::path, RenderMode::ao}) {

@@ -60,7 +60,7 @@ void require_clean(const Accel& acc, const std::vector<Ray>& rays, const Variant
 
 }  // namespace
 
-TEST_CASE("stress: rays from inside closed meshes aimed at shared vertices and edges never leak", "[stress]") {
+TEST_CASE("stress: rays from inside closed meshes aimed at shared vertices and edges never leak", "[stress][sanitizer-cpu][isa]") {
   const VariantGrid grid = with_packets(all_backends());
   for (const char* base : kClosed)
     for (const char* tf : kTransforms) {
@@ -93,7 +93,7 @@ TEST_CASE("stress: rays from inside closed meshes aimed at shared vertices and e
     }
 }
 
-TEST_CASE("stress: special rays agree with the brute force on every backend", "[stress]") {
+TEST_CASE("stress: special rays agree with the brute force on every backend", "[stress][sanitizer-cpu][isa]") {
   const VariantGrid grid = with_packets(all_backends());
   std::vector<std::string> specs;
   for (const char* base : kOpen)
@@ -110,7 +110,7 @@ TEST_CASE("stress: special rays agree with the brute force on every backend", "[
   }
 }
 
-TEST_CASE("stress: secondary rays spawned from surfaces never re-hit their source", "[stress]") {
+TEST_CASE("stress: secondary rays spawned from surfaces never re-hit their source", "[stress][isa]") {
   const VariantGrid grid = with_packets(all_backends());
   for (const char* base : {"gen:sphere:96", "gen:torus:64", "gen:soup:20000"})
     for (const char* tf : {"@scale=1e-3", "", "@scale=1e3", "@scale=1e6", "@offset=1e6"}) {
@@ -157,7 +157,7 @@ TEST_CASE("stress: secondary rays spawned from surfaces never re-hit their sourc
     }
 }
 
-TEST_CASE("stress: a corrupt or adversarial tree is refused and cannot make a ray loop", "[stress]") {
+TEST_CASE("stress: a corrupt or adversarial tree is refused and cannot make a ray loop", "[stress][isa]") {
   const Scene s = load_scene("gen:soup:2000");
   const auto acc = Accel::build(s);
   Mbvh4 m4 = acc->mbvh4();
@@ -204,7 +204,7 @@ TEST_CASE("stress: a corrupt or adversarial tree is refused and cannot make a ra
 }
 
 TEST_CASE("stress: accuracy modes: exact is robust bit for bit - fast leaks where robust cannot - a peer refuses exact and maps fast to its default mode",
-          "[stress]") {
+          "[stress][isa]") {
   const Scene s = load_scene("gen:sphere:96");
   const auto acc = Accel::build(s);
   const std::vector<Ray> rays = feature_rays(s, inside_point(s), 3000, 1000, 7);
@@ -252,7 +252,7 @@ TEST_CASE("stress: accuracy modes: exact is robust bit for bit - fast leaks wher
 // DESIGN.md's numerical contract over the float range: scenes at the edges of the exactly traced
 // range (accel.h: kMaxCoordinate, kMinSceneScale) give the brute force's answers on every ray kind
 // and backend; beyond it, the build refuses them by name; a lost hit is never a tie.
-TEST_CASE("stress: scenes at the ends of the traced range are exact - beyond it they are refused", "[stress]") {
+TEST_CASE("stress: scenes at the ends of the traced range are exact - beyond it they are refused", "[stress][isa]") {
   VariantGrid grid = all_backends();
   grid.layouts = {Layout::mbvh4};
   grid.traversals = {Traversal::bitstack};
@@ -284,7 +284,7 @@ TEST_CASE("stress: scenes at the ends of the traced range are exact - beyond it 
   CHECK_THAT(refused("gen:cube:4@scale=1e30@scale=1e30"), Catch::Contains("beyond the float range"));
 }
 
-TEST_CASE("stress: mbvh check counts a lost hit as a genuine mismatch - not a tie - at any scene scale", "[stress]") {
+TEST_CASE("stress: mbvh check counts a lost hit as a genuine mismatch - not a tie - at any scene scale", "[stress][isa]") {
   for (const char* spec : {"gen:sphere:24", "gen:sphere:24@scale=1e11", "gen:sphere:24@scale=1e-10"}) {
     const Scene s = load_scene(spec);
     const auto acc = Accel::build(s);
@@ -309,7 +309,7 @@ TEST_CASE("stress: mbvh check counts a lost hit as a genuine mismatch - not a ti
 // The same guarantees on the other builders' trees (issue 15): the low-quality LBVH and the
 // high-quality SBVH (a triangle in several leaves, clipped reference boxes). Fewer rays and no
 // transforms: the builders change the tree, not the arithmetic the transforms stress.
-TEST_CASE("stress: inside and special rays on the low and high quality trees", "[stress][quality]") {
+TEST_CASE("stress: inside and special rays on the low and high quality trees", "[stress][quality][heavy][isa]") {
   const VariantGrid grid = all_backends();
   for (BuildQuality q : {BuildQuality::low, BuildQuality::high}) {
     BuildOptions bo;

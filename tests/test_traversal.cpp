@@ -192,18 +192,18 @@ void check_scene(const std::string& spec, const BuildOptions& bo = {}, std::size
 
 }  // namespace
 
-TEST_CASE("traversal equivalence: Cornell box", "[traversal]") { check_scene(mbvh_test::scene_path("cornell_box.obj.zst")); }
-TEST_CASE("traversal equivalence: Cornell box (measured data)", "[traversal]") {
+TEST_CASE("traversal equivalence: Cornell box", "[traversal][isa]") { check_scene(mbvh_test::scene_path("cornell_box.obj.zst")); }
+TEST_CASE("traversal equivalence: Cornell box (measured data)", "[traversal][isa]") {
   check_scene(mbvh_test::scene_path("cornell_box_original_data.obj.zst"));
 }
-TEST_CASE("traversal equivalence: Stanford bunny", "[traversal]") { check_scene(mbvh_test::scene_path("bun_zipper.ply.zst")); }
-TEST_CASE("traversal equivalence: Sibenik", "[traversal]") { check_scene(mbvh_test::scene_path("sibenik.obj.zst")); }
-TEST_CASE("traversal equivalence: Sponza", "[traversal]") { check_scene(mbvh_test::scene_path("sponza_dabrovic.obj.zst")); }
-TEST_CASE("traversal equivalence: conference room", "[traversal]") { check_scene(mbvh_test::scene_path("conference.obj.zst")); }
-TEST_CASE("traversal equivalence: closed sphere", "[traversal]") { check_scene("gen:sphere:256"); }
-TEST_CASE("traversal equivalence: closed cube", "[traversal]") { check_scene("gen:cube:24"); }
-TEST_CASE("traversal equivalence: triangle soup", "[traversal]") { check_scene("gen:soup:100000"); }
-TEST_CASE("traversal equivalence: hairball", "[traversal]") { check_scene("gen:hairball:300000"); }
+TEST_CASE("traversal equivalence: Stanford bunny", "[traversal][heavy][isa]") { check_scene(mbvh_test::scene_path("bun_zipper.ply.zst")); }
+TEST_CASE("traversal equivalence: Sibenik", "[traversal][heavy][isa]") { check_scene(mbvh_test::scene_path("sibenik.obj.zst")); }
+TEST_CASE("traversal equivalence: Sponza", "[traversal][heavy][isa]") { check_scene(mbvh_test::scene_path("sponza_dabrovic.obj.zst")); }
+TEST_CASE("traversal equivalence: conference room", "[traversal][heavy]") { check_scene(mbvh_test::scene_path("conference.obj.zst")); }
+TEST_CASE("traversal equivalence: closed sphere", "[traversal][isa]") { check_scene("gen:sphere:256"); }
+TEST_CASE("traversal equivalence: closed cube", "[traversal][heavy][isa]") { check_scene("gen:cube:24"); }
+TEST_CASE("traversal equivalence: triangle soup", "[traversal][heavy]") { check_scene("gen:soup:100000"); }
+TEST_CASE("traversal equivalence: hairball", "[traversal][heavy]") { check_scene("gen:hairball:300000"); }
 // Every SIMD cpu backend on `rays`, on the build's own leaves (cpu.leaf-block=1), every layout,
 // stack and bitstack, closest and any hit: cpu-scalar's bytes (and its count of invalid rays).
 // Returns how many backends ran: none where this run's backends hold no SIMD cpu backend.
@@ -365,10 +365,10 @@ BuildOptions low_quality() {
   bo.quality = BuildQuality::low;
   return bo;
 }
-TEST_CASE("traversal equivalence (quality low): Stanford bunny", "[traversal]") {
+TEST_CASE("traversal equivalence (quality low): Stanford bunny", "[traversal][heavy][isa]") {
   check_scene(mbvh_test::scene_path("bun_zipper.ply.zst"), low_quality(), 10000);
 }
-TEST_CASE("traversal equivalence (quality low): Cornell box", "[traversal]") {
+TEST_CASE("traversal equivalence (quality low): Cornell box", "[traversal][heavy][isa]") {
   check_scene(mbvh_test::scene_path("cornell_box.obj.zst"), low_quality(), 10000);
 }
 
@@ -378,10 +378,10 @@ BuildOptions high_quality() {
   o.quality = BuildQuality::high;
   return o;
 }
-TEST_CASE("traversal equivalence with quality high: Cornell box", "[traversal][quality]") {
+TEST_CASE("traversal equivalence with quality high: Cornell box", "[traversal][quality][heavy][isa]") {
   check_scene(mbvh_test::scene_path("cornell_box.obj.zst"), high_quality(), 5000);
 }
-TEST_CASE("traversal equivalence with quality high: triangle soup", "[traversal][quality]") {
+TEST_CASE("traversal equivalence with quality high: triangle soup", "[traversal][quality][heavy][isa]") {
   check_scene("gen:soup:3000", high_quality(), 5000);
 }
 
@@ -427,7 +427,7 @@ TEST_CASE("quality high - closest and any hit give the medium tree's answers on 
   }
 }
 
-TEST_CASE("rays from inside a closed mesh never leak", "[traversal]") {
+TEST_CASE("rays from inside a closed mesh never leak", "[traversal][isa]") {
   for (const char* spec : {"gen:sphere:200", "gen:cube:16"}) {
     const Scene s = load_scene(spec);
     const auto acc = Accel::build(s);
@@ -455,7 +455,7 @@ TEST_CASE("rays from inside a closed mesh never leak", "[traversal]") {
   }
 }
 
-TEST_CASE("invalid rays are defined misses - signed zeros and infinite tmax are valid", "[traversal]") {
+TEST_CASE("invalid rays are defined misses - signed zeros and infinite tmax are valid", "[traversal][isa]") {
   const Scene s = load_scene("gen:cube:4");
   const auto acc = Accel::build(s);
   const float nan = NAN, inf = INFINITY;
@@ -504,7 +504,7 @@ TEST_CASE("invalid rays are defined misses - signed zeros and infinite tmax are 
   }
 }
 
-TEST_CASE("statistics count work and stay out of the answers", "[traversal]") {
+TEST_CASE("statistics count work and stay out of the answers", "[traversal][isa]") {
   const Scene s = load_scene(mbvh_test::scene_path("bun_zipper.ply.zst"));
   const auto acc = Accel::build(s);
   RayGenOptions ro;

@@ -141,7 +141,7 @@ TEST_CASE("vulkan: arrays over the binding range are split - rays over several b
                           Catch::Contains("bindings of") && Catch::Contains("the shader has 8"));
 }
 
-TEST_CASE("vulkan: a scene whose node and triangle arrays exceed 128 MiB traces exactly", "[vulkan][large]") {
+TEST_CASE("vulkan: a scene whose node and triangle arrays exceed 128 MiB traces exactly", "[vulkan][large][heavy]") {
   // 3M triangles: 144 MB of triangles and about 136 MB of MBVH2 nodes, over lavapipe's 128 MiB
   // maxStorageBufferRange: the triangles are split over two storage bindings. Leaves priced per
   // triangle (leaf block 1) keep the node array this large.
