@@ -233,7 +233,7 @@ TEST_CASE("mbvh build-bench times both builders and --quality picks the builder"
   CHECK(r.code != 0);
 }
 
-TEST_CASE("mbvh reads a byte-order mark exactly refuses binary .obj files names the line (issue 19)", "[cli][issue19]") {
+TEST_CASE("mbvh reads a byte-order mark exactly refuses binary .obj files names the line", "[cli][reliability]") {
   TempDir dir;
   auto r = run_cli("info " + dir.write("bom.obj", "\xEF\xBB\xBFv 0 0 0\r\nv 1 0 0\r\nv 0 1 0\r\nv 0 0 1\r\nf 1 2 3\r\nf 1 2 4\r\n"));
   INFO(r.output);
@@ -253,8 +253,8 @@ TEST_CASE("mbvh reads a byte-order mark exactly refuses binary .obj files names 
 }
 
 TEST_CASE("mbvh refuses FIFOs directories and devices as inputs without hanging - and scenes beyond the memory budget "
-          "before generating them (issue 19)",
-          "[cli][issue19]") {
+          "before generating them",
+          "[cli][reliability]") {
   TempDir dir;
   const std::string fifo = dir.file("pipe.obj");
   REQUIRE(mkfifo(fifo.c_str(), 0600) == 0);

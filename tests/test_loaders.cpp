@@ -102,7 +102,7 @@ TEST_CASE("OBJ: malformed input names file line and problem", "[loader][obj]") {
 
 TEST_CASE("OBJ: a byte-order mark CRLF vertex w and colours read exactly - bare v or f extra values binary data and "
           "unknown statements name the line",
-          "[loader][obj][issue19]") {
+          "[loader][obj][reliability]") {
   // a UTF-8 byte-order mark once dropped the first vertex and shifted every index
   const std::string lf = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 2 3 4\n";
   const Scene bom = obj("\xEF\xBB\xBF" + lf);
@@ -143,7 +143,7 @@ TEST_CASE("OBJ: a byte-order mark CRLF vertex w and colours read exactly - bare 
 }
 
 TEST_CASE("PLY: a byte-order mark and CRLF are read - extra header words extra values and trailing data name the line",
-          "[loader][ply][issue19]") {
+          "[loader][ply][reliability]") {
   const std::string head = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
                            "element face 1\nproperty list uchar int vertex_indices\nend_header\n";
   const std::string body = "0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n";
@@ -178,7 +178,7 @@ TEST_CASE("PLY: a byte-order mark and CRLF are read - extra header words extra v
 
 TEST_CASE("bounded resources: zstd bombs generated scenes and PFM headers are refused before allocating - inputs that "
           "are not regular files are refused unopened",
-          "[loader][resources][issue19]") {
+          "[loader][resources][reliability]") {
   // -- zstd: a stated content size is checked first; an unstated one is capped while streaming
   {
     MemoryLimit limit("4M");
@@ -193,7 +193,7 @@ TEST_CASE("bounded resources: zstd bombs generated scenes and PFM headers are re
                    Catch::Contains("MBVH_MEMORY_LIMIT"));
   }
   // -- generated scenes: estimated from their parameters before generating
-  CHECK(scene_memory_estimate(400'000'000, 212'500'000) > 60ull << 30);  // the issue's "~70 GB"
+  CHECK(scene_memory_estimate(400'000'000, 212'500'000) > 60ull << 30);  // about 70 GB
   CHECK(scene_memory_estimate(400'000'000, 212'500'000) < 80ull << 30);
   {
     MemoryLimit limit("64G");

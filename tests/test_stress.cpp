@@ -306,7 +306,7 @@ TEST_CASE("stress: mbvh check counts a lost hit as a genuine mismatch - not a ti
   }
 }
 
-// The same guarantees on the other builders' trees (issue 15): the low-quality LBVH and the
+// The same guarantees on the other builders' trees: the low-quality LBVH and the
 // high-quality SBVH (a triangle in several leaves, clipped reference boxes). Fewer rays and no
 // transforms: the builders change the tree, not the arithmetic the transforms stress.
 TEST_CASE("stress: inside and special rays on the low and high quality trees", "[stress][quality][heavy][isa]") {

@@ -496,7 +496,7 @@ TEST_CASE("invalid rays are defined misses - signed zeros and infinite tmax are 
           CHECK(out.hits[i].prim != MBVH_MISS_PRIM);
           const float want = i == 3 ? 0.5f : 1.0f;
           // ours are exact; a peer's own triangle test may round (Embree 3's AVX2 Pluecker test
-          // gives 1.0000001 on AMD Zen 2, an ulp off): within 2 ulps
+          // can give 1.0000001, an ulp off): within 2 ulps
           if (backend->peer()) CHECK(std::fabs(out.hits[i].t - want) <= 2 * std::numeric_limits<float>::epsilon() * want);
           else CHECK(out.hits[i].t == want);
         }

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # SPDX-License-Identifier: MIT
-# run.sh BUILD WORK — mbvh as a user gets it (issue 16's acceptance), each step must pass:
+# run.sh BUILD WORK — mbvh as a user gets it, each step must pass:
 #   1. full: `cmake --install BUILD` into WORK/full, then examples/trace_scene.cpp built against it
 #      with find_package(mbvh COMPONENTS cpu opencl vulkan embree) and run; the same file built
 #      with `g++ -std=c++20 $(pkg-config --cflags --libs --static mbvh)` and run;

@@ -32,7 +32,7 @@ struct CacheAligned {
   /// Value-initialises, except Tri, Node4 and Node8: a triangle array and the collapse's wide
   /// node arrays are sized and then every word written by parallel passes (build, refit,
   /// collapse), which then also first touch their pages, instead of one thread zeroing them
-  /// beforehand (a first touch cost 3-4 us a page on our Firecracker hosts).
+  /// beforehand (the first touch of a page is the costly part; it is done in parallel this way).
   template <class U, class... Args>
   void construct(U* p, Args&&... args) {
     if constexpr (sizeof...(Args) == 0 && (std::is_same_v<U, Tri> || std::is_same_v<U, Node4> || std::is_same_v<U, Node8>))
