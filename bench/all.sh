@@ -1,8 +1,7 @@
 #!/usr/bin/env bash
 # SPDX-License-Identifier: MIT
-# all.sh — issue 6's benchmarks in one command: every table and plot of the README, from real runs
-# on the shared scenes, on every backend this machine runs (`mbvh bench --backend all`: a backend
-# added later is in every table without a change here).
+# all.sh — every table and plot of docs/benchmarks.md's first part, on every backend this machine
+# runs (`mbvh bench --backend all`, so a backend added later is in every table without a change):
 #   1. speed and traversal state: bunny, conference, Sibenik, Sponza × primary, diffuse and the
 #      path tracer's bounces (closest hit) and shadow rays (any hit) × every layout and traversal;
 #   2. run time against error: robust, exact and fast on every backend that has them — genuine
@@ -18,52 +17,35 @@
 #   bench/all.sh [--quick] [OUT]    (OUT default bench/out; about 15 minutes on 2 cores, --quick:
 #                                    tiny counts, one scene, for CI, about a minute)
 set -euo pipefail
-ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
-QUICK=0
-if [ "${1:-}" = "--quick" ]; then QUICK=1; shift; fi
-OUT="${1:-$ROOT/bench/out}"
-MBVH="${MBVH:-$ROOT/build/mbvh}"
-SCENES="$ROOT/../shared/scenes"
-source "$ROOT/bench/python.sh"  # PY: Debian's python3 with python3-matplotlib
+# shellcheck source=bench/lib.sh
+source "$(dirname "${BASH_SOURCE[0]}")/lib.sh"
+bench_args "$ROOT/bench/out" "$@"
+use_matplotlib
 mkdir -p "$OUT/speed" "$OUT/error" "$OUT/render" "$OUT/scaling"
-# the backends `mbvh bench --backend all` runs: every ready one, a name another stands for
-# (cpu-avx512 under `cpu`) only under that name
-ready_backends() {
-  "$MBVH" devices 2>/dev/null | awk '$2 == "ready:" { n[++k] = $1; if (match($0, /\(= [^)]*\)/)) t[substr($0, RSTART + 3, RLENGTH - 4)] = 1 }
-    END { for (i = 1; i <= k; i++) if (!(n[i] in t)) print n[i] }'
-}
-start=$SECONDS
-log() { echo "== [$((SECONDS - start)) s] $*" >&2; }
 
 if [ "$QUICK" = 1 ]; then
   RAYS=4000; ERROR_RAYS=200; WARMUP=0; SPP=4; W=48; H=32; REF_SPP=16; INSIDE=gen:sphere:24
-  SCENE_LIST="bunny|bun_zipper.ply.zst|"
+  SPEED_SCENES=(bunny); RENDER_SCENE=bunny
 else
   RAYS=100000; ERROR_RAYS=2000; WARMUP=0.25; SPP=32; W=160; H=120; REF_SPP=256; INSIDE=gen:sphere:256
-  SCENE_LIST="bunny|bun_zipper.ply.zst|
-conference|conference.obj.zst|--camera 0,300,0,1000,200,0
-sibenik|sibenik.obj.zst|--camera -14,-9,0,10,-6,0
-sponza|sponza_dabrovic.obj.zst|--camera -10,4,0,10,5,0"
+  SPEED_SCENES=(bunny conference sibenik sponza); RENDER_SCENE=sponza
 fi
 COMMON=(--backend all --count "$RAYS" --warmup "$WARMUP")
 
 # -- 1. speed and traversal state
-while IFS='|' read -r name file camera; do
-  log "speed: $name"
-  # shellcheck disable=SC2086
-  "$MBVH" bench "$SCENES/$file" $camera "${COMMON[@]}" --layout mbvh2,mbvh4,mbvh8 \
-    --traversal stack,bitstack,stack-ordered,bitstack-retest --query closest --kinds primary,diffuse,path \
-    --json "$OUT/speed/$name-closest.json" > "$OUT/speed/$name-closest.txt"
-  # shellcheck disable=SC2086
-  "$MBVH" bench "$SCENES/$file" $camera "${COMMON[@]}" --layout mbvh2,mbvh4,mbvh8 \
-    --traversal stack,bitstack,stack-ordered,bitstack-retest --query any --kinds shadow \
-    --json "$OUT/speed/$name-any.json" > "$OUT/speed/$name-any.txt"
-done <<< "$SCENE_LIST"
+LIST="$(scene_rows "$SCENES" "${SPEED_SCENES[@]}")"
+while IFS='|' read -r name scene camera; do
+  OUT="$OUT/speed" CLOSEST_KINDS=primary,diffuse,path run_queries "$name" "$scene" "$camera" "${COMMON[@]}" \
+    --layout mbvh2,mbvh4,mbvh8 --traversal stack,bitstack,stack-ordered,bitstack-retest
+done <<< "$LIST"
+# the backends `--backend all` ran here, each once: the render step and the check cover these
+BACKENDS="$("$PY" "$ROOT/bench/plots.py" backends "$OUT")"
 
 # -- 2. run time against error: each backend's MBVH4 where it has one, else MBVH2, stack traversal
 #       (every traversal of a backend gives the same bytes; the stack is the one every backend has)
+IFS='|' read -r _ BUNNY _ <<< "$(scene_rows "$SCENES" bunny)"
 log "error: bunny"
-"$MBVH" bench "$SCENES/bun_zipper.ply.zst" "${COMMON[@]}" --layout mbvh4,mbvh2 --first-layout --traversal stack \
+"$MBVH" bench "$BUNNY" "${COMMON[@]}" --layout mbvh4,mbvh2 --first-layout --traversal stack \
   --query closest --precision robust,exact,fast --kinds primary,diffuse,shadow,special --error-rays "$ERROR_RAYS" \
   --json "$OUT/error/bunny.json" > "$OUT/error/bunny.txt"
 log "error: leaks out of $INSIDE"
@@ -71,13 +53,13 @@ log "error: leaks out of $INSIDE"
   --query closest --precision robust,exact,fast --kinds inside --error-rays "$ERROR_RAYS" \
   --json "$OUT/error/inside.json" > "$OUT/error/inside.txt"
 
-# -- 3. image error against time (Sponza; the bunny in --quick)
-if [ "$QUICK" = 1 ]; then RSCENE="$SCENES/bun_zipper.ply.zst"; RCAM=(); else
-  RSCENE="$SCENES/sponza_dabrovic.obj.zst"; RCAM=(--camera -10,4,0,10,5,0); fi
+# -- 3. image error against time
+IFS='|' read -r _ RSCENE RCAMERA <<< "$(scene_rows "$SCENES" "$RENDER_SCENE")"
+read -r -a RCAM <<< "$RCAMERA"
 log "render: reference, $REF_SPP spp on cpu"
 "$MBVH" render "$RSCENE" "${RCAM[@]}" --backend cpu --spp "$REF_SPP" --width "$W" --height "$H" --seed 99 \
   -o "$OUT/render/reference.png" --pfm "$OUT/render/reference.pfm" > /dev/null 2>&1
-for b in $(ready_backends); do
+for b in ${BACKENDS//,/ }; do
   for p in robust fast; do
     [ "$p" = fast ] && [ "$b" = embree ] && continue
     log "render: $b $p"
@@ -95,5 +77,5 @@ PYTHON="$PY" MBVH="$MBVH" bash "$ROOT/bench/scaling.sh" "$OUT/scaling" "$MAXTRI"
 # -- plots, tables, checks
 log "plots and tables"
 "$PY" "$ROOT/bench/plots.py" all "$OUT" > "$OUT/tables.md"
-"$PY" "$ROOT/bench/plots.py" check "$OUT" "$(ready_backends | paste -sd, -)"
+"$PY" "$ROOT/bench/plots.py" check "$OUT" "$BACKENDS"
 log "done: $OUT/tables.md, $OUT/pareto.png, $OUT/rmse.png, $OUT/scaling/scaling.png"

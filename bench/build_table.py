@@ -11,16 +11,9 @@ import json
 import os
 import sys
 
+from benchlib import fmt, load, pyplot, verified
+
 QUALITIES = ["low", "medium", "high"]
-
-
-def load(path):
-    with open(path) as f:
-        return json.load(f)
-
-
-def fmt(x, digits=2):
-    return "–" if x is None else f"{x:.{digits}f}"
 
 
 def main(d, plot):
@@ -32,7 +25,7 @@ def main(d, plot):
         recs = load(bench_path)["records"] if os.path.exists(bench_path) else []
         cpu = next((r for r in recs if r["backend"].startswith("cpu") and r["ray_kind"] == "diffuse"), None)
         emb = next((r for r in recs if r["backend"] == "embree" and r["ray_kind"] == "diffuse"), None)
-        ok = all(r.get("verify_mismatches", 0) == 0 for r in recs)
+        ok = all(verified(r) for r in recs)
         rows.append({
             "scene": name, "quality": q, "triangles": b["triangles"], "references": b["references"],
             "build_ms": b["build_ms"], "embree_build_ms": b.get("embree_build_ms"),
@@ -60,14 +53,8 @@ def main(d, plot):
     print(text)
     if not all(r["verified"] for r in rows):
         sys.exit("build_table.py: some timed results did not match the reference")
-    if plot:
-        try:
-            import matplotlib
-            matplotlib.use("Agg")
-            import matplotlib.pyplot as plt
-        except ImportError:
-            print("build_table.py: no matplotlib, no plot (bench/python.sh installs it)", file=sys.stderr)
-            return
+    plt = pyplot("build_table.py: no plot") if plot else None
+    if plt:
         scenes = sorted({r["scene"] for r in rows}, key=lambda s: order.get(s, 99))
         fig, axes = plt.subplots(1, len(scenes), figsize=(4 * len(scenes), 4), squeeze=False)
         marks = {"low": "v", "medium": "o", "high": "^"}

@@ -2,7 +2,7 @@
 # SPDX-License-Identifier: MIT
 """cpu_table.py — Markdown tables from the `mbvh bench --scaling --json` files of
 bench/cpu_vs_embree.sh: per scene x rays (query) x threads, the cpu backend's variants beside
-Embree's robust mode (Mrays/s, medians), and the ratios issue 14 sets targets for:
+Embree's robust mode (Mrays/s, medians), and the ratios its targets are set on:
   best stack-based cpu (robust) / Embree robust  >= 1.0 on every row,
   best stackless cpu (robust)   / Embree robust,
   best cpu fast                 / Embree default mode (`embree --precision fast`),
@@ -12,9 +12,9 @@ mismatches against cpu-scalar); fast records always (the fast modes differ from 
 by design: their mismatch counts are printed below the table).
     python3 bench/cpu_table.py bench/out/*.json
 """
-import json
-import os
 import sys
+
+from benchlib import fmt, records, scene_name, verified
 
 ROBUST = [("cpu", "mbvh4", "stack"), ("cpu", "mbvh4", "bitstack"), ("cpu", "mbvh4", "stack-ordered"),
           ("cpu", "mbvh8", "stack"), ("cpu", "mbvh8", "bitstack"), ("cpu", "mbvh8", "stack-ordered")]
@@ -24,34 +24,27 @@ EMBREE = ("embree", "mbvh4", "stack")
 KINDS = ["primary", "diffuse", "shadow"]
 
 
-def fmt(x, digits=2):
-    return "–" if not x else f"{x:.{digits}f}"
-
-
 def main(paths):
     speed, scaling, order, fast_mismatch = {}, {}, [], {}
-    for p in paths:
-        with open(p) as f:
-            doc = json.load(f)
-        for r in doc["records"]:
-            prec = r.get("precision", "robust")
-            if prec == "exact":
-                continue
-            if prec == "robust" and r.get("verify_mismatches", 0) != 0:
-                continue
-            scene = os.path.basename(r["scene"]).split(".")[0]
-            v = (r["backend"], r["layout"], r["traversal"], prec)
-            rows = ((1, r.get("mrays_per_s_1_thread", 0)), (r["threads"], r["mrays_per_s"]))
-            for threads, mr in rows:
-                key = (scene, r["ray_kind"], r["query"], threads)
-                if mr and key not in order:
-                    order.append(key)
-                if mr:
-                    speed[key + v] = mr
-            scaling[(scene, r["ray_kind"], r["query"]) + v] = r.get("thread_scaling", 0)
-            if prec == "fast":
-                fast_mismatch[(scene, r["ray_kind"], r["backend"], r["layout"], r["traversal"])] = r.get(
-                    "verify_mismatches", 0)
+    for r in records(paths):
+        prec = r.get("precision", "robust")
+        if prec == "exact":
+            continue
+        if prec == "robust" and not verified(r):
+            continue
+        scene = scene_name(r["scene"])
+        v = (r["backend"], r["layout"], r["traversal"], prec)
+        rows = ((1, r.get("mrays_per_s_1_thread", 0)), (r["threads"], r["mrays_per_s"]))
+        for threads, mr in rows:
+            key = (scene, r["ray_kind"], r["query"], threads)
+            if mr and key not in order:
+                order.append(key)
+            if mr:
+                speed[key + v] = mr
+        scaling[(scene, r["ray_kind"], r["query"]) + v] = r.get("thread_scaling", 0)
+        if prec == "fast":
+            fast_mismatch[(scene, r["ray_kind"], r["backend"], r["layout"], r["traversal"])] = r.get(
+                "verify_mismatches", 0)
     if not speed:
         sys.exit("cpu_table.py: no usable records in " + " ".join(paths))
     order.sort(key=lambda k: (k[0], KINDS.index(k[1]) if k[1] in KINDS else 9, k[2], k[3]))

@@ -4,16 +4,16 @@
 files: per scene x rays x threads, the cpu backend's best single-ray traversal (the fastest of
 MBVH4/MBVH8 stack and ordered stack), its packet traversals (MBVH2 packets; the layout is the
 hybrid's single rays: the faster of the two is shown), Embree's single-ray and packet queries
-(robust mode), Mrays/s medians, and the ratios issue 18 sets targets for:
+(robust mode), Mrays/s medians, and the ratios its targets are set on:
   best packet / best single-ray cpu  (primary >= 2, shadow >= 1.3, diffuse >= 0.95),
   best packet / Embree's faster query (primary >= 1.0);
 with the packets' SIMD utilisation and nodes per ray (MBVH2 nodes the ray was active in). Only
 verified records count (zero mismatches against cpu-scalar).
     python3 bench/packet_table.py bench/out-packets/*.json
 """
-import json
-import os
 import sys
+
+from benchlib import records, scene_name, verified
 
 KINDS = ["primary", "shadow", "diffuse"]
 SINGLE = [("mbvh4", "stack"), ("mbvh4", "stack-ordered"), ("mbvh8", "stack"), ("mbvh8", "stack-ordered")]
@@ -23,22 +23,19 @@ TARGET = {"primary": 2.0, "shadow": 1.3, "diffuse": 0.95}
 
 def main(paths):
     speed, info, order = {}, {}, []
-    for p in paths:
-        with open(p) as f:
-            doc = json.load(f)
-        for r in doc["records"]:
-            if r.get("precision", "robust") != "robust" or r.get("verify_mismatches", 0) != 0:
+    for r in records(paths):
+        if r.get("precision", "robust") != "robust" or not verified(r):
+            continue
+        scene = scene_name(r["scene"])
+        v = (r["backend"], r["layout"], r["traversal"])
+        for threads, mr in ((1, r.get("mrays_per_s_1_thread", 0)), (r["threads"], r["mrays_per_s"])):
+            if not mr:
                 continue
-            scene = os.path.basename(r["scene"]).split(".")[0]
-            v = (r["backend"], r["layout"], r["traversal"])
-            for threads, mr in ((1, r.get("mrays_per_s_1_thread", 0)), (r["threads"], r["mrays_per_s"])):
-                if not mr:
-                    continue
-                key = (scene, r["ray_kind"], threads)
-                if key not in order:
-                    order.append(key)
-                speed[key + v] = mr
-            info[(scene, r["ray_kind"]) + v] = (r.get("simd_utilisation"), r.get("nodes_per_ray"))
+            key = (scene, r["ray_kind"], threads)
+            if key not in order:
+                order.append(key)
+            speed[key + v] = mr
+        info[(scene, r["ray_kind"]) + v] = (r.get("simd_utilisation"), r.get("nodes_per_ray"))
     if not speed:
         sys.exit("packet_table.py: no usable records in " + " ".join(paths))
     order.sort(key=lambda k: (k[0], KINDS.index(k[1]) if k[1] in KINDS else 9, k[2]))

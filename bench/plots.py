@@ -11,16 +11,14 @@
                                           fails unless DIR holds a record of every backend Bi for every
                                           ray kind, query and traversal pair (stack and bitstack for
                                           mbvh's own backends) and every timed result was verified
+    python3 bench/plots.py backends DIR   the backends of DIR's speed records, in the order they ran,
+                                          comma-separated (what `mbvh bench --backend all` ran)
 """
 import glob
-import json
 import os
 import sys
 
-
-def load(path):
-    with open(path) as f:
-        return json.load(f)
+from benchlib import load, median, pyplot, records, scene_name, verified
 
 
 def backend_label(r):
@@ -47,7 +45,7 @@ def scaling(directory):
         info = load(f"{directory}/info-{n}.json")
         build[n] = {l["layout"]: l["build_ms"] for l in info["layouts"]}
         for r in load(f"{directory}/bench-{n}.json")["records"]:
-            if r["verify_mismatches"] != 0 or r["mrays_per_s"] <= 0:
+            if not verified(r) or r["mrays_per_s"] <= 0:
                 continue
             series.setdefault(backend_label(r), {})[n] = 1e3 / r["mrays_per_s"]  # ns per ray
     # one line per backend: its bitstack on MBVH4, else on MBVH2 (the GPU path), else its stack
@@ -66,7 +64,7 @@ def scaling(directory):
     for n in sizes:
         cells = [f"{series[l][n]:.0f}" if n in series[l] else "–" for l in labels]
         print(f"| {n:,} | {build[n].get('binary', 0):.0f} | {build[n].get('mbvh4', 0):.1f} | " + " | ".join(cells) + " |")
-    plt = pyplot()
+    plt = need_pyplot()
     fig, (a, b) = plt.subplots(1, 2, figsize=(12, 4.5))
     for l in labels:
         xs = sorted(series[l])
@@ -83,34 +81,8 @@ def scaling(directory):
     print(f"\nwrote {out}", file=sys.stderr)
 
 
-def pyplot():
-    try:
-        import matplotlib
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        sys.exit("plots.py: python3-matplotlib is missing (apt-get install python3-matplotlib)")
-    return plt
-
-
-def records(pattern):
-    out = []
-    for path in sorted(glob.glob(pattern)):
-        doc = load(path)
-        for r in doc["records"]:
-            r["_file"] = os.path.basename(path)
-            r["_doc"] = doc
-            out.append(r)
-    return out
-
-
-def scene_name(r):
-    return os.path.basename(r["scene"]).split(".")[0]
-
-
-def median(xs):
-    xs = sorted(xs)
-    return xs[len(xs) // 2] if xs else 0
+def need_pyplot():
+    return pyplot("plots.py") or sys.exit(1)
 
 
 KINDS = ["primary", "diffuse", "path", "shadow"]
@@ -126,11 +98,11 @@ def speed_tables(directory):
         return
     doc = recs[0]["_doc"]
     print(f"Machine: {doc['cpu']}, {doc['machine']}; {doc['compiler']}.\n")
-    scenes = list(dict.fromkeys(scene_name(r) for r in recs))
+    scenes = list(dict.fromkeys(scene_name(r["scene"]) for r in recs))
     for scene in scenes:
         rows = {}
         for r in recs:
-            if scene_name(r) != scene:
+            if scene_name(r["scene"]) != scene:
                 continue
             key = (r["backend"], r["layout"], r["traversal"])
             rows.setdefault(key, {})[r["ray_kind"]] = r
@@ -155,7 +127,7 @@ def speed_tables(directory):
     print("|---" * 11 + "|")
     groups = {}
     for r in recs:
-        if scene_name(r) != pick or r["ray_kind"] != "path" or not r["state_bytes_per_ray"]:
+        if scene_name(r["scene"]) != pick or r["ray_kind"] != "path" or not r["state_bytes_per_ray"]:
             continue
         key = (r["layout"], r["traversal"], r["state_bytes_per_ray"], round(r["peak_state_bytes_per_ray"], 1),
                round(r["nodes_per_ray"], 1), round(r["box_tests_per_ray"], 1), round(r["leaves_per_ray"], 2),
@@ -213,7 +185,7 @@ def pareto(directory):
     print("| backend | layout/traversal | precision | ns/ray (median of kinds) | genuine mismatches | "
           "wrong answers | leaks | errors per million rays |")
     print("|---" * 8 + "|")
-    plt = pyplot()
+    plt = need_pyplot()
     fig, ax = plt.subplots(figsize=(8, 5))
     marker = {"robust": "o", "exact": "s", "fast": "^"}
     for (b, pr, l, t), p in sorted(pts.items()):
@@ -240,11 +212,11 @@ def rmse_plot(directory):
     if not curves:
         return
     c0 = curves[0]
-    print(f"#### Image error against time ({os.path.basename(c0['scene']).split('.')[0]}, {c0['width']}×{c0['height']}, "
+    print(f"#### Image error against time ({scene_name(c0['scene'])}, {c0['width']}×{c0['height']}, "
           "8-bounce path tracing; RMSE of the running mean against a high-sample cpu reference)\n")
     print("| backend | precision | Mrays/s | spp | seconds (all) | RMSE at 1 spp | RMSE at the end |")
     print("|---" * 7 + "|")
-    plt = pyplot()
+    plt = need_pyplot()
     fig, ax = plt.subplots(figsize=(8, 5))
     for c in curves:
         pts = c["points"]
@@ -296,6 +268,13 @@ def check(directory, backends):
     print(f"plots.py check: {len(speed) + len(error)} records of {len(backends)} backends, every one verified")
 
 
+def backends(directory):
+    names = list(dict.fromkeys(r["backend"] for r in records(f"{directory}/speed/*.json")))
+    if not names:
+        sys.exit(f"plots.py backends: no speed records under {directory}")
+    print(",".join(names))
+
+
 if __name__ == "__main__":
     if len(sys.argv) == 3 and sys.argv[1] == "scaling":
         scaling(sys.argv[2])
@@ -303,6 +282,8 @@ if __name__ == "__main__":
         speed_tables(sys.argv[2])
         pareto(sys.argv[2])
         rmse_plot(sys.argv[2])
+    elif len(sys.argv) == 3 and sys.argv[1] == "backends":
+        backends(sys.argv[2])
     elif len(sys.argv) == 4 and sys.argv[1] == "check":
         check(sys.argv[2], [b for b in sys.argv[3].split(",") if b])
     else:

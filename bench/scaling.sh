@@ -1,22 +1,22 @@
 #!/usr/bin/env bash
 # SPDX-License-Identifier: MIT
-# scaling.sh — issue 6's scaling benchmark: build time and time per ray against triangle count
-# on the generated hairball (gen:hairball:N, thin random tubes), N from 10K to 10M, on every
-# backend this build has (each with its default layout and the bitstack; Embree with its
-# stack), 100K diffuse rays (seed 1), every result verified first. Writes OUT/info-N.json and
-# OUT/bench-N.json and draws OUT/scaling.png (bench/plots.py).
+# scaling.sh — build time and time per ray against triangle count on the generated hairball
+# (gen:hairball:N, thin random tubes), N from 10K to 10M, on one backend of each kind this machine
+# runs (each with its default layout and the bitstack; Embree with its stack), 100K diffuse rays
+# (seed 1), every result verified first. Writes OUT/info-N.json and OUT/bench-N.json and draws
+# OUT/scaling.png (bench/plots.py).
 #   bench/scaling.sh [OUT] [MAX_TRIANGLES] [RAYS]    (about 3 minutes on 2 cores up to 10M, 100K rays)
 set -euo pipefail
-ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+# shellcheck source=bench/lib.sh
+source "$(dirname "${BASH_SOURCE[0]}")/lib.sh"
 OUT="${1:-$ROOT/bench/out/scaling}"
 MAX="${2:-10000000}"
 RAYS="${3:-100000}"
-MBVH="${MBVH:-$ROOT/build/mbvh}"
 mkdir -p "$OUT"
-# every backend that is ready here, aliases and the second ISA / OpenCL mapping left out
-BACKENDS=$("$MBVH" devices 2>/dev/null | awk '$2 == "ready:" && !/\(= / {print $1}' |
-  grep -v -e '^cpu-avx2$' -e '^opencl-lane$' | paste -sd, -)
-source "$ROOT/bench/python.sh"  # PY: Debian's python3 with python3-matplotlib
+use_matplotlib
+# every backend that starts here but the ISA and OpenCL-mapping variants: `cpu` stands for the
+# best ISA, `opencl` for the device's mapping
+BACKENDS="$("$MBVH" devices --ready | grep -vx -e 'cpu-avx[0-9]*' -e 'opencl-wide' -e 'opencl-lane' | paste -sd, -)"
 echo "backends: $BACKENDS" >&2
 for n in 10000 30000 100000 300000 1000000 3000000 10000000; do
   [ "$n" -le "$MAX" ] || break

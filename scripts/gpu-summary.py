@@ -13,7 +13,7 @@ passed, is "not supported").
       mismatches, every requested backend has records in every bench step, all verified, and
       every requested backend x layout is either measured or "not supported" (exit 1 otherwise)
 
-Standard library only (it runs on the GPU machine's own python3).
+Standard library only (it runs on the GPU machine's own python3), with bench/benchlib.py.
 """
 import argparse
 import glob
@@ -22,10 +22,8 @@ import os
 import re
 import sys
 
-
-def load(path):
-    with open(path) as f:
-        return json.load(f)
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "bench"))
+from benchlib import load  # noqa: E402  (bench/ is on the path from here)
 
 
 def steps(parts):
@@ -76,9 +74,9 @@ def setup_facts(out):
     return [l.rstrip() for l in open(path) if l.startswith(("mode:", "found:", "nvidia-smi:", "machine:", "warning"))]
 
 
-def scene_name(path):
+def scene_file(path):
     """bun_zipper.ply.zst for .../scenes/bun_zipper.ply.zst; a generator spec as it is."""
-    return os.path.basename(path) if os.sep in path else path
+    return os.path.basename(path)
 
 
 def run_backends(step, backends):
@@ -97,7 +95,7 @@ def bench_cells(runs, backends, layouts, traversals, step_status):
             continue
         recs = run["records"]
         status = step_status.get(run["step"], "?")
-        scene = scene_name(recs[0]["scene"]) if recs else run["step"]
+        scene = scene_file(recs[0]["scene"]) if recs else run["step"]
         for b in backends:
             if step_status.get("start-" + b, "0") != "0":
                 rows.append((scene, b, "", "", "", "", "cannot start (devices.txt)", "", "", "", "", ""))
@@ -151,7 +149,7 @@ def summary(args):
             ref = [c for c in k["comparisons"] if "brute" not in c["b"] and "occluded" not in c["b"]]
             exact = sum(1 for c in ref if c["bit_identical"] == c["rays"])
             md.append("| %s | %s | %s | %d | %d | %d | %d | %d of %d |" % (
-                scene_name(run["scene"]), ",".join(run_backends(run["step"], backends)), k["kind"], k["rays"],
+                scene_file(run["scene"]), ",".join(run_backends(run["step"], backends)), k["kind"], k["rays"],
                 len(variants), len(k["comparisons"]), k["mismatches"], exact, len(ref)))
     md += ["", "## Bench: Mrays/s (median of the timed passes), verified before timing", "",
            "Mrays/s: end to end (`trace()`: ray upload, dispatch, hit download); device Mrays/s: by the device's "
@@ -186,7 +184,7 @@ def verify(args):
                 problems.append("%s %s: %d genuine mismatches" % (run["step"], k["kind"], k["mismatches"]))
             checked.setdefault(run["scene"], set()).update(c["a"].split("/")[0] for c in k["comparisons"])
     for scene, ran in checked.items():
-        problems += ["check %s: backend %s was not checked" % (scene_name(scene), b) for b in backends if b not in ran]
+        problems += ["check %s: backend %s was not checked" % (scene_file(scene), b) for b in backends if b not in ran]
     if not bench:
         problems.append("no bench ran")
     for run in bench:
