@@ -8,6 +8,8 @@
 #include <cmath>
 #include <cstring>
 
+#include "host/core/bvh/builder.h"  // tri_box
+#include "host/core/bvh/wide_node.h"  // slot_box
 #include "host/core/layouts.h"
 #include "host/core/trace/traverse.h"
 #include "mbvh/backend.h"
@@ -20,6 +22,8 @@
 #include "tests/helpers.h"
 
 using namespace mbvh;
+using mbvh::build::slot_box;
+using mbvh::build::tri_box;
 
 namespace {
 
@@ -29,26 +33,10 @@ bool contains(const Box& outer, const Box& inner) {
   return true;
 }
 
-Box tri_box(const Tri& t) {
-  Box b;
-  b.grow(Vec3f{t.v0[0], t.v0[1], t.v0[2]});
-  b.grow(Vec3f{t.v1[0], t.v1[1], t.v1[2]});
-  b.grow(Vec3f{t.v2[0], t.v2[1], t.v2[2]});
-  return b;
-}
-
 Box leaf_tris_box(const Accel& acc, std::int32_t ref) {
   const Leaf& l = acc.leaves()[static_cast<std::size_t>(~ref)];
   Box b;
   for (std::uint32_t i = l.first; i < l.first + l.count; ++i) b.grow(tri_box(acc.tris()[i]));
-  return b;
-}
-
-template <class N>  // Node4 or Node8
-Box box4(const N& n, int s) {
-  Box b;
-  b.lo = {n.lo_x[s], n.lo_y[s], n.lo_z[s]};
-  b.hi = {n.hi_x[s], n.hi_y[s], n.hi_z[s]};
   return b;
 }
 
@@ -117,7 +105,7 @@ void check_invariants(const Scene& scene, const Accel& acc) {
     for (int s = 0; s < 4; ++s) {
       const std::int32_t c = n.child[s];
       if (c == MBVH_EMPTY) {
-        REQUIRE(box4(n, s).empty());
+        REQUIRE(slot_box(n, s).empty());
         continue;
       }
       if (c >= 0) {
@@ -126,10 +114,10 @@ void check_invariants(const Scene& scene, const Accel& acc) {
         REQUIRE(ch.parent == static_cast<std::int32_t>(i));
         for (int k = 0; k < 3; ++k) REQUIRE(ch.sib[k] == n.child[(s + 1 + k) & 3]);
         for (int g = 0; g < 4; ++g)
-          if (ch.child[g] != MBVH_EMPTY) REQUIRE(contains(box4(n, s), box4(ch, g)));
+          if (ch.child[g] != MBVH_EMPTY) REQUIRE(contains(slot_box(n, s), slot_box(ch, g)));
       } else {
         ++leaf_refs4[static_cast<std::size_t>(~c)];
-        REQUIRE(contains(box4(n, s), leaf_tris_box(acc, c)));
+        REQUIRE(contains(slot_box(n, s), leaf_tris_box(acc, c)));
       }
     }
   }
@@ -148,15 +136,15 @@ void check_invariants(const Scene& scene, const Accel& acc) {
     for (int s = 0; s < 8; ++s) {
       const std::int32_t c = n.child[s];
       if (c == MBVH_EMPTY) {
-        REQUIRE(box4(n, s).empty());
+        REQUIRE(slot_box(n, s).empty());
       } else if (c >= 0) {
         const Node8& ch = m8.nodes[static_cast<std::size_t>(c)];
         REQUIRE(ch.parent == static_cast<std::int32_t>(i));
         for (int g = 0; g < 8; ++g)
-          if (ch.child[g] != MBVH_EMPTY) REQUIRE(contains(box4(n, s), box4(ch, g)));
+          if (ch.child[g] != MBVH_EMPTY) REQUIRE(contains(slot_box(n, s), slot_box(ch, g)));
       } else {
         ++leaf_refs8[static_cast<std::size_t>(~c)];
-        REQUIRE(contains(box4(n, s), leaf_tris_box(acc, c)));
+        REQUIRE(contains(slot_box(n, s), leaf_tris_box(acc, c)));
       }
     }
   }
@@ -265,10 +253,7 @@ TEST_CASE("leaf variants regroup the one build: every triangle once, conservativ
         for (const Node8& n : m.nodes)
           for (int k = 0; k < 8; ++k) {
             if (n.child[k] == MBVH_EMPTY) continue;
-            Box bx;
-            bx.lo = {n.lo_x[k], n.lo_y[k], n.lo_z[k]};
-            bx.hi = {n.hi_x[k], n.hi_y[k], n.hi_z[k]};
-            const double a = bx.half_area();
+            const double a = slot_box(n, k).half_area();
             c += n.child[k] >= 0 ? a : a * std::ceil(double(v.leaves[static_cast<std::size_t>(~n.child[k])].count) / block);
           }
         return c;
@@ -605,14 +590,6 @@ namespace {
 
 bool same_bits(const Box& a, const Box& b) { return std::memcmp(&a, &b, sizeof(Box)) == 0; }
 
-template <class N>
-Box wide_slot(const N& n, int s) {
-  Box b;
-  b.lo = {n.lo_x[s], n.lo_y[s], n.lo_z[s]};
-  b.hi = {n.hi_x[s], n.hi_y[s], n.hi_z[s]};
-  return b;
-}
-
 // Every box of a wide layout is its child's exactly: a leaf's box, or the union of the child
 // node's slots.
 template <class M>
@@ -629,8 +606,8 @@ std::size_t wide_box_faults(const M& m, const Bvh2& b) {
       else
         for (int g = 0; g < W; ++g)
           if (m.nodes[static_cast<std::size_t>(c)].child[g] != MBVH_EMPTY)
-            want.grow(wide_slot(m.nodes[static_cast<std::size_t>(c)], g));  // Box::grow, refit's union
-      bad += !same_bits(want, wide_slot(n, s));
+            want.grow(slot_box(m.nodes[static_cast<std::size_t>(c)], g));  // Box::grow, refit's union
+      bad += !same_bits(want, slot_box(n, s));
     }
   return bad;
 }
