@@ -9,10 +9,10 @@
 // the remaining subtrees are built one per task. Every split decision is the same function of
 // the same inputs, so the bytes do not depend on the thread count.
 #include <algorithm>
-#include <atomic>
 #include <bit>
 #include <cmath>
-#include <cstring>
+#include <memory>
+#include <vector>
 #if defined(__SSE2__)
 #include <emmintrin.h>
 #endif

@@ -1,14 +1,13 @@
 // SPDX-License-Identifier: MIT
-// collapse.cpp — the MBVH2 and MBVH4 layouts made from the one binary BVH, with the parent and
-// sibling links the stackless bitstack traversal needs (Áfra & Szirmay-Kalos, "Stackless
-// Multi-BVH Traversal for CPU, MIC and GPU Ray Tracing", CGF 2014; TRAVERSAL.md §2).
+// collapse.cpp — the MBVH2, MBVH4 and MBVH8 layouts made from the binary BVH by the greedy
+// collapse, with the parent and sibling links the stackless bitstack traversal needs (Áfra &
+// Szirmay-Kalos, "Stackless Multi-BVH Traversal for CPU, MIC and GPU Ray Tracing", CGF 2014;
+// TRAVERSAL.md §2).
 #include <algorithm>
-#include <atomic>
-#include <memory>
 #include <bit>
-#include <cstring>
-#include <limits>
 #include <chrono>
+#include <string>
+#include <vector>
 
 #include "host/core/bvh/wide_node.h"
 #include "host/core/layouts.h"
