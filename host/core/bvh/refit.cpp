@@ -7,7 +7,6 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
-#include <cstring>
 
 #include "host/core/layouts.h"
 #include "host/core/bvh/builder.h"
@@ -345,21 +344,10 @@ double refit_binary(Bvh2& bvh, Mbvh2& mbvh2, unsigned threads) {
   });
 }
 
-// The 16-wide view's boxes, copied from the refitted MBVH4 `m`.
+// The 16-wide view's boxes, copied from the refitted MBVH4 `m` (its child and link words stay).
 void refit_view(const Mbvh4& m, Mbvh4Wide& w, unsigned threads) {
   parallel_for(m.nodes.size(), 16384, threads, [&](std::size_t b, std::size_t e, unsigned) {
-    for (std::size_t i = b; i < e; ++i) {
-      const Node4& nd = m.nodes[i];
-      Node4W& o = w.nodes[i];
-      for (int s = 0; s < 4; ++s) {  // the boxes only: the child and link words (lane 3) stay
-        o.lo[s][0] = nd.lo_x[s];
-        o.lo[s][1] = nd.lo_y[s];
-        o.lo[s][2] = nd.lo_z[s];
-        o.hi[s][0] = nd.hi_x[s];
-        o.hi[s][1] = nd.hi_y[s];
-        o.hi[s][2] = nd.hi_z[s];
-      }
-    }
+    for (std::size_t i = b; i < e; ++i) build::set_view_boxes(w.nodes[i], m.nodes[i]);
   });
 }
 

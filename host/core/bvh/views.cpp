@@ -4,6 +4,7 @@
 #include <cstring>
 #include <limits>
 
+#include "host/core/bvh/wide_node.h"
 #include "host/core/layouts.h"
 
 namespace mbvh {
@@ -15,14 +16,9 @@ Mbvh4Wide make_mbvh4_wide(const Mbvh4& m) {
     const Node4& n = m.nodes[i];
     Node4W& o = w.nodes[i];
     const std::int32_t link[4] = {n.parent, n.sib[0], n.sib[1], n.sib[2]};
-    for (int s = 0; s < 4; ++s) {
-      o.lo[s][0] = n.lo_x[s];
-      o.lo[s][1] = n.lo_y[s];
-      o.lo[s][2] = n.lo_z[s];
+    build::set_view_boxes(o, n);
+    for (int s = 0; s < 4; ++s) {  // lane 3: the child reference below its box, a link above
       std::memcpy(&o.lo[s][3], &n.child[s], 4);
-      o.hi[s][0] = n.hi_x[s];
-      o.hi[s][1] = n.hi_y[s];
-      o.hi[s][2] = n.hi_z[s];
       std::memcpy(&o.hi[s][3], &link[s], 4);
     }
   }

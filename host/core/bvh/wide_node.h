@@ -1,7 +1,8 @@
 // SPDX-License-Identifier: MIT
 // wide_node.h — how the layouts' nodes are written (internal to host/core/bvh/): the one writer of
-// a wide node's slots (Node4, Node8) for the greedy and SAH collapses and for refit, and of an
-// MBVH2 node's two child boxes for make_mbvh2 and refit.
+// a wide node's slots (Node4, Node8) for the greedy and SAH collapses and for refit, of an MBVH2
+// node's two child boxes for make_mbvh2 and refit, and of the 16-wide view's boxes for
+// make_mbvh4_wide and refit.
 #pragma once
 #include <cstdint>
 #include <cstring>
@@ -53,6 +54,19 @@ inline void set_boxes(Node2& d, const Box& b0, const Box& b1) {
   d.c0[0] = b0.lo.x; d.c0[1] = b0.hi.x; d.c0[2] = b0.lo.y; d.c0[3] = b0.hi.y;
   d.c1[0] = b1.lo.x; d.c1[1] = b1.hi.x; d.c1[2] = b1.lo.y; d.c1[3] = b1.hi.y;
   d.zz[0] = b0.lo.z; d.zz[1] = b0.hi.z; d.zz[2] = b1.lo.z; d.zz[3] = b1.hi.z;
+}
+
+/// Writes the boxes of MBVH4 node `n` into its 16-wide view `o` (mbvh_layout.h, Node4W): lanes
+/// 0-2 of each slot's rows; lane 3 (the child and link words) stays.
+inline void set_view_boxes(Node4W& o, const Node4& n) {
+  for (int s = 0; s < 4; ++s) {
+    o.lo[s][0] = n.lo_x[s];
+    o.lo[s][1] = n.lo_y[s];
+    o.lo[s][2] = n.lo_z[s];
+    o.hi[s][0] = n.hi_x[s];
+    o.hi[s][1] = n.hi_y[s];
+    o.hi[s][2] = n.hi_z[s];
+  }
 }
 
 }  // namespace mbvh::build
