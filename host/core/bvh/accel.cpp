@@ -1,7 +1,7 @@
 // SPDX-License-Identifier: MIT
 // accel.cpp — Accel itself: Accel::build (the record pass, then the builder BuildOptions::quality
 // names, the flattened tree, its triangles and statistics), the accessors, the hash and the
-// layouts made on first use.
+// layouts made on first use; sah_of_binary, the binary tree's SAH statistic (also Accel::load's).
 #include <algorithm>
 #include <chrono>
 #include <cmath>
