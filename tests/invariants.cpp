@@ -10,6 +10,8 @@
 #include <cmath>
 #include <cstring>
 
+#include "host/core/bvh/builder.h"  // tri_box
+#include "host/core/bvh/wide_node.h"  // slot_box
 #include "host/core/layouts.h"
 #include "host/core/trace/traverse.h"
 #include "mbvh/backend.h"
@@ -24,19 +26,13 @@
 namespace mbvh_test {
 
 using namespace mbvh;
+using mbvh::build::slot_box;
+using mbvh::build::tri_box;
 
 bool contains(const Box& outer, const Box& inner) {
   for (int a = 0; a < 3; ++a)
     if (!(outer.lo[a] <= inner.lo[a] && inner.hi[a] <= outer.hi[a])) return false;
   return true;
-}
-
-Box tri_box(const Tri& t) {
-  Box b;
-  b.grow(Vec3f{t.v0[0], t.v0[1], t.v0[2]});
-  b.grow(Vec3f{t.v1[0], t.v1[1], t.v1[2]});
-  b.grow(Vec3f{t.v2[0], t.v2[1], t.v2[2]});
-  return b;
 }
 
 namespace {
@@ -45,14 +41,6 @@ Box leaf_tris_box(const Accel& acc, std::int32_t ref) {
   const Leaf& l = acc.leaves()[static_cast<std::size_t>(~ref)];
   Box b;
   for (std::uint32_t i = l.first; i < l.first + l.count; ++i) b.grow(tri_box(acc.tris()[i]));
-  return b;
-}
-
-template <class N>  // Node4 or Node8
-Box box4(const N& n, int s) {
-  Box b;
-  b.lo = {n.lo_x[s], n.lo_y[s], n.lo_z[s]};
-  b.hi = {n.hi_x[s], n.hi_y[s], n.hi_z[s]};
   return b;
 }
 
@@ -123,7 +111,7 @@ void check_invariants(const Scene& scene, const Accel& acc) {
     for (int s = 0; s < 4; ++s) {
       const std::int32_t c = n.child[s];
       if (c == MBVH_EMPTY) {
-        REQUIRE(box4(n, s).empty());
+        REQUIRE(slot_box(n, s).empty());
         continue;
       }
       if (c >= 0) {
@@ -132,10 +120,10 @@ void check_invariants(const Scene& scene, const Accel& acc) {
         REQUIRE(ch.parent == static_cast<std::int32_t>(i));
         for (int k = 0; k < 3; ++k) REQUIRE(ch.sib[k] == n.child[(s + 1 + k) & 3]);
         for (int g = 0; g < 4; ++g)
-          if (ch.child[g] != MBVH_EMPTY) REQUIRE(contains(box4(n, s), box4(ch, g)));
+          if (ch.child[g] != MBVH_EMPTY) REQUIRE(contains(slot_box(n, s), slot_box(ch, g)));
       } else {
         ++leaf_refs4[static_cast<std::size_t>(~c)];
-        REQUIRE(contains(box4(n, s), leaf_tris_box(acc, c)));
+        REQUIRE(contains(slot_box(n, s), leaf_tris_box(acc, c)));
       }
     }
   }
@@ -154,15 +142,15 @@ void check_invariants(const Scene& scene, const Accel& acc) {
     for (int s = 0; s < 8; ++s) {
       const std::int32_t c = n.child[s];
       if (c == MBVH_EMPTY) {
-        REQUIRE(box4(n, s).empty());
+        REQUIRE(slot_box(n, s).empty());
       } else if (c >= 0) {
         const Node8& ch = m8.nodes[static_cast<std::size_t>(c)];
         REQUIRE(ch.parent == static_cast<std::int32_t>(i));
         for (int g = 0; g < 8; ++g)
-          if (ch.child[g] != MBVH_EMPTY) REQUIRE(contains(box4(n, s), box4(ch, g)));
+          if (ch.child[g] != MBVH_EMPTY) REQUIRE(contains(slot_box(n, s), slot_box(ch, g)));
       } else {
         ++leaf_refs8[static_cast<std::size_t>(~c)];
-        REQUIRE(contains(box4(n, s), leaf_tris_box(acc, c)));
+        REQUIRE(contains(slot_box(n, s), leaf_tris_box(acc, c)));
       }
     }
   }

@@ -9,8 +9,6 @@ namespace mbvh_test {
 
 /// True when `inner` lies inside `outer` (closed boxes).
 bool contains(const mbvh::Box& outer, const mbvh::Box& inner);
-/// The box of one triangle's three vertices.
-mbvh::Box tri_box(const mbvh::Tri& t);
 /// CHECKs every invariant of `acc`, built from `scene`, with Catch2.
 void check_invariants(const mbvh::Scene& scene, const mbvh::Accel& acc);
 

@@ -8,6 +8,8 @@
 #include <cmath>
 #include <cstring>
 
+#include "host/core/bvh/builder.h"  // tri_box
+#include "host/core/bvh/wide_node.h"  // slot_box
 #include "host/core/layouts.h"
 #include "host/core/trace/traverse.h"
 #include "mbvh/backend.h"
@@ -23,7 +25,8 @@
 using namespace mbvh;
 using mbvh_test::check_invariants;
 using mbvh_test::contains;
-using mbvh_test::tri_box;
+using mbvh::build::slot_box;
+using mbvh::build::tri_box;
 
 TEST_CASE("builder invariants on shared and generated scenes", "[build]") {
   for (const std::string& spec : {mbvh_test::scene_path("cornell_box.obj.zst"), mbvh_test::scene_path("bun_zipper.ply.zst"),
@@ -101,10 +104,7 @@ TEST_CASE("leaf variants regroup the one build: every triangle once, conservativ
         for (const Node8& n : m.nodes)
           for (int k = 0; k < 8; ++k) {
             if (n.child[k] == MBVH_EMPTY) continue;
-            Box bx;
-            bx.lo = {n.lo_x[k], n.lo_y[k], n.lo_z[k]};
-            bx.hi = {n.hi_x[k], n.hi_y[k], n.hi_z[k]};
-            const double a = bx.half_area();
+            const double a = slot_box(n, k).half_area();
             c += n.child[k] >= 0 ? a : a * std::ceil(double(v.leaves[static_cast<std::size_t>(~n.child[k])].count) / block);
           }
         return c;

@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstring>
 
+#include "host/core/bvh/wide_node.h"  // slot_box
 #include "host/core/layouts.h"
 #include "host/core/trace/traverse.h"
 #include "mbvh/backend.h"
@@ -20,6 +21,7 @@
 #include "tests/invariants.h"
 
 using namespace mbvh;
+using mbvh::build::slot_box;
 using mbvh_test::check_invariants;
 
 TEST_CASE("refit: a refitted build traces moved vertices as a fresh build does on every backend", "[build]") {
@@ -121,14 +123,6 @@ namespace {
 
 bool same_bits(const Box& a, const Box& b) { return std::memcmp(&a, &b, sizeof(Box)) == 0; }
 
-template <class N>
-Box wide_slot(const N& n, int s) {
-  Box b;
-  b.lo = {n.lo_x[s], n.lo_y[s], n.lo_z[s]};
-  b.hi = {n.hi_x[s], n.hi_y[s], n.hi_z[s]};
-  return b;
-}
-
 // Every box of a wide layout is its child's exactly: a leaf's box, or the union of the child
 // node's slots.
 template <class M>
@@ -145,8 +139,8 @@ std::size_t wide_box_faults(const M& m, const Bvh2& b) {
       else
         for (int g = 0; g < W; ++g)
           if (m.nodes[static_cast<std::size_t>(c)].child[g] != MBVH_EMPTY)
-            want.grow(wide_slot(m.nodes[static_cast<std::size_t>(c)], g));  // Box::grow, refit's union
-      bad += !same_bits(want, wide_slot(n, s));
+            want.grow(slot_box(m.nodes[static_cast<std::size_t>(c)], g));  // Box::grow, refit's union
+      bad += !same_bits(want, slot_box(n, s));
     }
   return bad;
 }

@@ -18,7 +18,6 @@
 
 namespace mbvh {
 
-
 /// The binary BVH: inner nodes in depth-first order (record 0 = root; children before siblings'
 /// subtrees), each child a reference as in mbvh_layout.h.
 struct Bvh2 {
@@ -148,19 +147,22 @@ void finish_mbvh4(Mbvh4& m, std::size_t leaf_count);
 Mbvh8 make_mbvh8_sah(const Bvh2& bvh, const std::vector<Leaf>& leaves, unsigned block, float node_cost);
 /// The same for MBVH4 (with its cyclic sibling links), the greedy make_mbvh4 beyond its level cap.
 Mbvh4 make_mbvh4_sah(const Bvh2& bvh, const std::vector<Leaf>& leaves, unsigned block, float node_cost);
-/// Rewrites the MBVH4 SoA records as the 16-wide view (a permutation of each record's words).
+/// Rewrites the MBVH4 SoA records as the 16-wide view (a permutation of each record's words;
+/// host/core/bvh/views.cpp).
 Mbvh4Wide make_mbvh4_wide(const Mbvh4& m);
-/// Packs each leaf's triangles four at a time (SoA), in leaf order.
+/// Packs each leaf's triangles four at a time (SoA), in leaf order (views.cpp).
 TriPacks make_tri_packs(const AlignedVector<Tri>& tris, const std::vector<Leaf>& leaves);
 
-/// Structural checks of a layout: every reference in range, every inner node referenced once by
-/// a node of smaller index (so descent always terminates), every leaf once, parent and sibling
-/// links consistent. Throws Error naming the first broken node. O(nodes).
+/// Structural checks of a layout (host/core/bvh/validate.cpp): every reference in range, every
+/// inner node referenced once by a node of smaller index (so descent always terminates), every
+/// leaf once, parent and sibling links consistent. Throws Error naming the first broken node.
+/// O(nodes).
 void validate_layout(const Mbvh2& m, std::size_t leaf_count);
 void validate_layout(const Mbvh4& m, std::size_t leaf_count);
 void validate_layout(const Mbvh8& m, std::size_t leaf_count);
 
-/// A 64-bit hash of n bytes (FNV-1a's step over 64-bit words, then the tail bytes), continuing from h.
+/// A 64-bit hash of n bytes (FNV-1a's step over 64-bit words, then the tail bytes), continuing from
+/// h (host/core/bvh/hash.cpp).
 std::uint64_t hash_bytes(const void* p, std::size_t n, std::uint64_t h = 0xcbf29ce484222325ull);
 
 }  // namespace mbvh

@@ -1,8 +1,9 @@
 // SPDX-License-Identifier: MIT
 // builder.h — what the binary builders share (internal to host/core/bvh/): the primitive records
 // they reorder, the temporary node arena they fill and its depth-first flattening into Bvh2.
-// Accel::build (binned_sah.cpp) prepares the records, calls one builder by BuildOptions::quality
-// and turns the leaf-ordered records into the triangles, statistics and hash.
+// Accel::build (accel.cpp) takes the records from make_prim_refs (prim_refs.cpp), calls one
+// builder by BuildOptions::quality and turns the leaf-ordered records into the triangles and
+// statistics; hash_build (hash.cpp) makes the hash.
 #pragma once
 #include <algorithm>
 #include <atomic>
@@ -181,6 +182,24 @@ inline bool too_small(double a2) { return a2 > 0 && a2 < kMinTwiceAreaSq; }
 /// `scene`, too small to trace exactly: its index (and geometry), area, edge lengths and the limit.
 [[noreturn]] void throw_too_small(const Scene& scene, std::uint32_t prim, const char* who);
 
+/// Accel::build's records: one per non-degenerate triangle, in scene order, and the bounds of
+/// their boxes (`root`) and of their centroids (`croot`).
+struct PrimRefs {
+  RawVector<PrimRef> prims;
+  FastBox root, croot;
+  std::size_t degenerate = 0;  ///< triangles kept out of leaves (zero area)
+};
+
+/// The record pass of Accel::build on up to `threads` workers (prim_refs.cpp), with the checks a
+/// build makes of its scene: Scene::validate's, no triangle too small to trace, every coordinate
+/// in the exactly traced range (accel.h), a triangle with area. Throws Error naming the first fault.
+PrimRefs make_prim_refs(const Scene& scene, unsigned threads);
+
+/// The leaf-ordered triangle records: tris[i] (sized by the caller) is the scene's triangle that
+/// order[i] names, a prim id (SBVH) or a record (binned SAH, LBVH).
+void fill_tris(const Scene& scene, const RawVector<PrimRef>& order, AlignedVector<Tri>& tris, unsigned threads);
+void fill_tris(const Scene& scene, const std::vector<std::uint32_t>& order, AlignedVector<Tri>& tris, unsigned threads);
+
 /// The record of a triangle: the box of its three vertices.
 inline PrimRef prim_ref(const Vec3f& a, const Vec3f& b, const Vec3f& c, std::uint32_t prim) {
   PrimRef r;
@@ -206,6 +225,16 @@ inline void fill_tri(Tri& d, const Vec3f& a, const Vec3f& b, const Vec3f& c, std
     rows[k][3] = 0.0f;
   }
   std::memcpy(&d.v0[3], &prim, 4);
+}
+
+/// The box of a triangle record: the min and max of its three vertex rows (as prim_ref's).
+inline Box tri_box(const Tri& t) {
+  Box b;
+  b.lo = {std::min(std::min(t.v0[0], t.v1[0]), t.v2[0]), std::min(std::min(t.v0[1], t.v1[1]), t.v2[1]),
+          std::min(std::min(t.v0[2], t.v1[2]), t.v2[2])};
+  b.hi = {std::max(std::max(t.v0[0], t.v1[0]), t.v2[0]), std::max(std::max(t.v0[1], t.v1[1]), t.v2[1]),
+          std::max(std::max(t.v0[2], t.v1[2]), t.v2[2])};
+  return b;
 }
 
 /// SAH price of testing `n` triangles: blocks of `leaf_block` (BuildOptions::leaf_block).

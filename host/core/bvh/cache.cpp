@@ -201,8 +201,9 @@ std::unique_ptr<Accel> Accel::load(const std::string& path, std::uint64_t key) {
 
 std::unique_ptr<Accel> Accel::load_entry(const std::string& path, std::uint64_t key, const Scene* scene) {
   auto bad = [&path](const std::string& why) { return Error(path + ": not a usable BVH cache file: " + why); };
-  // read straight into the build's arrays (no staging copy of the file), block by block in
-  // parallel: page faults and copies are most of a load's time. Never through a link: O_NOFOLLOW.
+  // -- the file: read straight into the build's arrays (no staging copy of the file), block by
+  //    block in parallel: page faults and copies are most of a load's time. Never through a
+  //    link: O_NOFOLLOW.
   struct Fd {
     int fd;
     ~Fd() {
@@ -229,6 +230,7 @@ std::unique_ptr<Accel> Accel::load_entry(const std::string& path, std::uint64_t 
       bytes -= static_cast<std::uint64_t>(got);
     }
   };
+  // -- the header: magic, version, record sizes, and counts bounded by the file and the scene
   Header hd;
   read_at(&hd, sizeof hd, 0);
   if (std::memcmp(hd.magic, kMagic, 8) != 0) throw bad("no mbvh BVH cache header");
@@ -258,6 +260,7 @@ std::unique_ptr<Accel> Accel::load_entry(const std::string& path, std::uint64_t 
   const std::uint64_t need = segs.back().offset + segs.back().bytes + 8;
   if (need != size) throw bad("size " + std::to_string(size) + " does not match its counts (" + std::to_string(need) + "): truncated or damaged");
 
+  // -- the arrays, sized by the counts, read and checksummed block by block on the pool
   require_memory(path, size, "the BVH cache file");
   std::unique_ptr<Accel> acc(new Accel());
   try {
@@ -305,6 +308,7 @@ std::unique_ptr<Accel> Accel::load_entry(const std::string& path, std::uint64_t 
   if (hash_bytes(block_hash.data(), block_hash.size() * sizeof(std::uint64_t)) != stored) throw bad("checksum mismatch (truncated or damaged)");
   if (bad_prim) throw bad("a triangle names a prim id beyond the scene's " + std::to_string(hd.scene_triangles) + " triangles");
   if (hd.key != key) throw bad("made for another scene, build options or library version (key " + hex(hd.key) + ", wanted " + hex(key) + ")");
+  // -- the build's state and statistics, from the header
   acc->impl_->bvh2_.forced_leaves = hd.forced_leaves;
   acc->impl_->bvh2_.largest_leaf = hd.largest_leaf;
   acc->impl_->bvh2_.degenerate = hd.degenerate;

@@ -1,15 +1,15 @@
 // SPDX-License-Identifier: MIT
-// collapse.cpp — the MBVH2 and MBVH4 layouts made from the one binary BVH, with the parent and
-// sibling links the stackless bitstack traversal needs (Áfra & Szirmay-Kalos, "Stackless
-// Multi-BVH Traversal for CPU, MIC and GPU Ray Tracing", CGF 2014; TRAVERSAL.md §2).
+// collapse.cpp — the MBVH2, MBVH4 and MBVH8 layouts made from the binary BVH by the greedy
+// collapse, with the parent and sibling links the stackless bitstack traversal needs (Áfra &
+// Szirmay-Kalos, "Stackless Multi-BVH Traversal for CPU, MIC and GPU Ray Tracing", CGF 2014;
+// TRAVERSAL.md §2).
 #include <algorithm>
-#include <atomic>
-#include <memory>
 #include <bit>
-#include <cstring>
-#include <limits>
 #include <chrono>
+#include <string>
+#include <vector>
 
+#include "host/core/bvh/wide_node.h"
 #include "host/core/layouts.h"
 #include "host/core/parallel.h"
 #include "host/core/trace/view.h"
@@ -48,9 +48,7 @@ Mbvh2 make_mbvh2(const Bvh2& b, const std::vector<Leaf>& leaves) {
     Node2& d = out.nodes[i];
     const Box b0 = s.child[0] == MBVH_EMPTY ? empty_box() : b.box(s.child[0]);
     const Box b1 = s.child[1] == MBVH_EMPTY ? empty_box() : b.box(s.child[1]);
-    d.c0[0] = b0.lo.x; d.c0[1] = b0.hi.x; d.c0[2] = b0.lo.y; d.c0[3] = b0.hi.y;
-    d.c1[0] = b1.lo.x; d.c1[1] = b1.hi.x; d.c1[2] = b1.lo.y; d.c1[3] = b1.hi.y;
-    d.zz[0] = b0.lo.z; d.zz[1] = b0.hi.z; d.zz[2] = b1.lo.z; d.zz[3] = b1.hi.z;
+    build::set_boxes(d, b0, b1);
     d.link[0] = s.parent;
     d.link[1] = MBVH_NONE;
     d.link[2] = s.child[0];
@@ -186,19 +184,9 @@ struct Collapser {
 
   // Writes wide node `self` of binary node `bref` (children references in `child`).
   void write(std::size_t self, const std::int32_t (&kids)[W], const std::int32_t (&child)[W], std::int32_t parent) {
-    N& n = out[self];
-    Box all;
-    for (int s = 0; s < W; ++s) {
-      const Box bx = kids[s] == MBVH_EMPTY ? empty_box() : b.box(kids[s]);
-      all.grow(bx);
-      n.lo_x[s] = bx.lo.x; n.hi_x[s] = bx.hi.x;
-      n.lo_y[s] = bx.lo.y; n.hi_y[s] = bx.hi.y;
-      n.lo_z[s] = bx.lo.z; n.hi_z[s] = bx.hi.z;
-      n.child[s] = child[s];
-    }
-    n.parent = parent;
-    if constexpr (W == 4) n.sib[0] = n.sib[1] = n.sib[2] = MBVH_NONE;  // set by the parent (links)
-    else std::memset(n.pad, 0, sizeof(n.pad));
+    const Box all = build::write_wide_node(out[self], child, parent, [&](int s) {
+      return kids[s] == MBVH_EMPTY ? empty_box() : b.box(kids[s]);
+    });
     area[self] = all.half_area();
   }
 
@@ -289,7 +277,7 @@ void collapse(const Bvh2& b, const std::vector<Leaf>& leaves, const char* name, 
   for (const auto& k : tasks) max_level = std::max(max_level, k.tally.max_level);
   const double root_area = std::max(1e-30, static_cast<double>(b.nodes[0].box.half_area()));
   double cost = 0;
-  for (std::size_t i = 0; i < next; ++i) cost += area[i] / root_area;  // in node order, as written before
+  for (std::size_t i = 0; i < next; ++i) cost += area[i] / root_area;  // summed in node order
   LayoutStats& st = out.stats;
   st.layout = name;
   st.nodes = out.nodes.size();
@@ -328,175 +316,6 @@ Mbvh8 make_mbvh8(const Bvh2& b, const std::vector<Leaf>& leaves, unsigned thread
   validate_layout(out, leaves.size());
   out.stats.build_ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
   return out;
-}
-
-namespace {
-
-[[noreturn]] void corrupt(const char* layout, std::size_t node, const std::string& what) {
-  throw Error(std::string("corrupt ") + layout + " layout: node " + std::to_string(node) + ": " + what);
-}
-
-// Checks child reference `c` of node `i`; counts references into `seen` / `leaf_seen`.
-void check_ref(const char* layout, std::size_t i, std::int32_t c, std::size_t nodes, std::size_t leaves,
-               std::vector<std::uint8_t>& seen, std::vector<std::uint8_t>& leaf_seen) {
-  if (c == MBVH_EMPTY) return;
-  if (c >= 0) {
-    const std::size_t ci = static_cast<std::size_t>(c);
-    if (ci <= i || ci >= nodes) corrupt(layout, i, "child " + std::to_string(c) + " is not a later node (a cycle or out of range)");
-    if (seen[ci]++) corrupt(layout, i, "node " + std::to_string(c) + " has two parents");
-  } else {
-    const std::size_t li = static_cast<std::size_t>(~c);
-    if (li >= leaves) corrupt(layout, i, "leaf " + std::to_string(li) + " out of range");
-    if (leaf_seen[li]++) corrupt(layout, i, "leaf " + std::to_string(li) + " referenced twice");
-  }
-}
-
-}  // namespace
-
-void validate_layout(const Mbvh2& m, std::size_t leaf_count) {
-  const std::size_t n = m.nodes.size();
-  if (n == 0) corrupt("MBVH2", 0, "no root");
-  if (m.nodes[0].link[0] != MBVH_NONE) corrupt("MBVH2", 0, "the root has a parent");
-  std::vector<std::uint8_t> seen(n, 0), leaf_seen(leaf_count, 0);
-  for (std::size_t i = 0; i < n; ++i)
-    for (int k = 0; k < 2; ++k) {
-      const std::int32_t c = m.nodes[i].link[2 + k];
-      check_ref("MBVH2", i, c, n, leaf_count, seen, leaf_seen);
-      if (c >= 0) {
-        const Node2& ch = m.nodes[static_cast<std::size_t>(c)];
-        if (ch.link[0] != static_cast<std::int32_t>(i) || ch.link[1] != m.nodes[i].link[2 + (1 - k)])
-          corrupt("MBVH2", static_cast<std::size_t>(c), "parent or sibling link does not match its parent");
-      }
-    }
-  for (std::size_t i = 1; i < n; ++i)
-    if (!seen[i]) corrupt("MBVH2", i, "unreachable");
-}
-
-Mbvh4Wide make_mbvh4_wide(const Mbvh4& m) {
-  Mbvh4Wide w;
-  w.nodes.resize(m.nodes.size());
-  for (std::size_t i = 0; i < m.nodes.size(); ++i) {
-    const Node4& n = m.nodes[i];
-    Node4W& o = w.nodes[i];
-    const std::int32_t link[4] = {n.parent, n.sib[0], n.sib[1], n.sib[2]};
-    for (int s = 0; s < 4; ++s) {
-      o.lo[s][0] = n.lo_x[s];
-      o.lo[s][1] = n.lo_y[s];
-      o.lo[s][2] = n.lo_z[s];
-      std::memcpy(&o.lo[s][3], &n.child[s], 4);
-      o.hi[s][0] = n.hi_x[s];
-      o.hi[s][1] = n.hi_y[s];
-      o.hi[s][2] = n.hi_z[s];
-      std::memcpy(&o.hi[s][3], &link[s], 4);
-    }
-  }
-  return w;
-}
-
-TriPacks make_tri_packs(const AlignedVector<Tri>& tris, const std::vector<Leaf>& leaves) {
-  TriPacks p;
-  p.leaves.reserve(leaves.size());
-  std::size_t total = 0;
-  for (const Leaf& l : leaves) total += (l.count + 3) / 4;
-  Tri4 empty;
-  for (auto& row : empty.v)
-    for (float& x : row) x = std::numeric_limits<float>::quiet_NaN();
-  for (auto& id : empty.prim) id = MBVH_MISS_PRIM;
-  p.packs.assign(total, empty);
-  std::size_t next = 0;
-  for (const Leaf& l : leaves) {
-    p.leaves.push_back(Leaf{static_cast<std::uint32_t>(next), l.count});
-    for (std::uint32_t k = 0; k < l.count; ++k) {
-      const Tri& t = tris[l.first + k];
-      Tri4& o = p.packs[next + k / 4];
-      const float* vert[3] = {t.v0, t.v1, t.v2};
-      for (int i = 0; i < 3; ++i)
-        for (int a = 0; a < 3; ++a) o.v[3 * i + a][k % 4] = vert[i][a];
-      std::memcpy(&o.prim[k % 4], &t.v0[3], 4);
-    }
-    next += (l.count + 3) / 4;
-  }
-  return p;
-}
-
-namespace {
-
-// Whether a W-wide layout passes validate_wide, checked on the pool without a per-node count:
-// every child reference of node i is a later node naming i as its parent (with matching links),
-// no node lists a child twice, and every node but the root names an earlier parent that lists
-// it; by induction on the index every node is then reachable from the root, once. Leaves are
-// counted atomically. validate_wide runs only where this fails, for its first fault's message.
-template <class N, class LinksOk>
-bool wide_ok(const AlignedVector<N>& nodes, std::size_t leaf_count, LinksOk links_ok) {
-  constexpr int W = node_width<N>();
-  const std::size_t n = nodes.size();
-  if (n == 0 || nodes[0].parent != MBVH_NONE) return false;
-  const auto leaf_seen = std::make_unique<std::atomic<std::uint8_t>[]>(leaf_count);  // value-initialised: 0
-  std::atomic<bool> ok{true};
-  parallel_for(n, 8192, 0, [&](std::size_t b, std::size_t e, unsigned) {
-    bool good = true;
-    for (std::size_t i = b; i < e && good; ++i) {
-      const N& p = nodes[i];
-      for (int s = 0; s < W; ++s) {
-        const std::int32_t c = p.child[s];
-        if (c == MBVH_EMPTY) continue;
-        if (c >= 0) {
-          const std::size_t ci = static_cast<std::size_t>(c);
-          if (ci <= i || ci >= n || nodes[ci].parent != static_cast<std::int32_t>(i) || !links_ok(nodes[ci], p, s)) good = false;
-          for (int t = 0; t < s; ++t) good = good && p.child[t] != c;
-        } else {
-          const std::size_t li = static_cast<std::size_t>(~c);
-          good = good && li < leaf_count && leaf_seen[li].exchange(1, std::memory_order_relaxed) == 0;
-        }
-      }
-      if (i > 0) {
-        const std::int32_t q = p.parent;
-        bool listed = false;
-        if (q >= 0 && static_cast<std::size_t>(q) < i)
-          for (int s = 0; s < W; ++s) listed = listed || nodes[static_cast<std::size_t>(q)].child[s] == static_cast<std::int32_t>(i);
-        good = good && listed;
-      }
-    }
-    if (!good) ok = false;
-  });
-  return ok;
-}
-
-// The checks of a W-wide layout; `links_ok(child, parent node, slot)` checks a child's own links.
-template <class N, class LinksOk>
-void validate_wide(const AlignedVector<N>& nodes, const char* name, std::size_t leaf_count, LinksOk links_ok) {
-  if (wide_ok(nodes, leaf_count, links_ok)) return;
-  const std::size_t n = nodes.size();
-  if (n == 0) corrupt(name, 0, "no root");
-  if (nodes[0].parent != MBVH_NONE) corrupt(name, 0, "the root has a parent");
-  std::vector<std::uint8_t> seen(n, 0), leaf_seen(leaf_count, 0);
-  for (std::size_t i = 0; i < n; ++i)
-    for (int s = 0; s < node_width<N>(); ++s) {
-      const std::int32_t c = nodes[i].child[s];
-      check_ref(name, i, c, n, leaf_count, seen, leaf_seen);
-      if (c >= 0) {
-        const N& ch = nodes[static_cast<std::size_t>(c)];
-        if (ch.parent != static_cast<std::int32_t>(i) || !links_ok(ch, nodes[i], s))
-          corrupt(name, static_cast<std::size_t>(c), "parent or sibling links do not match its parent");
-      }
-    }
-  for (std::size_t i = 1; i < n; ++i)
-    if (!seen[i]) corrupt(name, i, "unreachable");
-  throw Error(std::string("internal: ") + name + " layout failed the parallel check but not the serial one");
-}
-
-}  // namespace
-
-void validate_layout(const Mbvh4& m, std::size_t leaf_count) {
-  validate_wide(m.nodes, "MBVH4", leaf_count, [](const Node4& ch, const Node4& p, int s) {
-    for (int k = 0; k < 3; ++k)
-      if (ch.sib[k] != p.child[(s + 1 + k) & 3]) return false;
-    return true;
-  });
-}
-
-void validate_layout(const Mbvh8& m, std::size_t leaf_count) {
-  validate_wide(m.nodes, "MBVH8", leaf_count, [](const Node8&, const Node8&, int) { return true; });
 }
 
 }  // namespace mbvh

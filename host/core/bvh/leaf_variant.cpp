@@ -1,5 +1,5 @@
 // SPDX-License-Identifier: MIT
-// leaf_variant.cpp — a backend's leaf policy from the one build (issue 14 item 5, issue 15 item 5):
+// leaf_variant.cpp — a backend's leaf policy from the one build:
 // the binary tree with subtrees regrouped into leaves where the SAH, with a leaf priced in blocks
 // of B triangles (Embree's SAH "blocks": one SIMD leaf test covers B triangles), prices the leaf
 // below the subtree; and the layouts made from it on first use. Nothing is rebuilt: the triangles,

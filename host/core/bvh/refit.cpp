@@ -7,11 +7,11 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
-#include <cstring>
 
 #include "host/core/layouts.h"
 #include "host/core/bvh/builder.h"
 #include "host/core/bvh/triangles.h"
+#include "host/core/bvh/wide_node.h"
 #include "mbvh/error.h"
 #include "host/core/parallel.h"
 #include "host/core/trace/intersect.h"
@@ -19,30 +19,6 @@
 namespace mbvh {
 
 namespace {
-
-inline Box tri_box(const Tri& t) {
-  Box b;
-  b.lo = {std::min(std::min(t.v0[0], t.v1[0]), t.v2[0]), std::min(std::min(t.v0[1], t.v1[1]), t.v2[1]),
-          std::min(std::min(t.v0[2], t.v1[2]), t.v2[2])};
-  b.hi = {std::max(std::max(t.v0[0], t.v1[0]), t.v2[0]), std::max(std::max(t.v0[1], t.v1[1]), t.v2[1]),
-          std::max(std::max(t.v0[2], t.v1[2]), t.v2[2])};
-  return b;
-}
-
-template <class N>
-Box slot_box(const N& n, int s) {
-  Box b;
-  b.lo = {n.lo_x[s], n.lo_y[s], n.lo_z[s]};
-  b.hi = {n.hi_x[s], n.hi_y[s], n.hi_z[s]};
-  return b;
-}
-
-template <class N>
-void set_slot(N& n, int s, const Box& b) {
-  n.lo_x[s] = b.lo.x; n.hi_x[s] = b.hi.x;
-  n.lo_y[s] = b.lo.y; n.hi_y[s] = b.hi.y;
-  n.lo_z[s] = b.lo.z; n.hi_z[s] = b.hi.z;
-}
 
 // A tree stored in preorder (a node's subtree is the range of nodes from it to `end`, its
 // children in slot order), cut for a parallel bottom-up pass: subtrees of at most kCut nodes,
@@ -144,9 +120,9 @@ void refit_wide(M& m, const Bvh2& b, double leaves, double root, unsigned thread
         inside = inside && static_cast<std::size_t>(c) > i && static_cast<std::size_t>(c) < end;
         const N& ch = m.nodes[static_cast<std::size_t>(c)];
         for (int g = 0; g < W; ++g)
-          if (ch.child[g] != MBVH_EMPTY) bx.grow(slot_box(ch, g));
+          if (ch.child[g] != MBVH_EMPTY) bx.grow(build::slot_box(ch, g));
       }
-      set_slot(n, s, bx);
+      build::set_slot(n, s, bx);
       all.grow(bx);
     }
     sum += all.half_area();
@@ -191,20 +167,22 @@ bool quick_check(const Scene& s, unsigned threads) {
   return false;
 }
 
-}  // namespace
-
-void Accel::refit(const Scene& moved) {
-  const auto t0 = std::chrono::steady_clock::now();
-  if (moved.triangle_count() != impl_->scene_triangles_)
-    throw Error(moved.display_name() + ": refit needs the scene the build was made from (" + std::to_string(impl_->scene_triangles_) +
+// The checks a build makes, made before refit writes anything (the Accel stays unchanged if one
+// fails): `moved` has the build's triangle count and geometries (`geoms`: Accel::Impl's
+// geometry_offsets_, {0, n} for an owned scene); Scene::validate's conditions on every triangle,
+// in scene order; the traced range on those in leaves (`tris`); no area on those the build kept
+// out as degenerate (`degenerate` of them, in no leaf). An owned scene with every triangle in a
+// leaf passing quick_check needs no pass over its triangles.
+void refit_check(const Scene& moved, std::size_t scene_triangles, const std::vector<std::uint64_t>& geoms,
+                 std::size_t degenerate, const AlignedVector<Tri>& tris, unsigned threads) {
+  if (moved.triangle_count() != scene_triangles)
+    throw Error(moved.display_name() + ": refit needs the scene the build was made from (" + std::to_string(scene_triangles) +
                 " triangles), not " + std::to_string(moved.triangle_count()) + " triangles; rebuild instead");
-  const std::vector<std::uint64_t>& geoms = impl_->geometry_offsets_;  // {0, n} for an owned scene
   bool same = moved.geometry_count() + 1 == geoms.size();
   for (std::size_t g = 0; same && g < geoms.size(); ++g) same = moved.geometry_offset(g) == geoms[g];
   if (!same)
     throw Error(moved.display_name() + ": refit needs the geometries the build was made from (" + std::to_string(geoms.size() - 1) +
                 " with the same triangle counts each), not these " + std::to_string(moved.geometry_count()) + "; rebuild instead");
-  const unsigned threads = impl_->opt_.threads;
   constexpr std::size_t grain = 65536;
   // Scene::validate's conditions on triangle i of `src` (triangles.h): its vertices, in range and
   // finite, or false
@@ -212,15 +190,11 @@ void Accel::refit(const Scene& moved) {
     return src.get_checked(i, v0, v1, v2) && build::finite(v0, v1, v2);
   };
 
-  // -- the checks a build makes, before anything is written (the Accel stays unchanged if one
-  //    fails): Scene::validate's on every triangle, in scene order; the traced range on those in
-  //    leaves; no area on those the build kept out as degenerate (they are in no leaf). An owned
-  //    scene with every triangle in a leaf passing quick_check needs no pass over its triangles.
-  const std::size_t n = impl_->scene_triangles_;
+  const std::size_t n = scene_triangles;
   std::vector<std::uint8_t> in_leaf;
-  if (impl_->bvh2_.degenerate > 0) {
+  if (degenerate > 0) {
     in_leaf.assign(n, 0);
-    for (const Tri& t : impl_->tris_) in_leaf[tri_prim(t)] = 1;
+    for (const Tri& t : tris) in_leaf[tri_prim(t)] = 1;
   }
   const bool quick = in_leaf.empty() && moved.meshes().empty() && quick_check(moved, threads);
   const std::size_t chunks = quick ? 0 : (n + grain - 1) / grain;
@@ -259,21 +233,22 @@ void Accel::refit(const Scene& moved) {
   if (std::find(grew.begin(), grew.end(), 1) != grew.end())
     throw Error(moved.display_name() + ": refit: a triangle the build kept out as degenerate has area now, and is in no "
                 "leaf; rebuild instead");
+}
 
-  // -- the leaf-ordered triangles, the leaf boxes and the SIMD packs if made, in place (their
-  //    pages already mapped), in chunks of whole hash blocks of triangles, each chunk's blocks
-  //    hashed while they are in cache; a leaf cut by a chunk's edge gets a partial box from each
-  //    chunk it spans, united in order afterwards (min and max of finite floats: the same box)
-  const bool with_packs = !impl_->packs_.leaves.empty();
-  Bvh2& bvh = impl_->bvh2_;
-  const std::vector<Leaf>& leaves = impl_->leaves_;
-  AlignedVector<Tri>& tris = impl_->tris_;
+// The leaf-ordered triangles of `moved`, the leaf boxes and the SIMD packs if made, in place (their
+// pages already mapped), in chunks of whole hash blocks of triangles, each chunk's blocks hashed
+// into `tri_hashes` while they are in cache (hash_build's tri_hashes); a leaf cut by a chunk's
+// edge gets a partial box from each chunk it spans, united in order afterwards (min and max of
+// finite floats: the same box). Returns the leaves' SAH area sum (count times half area).
+double refit_leaves(const Scene& moved, AlignedVector<Tri>& tris, const std::vector<Leaf>& leaves, Bvh2& bvh,
+                    TriPacks& packs, unsigned threads, std::vector<std::uint64_t>& tri_hashes) {
+  const bool with_packs = !packs.leaves.empty();
   constexpr std::size_t kAhead = 16;  // triangles: their vertices fetched this far ahead, their indices twice as far
   constexpr std::size_t kChunkBlocks = 3;  // 3 MiB: 65536 triangles of 48 bytes
   constexpr std::size_t tri_grain = kChunkBlocks * build::kHashBlock / sizeof(Tri);
   static_assert(tri_grain * sizeof(Tri) == kChunkBlocks * build::kHashBlock);
   const std::size_t tri_chunks = (tris.size() + tri_grain - 1) / tri_grain;
-  std::vector<std::uint64_t> tri_hashes((tris.size() * sizeof(Tri) + build::kHashBlock - 1) / build::kHashBlock);
+  tri_hashes.assign((tris.size() * sizeof(Tri) + build::kHashBlock - 1) / build::kHashBlock, 0);
   struct Edge {  // a chunk's partial boxes of the leaf it starts inside and of the one it ends inside
     std::size_t head_leaf = SIZE_MAX, tail_leaf = SIZE_MAX;
     Box head, tail;
@@ -300,10 +275,10 @@ void Accel::refit(const Scene& moved) {
           t.v0[0] = v0.x, t.v0[1] = v0.y, t.v0[2] = v0.z;  // lane 3 (prim id, zeros) stays
           t.v1[0] = v1.x, t.v1[1] = v1.y, t.v1[2] = v1.z;
           t.v2[0] = v2.x, t.v2[1] = v2.y, t.v2[2] = v2.z;
-          bx.grow(tri_box(t));
+          bx.grow(build::tri_box(t));
           if (with_packs) {
             const std::size_t j = k - l.first;
-            Tri4& o = impl_->packs_.packs[impl_->packs_.leaves[i].first + j / 4];
+            Tri4& o = packs.packs[packs.leaves[i].first + j / 4];
             const Vec3f* vert[3] = {&v0, &v1, &v2};
             for (int v = 0; v < 3; ++v) {
               o.v[3 * v + 0][j % 4] = vert[v]->x;
@@ -338,10 +313,15 @@ void Accel::refit(const Scene& moved) {
     bvh.leaf_boxes[i] = bx;
     leaf_sum += double(leaves[i].count) * bx.half_area();
   }
-  // -- the binary nodes bottom-up, each MBVH2 node (its children's boxes) beside its binary node
-  const bool with_mbvh2 = !impl_->mbvh2_.nodes.empty();
+  return leaf_sum;
+}
+
+// The binary nodes bottom-up, each MBVH2 node (its children's boxes) beside its binary node
+// when the MBVH2 layout is made. Returns the nodes' half-area sum.
+double refit_binary(Bvh2& bvh, Mbvh2& mbvh2, unsigned threads) {
+  const bool with_mbvh2 = !mbvh2.nodes.empty();
   const Cut cut = cut_preorder<2>(bvh.nodes.size(), [&](std::size_t i, int s) { return bvh.nodes[i].child[s]; });
-  const double node_sum = refit_tree(cut, bvh.nodes.size(), threads, [&](std::size_t i, std::size_t end, double& sum) {
+  return refit_tree(cut, bvh.nodes.size(), threads, [&](std::size_t i, std::size_t end, double& sum) {
     Bvh2::Node& nd = bvh.nodes[i];
     bool inside = true;
     Box cb[2];
@@ -357,40 +337,45 @@ void Accel::refit(const Scene& moved) {
     nd.box = bx;
     sum += bx.half_area();
     if (with_mbvh2) {
-      Node2& d = impl_->mbvh2_.nodes[i];
-      const Box &b0 = cb[0], &b1 = cb[1];
-      d.c0[0] = b0.lo.x; d.c0[1] = b0.hi.x; d.c0[2] = b0.lo.y; d.c0[3] = b0.hi.y;
-      d.c1[0] = b1.lo.x; d.c1[1] = b1.hi.x; d.c1[2] = b1.lo.y; d.c1[3] = b1.hi.y;
-      d.zz[0] = b0.lo.z; d.zz[1] = b0.hi.z; d.zz[2] = b1.lo.z; d.zz[3] = b1.hi.z;
+      Node2& d = mbvh2.nodes[i];
+      build::set_boxes(d, cb[0], cb[1]);
     }
     return inside;
   });
+}
+
+// The 16-wide view's boxes, copied from the refitted MBVH4 `m` (its child and link words stay).
+void refit_view(const Mbvh4& m, Mbvh4Wide& w, unsigned threads) {
+  parallel_for(m.nodes.size(), 16384, threads, [&](std::size_t b, std::size_t e, unsigned) {
+    for (std::size_t i = b; i < e; ++i) build::set_view_boxes(w.nodes[i], m.nodes[i]);
+  });
+}
+
+}  // namespace
+
+void Accel::refit(const Scene& moved) {
+  const auto t0 = std::chrono::steady_clock::now();
+  const unsigned threads = impl_->opt_.threads;
+  refit_check(moved, impl_->scene_triangles_, impl_->geometry_offsets_, impl_->bvh2_.degenerate, impl_->tris_, threads);
+
+  // -- the triangles and leaf boxes, then the nodes bottom-up and the SAH costs
+  Bvh2& bvh = impl_->bvh2_;
+  std::vector<std::uint64_t> tri_hashes;
+  const double leaf_sum = refit_leaves(moved, impl_->tris_, impl_->leaves_, bvh, impl_->packs_, threads, tri_hashes);
+  const double node_sum = refit_binary(bvh, impl_->mbvh2_, threads);
   impl_->bounds_ = bvh.nodes[0].box;
   const double root = bvh.nodes[0].box.half_area();
   impl_->binary_stats_.sah_cost = root > 0 ? (impl_->opt_.traversal_cost * node_sum + leaf_sum) / root : 0;
-  if (with_mbvh2) impl_->mbvh2_.stats.sah_cost = root > 0 ? (node_sum + leaf_sum) / root : 0;
+  if (!impl_->mbvh2_.nodes.empty()) impl_->mbvh2_.stats.sah_cost = root > 0 ? (node_sum + leaf_sum) / root : 0;
 
   // -- the wide layouts already made, in place
   const double wide_root = std::max(1e-30, root);
   if (!impl_->mbvh4_.nodes.empty()) refit_wide(impl_->mbvh4_, bvh, leaf_sum, wide_root, threads);
   if (!impl_->mbvh8_.nodes.empty()) refit_wide(impl_->mbvh8_, bvh, leaf_sum, wide_root, threads);
-  if (!impl_->mbvh4w_.nodes.empty()) {
-    parallel_for(impl_->mbvh4_.nodes.size(), 16384, threads, [&](std::size_t b, std::size_t e, unsigned) {
-      for (std::size_t i = b; i < e; ++i) {
-        const Node4& nd = impl_->mbvh4_.nodes[i];
-        Node4W& o = impl_->mbvh4w_.nodes[i];
-        for (int s = 0; s < 4; ++s) {  // the boxes only: the child and link words (lane 3) stay
-          o.lo[s][0] = nd.lo_x[s];
-          o.lo[s][1] = nd.lo_y[s];
-          o.lo[s][2] = nd.lo_z[s];
-          o.hi[s][0] = nd.hi_x[s];
-          o.hi[s][1] = nd.hi_y[s];
-          o.hi[s][2] = nd.hi_z[s];
-        }
-      }
-    });
-  }
-  drop_leaf_variants();  // remade on next use from the refit tree
+  if (!impl_->mbvh4w_.nodes.empty()) refit_view(impl_->mbvh4_, impl_->mbvh4w_, threads);
+
+  // -- what depends on the boxes: the leaf variants are remade on next use, the hash is known now
+  drop_leaf_variants();
   impl_->hash_ = build::hash_build(impl_->bvh2_, impl_->leaves_, impl_->tris_, threads, tri_hashes.data());
   impl_->hash_known_.store(true, std::memory_order_release);
   ++impl_->generation_;

@@ -80,6 +80,13 @@ Box intersect(const Box& a, const Box& b) {
 
 float area(const Box& b) { return valid(b) ? b.half_area() : 0.0f; }
 
+// A spatial split: its SAH cost (the children's areas times their blocks), axis and plane.
+struct SpatialSplit {
+  float cost = INFINITY;
+  int axis = -1;
+  float plane = 0;
+};
+
 struct SBin {
   Box box;
   std::uint32_t enter = 0, exit = 0;
@@ -135,6 +142,76 @@ public:
   void make_leaf(Node& node, bool forced) {
     node.leaf = true;
     node.forced = forced;
+  }
+
+  // The cheapest spatial split of node's references by the SAH: chopped binning over the node's
+  // box, each reference clipped against its triangle at the bin planes it crosses (SBVH §4.2);
+  // axis -1 when no axis has extent.
+  SpatialSplit best_spatial_split(const Node& node) const {
+    const Box& nbox = node.box;
+    SpatialSplit best;
+    for (int a = 0; a < 3; ++a) {
+      const float lo = nbox.lo[a], ext = nbox.hi[a] - nbox.lo[a];
+      if (!(ext > 0)) continue;
+      const float scale = static_cast<float>(bins_) / ext;
+      auto pos = [&](unsigned k) { return lo + ext * static_cast<float>(k) / static_cast<float>(bins_); };
+      auto bin = [&](float x) {
+        const float f = (x - lo) * scale;
+        return std::min(bins_ - 1, static_cast<unsigned>(f > 0 ? f : 0));
+      };
+      SBin sb[kMaxBins];
+      for (const Ref& r : node.refs) {
+        const unsigned b0 = bin(r.box.lo[a]), b1 = bin(r.box.hi[a]);
+        if (b1 - b0 > kExactSpan) {  // a long reference: its box cut at the bin planes (an upper bound)
+          for (unsigned k = b0; k <= b1; ++k) {
+            Box piece = r.box;
+            if (k > b0) piece.lo[a] = std::max(piece.lo[a], pos(k));
+            if (k < b1) piece.hi[a] = std::min(piece.hi[a], pos(k + 1));
+            grow_box(sb[k].box, piece);
+          }
+          ++sb[b0].enter;
+          ++sb[b1].exit;
+          continue;
+        }
+        Ref cur = r;
+        unsigned last = b0;
+        for (unsigned k = b0; k < b1; ++k) {
+          Box l, rt;
+          clip(cur, a, pos(k + 1), l, rt);
+          if (valid(l)) grow_box(sb[k].box, l);
+          if (!valid(rt)) break;
+          cur.box = rt;
+          last = k + 1;
+        }
+        if (last == b1 || b0 == b1) grow_box(sb[last].box, cur.box);
+        ++sb[b0].enter;
+        ++sb[last].exit;
+      }
+      Box rbox[kMaxBins];
+      std::uint32_t rcnt[kMaxBins];
+      Box acc;
+      std::uint32_t cnt = 0;
+      for (unsigned k = bins_ - 1; k > 0; --k) {
+        grow_box(acc, sb[k].box);
+        cnt += sb[k].exit;
+        rbox[k] = acc;
+        rcnt[k] = cnt;
+      }
+      acc = Box();
+      cnt = 0;
+      for (unsigned k = 1; k < bins_; ++k) {
+        grow_box(acc, sb[k - 1].box);
+        cnt += sb[k - 1].enter;
+        if (cnt == 0 || rcnt[k] == 0) continue;
+        const float cost = area(acc) * blocks(cnt) + area(rbox[k]) * blocks(rcnt[k]);
+        if (cost < best.cost) {
+          best.cost = cost;
+          best.axis = a;
+          best.plane = pos(k);
+        }
+      }
+    }
+    return best;
   }
 
   // Splits node n of `arena` into two children appended to it, or makes it a leaf.
@@ -195,86 +272,22 @@ public:
       }
     }
 
-    // -- spatial split: chopped binning over the node's box, where the object split overlaps
-    float sbest = INFINITY;
-    int saxis = -1;
-    float splane = 0;
+    // -- spatial split, where the object split's children overlap
+    SpatialSplit spatial;
     const bool may_grow = node.cap > count;
     const bool overlap = oaxis < 0 || area(intersect(oleft, oright)) > kAlpha * root_area_;
-    if (may_grow && overlap) {
-      for (int a = 0; a < 3; ++a) {
-        const float lo = nbox.lo[a], ext = nbox.hi[a] - nbox.lo[a];
-        if (!(ext > 0)) continue;
-        const float scale = static_cast<float>(bins_) / ext;
-        auto pos = [&](unsigned k) { return lo + ext * static_cast<float>(k) / static_cast<float>(bins_); };
-        auto bin = [&](float x) {
-          const float f = (x - lo) * scale;
-          return std::min(bins_ - 1, static_cast<unsigned>(f > 0 ? f : 0));
-        };
-        SBin sb[kMaxBins];
-        for (const Ref& r : node.refs) {
-          const unsigned b0 = bin(r.box.lo[a]), b1 = bin(r.box.hi[a]);
-          if (b1 - b0 > kExactSpan) {  // a long reference: its box cut at the bin planes (an upper bound)
-            for (unsigned k = b0; k <= b1; ++k) {
-              Box piece = r.box;
-              if (k > b0) piece.lo[a] = std::max(piece.lo[a], pos(k));
-              if (k < b1) piece.hi[a] = std::min(piece.hi[a], pos(k + 1));
-              grow_box(sb[k].box, piece);
-            }
-            ++sb[b0].enter;
-            ++sb[b1].exit;
-            continue;
-          }
-          Ref cur = r;
-          unsigned last = b0;
-          for (unsigned k = b0; k < b1; ++k) {
-            Box l, rt;
-            clip(cur, a, pos(k + 1), l, rt);
-            if (valid(l)) grow_box(sb[k].box, l);
-            if (!valid(rt)) break;
-            cur.box = rt;
-            last = k + 1;
-          }
-          if (last == b1 || b0 == b1) grow_box(sb[last].box, cur.box);
-          ++sb[b0].enter;
-          ++sb[last].exit;
-        }
-        Box rbox[kMaxBins];
-        std::uint32_t rcnt[kMaxBins];
-        Box acc;
-        std::uint32_t cnt = 0;
-        for (unsigned k = bins_ - 1; k > 0; --k) {
-          grow_box(acc, sb[k].box);
-          cnt += sb[k].exit;
-          rbox[k] = acc;
-          rcnt[k] = cnt;
-        }
-        acc = Box();
-        cnt = 0;
-        for (unsigned k = 1; k < bins_; ++k) {
-          grow_box(acc, sb[k - 1].box);
-          cnt += sb[k - 1].enter;
-          if (cnt == 0 || rcnt[k] == 0) continue;
-          const float cost = area(acc) * blocks(cnt) + area(rbox[k]) * blocks(rcnt[k]);
-          if (cost < sbest) {
-            sbest = cost;
-            saxis = a;
-            splane = pos(k);
-          }
-        }
-      }
-    }
+    if (may_grow && overlap) spatial = best_spatial_split(node);
 
     // -- choose
     const float ct = opt_.traversal_cost;
     const float leaf_cost = blocks(count);
     const float ocost = oaxis >= 0 ? ct + (narea > 0 ? obest / narea : 0.0f) : INFINITY;
-    const float scost = saxis >= 0 ? ct + (narea > 0 ? sbest / narea : 0.0f) : INFINITY;
+    const float scost = spatial.axis >= 0 ? ct + (narea > 0 ? spatial.cost / narea : 0.0f) : INFINITY;
     if (count <= opt_.max_leaf && leaf_cost <= std::min(ocost, scost)) return make_leaf(node, false);
 
     std::vector<Ref> left, right;
     bool done = false;
-    if (scost < ocost) done = spatial_partition(node, saxis, splane, left, right);
+    if (scost < ocost) done = spatial_partition(node, spatial.axis, spatial.plane, left, right);
     if (!done) {
       left.clear();
       right.clear();

@@ -5,15 +5,16 @@
 // slot budget j = 1..W it finds the cheapest way to hang n's subtree into j slots of a wide node:
 // j = 1 makes n a wide node of its own, whose W slots its two children share; j > 1 dissolves n
 // and gives its children k and j - k slots. The greedy top-down collapse (collapse.cpp) opens the
-// largest child until a node is full, which leaves the nodes above small subtrees half empty
-// (4.1 of 8 slots used on the bunny's leaf-block-4 tree); the program fills them where the SAH
-// says so. Leaves stay the binary tree's (a slot each). O(nodes x W^2), deterministic. A result
-// deeper than the layout's level cap (its bitstack word) falls back to the greedy collapse.
+// largest child until a node is full, which leaves the nodes above small subtrees half empty;
+// the program fills them where the SAH says so. Leaves stay the binary tree's (a slot each).
+// O(nodes x W^2), deterministic. A result deeper than the layout's level cap (its bitstack word)
+// falls back to the greedy collapse.
 #include <algorithm>
 #include <chrono>
 #include <cstring>
 
 #include "host/core/bvh/builder.h"
+#include "host/core/bvh/wide_node.h"
 #include "host/core/layouts.h"
 #include "host/core/trace/view.h"  // node_width
 
@@ -116,19 +117,11 @@ struct WideDp {
     expand(bn.child[1], W - k, slots);
     const std::int32_t self = static_cast<std::int32_t>(out->size());
     out->emplace_back();
-    Box all;
-    N& d0 = (*out)[static_cast<std::size_t>(self)];
-    for (int s = 0; s < W; ++s) {
-      const Box bx = s < static_cast<int>(slots.size()) ? b.box(slots[static_cast<std::size_t>(s)]) : Box();  // empty: never hit
-      all.grow(bx);
-      d0.lo_x[s] = bx.lo.x; d0.hi_x[s] = bx.hi.x;
-      d0.lo_y[s] = bx.lo.y; d0.hi_y[s] = bx.hi.y;
-      d0.lo_z[s] = bx.lo.z; d0.hi_z[s] = bx.hi.z;
-      d0.child[s] = MBVH_EMPTY;
-    }
-    d0.parent = parent;
-    if constexpr (W == 4) d0.sib[0] = d0.sib[1] = d0.sib[2] = MBVH_NONE;  // finish_mbvh4 links them
-    else std::memset(d0.pad, 0, sizeof(d0.pad));  // every word written (CacheAligned leaves nodes uninitialised)
+    std::int32_t none[W];  // the children's references are set as they are emitted, below
+    for (int s = 0; s < W; ++s) none[s] = MBVH_EMPTY;
+    const Box all = build::write_wide_node((*out)[static_cast<std::size_t>(self)], none, parent, [&](int s) {
+      return s < static_cast<int>(slots.size()) ? b.box(slots[static_cast<std::size_t>(s)]) : Box();
+    });
     sah += all.half_area() / root_area;
     for (std::size_t s = 0; s < slots.size(); ++s) {
       std::int32_t ref = slots[s];

@@ -181,16 +181,15 @@ private:
   std::size_t line_;
 };
 
-}  // namespace
+// Reads the header from `p` (past a byte-order mark) to its end_header line: the format and the
+// elements with their properties, in file order. `p` moves past the header, `line` counts its lines.
+struct Header {
+  Format format = Format::ascii;
+  std::vector<Element> elements;
+};
 
-Scene parse_ply(const std::string& name, const char* data, std::size_t size) {
-  Scene s;
-  s.name = name;
-  const char* p = data;
-  const char* end = data + size;
-  if (size >= 3 && std::memcmp(p, "\xEF\xBB\xBF", 3) == 0) p += 3;  // UTF-8 byte-order mark
-  // -- header
-  std::size_t line = 0;
+Header read_header(const std::string& name, const char*& p, const char* end, std::size_t& line) {
+  Header h;
   auto next_line = [&](std::string& out) -> bool {
     if (p >= end) return false;
     const char* eol = static_cast<const char*>(std::memchr(p, '\n', static_cast<std::size_t>(end - p)));
@@ -203,9 +202,7 @@ Scene parse_ply(const std::string& name, const char* data, std::size_t size) {
   };
   std::string l;
   if (!next_line(l) || l != "ply") fail_at(name, 1, "not a PLY file (first line must be 'ply')");
-  Format format = Format::ascii;
   bool have_format = false;
-  std::vector<Element> elements;
   for (;;) {
     if (!next_line(l)) fail_at(name, line, "truncated header (no end_header)");
     std::istringstream ls(l);
@@ -224,9 +221,9 @@ Scene parse_ply(const std::string& name, const char* data, std::size_t size) {
     if (kw == "format") {
       std::string f, v;
       ls >> f >> v;
-      if (f == "ascii") format = Format::ascii;
-      else if (f == "binary_little_endian") format = Format::binary_le;
-      else if (f == "binary_big_endian") format = Format::binary_be;
+      if (f == "ascii") h.format = Format::ascii;
+      else if (f == "binary_little_endian") h.format = Format::binary_le;
+      else if (f == "binary_big_endian") h.format = Format::binary_be;
       else fail_at(name, line, "unknown PLY format '" + f + "'");
       if (v != "1.0") fail_at(name, line, "unsupported PLY version '" + v + "'");
       no_more_words();
@@ -239,14 +236,14 @@ Scene parse_ply(const std::string& name, const char* data, std::size_t size) {
       if (e.name.empty() || r.ec != std::errc() || r.ptr != count.data() + count.size())
         fail_at(name, line, "bad element line '" + l + "'");
       no_more_words();
-      for (const Element& o : elements)
+      for (const Element& o : h.elements)
         if (o.name == e.name)
           fail_at(name, line, "element '" + e.name + "' declared a second time (first on line " + std::to_string(o.header_line) +
                                   "); a PLY file declares each element once");
       e.header_line = line;
-      elements.push_back(e);
+      h.elements.push_back(e);
     } else if (kw == "property") {
-      if (elements.empty()) fail_at(name, line, "property before any element");
+      if (h.elements.empty()) fail_at(name, line, "property before any element");
       Property pr;
       std::string t;
       ls >> t;
@@ -262,7 +259,7 @@ Scene parse_ply(const std::string& name, const char* data, std::size_t size) {
       }
       if (pr.name.empty()) fail_at(name, line, "property without a name");
       no_more_words();
-      Element& e = elements.back();
+      Element& e = h.elements.back();
       auto is_index_list = [](const Property& q) { return q.is_list && (q.name == "vertex_indices" || q.name == "vertex_index"); };
       for (std::size_t k = 0; k < e.props.size(); ++k) {
         if (e.props[k].name == pr.name)
@@ -283,6 +280,21 @@ Scene parse_ply(const std::string& name, const char* data, std::size_t size) {
     }
   }
   if (!have_format) fail_at(name, line, "header has no format line");
+  return h;
+}
+
+}  // namespace
+
+Scene parse_ply(const std::string& name, const char* data, std::size_t size) {
+  Scene s;
+  s.name = name;
+  const char* p = data;
+  const char* end = data + size;
+  if (size >= 3 && std::memcmp(p, "\xEF\xBB\xBF", 3) == 0) p += 3;  // UTF-8 byte-order mark
+  std::size_t line = 0;
+  const Header h = read_header(name, p, end, line);
+  const Format format = h.format;
+  const std::vector<Element>& elements = h.elements;
 
   // -- body
   Reader rd(name, p, end, format, line);

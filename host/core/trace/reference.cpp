@@ -16,36 +16,6 @@
 
 namespace mbvh {
 
-const char* to_string(Precision p) {
-  switch (p) {
-    case Precision::robust: return "robust";
-    case Precision::exact: return "exact";
-    case Precision::fast: return "fast";
-  }
-  return "?";
-}
-
-Precision parse_precision(const std::string& s) {
-  if (s == "robust") return Precision::robust;
-  if (s == "exact") return Precision::exact;
-  if (s == "fast") return Precision::fast;
-  throw Error("unknown precision '" + s + "' (known: robust, exact, fast)");
-}
-
-const char* to_string(Query q) { return q == Query::closest ? "closest" : "any"; }
-const char* to_string(Traversal t) {
-  switch (t) {
-    case Traversal::stack: return "stack";
-    case Traversal::bitstack: return "bitstack";
-    case Traversal::stack_ordered: return "stack-ordered";
-    case Traversal::bitstack_retest: return "bitstack-retest";
-    case Traversal::packet_ranged: return "packet-ranged";
-    case Traversal::packet_partition: return "packet-partition";
-    case Traversal::packet: return "packet";
-  }
-  return "?";
-}
-
 Traversal stack_twin(Traversal t) {
   if (t == Traversal::bitstack) return Traversal::stack;
   if (t == Traversal::bitstack_retest) return Traversal::stack_ordered;
@@ -57,24 +27,6 @@ bool reference_supports(Layout layout, Traversal traversal) {
   if (is_packet(traversal)) return true;  // the stack traversal of `layout`, ray by ray
   if (layout == Layout::mbvh8) return traversal != Traversal::bitstack_retest;  // no variant B on MBVH8
   return layout == Layout::mbvh4 || traversal == Traversal::stack || traversal == Traversal::bitstack;
-}
-
-Query parse_query(const std::string& s) {
-  if (s == "closest") return Query::closest;
-  if (s == "any") return Query::any;
-  throw Error("unknown query '" + s + "' (known: closest, any)");
-}
-
-Traversal parse_traversal(const std::string& s) {
-  if (s == "stack") return Traversal::stack;
-  if (s == "bitstack") return Traversal::bitstack;
-  if (s == "stack-ordered") return Traversal::stack_ordered;
-  if (s == "bitstack-retest") return Traversal::bitstack_retest;
-  if (s == "packet-ranged") return Traversal::packet_ranged;
-  if (s == "packet-partition") return Traversal::packet_partition;
-  if (s == "packet") return Traversal::packet;
-  throw Error("unknown traversal '" + s +
-              "' (known: stack, bitstack, stack-ordered, bitstack-retest, packet-ranged, packet-partition, packet)");
 }
 
 std::size_t state_bytes_per_ray(Layout layout, Traversal traversal) {

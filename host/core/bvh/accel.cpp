@@ -1,0 +1,187 @@
+// SPDX-License-Identifier: MIT
+// accel.cpp — Accel itself: Accel::build (the record pass, then the builder BuildOptions::quality
+// names, the flattened tree, its triangles and statistics), the accessors, the hash and the
+// layouts made on first use; sah_of_binary, the binary tree's SAH statistic (also Accel::load's).
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <mutex>
+#include <string>
+
+#include "host/core/bvh/builder.h"
+#include "host/core/bvh/sbvh.h"
+#include "host/core/enum_check.h"
+#include "host/core/layouts.h"
+#include "host/core/resources.h"
+#include "mbvh/error.h"
+
+namespace mbvh {
+
+namespace build {
+
+double sah_of_binary(const Bvh2& b, const std::vector<Leaf>& leaves, float ct) {
+  const double root = b.nodes[0].box.half_area();
+  if (!(root > 0)) return 0;
+  double cost = 0;
+  for (const auto& n : b.nodes) cost += ct * n.box.half_area() / root;
+  for (std::size_t i = 0; i < leaves.size(); ++i) cost += double(leaves[i].count) * b.leaf_boxes[i].half_area() / root;
+  return cost;
+}
+
+}  // namespace build
+
+std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_in) try {
+  using build::PrimRef;
+  using Clock = std::chrono::steady_clock;
+  const auto t0 = Clock::now();
+  // -- what the build is given: indices in range and finite vertices (checked by the record
+  //    pass below, Scene::validate naming the first fault), a usable SAH cost
+  check_enum(opt_in.quality, "Accel::build: " + scene.display_name(), "BuildOptions::quality");
+  if (!scene.meshes().empty() && !scene.triangles.empty()) scene.validate();
+  if (!std::isfinite(opt_in.traversal_cost) || opt_in.traversal_cost < 0)
+    throw Error("BuildOptions::traversal_cost " + std::to_string(opt_in.traversal_cost) + " must be finite and >= 0");
+  std::unique_ptr<Accel> acc(new Accel());
+  acc->impl_->opt_ = opt_in;
+  BuildOptions& opt = acc->impl_->opt_;
+  opt.depth_cap = std::clamp(opt.depth_cap, 1u, static_cast<unsigned>(MBVH_BINARY_DEPTH_CAP));
+  opt.max_leaf = std::max(opt.max_leaf, 1u);
+  acc->impl_->scene_triangles_ = scene.triangle_count();
+  acc->impl_->geometry_offsets_.resize(scene.geometry_count() + 1);
+  for (std::size_t g = 0; g <= scene.geometry_count(); ++g) acc->impl_->geometry_offsets_[g] = scene.geometry_offset(g);
+  auto report = [&opt](double f) {
+    if (opt.progress) opt.progress(f);
+  };
+
+  // -- one record per non-degenerate (non-zero area) triangle, in scene order, the scene checked
+  //    on the way (prim_refs.cpp)
+  build::PrimRefs refs = build::make_prim_refs(scene, opt.threads);
+  build::RawVector<PrimRef>& prims = refs.prims;
+  acc->impl_->bvh2_.degenerate = refs.degenerate;
+  const auto t_prep = Clock::now();
+  report(0.05);
+
+  Bvh2& out = acc->impl_->bvh2_;
+  auto t_tree = Clock::now();
+  if (opt.quality == BuildQuality::high) {
+    // -- spatial splits (sbvh.cpp): a triangle may sit in several leaves (never twice in one)
+    std::vector<Box> boxes(scene.triangle_count());
+    std::vector<std::uint32_t> idx(prims.size());
+    for (std::size_t i = 0; i < prims.size(); ++i) {
+      const PrimRef& r = prims[i];
+      idx[i] = r.prim;
+      boxes[r.prim].lo = {r.lo[0], r.lo[1], r.lo[2]};
+      boxes[r.prim].hi = {r.hi[0], r.hi[1], r.hi[2]};
+    }
+    SbvhResult r = build_sbvh(scene, opt, boxes, idx);
+    t_tree = Clock::now();
+    r.bvh.degenerate = out.degenerate;
+    out = std::move(r.bvh);
+    acc->impl_->leaves_ = std::move(r.leaves);
+    acc->impl_->tris_.resize(r.prims.size());
+    build::fill_tris(scene, r.prims, acc->impl_->tris_, opt.threads);
+  } else {
+    // -- the binary tree
+    build::Arenas arenas;
+    if (opt.quality == BuildQuality::low) build::build_lbvh(prims, refs.root, refs.croot, opt, arenas);
+    else build::build_binned_sah(prims, refs.root, refs.croot, opt, arenas);
+    t_tree = Clock::now();
+
+    // -- flatten depth-first; leaves come out in record order
+    build::flatten(arenas, out, acc->impl_->leaves_, opt.threads);
+
+    arenas = build::Arenas();
+    acc->impl_->tris_.resize(prims.size());
+    build::fill_tris(scene, prims, acc->impl_->tris_, opt.threads);
+  }
+  acc->impl_->bounds_ = out.nodes[0].box;
+  const auto t_flat = Clock::now();
+
+  // -- statistics (the hash is made on first use: Accel::hash)
+  LayoutStats& st = acc->impl_->binary_stats_;
+  st.layout = "binary";
+  st.nodes = out.nodes.size();
+  st.leaves = acc->impl_->leaves_.size();
+  st.depth = out.nodes[0].height;
+  st.sah_cost = build::sah_of_binary(out, acc->impl_->leaves_, opt.traversal_cost);
+  st.bytes = out.nodes.size() * sizeof(Bvh2::Node) + acc->impl_->leaves_.size() * (sizeof(Leaf) + sizeof(Box)) +
+             acc->impl_->tris_.size() * sizeof(Tri);
+  st.bitstack_bits = st.depth;
+  if (st.depth > opt.depth_cap) throw Error("internal: binary depth " + std::to_string(st.depth) + " exceeds the cap");
+  const auto t1 = Clock::now();
+  auto ms = [](Clock::time_point a, Clock::time_point b) { return std::chrono::duration<double, std::milli>(b - a).count(); };
+  st.build_ms = ms(t0, t1);
+  st.phase_ms[0] = ms(t0, t_prep);
+  st.phase_ms[1] = ms(t_prep, t_tree);
+  st.phase_ms[2] = ms(t_tree, t_flat);
+  st.phase_ms[3] = ms(t_flat, t1);
+  report(1.0);
+  return acc;
+} catch (const std::bad_alloc&) {  // the build's arrays, beyond the scene: named, not a bare std::bad_alloc
+  throw_out_of_memory(scene.display_name() + ": the BVH build of its " +
+                          std::to_string(scene.triangle_count()) + " triangles",
+                      build_memory_estimate(scene.triangle_count(), scene.vertices.size()));
+}
+
+Accel::Accel() : impl_(std::make_unique<Impl>()) {}
+Accel::~Accel() = default;
+const Bvh2& Accel::bvh2() const { return impl_->bvh2_; }
+const AlignedVector<Tri>& Accel::tris() const { return impl_->tris_; }
+const std::vector<Leaf>& Accel::leaves() const { return impl_->leaves_; }
+const Box& Accel::bounds() const { return impl_->bounds_; }
+std::size_t Accel::scene_triangles() const { return impl_->scene_triangles_; }
+std::size_t Accel::geometry_count() const { return impl_->geometry_offsets_.size() - 1; }
+
+GeomPrim Accel::geometry_of(std::uint32_t prim) const {
+  const std::vector<std::uint64_t>& o = impl_->geometry_offsets_;
+  if (prim >= o.back()) return {};
+  const std::size_t g = geometry_index(o.data(), o.size() - 1, prim);
+  return {static_cast<std::uint32_t>(g), static_cast<std::uint32_t>(prim - o[g])};
+}
+const LayoutStats& Accel::binary_stats() const { return impl_->binary_stats_; }
+const BuildOptions& Accel::options() const { return impl_->opt_; }
+std::uint64_t Accel::hash() const {
+  if (!impl_->hash_known_.load(std::memory_order_acquire)) {
+    std::lock_guard<std::mutex> lock(impl_->hash_m_);
+    if (!impl_->hash_known_.load(std::memory_order_relaxed)) {
+      impl_->hash_ = build::hash_build(impl_->bvh2_, impl_->leaves_, impl_->tris_, impl_->opt_.threads);
+      impl_->hash_known_.store(true, std::memory_order_release);
+    }
+  }
+  return impl_->hash_;
+}
+std::uint64_t Accel::generation() const { return impl_->generation_; }
+double Accel::last_refit_ms() const { return impl_->refit_ms_; }
+
+const Mbvh2& Accel::mbvh2() const {
+  std::call_once(impl_->once2_, [this] { impl_->mbvh2_ = make_mbvh2(impl_->bvh2_, impl_->leaves_); });
+  return impl_->mbvh2_;
+}
+
+void Accel::make_layout(Layout l) const {
+  check_enum(l, "Accel::make_layout", "the layout");
+  if (l == Layout::mbvh2) mbvh2();
+  else if (l == Layout::mbvh4) mbvh4();
+  else mbvh8();
+}
+
+const Mbvh8& Accel::mbvh8() const {
+  std::call_once(impl_->once8_, [this] { impl_->mbvh8_ = make_mbvh8(impl_->bvh2_, impl_->leaves_, impl_->opt_.threads); });
+  return impl_->mbvh8_;
+}
+
+const Mbvh4& Accel::mbvh4() const {
+  std::call_once(impl_->once4_, [this] { impl_->mbvh4_ = make_mbvh4(impl_->bvh2_, impl_->leaves_, impl_->opt_.threads); });
+  return impl_->mbvh4_;
+}
+
+const TriPacks& Accel::tri_packs() const {
+  std::call_once(impl_->oncep_, [this] { impl_->packs_ = make_tri_packs(impl_->tris_, impl_->leaves_); });
+  return impl_->packs_;
+}
+
+const Mbvh4Wide& Accel::mbvh4_wide() const {
+  std::call_once(impl_->once4w_, [this] { impl_->mbvh4w_ = make_mbvh4_wide(mbvh4()); });
+  return impl_->mbvh4w_;
+}
+
+}  // namespace mbvh
