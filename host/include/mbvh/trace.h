@@ -49,6 +49,13 @@ enum class Traversal { stack, bitstack, stack_ordered, bitstack_retest, packet_r
 inline bool is_packet(Traversal t) {
   return t == Traversal::packet_ranged || t == Traversal::packet_partition || t == Traversal::packet;
 }
+/// The single-ray traversal whose answers a packet traversal gives, and which its hybrid switch
+/// traces incoherent packets with: closest hit the ordered stack (the faster single-ray closest
+/// hit on MBVH4 and MBVH8, docs/benchmarks.md), any hit and MBVH2 (no ordered stack) the stack.
+/// The reference traces packet traversals as this traversal, ray by ray.
+constexpr Traversal packet_single_ray(Layout l, bool any) {
+  return any || l == Layout::mbvh2 ? Traversal::stack : Traversal::stack_ordered;
+}
 /// The stack-based twin a bitstack traversal must reproduce (itself for stack traversals; stack
 /// for the packet traversals, whose every ray's answer is the stack traversal's).
 Traversal stack_twin(Traversal t);
