@@ -47,8 +47,8 @@ void trace_packets(const Accel& acc, std::span<const Ray> rays, const TraceOptio
   out.resize_for(rays.size(), opt);
   std::atomic<std::size_t> invalid{0};
   constexpr std::size_t kN = MBVH_PACKET_RAYS;
-  parallel_for(rays.size(), 2048, threads, [&](std::size_t b, std::size_t e, unsigned) {
-    static_assert(2048 % kN == 0, "chunks hold whole packets");
+  parallel_for(rays.size(), kTraceChunk, threads, [&](std::size_t b, std::size_t e, unsigned) {
+    static_assert(kTraceChunk % kN == 0, "chunks hold whole packets");
     auto P = std::make_unique<packet::Packet>();
     std::array<RayStats, kN> st{};
     std::size_t inv = 0;

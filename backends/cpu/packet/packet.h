@@ -148,9 +148,7 @@ inline bool load_packet(Packet& P, const mbvh::Ray* rays, int n, std::size_t& in
     const unsigned valid = static_cast<unsigned>(_mm256_movemask_ps(ok)) & in_batch;
     invalid += static_cast<std::size_t>(std::popcount(in_batch & ~valid));
     P.live[g] = P.valid[g] = static_cast<std::uint8_t>(valid);
-    const __m256 vm = _mm256_castsi256_ps(_mm256_cmpgt_epi32(
-        _mm256_and_si256(_mm256_set1_epi32(static_cast<int>(valid)), _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128)),
-        _mm256_setzero_si256()));
+    const __m256 vm = lane_mask(valid);
     // kz = the largest |d| (ties to the lower axis), kx, ky the next two, swapped when d[kz] < 0
     const __m256i one = _mm256_set1_epi32(1), two = _mm256_set1_epi32(2);
     const __m256i kz = _mm256_blendv_epi8(_mm256_and_si256(_mm256_castps_si256(y_gt), one), two, _mm256_castps_si256(z_gt));

@@ -74,55 +74,25 @@ template <bool Any>
 /// hit: returns the lanes that hit.
 template <bool Any, bool UniformK>
 [[gnu::always_inline]] inline unsigned tri_group(Packet& P, int g, const Tri& tri, const __m256 (&vb)[3][3], unsigned m) {
+  using F = F8;
   const int i = g * kLanes;
-  const __m256 ox = _mm256_load_ps(P.to[0] + i), oy = _mm256_load_ps(P.to[1] + i), oz = _mm256_load_ps(P.to[2] + i);
-  const __m256 sx = _mm256_load_ps(P.ts[0] + i), sy = _mm256_load_ps(P.ts[1] + i), sz = _mm256_load_ps(P.ts[2] + i);
+  const __m256 o[3] = {F::load(P.to[0] + i), F::load(P.to[1] + i), F::load(P.to[2] + i)};
+  const __m256 s[3] = {F::load(P.ts[0] + i), F::load(P.ts[1] + i), F::load(P.ts[2] + i)};
   __m256 X[3], Y[3], Z[3];
   for (int q = 0; q < 3; ++q) {
-    __m256 px, py, pz;
-    if constexpr (UniformK) {
-      px = vb[q][P.k[0]];
-      py = vb[q][P.k[1]];
-      pz = vb[q][P.k[2]];
-    } else {
-      px = select_role(P, i, 0, vb[q]);
-      py = select_role(P, i, 1, vb[q]);
-      pz = select_role(P, i, 2, vb[q]);
-    }
-    const __m256 ax = _mm256_sub_ps(px, ox), ay = _mm256_sub_ps(py, oy), az = _mm256_sub_ps(pz, oz);
-    X[q] = _mm256_sub_ps(ax, _mm256_mul_ps(sx, az));
-    Y[q] = _mm256_sub_ps(ay, _mm256_mul_ps(sy, az));
-    Z[q] = _mm256_mul_ps(sz, az);
+    if constexpr (UniformK)
+      shear_lanes<F>(vb[q][P.k[0]], vb[q][P.k[1]], vb[q][P.k[2]], o, s, X[q], Y[q], Z[q]);
+    else
+      shear_lanes<F>(select_role(P, i, 0, vb[q]), select_role(P, i, 1, vb[q]), select_role(P, i, 2, vb[q]), o, s, X[q],
+                     Y[q], Z[q]);
   }
-  const __m256 U = _mm256_sub_ps(_mm256_mul_ps(X[2], Y[1]), _mm256_mul_ps(Y[2], X[1]));
-  const __m256 V = _mm256_sub_ps(_mm256_mul_ps(X[0], Y[2]), _mm256_mul_ps(Y[0], X[2]));
-  const __m256 W = _mm256_sub_ps(_mm256_mul_ps(X[1], Y[0]), _mm256_mul_ps(Y[1], X[0]));
-  const __m256 zero = _mm256_setzero_ps();
-  const unsigned exact0 = static_cast<unsigned>(_mm256_movemask_ps(_mm256_or_ps(
-      _mm256_cmp_ps(U, zero, _CMP_EQ_OQ), _mm256_or_ps(_mm256_cmp_ps(V, zero, _CMP_EQ_OQ), _mm256_cmp_ps(W, zero, _CMP_EQ_OQ)))));
-  const __m256 neg = _mm256_or_ps(_mm256_cmp_ps(U, zero, _CMP_LT_OQ),
-                                  _mm256_or_ps(_mm256_cmp_ps(V, zero, _CMP_LT_OQ), _mm256_cmp_ps(W, zero, _CMP_LT_OQ)));
-  const __m256 pos = _mm256_or_ps(_mm256_cmp_ps(U, zero, _CMP_GT_OQ),
-                                  _mm256_or_ps(_mm256_cmp_ps(V, zero, _CMP_GT_OQ), _mm256_cmp_ps(W, zero, _CMP_GT_OQ)));
-  unsigned fallback = m & exact0;
-  const unsigned inside = m & ~exact0 & ~static_cast<unsigned>(_mm256_movemask_ps(_mm256_and_ps(neg, pos)));
-  unsigned sure = 0;
-  if (inside != 0) {
-    const __m256 det = _mm256_add_ps(_mm256_add_ps(U, V), W);
-    const __m256 T = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(U, Z[0]), _mm256_mul_ps(V, Z[1])), _mm256_mul_ps(W, Z[2]));
-    const __m256 t = _mm256_div_ps(T, det);
-    const __m256 tmax = _mm256_load_ps(P.t + i);
-    const __m256 in = _mm256_and_ps(_mm256_cmp_ps(t, _mm256_load_ps(P.tmin + i), _CMP_GE_OQ), _mm256_cmp_ps(t, tmax, _CMP_LE_OQ));
-    const unsigned cand =
-        inside & static_cast<unsigned>(_mm256_movemask_ps(_mm256_and_ps(in, _mm256_cmp_ps(det, zero, _CMP_NEQ_UQ))));
-    if (cand != 0) {
-      // conservative t > 0 (pbrt-v3), tri_test's bound
-      const __m256 dt = t_error_bound<F8>(X, Y, Z, U, V, W, det);
-      sure = cand & static_cast<unsigned>(_mm256_movemask_ps(_mm256_cmp_ps(t, dt, _CMP_GT_OQ)));
-      fallback |= cand & ~sure;
-      if constexpr (!Any) keep_closest(P, i, sure, t, tmax, V, W, det, tri_prim(tri));
-    }
-  }
+  const __m256 tmax = F::load(P.t + i);
+  Watertight<F> w;
+  watertight_lanes<F>(X, Y, Z, F::load(P.tmin + i), tmax, m, w);
+  unsigned sure = w.sure;
+  const unsigned fallback = w.exact0 | (w.cand & ~sure);
+  if constexpr (!Any)
+    if (w.cand != 0) keep_closest(P, i, sure, w.t, tmax, w.V, w.W, w.det, tri_prim(tri));
   for (unsigned f = fallback; f != 0; f &= f - 1) {  // the rare undecided lanes: tri_test itself
     const int l = i + std::countr_zero(f);
     float tt, uu, vv;

@@ -72,11 +72,6 @@ struct SimdKernelsT {
   /// chords), ties to the lower slot, without a branch per slot: two hits by one compare, more by
   /// a horizontal min (max) over the row with the misses set to +inf (-inf) and the lowest slot
   /// equal to it (d is never NaN: entries start at tmin, chords are clamped at 0).
-  template <bool Largest>
-  [[gnu::always_inline]] static __m256 pick(__m256 a, __m256 b) {
-    if constexpr (Largest) return _mm256_max_ps(a, b);
-    else return _mm256_min_ps(a, b);
-  }
   template <int W, bool Largest>
   [[gnu::always_inline]] static int extreme(unsigned mask, const float* d) {
     const unsigned rest = mask & (mask - 1);
@@ -87,12 +82,10 @@ struct SimdKernelsT {
     }
     if constexpr (W == 8) {
       const __m256 none = _mm256_set1_ps(Largest ? -INFINITY : INFINITY);
-      const __m256 bits = _mm256_castsi256_ps(_mm256_and_si256(_mm256_set1_epi32(static_cast<int>(mask)),
-                                                               _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128)));
-      const __m256 v = _mm256_blendv_ps(_mm256_loadu_ps(d), none, _mm256_cmp_ps(bits, _mm256_setzero_ps(), _CMP_EQ_OQ));
-      __m256 m = pick<Largest>(v, _mm256_permute_ps(v, 0xB1));
-      m = pick<Largest>(m, _mm256_permute_ps(m, 0x4E));
-      m = pick<Largest>(m, _mm256_permute2f128_ps(m, m, 0x01));
+      const __m256 v = _mm256_blendv_ps(none, _mm256_loadu_ps(d), lane_mask(mask));
+      __m256 m;
+      if constexpr (Largest) m = hmax8_splat(v);
+      else m = hmin8_splat(v);
       const unsigned eq = static_cast<unsigned>(_mm256_movemask_ps(_mm256_cmp_ps(v, m, _CMP_EQ_OQ))) & mask;
       return std::countr_zero(eq);
     } else {

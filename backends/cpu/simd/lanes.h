@@ -146,17 +146,20 @@ template <class F>
   r[7] = _mm256_permute2f128_ps(u3, u7, 0x31);
 }
 
-/// Horizontal min / max of 8 lanes.
-[[gnu::always_inline]] inline float hmin8(__m256 v) {
+/// Horizontal min / max of 8 lanes, in every lane.
+[[gnu::always_inline]] inline __m256 hmin8_splat(__m256 v) {
   v = _mm256_min_ps(v, _mm256_permute_ps(v, 0xB1));
   v = _mm256_min_ps(v, _mm256_permute_ps(v, 0x4E));
-  return _mm256_cvtss_f32(_mm256_min_ps(v, _mm256_permute2f128_ps(v, v, 0x01)));
+  return _mm256_min_ps(v, _mm256_permute2f128_ps(v, v, 0x01));
 }
-[[gnu::always_inline]] inline float hmax8(__m256 v) {
+[[gnu::always_inline]] inline __m256 hmax8_splat(__m256 v) {
   v = _mm256_max_ps(v, _mm256_permute_ps(v, 0xB1));
   v = _mm256_max_ps(v, _mm256_permute_ps(v, 0x4E));
-  return _mm256_cvtss_f32(_mm256_max_ps(v, _mm256_permute2f128_ps(v, v, 0x01)));
+  return _mm256_max_ps(v, _mm256_permute2f128_ps(v, v, 0x01));
 }
+/// Horizontal min / max of 8 lanes.
+[[gnu::always_inline]] inline float hmin8(__m256 v) { return _mm256_cvtss_f32(hmin8_splat(v)); }
+[[gnu::always_inline]] inline float hmax8(__m256 v) { return _mm256_cvtss_f32(hmax8_splat(v)); }
 
 /// Per lane: c == 0 ? a : c == 1 ? b : c2 (c as the masks k1 / k2).
 [[gnu::always_inline]] inline __m256 select3(__m256 a, __m256 b, __m256 c, __m256 is1, __m256 is2) {

@@ -49,39 +49,39 @@ template <class F>
   return F::mul(F::mul(F::set1(3.0f), sum), F::andnot(F::set1(-0.0f), F::div(F::set1(1.0f), det)));
 }
 
-/// The triangles of one pack (F = F4: four lanes) or of two consecutive packs (F8: eight lanes,
-/// a leaf of five to eight triangles in one pass) at once: tri_test (intersect.h) lane by lane,
-/// the same operations in the same order (Woop, Benthin & Wald 2013, watertight; pbrt-v3's error
-/// bound on t), so either width gives every lane the reference's answer. Returns the lanes of
-/// `valid` that hit within [tmin, tmax], with t and the barycentrics' numerators and denominator
-/// (u = V / det, v = W / det: divided for the chosen lane only); the lanes this cannot settle in
-/// float — an edge function exactly 0 (settled in double) or t within its error bound of 0
-/// (settled by the plane distance in double) — go to `fallback` for the scalar test, a rare case.
-/// The exact-contract work is deferred until a lane can still win: nothing past the edge tests
-/// when no lane is inside its triangle, the error bound on t only when some lane's t lies within
-/// [tmin, tmax]. Any (occlusion): the same decision, but nothing beyond it — no t,
-/// barycentrics or determinant leave the function. The t-error bound stays: it is the decision's
-/// last step (a lane with t within it is no certain hit). Such a lane (`near0`: inside, t in
-/// [tmin, tmax], t <= δt — a secondary ray's own surface, about one ray in three) has every value
-/// tri_test would compute, so only its last step is left to the caller: the plane distance in
-/// double (plane_t_double); only `fallback` lanes (an edge function exactly 0) need the whole
-/// scalar test. Closest hit stores t, V, W and det for every lane.
-template <class F, bool Any = false>
-[[gnu::always_inline]] inline unsigned tri_test_simd(const Tri4* p, const SimdRay& r, unsigned valid, float tmax, float* t_out,
-                                                     float* V_out, float* W_out, float* det_out, unsigned& fallback,
-                                                     unsigned& near0) {
+/// One vertex of a triangle, its coordinates on the ray's kx, ky, kz axes (px, py, pz), translated
+/// to the ray's permuted origin o and sheared by s: tri_test's X, Y, Z, lane by lane.
+template <class F>
+[[gnu::always_inline]] inline void shear_lanes(typename F::V px, typename F::V py, typename F::V pz,
+                                               const typename F::V (&o)[3], const typename F::V (&s)[3], typename F::V& X,
+                                               typename F::V& Y, typename F::V& Z) {
+  const typename F::V ax = F::sub(px, o[0]), ay = F::sub(py, o[1]), az = F::sub(pz, o[2]);
+  X = F::sub(ax, F::mul(s[0], az));
+  Y = F::sub(ay, F::mul(s[1], az));
+  Z = F::mul(s[2], az);
+}
+
+/// What watertight_lanes decides for each lane, and the values a caller's epilogue reads.
+template <class F>
+struct Watertight {
+  unsigned exact0 = 0;  ///< lanes of `valid` with an edge function exactly 0 (tri_test settles them in double)
+  unsigned cand = 0;    ///< lanes inside, det != 0, t within [tmin, tmax]
+  unsigned sure = 0;    ///< lanes of cand whose t exceeds its error bound: certain hits
+  typename F::V V, W, det, t;  ///< set when cand != 0: u = V / det, v = W / det
+};
+
+/// The watertight test (Woop, Benthin & Wald 2013) lane by lane from the sheared vertices X, Y, Z
+/// (shear_lanes): tri_test's operations in its order — the edge functions U, V, W, the inside
+/// test, det, t, the [tmin, tmax] test and pbrt-v3's error bound on t. The one sequence of
+/// operations of the SIMD leaves (a pack's triangles against one ray, tri_test_simd) and of the
+/// packets (one triangle against a SIMD ray, packet/triangle.h); each caller settles its lanes of
+/// exact0 and cand & ~sure itself. The work is deferred until a lane can still win: nothing past
+/// the edge tests when no lane is inside, the error bound only when some lane's t is in range.
+template <class F>
+[[gnu::always_inline]] inline void watertight_lanes(const typename F::V (&X)[3], const typename F::V (&Y)[3],
+                                                    const typename F::V (&Z)[3], typename F::V tmin, typename F::V tmax,
+                                                    unsigned valid, Watertight<F>& w) {
   using V4 = typename F::V;
-  const V4 ox = F::bcast(&r.tri_o[0]), oy = F::bcast(&r.tri_o[1]), oz = F::bcast(&r.tri_o[2]);
-  const V4 sx = F::bcast(&r.sx), sy = F::bcast(&r.sy), sz = F::bcast(&r.sz);
-  V4 X[3], Y[3], Z[3];
-  for (int i = 0; i < 3; ++i) {
-    const V4 ax = F::sub(F::row(p, 3 * i + r.kx), ox);
-    const V4 ay = F::sub(F::row(p, 3 * i + r.ky), oy);
-    const V4 az = F::sub(F::row(p, 3 * i + r.kz), oz);
-    X[i] = F::sub(ax, F::mul(sx, az));
-    Y[i] = F::sub(ay, F::mul(sy, az));
-    Z[i] = F::mul(sz, az);
-  }
   const V4 U = F::sub(F::mul(X[2], Y[1]), F::mul(Y[2], X[1]));
   const V4 V = F::sub(F::mul(X[0], Y[2]), F::mul(Y[0], X[2]));
   const V4 W = F::sub(F::mul(X[1], Y[0]), F::mul(Y[1], X[0]));
@@ -92,24 +92,52 @@ template <class F, bool Any = false>
                         F::or_(F::template cmp<_CMP_LT_OQ>(V, zero), F::template cmp<_CMP_LT_OQ>(W, zero)));
   const V4 pos = F::or_(F::template cmp<_CMP_GT_OQ>(U, zero),
                         F::or_(F::template cmp<_CMP_GT_OQ>(V, zero), F::template cmp<_CMP_GT_OQ>(W, zero)));
-  fallback = valid & exact0;
-  near0 = 0;
+  w.exact0 = valid & exact0;
   const unsigned inside = valid & ~exact0 & ~F::bits(F::and_(neg, pos));
-  if (inside == 0) return 0;
+  if (inside == 0) return;
   const V4 det = F::add(F::add(U, V), W);
   const V4 T = F::add(F::add(F::mul(U, Z[0]), F::mul(V, Z[1])), F::mul(W, Z[2]));
   const V4 t = F::div(T, det);
-  const V4 in = F::and_(F::template cmp<_CMP_GE_OQ>(t, F::bcast(&r.tmin)), F::template cmp<_CMP_LE_OQ>(t, F::set1(tmax)));
-  const unsigned cand = inside & F::bits(F::and_(in, F::template cmp<_CMP_NEQ_UQ>(det, zero)));
-  if (cand == 0) return 0;
-  const unsigned sure = cand & F::bits(F::template cmp<_CMP_GT_OQ>(t, t_error_bound<F>(X, Y, Z, U, V, W, det)));
-  near0 = cand & ~sure;
-  if constexpr (Any) return sure;
-  F::store(t_out, t);
-  F::store(V_out, V);
-  F::store(W_out, W);
-  F::store(det_out, det);
-  return sure;
+  const V4 in = F::and_(F::template cmp<_CMP_GE_OQ>(t, tmin), F::template cmp<_CMP_LE_OQ>(t, tmax));
+  w.cand = inside & F::bits(F::and_(in, F::template cmp<_CMP_NEQ_UQ>(det, zero)));
+  if (w.cand == 0) return;
+  w.sure = w.cand & F::bits(F::template cmp<_CMP_GT_OQ>(t, t_error_bound<F>(X, Y, Z, U, V, W, det)));
+  w.V = V;
+  w.W = W;
+  w.det = det;
+  w.t = t;
+}
+
+/// The triangles of one pack (F = F4: four lanes) or of two consecutive packs (F8: eight lanes,
+/// a leaf of five to eight triangles in one pass) at once against one ray: watertight_lanes, so
+/// either width gives every lane the reference's answer. Returns the lanes of `valid` that hit
+/// within [tmin, tmax]. Closest hit stores t and the barycentrics' numerators and denominator
+/// (u = V / det, v = W / det: divided for the chosen lane only) for every lane once some lane is
+/// a candidate; any hit (occlusion) stores nothing. The lanes this cannot settle in float are the
+/// caller's: `near0` (inside, t in [tmin, tmax], t within its error bound of 0 — a secondary ray's
+/// own surface) has every value tri_test would compute, so only its last step is left, the plane
+/// distance in double (plane_t_double); `fallback` (an edge function exactly 0) needs the whole
+/// scalar test, a rare case.
+template <class F, bool Any = false>
+[[gnu::always_inline]] inline unsigned tri_test_simd(const Tri4* p, const SimdRay& r, unsigned valid, float tmax, float* t_out,
+                                                     float* V_out, float* W_out, float* det_out, unsigned& fallback,
+                                                     unsigned& near0) {
+  using V4 = typename F::V;
+  const V4 o[3] = {F::bcast(&r.tri_o[0]), F::bcast(&r.tri_o[1]), F::bcast(&r.tri_o[2])};
+  const V4 s[3] = {F::bcast(&r.sx), F::bcast(&r.sy), F::bcast(&r.sz)};
+  V4 X[3], Y[3], Z[3];
+  for (int i = 0; i < 3; ++i)
+    shear_lanes<F>(F::row(p, 3 * i + r.kx), F::row(p, 3 * i + r.ky), F::row(p, 3 * i + r.kz), o, s, X[i], Y[i], Z[i]);
+  Watertight<F> w;
+  watertight_lanes<F>(X, Y, Z, F::bcast(&r.tmin), F::set1(tmax), valid, w);
+  fallback = w.exact0;
+  near0 = w.cand & ~w.sure;
+  if (Any || w.cand == 0) return w.sure;
+  F::store(t_out, w.t);
+  F::store(V_out, w.V);
+  F::store(W_out, w.W);
+  F::store(det_out, w.det);
+  return w.sure;
 }
 
 /// Möller–Trumbore lane by lane from the edges e1, e2, the direction d and
