@@ -43,7 +43,7 @@ void trace_packets(const Accel& acc, std::span<const Ray> rays, const TraceOptio
   const bool any = opt.query == Query::any;
   // the hybrid's single rays: run_batch's dispatch traces a packet traversal ray by ray as
   // packet_single_ray's traversal, whose bytes every packet ray gives (but for classified ties)
-  const bool partition = opt.traversal != Traversal::packet_ranged;  // packet: partition, the faster here (docs/benchmarks.md)
+  const bool partition = opt.traversal != Traversal::packet_ranged;  // packet: partition, the faster (docs/benchmarks.md)
   out.resize_for(rays.size(), opt);
   std::atomic<std::size_t> invalid{0};
   constexpr std::size_t kN = MBVH_PACKET_RAYS;

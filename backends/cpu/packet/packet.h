@@ -50,7 +50,7 @@ static_assert(kGroups * kLanes == MBVH_PACKET_RAYS && kGroups <= 32, "a packet i
 /// The packet's ray in slot g * 8 + l (lane l of SIMD ray g). Rays arrive in 8x8 image tiles,
 /// row by row (raygen, render); a SIMD ray is a 4x2 block of a tile, as in the thesis (ch. 2: 4x2
 /// SIMD rays), not a row of 8: its lanes lie closer together, so more of them take the same
-/// branch (bunny primary rays: utilisation 49 % -> 59 %, docs/benchmarks.md). Slot -> ray within
+/// branch (a higher SIMD utilisation, docs/benchmarks.md). Slot -> ray within
 /// each 64 rays: block (g & 1, g >> 1) of 4x2, lane (l & 3, l >> 2) within it. Rays that are no
 /// tile (secondary rays in arrival order) are as coherent either way. A permutation: every ray
 /// of the packet has one slot.

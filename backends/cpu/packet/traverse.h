@@ -179,9 +179,7 @@ inline void trace_packet(const TraceView& v, Packet& P, RayStats* st) {
             // closest hit: the nearer child first. Any hit: the longer chord first (the
             // frustum's widest span through the box), as the single-ray any-hit traversals
             // (longest_slot) — a shadow ray leaves its surface through the near boxes it
-            // grazes; its occluder lies in the box it crosses longest (bunny shadow rays 4.1 ->
-            // 5.8 Mrays/s, Sibenik 9.6 -> 18.8, Sponza primary any-hit 17.1 -> 24.2; conference
-            // and Cornell unchanged, the bunny's primary any-hit 4 % slower: docs/benchmarks.md)
+            // grazes; its occluder lies in the box it crosses longest (docs/benchmarks.md)
             if (Any && P.frustum) k = ex1 - ent1 > ex0 - ent0 ? 1 : 0;
             else k = ent1 < ent0 ? 1 : 0;
             if (sp >= MBVH_STACK2_ENTRIES) throw std::runtime_error("packet traversal stack overflow: the tree is deeper than its cap");

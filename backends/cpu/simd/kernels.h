@@ -36,14 +36,14 @@ struct SimdKernelsT {
   [[gnu::always_inline]] static unsigned test(const Node8& n, const Ray& r, float tcull, float d[8]) {
     return box_test_wide<F8, Chord>(n, r, tcull, d);
   }
-  /// Closest hit: the record of every child in `mask` (traverse.h passes the hit children left
+  /// Closest hit: the record of every child in `mask` (the traversals pass the hit children left
   /// for later: an inner node's lines, a leaf's first pack, or its leaf4 entry where the references
   /// are not packed) is asked for at once, so the misses
   /// of the children visited later overlap the work before them.
   /// With packed references (the default) the address is picked without a branch (a node or
   /// the leaf's first pack; the node's size in lines either way: a leaf of five or more triangles
-  /// reads into its second pack): the branch on the child's kind mispredicted on about one
-  /// prefetch in four (callgrind's branch model, Sponza diffuse rays), a sixth of the traversal's.
+  /// reads into its second pack): a branch on the child's kind mispredicts often on incoherent
+  /// rays.
   template <class N>
   [[gnu::always_inline]] static void prefetch(const N& n, const Ray& r, unsigned mask) {
     const char* nodes = reinterpret_cast<const char*>(detail::nodes_of<N>(*r.view));
@@ -97,9 +97,9 @@ struct SimdKernelsT {
   template <int W>
   [[gnu::always_inline]] static int longest(unsigned mask, const float* d) { return extreme<W, true>(mask, d); }
 
-  /// MBVH8 pushes (traverse.h: highest slot first): AVX-512 reverses the row of child links,
+  /// MBVH8 pushes (stack.h: highest slot first): AVX-512 reverses the row of child links,
   /// compresses the hit ones (the mask bit-reversed) in a register and stores the whole row (a
-  /// compress straight to memory is microcoded on Zen 4).
+  /// compress straight to memory is microcoded on some CPUs).
   [[gnu::always_inline]] static unsigned push8(std::int32_t* stack, unsigned sp, unsigned mask, const std::int32_t* child) {
 #if MBVH_CPU_ISA_ID == 2
     const __m256i links = _mm256_permutexvar_epi32(_mm256_setr_epi32(7, 6, 5, 4, 3, 2, 1, 0),
@@ -175,7 +175,7 @@ struct SimdKernelsT {
   }
 
   /// A leaf's triangles eight at a time (two packs per pass: the same instructions on 256-bit
-  /// registers, issue 14 item 2), its last one to four in a four-lane pass.
+  /// registers), its last one to four in a four-lane pass.
   template <bool Any, class St>
   [[gnu::always_inline]] static bool leaf(const TraceView& v, std::int32_t ref, const Ray& r, float& tmax, Hit& best,
                                           St& st) {

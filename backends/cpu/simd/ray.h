@@ -16,8 +16,8 @@ namespace {
 /// once per ray (finish) instead of at every node and leaf: the offsets of each axis' near and far
 /// plane rows in a Node4 and a Node8 (Embree's nearX/farX) and the triangle test's permuted origin
 /// (Woop et al. 2013). The kernels broadcast RayPre's scalars where they use them (a broadcast
-/// from memory is one load, as a load of a stored broadcast is): a ray once kept 14 broadcast
-/// vectors, 448 bytes written per ray, a fifth of the set-up's instructions.
+/// from memory is one load, as a load of a stored broadcast is, so stored broadcasts would only
+/// add set-up work).
 struct SimdRay : RayPre {
   float tri_o[3];  ///< the triangle test's permuted origin (o[kx], o[ky], o[kz])
   int near4[4], far4[4], near8[4], far8[4];  ///< three axes (the fourth entry unused)
@@ -27,9 +27,8 @@ struct SimdRay : RayPre {
 /// prepare_ray (intersect.h) in vector registers: the same checks — every component finite
 /// (|x| < inf, false for NaN) but tmax, which may be +inf, tmin in [0, tmax], the largest
 /// direction component normal — and the same per-ray constants with the same IEEE operations
-/// (1 / d, inv * K, the shear's three quotients in one division), so every bit is the scalar's;
-/// about half its instructions (callgrind: the per-ray set-up was 261 of the bunny's 1,478
-/// instructions per shadow ray).
+/// (1 / d, inv * K, the shear's three quotients in one division), so every bit is the scalar's,
+/// in about half its instructions (the set-up is a large share of a short shadow ray's work).
 [[gnu::always_inline]] inline bool prepare_ray_simd(const Ray& ray, RayPre& p) {
   static_assert(offsetof(RayPre, d) == offsetof(RayPre, o) + 12 && offsetof(RayPre, inv) == offsetof(RayPre, d) + 12 &&
                     offsetof(RayPre, inv_far) == offsetof(RayPre, inv) + 12 &&

@@ -30,7 +30,7 @@ inline Tri tri_of(const Tri4& p, int lane) {
 /// tri_test's error bound δt on t (pbrt-v3's Triangle::Intersect), lane by lane, from the sheared
 /// vertices X, Y, Z, the edge functions U, V, W and det: a lane whose t exceeds it has a certain
 /// positive t. std::fmax and maxps agree here (no NaN in a candidate lane's inputs: a NaN there
-/// makes t NaN). Shared by the SIMD leaves and the packets' per-lane test (packet.h).
+/// makes t NaN). Shared by the SIMD leaves and the packets' per-lane test (packet/triangle.h).
 template <class F>
 [[gnu::always_inline]] inline typename F::V t_error_bound(const typename F::V (&X)[3], const typename F::V (&Y)[3],
                                                           const typename F::V (&Z)[3], typename F::V U, typename F::V V,
@@ -144,7 +144,7 @@ template <class F, bool Any = false>
 /// s = o - v0, with FMA and the reciprocal estimate refined by one Newton step: returns the lanes
 /// that hit within [tmin, tmax] (all ones) with t and the weights u, v. The one sequence of
 /// operations of the fast mode's SIMD leaves (a pack's triangles against one ray) and of its
-/// packets (one triangle against a SIMD ray, packet.h), so both give a ray the same bits.
+/// packets (one triangle against a SIMD ray, packet/triangle.h), so both give a ray the same bits.
 template <class F>
 [[gnu::always_inline]] inline typename F::V mt_lanes(const typename F::V (&e1)[3],
                                                      const typename F::V (&e2)[3], const typename F::V (&d)[3],

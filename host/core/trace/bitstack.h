@@ -67,8 +67,7 @@ inline Hit trace_mbvh2_bitstack(const TraceView& v, const typename K::Ray& r, St
 /// the cyclic slot (the parent's line is hot: it was tested last on that level) instead of
 /// permuting four registers through memory; a climb reads only the parent link, and after the
 /// last climb of a backtrack the slot is found among the parent's four links. Same visit
-/// sequence as the register form and the stack twin; 7% fewer instructions than the register
-/// form on Sponza's shadow rays (callgrind, issue 14).
+/// sequence as the register form and the stack twin, in fewer instructions.
 template <bool Any, class St, class K = ScalarKernels>
 inline Hit trace_mbvh4_bitstack(const TraceView& v, const typename K::Ray& r, St& st) {
   Hit best = miss_hit();
@@ -125,12 +124,13 @@ inline Hit trace_mbvh4_bitstack(const TraceView& v, const typename K::Ray& r, St
 }
 
 /// MBVH8 bitstack (Áfra & Szirmay-Kalos 2014, §3 of the paper, on the 8-wide nodes of Áfra's
-/// thesis, ch. 3; the encoding is ours, not yet in TRAVERSAL.md): 7 skip bits per level do not fit a 64-bit word at
-/// the MBVH8 depth cap (14 levels, 98 bits), so the word is 128 bits (two uint64, §3.5's push and
-/// pop) and a level's code is the parent's pending-slot mask itself — 8 bits, absolute slots, the
-/// entered child's bit cleared (16 levels fit, the cap stays 14). The next sibling is the lowest
-/// pending slot (the stack twin's pop order), read from the parent, which stays in a register: a sibling move re-fetches
-/// nothing but the parent's child link; only a climb reads a record (the parent link). State:
+/// thesis, ch. 3; the encoding is mbvh's, TRAVERSAL.md does not describe it): 7 skip bits per
+/// level do not fit a 64-bit word at the MBVH8 depth cap (14 levels, 98 bits), so the word is 128
+/// bits (two uint64, §3.5's push and pop) and a level's code is the parent's pending-slot mask
+/// itself — 8 bits, absolute slots, the entered child's bit cleared (16 levels fit, the cap stays
+/// 14). The next sibling is the lowest pending slot (the stack twin's pop order), read from the
+/// parent, which stays in a register: a sibling move re-fetches nothing but the parent's child
+/// link; only a climb reads a record (the parent link). State:
 /// node + 128-bit word = 20 bytes against 520 (plain stack twin) and 1032 (ordered stack).
 template <bool Any, class St, class K = ScalarKernels>
 inline Hit trace_mbvh8_bitstack(const TraceView& v, const typename K::Ray& r, St& st) {
@@ -180,7 +180,7 @@ inline Hit trace_mbvh8_bitstack(const TraceView& v, const typename K::Ray& r, St
   }
 }
 
-/// MBVH4 bitstack, variant B (TRAVERSAL.md §3.4, §4.4; mbvh's extension of Áfra &
+/// MBVH4 bitstack-retest (TRAVERSAL.md §3.4, §4.4, "variant B"; mbvh's extension of Áfra &
 /// Szirmay-Kalos 2014): the same skip codes, but each move to a sibling re-tests the parent's
 /// four boxes against the current tmax, takes the nearest pending child and drops those now
 /// beyond tmax — the visit sequence of the ordered, culling stack above (any hit: the longest

@@ -61,11 +61,11 @@ template <bool Chord = false, class N>
 
 }  // namespace detail
 
-/// The kernels a traversal calls, as a policy: the MBVH4 four-box test and the leaf visit. The
-/// reference tests boxes and triangles one by one; the SIMD cpu backends pass a policy that tests
-/// all four slabs at once and four triangles at once with the same operations in the same order
-/// and the same choice among hits (so every answer is bit-identical), and reuse these traversals
-/// unchanged. Fast: the `fast` accuracy mode (relax_ray's box test, Möller–Trumbore triangles).
+/// The kernels a traversal calls, as a policy: a wide node's box test, the leaf visit, the child
+/// choice and the MBVH8 push. The reference tests boxes and triangles one by one; the SIMD cpu
+/// backends pass a policy that tests a node's four or eight slabs at once and four or eight
+/// triangles at once with the same operations in the same order and the same choice among hits
+/// (so every answer is bit-identical), and reuse these traversals unchanged. Fast: the `fast` accuracy mode (relax_ray's box test, Möller–Trumbore triangles).
 template <bool Fast>
 struct ScalarKernelsT {
   static constexpr bool uses_packs = false;

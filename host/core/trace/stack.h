@@ -85,14 +85,14 @@ inline Hit trace_mbvh4_stack(const TraceView& v, const typename K::Ray& r, St& s
   }
 }
 
-/// MBVH4 and MBVH8, Embree-like ordered stack (TRAVERSAL.md §4.5, variant B's twin; for MBVH8
+/// MBVH4 and MBVH8, Embree-like ordered stack (TRAVERSAL.md §4.5, bitstack-retest's twin; for MBVH8
 /// the 8-wide single-ray traversal of Áfra's thesis, ch. 3): hit children pushed with their entry
 /// distances, the nearest entered, the rest popped nearest first — sorting specialised by the
 /// number of hits: 1: no push; 2: push the farther; 3: two pushes, one compare; 4-8: push all
 /// and insertion-sort by (d, slot). A popped entry beyond the current tmax * S is culled.
 /// Any hit: d is the chord (as the stack's longest_slot), the longest entered and popped first,
-/// nothing culled (the query ends at its first hit, so tmax never shrinks): nearest-first made
-/// a shadow ray test the boxes it only grazes leaving its surface (Sibenik 1.6x slower).
+/// nothing culled (the query ends at its first hit, so tmax never shrinks): nearest-first makes
+/// a shadow ray test the boxes it only grazes leaving its surface.
 template <bool Any, class St, class K = ScalarKernels, class N = Node4>
 inline Hit trace_wide_stack_ordered(const TraceView& v, const typename K::Ray& r, St& st) {
   struct Entry {  // 8 bytes, as Embree's (node, distance) entries

@@ -22,8 +22,7 @@ template <class K, bool Any, bool Chord = Any, class N, class St>
 
 // Closest hit lets the policy prefetch the hit children left for later (the SIMD policies do: a
 // latency-bound walk over incoherent rays), all but the one entered now, which is read at once
-// (prefetching it too cost 13 % of the instructions of a diffuse ray on Sibenik, callgrind); an
-// occlusion query, which stops early, gains nothing.
+// (a prefetch of it only adds instructions); an occlusion query, which stops early, gains nothing.
 template <class K, bool Any, class N>
 [[gnu::always_inline]] inline void prefetch_pending(const N& n, const typename K::Ray& r, unsigned mask, int entered) {
   if constexpr (!Any) K::prefetch(n, r, mask & ~(1u << entered));
@@ -46,16 +45,15 @@ inline int extreme_slot(unsigned mask, const float* d) {
   return q;
 }
 
-// Nearest slot of `mask` by entry distance, ties to the lower slot (variant B and its twin order
-// every child by distance, for both queries).
+// Nearest slot of `mask` by entry distance, ties to the lower slot (bitstack-retest and its twin
+// order every child by distance, for both queries).
 template <int W = 4>
 inline int nearest_slot(unsigned mask, const float* d) { return extreme_slot<W, false>(mask, d); }
 
 // The hit slot of largest d, ties to the lower slot: for an occlusion query, whose d are chords,
-// the child the ray crosses longest, the likeliest to hold an occluder (the work per shadow ray
-// falls on every shared scene: Sibenik's MBVH8 nodes -27 %, leaves -24 %, the bunny's leaves -20 %,
-// against the lowest slot first). max_nan makes chords never NaN, so any order of comparison
-// finds the same slot (the SIMD policies reduce in registers).
+// the child the ray crosses longest, the likeliest to hold an occluder (a shadow ray then visits
+// fewer nodes and leaves than with the lowest slot first). max_nan makes chords never NaN, so any
+// order of comparison finds the same slot (the SIMD policies reduce in registers).
 template <int W>
 inline int longest_slot(unsigned mask, const float* d) { return extreme_slot<W, true>(mask, d); }
 
