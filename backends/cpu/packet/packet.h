@@ -95,7 +95,7 @@ constexpr float kSpread = 0.5f;
 [[gnu::always_inline]] inline __m256 pick3(const __m256 (&v)[3], __m256i k) {
   const __m256 is1 = _mm256_castsi256_ps(_mm256_cmpeq_epi32(k, _mm256_set1_epi32(1)));
   const __m256 is2 = _mm256_castsi256_ps(_mm256_cmpeq_epi32(k, _mm256_set1_epi32(2)));
-  return _mm256_blendv_ps(_mm256_blendv_ps(v[0], v[1], is1), v[2], is2);
+  return select3(v[0], v[1], v[2], is1, is2);
 }
 
 /// Whether the unit directions bounded by [lo, hi] (per axis, per lane) span kSpread or more on

@@ -30,7 +30,7 @@ inline Tri tri_of(const Tri4& p, int lane) {
 /// tri_test's error bound δt on t (pbrt-v3's Triangle::Intersect), lane by lane, from the sheared
 /// vertices X, Y, Z, the edge functions U, V, W and det: a lane whose t exceeds it has a certain
 /// positive t. std::fmax and maxps agree here (no NaN in a candidate lane's inputs: a NaN there
-/// makes t NaN). Shared by the SIMD leaves and the packets' per-lane test (packet/triangle.h).
+/// makes t NaN). watertight_lanes' last step.
 template <class F>
 [[gnu::always_inline]] inline typename F::V t_error_bound(const typename F::V (&X)[3], const typename F::V (&Y)[3],
                                                           const typename F::V (&Z)[3], typename F::V U, typename F::V V,
