@@ -68,6 +68,14 @@ template <bool Any>
                  _mm256_castsi256_ps(_mm256_load_si256(reinterpret_cast<const __m256i*>(P.k2[role] + i))));
 }
 
+/// The [tmin, tmax] of SIMD ray lanes i..i+7 (watertight_lanes' range).
+struct LaneRange {
+  const float* tmin;
+  const float* tmax;
+  [[gnu::always_inline]] __m256 lo() const { return F8::load(tmin); }
+  [[gnu::always_inline]] __m256 hi() const { return F8::load(tmax); }
+};
+
 /// One triangle against the lanes `m` of SIMD ray g: tri_test (intersect.h) lane by lane — the
 /// shear of each lane's own axes, the same operations in the same order, the undecided lanes by
 /// tri_test itself. Closest hit: keeps each lane's smallest (t, prim) as visit_leaf does. Any
@@ -86,13 +94,12 @@ template <bool Any, bool UniformK>
       shear_lanes<F>(select_role(P, i, 0, vb[q]), select_role(P, i, 1, vb[q]), select_role(P, i, 2, vb[q]), o, s, X[q],
                      Y[q], Z[q]);
   }
-  const __m256 tmax = F::load(P.t + i);
   Watertight<F> w;
-  watertight_lanes<F>(X, Y, Z, F::load(P.tmin + i), tmax, m, w);
+  watertight_lanes<F>(X, Y, Z, LaneRange{P.tmin + i, P.t + i}, m, w);
   unsigned sure = w.sure;
   const unsigned fallback = w.exact0 | (w.cand & ~sure);
   if constexpr (!Any)
-    if (w.cand != 0) keep_closest(P, i, sure, w.t, tmax, w.V, w.W, w.det, tri_prim(tri));
+    if (w.cand != 0) keep_closest(P, i, sure, w.t, F::load(P.t + i), w.V, w.W, w.det, tri_prim(tri));
   for (unsigned f = fallback; f != 0; f &= f - 1) {  // the rare undecided lanes: tri_test itself
     const int l = i + std::countr_zero(f);
     float tt, uu, vv;

@@ -70,6 +70,16 @@ struct Watertight {
   typename F::V V, W, det, t;  ///< set when cand != 0: u = V / det, v = W / det
 };
 
+/// The [tmin, tmax] of watertight_lanes' lanes, read only once some lane is inside its triangle:
+/// the SIMD leaves broadcast their ray's (this), the packets load their SIMD ray's lanes.
+template <class F>
+struct RayRange {
+  const float* tmin;
+  float tmax;
+  [[gnu::always_inline]] typename F::V lo() const { return F::bcast(tmin); }
+  [[gnu::always_inline]] typename F::V hi() const { return F::set1(tmax); }
+};
+
 /// The watertight test (Woop, Benthin & Wald 2013) lane by lane from the sheared vertices X, Y, Z
 /// (shear_lanes): tri_test's operations in its order — the edge functions U, V, W, the inside
 /// test, det, t, the [tmin, tmax] test and pbrt-v3's error bound on t. The one sequence of
@@ -77,10 +87,10 @@ struct Watertight {
 /// packets (one triangle against a SIMD ray, packet/triangle.h); each caller settles its lanes of
 /// exact0 and cand & ~sure itself. The work is deferred until a lane can still win: nothing past
 /// the edge tests when no lane is inside, the error bound only when some lane's t is in range.
-template <class F>
+template <class F, class Range>
 [[gnu::always_inline]] inline void watertight_lanes(const typename F::V (&X)[3], const typename F::V (&Y)[3],
-                                                    const typename F::V (&Z)[3], typename F::V tmin, typename F::V tmax,
-                                                    unsigned valid, Watertight<F>& w) {
+                                                    const typename F::V (&Z)[3], const Range& range, unsigned valid,
+                                                    Watertight<F>& w) {
   using V4 = typename F::V;
   const V4 U = F::sub(F::mul(X[2], Y[1]), F::mul(Y[2], X[1]));
   const V4 V = F::sub(F::mul(X[0], Y[2]), F::mul(Y[0], X[2]));
@@ -98,7 +108,7 @@ template <class F>
   const V4 det = F::add(F::add(U, V), W);
   const V4 T = F::add(F::add(F::mul(U, Z[0]), F::mul(V, Z[1])), F::mul(W, Z[2]));
   const V4 t = F::div(T, det);
-  const V4 in = F::and_(F::template cmp<_CMP_GE_OQ>(t, tmin), F::template cmp<_CMP_LE_OQ>(t, tmax));
+  const V4 in = F::and_(F::template cmp<_CMP_GE_OQ>(t, range.lo()), F::template cmp<_CMP_LE_OQ>(t, range.hi()));
   w.cand = inside & F::bits(F::and_(in, F::template cmp<_CMP_NEQ_UQ>(det, zero)));
   if (w.cand == 0) return;
   w.sure = w.cand & F::bits(F::template cmp<_CMP_GT_OQ>(t, t_error_bound<F>(X, Y, Z, U, V, W, det)));
@@ -129,7 +139,7 @@ template <class F, bool Any = false>
   for (int i = 0; i < 3; ++i)
     shear_lanes<F>(F::row(p, 3 * i + r.kx), F::row(p, 3 * i + r.ky), F::row(p, 3 * i + r.kz), o, s, X[i], Y[i], Z[i]);
   Watertight<F> w;
-  watertight_lanes<F>(X, Y, Z, F::bcast(&r.tmin), F::set1(tmax), valid, w);
+  watertight_lanes<F>(X, Y, Z, RayRange<F>{&r.tmin, tmax}, valid, w);
   fallback = w.exact0;
   near0 = w.cand & ~w.sure;
   if (Any || w.cand == 0) return w.sure;
