@@ -1,19 +1,24 @@
 // SPDX-License-Identifier: MIT
 // batch.h — the multi-threaded batch driver shared by the reference (cpu-scalar) and the SIMD
 // cpu backends: validate each ray, dispatch to the traversal chosen at run time, fill the
-// outputs in ray order. Templated on the kernel policy (box test and leaf visit, traverse.h); lives in the ISA
-// namespace like the kernels it calls.
+// outputs in ray order. Templated on the kernel policy (box test and leaf visit,
+// scalar_kernels.h); lives in the ISA namespace like the kernels it calls.
 #pragma once
 #include <atomic>
+#include <cstddef>
 #include <functional>
 #include <span>
 
-#include "host/core/parallel.h"
-#include "mbvh/trace.h"
 #include "host/core/layouts.h"
+#include "host/core/parallel.h"
 #include "host/core/trace/traverse.h"
+#include "mbvh/trace.h"
 
 namespace mbvh {
+
+/// Rays per work item of the parallel batch drivers (a packet driver's chunks hold whole packets).
+inline constexpr std::size_t kTraceChunk = 2048;
+
 inline namespace MBVH_ISA_NS {
 
 /// Points `v` at `src`'s nodes of `layout` (src: the Accel, or one of its leaf variants; each
@@ -70,39 +75,6 @@ inline TraceView trace_view(const Accel& acc, Layout layout, bool packs = false,
   return v;
 }
 
-/// The single-ray traversal whose answers a packet traversal gives, and which its hybrid switch
-/// traces incoherent packets with: closest hit the ordered stack (the faster single-ray closest
-/// hit on MBVH4 and MBVH8, docs/benchmarks.md), any hit and MBVH2 (no ordered stack) the stack.
-/// The reference traces packet traversals as this traversal, ray by ray.
-constexpr Traversal packet_single_ray(Layout l, bool any) {
-  return any || l == Layout::mbvh2 ? Traversal::stack : Traversal::stack_ordered;
-}
-
-template <bool Any, class K, class St>
-inline Hit dispatch(const TraceView& v, const typename K::Ray& r, Layout l, Traversal t, St& st) {
-  if (is_packet(t)) t = packet_single_ray(l, Any);  // a packet traversal's answers, ray by ray
-  if (l == Layout::mbvh2)
-    return t == Traversal::stack ? trace_mbvh2_stack<Any, St, K>(v, r, st) : trace_mbvh2_bitstack<Any, St, K>(v, r, st);
-  if (l == Layout::mbvh8) {
-    switch (t) {
-      case Traversal::stack: return trace_mbvh8_stack<Any, St, K>(v, r, st);
-      case Traversal::bitstack: return trace_mbvh8_bitstack<Any, St, K>(v, r, st);
-      case Traversal::stack_ordered: return trace_wide_stack_ordered<Any, St, K, Node8>(v, r, st);
-      case Traversal::bitstack_retest: return miss_hit();
-      case Traversal::packet_ranged: case Traversal::packet_partition: case Traversal::packet: break;  // mapped above
-    }
-    return miss_hit();
-  }
-  switch (t) {
-    case Traversal::stack: return trace_mbvh4_stack<Any, St, K>(v, r, st);
-    case Traversal::bitstack: return trace_mbvh4_bitstack<Any, St, K>(v, r, st);
-    case Traversal::stack_ordered: return trace_wide_stack_ordered<Any, St, K>(v, r, st);
-    case Traversal::bitstack_retest: return trace_mbvh4_bitstack_retest<Any, St, K>(v, r, st);
-    case Traversal::packet_ranged: case Traversal::packet_partition: case Traversal::packet: break;  // mapped above
-  }
-  return miss_hit();
-}
-
 template <bool Any, bool Stats, class K>
 inline void run_batch(const TraceView& v, std::span<const Ray> rays, std::size_t b, std::size_t e,
                       const TraceOptions& opt, TraceOutput& out, std::size_t& invalid) {
@@ -129,7 +101,7 @@ inline void run_batch(const TraceView& v, std::span<const Ray> rays, std::size_t
   }
 }
 
-/// Traces `rays` on `threads` workers (0 = all) in chunks of 2048 rays; no per-ray allocation.
+/// Traces `rays` on `threads` workers (0 = all) in chunks of kTraceChunk rays; no per-ray allocation.
 /// K: the kernel policy of TraceOptions::precision (the caller picks it).
 template <class K>
 inline void trace_parallel(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out,
@@ -139,7 +111,7 @@ inline void trace_parallel(const Accel& acc, std::span<const Ray> rays, const Tr
   const bool any = opt.query == Query::any;
   out.resize_for(rays.size(), opt);  // every ray's entries are written below
   std::atomic<std::size_t> invalid{0}, done{0};
-  parallel_for(rays.size(), 2048, threads, [&](std::size_t b, std::size_t e, unsigned worker) {
+  parallel_for(rays.size(), kTraceChunk, threads, [&](std::size_t b, std::size_t e, unsigned worker) {
     std::size_t inv = 0;
     if (any) {
       if (opt.stats) run_batch<true, true, K>(v, rays, b, e, opt, out, inv);

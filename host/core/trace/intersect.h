@@ -75,7 +75,7 @@ inline float min_nan(float a, float b) { return a < b ? a : b; }
 /// Returns hit and the entry distance (>= tmin).
 /// With Chord, `entry` receives the length of the ray's path through the box instead,
 /// max_nan(exit - entry, 0) (never NaN: +inf - +inf gives 0): what an occlusion query orders
-/// children by (the longest chord first, traverse.h).
+/// children by (the longest chord first, visit.h's longest_slot).
 template <bool Chord = false>
 [[gnu::always_inline]] inline bool box_test(const RayPre& r, float lox, float hix, float loy, float hiy, float loz, float hiz, float tcull,
                      float& entry) {

@@ -25,20 +25,20 @@ Traversal stack_twin(Traversal t) {
 
 bool reference_supports(Layout layout, Traversal traversal) {
   if (is_packet(traversal)) return true;  // the stack traversal of `layout`, ray by ray
-  if (layout == Layout::mbvh8) return traversal != Traversal::bitstack_retest;  // no variant B on MBVH8
+  if (layout == Layout::mbvh8) return traversal != Traversal::bitstack_retest;  // no bitstack-retest on MBVH8
   return layout == Layout::mbvh4 || traversal == Traversal::stack || traversal == Traversal::bitstack;
 }
 
 std::size_t state_bytes_per_ray(Layout layout, Traversal traversal) {
   check_enum(layout, "state_bytes_per_ray", "the layout");
   check_enum(traversal, "state_bytes_per_ray", "the traversal");
-  // packets (backends/cpu/packet.h): a stack of MBVH_STACK2_ENTRIES entries of (node, range or
+  // packets (backends/cpu/packet/traverse.h): a stack of MBVH_STACK2_ENTRIES entries of (node, range or
   // count, a group list and one 8-lane mask per group), shared by the packet's rays
   if (is_packet(traversal)) {
     constexpr std::size_t groups = MBVH_PACKET_RAYS / 8;
     return (MBVH_STACK2_ENTRIES * (4 + 4 + 2 * groups) + 4 + 4) / MBVH_PACKET_RAYS;
   }
-  // MBVH8 bitstack: node + a 128-bit word (8 pending-slot bits per level, traverse.h)
+  // MBVH8 bitstack: node + a 128-bit word (8 pending-slot bits per level, bitstack.h)
   if (traversal == Traversal::bitstack && layout == Layout::mbvh8) return 4 + 16;
   if (traversal == Traversal::bitstack || traversal == Traversal::bitstack_retest) return 4 + 8;
   const std::size_t entries = layout == Layout::mbvh2   ? MBVH_STACK2_ENTRIES

@@ -73,7 +73,7 @@ typedef uint mbvh_uint;
 #define MBVH_BINARY_DEPTH_CAP 42
 #define MBVH_MBVH2_LEVEL_CAP 64
 #define MBVH_MBVH4_LEVEL_CAP 21
-/* MBVH8 (stack-based only): three binary levels per level, ceil(42/3) = 14 levels. */
+/* MBVH8: three binary levels per level, ceil(42/3) = 14 levels (its bitstack word is 128 bits). */
 #define MBVH_MBVH8_LEVEL_CAP 14
 /* Stack capacities of the stack-based twins: one entry per level (MBVH2), 1 + 3 * levels (MBVH4). */
 #define MBVH_STACK2_ENTRIES 64
@@ -233,7 +233,7 @@ MBVH_STRUCT(Tri4) {
 
 /* One ray's statistics as a device writes them (both device backends): host RayStats
  * (mbvh/trace.h) in its order, padded to 32 bytes. max_depth counts bitstack levels (bitstack)
- * or stack entries (stack); retests stay 0 on the devices (no variant B there). */
+ * or stack entries (stack); retests stay 0 on the devices (no bitstack-retest there). */
 MBVH_STRUCT(StatsRecord) {
   mbvh_uint nodes, box_tests, leaves, tris;
   mbvh_uint climbs, retests, max_depth, pad;

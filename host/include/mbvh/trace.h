@@ -19,11 +19,11 @@ namespace mbvh {
 /// Per-ray work counters.
 struct RayStats {
   std::uint32_t nodes = 0;      ///< inner-node records visited
-  std::uint32_t box_tests = 0;  ///< child boxes tested (2 per MBVH2 node, 4 per MBVH4 node)
+  std::uint32_t box_tests = 0;  ///< child boxes tested (2, 4 or 8 per MBVH2, MBVH4 or MBVH8 node)
   std::uint32_t leaves = 0;
   std::uint32_t tris = 0;       ///< triangle tests
   std::uint32_t climbs = 0;     ///< parent reads while backtracking (bitstack only)
-  std::uint32_t retests = 0;    ///< parent nodes re-tested on a sibling move (variant B only)
+  std::uint32_t retests = 0;    ///< parent nodes re-tested on a sibling move (bitstack-retest only)
   std::uint32_t max_depth = 0;  ///< peak stack entries (stack) or bitstack levels (bitstack)
   /// Packet traversals only (0 elsewhere): the SIMD operations (a node's pair of box tests, a
   /// triangle test) made on this ray's SIMD ray while the ray was active in it, and all made on
@@ -34,8 +34,9 @@ struct RayStats {
 
 enum class Query { closest, any };
 /// stack / bitstack: the skip-code bitstack of Áfra & Szirmay-Kalos and its stack twin (cyclic
-/// order after the nearest child); bitstack_retest / stack_ordered: variant B (parent re-test,
-/// full distance order, culling) and its Embree-like ordered stack twin, MBVH4 only.
+/// order after the nearest child); bitstack_retest / stack_ordered: the bitstack with a parent
+/// re-test (full distance order, culling; MBVH4 only) and its Embree-like ordered stack twin
+/// (MBVH4 and MBVH8).
 /// packet_ranged / packet_partition: coherent packets of rays (Áfra's thesis, ch. 2) over the
 /// binary tree (MBVH2) of the build — ranged (Wald, Boulos & Shirley 2007) or partition
 /// traversal (Overbeck, Ramamoorthi & Mark 2008) with interval-arithmetic frustum culling; an
@@ -49,10 +50,18 @@ enum class Traversal { stack, bitstack, stack_ordered, bitstack_retest, packet_r
 inline bool is_packet(Traversal t) {
   return t == Traversal::packet_ranged || t == Traversal::packet_partition || t == Traversal::packet;
 }
+/// The single-ray traversal whose answers a packet traversal gives, and which its hybrid switch
+/// traces incoherent packets with: closest hit the ordered stack (the faster single-ray closest
+/// hit on MBVH4 and MBVH8, docs/benchmarks.md), any hit and MBVH2 (no ordered stack) the stack.
+/// The reference traces packet traversals as this traversal, ray by ray.
+constexpr Traversal packet_single_ray(Layout l, bool any) {
+  return any || l == Layout::mbvh2 ? Traversal::stack : Traversal::stack_ordered;
+}
 /// The stack-based twin a bitstack traversal must reproduce (itself for stack traversals; stack
 /// for the packet traversals, whose every ray's answer is the stack traversal's).
 Traversal stack_twin(Traversal t);
-/// Whether the reference traversals implement the pair (variant B and its twin: MBVH4 only).
+/// Whether the reference traversals implement the pair (bitstack_retest: MBVH4 only;
+/// stack_ordered: MBVH4 and MBVH8).
 bool reference_supports(Layout layout, Traversal traversal);
 /// Accuracy mode (the run-time-vs-error benchmark). robust, the default: the conservative slab
 /// test (Ize 2013) and the watertight triangle test (Woop et al. 2013). exact: answers bit-identical
@@ -130,7 +139,8 @@ struct TraceOutput {
 };
 
 /// Bytes of traversal state one ray needs in the given layout and traversal (TRAVERSAL.md §5):
-/// stack = entries * 4 + stack pointer + current node; bitstack = current node + 64-bit word.
+/// stack = entries * 4 + stack pointer + current node (ordered stack: 8-byte entries); bitstack =
+/// current node + 64-bit word (MBVH8: 128-bit word); packets: the packet's stack per ray.
 std::size_t state_bytes_per_ray(Layout layout, Traversal traversal);
 
 /// Traces one ray with the scalar reference traversal. If `stats` is given, counts work; if

@@ -1,0 +1,80 @@
+// SPDX-License-Identifier: MIT
+// frustum.h — a packet's frustum test of a box (Boulos, Wald & Shirley 2006: interval arithmetic
+// over the packet's origins and reciprocal directions), exact for every lane.
+#pragma once
+#ifndef MBVH_CPU_ISA
+#error "include from backends/cpu/isa_kernels.cpp only"
+#endif
+
+#include "backends/cpu/packet/packet.h"
+
+namespace mbvh {
+inline namespace MBVH_ISA_NS {
+namespace {
+namespace packet {
+
+/// A child box of a Node2, as broadcast rows (lo, hi per axis) and its scalar planes.
+struct Box8 {
+  __m256 lo[3], hi[3];
+  __m256 nearv[3], farv[3];  ///< the near and far planes broadcast, where the packet's signs agree
+  alignas(16) float near[4], far[4];  ///< the frustum's planes (the packet's common signs)
+};
+
+inline void load_box(Box8& b, const float lox, const float hix, const float loy, const float hiy, const float loz,
+                     const float hiz, const Packet& P) {
+  const float lo[3] = {lox, loy, loz}, hi[3] = {hix, hiy, hiz};
+  for (int a = 0; a < 3; ++a) {
+    b.lo[a] = _mm256_set1_ps(lo[a]);
+    b.hi[a] = _mm256_set1_ps(hi[a]);
+    b.near[a] = P.neg[a] ? hi[a] : lo[a];
+    b.far[a] = P.neg[a] ? lo[a] : hi[a];
+    b.nearv[a] = P.neg[a] ? b.hi[a] : b.lo[a];
+    b.farv[a] = P.neg[a] ? b.lo[a] : b.hi[a];
+  }
+  b.near[3] = b.far[3] = 0.0f;
+}
+
+/// What the frustum says of a box for the whole packet.
+enum class Cover { some, none, all };
+
+/// The frustum test (Boulos, Wald & Shirley 2006; interval arithmetic) of box `b`, exact for
+/// every lane: a lane computes tn = (near - o) * inv rounded; rounding is monotone, so the
+/// rounded corner products of [near - o_hi, near - o_lo] x [inv_lo, inv_hi] bound every lane's
+/// tn from both sides (likewise tf with inv_far), and a lane's entry max(tn, tmin) and exit
+/// min(tf, tcull) lie within the bounds taken over the axes. none: the lowest entry exceeds the
+/// highest exit, every lane misses (its own test would say so). all: the highest entry is at most
+/// the lowest exit on a frustum of all three axes, every lane hits. `entry` receives the lowest
+/// entry and `exit` the highest exit (the packet's order of children).
+inline Cover frustum_cover(const Packet& P, const Box8& b, float& entry, float& exit) {
+  const __m128 n = _mm_load_ps(b.near), f = _mm_load_ps(b.far);
+  const __m128 olo = _mm_load_ps(P.o_lo), ohi = _mm_load_ps(P.o_hi);
+  const __m128 alo = _mm_sub_ps(n, ohi), ahi = _mm_sub_ps(n, olo);
+  const __m128 ilo = _mm_load_ps(P.inv_lo), ihi = _mm_load_ps(P.inv_hi);
+  const __m128 p0 = _mm_mul_ps(alo, ilo), p1 = _mm_mul_ps(alo, ihi), p2 = _mm_mul_ps(ahi, ilo), p3 = _mm_mul_ps(ahi, ihi);
+  const __m128 blo = _mm_sub_ps(f, ohi), bhi = _mm_sub_ps(f, olo);
+  const __m128 jlo = _mm_load_ps(P.invf_lo), jhi = _mm_load_ps(P.invf_hi);
+  const __m128 q0 = _mm_mul_ps(blo, jlo), q1 = _mm_mul_ps(blo, jhi), q2 = _mm_mul_ps(bhi, jlo), q3 = _mm_mul_ps(bhi, jhi);
+  const __m128 off = _mm_castsi128_ps(_mm_load_si128(reinterpret_cast<const __m128i*>(P.axis_off)));
+  const __m128 pinf = _mm_set1_ps(INFINITY), ninf = _mm_set1_ps(-INFINITY);
+  const __m128 tn_lo = _mm_blendv_ps(_mm_min_ps(_mm_min_ps(p0, p1), _mm_min_ps(p2, p3)), ninf, off);
+  const __m128 tn_hi = _mm_blendv_ps(_mm_max_ps(_mm_max_ps(p0, p1), _mm_max_ps(p2, p3)), pinf, off);
+  const __m128 tf_lo = _mm_blendv_ps(_mm_min_ps(_mm_min_ps(q0, q1), _mm_min_ps(q2, q3)), ninf, off);
+  const __m128 tf_hi = _mm_blendv_ps(_mm_max_ps(_mm_max_ps(q0, q1), _mm_max_ps(q2, q3)), pinf, off);
+  alignas(16) float nl[4], nh[4], fl[4], fh[4];
+  _mm_store_ps(nl, tn_lo);
+  _mm_store_ps(nh, tn_hi);
+  _mm_store_ps(fl, tf_lo);
+  _mm_store_ps(fh, tf_hi);
+  entry = std::max(std::max(nl[0], nl[1]), std::max(nl[2], P.tmin_lo));
+  const float exit_hi = std::min(std::min(fh[0], fh[1]), std::min(fh[2], P.tcull_hi));
+  exit = exit_hi;
+  if (entry > exit_hi) return Cover::none;
+  const float entry_hi = std::max(std::max(nh[0], nh[1]), std::max(nh[2], P.tmin_hi));
+  const float exit_lo = std::min(std::min(fl[0], fl[1]), std::min(fl[2], P.tcull_lo));
+  return entry_hi <= exit_lo ? Cover::all : Cover::some;
+}
+
+}  // namespace packet
+}  // namespace
+}  // namespace MBVH_ISA_NS
+}  // namespace mbvh

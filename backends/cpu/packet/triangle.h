@@ -1,0 +1,129 @@
+// SPDX-License-Identifier: MIT
+// triangle.h — one triangle against a SIMD ray of a packet, lane by lane: the watertight test and
+// the fast mode's Möller–Trumbore on the single-ray leaves' lane cores (simd/triangle.h).
+#pragma once
+#ifndef MBVH_CPU_ISA
+#error "include from backends/cpu/isa_kernels.cpp only"
+#endif
+
+#include "backends/cpu/packet/packet.h"
+#include "backends/cpu/simd/lanes.h"
+#include "backends/cpu/simd/ray.h"
+#include "backends/cpu/simd/triangle.h"
+
+namespace mbvh {
+inline namespace MBVH_ISA_NS {
+namespace {
+namespace packet {
+
+/// Closest hit, SIMD ray at lane i: the lanes of `sure` hit at t (u = un / det, v = vn / det);
+/// each keeps the smaller (t, prim) as visit_leaf does (t <= its best t holds: replaced on t below
+/// it or a smaller prim), its tmax shrinking to t.
+[[gnu::always_inline]] inline void keep_closest(Packet& P, int i, unsigned sure, __m256 t, __m256 tmax, __m256 un, __m256 vn,
+                                                __m256 det, std::uint32_t prim) {
+  if (sure == 0) return;
+  const __m256i bias = _mm256_set1_epi32(INT32_MIN);
+  const __m256i pr = _mm256_set1_epi32(static_cast<int>(prim));
+  const __m256i bp = _mm256_load_si256(reinterpret_cast<const __m256i*>(P.prim + i));
+  const __m256 smaller = _mm256_castsi256_ps(_mm256_cmpgt_epi32(_mm256_xor_si256(bp, bias), _mm256_xor_si256(pr, bias)));  // prim < best
+  const unsigned upd = sure & static_cast<unsigned>(_mm256_movemask_ps(_mm256_or_ps(_mm256_cmp_ps(t, tmax, _CMP_LT_OQ), smaller)));
+  if (upd == 0) return;
+  const __m256 lanes = lane_mask(upd);
+  _mm256_store_ps(P.t + i, _mm256_blendv_ps(tmax, t, lanes));
+  P.tcull_lo = std::min(P.tcull_lo, hmin8(_mm256_blendv_ps(_mm256_set1_ps(INFINITY), t, lanes)) * kCullSlack);
+  _mm256_store_ps(P.u + i, _mm256_blendv_ps(_mm256_load_ps(P.u + i), _mm256_div_ps(un, det), lanes));
+  _mm256_store_ps(P.v + i, _mm256_blendv_ps(_mm256_load_ps(P.v + i), _mm256_div_ps(vn, det), lanes));
+  _mm256_store_si256(reinterpret_cast<__m256i*>(P.prim + i),
+                     _mm256_castps_si256(_mm256_blendv_ps(_mm256_castsi256_ps(bp), _mm256_castsi256_ps(pr), lanes)));
+}
+
+/// The `fast` precision's triangle test against the lanes `m` of SIMD ray g: mt_lanes, the
+/// operations of tri_test_simd_mt, lane by lane (Möller–Trumbore with FMA and the refined reciprocal estimate), so a
+/// ray's answer is the one the cpu backend's single-ray fast traversals give it (the hybrid's
+/// too). Closest hit keeps each lane's smallest (t, prim); any hit returns the lanes that hit.
+template <bool Any>
+[[gnu::always_inline]] inline unsigned tri_group_mt(Packet& P, int g, const Tri& tri, const __m256 (&vb)[3][3], unsigned m) {
+  using F = F8;
+  const int i = g * kLanes;
+  __m256 v0[3], e1[3], e2[3], d[3], s[3];
+  for (int a = 0; a < 3; ++a) {
+    v0[a] = vb[0][a];
+    e1[a] = F::sub(vb[1][a], v0[a]);
+    e2[a] = F::sub(vb[2][a], v0[a]);
+    d[a] = F::load(P.d[a] + i);
+    s[a] = F::sub(F::load(P.o[a] + i), v0[a]);
+  }
+  __m256 t, u, v;
+  const __m256 tmax = F::load(P.t + i);
+  const __m256 ok = mt_lanes<F>(e1, e2, d, s, F::load(P.tmin + i), tmax, t, u, v);
+  const __m256 one = F::set1(1.0f);
+  const unsigned hit = m & F::bits(ok);
+  if constexpr (!Any) keep_closest(P, i, hit, t, tmax, u, v, one, tri_prim(tri));
+  return hit;
+}
+
+/// Lanes i..i+7's coordinate of `role` (their kx, ky or kz) of the vertex rows v.
+[[gnu::always_inline]] inline __m256 select_role(const Packet& P, int i, int role, const __m256 (&v)[3]) {
+  return select3(v[0], v[1], v[2], _mm256_castsi256_ps(_mm256_load_si256(reinterpret_cast<const __m256i*>(P.k1[role] + i))),
+                 _mm256_castsi256_ps(_mm256_load_si256(reinterpret_cast<const __m256i*>(P.k2[role] + i))));
+}
+
+/// The [tmin, tmax] of SIMD ray lanes i..i+7 (watertight_lanes' range).
+struct LaneRange {
+  const float* tmin;
+  const float* tmax;
+  [[gnu::always_inline]] __m256 lo() const { return F8::load(tmin); }
+  [[gnu::always_inline]] __m256 hi() const { return F8::load(tmax); }
+};
+
+/// One triangle against the lanes `m` of SIMD ray g: tri_test (intersect.h) lane by lane — the
+/// shear of each lane's own axes, the same operations in the same order, the undecided lanes by
+/// tri_test itself. Closest hit: keeps each lane's smallest (t, prim) as visit_leaf does. Any
+/// hit: returns the lanes that hit.
+template <bool Any, bool UniformK>
+[[gnu::always_inline]] inline unsigned tri_group(Packet& P, int g, const Tri& tri, const __m256 (&vb)[3][3], unsigned m) {
+  using F = F8;
+  const int i = g * kLanes;
+  const __m256 o[3] = {F::load(P.to[0] + i), F::load(P.to[1] + i), F::load(P.to[2] + i)};
+  const __m256 s[3] = {F::load(P.ts[0] + i), F::load(P.ts[1] + i), F::load(P.ts[2] + i)};
+  __m256 X[3], Y[3], Z[3];
+  for (int q = 0; q < 3; ++q) {
+    if constexpr (UniformK)
+      shear_lanes<F>(vb[q][P.k[0]], vb[q][P.k[1]], vb[q][P.k[2]], o, s, X[q], Y[q], Z[q]);
+    else
+      shear_lanes<F>(select_role(P, i, 0, vb[q]), select_role(P, i, 1, vb[q]), select_role(P, i, 2, vb[q]), o, s, X[q],
+                     Y[q], Z[q]);
+  }
+  Watertight<F> w;
+  watertight_lanes<F>(X, Y, Z, LaneRange{P.tmin + i, P.t + i}, m, w);
+  unsigned sure = w.sure;
+  const unsigned fallback = w.exact0 | (w.cand & ~sure);
+  if constexpr (!Any)
+    if (w.cand != 0) keep_closest(P, i, sure, w.t, F::load(P.t + i), w.V, w.W, w.det, tri_prim(tri));
+  for (unsigned f = fallback; f != 0; f &= f - 1) {  // the rare undecided lanes: tri_test itself
+    const int l = i + std::countr_zero(f);
+    float tt, uu, vv;
+    RayPre pre{};
+    prepare_ray_simd(P.src[ray_of(l)], pre);  // valid: only live lanes are tested
+    if (tri_test(pre, tri, P.t[l], tt, uu, vv)) {
+      if constexpr (Any) {
+        sure |= 1u << (l - i);
+      } else {
+        const std::uint32_t pr = tri_prim(tri);
+        if (tt < P.t[l] || pr < P.prim[l]) {
+          P.t[l] = tt;
+          P.tcull_lo = std::min(P.tcull_lo, tt * kCullSlack);
+          P.u[l] = uu;
+          P.v[l] = vv;
+          P.prim[l] = pr;
+        }
+      }
+    }
+  }
+  return sure;
+}
+
+}  // namespace packet
+}  // namespace
+}  // namespace MBVH_ISA_NS
+}  // namespace mbvh

@@ -1,0 +1,202 @@
+// SPDX-License-Identifier: MIT
+// kernels.h — the SIMD cpu backends' kernel policy (SimdKernelsT): the reference's traversals
+// (host/core/trace) with four or eight boxes per node test and four or eight triangles per leaf pass.
+#pragma once
+#ifndef MBVH_CPU_ISA
+#error "include from backends/cpu/isa_kernels.cpp only"
+#endif
+
+#include "backends/cpu/simd/box.h"
+#include "backends/cpu/simd/lanes.h"
+#include "backends/cpu/simd/ray.h"
+#include "backends/cpu/simd/triangle.h"
+
+namespace mbvh {
+inline namespace MBVH_ISA_NS {
+namespace {
+
+/// The cpu backend's kernels: four or eight boxes per test, four or eight triangles per pass (the
+/// leaves as Tri4 packs).
+/// A leaf's answer is the reference's: any hit takes the first hit triangle in leaf order,
+/// closest hit the smallest (t, prim) — what the sequential loop of visit_leaf keeps, as tmax
+/// only shrinks to the best hit's t. With statistics on, the scalar leaf counts the work. Fast: the
+/// `fast` accuracy mode (relax_ray's box test, tri_test_simd_mt).
+template <bool Fast>
+struct SimdKernelsT {
+  static constexpr bool uses_packs = true;
+  static constexpr bool fast = Fast;
+  using Ray = SimdRay;
+  [[gnu::always_inline]] static bool prepare(const mbvh::Ray& ray, Ray& r) { return prepare_ray_simd(ray, r); }
+  static void finish(Ray& r, const TraceView& v) { finish_ray(r, v); }
+  template <bool Chord = false>
+  [[gnu::always_inline]] static unsigned test(const Node4& n, const Ray& r, float tcull, float d[4]) {
+    return box_test_wide<F4, Chord>(n, r, tcull, d);
+  }
+  template <bool Chord = false>
+  [[gnu::always_inline]] static unsigned test(const Node8& n, const Ray& r, float tcull, float d[8]) {
+    return box_test_wide<F8, Chord>(n, r, tcull, d);
+  }
+  /// Closest hit: the record of every child in `mask` (the traversals pass the hit children left
+  /// for later: an inner node's lines, a leaf's first pack, or its leaf4 entry where the references
+  /// are not packed) is asked for at once, so the misses
+  /// of the children visited later overlap the work before them.
+  /// With packed references (the default) the address is picked without a branch (a node or
+  /// the leaf's first pack; the node's size in lines either way: a leaf of five or more triangles
+  /// reads into its second pack): a branch on the child's kind mispredicts often on incoherent
+  /// rays.
+  template <class N>
+  [[gnu::always_inline]] static void prefetch(const N& n, const Ray& r, unsigned mask) {
+    const char* nodes = reinterpret_cast<const char*>(detail::nodes_of<N>(*r.view));
+    if (r.view->packed_refs) {
+      const char* packs = reinterpret_cast<const char*>(r.view->tri4);
+      for (unsigned k = mask; k != 0; k &= k - 1) {
+        const std::int32_t c = n.child[std::countr_zero(k)];
+        const std::size_t node_at = static_cast<std::size_t>(static_cast<std::uint32_t>(c)) * sizeof(N);
+        const std::size_t pack_at = static_cast<std::size_t>(static_cast<std::uint32_t>(~c) >> 3) * sizeof(Tri4);
+        const char* p = c >= 0 ? nodes + node_at : packs + pack_at;
+        for (std::size_t line = 0; line < sizeof(N); line += 64) _mm_prefetch(p + line, _MM_HINT_T0);
+      }
+      return;
+    }
+    for (unsigned k = mask; k != 0; k &= k - 1) {
+      const std::int32_t c = n.child[std::countr_zero(k)];
+      if (c >= 0) {
+        const char* p = nodes + static_cast<std::size_t>(c) * sizeof(N);
+        for (std::size_t line = 0; line < sizeof(N); line += 64) _mm_prefetch(p + line, _MM_HINT_T0);
+      } else {
+        _mm_prefetch(reinterpret_cast<const char*>(r.view->leaf4 + ~c), _MM_HINT_T0);
+      }
+    }
+  }
+  /// The hit slot of `mask` with the smallest d (Largest: the largest; an occlusion query's
+  /// chords), ties to the lower slot, without a branch per slot: two hits by one compare, more by
+  /// a horizontal min (max) over the row with the misses set to +inf (-inf) and the lowest slot
+  /// equal to it (d is never NaN: entries start at tmin, chords are clamped at 0).
+  template <int W, bool Largest>
+  [[gnu::always_inline]] static int extreme(unsigned mask, const float* d) {
+    const unsigned rest = mask & (mask - 1);
+    if (rest == 0) return std::countr_zero(mask);
+    if ((rest & (rest - 1)) == 0) {  // two hits, the commonest case: one compare
+      const int a = std::countr_zero(mask), b = std::countr_zero(rest);
+      return (Largest ? d[b] > d[a] : d[b] < d[a]) ? b : a;
+    }
+    if constexpr (W == 8) {
+      const __m256 none = _mm256_set1_ps(Largest ? -INFINITY : INFINITY);
+      const __m256 v = _mm256_blendv_ps(none, _mm256_loadu_ps(d), lane_mask(mask));
+      __m256 m;
+      if constexpr (Largest) m = hmax8_splat(v);
+      else m = hmin8_splat(v);
+      const unsigned eq = static_cast<unsigned>(_mm256_movemask_ps(_mm256_cmp_ps(v, m, _CMP_EQ_OQ))) & mask;
+      return std::countr_zero(eq);
+    } else {
+      return detail::extreme_slot<W, Largest>(mask, d);
+    }
+  }
+  template <int W>
+  [[gnu::always_inline]] static int nearest(unsigned mask, const float* d) { return extreme<W, false>(mask, d); }
+  template <int W>
+  [[gnu::always_inline]] static int longest(unsigned mask, const float* d) { return extreme<W, true>(mask, d); }
+
+  /// MBVH8 pushes (stack.h: highest slot first): AVX-512 reverses the row of child links,
+  /// compresses the hit ones (the mask bit-reversed) in a register and stores the whole row (a
+  /// compress straight to memory is microcoded on some CPUs).
+  [[gnu::always_inline]] static unsigned push8(std::int32_t* stack, unsigned sp, unsigned mask, const std::int32_t* child) {
+#if MBVH_CPU_ISA_ID == 2
+    const __m256i links = _mm256_permutexvar_epi32(_mm256_setr_epi32(7, 6, 5, 4, 3, 2, 1, 0),
+                                                   _mm256_loadu_si256(reinterpret_cast<const __m256i*>(child)));
+    const unsigned rev = static_cast<unsigned>(kReverse8[mask & 0xFFu]);
+    _mm256_storeu_si256(reinterpret_cast<__m256i*>(stack + sp), _mm256_maskz_compress_epi32(static_cast<__mmask8>(rev), links));
+    return sp + static_cast<unsigned>(std::popcount(mask));
+#else
+    // AVX2 has no compress: a table gives each mask's slots highest first, one permute gathers them
+    const __m256i idx = _mm256_cvtepu8_epi32(_mm_cvtsi64_si128(static_cast<long long>(kDescending8[mask & 0xFFu])));
+    const __m256i links = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(child));
+    _mm256_storeu_si256(reinterpret_cast<__m256i*>(stack + sp), _mm256_permutevar8x32_epi32(links, idx));
+    return sp + static_cast<unsigned>(std::popcount(mask));
+#endif
+  }
+
+  /// One pass of a leaf's test over the pack at p (F4: lanes k..k+3 of the leaf) or the two packs
+  /// at p (F8: lanes k..k+7), `valid` its lanes that hold a triangle. Closest hit: keeps the
+  /// smallest (t, prim) in best and shrinks tmax; any hit: true at the first certain hit. The
+  /// undecided lanes (occlusion: only while no lane is certain) are settled as tri_test settles
+  /// them: a lane with t within its error bound of 0 by the plane distance in double, a lane with
+  /// an edge function exactly 0 by the scalar test itself (rare). The reference accepts exactly
+  /// the same lanes, and the smallest (t, prim) of a leaf does not depend on how its triangles
+  /// are grouped into passes.
+  template <class F, bool Any>
+  [[gnu::always_inline]] static bool leaf_pass(const Tri4* p, unsigned valid, const Ray& r, float& tmax, Hit& best) {
+    constexpr int L = sizeof(typename F::V) / sizeof(float);
+    const auto prim = [p](int lane) { return p[lane >> 2].prim[lane & 3]; };
+    float t[L], u[L], w[L], det[L];
+    unsigned fallback = 0, near0 = 0, hit;
+    if constexpr (Fast) hit = tri_test_simd_mt<F, Any>(p, r, valid, tmax, t, u, w, det);
+    else hit = tri_test_simd<F, Any>(p, r, valid, tmax, t, u, w, det, fallback, near0);
+    if constexpr (Any) {
+      if (hit != 0) {
+        best.prim = prim(std::countr_zero(hit));
+        return true;
+      }
+    }
+    for (unsigned f = near0; f != 0; f &= f - 1) {  // tri_test's last step: t's sign in double
+      const int lane = std::countr_zero(f);
+      if (plane_t_double(r, tri_of(p[lane >> 2], lane & 3)) > 0.0) {
+        if constexpr (Any) {
+          best.prim = prim(lane);
+          return true;
+        }
+        hit |= 1u << lane;  // t, V, W and det as tri_test's: u = V / det, v = W / det below
+      }
+    }
+    for (unsigned f = fallback; f != 0; f &= f - 1) {
+      const int lane = std::countr_zero(f);
+      if (tri_test(r, tri_of(p[lane >> 2], lane & 3), tmax, t[lane], u[lane], w[lane])) {
+        if constexpr (Any) {
+          best.prim = prim(lane);
+          return true;
+        }
+        hit |= 1u << lane;
+        det[lane] = 1.0f;  // u, w are the quotients already (x / 1 is exact)
+      }
+    }
+    if constexpr (!Any) {
+      if (hit == 0) return false;
+      int q = std::countr_zero(hit);
+      for (unsigned o = hit & (hit - 1); o != 0; o &= o - 1) {
+        const int s = std::countr_zero(o);
+        if (t[s] < t[q] || (t[s] == t[q] && prim(s) < prim(q))) q = s;
+      }
+      if (t[q] < best.t || prim(q) < best.prim) {  // t[q] <= best.t, as in visit_leaf
+        best = Hit{t[q], u[q] / det[q], w[q] / det[q], prim(q)};
+        tmax = t[q];
+      }
+    }
+    return false;
+  }
+
+  /// A leaf's triangles eight at a time (two packs per pass: the same instructions on 256-bit
+  /// registers), its last one to four in a four-lane pass.
+  template <bool Any, class St>
+  [[gnu::always_inline]] static bool leaf(const TraceView& v, std::int32_t ref, const Ray& r, float& tmax, Hit& best,
+                                          St& st) {
+    if constexpr (St::on) {
+      return detail::visit_leaf<Any, St, Fast>(v, ref, r, tmax, best, st);
+    } else {
+      Leaf l;
+      if (v.packed_refs) l = packed_leaf(ref);  // TraceView::packed_refs: the reference locates the packs
+      else l = v.leaf4[~ref];
+      const Tri4* p = v.tri4 + l.first;
+      std::uint32_t k = 0;
+      for (; k + 4 < l.count; k += 8, p += 2) {
+        const unsigned valid = l.count - k >= 8 ? 0xFFu : (1u << (l.count - k)) - 1u;
+        if (leaf_pass<F8, Any>(p, valid, r, tmax, best)) return true;
+      }
+      if (k < l.count) return leaf_pass<F4, Any>(p, (1u << (l.count - k)) - 1u, r, tmax, best);
+      return false;
+    }
+  }
+};
+
+}  // namespace
+}  // namespace MBVH_ISA_NS
+}  // namespace mbvh

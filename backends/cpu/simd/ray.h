@@ -1,0 +1,92 @@
+// SPDX-License-Identifier: MIT
+// ray.h — the SIMD policies' ray: prepare_ray in vector registers and the per-ray constants the
+// kernels read (near and far plane offsets, the triangle test's permuted origin).
+#pragma once
+#ifndef MBVH_CPU_ISA
+#error "include from backends/cpu/isa_kernels.cpp only"
+#endif
+
+#include "backends/cpu/simd/lanes.h"
+
+namespace mbvh {
+inline namespace MBVH_ISA_NS {
+namespace {
+
+/// The SIMD policies' ray: RayPre plus the per-ray constants the kernels need beyond it, made
+/// once per ray (finish) instead of at every node and leaf: the offsets of each axis' near and far
+/// plane rows in a Node4 and a Node8 (Embree's nearX/farX) and the triangle test's permuted origin
+/// (Woop et al. 2013). The kernels broadcast RayPre's scalars where they use them (a broadcast
+/// from memory is one load, as a load of a stored broadcast is, so stored broadcasts would only
+/// add set-up work).
+struct SimdRay : RayPre {
+  float tri_o[3];  ///< the triangle test's permuted origin (o[kx], o[ky], o[kz])
+  int near4[4], far4[4], near8[4], far8[4];  ///< three axes (the fourth entry unused)
+  const TraceView* view;  ///< what the ray traverses (for prefetches)
+};
+
+/// prepare_ray (intersect.h) in vector registers: the same checks — every component finite
+/// (|x| < inf, false for NaN) but tmax, which may be +inf, tmin in [0, tmax], the largest
+/// direction component normal — and the same per-ray constants with the same IEEE operations
+/// (1 / d, inv * K, the shear's three quotients in one division), so every bit is the scalar's,
+/// in about half its instructions (the set-up is a large share of a short shadow ray's work).
+[[gnu::always_inline]] inline bool prepare_ray_simd(const Ray& ray, RayPre& p) {
+  static_assert(offsetof(RayPre, d) == offsetof(RayPre, o) + 12 && offsetof(RayPre, inv) == offsetof(RayPre, d) + 12 &&
+                    offsetof(RayPre, inv_far) == offsetof(RayPre, inv) + 12 &&
+                    offsetof(RayPre, neg) == offsetof(RayPre, inv_far) + 12 && offsetof(RayPre, tmin) == offsetof(RayPre, neg) + 12,
+                "RayPre's rows are written 16 bytes at a time, each store's fourth lane overwritten by the next");
+  const __m128 o = _mm_loadu_ps(&ray.ox), d = _mm_loadu_ps(&ray.dx);  // (o, tmin), (d, tmax)
+  const __m128 sign = _mm_set1_ps(-0.0f), inf = _mm_set1_ps(INFINITY);
+  const __m128 ad = _mm_andnot_ps(sign, d);
+  const unsigned finite_o = mask4(_mm_cmp_ps(_mm_andnot_ps(sign, o), inf, _CMP_LT_OQ));
+  const unsigned finite_d = mask4(_mm_cmp_ps(ad, inf, _CMP_LT_OQ));
+  if ((finite_o & (finite_d | 8u)) != 0xFu || std::isnan(ray.tmax)) return false;
+  if (!(ray.tmin >= 0.0f) || !(ray.tmin <= ray.tmax)) return false;
+  alignas(16) float a[4];
+  _mm_store_ps(a, ad);
+  int kz = 0;
+  if (a[1] > a[0]) kz = 1;
+  if (a[2] > a[kz]) kz = 2;
+  if (!(a[kz] >= std::numeric_limits<float>::min())) return false;  // zero or subnormal (a[kz] is finite)
+  char* base = reinterpret_cast<char*>(&p);
+  const __m128 inv = _mm_div_ps(_mm_set1_ps(1.0f), d);
+  _mm_storeu_ps(reinterpret_cast<float*>(base + offsetof(RayPre, o)), o);
+  _mm_storeu_ps(reinterpret_cast<float*>(base + offsetof(RayPre, d)), d);
+  _mm_storeu_ps(reinterpret_cast<float*>(base + offsetof(RayPre, inv)), inv);
+  _mm_storeu_ps(reinterpret_cast<float*>(base + offsetof(RayPre, inv_far)), _mm_mul_ps(inv, _mm_set1_ps(kFarFactor)));
+  _mm_storeu_si128(reinterpret_cast<__m128i*>(base + offsetof(RayPre, neg)), _mm_srli_epi32(_mm_castps_si128(d), 31));
+  p.tmin = ray.tmin + 0.0f;  // -0 becomes +0
+  p.tmax = ray.tmax;
+  constexpr int next[3] = {1, 2, 0};
+  int kx = next[kz], ky = next[kx];
+  if (p.d[kz] < 0.0f) std::swap(kx, ky);
+  p.kx = kx;
+  p.ky = ky;
+  p.kz = kz;
+  alignas(16) float sh[4];
+  _mm_store_ps(sh, _mm_div_ps(_mm_setr_ps(p.d[kx], p.d[ky], 1.0f, 1.0f), _mm_setr_ps(p.d[kz], p.d[kz], p.d[kz], 1.0f)));
+  p.sx = sh[0];
+  p.sy = sh[1];
+  p.sz = sh[2];
+  return true;
+}
+
+/// Fills SimdRay's constants from its (validated, possibly relaxed) RayPre part.
+inline void finish_ray(SimdRay& r, const TraceView& v) {
+  r.view = &v;
+  // rows lo_x, hi_x, lo_y, ... are W floats apart: near = (2a + neg) * W, far = near ^ W, the
+  // three axes at once (neg's fourth lane is tmin's bits: its entries are never read)
+  const __m128i near8 = _mm_slli_epi32(_mm_add_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(r.neg)),
+                                                     _mm_setr_epi32(0, 2, 4, 0)), 3);
+  const __m128i near4 = _mm_srli_epi32(near8, 1);
+  _mm_storeu_si128(reinterpret_cast<__m128i*>(r.near8), near8);
+  _mm_storeu_si128(reinterpret_cast<__m128i*>(r.far8), _mm_xor_si128(near8, _mm_set1_epi32(8)));
+  _mm_storeu_si128(reinterpret_cast<__m128i*>(r.near4), near4);
+  _mm_storeu_si128(reinterpret_cast<__m128i*>(r.far4), _mm_xor_si128(near4, _mm_set1_epi32(4)));
+  r.tri_o[0] = r.o[r.kx];
+  r.tri_o[1] = r.o[r.ky];
+  r.tri_o[2] = r.o[r.kz];
+}
+
+}  // namespace
+}  // namespace MBVH_ISA_NS
+}  // namespace mbvh

@@ -1,0 +1,252 @@
+// SPDX-License-Identifier: MIT
+// bitstack.h — the bitstack traversals (Áfra & Szirmay-Kalos, "Stackless Multi-BVH Traversal for
+// CPU, MIC and GPU Ray Tracing", CGF 2014): MBVH2, MBVH4 with skip codes, MBVH8 with a 128-bit
+// word, and MBVH4 bitstack-retest. Pseudocode: TRAVERSAL.md §4.2-4.4.
+#pragma once
+#include <bit>
+#include <cstdint>
+
+#include "host/core/trace/intersect.h"
+#include "host/core/trace/scalar_kernels.h"
+#include "host/core/trace/stats.h"
+#include "host/core/trace/view.h"
+#include "host/core/trace/visit.h"
+
+namespace mbvh {
+inline namespace MBVH_ISA_NS {
+
+/// MBVH2 bitstack (TRAVERSAL.md §4.2): one bit per level, 1 = the sibling is still pending;
+/// backtracking climbs parent links to the deepest pending level and moves to the sibling.
+template <bool Any, class St, class K = ScalarKernels>
+inline Hit trace_mbvh2_bitstack(const TraceView& v, const typename K::Ray& r, St& st) {
+  Hit best = miss_hit();
+  float tmax = r.tmax;
+  StepGuard guard(v);
+  std::int32_t cur = 0, par = MBVH_NONE, sib = MBVH_NONE;
+  std::uint64_t bits = 0;
+  unsigned level = 0;
+  for (;;) {
+    guard.step();
+    if (cur >= 0) {
+      const Node2& n = v.n2[cur];
+      float d[2];
+      const unsigned m = detail::test2<Any>(n, r, tmax * kCullSlack, d, st);
+      if (m) {
+        const int k = detail::first_slot2<Any>(m, d);
+        bits = (bits << 1) | (m == 3u ? 1u : 0u);  // push
+        if constexpr (St::on) st.depth(++level);
+        par = cur;
+        sib = n.link[2 + (1 - k)];
+        cur = n.link[2 + k];
+        continue;
+      }
+    } else if (K::template leaf<Any>(v, cur, r, tmax, best, st)) {
+      return best;
+    }
+    // -- backtrack: climb to the deepest level with a pending sibling
+    while ((bits & 1u) == 0) {
+      if (bits == 0) return best;
+      guard.step();
+      cur = par;
+      par = v.n2[cur].link[0];
+      sib = v.n2[cur].link[1];
+      bits >>= 1;
+      st.climb();
+      if constexpr (St::on) --level;
+    }
+    bits ^= 1u;  // the sibling is now taken
+    const std::int32_t t = cur;
+    cur = sib;
+    sib = t;
+  }
+}
+
+/// MBVH4 bitstack with skip codes (TRAVERSAL.md §4.3): 3 bits per level, the code of a level
+/// marks which cyclic siblings of the current node are pending. Kept as (parent, slot) rather
+/// than §3.3's three cached sibling registers: a sibling move reads the parent's child link at
+/// the cyclic slot (the parent's line is hot: it was tested last on that level) instead of
+/// permuting four registers through memory; a climb reads only the parent link, and after the
+/// last climb of a backtrack the slot is found among the parent's four links. Same visit
+/// sequence as the register form and the stack twin, in fewer instructions.
+template <bool Any, class St, class K = ScalarKernels>
+inline Hit trace_mbvh4_bitstack(const TraceView& v, const typename K::Ray& r, St& st) {
+  Hit best = miss_hit();
+  float tmax = r.tmax;
+  StepGuard guard(v);
+  std::int32_t cur = 0, par = MBVH_NONE;
+  int slot = 0;
+  std::uint64_t bits = 0;
+  unsigned level = 0;
+  for (;;) {
+    guard.step();
+    if (cur >= 0) {
+      const Node4& n = v.n4[cur];
+      float d[4];
+      const unsigned m = detail::test_node<K, Any>(n, r, tmax * kCullSlack, d, st);
+      if (m) {
+        const int i = detail::first_slot4<Any>(m, d);
+        detail::prefetch_pending<K, Any>(n, r, m, i);
+        bits = (bits << 3) | detail::skip_code(m, i);  // push
+        if constexpr (St::on) st.depth(++level);
+        par = cur;
+        slot = i;
+        cur = n.child[i];
+        continue;
+      }
+    } else if (K::template leaf<Any>(v, cur, r, tmax, best, st)) {
+      return best;
+    }
+    // -- backtrack: climb while the current level has no pending sibling (parent links only)
+    std::uint64_t code = bits & 7u;
+    if (code == 0) {
+      do {
+        if (bits == 0) return best;
+        guard.step();
+        cur = par;
+        par = v.n4[cur].parent;
+        bits >>= 3;
+        st.climb();
+        if constexpr (St::on) --level;
+        code = bits & 7u;
+      } while (code == 0);
+      const Node4& p = v.n4[par];
+      slot = 0;
+      for (int s = 1; s < 4; ++s)
+        if (p.child[s] == cur) slot = s;
+    }
+    // -- move to the next pending sibling: skip k, keep the rest relative to the new node
+    const int k = std::countr_zero(code);
+    const std::uint64_t rest = code >> (k + 1);
+    bits ^= code ^ rest;
+    slot = (slot + 1 + k) & 3;
+    cur = v.n4[par].child[slot];
+  }
+}
+
+/// MBVH8 bitstack (Áfra & Szirmay-Kalos 2014, §3 of the paper, on the 8-wide nodes of Áfra's
+/// thesis, ch. 3; the encoding is mbvh's, TRAVERSAL.md does not describe it): 7 skip bits per
+/// level do not fit a 64-bit word at the MBVH8 depth cap (14 levels, 98 bits), so the word is 128
+/// bits (two uint64, §3.5's push and pop) and a level's code is the parent's pending-slot mask
+/// itself — 8 bits, absolute slots, the entered child's bit cleared (16 levels fit, the cap stays
+/// 14). The next sibling is the lowest pending slot (the stack twin's pop order), read from the
+/// parent, which stays in a register: a sibling move re-fetches nothing but the parent's child
+/// link; only a climb reads a record (the parent link). State:
+/// node + 128-bit word = 20 bytes against 520 (plain stack twin) and 1032 (ordered stack).
+template <bool Any, class St, class K = ScalarKernels>
+inline Hit trace_mbvh8_bitstack(const TraceView& v, const typename K::Ray& r, St& st) {
+  Hit best = miss_hit();
+  float tmax = r.tmax;
+  StepGuard guard(v);
+  std::int32_t cur = 0;
+  const Node8* par = nullptr;
+  std::uint64_t lo = 0, hi = 0;
+  unsigned level = 0;
+  for (;;) {
+    guard.step();
+    if (cur >= 0) {
+      const Node8& n = v.n8[cur];
+      float d[8];
+      const unsigned m = detail::test_node<K, Any>(n, r, tmax * kCullSlack, d, st);
+      if (m) {
+        const int i = Any ? K::template longest<8>(m, d) : K::template nearest<8>(m, d);
+        detail::prefetch_pending<K, Any>(n, r, m, i);
+        hi = (hi << 8) | (lo >> 56);  // push the pending slots
+        lo = (lo << 8) | (m & ~(1u << i));
+        if constexpr (St::on) st.depth(++level);
+        par = &n;
+        cur = n.child[i];
+        continue;
+      }
+    } else if (K::template leaf<Any>(v, cur, r, tmax, best, st)) {
+      return best;
+    }
+    // -- backtrack: climb while the current level has no pending sibling (parent links only)
+    std::uint64_t code;
+    for (;;) {
+      if ((lo | hi) == 0) return best;
+      code = lo & 0xFFu;
+      if (code != 0) break;
+      guard.step();
+      par = &v.n8[par->parent];  // a level with pending bits lies above: never the root's parent
+      lo = (lo >> 8) | (hi << 56);  // pop
+      hi >>= 8;
+      st.climb();
+      if constexpr (St::on) --level;
+    }
+    // -- the lowest pending slot of this level
+    const int k = std::countr_zero(code);
+    lo ^= std::uint64_t{1} << k;
+    cur = par->child[k];
+  }
+}
+
+/// MBVH4 bitstack-retest (TRAVERSAL.md §3.4, §4.4, "variant B"; mbvh's extension of Áfra &
+/// Szirmay-Kalos 2014): the same skip codes, but each move to a sibling re-tests the parent's
+/// four boxes against the current tmax, takes the nearest pending child and drops those now
+/// beyond tmax — the visit sequence of the ordered, culling stack above (any hit: the longest
+/// chord first, as there).
+template <bool Any, class St, class K = ScalarKernels>
+inline Hit trace_mbvh4_bitstack_retest(const TraceView& v, const typename K::Ray& r, St& st) {
+  Hit best = miss_hit();
+  float tmax = r.tmax;
+  StepGuard guard(v);
+  std::int32_t cur = 0, par = MBVH_NONE;
+  int slot = -1;
+  std::uint64_t bits = 0;
+  unsigned level = 0;
+  for (;;) {
+    guard.step();
+    if (cur >= 0) {
+      const Node4& n = v.n4[cur];
+      float d[4];
+      const unsigned m = detail::test_node<K, Any, Any>(n, r, tmax * kCullSlack, d, st);
+      if (m) {
+        const int i = detail::first_slot4<Any>(m, d);
+        detail::prefetch_pending<K, Any>(n, r, m, i);
+        bits = (bits << 3) | detail::skip_code(m, i);  // push
+        if constexpr (St::on) st.depth(++level);
+        par = cur;
+        slot = i;
+        cur = n.child[i];
+        continue;
+      }
+    } else if (K::template leaf<Any>(v, cur, r, tmax, best, st)) {
+      return best;
+    }
+    // -- backtrack: re-test the parent for the nearest live pending sibling, else climb
+    for (;;) {
+      guard.step();
+      if (bits == 0) return best;
+      const std::uint64_t code = bits & 7u;
+      if (code != 0) {
+        const Node4& p = v.n4[par];
+        float d[4];
+        st.retest();
+        const unsigned m = K::template test<Any>(p, r, tmax * kCullSlack, d);
+        unsigned pending = 0;
+        for (int k = 0; k < 3; ++k)
+          if ((code >> k) & 1u) pending |= 1u << ((slot + 1 + k) & 3);
+        const unsigned live = pending & m;
+        if (live != 0) {
+          const int q = detail::first_slot4<Any>(live, d);
+          bits ^= code ^ detail::skip_code(live & ~(1u << q), q);
+          cur = p.child[q];
+          slot = q;
+          break;
+        }
+      }
+      cur = par;  // climb (also when every pending sibling was culled)
+      par = v.n4[cur].parent;
+      slot = -1;
+      if (par != MBVH_NONE)
+        for (int s = 0; s < 4; ++s)
+          if (v.n4[par].child[s] == cur) slot = s;
+      bits >>= 3;
+      st.climb();
+      if constexpr (St::on) --level;
+    }
+  }
+}
+
+}  // namespace MBVH_ISA_NS
+}  // namespace mbvh

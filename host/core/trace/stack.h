@@ -1,0 +1,200 @@
+// SPDX-License-Identifier: MIT
+// stack.h — the stack-based traversals: MBVH2, MBVH4 and MBVH8 with a plain stack of nodes, and
+// the ordered stack of (node, distance) entries for MBVH4 and MBVH8. Pseudocode: TRAVERSAL.md §4.5.
+#pragma once
+#include <bit>
+#include <cstdint>
+#include <utility>
+
+#include "host/core/trace/intersect.h"
+#include "host/core/trace/scalar_kernels.h"
+#include "host/core/trace/stats.h"
+#include "host/core/trace/view.h"
+#include "host/core/trace/visit.h"
+
+namespace mbvh {
+inline namespace MBVH_ISA_NS {
+
+/// MBVH2, stack-based (Aila–Laine order without postponed leaves): nearest child first, the far
+/// child pushed when both are hit.
+template <bool Any, class St, class K = ScalarKernels>
+inline Hit trace_mbvh2_stack(const TraceView& v, const typename K::Ray& r, St& st) {
+  Hit best = miss_hit();
+  float tmax = r.tmax;
+  StepGuard guard(v);
+  std::int32_t stack[MBVH_STACK2_ENTRIES];
+  unsigned sp = 0;
+  std::int32_t cur = 0;
+  for (;;) {
+    guard.step();
+    if (cur >= 0) {
+      const Node2& n = v.n2[cur];
+      float d[2];
+      const unsigned m = detail::test2<Any>(n, r, tmax * kCullSlack, d, st);
+      if (m) {
+        const int k = detail::first_slot2<Any>(m, d);
+        if (m == 3u) {
+          guard.room(sp, 1, MBVH_STACK2_ENTRIES);
+          stack[sp++] = n.link[2 + (1 - k)];
+          st.depth(sp);
+        }
+        cur = n.link[2 + k];
+        continue;
+      }
+    } else if (K::template leaf<Any>(v, cur, r, tmax, best, st)) {
+      return best;
+    }
+    if (sp == 0) return best;
+    cur = stack[--sp];
+  }
+}
+
+/// MBVH4, stack-based twin of the skip-code traversal (TRAVERSAL.md §4.5): enter the nearest
+/// hit child, push the other hit children in reverse cyclic order so they pop in cyclic order.
+template <bool Any, class St, class K = ScalarKernels>
+inline Hit trace_mbvh4_stack(const TraceView& v, const typename K::Ray& r, St& st) {
+  Hit best = miss_hit();
+  float tmax = r.tmax;
+  StepGuard guard(v);
+  std::int32_t stack[MBVH_STACK4_ENTRIES];
+  unsigned sp = 0;
+  std::int32_t cur = 0;
+  for (;;) {
+    guard.step();
+    if (cur >= 0) {
+      const Node4& n = v.n4[cur];
+      float d[4];
+      const unsigned m = detail::test_node<K, Any>(n, r, tmax * kCullSlack, d, st);
+      if (m) {
+        const int i = detail::first_slot4<Any>(m, d);
+        detail::prefetch_pending<K, Any>(n, r, m, i);
+        guard.room(sp, 3, MBVH_STACK4_ENTRIES);
+        for (int k = 2; k >= 0; --k) {
+          const int s = (i + 1 + k) & 3;
+          if ((m >> s) & 1u) stack[sp++] = n.child[s];
+        }
+        st.depth(sp);
+        cur = n.child[i];
+        continue;
+      }
+    } else if (K::template leaf<Any>(v, cur, r, tmax, best, st)) {
+      return best;
+    }
+    if (sp == 0) return best;
+    cur = stack[--sp];
+  }
+}
+
+/// MBVH4 and MBVH8, Embree-like ordered stack (TRAVERSAL.md §4.5, bitstack-retest's twin; for MBVH8
+/// the 8-wide single-ray traversal of Áfra's thesis, ch. 3): hit children pushed with their entry
+/// distances, the nearest entered, the rest popped nearest first — sorting specialised by the
+/// number of hits: 1: no push; 2: push the farther; 3: two pushes, one compare; 4-8: push all
+/// and insertion-sort by (d, slot). A popped entry beyond the current tmax * S is culled.
+/// Any hit: d is the chord (as the stack's longest_slot), the longest entered and popped first,
+/// nothing culled (the query ends at its first hit, so tmax never shrinks): nearest-first makes
+/// a shadow ray test the boxes it only grazes leaving its surface.
+template <bool Any, class St, class K = ScalarKernels, class N = Node4>
+inline Hit trace_wide_stack_ordered(const TraceView& v, const typename K::Ray& r, St& st) {
+  struct Entry {  // 8 bytes, as Embree's (node, distance) entries
+    std::int32_t node;
+    float d;
+  };
+  constexpr int W = node_width<N>();
+  constexpr unsigned kEntries = W == 4 ? MBVH_STACK4_ENTRIES : MBVH_STACK8_ENTRIES;
+  const N* nodes = detail::nodes_of<N>(v);
+  Hit best = miss_hit();
+  float tmax = r.tmax;
+  StepGuard guard(v);
+  Entry stack[kEntries];
+  unsigned sp = 0;
+  std::int32_t cur = 0;
+  for (;;) {
+    guard.step();
+    if (cur >= 0) {
+      const N& n = nodes[cur];
+      float d[W];
+      const unsigned m = detail::test_node<K, Any, Any>(n, r, tmax * kCullSlack, d, st);
+      if (m) {
+        const int q = Any ? K::template longest<W>(m, d) : K::template nearest<W>(m, d);
+        detail::prefetch_pending<K, Any>(n, r, m, q);
+        unsigned others = m & ~(1u << q);
+        guard.room(sp, W - 1, kEntries);
+        if (others != 0) {
+          const int a = 31 - std::countl_zero(others);  // highest slot first (deepest on ties)
+          others &= ~(1u << a);
+          if (others == 0) {
+            stack[sp++] = Entry{n.child[a], d[a]};
+          } else if ((others & (others - 1)) == 0) {
+            const int b = std::countr_zero(others);  // b < a: pop b first unless d[a] < d[b]
+            if (Any ? d[a] > d[b] : d[a] < d[b]) {
+              stack[sp++] = Entry{n.child[b], d[b]};
+              stack[sp++] = Entry{n.child[a], d[a]};
+            } else {
+              stack[sp++] = Entry{n.child[a], d[a]};
+              stack[sp++] = Entry{n.child[b], d[b]};
+            }
+          } else {
+            const unsigned base = sp;
+            stack[sp++] = Entry{n.child[a], d[a]};
+            for (int s = a - 1; s >= 0; --s)  // reverse slot order, then a stable sort by d
+              if ((others >> s) & 1u) stack[sp++] = Entry{n.child[s], d[s]};
+            for (unsigned i = base + 1; i < sp; ++i)
+              for (unsigned j = i; j > base && (Any ? stack[j - 1].d > stack[j].d : stack[j - 1].d < stack[j].d); --j)
+                std::swap(stack[j - 1], stack[j]);
+          }
+        }
+        st.depth(sp);
+        cur = n.child[q];
+        continue;
+      }
+    } else if (K::template leaf<Any>(v, cur, r, tmax, best, st)) {
+      return best;
+    }
+    // -- pop, culling entries beyond the best hit
+    for (;;) {
+      if (sp == 0) return best;
+      const Entry e = stack[--sp];
+      if (!Any && e.d > tmax * kCullSlack) continue;
+      cur = e.node;
+      break;
+    }
+  }
+}
+
+/// MBVH8, stack-based twin of the MBVH8 bitstack below: enter the first child (closest hit: the
+/// nearest, ties to the lower slot; any hit: the longest chord, longest_slot), push the other hit
+/// children highest slot first (K::push8: one permute, one
+/// compress and one store on AVX-512), so they pop in ascending slot order.
+template <bool Any, class St, class K = ScalarKernels>
+inline Hit trace_mbvh8_stack(const TraceView& v, const typename K::Ray& r, St& st) {
+  Hit best = miss_hit();
+  float tmax = r.tmax;
+  StepGuard guard(v);
+  std::int32_t stack[MBVH_STACK8_ENTRIES];
+  unsigned sp = 0;
+  std::int32_t cur = 0;
+  for (;;) {
+    guard.step();
+    if (cur >= 0) {
+      const Node8& n = v.n8[cur];
+      float d[8];
+      const unsigned m = detail::test_node<K, Any>(n, r, tmax * kCullSlack, d, st);
+      if (m) {
+        const int i = Any ? K::template longest<8>(m, d) : K::template nearest<8>(m, d);
+        detail::prefetch_pending<K, Any>(n, r, m, i);
+        guard.room(sp, 8, MBVH_STACK8_ENTRIES);
+        sp = K::push8(stack, sp, m & ~(1u << i), n.child);
+        st.depth(sp);
+        cur = n.child[i];
+        continue;
+      }
+    } else if (K::template leaf<Any>(v, cur, r, tmax, best, st)) {
+      return best;
+    }
+    if (sp == 0) return best;
+    cur = stack[--sp];
+  }
+}
+
+}  // namespace MBVH_ISA_NS
+}  // namespace mbvh
