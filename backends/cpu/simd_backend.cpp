@@ -71,12 +71,8 @@ public:
       acc.tri_packs();
     }
   }
-  void do_trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
-    if (!reference_supports(opt.layout, opt.traversal))
-      throw Error(name_ + ": traversal '" + to_string(opt.traversal) + "' is not defined for " + to_string(opt.layout));
-    const TraceOptions o = with_leaves_of(*this, opt);
-    do_prepare(acc, o);
-    kernels_.trace(acc, rays, o, out, threads_, hybrid_);
+  void trace_batch(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
+    kernels_.trace(acc, rays, opt, out, threads_, hybrid_);
   }
 
 private:

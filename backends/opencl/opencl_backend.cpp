@@ -23,6 +23,7 @@
 #include <set>
 #include <utility>
 
+#include "backends/common/build_stamp.h"
 #include "backends/opencl/cl_runtime.h"
 #include "backends/opencl/opencl_backends.h"
 #include "host/core/layouts.h"
@@ -116,18 +117,15 @@ public:
     return l != Layout::mbvh8 && (t == Traversal::stack || t == Traversal::bitstack);
   }
   bool supports_precision(Precision) const override { return true; }
-  double last_device_seconds() const override { return device_seconds_; }
 
   void do_prepare(const Accel& acc, const TraceOptions& opt) override {
     program(opt.stats, opt.precision == Precision::fast);
-    if (&acc != acc_ || acc.hash() != hash_ || acc.generation() != generation_) {
+    if (uploaded_.stale(acc)) {
       n2_.reset();
       n4_.reset();
       leaves_ = upload("the leaf array", acc.leaves().data(), acc.leaves().size() * sizeof(Leaf));
       tris_ = upload("the triangle array", acc.tris().data(), acc.tris().size() * sizeof(Tri));
-      acc_ = &acc;
-      hash_ = acc.hash();
-      generation_ = acc.generation();
+      uploaded_.mark(acc);
     }
     if (opt.layout == Layout::mbvh2 && !n2_) {
       const auto& n = acc.mbvh2().nodes;
@@ -139,15 +137,9 @@ public:
     }
   }
 
-  void do_trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
-    if (!supports(opt.layout, opt.traversal))
-      throw Error(name_ + ": traversal '" + std::string(to_string(opt.traversal)) + "' is not implemented (stack and bitstack are)");
-    device_seconds_ = -1;
-    do_prepare(acc, opt);
+  /// Writes every ray's answer (and statistics, when asked) from the device.
+  void trace_batch(const Accel&, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
     const bool any = opt.query == Query::any;
-    out.reset(rays.size(), opt);
-    if (rays.empty()) return;
-
     const std::string kname = std::string(to_string(opt.layout)) + "_" + to_string(opt.traversal) + "_" + to_string(opt.query);
     const Kernel& kern = kernel(opt.stats, opt.precision == Precision::fast, kname);
     cl_kernel k = kern.kernel.get();
@@ -204,7 +196,7 @@ public:
     check(clEnqueueReadBuffer(queue_.get(), counters_.get(), CL_TRUE, 0, sizeof counters, counters, 0, nullptr, nullptr),
           "clEnqueueReadBuffer(counters)");
     out.invalid = counters[MBVH_COUNTER_INVALID];
-    device_seconds_ = double(kernel_ns) * 1e-9;
+    set_device_seconds(double(kernel_ns) * 1e-9);
     if (counters[MBVH_COUNTER_OVERFLOW] != 0)
       throw Error(name_ + ": " + std::to_string(counters[MBVH_COUNTER_OVERFLOW]) + " rays overflowed the traversal stack: the tree is deeper "
                   "than its cap (corrupt build)");
@@ -322,14 +314,11 @@ private:
   cl::Context ctx_;
   cl::Queue queue_;
   Built built_[4];  // [stats + 2 * fast]
-  const Accel* acc_ = nullptr;
-  std::uint64_t hash_ = 0;
-  std::uint64_t generation_ = 0;  // Accel::generation() of the uploaded arrays (refit bumps it)
+  BuildStamp uploaded_;  // the build of the leaves, triangles and nodes on the device
   Buffer n2_, n4_, leaves_, tris_;
   std::size_t cap_ = 0, stats_cap_ = 0;
   Buffer rays_, hits_, occ_, stats_, counters_;
   alignas(16) unsigned char zeros_[16] = {};
-  double device_seconds_ = -1;  // last_device_seconds()
 };
 
 std::vector<std::string> device_lines() {

@@ -16,7 +16,7 @@
 #include <link.h>
 #endif
 
-#include "host/core/device_choice.h"
+#include "backends/common/device_choice.h"
 #include "mbvh/error.h"
 
 namespace mbvh::vk {

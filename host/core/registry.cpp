@@ -43,11 +43,53 @@ void Backend::prepare(const Accel& acc, const TraceOptions& opt) {
   do_prepare(acc, opt);
 }
 
+namespace {
+
+constexpr Layout kLayouts[] = {Layout::mbvh2, Layout::mbvh4, Layout::mbvh8};
+constexpr Traversal kTraversals[] = {Traversal::stack,         Traversal::bitstack,         Traversal::stack_ordered,
+                                     Traversal::bitstack_retest, Traversal::packet_ranged, Traversal::packet_partition,
+                                     Traversal::packet};
+constexpr Precision kPrecisions[] = {Precision::robust, Precision::exact, Precision::fast};
+
+// Throws Error when `b` lacks opt's layout / traversal pair or its precision, naming what it has.
+void refuse_unsupported(const Backend& b, const TraceOptions& opt) {
+  if (!b.supports(opt.layout, opt.traversal)) {
+    std::string has;
+    for (Traversal t : kTraversals)
+      if (b.supports(opt.layout, t)) has += (has.empty() ? "" : ", ") + std::string(to_string(t));
+    std::string layouts;
+    for (Layout l : kLayouts)
+      for (Traversal t : kTraversals)
+        if (b.supports(l, t)) {
+          layouts += (layouts.empty() ? "" : ", ") + std::string(to_string(l));
+          break;
+        }
+    throw Error(b.name() + ": traversal '" + to_string(opt.traversal) + "' is not implemented for " + to_string(opt.layout) +
+                (has.empty() ? " (its layouts: " + layouts + ")" : " (its traversals there: " + has + ")"));
+  }
+  if (!b.supports_precision(opt.precision)) {
+    std::string has;
+    for (Precision p : kPrecisions)
+      if (b.supports_precision(p)) has += (has.empty() ? "" : ", ") + std::string(to_string(p));
+    throw Error(b.name() + ": precision '" + to_string(opt.precision) + "' is not available (its precisions: " + has + ")");
+  }
+}
+
+}  // namespace
+
 void Backend::trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) {
+  // -- checks, each naming this backend
   check_trace_options(opt, name());
+  refuse_unsupported(*this, opt);
   check_ray_range(acc, rays, name());
+  // -- the build prepared, the output sized; then the backend's own part
   std::lock_guard<std::mutex> lock(mutex_);
-  do_trace(acc, rays, opt, out);
+  device_seconds_ = -1;
+  const TraceOptions o = with_leaves_of(*this, opt);
+  do_prepare(acc, o);
+  out.resize_for(rays.size(), o);
+  if (rays.empty()) return;
+  trace_batch(acc, rays, o, out);
 }
 
 std::string BackendOptions::get(const std::string& name, const std::string& fallback) const {
@@ -104,6 +146,20 @@ void check_settings(const BackendInfo& b, const BackendOptions& opt, const std::
 }
 
 }  // namespace
+
+std::vector<std::string> runnable_backends(std::vector<std::string>* left_out) {
+  std::vector<std::string> names;
+  const auto leave = [&](const BackendInfo& b, const std::string& why) {
+    if (left_out) left_out->push_back(b.name + ": " + why);
+  };
+  for (const BackendInfo& b : list_backends()) {
+    if (!b.make) leave(b, "not built: " + b.unavailable);
+    else if (!b.alias_of.empty()) leave(b, "is " + b.alias_of + " here");
+    else if (const std::string why = b.missing_hardware ? b.missing_hardware() : ""; !why.empty()) leave(b, why);
+    else names.push_back(b.name);
+  }
+  return names;
+}
 
 std::unique_ptr<Backend> make_backend(const std::string& name, const BackendOptions& opt) {
   const std::vector<BackendInfo> all = list_backends();

@@ -17,6 +17,7 @@
 #include "mbvh/backend.h"
 #include "host/core/compare.h"
 #include "host/core/parallel.h"
+#include "host/tools/stats.h"
 #include "host/tools/variants.h"
 
 #ifndef MBVH_COMPILE_FLAGS
@@ -190,7 +191,6 @@ static double speed_ratio(const std::vector<BenchRecord>& all, const BenchRecord
 
 namespace {
 
-using Clock = std::chrono::steady_clock;
 
 // One ray kind's rays and what every variant on them is checked against: the oracle's rules, the
 // brute force on a spread subset (BenchOptions::error_rays) and, per query, the reference answer.
@@ -291,17 +291,12 @@ void time_pass(const Accel& acc, const std::vector<Ray>& rays, Timing& v, TraceO
 
 // The median and spread of a variant's passes into its record.
 void finish_timing(Timing& v, BenchRecord& r) {
-  std::sort(v.mr.begin(), v.mr.end());
-  r.mrays_per_s = v.mr[v.mr.size() / 2];
-  r.mrays_min = v.mr.front();
-  r.mrays_max = v.mr.back();
-  if (v.md.size() == v.mr.size()) {  // every pass measured
-    std::sort(v.md.begin(), v.md.end());
-    r.device_mrays_per_s = v.md[v.md.size() / 2];
-  }
+  r.mrays_per_s = median(v.mr);
+  r.mrays_min = *std::min_element(v.mr.begin(), v.mr.end());
+  r.mrays_max = *std::max_element(v.mr.begin(), v.mr.end());
+  if (v.md.size() == v.mr.size()) r.device_mrays_per_s = median(v.md);  // every pass measured
   if (v.single) {
-    std::sort(v.m1.begin(), v.m1.end());
-    r.mrays_one_thread = v.m1[v.m1.size() / 2];
+    r.mrays_one_thread = median(v.m1);
     r.thread_scaling = r.mrays_per_s / r.mrays_one_thread;
   }
 }

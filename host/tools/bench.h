@@ -10,6 +10,7 @@
 #include "mbvh/accel.h"
 #include "mbvh/backend.h"
 #include "host/tools/raygen.h"
+#include "host/tools/variants.h"
 #include "mbvh/trace.h"
 
 namespace mbvh {
