@@ -1,14 +1,14 @@
 // SPDX-License-Identifier: MIT
 // opencl_backend.cpp — the `opencl` backends: the 16-wide MIC path of TRAVERSAL.md §8 (MBVH4,
 // skip-code bitstack and its stack twin; Áfra & Szirmay-Kalos 2014) and the GPU-style MBVH2
-// traversal, as OpenCL C kernels (shaders/trace.cl, embedded at build time) on any OpenCL device;
-// PoCL here. `opencl-wide` tests a node's four children with one 16-lane operation,
+// traversal, as OpenCL C kernels (shaders/trace.cl, embedded at build time) on any OpenCL device
+// (PoCL on a CPU). `opencl-wide` tests a node's four children with one 16-lane operation,
 // `opencl-lane` with four scalar slab tests per work-item (the ray-per-lane mapping); `opencl`
 // takes the one that suits the device (Mapping below): the 16-wide test on a CPU device, where it
-// is the faster of the two (README), the scalar test on a GPU, whose lanes are the rays.
+// is the faster of the two, the scalar test on a GPU, whose lanes are the rays.
 //
 // Every kernel runs one ray per work-item. The mapping also sizes the work-groups: fixed on a CPU
-// (PoCL: any size measured within noise), from the kernel's preferred multiple on a GPU (a warp
+// (where any size runs alike), from the kernel's preferred multiple on a GPU (a warp
 // or wavefront), so full groups of rays share a SIMT unit.
 //
 // Per build, the layout is uploaded once and reused across calls; rays go through in batches
@@ -37,7 +37,7 @@ namespace {
 using cl::Buffer;
 using cl::check;
 
-constexpr std::size_t kCpuLocalSize = 64;   // PoCL: 8 to 1024 measured within noise
+constexpr std::size_t kCpuLocalSize = 64;   // a CPU device runs any size alike
 constexpr std::size_t kGpuLocalTarget = 128;  // rays per GPU work-group: 4 warps of 32, 2 wavefronts of 64
 constexpr std::size_t kMaxLocalSize = 1024;   // the largest work-group either mapping asks for
 constexpr std::size_t kMaxBatch = std::size_t(1) << 21;  // rays per dispatch (64 MiB of rays)
@@ -349,7 +349,7 @@ void add(const char* name, const char* summary, NodeTest test, const char* alias
 }  // namespace
 
 void register_opencl_backends() {
-  // `opencl` is opencl-wide on a CPU device (PoCL here), where tests run it under that name; on a
+  // `opencl` is opencl-wide on a CPU device, where tests run it under that name; on a
   // GPU it takes the lane test (Mapping)
   add("opencl", "MBVH4 and MBVH2 on OpenCL, mapped for the device: the 16-wide MIC path on a CPU, ray per lane on a GPU",
       NodeTest::by_device, "opencl-wide");

@@ -2,8 +2,8 @@
 // vulkan_backend.cpp — the `vulkan` backend: the GPU path of TRAVERSAL.md §9 — the bitstack of
 // Áfra & Szirmay-Kalos 2014 and its stack-based twin over MBVH2 (Aila & Laine node, 1 bit per
 // level) and MBVH4 (SoA node, 3-bit skip codes) — as a GLSL compute shader (shaders/trace.comp,
-// SPIR-V embedded at build time) on any Vulkan 1.2 device: lavapipe here, a real GPU where there
-// is one. Headless: no window, no surface.
+// SPIR-V embedded at build time) on any Vulkan 1.2 device: lavapipe on a CPU, or a GPU.
+// Headless: no window, no surface.
 //
 // The Backend here orchestrates three pieces: the device (vk_device.h: the checked physical
 // device, its limits, the queue and the command buffer), memory (vk_memory.h: buffers, uploads,
@@ -45,7 +45,7 @@ using vk::Buffer;
 using vk::Chunked;
 using vk::mib;
 
-constexpr std::uint32_t kLocalSize = 64;                 // lavapipe: 8 to 1024 measured within noise
+constexpr std::uint32_t kLocalSize = 64;                 // a CPU device (lavapipe) runs any size alike
 constexpr std::size_t kMaxBatch = std::size_t(1) << 21;  // rays per dispatch (64 MiB of rays)
 
 vk::DeviceRequest device_request(const BackendOptions& o) {

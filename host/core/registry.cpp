@@ -154,7 +154,7 @@ std::vector<std::string> runnable_backends(std::vector<std::string>* left_out) {
   };
   for (const BackendInfo& b : list_backends()) {
     if (!b.make) leave(b, "not built: " + b.unavailable);
-    else if (!b.alias_of.empty()) leave(b, "is " + b.alias_of + " here");
+    else if (!b.alias_of.empty()) leave(b, "stands for " + b.alias_of + " here (listed under that name)");
     else if (const std::string why = b.missing_hardware ? b.missing_hardware() : ""; !why.empty()) leave(b, why);
     else names.push_back(b.name);
   }

@@ -178,7 +178,7 @@ std::string BenchReport::csv() const {
   return out;
 }
 
-// Mrays/s of `r` over that of the record of `backend` / `traversal` on r's layout, query and
+// The speed of `r` over that of the record of `backend` / `traversal` on r's layout, query and
 // rays; 0 when that record was not run.
 static double speed_ratio(const std::vector<BenchRecord>& all, const BenchRecord& r, const std::string& backend,
                           const std::string& traversal) {
@@ -259,7 +259,7 @@ void verify(const KindRays& k, const TraceOutput& out, const TraceOptions& to, B
       r.leaks += out.hits[i].prim == MBVH_MISS_PRIM && ray_valid(k.rays[i]);
 }
 
-// One variant's timing: its backends and options, and its passes' Mrays/s by the host's clock,
+// One variant's timing: its backends and options, and its passes' speeds (million rays per second) by the host's clock,
 // on one thread (`single`, --scaling) and by the device's clock where the backend measures it.
 struct Timing {
   Backend* b;
