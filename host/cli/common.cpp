@@ -14,7 +14,6 @@
 #include "host/cli/progress.h"
 #include "host/core/parallel.h"
 #include "host/core/resources.h"
-#include "mbvh/backends.h"
 
 namespace mbvh::cli {
 

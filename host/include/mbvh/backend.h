@@ -101,8 +101,8 @@ protected:
   /// What trace() does after its common part: traces a non-empty batch, with `opt` checked and
   /// supported, its leaf_block the one this backend traces (with_leaves_of), the build prepared
   /// (do_prepare), `out` sized for `rays` (TraceOutput::resize_for: contents unspecified; a
-  /// backend that does not write every ray's answer resets it) and the object's lock held (call
-  /// do_prepare, not prepare, from here: the lock is not recursive).
+  /// backend that does not write every ray's answer resets it) and the object's lock held (so
+  /// never prepare or trace from here: the lock is not recursive).
   virtual void trace_batch(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) = 0;
   /// Sets last_device_seconds() for the trace in progress (trace() clears it to -1 first).
   void set_device_seconds(double s) { device_seconds_ = s; }
