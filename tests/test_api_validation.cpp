@@ -171,7 +171,8 @@ TEST_CASE("comparisons refuse arrays that do not line up", "[api]") {
   CHECK_NOTHROW(compare_occlusion_arrays(o2, o2, two, r2));
 }
 
-TEST_CASE("every backend traces an empty batch and refuses a traversal or precision it lacks with one message", "[api]") {
+TEST_CASE("every backend traces an empty batch and refuses a traversal or precision it lacks with one message",
+          "[api]") {
   const Scene s = load_scene("gen:cube:4");
   const auto acc = Accel::build(s);
   const std::vector<Ray> rays(1, Ray{0, 0, 5, 0, 0, 0, -1, INFINITY});
@@ -211,7 +212,8 @@ TEST_CASE("every backend traces an empty batch and refuses a traversal or precis
         TraceOptions o{Layout::mbvh4, t};
         o.precision = p;
         CHECK_THROWS_WITH(backend->trace(*acc, rays, o, out),
-                          Catch::StartsWith(name + ": precision '" + to_string(p) + "' is not available (its precisions: "));
+                          Catch::StartsWith(name + ": precision '" + to_string(p) +
+                                            "' is not available (its precisions: "));
       }
   }
 }

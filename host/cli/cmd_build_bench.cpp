@@ -26,7 +26,8 @@ void print(const BuildBenchReport& r) {
   say("  ours by phase (medians): records %.1f, tree %.1f, flatten %.1f, stats %.1f, MBVH4 %.1f ms\n",
       median(r.phase_ms[0]), median(r.phase_ms[1]), median(r.phase_ms[2]), median(r.phase_ms[3]), median(r.phase_ms[4]));
   if (r.embree_build_ms)
-    say("  embree %.1f ms (rtcCommitScene with the triangle copy, median of %u)\n", median(*r.embree_build_ms), r.repeats);
+    say("  embree %.1f ms (rtcCommitScene with the triangle copy, median of %u)\n", median(*r.embree_build_ms),
+        r.repeats);
   else
     say("  embree: not built in\n");
   if (const auto& v = r.versus)

@@ -43,7 +43,8 @@ Verdict compare_hits(const Hit& a, const Hit& b) {
 Verdict compare_occlusion(std::uint8_t a, std::uint8_t b, const Hit& closest, const Ray& ray) {
   if (a == b) return Verdict::equal;
   if (closest.prim == MBVH_MISS_PRIM) return Verdict::mismatch;
-  if (on_edge(closest) || ulp_distance(closest.t, ray.tmax) <= kTieUlps || ulp_distance(closest.t, ray.tmin) <= kTieUlps)
+  if (on_edge(closest) || ulp_distance(closest.t, ray.tmax) <= kTieUlps ||
+      ulp_distance(closest.t, ray.tmin) <= kTieUlps)
     return Verdict::tie;
   return Verdict::mismatch;
 }

@@ -51,28 +51,29 @@ constexpr Traversal kTraversals[] = {Traversal::stack,         Traversal::bitsta
                                      Traversal::packet};
 constexpr Precision kPrecisions[] = {Precision::robust, Precision::exact, Precision::fast};
 
+// The names of `all` that `keep` holds for, comma-separated.
+template <class T, std::size_t N, class Keep>
+std::string names_of(const T (&all)[N], Keep keep) {
+  std::string list;
+  for (T x : all)
+    if (keep(x)) list += (list.empty() ? "" : ", ") + std::string(to_string(x));
+  return list;
+}
+
 // Throws Error when `b` lacks opt's layout / traversal pair or its precision, naming what it has.
 void refuse_unsupported(const Backend& b, const TraceOptions& opt) {
   if (!b.supports(opt.layout, opt.traversal)) {
-    std::string has;
-    for (Traversal t : kTraversals)
-      if (b.supports(opt.layout, t)) has += (has.empty() ? "" : ", ") + std::string(to_string(t));
-    std::string layouts;
-    for (Layout l : kLayouts)
-      for (Traversal t : kTraversals)
-        if (b.supports(l, t)) {
-          layouts += (layouts.empty() ? "" : ", ") + std::string(to_string(l));
-          break;
-        }
-    throw Error(b.name() + ": traversal '" + to_string(opt.traversal) + "' is not implemented for " + to_string(opt.layout) +
-                (has.empty() ? " (its layouts: " + layouts + ")" : " (its traversals there: " + has + ")"));
+    const std::string there = names_of(kTraversals, [&](Traversal t) { return b.supports(opt.layout, t); });
+    const std::string layouts = names_of(kLayouts, [&](Layout l) {
+      return names_of(kTraversals, [&](Traversal t) { return b.supports(l, t); }) != "";
+    });
+    throw Error(b.name() + ": traversal '" + to_string(opt.traversal) + "' is not implemented for " +
+                to_string(opt.layout) + (there.empty() ? " (its layouts: " + layouts : " (its traversals there: " + there) +
+                ")");
   }
-  if (!b.supports_precision(opt.precision)) {
-    std::string has;
-    for (Precision p : kPrecisions)
-      if (b.supports_precision(p)) has += (has.empty() ? "" : ", ") + std::string(to_string(p));
-    throw Error(b.name() + ": precision '" + to_string(opt.precision) + "' is not available (its precisions: " + has + ")");
-  }
+  if (!b.supports_precision(opt.precision))
+    throw Error(b.name() + ": precision '" + to_string(opt.precision) + "' is not available (its precisions: " +
+                names_of(kPrecisions, [&](Precision p) { return b.supports_precision(p); }) + ")");
 }
 
 }  // namespace

@@ -128,8 +128,9 @@ std::string build_bench_json(const BuildBenchReport& r) {
   j["sah_mbvh4"] = r.sah_mbvh4;
   j["build_ms"] = median(r.build_ms);
   j["build_ms_all"] = r.build_ms;
-  j["phases_ms"] = {{"records", median(r.phase_ms[0])}, {"tree", median(r.phase_ms[1])}, {"flatten", median(r.phase_ms[2])},
-                    {"stats", median(r.phase_ms[3])}, {"mbvh4", median(r.phase_ms[4])}};
+  j["phases_ms"] = {{"records", median(r.phase_ms[0])}, {"tree", median(r.phase_ms[1])},
+                    {"flatten", median(r.phase_ms[2])}, {"stats", median(r.phase_ms[3])},
+                    {"mbvh4", median(r.phase_ms[4])}};
   if (r.embree_build_ms) {
     j["embree_build_ms"] = median(*r.embree_build_ms);
     j["embree_build_ms_all"] = *r.embree_build_ms;
