@@ -191,7 +191,6 @@ static double speed_ratio(const std::vector<BenchRecord>& all, const BenchRecord
 
 namespace {
 
-
 // One ray kind's rays and what every variant on them is checked against: the oracle's rules, the
 // brute force on a spread subset (BenchOptions::error_rays) and, per query, the reference answer.
 struct KindRays {
@@ -259,8 +258,9 @@ void verify(const KindRays& k, const TraceOutput& out, const TraceOptions& to, B
       r.leaks += out.hits[i].prim == MBVH_MISS_PRIM && ray_valid(k.rays[i]);
 }
 
-// One variant's timing: its backends and options, and its passes' speeds (million rays per second) by the host's clock,
-// on one thread (`single`, --scaling) and by the device's clock where the backend measures it.
+// One variant's timing: its backends and options, and its passes' speeds (million rays per
+// second) by the host's clock, on one thread (`single`, --scaling) and by the device's clock where
+// the backend measures it.
 struct Timing {
   Backend* b;
   Backend* single;
@@ -290,7 +290,7 @@ void time_pass(const Accel& acc, const std::vector<Ray>& rays, Timing& v, TraceO
 }
 
 // The median and spread of a variant's passes into its record.
-void finish_timing(Timing& v, BenchRecord& r) {
+void finish_timing(const Timing& v, BenchRecord& r) {
   r.mrays_per_s = median(v.mr);
   r.mrays_min = *std::min_element(v.mr.begin(), v.mr.end());
   r.mrays_max = *std::max_element(v.mr.begin(), v.mr.end());
