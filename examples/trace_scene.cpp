@@ -5,7 +5,8 @@
 #include <cstdio>
 #include <vector>
 
-#include <mbvh/mbvh.h>  // Scene, Accel, Ray, Hit, backends; errors are mbvh::Error
+#include <mbvh/backends.h>  // register_builtin_backends (mbvh::mbvh)
+#include <mbvh/mbvh.h>      // Scene, Accel, Ray, Hit, backends; errors are mbvh::Error
 
 int main() {
   mbvh::register_builtin_backends();  // every backend of this build (mbvh::mbvh)

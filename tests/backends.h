@@ -12,6 +12,7 @@
 #include <fstream>
 #include <nlohmann/json.hpp>
 
+#include "host/tools/variants.h"
 #include "mbvh/backend.h"
 #include "tests/helpers.h"
 
@@ -29,26 +30,17 @@ inline bool backend_selected(const std::string& name) {
 inline mbvh::VariantGrid all_backends() {
   mbvh::VariantGrid g;
   g.backends.clear();
-  for (const mbvh::BackendInfo& b : mbvh::list_backends()) {
-    if (!b.make) continue;
-    if (!backend_selected(b.name)) {
-      std::printf("backend %s left out: not in MBVH_TEST_BACKENDS\n", b.name.c_str());
+  std::vector<std::string> left_out;
+  for (const std::string& name : mbvh::runnable_backends(&left_out)) {
+    if (!backend_selected(name)) {
+      std::printf("backend %s left out: not in MBVH_TEST_BACKENDS\n", name.c_str());
       continue;
     }
-    if (!b.alias_of.empty()) {
-      std::printf("backend %s is %s here: tested under that name\n", b.name.c_str(), b.alias_of.c_str());
-      continue;
-    }
-    if (b.missing_hardware) {
-      if (const std::string why = b.missing_hardware(); !why.empty()) {
-        std::printf("skipping backend %s: %s\n", b.name.c_str(), why.c_str());
-        continue;
-      }
-    }
-    INFO("backend " << b.name);
-    REQUIRE_NOTHROW(mbvh::make_backend(b.name));
-    g.backends.push_back(b.name);
+    INFO("backend " << name);
+    REQUIRE_NOTHROW(mbvh::make_backend(name));
+    g.backends.push_back(name);
   }
+  for (const std::string& why : left_out) std::printf("backend left out: %s\n", why.c_str());
   REQUIRE(!g.backends.empty());
   return g;
 }

@@ -303,6 +303,32 @@ TEST_CASE("MBVH_CPU_ISA=avx2 runs the cpu backend as an AVX2-only machine would 
   CHECK(bad.output.find("MBVH_CPU_ISA=sse4 is not an ISA: set avx2 or avx512") != std::string::npos);
 }
 
+TEST_CASE("mbvh devices --ready lists each backend that starts here once - --resolve names the one a name runs as",
+          "[cli]") {
+  // standard output only: the names (the device backends say their device on standard error)
+  const auto names = [](const std::string& args, const std::string& env = "") {
+    const std::string run = (env.empty() ? "" : "env " + env + " ") + mbvh_test::cli_path() + " " + args;
+    return mbvh_test::run_shell("{ " + run + " 2>/dev/null; }");
+  };
+  const auto ready = names("devices --ready");
+  REQUIRE(ready.code == 0);
+  std::string expected;
+  for (const std::string& name : mbvh::runnable_backends()) expected += name + "\n";
+  CHECK(ready.output == expected);  // every runnable backend starts here
+  for (const mbvh::BackendInfo& b : mbvh::list_backends())
+    if (b.name == "cpu" && b.make) {
+      const auto cpu = names("devices --resolve cpu");
+      CHECK(cpu.code == 0);
+      CHECK(cpu.output == b.alias_of + "\n");
+    }
+  if (__builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma")) {
+    CHECK(names("devices --resolve cpu", "MBVH_CPU_ISA=avx2").output == "cpu-avx2\n");
+    const auto off = run_cli("devices --resolve cpu-avx512", "MBVH_CPU_ISA=avx2");
+    CHECK(off.code == 2);
+    CHECK_THAT(off.output, Catch::Contains("backend 'cpu-avx512' cannot start"));
+  }
+}
+
 TEST_CASE("mbvh conventions - version and default backend and exit codes and quiet", "[cli]") {
   auto r = run_cli("--version");
   CHECK(r.code == 0);

@@ -28,10 +28,8 @@ public:
     if (opt.leaf_block > 1) acc.leaf_variant(opt.leaf_block).make_layout(opt.layout);
     else acc.make_layout(opt.layout);
   }
-  void do_trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
-    const TraceOptions o = with_leaves_of(*this, opt);
-    do_prepare(acc, o);
-    trace_reference(acc, rays, o, out, threads_);
+  void trace_batch(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
+    trace_reference(acc, rays, opt, out, threads_);
   }
 
 private:

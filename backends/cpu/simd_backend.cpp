@@ -52,8 +52,7 @@ public:
   bool supports(Layout l, Traversal t) const override { return reference_supports(l, t); }
   bool supports_precision(Precision) const override { return true; }
   /// Leaves regrouped for the four-triangle SIMD leaf packs unless asked otherwise: fewer, fuller
-  /// leaves and packs (bunny: 37,376 leaves of 1.9 triangles become 15,345 of 4.5), fewer cache lines
-  /// and nodes per ray (README, "The cpu backend").
+  /// leaves and packs, so fewer cache lines and nodes per ray.
   static constexpr unsigned kOwnLeafBlock = 4;
   unsigned leaf_block(const TraceOptions& opt) const override { return opt.leaf_block ? opt.leaf_block : own_block_; }
   /// Everything made once per build happens here, outside the timed trace: the layout and the
@@ -71,12 +70,8 @@ public:
       acc.tri_packs();
     }
   }
-  void do_trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
-    if (!reference_supports(opt.layout, opt.traversal))
-      throw Error(name_ + ": traversal '" + to_string(opt.traversal) + "' is not defined for " + to_string(opt.layout));
-    const TraceOptions o = with_leaves_of(*this, opt);
-    do_prepare(acc, o);
-    kernels_.trace(acc, rays, o, out, threads_, hybrid_);
+  void trace_batch(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
+    kernels_.trace(acc, rays, opt, out, threads_, hybrid_);
   }
 
 private:

@@ -23,6 +23,7 @@
 #include <span>
 #include <vector>
 
+#include "backends/common/build_stamp.h"
 #include "backends/embree/embree_backends.h"
 #include "host/core/layouts.h"
 #include "mbvh/backend.h"
@@ -109,12 +110,12 @@ public:
 
   void do_prepare(const Accel& acc, const TraceOptions& opt) override {
     const int mode = opt.precision == Precision::fast ? 1 : 0;
-    if (&acc != acc_ || acc.hash() != hash_ || acc.generation() != generation_) {  // both modes' scenes are stale
+    if (committed_.stale(acc)) {  // both modes' scenes are stale
       for (RTCScene& sc : scene_) {
         if (sc) rtcReleaseScene(sc);
         sc = nullptr;
       }
-      acc_ = nullptr;
+      committed_ = {};
     }
     if (scene_[mode]) return;
     // a high-quality build repeats a split triangle in several leaves: Embree gets each prim once
@@ -170,22 +171,13 @@ public:
     rtcCommitScene(scene);
     scene_[mode] = scene;
     raise("rtcCommitScene");
-    acc_ = &acc;
-    hash_ = acc.hash();
-    generation_ = acc.generation();
+    committed_.mark(acc);
   }
 
-  void do_trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
-    if (!supports(opt.layout, opt.traversal))
-      throw Error("embree: answers only as mbvh4/stack (its single-ray queries) and mbvh4/packet (its packet queries)");
-    if (!supports_precision(opt.precision))
-      throw Error(std::string("embree: precision '") + to_string(opt.precision) +
-                  "' is not available (Embree has its robust mode, Precision::robust, and its default mode, "
-                  "Precision::fast)");
-    do_prepare(acc, opt);
+  void trace_batch(const Accel&, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
     RTCScene scene = scene_[opt.precision == Precision::fast ? 1 : 0];
     const bool any = opt.query == Query::any;
-    out.reset(rays.size(), opt);
+    out.reset(rays.size(), opt);  // Embree writes hits only: every other ray stays a miss
     std::vector<std::size_t> invalid(threads_, 0);         // per worker
     std::vector<std::size_t> too_large(threads_, SIZE_MAX);  // per worker: the first ray Embree refuses
     if (opt.traversal == Traversal::packet) {
@@ -339,9 +331,7 @@ private:
   bool coherent_;    ///< embree.coherent
   RTCDevice device_ = nullptr;
   RTCScene scene_[2] = {nullptr, nullptr};  // robust mode, default (fast) mode
-  const Accel* acc_ = nullptr;
-  std::uint64_t hash_ = 0;
-  std::uint64_t generation_ = 0;  // Accel::generation() of the committed scene (refit bumps it)
+  BuildStamp committed_;  // the build of the committed scenes
   std::vector<std::uint32_t> prims_;  // Embree primID -> the file's prim id
   std::mutex error_mutex_;
   std::string error_;

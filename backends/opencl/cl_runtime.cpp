@@ -1,7 +1,7 @@
 // SPDX-License-Identifier: MIT
 // cl_runtime.cpp — OpenCL errors, device discovery and choice, program builds (cl_runtime.h).
 #include "backends/opencl/cl_runtime.h"
-#include "host/core/device_choice.h"
+#include "backends/common/device_choice.h"
 
 #include <algorithm>
 #include <cctype>

@@ -1,14 +1,14 @@
 // SPDX-License-Identifier: MIT
 // opencl_backend.cpp — the `opencl` backends: the 16-wide MIC path of TRAVERSAL.md §8 (MBVH4,
 // skip-code bitstack and its stack twin; Áfra & Szirmay-Kalos 2014) and the GPU-style MBVH2
-// traversal, as OpenCL C kernels (shaders/trace.cl, embedded at build time) on any OpenCL device;
-// PoCL here. `opencl-wide` tests a node's four children with one 16-lane operation,
+// traversal, as OpenCL C kernels (shaders/trace.cl, embedded at build time) on any OpenCL device
+// (PoCL on a CPU). `opencl-wide` tests a node's four children with one 16-lane operation,
 // `opencl-lane` with four scalar slab tests per work-item (the ray-per-lane mapping); `opencl`
 // takes the one that suits the device (Mapping below): the 16-wide test on a CPU device, where it
-// is the faster of the two (README), the scalar test on a GPU, whose lanes are the rays.
+// is the faster of the two, the scalar test on a GPU, whose lanes are the rays.
 //
 // Every kernel runs one ray per work-item. The mapping also sizes the work-groups: fixed on a CPU
-// (PoCL: any size measured within noise), from the kernel's preferred multiple on a GPU (a warp
+// (where any size runs alike), from the kernel's preferred multiple on a GPU (a warp
 // or wavefront), so full groups of rays share a SIMT unit.
 //
 // Per build, the layout is uploaded once and reused across calls; rays go through in batches
@@ -23,6 +23,7 @@
 #include <set>
 #include <utility>
 
+#include "backends/common/build_stamp.h"
 #include "backends/opencl/cl_runtime.h"
 #include "backends/opencl/opencl_backends.h"
 #include "host/core/layouts.h"
@@ -36,7 +37,7 @@ namespace {
 using cl::Buffer;
 using cl::check;
 
-constexpr std::size_t kCpuLocalSize = 64;   // PoCL: 8 to 1024 measured within noise
+constexpr std::size_t kCpuLocalSize = 64;   // a CPU device runs any size alike
 constexpr std::size_t kGpuLocalTarget = 128;  // rays per GPU work-group: 4 warps of 32, 2 wavefronts of 64
 constexpr std::size_t kMaxLocalSize = 1024;   // the largest work-group either mapping asks for
 constexpr std::size_t kMaxBatch = std::size_t(1) << 21;  // rays per dispatch (64 MiB of rays)
@@ -116,18 +117,15 @@ public:
     return l != Layout::mbvh8 && (t == Traversal::stack || t == Traversal::bitstack);
   }
   bool supports_precision(Precision) const override { return true; }
-  double last_device_seconds() const override { return device_seconds_; }
 
   void do_prepare(const Accel& acc, const TraceOptions& opt) override {
     program(opt.stats, opt.precision == Precision::fast);
-    if (&acc != acc_ || acc.hash() != hash_ || acc.generation() != generation_) {
+    if (uploaded_.stale(acc)) {
       n2_.reset();
       n4_.reset();
       leaves_ = upload("the leaf array", acc.leaves().data(), acc.leaves().size() * sizeof(Leaf));
       tris_ = upload("the triangle array", acc.tris().data(), acc.tris().size() * sizeof(Tri));
-      acc_ = &acc;
-      hash_ = acc.hash();
-      generation_ = acc.generation();
+      uploaded_.mark(acc);
     }
     if (opt.layout == Layout::mbvh2 && !n2_) {
       const auto& n = acc.mbvh2().nodes;
@@ -139,15 +137,9 @@ public:
     }
   }
 
-  void do_trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
-    if (!supports(opt.layout, opt.traversal))
-      throw Error(name_ + ": traversal '" + std::string(to_string(opt.traversal)) + "' is not implemented (stack and bitstack are)");
-    device_seconds_ = -1;
-    do_prepare(acc, opt);
+  /// Writes every ray's answer (and statistics, when asked) from the device.
+  void trace_batch(const Accel&, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
     const bool any = opt.query == Query::any;
-    out.reset(rays.size(), opt);
-    if (rays.empty()) return;
-
     const std::string kname = std::string(to_string(opt.layout)) + "_" + to_string(opt.traversal) + "_" + to_string(opt.query);
     const Kernel& kern = kernel(opt.stats, opt.precision == Precision::fast, kname);
     cl_kernel k = kern.kernel.get();
@@ -204,7 +196,7 @@ public:
     check(clEnqueueReadBuffer(queue_.get(), counters_.get(), CL_TRUE, 0, sizeof counters, counters, 0, nullptr, nullptr),
           "clEnqueueReadBuffer(counters)");
     out.invalid = counters[MBVH_COUNTER_INVALID];
-    device_seconds_ = double(kernel_ns) * 1e-9;
+    set_device_seconds(double(kernel_ns) * 1e-9);
     if (counters[MBVH_COUNTER_OVERFLOW] != 0)
       throw Error(name_ + ": " + std::to_string(counters[MBVH_COUNTER_OVERFLOW]) + " rays overflowed the traversal stack: the tree is deeper "
                   "than its cap (corrupt build)");
@@ -322,14 +314,11 @@ private:
   cl::Context ctx_;
   cl::Queue queue_;
   Built built_[4];  // [stats + 2 * fast]
-  const Accel* acc_ = nullptr;
-  std::uint64_t hash_ = 0;
-  std::uint64_t generation_ = 0;  // Accel::generation() of the uploaded arrays (refit bumps it)
+  BuildStamp uploaded_;  // the build of the leaves, triangles and nodes on the device
   Buffer n2_, n4_, leaves_, tris_;
   std::size_t cap_ = 0, stats_cap_ = 0;
   Buffer rays_, hits_, occ_, stats_, counters_;
   alignas(16) unsigned char zeros_[16] = {};
-  double device_seconds_ = -1;  // last_device_seconds()
 };
 
 std::vector<std::string> device_lines() {
@@ -360,7 +349,7 @@ void add(const char* name, const char* summary, NodeTest test, const char* alias
 }  // namespace
 
 void register_opencl_backends() {
-  // `opencl` is opencl-wide on a CPU device (PoCL here), where tests run it under that name; on a
+  // `opencl` is opencl-wide on a CPU device, where tests run it under that name; on a
   // GPU it takes the lane test (Mapping)
   add("opencl", "MBVH4 and MBVH2 on OpenCL, mapped for the device: the 16-wide MIC path on a CPU, ray per lane on a GPU",
       NodeTest::by_device, "opencl-wide");

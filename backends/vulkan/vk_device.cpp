@@ -24,6 +24,7 @@ Device::Device(const Instance& instance, const DeviceRequest& request) {
 Device::~Device() { release(); }
 
 void Device::init(const Instance& instance, const DeviceRequest& o) {
+  // -- the device the selector names, said once
   const std::vector<DeviceEntry> devices = list_devices(instance.get());
   entry_ = choose_device(devices, o.selector);
   {  // say which device, once per device in a process
@@ -37,7 +38,7 @@ void Device::init(const Instance& instance, const DeviceRequest& o) {
                        : "");
   }
 
-  // what the shader needs
+  // -- what the shader needs
   const VkPhysicalDevice pd = entry_.device;
   const std::string& name = entry_.name;
   if (entry_.api_version < VK_API_VERSION_1_2)
@@ -74,7 +75,7 @@ void Device::init(const Instance& instance, const DeviceRequest& o) {
   if (!(fp.bufferFeatures & VK_FORMAT_FEATURE_UNIFORM_TEXEL_BUFFER_BIT))
     throw Error("Vulkan device " + name + " cannot read R32G32B32A32_UINT uniform texel buffers (the node array)");
 
-  // the limits that size bindings and batches
+  // -- the limits that size bindings and batches
   limits_.range = lim.maxStorageBufferRange;
   limits_.texel_range = std::size_t(lim.maxTexelBufferElements) * 16;
   if (o.max_binding_bytes) {
@@ -94,7 +95,7 @@ void Device::init(const Instance& instance, const DeviceRequest& o) {
                 std::to_string(std::size_t(o.local_size) * 32) + " bytes needed at least)");
   vkGetPhysicalDeviceMemoryProperties(pd, &memory_);
 
-  // a queue family with compute
+  // -- a queue family with compute
   std::uint32_t nq = 0;
   vkGetPhysicalDeviceQueueFamilyProperties(pd, &nq, nullptr);
   std::vector<VkQueueFamilyProperties> qf(nq);
@@ -106,7 +107,7 @@ void Device::init(const Instance& instance, const DeviceRequest& o) {
   timestamp_bits_ = qf[family_].timestampValidBits;  // 0: the family writes no timestamps
   timestamp_period_ = lim.timestampPeriod;
 
-  // the logical device and its queue
+  // -- the logical device and its queue
   const float priority = 1.0f;
   VkDeviceQueueCreateInfo qi{};
   qi.sType = VK_STRUCTURE_TYPE_DEVICE_QUEUE_CREATE_INFO;
@@ -124,7 +125,7 @@ void Device::init(const Instance& instance, const DeviceRequest& o) {
   check(vkCreateDevice(pd, &di, nullptr, &device_), "vkCreateDevice");
   vkGetDeviceQueue(device_, family_, 0, &queue_);
 
-  // one command buffer, its fence, and the timestamps
+  // -- one command buffer, its fence, and the timestamps
   VkCommandPoolCreateInfo pi{};
   pi.sType = VK_STRUCTURE_TYPE_COMMAND_POOL_CREATE_INFO;
   pi.flags = VK_COMMAND_POOL_CREATE_RESET_COMMAND_BUFFER_BIT;

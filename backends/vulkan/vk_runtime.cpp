@@ -16,7 +16,7 @@
 #include <link.h>
 #endif
 
-#include "host/core/device_choice.h"
+#include "backends/common/device_choice.h"
 #include "mbvh/error.h"
 
 namespace mbvh::vk {
@@ -92,8 +92,8 @@ const char* const kLayer = "VK_LAYER_KHRONOS_validation";
 
 #if defined(__SANITIZE_ADDRESS__)
 // Sanitizer builds only. The Vulkan loader dlcloses every driver and layer when an instance is
-// destroyed. A driver that keeps an allocation in its globals (lavapipe: one 128-byte realloc per
-// process, seen on AMD Zen 4) then holds it from unmapped memory: LeakSanitizer finds no root and can
+// destroyed. A driver that keeps an allocation in its globals (lavapipe: one small realloc per
+// process) then holds it from unmapped memory: LeakSanitizer finds no root and can
 // name no module ("<unknown module>"), so no suppression could match it without matching every
 // leak. Instead the drivers and layers stay mapped (RTLD_NODELETE), as in a process that keeps
 // Vulkan loaded: their globals stay roots, and a leak in our own code still fails the run (the

@@ -62,7 +62,7 @@ struct DeviceEntry {
 /// Every physical device. Throws Error saying how to install a driver when there is none.
 std::vector<DeviceEntry> list_devices(VkInstance instance);
 
-/// The device `selector` names (host/core/device_choice.h): "" = a discrete GPU if there is one, then
+/// The device `selector` names (backends/common/device_choice.h): "" = a discrete GPU if there is one, then
 /// an integrated or virtual GPU, then the first device; "N" = the N-th; "gpu" = the first of
 /// those GPUs, "cpu" = the first CPU device (lavapipe); else a part of its name.
 const DeviceEntry& choose_device(const std::vector<DeviceEntry>& devices, const std::string& selector);

@@ -2,8 +2,8 @@
 // vulkan_backend.cpp — the `vulkan` backend: the GPU path of TRAVERSAL.md §9 — the bitstack of
 // Áfra & Szirmay-Kalos 2014 and its stack-based twin over MBVH2 (Aila & Laine node, 1 bit per
 // level) and MBVH4 (SoA node, 3-bit skip codes) — as a GLSL compute shader (shaders/trace.comp,
-// SPIR-V embedded at build time) on any Vulkan 1.2 device: lavapipe here, a real GPU where there
-// is one. Headless: no window, no surface.
+// SPIR-V embedded at build time) on any Vulkan 1.2 device: lavapipe on a CPU, or a GPU.
+// Headless: no window, no surface.
 //
 // The Backend here orchestrates three pieces: the device (vk_device.h: the checked physical
 // device, its limits, the queue and the command buffer), memory (vk_memory.h: buffers, uploads,
@@ -28,6 +28,7 @@
 #include <cstring>
 #include <utility>
 
+#include "backends/common/build_stamp.h"
 #include "backends/vulkan/vk_device.h"
 #include "backends/vulkan/vk_memory.h"
 #include "backends/vulkan/vk_pipeline.h"
@@ -44,7 +45,7 @@ using vk::Buffer;
 using vk::Chunked;
 using vk::mib;
 
-constexpr std::uint32_t kLocalSize = 64;                 // lavapipe: 8 to 1024 measured within noise
+constexpr std::uint32_t kLocalSize = 64;                 // a CPU device (lavapipe) runs any size alike
 constexpr std::size_t kMaxBatch = std::size_t(1) << 21;  // rays per dispatch (64 MiB of rays)
 
 vk::DeviceRequest device_request(const BackendOptions& o) {
@@ -84,7 +85,7 @@ public:
   std::string describe() const override {
     std::string s = "vulkan: MBVH2 and MBVH4 GPU-style traversal (GLSL compute, SPIR-V); Vulkan device " +
                     dev_.entry().describe() + (instance_.validation() ? "; validation layer on" : "");
-    if (acc_) {  // how the current build is bound
+    if (uploaded_.acc) {  // how the current build is bound
       for (Layout l : {Layout::mbvh2, Layout::mbvh4})
         if (const Chunked& n = nodes(l); n.buf.buffer != VK_NULL_HANDLE)
           s += std::string("; ") + (l == Layout::mbvh2 ? "MBVH2" : "MBVH4") + " nodes in " + std::to_string(n.count) +
@@ -101,7 +102,6 @@ public:
     return (l == Layout::mbvh2 || l == Layout::mbvh4) && (t == Traversal::stack || t == Traversal::bitstack);
   }
   bool supports_precision(Precision) const override { return true; }
-  double last_device_seconds() const override { return device_seconds_; }
 
   /// Uploads the build's leaves and triangles (once per build) and the node array of
   /// `opt.layout` (once per build and layout), and binds that layout's nodes.
@@ -110,10 +110,10 @@ public:
       throw Error("vulkan: layout " + std::string(to_string(opt.layout)) + " is not implemented (the GPU path is MBVH2 "
                   "and MBVH4)");
     const vk::DeviceLimits& lim = dev_.limits();
-    if (&acc != acc_ || acc.hash() != hash_ || acc.generation() != generation_) {  // a new build: drop the old one's arrays
+    if (uploaded_.stale(acc)) {  // a new build: drop the old one's arrays
       dev_.wait_idle();
       release_build();
-      acc_ = nullptr;
+      uploaded_ = {};
       descriptors_dirty_ = true;
     }
     if (Chunked& n = nodes(opt.layout); n.buf.buffer == VK_NULL_HANDLE) {
@@ -126,7 +126,7 @@ public:
       }
       descriptors_dirty_ = true;
     }
-    if (acc_ == nullptr) {
+    if (!uploaded_.acc) {
       tris_ = vk::upload_chunked(dev_, "the triangle array", acc.tris().data(), acc.tris().size(), sizeof(Tri), lim.range,
                                  false);
       const std::size_t leaf_bytes = acc.leaves().size() * sizeof(Leaf);
@@ -134,9 +134,7 @@ public:
         throw Error("vulkan: the leaf array (" + mib(leaf_bytes) + ") exceeds maxStorageBufferRange (" + mib(lim.range) +
                     ") of " + dev_.name() + "; use a smaller scene or another device");
       leaves_ = vk::upload(dev_, "the leaf array", acc.leaves().data(), leaf_bytes);
-      acc_ = &acc;
-      hash_ = acc.hash();
-      generation_ = acc.generation();
+      uploaded_.mark(acc);
     }
     if (bound_ != opt.layout) {
       bound_ = opt.layout;
@@ -145,16 +143,9 @@ public:
     report_validation();
   }
 
-  void do_trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
-    if (!supports(opt.layout, opt.traversal))
-      throw Error("vulkan: " + std::string(to_string(opt.layout)) + " " + to_string(opt.traversal) +
-                  " traversal is not implemented (the GPU path is MBVH2 and MBVH4, stack and bitstack)");
-    device_seconds_ = -1;
-    do_prepare(acc, opt);
+  /// Writes every ray's answer (and statistics, when asked) from the device.
+  void trace_batch(const Accel&, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
     const bool any = opt.query == Query::any;
-    out.reset(rays.size(), opt);
-    if (rays.empty()) return;
-
     vk::Variant v;
     v.mbvh4 = opt.layout == Layout::mbvh4;
     v.bitstack = opt.traversal == Traversal::bitstack;
@@ -190,7 +181,7 @@ public:
     }
     const auto* counters = static_cast<const std::uint32_t*>(counters_.mapped);
     out.invalid = counters[MBVH_COUNTER_INVALID];
-    if (dev_.has_timestamps()) device_seconds_ = dispatch_seconds;
+    if (dev_.has_timestamps()) set_device_seconds(dispatch_seconds);
     report_validation();
     if (counters[MBVH_COUNTER_OVERFLOW] != 0)
       throw Error("vulkan: " + std::to_string(counters[MBVH_COUNTER_OVERFLOW]) + " rays overflowed the traversal stack: the tree is deeper "
@@ -290,11 +281,8 @@ private:
   vk::Device dev_;
   vk::Pipelines pipelines_;
   const bool force_staging_;  ///< the vulkan.staging setting or MBVH_VK_STAGING=1
-  double device_seconds_ = -1;  ///< last_device_seconds()
   bool descriptors_dirty_ = true;
-  const Accel* acc_ = nullptr;
-  std::uint64_t hash_ = 0;
-  std::uint64_t generation_ = 0;  // Accel::generation() of the uploaded arrays (refit bumps it)
+  BuildStamp uploaded_;  ///< the build of the leaves and triangles on the device
   Chunked nodes2_, nodes4_, tris_;
   Layout bound_ = Layout::mbvh2;  ///< whose nodes the descriptor set binds
   Buffer leaves_;

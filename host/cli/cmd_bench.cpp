@@ -1,5 +1,5 @@
 // SPDX-License-Identifier: MIT
-// cmd_bench.cpp — `mbvh bench`: Mrays/s, traversal state and work per ray of every variant,
+// cmd_bench.cpp — `mbvh bench`: speed (rays per second), traversal state and work per ray of every variant,
 // verified before timing (host/tools/bench.h); exit status 1 when a timed result did not verify.
 #include "host/cli/commands.h"
 #include "host/cli/progress.h"

@@ -12,7 +12,7 @@ Command add_info(CLI::App& app);         ///< cmd_info.cpp: scene and per-layout
 Command add_rays(CLI::App& app);         ///< cmd_rays.cpp: write a ray file
 Command add_trace(CLI::App& app);        ///< cmd_trace.cpp: trace rays, write hits or occlusion
 Command add_check(CLI::App& app);        ///< cmd_check.cpp: cross-check variants and the brute force
-Command add_bench(CLI::App& app);        ///< cmd_bench.cpp: verified Mrays/s of every variant
+Command add_bench(CLI::App& app);        ///< cmd_bench.cpp: verified speed of every variant
 Command add_render(CLI::App& app);       ///< cmd_render.cpp: render an image on a backend
 Command add_build_bench(CLI::App& app);  ///< cmd_build_bench.cpp: build times, ours and embree's
 Command add_devices(CLI::App& app);      ///< cmd_devices.cpp: the backends and their devices

@@ -14,7 +14,6 @@
 #include "host/cli/progress.h"
 #include "host/core/parallel.h"
 #include "host/core/resources.h"
-#include "mbvh/backends.h"
 
 namespace mbvh::cli {
 
@@ -57,8 +56,6 @@ void write_bytes_to(const OutputTarget& to, const void* data, std::size_t size) 
 }
 
 std::string shown(const std::string& path) { return path == "-" ? "standard output" : path; }
-
-double ms_since(Clock::time_point t0) { return std::chrono::duration<double, std::milli>(Clock::now() - t0).count(); }
 
 // -- lists
 
@@ -236,19 +233,14 @@ BackendOptions DeviceArgs::options(unsigned threads, const std::string& quality)
 
 namespace {
 
-// `--backend all`: every backend built into this binary whose hardware this machine has, each
-// once (a backend another name stands for, cpu-avx512 under `cpu`, only under that name). A
-// backend that is built but fails to start is an error, not left out.
+// `--backend all`: every backend that can start here, once each (runnable_backends), a backend
+// another name stands for under that name (cpu-avx512 as `cpu`, opencl-wide as `opencl`), the
+// name records compare against. A backend that is built but fails to start is an error, not
+// left out.
 std::vector<std::string> all_backends() {
-  std::vector<std::string> names, aliased;
-  const auto infos = list_backends();
-  for (const auto& b : infos)
-    if (!b.alias_of.empty()) aliased.push_back(b.alias_of);
-  for (const auto& b : infos) {
-    if (!b.make || (b.missing_hardware && !b.missing_hardware().empty())) continue;
-    if (std::find(aliased.begin(), aliased.end(), b.name) != aliased.end()) continue;
-    names.push_back(b.name);
-  }
+  std::vector<std::string> names = runnable_backends();
+  for (const BackendInfo& b : list_backends())
+    if (!b.alias_of.empty()) std::replace(names.begin(), names.end(), b.alias_of, b.name);
   return names;
 }
 

@@ -15,14 +15,14 @@
 
 #include "host/core/io/output.h"
 #include "host/tools/raygen.h"
+#include "host/tools/stats.h"
+#include "host/tools/variants.h"
 #include "mbvh/accel.h"
 #include "mbvh/backend.h"
 #include "mbvh/error.h"
 #include "mbvh/scene.h"
 
 namespace mbvh::cli {
-
-using Clock = std::chrono::steady_clock;
 
 /// A subcommand: its CLI11 app (true once parsed) and what runs it. run() returns the exit
 /// status (0 ok, 1 a genuine mismatch or an unverified timed result, 2 an error) and may throw
@@ -51,7 +51,6 @@ void prepare_outputs(std::vector<OutputTarget> outputs, std::vector<InputFile> i
 void write_bytes_to(const OutputTarget& to, const void* data, std::size_t size);
 /// How the report names an output: the path, or "standard output" for '-'.
 std::string shown(const std::string& path);
-double ms_since(Clock::time_point t0);
 
 // -- lists
 

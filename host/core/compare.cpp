@@ -34,7 +34,7 @@ Verdict compare_hits(const Hit& a, const Hit& b) {
   if (a.prim == b.prim) return Verdict::equal;
   const bool ha = a.prim != MBVH_MISS_PRIM, hb = b.prim != MBVH_MISS_PRIM;
   if (ha && hb) {
-    if (ulp_distance(a.t, b.t) <= 4) return Verdict::tie;
+    if (ulp_distance(a.t, b.t) <= kTieUlps) return Verdict::tie;
     return on_edge(a.t < b.t ? a : b) ? Verdict::tie : Verdict::mismatch;
   }
   return on_edge(ha ? a : b) ? Verdict::tie : Verdict::mismatch;
@@ -43,7 +43,8 @@ Verdict compare_hits(const Hit& a, const Hit& b) {
 Verdict compare_occlusion(std::uint8_t a, std::uint8_t b, const Hit& closest, const Ray& ray) {
   if (a == b) return Verdict::equal;
   if (closest.prim == MBVH_MISS_PRIM) return Verdict::mismatch;
-  if (on_edge(closest) || ulp_distance(closest.t, ray.tmax) <= 4 || ulp_distance(closest.t, ray.tmin) <= 4)
+  if (on_edge(closest) || ulp_distance(closest.t, ray.tmax) <= kTieUlps ||
+      ulp_distance(closest.t, ray.tmin) <= kTieUlps)
     return Verdict::tie;
   return Verdict::mismatch;
 }
@@ -52,7 +53,7 @@ bool wrong_answer(const Hit& a, const Hit& o, const Ray& ray) {
   const bool ha = a.prim != MBVH_MISS_PRIM, ho = o.prim != MBVH_MISS_PRIM;
   if (ha != ho) {
     const float t = ha ? a.t : o.t;
-    return !(ulp_distance(t, ray.tmax) <= 4 || ulp_distance(t, ray.tmin) <= 4);
+    return !(ulp_distance(t, ray.tmax) <= kTieUlps || ulp_distance(t, ray.tmin) <= kTieUlps);
   }
   if (!ha || a.prim == o.prim) return false;
   return std::fabs(a.t - o.t) > 0x1p-10f * std::max(std::fabs(a.t), std::fabs(o.t));

@@ -1,5 +1,5 @@
 // SPDX-License-Identifier: MIT
-// compare.h — ray-by-ray comparison of answers: equal, a classified tie (equal t within 4 ulp
+// compare.h — ray-by-ray comparison of answers: equal, a classified tie (equal t within kTieUlps
 // with another prim, or a hit on a triangle's edge or vertex), or a genuine mismatch.
 #pragma once
 #include <cstdint>
@@ -17,23 +17,27 @@ enum class Verdict { equal, tie, mismatch };
 /// Distance in units in the last place between two finite floats of any sign (inf: 0 if equal).
 std::uint32_t ulp_distance(float a, float b);
 
+/// Two distances this many ulp apart or closer are a tie: the rounding two correct float
+/// traversals may disagree by (compare_hits, compare_occlusion, wrong_answer, check's oracle rule).
+constexpr std::uint32_t kTieUlps = 4;
+
 /// A hit lies on an edge or vertex if its smallest barycentric is at most this.
 constexpr float kEdgeBarycentric = 1e-5f;
 bool on_edge(const Hit& h);
 
 /// Two closest-hit answers for the same ray. Same prim (or both miss): equal, whatever t
 /// (t differences of one prim are measured apart, see Comparison::max_t_ulps). Different prims:
-/// a tie if both hit within 4 ulp of each other or the nearer hit lies on an edge/vertex
+/// a tie if both hit within kTieUlps of each other or the nearer hit lies on an edge/vertex
 /// (another triangle sharing it may win by rounding), else a mismatch.
 Verdict compare_hits(const Hit& a, const Hit& b);
 
 /// Two any-hit answers; `closest` is a closest-hit answer for the same ray (e.g. brute force):
-/// a difference is a tie when that hit is on an edge or within 4 ulp of tmin/tmax.
+/// a difference is a tie when that hit is on an edge or within kTieUlps of tmin/tmax.
 Verdict compare_occlusion(std::uint8_t a, std::uint8_t b, const Hit& closest, const Ray& ray);
 
 /// The run-time-vs-error benchmark's verdict on answer `a` against the oracle's `o` for `ray`:
 /// stricter than compare_hits, which forgives any miss next to an edge. Wrong when one hits and the
-/// other does not (unless the hit lies within 4 ulp of tmin or tmax, the interval's closed ends) —
+/// other does not (unless the hit lies within kTieUlps of tmin or tmax, the interval's closed ends) —
 /// a ray leaking through a shared edge is wrong; or when both hit at distances more than 2^-10
 /// apart relative to the distance (another surface). Another prim at the same distance (the
 /// neighbour across a shared edge, coplanar triangles) is right.

@@ -43,11 +43,54 @@ void Backend::prepare(const Accel& acc, const TraceOptions& opt) {
   do_prepare(acc, opt);
 }
 
+namespace {
+
+constexpr Layout kLayouts[] = {Layout::mbvh2, Layout::mbvh4, Layout::mbvh8};
+constexpr Traversal kTraversals[] = {Traversal::stack,         Traversal::bitstack,         Traversal::stack_ordered,
+                                     Traversal::bitstack_retest, Traversal::packet_ranged, Traversal::packet_partition,
+                                     Traversal::packet};
+constexpr Precision kPrecisions[] = {Precision::robust, Precision::exact, Precision::fast};
+
+// The names of `all` that `keep` holds for, comma-separated.
+template <class T, std::size_t N, class Keep>
+std::string names_of(const T (&all)[N], Keep keep) {
+  std::string list;
+  for (T x : all)
+    if (keep(x)) list += (list.empty() ? "" : ", ") + std::string(to_string(x));
+  return list;
+}
+
+// Throws Error when `b` lacks opt's layout / traversal pair or its precision, naming what it has.
+void refuse_unsupported(const Backend& b, const TraceOptions& opt) {
+  if (!b.supports(opt.layout, opt.traversal)) {
+    const std::string there = names_of(kTraversals, [&](Traversal t) { return b.supports(opt.layout, t); });
+    const std::string layouts = names_of(kLayouts, [&](Layout l) {
+      return names_of(kTraversals, [&](Traversal t) { return b.supports(l, t); }) != "";
+    });
+    throw Error(b.name() + ": traversal '" + to_string(opt.traversal) + "' is not implemented for " +
+                to_string(opt.layout) + (there.empty() ? " (its layouts: " + layouts : " (its traversals there: " + there) +
+                ")");
+  }
+  if (!b.supports_precision(opt.precision))
+    throw Error(b.name() + ": precision '" + to_string(opt.precision) + "' is not available (its precisions: " +
+                names_of(kPrecisions, [&](Precision p) { return b.supports_precision(p); }) + ")");
+}
+
+}  // namespace
+
 void Backend::trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) {
+  // -- checks, each naming this backend
   check_trace_options(opt, name());
+  refuse_unsupported(*this, opt);
   check_ray_range(acc, rays, name());
+  // -- the build prepared, the output sized; then the backend's own part
   std::lock_guard<std::mutex> lock(mutex_);
-  do_trace(acc, rays, opt, out);
+  device_seconds_ = -1;
+  const TraceOptions o = with_leaves_of(*this, opt);
+  do_prepare(acc, o);
+  out.resize_for(rays.size(), o);
+  if (rays.empty()) return;
+  trace_batch(acc, rays, o, out);
 }
 
 std::string BackendOptions::get(const std::string& name, const std::string& fallback) const {
@@ -104,6 +147,20 @@ void check_settings(const BackendInfo& b, const BackendOptions& opt, const std::
 }
 
 }  // namespace
+
+std::vector<std::string> runnable_backends(std::vector<std::string>* left_out) {
+  std::vector<std::string> names;
+  const auto leave = [&](const BackendInfo& b, const std::string& why) {
+    if (left_out) left_out->push_back(b.name + ": " + why);
+  };
+  for (const BackendInfo& b : list_backends()) {
+    if (!b.make) leave(b, "not built: " + b.unavailable);
+    else if (!b.alias_of.empty()) leave(b, "stands for " + b.alias_of + " here (listed under that name)");
+    else if (const std::string why = b.missing_hardware ? b.missing_hardware() : ""; !why.empty()) leave(b, why);
+    else names.push_back(b.name);
+  }
+  return names;
+}
 
 std::unique_ptr<Backend> make_backend(const std::string& name, const BackendOptions& opt) {
   const std::vector<BackendInfo> all = list_backends();

@@ -17,6 +17,7 @@
 #include "mbvh/backend.h"
 #include "host/core/compare.h"
 #include "host/core/parallel.h"
+#include "host/tools/stats.h"
 #include "host/tools/variants.h"
 
 #ifndef MBVH_COMPILE_FLAGS
@@ -177,7 +178,7 @@ std::string BenchReport::csv() const {
   return out;
 }
 
-// Mrays/s of `r` over that of the record of `backend` / `traversal` on r's layout, query and
+// The speed of `r` over that of the record of `backend` / `traversal` on r's layout, query and
 // rays; 0 when that record was not run.
 static double speed_ratio(const std::vector<BenchRecord>& all, const BenchRecord& r, const std::string& backend,
                           const std::string& traversal) {
@@ -189,8 +190,6 @@ static double speed_ratio(const std::vector<BenchRecord>& all, const BenchRecord
 }
 
 namespace {
-
-using Clock = std::chrono::steady_clock;
 
 // One ray kind's rays and what every variant on them is checked against: the oracle's rules, the
 // brute force on a spread subset (BenchOptions::error_rays) and, per query, the reference answer.
@@ -259,8 +258,9 @@ void verify(const KindRays& k, const TraceOutput& out, const TraceOptions& to, B
       r.leaks += out.hits[i].prim == MBVH_MISS_PRIM && ray_valid(k.rays[i]);
 }
 
-// One variant's timing: its backends and options, and its passes' Mrays/s by the host's clock,
-// on one thread (`single`, --scaling) and by the device's clock where the backend measures it.
+// One variant's timing: its backends and options, and its passes' speeds (million rays per
+// second) by the host's clock, on one thread (`single`, --scaling) and by the device's clock where
+// the backend measures it.
 struct Timing {
   Backend* b;
   Backend* single;
@@ -290,18 +290,13 @@ void time_pass(const Accel& acc, const std::vector<Ray>& rays, Timing& v, TraceO
 }
 
 // The median and spread of a variant's passes into its record.
-void finish_timing(Timing& v, BenchRecord& r) {
-  std::sort(v.mr.begin(), v.mr.end());
-  r.mrays_per_s = v.mr[v.mr.size() / 2];
-  r.mrays_min = v.mr.front();
-  r.mrays_max = v.mr.back();
-  if (v.md.size() == v.mr.size()) {  // every pass measured
-    std::sort(v.md.begin(), v.md.end());
-    r.device_mrays_per_s = v.md[v.md.size() / 2];
-  }
+void finish_timing(const Timing& v, BenchRecord& r) {
+  r.mrays_per_s = median(v.mr);
+  r.mrays_min = *std::min_element(v.mr.begin(), v.mr.end());
+  r.mrays_max = *std::max_element(v.mr.begin(), v.mr.end());
+  if (v.md.size() == v.mr.size()) r.device_mrays_per_s = median(v.md);  // every pass measured
   if (v.single) {
-    std::sort(v.m1.begin(), v.m1.end());
-    r.mrays_one_thread = v.m1[v.m1.size() / 2];
+    r.mrays_one_thread = median(v.m1);
     r.thread_scaling = r.mrays_per_s / r.mrays_one_thread;
   }
 }

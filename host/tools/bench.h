@@ -1,7 +1,7 @@
 // SPDX-License-Identifier: MIT
 // bench.h — the benchmark protocol of DESIGN.md (first cut): for every backend x layout x
 // traversal x query x ray kind, verify against the reference, warm up, time >= 5 passes, report
-// the median Mrays/s with its spread, the traversal state per ray and the work per ray.
+// the median speed (million rays per second) with its spread, the traversal state per ray and the work per ray.
 #pragma once
 #include <functional>
 #include <string>
@@ -10,6 +10,7 @@
 #include "mbvh/accel.h"
 #include "mbvh/backend.h"
 #include "host/tools/raygen.h"
+#include "host/tools/variants.h"
 #include "mbvh/trace.h"
 
 namespace mbvh {
@@ -62,8 +63,8 @@ struct BenchRecord {
   std::size_t wrong_answers = 0;
   /// `inside` rays (from inside a closed mesh: every one must hit) that missed: leaks.
   std::size_t leaks = 0;
-  double ratio_vs_stack = 0;            ///< Mrays/s of this record / its stack twin (bitstack rows)
-  double ratio_vs_cpu = 0;              ///< Mrays/s of this record / the `cpu` backend's on the same variant
+  double ratio_vs_stack = 0;            ///< speed of this record / its stack twin (bitstack rows)
+  double ratio_vs_cpu = 0;              ///< speed of this record / the `cpu` backend's on the same variant
   double mrays_one_thread = 0;          ///< with BenchOptions::scaling: the median on one thread
   double thread_scaling = 0;            ///< mrays_per_s / mrays_one_thread (0: not measured)
   /// Whether the timed result passed verification: no genuine mismatch, except in the fast mode,

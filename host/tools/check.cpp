@@ -129,14 +129,15 @@ TieRule oracle_tie_rule(const Accel& acc, std::span<const Ray> rays) {
     if (a.prim == MBVH_MISS_PRIM || oracle.prim == MBVH_MISS_PRIM) {  // a lone hit at the interval's ends
       const Hit& h = a.prim == MBVH_MISS_PRIM ? oracle : a;
       if (h.prim == MBVH_MISS_PRIM) return false;  // no hit at all (t = inf is not "at" tmax = inf)
-      return ulp_distance(h.t, ray_in.tmin) <= 4 || ulp_distance(h.t, ray_in.tmax) <= 4;
+      return ulp_distance(h.t, ray_in.tmin) <= kTieUlps || ulp_distance(h.t, ray_in.tmax) <= kTieUlps;
     }
-    // two hits on other prims, the nearer within 4 ulp of tmin (the float test accepted it and
-    // the double one put it just before tmin, or the reverse) or the farther within 4 ulp of tmax
-    if (ulp_distance(std::min(a.t, oracle.t), ray_in.tmin) <= 4 || ulp_distance(std::max(a.t, oracle.t), ray_in.tmax) <= 4)
+    // two hits on other prims, the nearer within kTieUlps of tmin (the float test accepted it and
+    // the double one put it just before tmin, or the reverse) or the farther within kTieUlps of tmax
+    if (ulp_distance(std::min(a.t, oracle.t), ray_in.tmin) <= kTieUlps ||
+        ulp_distance(std::max(a.t, oracle.t), ray_in.tmax) <= kTieUlps)
       return true;
     const Tri* ta = tri_of(a);  // coplanar overlap: a's prim at the oracle's distance
-    return ta && ulp_distance(static_cast<float>(plane_t_double(r, *ta)), oracle.t) <= 4;
+    return ta && ulp_distance(static_cast<float>(plane_t_double(r, *ta)), oracle.t) <= kTieUlps;
   };
 }
 

@@ -11,6 +11,7 @@
 #include "mbvh/accel.h"
 #include "mbvh/backend.h"
 #include "host/core/compare.h"
+#include "host/tools/variants.h"
 #include "mbvh/trace.h"
 
 namespace mbvh {

@@ -1,16 +1,31 @@
 // SPDX-License-Identifier: MIT
-// variants.h — the walk over a VariantGrid that check and bench share: every query x precision x
-// backend x layout x traversal a backend supports, in one order, written once.
+// variants.h — the grid of traversal variants that check and bench walk (VariantGrid), and the
+// walk itself: every query x precision x backend x layout x traversal a backend supports, in one
+// order, written once.
 #pragma once
 #include <functional>
 #include <map>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "mbvh/backend.h"
 #include "mbvh/trace.h"
 
 namespace mbvh {
+
+/// A set of traversal variants: every backend x layout x traversal x query combination.
+struct VariantGrid {
+  std::vector<std::string> backends{"cpu-scalar"};
+  std::vector<Layout> layouts{Layout::mbvh2, Layout::mbvh4, Layout::mbvh8};
+  std::vector<Traversal> traversals{Traversal::stack, Traversal::bitstack, Traversal::stack_ordered,
+                                    Traversal::bitstack_retest};
+  std::vector<Query> queries{Query::closest, Query::any};
+  std::vector<Precision> precisions{Precision::robust};
+  std::size_t size() const {
+    return backends.size() * layouts.size() * traversals.size() * queries.size() * precisions.size();
+  }
+};
 
 /// The grid's backends by name, each started once with `options` (throws Error naming a backend
 /// that is unknown, not built or cannot start).

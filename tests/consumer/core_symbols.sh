@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # SPDX-License-Identifier: MIT
-# core_symbols.sh CORE_LIB CPU_LIB — `nm -C` on the core library shows no
+# core_symbols.sh CORE_LIB CPU_LIB — the core links no backend: `nm -C` on the core library shows no
 # backend symbol (defined or referenced). The same pattern must find the cpu backend's symbols in
 # CPU_LIB, so the check is known to see what it looks for.
 set -euo pipefail

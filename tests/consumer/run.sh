@@ -4,10 +4,12 @@
 #   1. full: `cmake --install BUILD` into WORK/full, then examples/trace_scene.cpp built against it
 #      with find_package(mbvh COMPONENTS cpu opencl vulkan embree) and run; the same file built
 #      with `g++ -std=c++20 $(pkg-config --cflags --libs --static mbvh)` and run;
-#   2. add_subdirectory, CPU-only, shared libraries: the consumer project adds mbvh's source tree
+#   2. the core alone: a program including <mbvh/mbvh.h> builds against libmbvh_core only, and
+#      the backends' registration calls are not declared there (they are <mbvh/backends.h>'s);
+#   3. add_subdirectory, CPU-only, shared libraries: the consumer project adds mbvh's source tree
 #      with OpenCL, Vulkan and Embree made unfindable (CMAKE_DISABLE_FIND_PACKAGE_*: AUTO must
 #      build without them) and without setting C++20 itself, builds and runs the example;
-#   3. CPU-only find_package: that build installed into WORK/cpu, the example built against it
+#   4. CPU-only find_package: that build installed into WORK/cpu, the example built against it
 #      with find_package(mbvh COMPONENTS cpu) and run; find_package(mbvh COMPONENTS opencl) must
 #      fail there with a message naming the missing component.
 set -euo pipefail
@@ -45,6 +47,31 @@ g++ -std=c++20 -O1 -o "$WORK/pc-example" "$ROOT/examples/trace_scene.cpp" \
   $(PKG_CONFIG_PATH="$WORK/full/lib/pkgconfig" pkg-config --cflags --libs --static mbvh)
 "$WORK/pc-example"
 ok "pkg-config --cflags --libs --static mbvh"
+
+step "the core alone: <mbvh/mbvh.h> declares only what mbvh::core defines"
+cat > "$WORK/core-only.cpp" <<'EOF'
+#include <mbvh/mbvh.h>
+#include <cmath>
+int main() {  // a build and the reference traversal, no backend registered
+  mbvh::Scene scene;
+  scene.vertices = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}};
+  scene.triangles = {{0, 1, 2}};
+  const auto acc = mbvh::Accel::build(scene);
+  const mbvh::Ray ray{0.25f, 0.25f, 1, 0, 0, 0, -1, INFINITY};
+  mbvh::TraceOutput out;
+  mbvh::trace_reference(*acc, {&ray, 1}, {}, out, 1);
+  return out.hits[0].prim == 0 && mbvh::list_backends().empty() ? 0 : 1;
+}
+EOF
+g++ -std=c++20 -O1 -I"$WORK/full/include" -o "$WORK/core-only" "$WORK/core-only.cpp" -L"$WORK/full/lib" -lmbvh_core \
+  -lzstd -pthread
+"$WORK/core-only"
+printf '#include <mbvh/mbvh.h>\nint main() { mbvh::register_builtin_backends(); }\n' > "$WORK/core-register.cpp"
+if g++ -std=c++20 -fsyntax-only -I"$WORK/full/include" "$WORK/core-register.cpp" 2>/dev/null; then
+  echo "error: <mbvh/mbvh.h> declares register_builtin_backends, which mbvh::core does not define" >&2
+  exit 1
+fi
+ok "the core alone: <mbvh/mbvh.h> built against mbvh_core only; the registration calls are <mbvh/backends.h>'s"
 
 step "add_subdirectory, CPU-only (OpenCL, Vulkan, Embree unfindable), shared libraries"
 cmake -S "$CONSUMER" -B "$WORK/sub" -G Ninja -DCMAKE_BUILD_TYPE=Release -DMBVH_SOURCE_DIR="$ROOT" \

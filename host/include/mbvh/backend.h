@@ -67,11 +67,14 @@ public:
   /// repeated calls with the same build are free). Called by trace() if not done before.
   /// Checks `opt` first (check_trace_options, naming this backend).
   void prepare(const Accel& acc, const TraceOptions& opt);
-  /// Traces `rays`, filling `out` in ray order (TraceOutput). Throws Error on failure. Checks
-  /// `opt` first (check_trace_options, naming this backend). One backend object may be used from
-  /// several threads: its prepare and trace calls take the object's lock, so they run one at a
-  /// time (a CPU backend still spreads each call over its workers); for calls that overlap, use
-  /// one backend object per thread.
+  /// Traces `rays`, filling `out` in ray order (TraceOutput). Throws Error on failure. First, for
+  /// every backend alike: checks `opt` (check_trace_options), refuses a layout / traversal pair
+  /// or a precision the backend lacks (supports, supports_precision) and a ray outside the exactly
+  /// traced range (check_ray_range), each Error naming this backend; then prepares (prepare) and
+  /// sizes `out`; an empty batch ends there. One backend object may be used from several threads:
+  /// its prepare and trace calls take the object's lock, so they run one at a time (a CPU backend
+  /// still spreads each call over its workers); for calls that overlap, use one backend object
+  /// per thread.
   void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out);
   /// The instruction set the traversal runs on a CPU backend ("scalar", "avx2", "avx512"); ""
   /// for a device backend or a library that picks its own (the device line says more).
@@ -83,7 +86,7 @@ public:
   /// dispatches (every batch), in seconds, by the device's own clock (OpenCL event profiling,
   /// Vulkan timestamps); excludes ray uploads, hit downloads and host copies. Negative when the
   /// backend does not measure it (CPU backends, a device without timestamps) or has not traced.
-  virtual double last_device_seconds() const { return -1; }
+  double last_device_seconds() const { return device_seconds_; }
   /// The leaf block (TraceOptions::leaf_block) this backend traces for `opt`: opt.leaf_block where
   /// it has leaf variants and it is set, else its own choice; a backend without variants traces
   /// the build's own leaves (1) whatever is asked. Compare a backend with the reference at this
@@ -95,12 +98,18 @@ public:
 protected:
   /// What prepare() does, with `opt` checked and the object's lock held.
   virtual void do_prepare(const Accel& acc, const TraceOptions& opt) = 0;
-  /// What trace() does, with `opt` checked and the object's lock held (call do_prepare, not
-  /// prepare, from here: the lock is not recursive).
-  virtual void do_trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) = 0;
+  /// What trace() does after its common part: traces a non-empty batch, with `opt` checked and
+  /// supported, its leaf_block the one this backend traces (with_leaves_of), the build prepared
+  /// (do_prepare), `out` sized for `rays` (TraceOutput::resize_for: contents unspecified; a
+  /// backend that does not write every ray's answer resets it) and the object's lock held (so
+  /// never prepare or trace from here: the lock is not recursive).
+  virtual void trace_batch(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) = 0;
+  /// Sets last_device_seconds() for the trace in progress (trace() clears it to -1 first).
+  void set_device_seconds(double s) { device_seconds_ = s; }
 
 private:
   std::mutex mutex_;  ///< serialises prepare and trace on one object (its device state, its caches)
+  double device_seconds_ = -1;  ///< last_device_seconds()
 };
 
 /// `opt` with leaf_block set to what `b` traces for it: the options the reference (cpu-scalar,
@@ -109,19 +118,6 @@ inline TraceOptions with_leaves_of(const Backend& b, TraceOptions opt) {
   opt.leaf_block = b.leaf_block(opt);
   return opt;
 }
-
-/// A set of traversal variants: every backend x layout x traversal x query combination.
-struct VariantGrid {
-  std::vector<std::string> backends{"cpu-scalar"};
-  std::vector<Layout> layouts{Layout::mbvh2, Layout::mbvh4, Layout::mbvh8};
-  std::vector<Traversal> traversals{Traversal::stack, Traversal::bitstack, Traversal::stack_ordered,
-                                    Traversal::bitstack_retest};
-  std::vector<Query> queries{Query::closest, Query::any};
-  std::vector<Precision> precisions{Precision::robust};
-  std::size_t size() const {
-    return backends.size() * layouts.size() * traversals.size() * queries.size() * precisions.size();
-  }
-};
 
 using BackendFactory = std::function<std::unique_ptr<Backend>(const BackendOptions&)>;
 
@@ -149,6 +145,12 @@ struct BackendInfo {
 void register_backend(BackendInfo info);
 /// Every backend known to this binary, built or not, in registration order.
 std::vector<BackendInfo> list_backends();
+/// The backends that can start on this machine, each once under its own name, in registration
+/// order: built into this binary, its hardware there (BackendInfo::missing_hardware), and not a
+/// second name of another (BackendInfo::alias_of: `cpu` is listed as the ISA backend it stands
+/// for). A listed backend that then fails to start has a fault (a driver, a device), not missing
+/// hardware. `left_out`, if given, gets "NAME: why" for every other registered name. Starts none.
+std::vector<std::string> runnable_backends(std::vector<std::string>* left_out = nullptr);
 /// Makes a backend by name; throws Error naming the known backends, or saying why a known
 /// backend is not built or cannot start, or naming a setting of `opt` that no backend of its
 /// family declares (BackendOptions).

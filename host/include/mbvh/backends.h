@@ -1,6 +1,7 @@
 // SPDX-License-Identifier: MIT
-// backends.h — registering the backends of this build. The core (mbvh::core) knows no backend:
-// a program registers the ones it links, once, before make_backend or list_backends.
+// backends.h — registering the backends of this build, for a program that links them (not
+// included by mbvh/mbvh.h: the core, mbvh::core, defines none of these). The core knows no
+// backend: a program registers the ones it links, once, before make_backend or list_backends.
 //   mbvh::register_builtin_backends();   // mbvh::mbvh: every backend this build has
 //   mbvh::register_cpu_backends();       // mbvh::cpu only: cpu-scalar, cpu, cpu-avx2, cpu-avx512
 // Registering twice replaces the entries (harmless). Thread-safe.

@@ -1,9 +1,10 @@
 // SPDX-License-Identifier: MIT
-// mbvh.h — the one header a user includes: scenes (mbvh/scene.h), the build (mbvh/accel.h),
-// rays, hits and trace options (mbvh/trace.h), backends and their registry (mbvh/backend.h,
-// mbvh/backends.h), the caller's meshes, geometry-id hits and one-ray calls (mbvh/geometry.h), the
+// mbvh.h — the core's one header (mbvh::core): scenes (mbvh/scene.h), the build (mbvh/accel.h),
+// rays, hits and trace options (mbvh/trace.h), the backend interface and its registry
+// (mbvh/backend.h), the caller's meshes, geometry-id hits and one-ray calls (mbvh/geometry.h), the
 // ray / hit files (mbvh/rays.h), errors (mbvh/error.h) and the version (mbvh/version.h:
-// MBVH_VERSION_STRING, mbvh::version()).
+// MBVH_VERSION_STRING, mbvh::version()). The calls that register backends are defined by the
+// backend libraries, not the core: a program that links them includes <mbvh/backends.h> too.
 //
 // Rules: every function throws mbvh::Error on failure (never exits). An Accel is immutable after
 // build (refit excepted) and may be traced from several threads at once; a Backend object may be
@@ -15,7 +16,6 @@
 #pragma once
 #include "mbvh/accel.h"
 #include "mbvh/backend.h"
-#include "mbvh/backends.h"
 #include "mbvh/config.h"
 #include "mbvh/error.h"
 #include "mbvh/geometry.h"
