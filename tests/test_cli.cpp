@@ -168,7 +168,7 @@ TEST_CASE("mbvh gives clear errors and non-zero exit codes", "[cli]") {
   r = run_cli("trace gen:sphere:16 --backend vulkan --layout mbvh4 --traversal bitstack-retest");
   CHECK(r.code != 0);
 #ifdef MBVH_HAVE_VULKAN
-  CHECK_THAT(r.output, Catch::Contains("backend 'vulkan' does not support mbvh4/bitstack-retest"));  // no variant B
+  CHECK_THAT(r.output, Catch::Contains("backend 'vulkan' does not support mbvh4/bitstack-retest"));  // no bitstack-retest
 #else
   CHECK_THAT(r.output, Catch::Contains("backend 'vulkan' is not available"));
 #endif

@@ -518,7 +518,7 @@ TEST_CASE("statistics count work and stay out of the answers", "[traversal][isa]
     CHECK(std::memcmp(plain.hits.data(), counted.hits.data(), rays.size() * sizeof(Hit)) == 0);
     REQUIRE(counted.stats.size() == rays.size());
     double climbs = 0, nodes = 0;
-    if (l == Layout::mbvh4) {  // variant B against its ordered-stack twin: same work, plus re-tests
+    if (l == Layout::mbvh4) {  // bitstack-retest against its ordered-stack twin: same work, plus re-tests
       TraceOutput retest, ordered;
       trace_reference(*acc, rays, TraceOptions{l, Traversal::bitstack_retest, Query::closest, true}, retest, 0);
       trace_reference(*acc, rays, TraceOptions{l, Traversal::stack_ordered, Query::closest, true}, ordered, 0);

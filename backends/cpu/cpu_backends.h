@@ -8,7 +8,7 @@
 
 namespace mbvh {
 
-/// One ISA's compiled kernels (backends/cpu/simd_kernels.cpp, built once per ISA). Only call
+/// One ISA's compiled kernels (backends/cpu/isa_kernels.cpp, built once per ISA). Only call
 /// `trace` after CPUID says the ISA is there.
 struct CpuKernels {
   const char* isa;

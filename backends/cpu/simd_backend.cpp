@@ -1,6 +1,6 @@
 // SPDX-License-Identifier: MIT
 // simd_backend.cpp — the `cpu` backends: `cpu-avx2` and `cpu-avx512` run the per-ISA kernels of
-// simd_kernels.cpp; `cpu` picks the best this machine has, chosen once from CPUID. Forcing an
+// isa_kernels.cpp; `cpu` picks the best this machine has, chosen once from CPUID. Forcing an
 // ISA the machine lacks fails with a clear message. MBVH_CPU_ISA=avx2 caps the ISA (as Embree's
 // `isa=` setting does): the AVX-512 kernels then count as absent, as on an AVX2-only machine.
 #include <cstdlib>

@@ -29,6 +29,7 @@
 #include "mbvh/backend.h"
 #include "mbvh/error.h"
 #include "host/core/parallel.h"
+#include "host/core/trace/batch.h"  // kTraceChunk
 #include "host/core/trace/intersect.h"
 
 namespace mbvh {
@@ -181,12 +182,12 @@ public:
     std::vector<std::size_t> invalid(threads_, 0);         // per worker
     std::vector<std::size_t> too_large(threads_, SIZE_MAX);  // per worker: the first ray Embree refuses
     if (opt.traversal == Traversal::packet) {
-      parallel_for(rays.size(), 2048, threads_, [&](std::size_t b, std::size_t e, unsigned worker) {
+      parallel_for(rays.size(), kTraceChunk, threads_, [&](std::size_t b, std::size_t e, unsigned worker) {
         if (packet_ == 4) trace_packets<RTCRayHit4, RTCRay4, 4>(scene, rays, b, e, any, out, invalid[worker], too_large[worker]);
         else if (packet_ == 16) trace_packets<RTCRayHit16, RTCRay16, 16>(scene, rays, b, e, any, out, invalid[worker], too_large[worker]);
         else trace_packets<RTCRayHit8, RTCRay8, 8>(scene, rays, b, e, any, out, invalid[worker], too_large[worker]);
       });
-    } else parallel_for(rays.size(), 2048, threads_, [&](std::size_t b, std::size_t e, unsigned worker) {
+    } else parallel_for(rays.size(), kTraceChunk, threads_, [&](std::size_t b, std::size_t e, unsigned worker) {
       RTCIntersectContext ctx;
       rtcInitIntersectContext(&ctx);
       for (std::size_t i = b; i < e; ++i) {

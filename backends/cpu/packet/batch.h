@@ -34,7 +34,7 @@ inline void trace_one_packet(const TraceView& v, packet::Packet& P, bool partiti
 
 /// The packet traversals' batch driver: rays in arrival order, MBVH_PACKET_RAYS at a time; a
 /// coherent packet walks the MBVH2 nodes of the leaves traced, an incoherent one goes ray by ray
-/// through opt.layout (the hybrid switch, packet.h).
+/// through opt.layout (the hybrid switch, packet/packet.h).
 template <class K>
 void trace_packets(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out, unsigned threads,
                    bool hybrid) {

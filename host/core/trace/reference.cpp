@@ -113,7 +113,7 @@ static void require_supported(const TraceOptions& opt) {
   check_trace_options(opt, "cpu-scalar");
   if (!reference_supports(opt.layout, opt.traversal))
     throw Error(std::string("traversal '") + to_string(opt.traversal) + "' is not defined for layout " + to_string(opt.layout) +
-                " (variant B is an MBVH4 traversal; MBVH2 has no ordered stack)");
+                " (bitstack-retest is an MBVH4 traversal; MBVH2 has no ordered stack)");
 }
 
 template <class K>
