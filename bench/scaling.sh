@@ -16,7 +16,11 @@ mkdir -p "$OUT"
 use_matplotlib
 # every backend that starts here but the ISA and OpenCL-mapping variants: `cpu` stands for the
 # best ISA, `opencl` for the device's mapping
-BACKENDS="$("$MBVH" devices --ready | grep -vx -e 'cpu-avx[0-9]*' -e 'opencl-wide' -e 'opencl-lane' | paste -sd, -)"
+ready="$("$MBVH" devices --ready 2>/dev/null || true)"
+BACKENDS="$(grep -vx -e 'cpu-avx[0-9]*' -e 'opencl-wide' -e 'opencl-lane' <<<"$ready" | paste -sd, -)"
+for alias in cpu opencl; do  # each alias once, where what it stands for starts here
+  "$MBVH" devices --resolve "$alias" > /dev/null 2>&1 && BACKENDS="$BACKENDS,$alias"
+done
 echo "backends: $BACKENDS" >&2
 for n in 10000 30000 100000 300000 1000000 3000000 10000000; do
   [ "$n" -le "$MAX" ] || break
