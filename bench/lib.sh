@@ -36,14 +36,15 @@ use_matplotlib() {
 
 # run_queries NAME SCENE CAMERA ARGS...: `mbvh bench SCENE` with ARGS twice, closest hit on
 # CLOSEST_KINDS (default primary,diffuse) and any hit on shadow rays: OUT/NAME-closest.json and
-# OUT/NAME-any.json, with the text tables beside them (.txt)
+# OUT/NAME-any.json, with the text tables beside them (.txt) and on standard error
 run_queries() {
   local name="$1" scene="$2" camera="$3" kinds="${CLOSEST_KINDS:-primary,diffuse}"
   shift 3
   log "$name: closest hit on $kinds rays, any hit on shadow rays"
   # shellcheck disable=SC2086  # the camera is words
   "$MBVH" bench "$scene" "$@" --query closest --kinds "$kinds" $camera --json "$OUT/$name-closest.json" \
-    > "$OUT/$name-closest.txt"
+    | tee "$OUT/$name-closest.txt" >&2
   # shellcheck disable=SC2086
-  "$MBVH" bench "$scene" "$@" --query any --kinds shadow $camera --json "$OUT/$name-any.json" > "$OUT/$name-any.txt"
+  "$MBVH" bench "$scene" "$@" --query any --kinds shadow $camera --json "$OUT/$name-any.json" \
+    | tee "$OUT/$name-any.txt" >&2
 }

@@ -117,7 +117,7 @@ def speed_tables(directory):
             print(f"| {b} | {l} | {t} | {st if st else 'internal'} | " + " | ".join(cells) +
                   f" | {f'{vs:.2f}x' if vs else ''} |")
         print()
-    # traversal state: capacity and the measured high-water mark, against the bitstack's 12 bytes,
+    # traversal state: capacity and the measured high-water mark, against the bitstack's fixed state,
     # with the work per ray (Sponza's path rays, or the last scene's)
     pick = "sponza" if "sponza" in scenes else scenes[-1]
     print(f"#### Traversal state and work per ray ({pick}, the path tracer's bounce rays; each backend counts "

@@ -127,7 +127,7 @@ struct RayPre {
 float pick(vec3 v, int k) { return k == 0 ? v.x : k == 1 ? v.y : v.z; }
 vec3 permute(RayPre r, vec3 v) { return vec3(pick(v, r.kx), pick(v, r.ky), pick(v, r.kz)); }
 
-/* Per-ray counters, written as a StatsRecord (retests stay 0: no variant B here) */
+/* Per-ray counters, written as a StatsRecord (retests stay 0: no bitstack-retest here) */
 uint st_nodes = 0u, st_boxes = 0u, st_leaves = 0u, st_tris = 0u, st_climbs = 0u, st_depth = 0u;
 
 /* a / b correctly rounded (see the header comment) */

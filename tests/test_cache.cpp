@@ -158,7 +158,7 @@ TEST_CASE("mbvh --cache builds once and reports a damaged cache file", "[cache][
 }
 
 // At the size a user meets: a 5M-triangle scene traced twice with --cache builds once,
-// and a damaged cache file is detected (about 30 s here; the Release stage only)
+// and a damaged cache file is detected (slow: the Release stage only)
 TEST_CASE("mbvh --cache on a 5M-triangle hairball builds once and detects a damaged file", "[cache][cli][large][heavy]") {
   cache_roundtrip("gen:hairball:5000000");
 }

@@ -37,6 +37,7 @@
 
 // -- from here on, functions are compiled for the ISA
 MBVH_ISA_BEGIN
+#define MBVH_IN_ISA_REGION 1  // the kernel headers refuse to be included anywhere else
 
 // The engine's templates are defined here, not at the baseline ISA: a template is compiled with
 // the target of its definition, and the box test and leaves could then not be inlined into it.
@@ -75,6 +76,7 @@ void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt,
 }  // namespace MBVH_ISA_NS
 }  // namespace mbvh
 
+#undef MBVH_IN_ISA_REGION
 MBVH_ISA_END
 
 namespace mbvh {

@@ -49,6 +49,7 @@ public:
            (hybrid_ ? "" : " (no hybrid switch)") + ", " + std::to_string(threads_) + " thread(s)";
   }
   std::string isa() const override { return kernels_.isa; }
+  std::string runs_as() const override { return std::string("cpu-") + kernels_.isa; }
   bool supports(Layout l, Traversal t) const override { return reference_supports(l, t); }
   bool supports_precision(Precision) const override { return true; }
   /// Leaves regrouped for the four-triangle SIMD leaf packs unless asked otherwise: fewer, fuller

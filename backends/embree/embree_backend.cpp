@@ -29,7 +29,6 @@
 #include "mbvh/backend.h"
 #include "mbvh/error.h"
 #include "host/core/parallel.h"
-#include "host/core/trace/batch.h"  // kTraceChunk
 #include "host/core/trace/intersect.h"
 
 namespace mbvh {

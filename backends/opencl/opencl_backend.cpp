@@ -110,6 +110,7 @@ public:
   }
 
   std::string name() const override { return name_; }
+  std::string runs_as() const override { return map_.wide ? "opencl-wide" : "opencl-lane"; }
   std::string describe() const override {
     return name_ + ": " + map_.describe() + "; OpenCL device " + dev_.describe();
   }

@@ -306,7 +306,7 @@ std::vector<std::string> device_lines() {
 void register_vulkan_backends() {
   BackendInfo info;
   info.name = "vulkan";
-  info.summary = "GPU-style MBVH2 and MBVH4 stack and bitstack traversal in a GLSL compute shader (lavapipe here)";
+  info.summary = "GPU-style MBVH2 and MBVH4 stack and bitstack traversal in a GLSL compute shader (any Vulkan 1.2 device)";
   info.make = [](const BackendOptions& o) -> std::unique_ptr<Backend> { return std::make_unique<VulkanBackend>(o); };
   info.devices = &device_lines;
   info.pending_problems = &vk::take_validation_messages;

@@ -54,9 +54,7 @@ int print_ready(const BackendOptions& opt) {
 // --resolve NAME: the backend NAME runs as here (`cpu`: cpu-avx512 or cpu-avx2), once it starts;
 // a backend that cannot start is an error, as everywhere.
 int print_resolved(const std::string& name, const BackendOptions& opt) {
-  make_backend(name, opt);
-  for (const BackendInfo& b : list_backends())
-    if (b.name == name) std::printf("%s\n", b.alias_of.empty() ? name.c_str() : b.alias_of.c_str());
+  std::printf("%s\n", make_backend(name, opt)->runs_as().c_str());
   return 0;
 }
 

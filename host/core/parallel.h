@@ -12,6 +12,8 @@ namespace mbvh {
 /// The most worker threads mbvh starts (`--threads` takes 0..kMaxThreads); a larger request is
 /// clamped to it, so any value is safe (per-thread arithmetic never overflows).
 inline constexpr unsigned kMaxThreads = 1024;
+/// Rays per work item of the trace batch drivers (a packet driver's chunks hold whole packets).
+inline constexpr std::size_t kTraceChunk = 2048;
 
 /// Number of worker threads to use for a request of `threads` (0 = every hardware thread), in
 /// [1, kMaxThreads].

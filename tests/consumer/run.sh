@@ -29,7 +29,7 @@ for f in include/mbvh/mbvh.h include/mbvh/config.h lib/cmake/mbvh/mbvhConfig.cma
   [ -e "$WORK/full/$f" ] || { echo "error: $WORK/full/$f was not installed" >&2; exit 1; }
 done
 # Outputs are captured before grep reads them: `cmd | grep -q` under pipefail fails at random when
-# grep exits at its first match and cmd is killed by SIGPIPE writing the rest (a CI run failed so).
+# grep exits at its first match and cmd is killed by SIGPIPE writing the rest.
 installed="$(ls "$WORK/full/include/mbvh")"
 if grep -qE "traverse|layouts|intersect" <<<"$installed"; then
   echo "error: private headers were installed: $(ls "$WORK/full/include/mbvh")" >&2

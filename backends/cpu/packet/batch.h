@@ -2,8 +2,10 @@
 // batch.h — the packet traversals' batch driver: rays MBVH_PACKET_RAYS at a time, a coherent
 // packet through its MBVH2 walk, an incoherent one ray by ray (the hybrid switch).
 #pragma once
-#ifndef MBVH_CPU_ISA
-#error "include from backends/cpu/isa_kernels.cpp only"
+// A kernel header: included only by backends/cpu/isa_kernels.cpp, inside its ISA region, after
+// <immintrin.h> and the core engine it builds on.
+#ifndef MBVH_IN_ISA_REGION
+#error "include from backends/cpu/isa_kernels.cpp only, between MBVH_ISA_BEGIN and MBVH_ISA_END"
 #endif
 
 #include "backends/cpu/packet/packet.h"

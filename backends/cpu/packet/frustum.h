@@ -2,8 +2,10 @@
 // frustum.h — a packet's frustum test of a box (Boulos, Wald & Shirley 2006: interval arithmetic
 // over the packet's origins and reciprocal directions), exact for every lane.
 #pragma once
-#ifndef MBVH_CPU_ISA
-#error "include from backends/cpu/isa_kernels.cpp only"
+// A kernel header: included only by backends/cpu/isa_kernels.cpp, inside its ISA region, after
+// <immintrin.h> and the core engine it builds on.
+#ifndef MBVH_IN_ISA_REGION
+#error "include from backends/cpu/isa_kernels.cpp only, between MBVH_ISA_BEGIN and MBVH_ISA_END"
 #endif
 
 #include "backends/cpu/packet/packet.h"

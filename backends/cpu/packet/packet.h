@@ -31,8 +31,10 @@
 // Hybrid (as Embree's hybrid traversal drops to single rays): a packet whose rays' unit
 // directions span kSpread or more on an axis has little coherence; it is traced ray by ray with
 #pragma once
-#ifndef MBVH_CPU_ISA
-#error "include from backends/cpu/isa_kernels.cpp only"
+// A kernel header: included only by backends/cpu/isa_kernels.cpp, inside its ISA region, after
+// <immintrin.h> and the core engine it builds on.
+#ifndef MBVH_IN_ISA_REGION
+#error "include from backends/cpu/isa_kernels.cpp only, between MBVH_ISA_BEGIN and MBVH_ISA_END"
 #endif
 
 #include "backends/cpu/simd/lanes.h"

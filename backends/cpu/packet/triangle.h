@@ -2,8 +2,10 @@
 // triangle.h — one triangle against a SIMD ray of a packet, lane by lane: the watertight test and
 // the fast mode's Möller–Trumbore on the single-ray leaves' lane cores (simd/triangle.h).
 #pragma once
-#ifndef MBVH_CPU_ISA
-#error "include from backends/cpu/isa_kernels.cpp only"
+// A kernel header: included only by backends/cpu/isa_kernels.cpp, inside its ISA region, after
+// <immintrin.h> and the core engine it builds on.
+#ifndef MBVH_IN_ISA_REGION
+#error "include from backends/cpu/isa_kernels.cpp only, between MBVH_ISA_BEGIN and MBVH_ISA_END"
 #endif
 
 #include "backends/cpu/packet/packet.h"

@@ -2,8 +2,10 @@
 // kernels.h — the SIMD cpu backends' kernel policy (SimdKernelsT): the reference's traversals
 // (host/core/trace) with four or eight boxes per node test and four or eight triangles per leaf pass.
 #pragma once
-#ifndef MBVH_CPU_ISA
-#error "include from backends/cpu/isa_kernels.cpp only"
+// A kernel header: included only by backends/cpu/isa_kernels.cpp, inside its ISA region, after
+// <immintrin.h> and the core engine it builds on.
+#ifndef MBVH_IN_ISA_REGION
+#error "include from backends/cpu/isa_kernels.cpp only, between MBVH_ISA_BEGIN and MBVH_ISA_END"
 #endif
 
 #include "backends/cpu/simd/box.h"

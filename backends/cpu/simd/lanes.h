@@ -2,8 +2,10 @@
 // lanes.h — 4 and 8 lanes of float (F4, F8: the width-generic operations the kernels are written
 // in), lane masks, horizontal reductions, the fast mode's FMA products and the MBVH8 push tables.
 #pragma once
-#ifndef MBVH_CPU_ISA
-#error "include from backends/cpu/isa_kernels.cpp only"
+// A kernel header: included only by backends/cpu/isa_kernels.cpp, inside its ISA region, after
+// <immintrin.h> and the core engine it builds on.
+#ifndef MBVH_IN_ISA_REGION
+#error "include from backends/cpu/isa_kernels.cpp only, between MBVH_ISA_BEGIN and MBVH_ISA_END"
 #endif
 
 namespace mbvh {

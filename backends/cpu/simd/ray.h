@@ -2,8 +2,10 @@
 // ray.h — the SIMD policies' ray: prepare_ray in vector registers and the per-ray constants the
 // kernels read (near and far plane offsets, the triangle test's permuted origin).
 #pragma once
-#ifndef MBVH_CPU_ISA
-#error "include from backends/cpu/isa_kernels.cpp only"
+// A kernel header: included only by backends/cpu/isa_kernels.cpp, inside its ISA region, after
+// <immintrin.h> and the core engine it builds on.
+#ifndef MBVH_IN_ISA_REGION
+#error "include from backends/cpu/isa_kernels.cpp only, between MBVH_ISA_BEGIN and MBVH_ISA_END"
 #endif
 
 #include "backends/cpu/simd/lanes.h"

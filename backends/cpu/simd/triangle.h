@@ -3,8 +3,10 @@
 // 2013) with pbrt-v3's error bound on t, and the fast mode's Möller–Trumbore; the lane cores are
 // shared with the packets (packet/triangle.h).
 #pragma once
-#ifndef MBVH_CPU_ISA
-#error "include from backends/cpu/isa_kernels.cpp only"
+// A kernel header: included only by backends/cpu/isa_kernels.cpp, inside its ISA region, after
+// <immintrin.h> and the core engine it builds on.
+#ifndef MBVH_IN_ISA_REGION
+#error "include from backends/cpu/isa_kernels.cpp only, between MBVH_ISA_BEGIN and MBVH_ISA_END"
 #endif
 
 #include "backends/cpu/simd/lanes.h"

@@ -16,9 +16,6 @@
 
 namespace mbvh {
 
-/// Rays per work item of the parallel batch drivers (a packet driver's chunks hold whole packets).
-inline constexpr std::size_t kTraceChunk = 2048;
-
 inline namespace MBVH_ISA_NS {
 
 /// Points `v` at `src`'s nodes of `layout` (src: the Accel, or one of its leaf variants; each

@@ -79,6 +79,9 @@ public:
   /// The instruction set the traversal runs on a CPU backend ("scalar", "avx2", "avx512"); ""
   /// for a device backend or a library that picks its own (the device line says more).
   virtual std::string isa() const { return ""; }
+  /// The registered backend this one runs as here: its own name, or for an alias (`cpu`,
+  /// `opencl`) the backend it stands for on this machine and device (`cpu-avx512`, `opencl-lane`).
+  virtual std::string runs_as() const { return name(); }
   /// A peer library (embree): its own BVH and triangle test, so its answers agree with
   /// cpu-scalar's up to classified ties (not bit for bit), and it has no per-ray counters.
   virtual bool peer() const { return false; }
