@@ -1,6 +1,7 @@
 // SPDX-License-Identifier: MIT
 // registry.cpp — the backend registry: names to factories. The core registers nothing: the
 // program (or the user) registers the backends it links (mbvh/backends.h).
+#include <algorithm>
 #include <charconv>
 #include <mutex>
 
@@ -39,8 +40,13 @@ std::vector<BackendInfo> list_backends() {
 
 bool backend_needs_hierarchy(const std::string& name) {
   std::lock_guard<std::recursive_mutex> lock(table_mutex());
-  for (const BackendInfo& b : table())
-    if (b.name == name) return b.needs_hierarchy;
+  std::string n = name;
+  for (int hops = 0; hops < 8; ++hops) {  // an alias (BackendInfo::alias_of) as the backend it stands for
+    const auto it = std::find_if(table().begin(), table().end(), [&](const BackendInfo& b) { return b.name == n; });
+    if (it == table().end()) return true;
+    if (!it->needs_hierarchy || it->alias_of.empty() || it->alias_of == n) return it->needs_hierarchy;
+    n = it->alias_of;
+  }
   return true;
 }
 
@@ -53,7 +59,7 @@ void refuse_flat_build(const Backend& b, const Accel& acc) {
   if (acc.has_hierarchy() || !backend_needs_hierarchy(b.name())) return;
   if (const std::string as = b.runs_as(); as != b.name() && !backend_needs_hierarchy(as)) return;
   throw Error(b.name() + ": this build has no hierarchy (quality none): only a backend that traces without one "
-              "(dacrt) traces it; build with quality low, medium or high for " + b.name());
+              "(dacrt) traces it; build with quality low, medium or high to trace it on " + b.name());
 }
 
 }  // namespace

@@ -161,7 +161,8 @@ std::vector<BackendInfo> list_backends();
 /// for). A listed backend that then fails to start has a fault (a driver, a device), not missing
 /// hardware. `left_out`, if given, gets "NAME: why" for every other registered name. Starts none.
 std::vector<std::string> runnable_backends(std::vector<std::string>* left_out = nullptr);
-/// BackendInfo::needs_hierarchy of the registered backend `name`; true for a name not registered.
+/// BackendInfo::needs_hierarchy of the registered backend `name` (false if the backend an alias
+/// stands for has it false); true for a name not registered.
 bool backend_needs_hierarchy(const std::string& name);
 /// Makes a backend by name; throws Error naming the known backends, or saying why a known
 /// backend is not built or cannot start, or naming a setting of `opt` that no backend of its
