@@ -182,7 +182,7 @@ TEST_CASE("every backend traces an empty batch and refuses a traversal or precis
     std::size_t refused = 0;
     for (Layout l : {Layout::mbvh2, Layout::mbvh4, Layout::mbvh8})
       for (Traversal t : {Traversal::stack, Traversal::bitstack, Traversal::stack_ordered, Traversal::bitstack_retest,
-                          Traversal::packet_ranged, Traversal::packet_partition, Traversal::packet}) {
+                          Traversal::packet_ranged, Traversal::packet_partition, Traversal::packet, Traversal::dacrt}) {
         INFO(to_string(l) << " " << to_string(t));
         if (!backend->supports(l, t)) {  // Backend::trace refuses it before the backend sees it
           TraceOutput out;

@@ -23,10 +23,12 @@ struct BenchArgs {
   std::vector<float> camera;
 };
 
-// The benchmark's options from the arguments.
-BenchOptions bench_options(const BenchArgs& a) {
+// The benchmark's options from the arguments; `scene` gets quality none when every backend is a
+// dacrt backend and --quality is not given.
+BenchOptions bench_options(const BenchArgs& a, SceneArgs& scene) {
   BenchOptions bo;
   bo.grid = a.grid.parse();
+  scene.no_hierarchy_for(bo.grid.backends);
   bo.kinds = parse_list<RayKind>(a.kinds, parse_ray_kind);
   bo.count = a.count;
   bo.error_rays = a.error_rays;
@@ -36,7 +38,7 @@ BenchOptions bench_options(const BenchArgs& a) {
   bo.first_layout = a.first_layout;
   bo.scaling = a.scaling;
   bo.threads = a.scene.threads;
-  bo.backend = a.grid.dev.options(a.scene.threads, a.scene.quality);
+  bo.backend = a.grid.dev.options(a.scene.threads, scene.quality);
   set_camera(a.camera, bo.has_camera, bo.camera);
   return bo;
 }
@@ -58,9 +60,10 @@ int run_bench_command(const BenchArgs& a) {
   const std::vector<OutputTarget> outs{{"--json", a.json, true}, {"--csv", a.csv, true}};
   prepare_outputs(outs, {{"scene", a.scene.scene}});
   // -- run
-  const BenchOptions bo = bench_options(a);
+  SceneArgs scene = a.scene;
+  const BenchOptions bo = bench_options(a, scene);
   require_ray_memory("--count " + std::to_string(a.count), std::uint64_t(a.count) + a.error_rays);
-  Loaded l = load_and_build(a.scene);
+  Loaded l = load_and_build(scene);
   Progress p("benchmarking", bo.kinds.size() * bo.grid.size());
   BenchReport rep = run_bench(l.scene, *l.acc, bo, [&p](std::size_t d, std::size_t) { p.update(d); });
   p.finish();

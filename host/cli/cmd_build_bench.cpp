@@ -42,6 +42,9 @@ int run(BuildBenchArgs a) {
   // -- options
   if (!a.scene.cache.empty())
     throw Error("--cache " + a.scene.cache + ": build-bench times builds from scratch and never reads or writes the BVH cache");
+  if (a.scene.build_options().quality == BuildQuality::none)
+    throw Error("--quality none: build-bench times hierarchies (the build and its MBVH4), and a build of quality none "
+                "has none; use low, medium or high");
   prepare_outputs({{"--json", a.json, true}}, {{"scene", a.scene.scene}});
   if (!a.versus.quality.empty()) require_ray_memory("--versus-count " + std::to_string(a.versus.count), a.versus.count);
   if (!a.versus.quality.empty()) set_camera(a.camera, a.versus.has_camera, a.versus.camera);

@@ -45,11 +45,13 @@ int run_check_command(const CheckArgs& a) {
   // -- the options, the scene and the ray kinds
   CheckOptions co;
   co.grid = a.grid.parse();
-  co.threads = a.scene.threads;
-  co.backend = a.grid.dev.options(a.scene.threads, a.scene.quality);
+  SceneArgs scene = a.scene;
+  scene.no_hierarchy_for(co.grid.backends);  // dacrt backends alone: no BVH built (quality none)
+  co.threads = scene.threads;
+  co.backend = a.grid.dev.options(scene.threads, scene.quality);
   co.brute_rays = a.brute == "all" ? SIZE_MAX : std::strtoull(a.brute.c_str(), nullptr, 10);  // checked: an integer
   a.rays.check_memory();  // one kind's rays at a time
-  Loaded l = load_and_build(a.scene);
+  Loaded l = load_and_build(scene);
   std::vector<std::string> kinds = a.kinds.empty() ? std::vector<std::string>{a.rays.kind} : split_list(a.kinds, "--kinds");
   if (!a.rays.rays_file.empty()) kinds = {"file"};
   // -- one check per kind

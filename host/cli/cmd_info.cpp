@@ -34,14 +34,28 @@ void print_stats_row(const LayoutStats& s, std::size_t state_stack, std::size_t 
       s.bitstack_bits, s.sah_cost, s.bytes, s.build_ms, state_stack, state_bit);
 }
 
+// The report of a build without a hierarchy (quality none): its triangles, bounds and hash.
+void print_flat_info(const SceneArgs& a, const Loaded& l) {
+  const Accel& acc = *l.acc;
+  const double* ph = acc.binary_stats().phase_ms;
+  say("build      quality none (no hierarchy): %zu triangle records in scene order, %zu bytes, %u threads; hash "
+      "%016llx\n",
+      acc.tris().size(), acc.binary_stats().bytes, static_cast<unsigned>(resolve_threads(a.threads)),
+      static_cast<unsigned long long>(acc.hash()));
+  say("build ms   records %.1f, triangles %.1f\n", ph[0], ph[2]);
+  say("layouts    none: only the dacrt backends trace this build (build with --quality low, medium or high for the "
+      "layouts)\n");
+}
+
 // The report: the scene, the build and one row per layout.
 void print_info(const SceneArgs& a, const Loaded& l) {
   const Accel& acc = *l.acc;
   const Box b = acc.bounds();
   say("scene      %s\n", l.scene.name.c_str());
   say("triangles  %zu (%zu degenerate, kept out of leaves), %zu vertices, loaded in %.1f ms\n",
-      l.scene.triangle_count(), acc.bvh2().degenerate, l.scene.vertices.size(), l.load_ms);
+      l.scene.triangle_count(), acc.degenerate_triangles(), l.scene.vertices.size(), l.load_ms);
   say("bounds     (%g, %g, %g) .. (%g, %g, %g)\n", b.lo.x, b.lo.y, b.lo.z, b.hi.x, b.hi.y, b.hi.z);
+  if (!acc.has_hierarchy()) return print_flat_info(a, l);
   say("build      %s, %u bins, max leaf %u, leaf block %u, depth cap %u, %u threads; hash %016llx\n",
       acc.options().quality == BuildQuality::low    ? "Morton LBVH (quality low)"
       : acc.options().quality == BuildQuality::high ? "SBVH, spatial splits (quality high)"
@@ -91,6 +105,12 @@ std::string info_json(const Loaded& l) {
   j["build_phases_ms"] = {{"records", bs.phase_ms[0]}, {"tree", bs.phase_ms[1]}, {"flatten", bs.phase_ms[2]},
                           {"stats", bs.phase_ms[3]}};
   j["references"] = acc.tris().size();
+  j["degenerate"] = acc.degenerate_triangles();
+  j["hierarchy"] = acc.has_hierarchy();
+  if (!acc.has_hierarchy()) {  // quality none: the triangles alone
+    j["layouts"] = nlohmann::json::array();
+    return j.dump(2) + "\n";
+  }
   const LayoutStats &s2 = acc.mbvh2().stats, &s4 = acc.mbvh4().stats, &s8 = acc.mbvh8().stats;
   const auto [v4, v8] = cpu_leaf_stats(acc);
   for (const LayoutStats* s : {&bs, &s2, &s4, &s8, &v4, &v8})
@@ -124,6 +144,11 @@ void info_refit(const SceneArgs& a, Loaded& l) {
   const auto t0 = Clock::now();
   const auto rebuilt = Accel::build(moved, bo);
   const double build_ms = ms_since(t0);
+  if (!rebuilt->has_hierarchy()) {  // quality none: the triangles and bounds alone
+    say("\nrefit      %.1f ms (the triangles and bounds: no hierarchy); a rebuild of the moved scene %.1f ms (%u threads)\n",
+        refit_ms, build_ms, static_cast<unsigned>(resolve_threads(a.threads)));
+    return;
+  }
   for (Layout lay : {Layout::mbvh2, Layout::mbvh4, Layout::mbvh8}) rebuilt->make_layout(lay);
   const double layouts_ms = ms_since(t0);
   say("\nrefit      %.1f ms (binary tree, leaves, triangles and the MBVH2/4/8 layouts made above); a rebuild of the "

@@ -65,13 +65,17 @@ int run_render(const RenderArgs& a, const CLI::App& cmd) {
   // -- options, backend, variant
   std::vector<float> reference;
   RenderOptions o = render_options(a, reference);
-  auto backend = make_backend(a.backend, a.dev.options(a.scene.threads, a.scene.quality));
-  // a backend without a bitstack (embree) renders with its stack unless --traversal says otherwise
-  if (!cmd.count("--traversal") && !backend->supports(default_layout(*backend, o.traversal), o.traversal))
+  SceneArgs scene = a.scene;
+  scene.no_hierarchy_for({a.backend});  // a dacrt backend alone: no BVH built (quality none)
+  auto backend = make_backend(a.backend, a.dev.options(scene.threads, scene.quality));
+  // a backend without a bitstack (embree) renders with its stack, one with only dacrt with that,
+  // unless --traversal says otherwise
+  if (!cmd.count("--traversal") && only_dacrt(*backend)) o.traversal = Traversal::dacrt;
+  else if (!cmd.count("--traversal") && !backend->supports(default_layout(*backend, o.traversal), o.traversal))
     o.traversal = Traversal::stack;
   o.layout = cmd.count("--layout") ? parse_layout(a.layout) : default_layout(*backend, o.traversal);
   // -- scene and render
-  Loaded l = load_and_build(a.scene);
+  Loaded l = load_and_build(scene);
   if (!quiet()) std::fprintf(stderr, "backend: %s\n", backend->describe().c_str());
   backend->prepare(*l.acc, TraceOptions{o.layout, o.traversal, Query::closest, false, o.precision});
   Progress p("rendering", o.spp);
@@ -94,7 +98,8 @@ int run_render(const RenderArgs& a, const CLI::App& cmd) {
   // -- report
   say("rendered %ux%u, %u spp, %s (%s/%s) on %s: %zu rays over all bounces, %.3f Mrays/s in traversal "
       "(%.2f s), %.2f s in all\nwrote %s\n",
-      res.width, res.height, o.spp, to_string(o.mode), to_string(o.layout), to_string(o.traversal), a.backend.c_str(),
+      res.width, res.height, o.spp, to_string(o.mode), is_dacrt(o.traversal) ? "-" : to_string(o.layout),
+      to_string(o.traversal), a.backend.c_str(),
       res.rays, res.mrays_per_s(), res.trace_seconds, res.total_seconds, shown(a.out).c_str());
   if (!res.curve.empty())
     say("RMSE against %s: %.5f after 1 spp, %.5f after %u spp\n", a.reference.c_str(), res.curve.front().rmse,
@@ -111,7 +116,7 @@ Command add_render(CLI::App& app) {
   a->scene.add(c);
   c->add_option("--backend", a->backend, "backend (see `mbvh devices`)");
   c->add_option("--layout", a->layout, "mbvh2, mbvh4 or mbvh8 (default: mbvh4, or mbvh2 where the backend has only that)");
-  c->add_option("--traversal", a->traversal, "stack, bitstack, stack-ordered, bitstack-retest, or packet-ranged, packet-partition, packet (cpu: 8x8-tile packets)");
+  c->add_option("--traversal", a->traversal, "stack, bitstack, stack-ordered, bitstack-retest, or packet-ranged, packet-partition, packet (cpu: 8x8-tile packets), or dacrt (no hierarchy; the default of a backend that has only it)");
   c->add_option("--mode", a->mode, "path (8-bounce diffuse, point light and sky), ao or normals");
   c->add_option("--spp", o.spp, "samples per pixel")->check(integer_in(1, 1u << 20));
   c->add_option("--bounces", o.bounces, "path mode: diffuse bounces after the primary hit")->check(integer_in(0, 1024));

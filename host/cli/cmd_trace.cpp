@@ -50,8 +50,13 @@ int run_trace(TraceArgs& a, const CLI::App& cmd) {
   o.query = parse_query(a.query);
   o.stats = a.stats;
   o.precision = parse_precision(a.precision);
+  a.scene.no_hierarchy_for({a.backend});  // a dacrt backend alone: no BVH built (quality none)
   BackendOptions bo = a.dev.options(a.scene.threads, a.scene.quality);
   auto backend = make_backend(a.backend, bo);
+  if (cmd.count("--traversal") == 0 && only_dacrt(*backend)) {  // its one traversal; the layout is ignored
+    o.traversal = Traversal::dacrt;
+    a.traversal = to_string(o.traversal);
+  }
   if (cmd.count("--layout") == 0) {
     o.layout = default_layout(*backend, o.traversal);
     a.layout = to_string(o.layout);
@@ -72,7 +77,7 @@ int run_trace(TraceArgs& a, const CLI::App& cmd) {
   std::size_t hits = 0;
   if (o.query == Query::any) for (auto v : out.occluded) hits += v;
   else for (const auto& h : out.hits) hits += h.prim != MBVH_MISS_PRIM;
-  say("traced %zu rays (%s/%s/%s) in %.1f ms: %.3f Mrays/s; %zu %s, %zu invalid\n", r.size(), a.layout.c_str(),
+  say("traced %zu rays (%s/%s/%s) in %.1f ms: %.3f Mrays/s; %zu %s, %zu invalid\n", r.size(), layout_label(o),
       a.traversal.c_str(), a.query.c_str(), ms, ms > 0 ? static_cast<double>(r.size()) / ms * 1e-3 : 0.0, hits,
       o.query == Query::any ? "occluded" : "hits", out.invalid);
   if (a.stats && !out.stats.empty()) {
@@ -100,7 +105,7 @@ Command add_trace(CLI::App& app) {
   a->rays.add(c, true);
   c->add_option("--backend", a->backend, "backend (see `mbvh devices`)");
   c->add_option("--layout", a->layout, "mbvh2, mbvh4 or mbvh8 (default: mbvh4, or mbvh2 where the backend has only that)");
-  c->add_option("--traversal", a->traversal, "stack, bitstack, stack-ordered or bitstack-retest (bitstack-retest: MBVH4 only); packet-ranged, packet-partition or packet (cpu: packets of 64 rays over MBVH2, the layout for the hybrid's single rays)");
+  c->add_option("--traversal", a->traversal, "stack, bitstack, stack-ordered or bitstack-retest (bitstack-retest: MBVH4 only); packet-ranged, packet-partition or packet (cpu: packets of 64 rays over MBVH2, the layout for the hybrid's single rays); dacrt (no hierarchy, the layout ignored; the default of a backend that has only it)");
   c->add_option("--query", a->query, "closest (writes hits, 16 B/ray) or any (writes occlusion, 1 B/ray)");
   c->add_option("-o,--output", a->out, "output file ('-': standard output)");
   c->add_flag("--stats", a->stats, "also count work per ray (slower)");

@@ -143,9 +143,20 @@ void SceneArgs::add(CLI::App* c) {
             return parse_size(v, b) ? std::string() : "'" + v + "' is not a size (bytes, or with a K, M, G or T suffix, e.g. 2G)";
           },
           "SIZE"));
-  c->add_option("--quality", quality,
-                "builder: low (Morton-code LBVH, fastest build), medium (binned SAH, the default) or high (SBVH)")
-      ->check(CLI::IsMember({"low", "medium", "high"}));
+  quality_opt_ = c->add_option("--quality", quality,
+                               "builder: low (Morton-code LBVH, fastest build), medium (binned SAH, the default), high "
+                               "(SBVH) or none (no hierarchy, the triangles alone: only dacrt traces it; the default "
+                               "when every backend is dacrt)")
+                     ->check(CLI::IsMember({"low", "medium", "high", "none"}));
+}
+
+bool SceneArgs::quality_given() const { return quality_opt_ && quality_opt_->count() > 0; }
+
+void SceneArgs::no_hierarchy_for(const std::vector<std::string>& backends) {
+  if (quality_given() || backends.empty()) return;
+  for (const std::string& b : backends)
+    if (backend_needs_hierarchy(b)) return;
+  quality = to_string(BuildQuality::none);
 }
 
 BuildOptions SceneArgs::build_options() const {
@@ -177,7 +188,15 @@ Loaded load_and_build(const SceneArgs& a, bool verbose) {
   p.finish();
   // -- report
   if (!cr.problem.empty()) std::fprintf(stderr, "mbvh: warning: %s; rebuilt and replaced\n", cr.problem.c_str());
-  if (!g_quiet && (verbose || !a.cache.empty()))
+  if (!l.acc->has_hierarchy()) {  // quality none: never cached (Accel::build_cached)
+    if (!g_quiet && (verbose || !a.cache.empty()))
+      std::fprintf(stderr,
+                   "scene %s: %zu triangles, loaded in %.1f ms; quality none (no hierarchy): %zu triangles kept (%zu "
+                   "degenerate) in %.1f ms%s, hash %016llx\n",
+                   a.scene.c_str(), l.scene.triangle_count(), l.load_ms, l.acc->tris().size(), l.acc->degenerate_triangles(),
+                   l.acc->binary_stats().build_ms, a.cache.empty() ? "" : ", not cached",
+                   static_cast<unsigned long long>(l.acc->hash()));
+  } else if (!g_quiet && (verbose || !a.cache.empty()))
     std::fprintf(stderr, "scene %s: %zu triangles, loaded in %.1f ms; BVH %s in %.1f ms%s%s, hash %016llx\n",
                  a.scene.c_str(), l.scene.triangle_count(), l.load_ms, cr.loaded ? "read from the cache" : "built",
                  cr.loaded ? ms : l.acc->binary_stats().build_ms, a.cache.empty() ? "" : cr.loaded ? ": " : ", cached in ",
@@ -192,6 +211,17 @@ Loaded load_and_build(const SceneArgs& a, bool verbose) {
 
 Layout default_layout(const Backend& b, Traversal t) {
   return !b.supports(Layout::mbvh4, t) && b.supports(Layout::mbvh2, t) ? Layout::mbvh2 : Layout::mbvh4;
+}
+
+bool only_dacrt(const Backend& b) {
+  bool dacrt = false;
+  for (Layout l : {Layout::mbvh2, Layout::mbvh4, Layout::mbvh8})
+    for (int t = 0; t <= static_cast<int>(Traversal::dacrt); ++t) {
+      if (!b.supports(l, static_cast<Traversal>(t))) continue;
+      if (!is_dacrt(static_cast<Traversal>(t))) return false;
+      dacrt = true;
+    }
+  return dacrt;
 }
 
 void DeviceArgs::add(CLI::App* c) {
@@ -227,7 +257,9 @@ BackendOptions DeviceArgs::options(unsigned threads, const std::string& quality)
     o.set(s.substr(0, eq), s.substr(eq + 1));
   }
   // the peer builds its own BVH: at the quality of ours, unless set apart
-  if (!quality.empty() && !o.settings.count("embree.quality")) o.set("embree.quality", to_string(parse_quality(quality)));
+  // (quality none builds no BVH: the peer keeps its own default then)
+  if (!quality.empty() && parse_quality(quality) != BuildQuality::none && !o.settings.count("embree.quality"))
+    o.set("embree.quality", to_string(parse_quality(quality)));
   return o;
 }
 
@@ -251,7 +283,7 @@ void GridArgs::add(CLI::App* c) {
                 "comma-separated backends (see `mbvh devices`), or 'all': every backend this machine runs, once each");
   c->add_option("--layout", layouts, "comma-separated layouts: mbvh2, mbvh4, mbvh8 (stack, bitstack, stack-ordered)");
   c->add_option("--traversal", traversals,
-                "comma-separated traversals: stack, bitstack, stack-ordered, bitstack-retest (the last two MBVH4/8), packet-ranged, packet-partition, packet (cpu packets of 64 rays)");
+                "comma-separated traversals: stack, bitstack, stack-ordered, bitstack-retest (the last two MBVH4/8), packet-ranged, packet-partition, packet (cpu packets of 64 rays), dacrt (no hierarchy; a dacrt backend runs it whatever this list says)");
   c->add_option("--query", queries, "comma-separated queries: closest, any");
   c->add_option("--precision", precisions,
                 "comma-separated accuracy modes: robust (default), exact (the same kernels, refused by embree), fast "

@@ -103,6 +103,14 @@ struct SceneArgs {
   void add(CLI::App* c);
   /// The build options of these arguments (no progress callback).
   BuildOptions build_options() const;
+  /// Whether --quality was given (after parsing).
+  bool quality_given() const;
+  /// Without --quality: quality none when every one of `backends` (registry names) traces without
+  /// a hierarchy (BackendInfo::needs_hierarchy false: dacrt), so no BVH is built for them.
+  void no_hierarchy_for(const std::vector<std::string>& backends);
+
+private:
+  CLI::Option* quality_opt_ = nullptr;
 };
 
 struct Loaded {
@@ -120,6 +128,8 @@ Loaded load_and_build(const SceneArgs& a, bool verbose = true);
 /// The layout used when --layout is not given: MBVH4, or MBVH2 where the backend has no MBVH4
 /// traversal of that kind (vulkan).
 Layout default_layout(const Backend& b, Traversal t);
+/// Whether dacrt is the only traversal `b` has (on any layout): --traversal then defaults to it.
+bool only_dacrt(const Backend& b);
 
 /// --cl-device, --vk-device: which device the OpenCL and Vulkan backends use; --cl-mapping;
 /// --vk-validation.

@@ -35,9 +35,9 @@ template <> struct Names<Precision> {
   static constexpr const char* known = "robust, exact, fast";
 };
 template <> struct Names<BuildQuality> {
-  static constexpr int count = 3;
+  static constexpr int count = 4;
   static constexpr const char* type = "BuildQuality";
-  static constexpr const char* known = "low, medium, high";
+  static constexpr const char* known = "low, medium, high, none";
 };
 }  // namespace enum_detail
 

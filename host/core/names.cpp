@@ -19,14 +19,21 @@ Layout parse_layout(const std::string& s) {
 }
 
 const char* to_string(BuildQuality q) {
-  return q == BuildQuality::low ? "low" : q == BuildQuality::medium ? "medium" : "high";
+  switch (q) {
+    case BuildQuality::low: return "low";
+    case BuildQuality::medium: return "medium";
+    case BuildQuality::high: return "high";
+    case BuildQuality::none: return "none";
+  }
+  return "?";
 }
 
 BuildQuality parse_quality(const std::string& s) {
   if (s == "low") return BuildQuality::low;
   if (s == "medium") return BuildQuality::medium;
   if (s == "high") return BuildQuality::high;
-  throw Error("unknown build quality '" + s + "' (known: low, medium, high)");
+  if (s == "none") return BuildQuality::none;
+  throw Error("unknown build quality '" + s + "' (known: low, medium, high, none)");
 }
 
 const char* to_string(Precision p) {
@@ -60,6 +67,8 @@ const char* to_string(Traversal t) {
   return "?";
 }
 
+const char* layout_label(const TraceOptions& opt) { return is_dacrt(opt.traversal) ? "-" : to_string(opt.layout); }
+
 Query parse_query(const std::string& s) {
   if (s == "closest") return Query::closest;
   if (s == "any") return Query::any;
@@ -76,7 +85,7 @@ Traversal parse_traversal(const std::string& s) {
   if (s == "packet") return Traversal::packet;
   if (s == "dacrt") return Traversal::dacrt;
   throw Error("unknown traversal '" + s +
-              "' (known: stack, bitstack, stack-ordered, bitstack-retest, packet-ranged, packet-partition, packet)");
+              "' (known: stack, bitstack, stack-ordered, bitstack-retest, packet-ranged, packet-partition, packet, dacrt)");
 }
 
 }  // namespace mbvh

@@ -1,6 +1,7 @@
 // SPDX-License-Identifier: MIT
 // registry.cpp — the backend registry: names to factories. The core registers nothing: the
 // program (or the user) registers the backends it links (mbvh/backends.h).
+#include <algorithm>
 #include <charconv>
 #include <mutex>
 
@@ -37,8 +38,35 @@ std::vector<BackendInfo> list_backends() {
   return table();
 }
 
+bool backend_needs_hierarchy(const std::string& name) {
+  std::lock_guard<std::recursive_mutex> lock(table_mutex());
+  std::string n = name;
+  for (int hops = 0; hops < 8; ++hops) {  // an alias (BackendInfo::alias_of) as the backend it stands for
+    const auto it = std::find_if(table().begin(), table().end(), [&](const BackendInfo& b) { return b.name == n; });
+    if (it == table().end()) return true;
+    if (!it->needs_hierarchy || it->alias_of.empty() || it->alias_of == n) return it->needs_hierarchy;
+    n = it->alias_of;
+  }
+  return true;
+}
+
+namespace {
+
+// Throws Error naming `b` when `acc` has no hierarchy (quality none) and b needs one
+// (BackendInfo::needs_hierarchy of its name, or of the backend an alias runs as; a backend not in
+// the registry is taken to need one). Free for a build with a hierarchy.
+void refuse_flat_build(const Backend& b, const Accel& acc) {
+  if (acc.has_hierarchy() || !backend_needs_hierarchy(b.name())) return;
+  if (const std::string as = b.runs_as(); as != b.name() && !backend_needs_hierarchy(as)) return;
+  throw Error(b.name() + ": this build has no hierarchy (quality none): only a backend that traces without one "
+              "(dacrt) traces it; build with quality low, medium or high to trace it on " + b.name());
+}
+
+}  // namespace
+
 void Backend::prepare(const Accel& acc, const TraceOptions& opt) {
   check_trace_options(opt, name());
+  refuse_flat_build(*this, acc);
   std::lock_guard<std::mutex> lock(mutex_);
   do_prepare(acc, opt);
 }
@@ -48,7 +76,7 @@ namespace {
 constexpr Layout kLayouts[] = {Layout::mbvh2, Layout::mbvh4, Layout::mbvh8};
 constexpr Traversal kTraversals[] = {Traversal::stack,         Traversal::bitstack,         Traversal::stack_ordered,
                                      Traversal::bitstack_retest, Traversal::packet_ranged, Traversal::packet_partition,
-                                     Traversal::packet};
+                                     Traversal::packet,        Traversal::dacrt};
 constexpr Precision kPrecisions[] = {Precision::robust, Precision::exact, Precision::fast};
 
 // The names of `all` that `keep` holds for, comma-separated.
@@ -82,6 +110,7 @@ void Backend::trace(const Accel& acc, std::span<const Ray> rays, const TraceOpti
   // -- checks, each naming this backend
   check_trace_options(opt, name());
   refuse_unsupported(*this, opt);
+  refuse_flat_build(*this, acc);
   check_ray_range(acc, rays, name());
   // -- the build prepared, the output sized; then the backend's own part
   std::lock_guard<std::mutex> lock(mutex_);

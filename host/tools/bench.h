@@ -64,7 +64,9 @@ struct BenchRecord {
   /// `inside` rays (from inside a closed mesh: every one must hit) that missed: leaks.
   std::size_t leaks = 0;
   double ratio_vs_stack = 0;            ///< speed of this record / its stack twin (bitstack rows)
-  double ratio_vs_cpu = 0;              ///< speed of this record / the `cpu` backend's on the same variant
+  /// speed of this record / the `cpu` backend's on the same variant; for dacrt (no such variant on
+  /// cpu) / cpu's fastest record on the same query, rays and precision
+  double ratio_vs_cpu = 0;
   double mrays_one_thread = 0;          ///< with BenchOptions::scaling: the median on one thread
   double thread_scaling = 0;            ///< mrays_per_s / mrays_one_thread (0: not measured)
   /// Whether the timed result passed verification: no genuine mismatch, except in the fast mode,
@@ -82,6 +84,9 @@ struct BenchReport {
   bool verified() const;
 };
 
+/// Runs the benchmark. Every result is verified against the reference traversal (cpu-scalar) on
+/// `acc`, or, when `acc` has no hierarchy (BuildQuality::none), on a medium build of `scene` made
+/// for that and kept until the run ends (the rays come from it too: the same rays).
 BenchReport run_bench(const Scene& scene, const Accel& acc, const BenchOptions& opt,
                       const std::function<void(std::size_t done, std::size_t total)>& progress = {});
 

@@ -17,7 +17,7 @@
 namespace mbvh {
 
 std::string CheckVariant::label() const {
-  return backend + "/" + to_string(opt.layout) + "/" + to_string(opt.traversal) + "/" + to_string(opt.query) +
+  return backend + "/" + layout_label(opt) + "/" + to_string(opt.traversal) + "/" + to_string(opt.query) +
          (opt.precision == Precision::robust ? "" : std::string("/") + to_string(opt.precision));
 }
 
@@ -228,7 +228,16 @@ CheckReport run_check(const Accel& acc, std::span<const Ray> rays, const CheckOp
   else if (ref_any) {
     TraceOutput o;
     TraceOptions c;
-    trace_reference(acc, rays, c, o, opt.threads);
+    if (acc.has_hierarchy()) {
+      trace_reference(acc, rays, c, o, opt.threads);
+    } else {
+      // no hierarchy (quality none; every backend here traces without one): the closest hits of
+      // the reference variant's own backend and options. They only classify any-hit differences
+      // (an edge, the interval's ends); every answer is still compared with the brute force below
+      c = ref_any->v.opt;
+      c.query = Query::closest;
+      backends.at(ref_any->v.backend)->trace(acc, rays, c, o);
+    }
     closest_for_any = std::move(o.hits);
   }
   std::vector<std::uint8_t> closest_occ(closest_for_any.size());

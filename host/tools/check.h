@@ -41,6 +41,9 @@ struct CheckReport {
 /// Runs the check. The first variant of each query is the reference the others are compared
 /// with; twins (stack vs bitstack of one backend and layout) are reported bit for bit; any hit
 /// is compared with closest hit (occluded = a closest hit exists) and both with brute force.
+/// Closest hits for that come from the first closest variant, else from trace_reference, or on a
+/// build without a hierarchy (quality none) from the first any variant's backend asked for
+/// closest hits. Labels show dacrt's layout as "-".
 /// Pairs a backend does not support (bitstack-retest on MBVH2) are skipped. Throws Error if a backend
 /// cannot start or no requested variant is supported.
 CheckReport run_check(const Accel& acc, std::span<const Ray> rays, const CheckOptions& opt,

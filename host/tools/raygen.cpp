@@ -157,6 +157,17 @@ Ray spawn_ray(const Vec3f& p0, const Vec3f& p1, const Vec3f& p2, float u, float 
 }
 
 std::vector<Ray> generate_rays(const Scene& scene, const Accel& acc, const RayGenOptions& opt) try {
+  if (!acc.has_hierarchy() && opt.kind != RayKind::primary && opt.kind != RayKind::random && opt.kind != RayKind::inside) {
+    // rays from hits (shadow, diffuse, path; special probes the scene) are found by the reference
+    // traversals, which need a hierarchy: a build of quality none generates them through a
+    // temporary medium build of the same scene with its options, freed on return (the same
+    // triangles and bounds: the same rays)
+    BuildOptions bo = acc.options();
+    bo.quality = BuildQuality::medium;
+    bo.progress = nullptr;
+    const std::unique_ptr<Accel> with_tree = Accel::build(scene, bo);
+    return generate_rays(scene, *with_tree, opt);
+  }
   const Box bounds = acc.bounds();
   const Camera cam = opt.has_camera ? opt.camera : default_camera(bounds);
   if (const std::string p = camera_problem(cam); !p.empty()) throw Error("camera: " + p);

@@ -54,8 +54,10 @@ struct RayGenOptions {
 /// Generates `count` rays (inside: up to count/2 aimed at vertices and edge midpoints of a closed
 /// generated mesh from inside_point, the rest random from there; special: stress.h's special
 /// rays, about `count`). Shadow and diffuse rays start at hit points of primary rays (traced
-/// with the reference traversal), offset by the hit point's rounding-error bound. Throws Error
-/// if the camera sees no geometry or has a camera_problem.
+/// with the reference traversal), offset by the hit point's rounding-error bound. On a build
+/// without a hierarchy (BuildQuality::none) the rays that need traced hits (shadow, diffuse,
+/// special, path) come from a temporary medium build of `scene`, made and freed here: the same
+/// rays. Throws Error if the camera sees no geometry or has a camera_problem.
 std::vector<Ray> generate_rays(const Scene& scene, const Accel& acc, const RayGenOptions& opt);
 
 /// pbrt-v4-style secondary ray: the hit point on triangle (p0, p1, p2) at barycentrics (u, v),

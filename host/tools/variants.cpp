@@ -16,16 +16,24 @@ void for_each_variant(const VariantGrid& grid, const std::map<std::string, std::
     for (Precision pr : grid.precisions)
       for (const auto& name : grid.backends) {
         Backend& b = *backends.at(name);
+        const auto run = [&](Layout l, Traversal t) {
+          TraceOptions o;
+          o.layout = l;
+          o.traversal = t;
+          o.query = q;
+          o.precision = pr;
+          fn(name, b, o);
+        };
         for (Layout l : grid.layouts)
           for (Traversal t : grid.traversals) {
+            if (is_dacrt(t)) continue;  // once below
             if (!b.supports(l, t) || !b.supports_precision(pr)) continue;  // e.g. bitstack-retest on MBVH2
-            TraceOptions o;
-            o.layout = l;
-            o.traversal = t;
-            o.query = q;
-            o.precision = pr;
-            fn(name, b, o);
+            run(l, t);
           }
+        // dacrt ignores the layout: one variant (on the grid's first layout), whatever the grid's
+        // traversals, for a backend that has it
+        if (!grid.layouts.empty() && b.supports(grid.layouts.front(), Traversal::dacrt) && b.supports_precision(pr))
+          run(grid.layouts.front(), Traversal::dacrt);
       }
 }
 

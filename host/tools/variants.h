@@ -33,7 +33,10 @@ std::map<std::string, std::unique_ptr<Backend>> make_backends(const VariantGrid&
 
 /// Calls fn(backend name, backend, options) for every variant of `grid` that its backend supports
 /// (Backend::supports and supports_precision), in the order query, precision, backend, layout,
-/// traversal (the outermost first): the order of check's table and bench's records. `backends`
+/// traversal (the outermost first): the order of check's table and bench's records. A backend
+/// that supports Traversal::dacrt (on the grid's first layout) gets one dacrt variant per query
+/// and precision, after its others, whether or not grid.traversals names dacrt; its layout is the
+/// grid's first, which dacrt ignores (reports show "-", layout_label). `backends`
 /// holds every backend of the grid (make_backends). Variants left out cost nothing.
 void for_each_variant(const VariantGrid& grid, const std::map<std::string, std::unique_ptr<Backend>>& backends,
                       const std::function<void(const std::string& name, Backend& backend, const TraceOptions& options)>& fn);

@@ -62,6 +62,23 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
 
   Bvh2& out = acc->impl_->bvh2_;
   auto t_tree = Clock::now();
+  if (opt.quality == BuildQuality::none) {
+    // -- no hierarchy: the records' triangles in scene order, their bounds the records' (the same
+    //    box a tree's root gets); no tree, no statistics of one
+    acc->impl_->tris_.resize(prims.size());
+    build::fill_tris(scene, prims, acc->impl_->tris_, opt.threads);
+    acc->impl_->bounds_ = refs.root.box();
+    const auto t_flat = Clock::now();
+    LayoutStats& st = acc->impl_->binary_stats_;
+    st.layout = "none";
+    st.bytes = acc->impl_->tris_.size() * sizeof(Tri);
+    auto ms = [](Clock::time_point a, Clock::time_point b) { return std::chrono::duration<double, std::milli>(b - a).count(); };
+    st.build_ms = ms(t0, t_flat);
+    st.phase_ms[0] = ms(t0, t_prep);
+    st.phase_ms[2] = ms(t_prep, t_flat);  // the triangle records, as a tree's flatten phase writes them
+    report(1.0);
+    return acc;
+  }
   if (opt.quality == BuildQuality::high) {
     // -- spatial splits (sbvh.cpp): a triangle may sit in several leaves (never twice in one)
     std::vector<Box> boxes(scene.triangle_count());
@@ -124,9 +141,26 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
 
 Accel::Accel() : impl_(std::make_unique<Impl>()) {}
 Accel::~Accel() = default;
-const Bvh2& Accel::bvh2() const { return impl_->bvh2_; }
+
+bool Accel::has_hierarchy() const { return impl_->opt_.quality != BuildQuality::none; }
+
+void Accel::require_hierarchy(const char* what) const {
+  if (has_hierarchy()) return;
+  throw Error(std::string("Accel::") + what +
+              ": this build has no hierarchy (quality none): only the dacrt backend traces it; build with quality low, "
+              "medium or high");
+}
+
+const Bvh2& Accel::bvh2() const {
+  require_hierarchy("bvh2");
+  return impl_->bvh2_;
+}
 const AlignedVector<Tri>& Accel::tris() const { return impl_->tris_; }
-const std::vector<Leaf>& Accel::leaves() const { return impl_->leaves_; }
+const std::vector<Leaf>& Accel::leaves() const {
+  require_hierarchy("leaves");
+  return impl_->leaves_;
+}
+std::size_t Accel::degenerate_triangles() const { return impl_->bvh2_.degenerate; }
 const Box& Accel::bounds() const { return impl_->bounds_; }
 std::size_t Accel::scene_triangles() const { return impl_->scene_triangles_; }
 std::size_t Accel::geometry_count() const { return impl_->geometry_offsets_.size() - 1; }
@@ -153,33 +187,39 @@ std::uint64_t Accel::generation() const { return impl_->generation_; }
 double Accel::last_refit_ms() const { return impl_->refit_ms_; }
 
 const Mbvh2& Accel::mbvh2() const {
+  require_hierarchy("mbvh2");
   std::call_once(impl_->once2_, [this] { impl_->mbvh2_ = make_mbvh2(impl_->bvh2_, impl_->leaves_); });
   return impl_->mbvh2_;
 }
 
 void Accel::make_layout(Layout l) const {
   check_enum(l, "Accel::make_layout", "the layout");
+  require_hierarchy("make_layout");
   if (l == Layout::mbvh2) mbvh2();
   else if (l == Layout::mbvh4) mbvh4();
   else mbvh8();
 }
 
 const Mbvh8& Accel::mbvh8() const {
+  require_hierarchy("mbvh8");
   std::call_once(impl_->once8_, [this] { impl_->mbvh8_ = make_mbvh8(impl_->bvh2_, impl_->leaves_, impl_->opt_.threads); });
   return impl_->mbvh8_;
 }
 
 const Mbvh4& Accel::mbvh4() const {
+  require_hierarchy("mbvh4");
   std::call_once(impl_->once4_, [this] { impl_->mbvh4_ = make_mbvh4(impl_->bvh2_, impl_->leaves_, impl_->opt_.threads); });
   return impl_->mbvh4_;
 }
 
 const TriPacks& Accel::tri_packs() const {
+  require_hierarchy("tri_packs");
   std::call_once(impl_->oncep_, [this] { impl_->packs_ = make_tri_packs(impl_->tris_, impl_->leaves_); });
   return impl_->packs_;
 }
 
 const Mbvh4Wide& Accel::mbvh4_wide() const {
+  require_hierarchy("mbvh4_wide");
   std::call_once(impl_->once4w_, [this] { impl_->mbvh4w_ = make_mbvh4_wide(mbvh4()); });
   return impl_->mbvh4w_;
 }

@@ -136,6 +136,9 @@ std::uint64_t Accel::cache_key(const Scene& scene, const BuildOptions& opt) {
 }
 
 void Accel::save(const std::string& path, std::uint64_t key) const {
+  if (!has_hierarchy())
+    throw Error(path + ": a build of quality none has no hierarchy to save (it is remade in O(n) from the scene: "
+                "Accel::build)");
   Header hd{};
   std::memcpy(hd.magic, kMagic, 8);
   hd.version = kFormatVersion;
@@ -241,6 +244,7 @@ std::unique_ptr<Accel> Accel::load_entry(const std::string& path, std::uint64_t 
     throw bad("written by a build with other record sizes");
   const std::uint64_t limit = size;  // every count is bounded by the file it came from
   if (hd.nodes > limit || hd.leaf_boxes > limit || hd.leaves > limit || hd.tris > limit) throw bad("counts out of range");
+  // quality none is never saved (Accel::save): a file that says so is not one of ours
   if (hd.quality > static_cast<std::uint32_t>(BuildQuality::high)) throw bad("unknown build quality");
   // ... and by the scene's triangles, before anything is allocated: a build holds at most one
   // record per triangle (SBVH: 1.3 per triangle), at most one leaf per record and fewer inner nodes
@@ -419,6 +423,12 @@ std::unique_ptr<Accel> Accel::build_cached(const Scene& scene, const BuildOption
                                            CacheReport* report) {
   const std::string& dir = cache.dir;
   CacheReport rep;
+  if (opt.quality == BuildQuality::none) {
+    // no hierarchy: built in O(n), no dearer than reading and checking an entry; DIR untouched
+    auto acc = build(scene, opt);
+    if (report) *report = rep;
+    return acc;
+  }
   if (dir.empty()) throw Error("BVH cache directory: empty path");
   std::error_code ec;
   std::filesystem::create_directories(dir, ec);

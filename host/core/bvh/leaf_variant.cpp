@@ -146,6 +146,7 @@ void regroup_leaves(const Bvh2& bvh, const std::vector<Leaf>& leaves, const Alig
 }
 
 const LeafVariant& Accel::leaf_variant(unsigned block) const {
+  require_hierarchy("leaf_variant");
   if (block < 2 || block > 64)  // block 1 is the build itself (trace_view traces it, not a variant)
     throw Error("leaf block " + std::to_string(block) + " is out of range (TraceOptions::leaf_block: 0 for the backend's own, or 1 to 64)");
   std::lock_guard<std::mutex> lock(impl_->variants_m_);

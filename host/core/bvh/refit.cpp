@@ -357,6 +357,11 @@ void Accel::refit(const Scene& moved) {
   const auto t0 = std::chrono::steady_clock::now();
   const unsigned threads = impl_->opt_.threads;
   refit_check(moved, impl_->scene_triangles_, impl_->geometry_offsets_, impl_->bvh2_.degenerate, impl_->tris_, threads);
+  if (!has_hierarchy()) {
+    refit_triangles(moved);
+    impl_->refit_ms_ = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+    return;
+  }
 
   // -- the triangles and leaf boxes, then the nodes bottom-up and the SAH costs
   Bvh2& bvh = impl_->bvh2_;
@@ -380,6 +385,23 @@ void Accel::refit(const Scene& moved) {
   impl_->hash_known_.store(true, std::memory_order_release);
   ++impl_->generation_;
   impl_->refit_ms_ = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+}
+
+// A build without a hierarchy (quality none), checked by refit: its triangles (scene order) in
+// place, by the leaves' pass over one leaf holding them all, whose box is the new bounds(); then
+// the hash, as Accel::hash computes it (no nodes, no leaves), and the generation.
+void Accel::refit_triangles(const Scene& moved) {
+  const unsigned threads = impl_->opt_.threads;
+  Bvh2 flat;
+  flat.leaf_boxes.resize(1);
+  const std::vector<Leaf> all{Leaf{0, static_cast<std::uint32_t>(impl_->tris_.size())}};
+  TriPacks no_packs;
+  std::vector<std::uint64_t> tri_hashes;
+  refit_leaves(moved, impl_->tris_, all, flat, no_packs, threads, tri_hashes);
+  impl_->bounds_ = flat.leaf_boxes[0];
+  impl_->hash_ = build::hash_build(impl_->bvh2_, impl_->leaves_, impl_->tris_, threads, tri_hashes.data());
+  impl_->hash_known_.store(true, std::memory_order_release);
+  ++impl_->generation_;
 }
 
 }  // namespace mbvh

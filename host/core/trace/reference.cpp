@@ -20,11 +20,14 @@ Traversal stack_twin(Traversal t) {
   if (t == Traversal::bitstack) return Traversal::stack;
   if (t == Traversal::bitstack_retest) return Traversal::stack_ordered;
   if (is_packet(t)) return Traversal::stack;
-  return t;
+  return t;  // a stack traversal, or dacrt (no twin)
 }
 
 bool reference_supports(Layout layout, Traversal traversal) {
   if (is_packet(traversal)) return true;  // the stack traversal of `layout`, ray by ray
+  // dacrt is the dacrt backends' own: cpu-scalar and the SIMD cpu backends (whose supports() this
+  // is) do not list it, though trace_reference traces it as packet_single_ray's traversal
+  if (is_dacrt(traversal)) return false;
   if (layout == Layout::mbvh8) return traversal != Traversal::bitstack_retest;  // no bitstack-retest on MBVH8
   return layout == Layout::mbvh4 || traversal == Traversal::stack || traversal == Traversal::bitstack;
 }
@@ -32,6 +35,9 @@ bool reference_supports(Layout layout, Traversal traversal) {
 std::size_t state_bytes_per_ray(Layout layout, Traversal traversal) {
   check_enum(layout, "state_bytes_per_ray", "the layout");
   check_enum(traversal, "state_bytes_per_ray", "the traversal");
+  // dacrt: the 32-byte ray record its recursion permutes in place (the backend's state_bytes
+  // counts its side arrays too)
+  if (is_dacrt(traversal)) return sizeof(Ray);
   // packets (backends/cpu/packet/traverse.h): a stack of MBVH_STACK2_ENTRIES entries of (node, range or
   // count, a group list and one 8-lane mask per group), shared by the packet's rays
   if (is_packet(traversal)) {
@@ -109,9 +115,14 @@ void check_trace_options(const TraceOptions& opt, const std::string& who) {
   check_leaf_block(opt, who);
 }
 
-static void require_supported(const TraceOptions& opt) {
+// The reference traces opt's pair: one reference_supports, or dacrt (as packet_single_ray's
+// traversal, whose answers dacrt gives up to classified ties); on a build with a hierarchy.
+static void require_supported(const Accel& acc, const TraceOptions& opt) {
   check_trace_options(opt, "cpu-scalar");
-  if (!reference_supports(opt.layout, opt.traversal))
+  if (!acc.has_hierarchy())
+    throw Error("cpu-scalar: this build has no hierarchy (quality none): only the dacrt backend traces it; build with "
+                "quality low, medium or high");
+  if (!is_dacrt(opt.traversal) && !reference_supports(opt.layout, opt.traversal))
     throw Error(std::string("traversal '") + to_string(opt.traversal) + "' is not defined for layout " + to_string(opt.layout) +
                 " (bitstack-retest is an MBVH4 traversal; MBVH2 has no ordered stack)");
 }
@@ -134,7 +145,7 @@ static Hit trace_one_with(const TraceView& v, RayPre& r, const TraceOptions& opt
 
 Hit trace_one(const Accel& acc, const Ray& ray, const TraceOptions& opt, RayStats* stats,
               std::vector<std::int32_t>* leaf_log) {
-  require_supported(opt);
+  require_supported(acc, opt);
   check_ray_range(acc, std::span<const Ray>(&ray, 1), "cpu-scalar");
   RayPre r;
   if (!prepare_ray(ray, r)) return miss_hit();
@@ -145,7 +156,7 @@ Hit trace_one(const Accel& acc, const Ray& ray, const TraceOptions& opt, RayStat
 
 void trace_reference(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out,
                      unsigned threads, const std::function<void(std::size_t)>& progress) {
-  require_supported(opt);
+  require_supported(acc, opt);
   check_ray_range(acc, rays, "cpu-scalar");
   if (opt.precision == Precision::fast) trace_parallel<ScalarKernelsT<true>>(acc, rays, opt, out, threads, progress);
   else trace_parallel<ScalarKernels>(acc, rays, opt, out, threads, progress);

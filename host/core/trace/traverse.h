@@ -18,11 +18,11 @@
 namespace mbvh {
 inline namespace MBVH_ISA_NS {
 
-/// Traces `r` with traversal `t` on layout `l`, both chosen at run time (a packet traversal as
-/// packet_single_ray's, ray by ray); the pair is one reference_supports.
+/// Traces `r` with traversal `t` on layout `l`, both chosen at run time (a packet traversal and
+/// dacrt as packet_single_ray's, ray by ray); the pair is one reference_supports, or dacrt.
 template <bool Any, class K, class St>
 inline Hit dispatch(const TraceView& v, const typename K::Ray& r, Layout l, Traversal t, St& st) {
-  if (is_packet(t) || t == Traversal::dacrt) t = packet_single_ray(l, Any);  // a packet traversal's answers, ray by ray
+  if (is_packet(t) || is_dacrt(t)) t = packet_single_ray(l, Any);  // their answers, ray by ray
   if (l == Layout::mbvh2)
     return t == Traversal::stack ? trace_mbvh2_stack<Any, St, K>(v, r, st) : trace_mbvh2_bitstack<Any, St, K>(v, r, st);
   if (l == Layout::mbvh8) {
@@ -31,7 +31,8 @@ inline Hit dispatch(const TraceView& v, const typename K::Ray& r, Layout l, Trav
       case Traversal::bitstack: return trace_mbvh8_bitstack<Any, St, K>(v, r, st);
       case Traversal::stack_ordered: return trace_wide_stack_ordered<Any, St, K, Node8>(v, r, st);
       case Traversal::bitstack_retest: return miss_hit();
-      case Traversal::packet_ranged: case Traversal::packet_partition: case Traversal::packet: case Traversal::dacrt: break;  // mapped above
+      case Traversal::packet_ranged: case Traversal::packet_partition: case Traversal::packet: case Traversal::dacrt:
+        break;  // mapped above
     }
     return miss_hit();
   }
@@ -40,7 +41,8 @@ inline Hit dispatch(const TraceView& v, const typename K::Ray& r, Layout l, Trav
     case Traversal::bitstack: return trace_mbvh4_bitstack<Any, St, K>(v, r, st);
     case Traversal::stack_ordered: return trace_wide_stack_ordered<Any, St, K>(v, r, st);
     case Traversal::bitstack_retest: return trace_mbvh4_bitstack_retest<Any, St, K>(v, r, st);
-    case Traversal::packet_ranged: case Traversal::packet_partition: case Traversal::packet: case Traversal::dacrt: break;  // mapped above
+    case Traversal::packet_ranged: case Traversal::packet_partition: case Traversal::packet: case Traversal::dacrt:
+      break;  // mapped above
   }
   return miss_hit();
 }

@@ -88,14 +88,24 @@ constexpr double kMaxRayCube = 0x1p128;
 constexpr double kMinRayCube = 0x1p-116;
 constexpr double kMaxRayRatio = 0x1p100;
 
-/// Which builder makes the binary BVH (`--quality`). All three produce the same structures (Bvh2,
-/// leaves, leaf-ordered triangles), so every layout and backend traces any of them. With `high`
-/// a triangle may sit in more than one leaf (never twice in one; up to 30 % more references),
-/// for fewer node visits and triangle tests per ray.
+/// Which builder makes the binary BVH (`--quality`). low, medium and high produce the same
+/// structures (Bvh2, leaves, leaf-ordered triangles), so every layout and backend traces any of
+/// them. With `high` a triangle may sit in more than one leaf (never twice in one; up to 30 % more
+/// references), for fewer node visits and triangle tests per ray.
+/// `none` builds no hierarchy, for the backends that trace without one (BackendInfo::
+/// needs_hierarchy false: dacrt, divide-and-conquer ray tracing). Scene::validate, the coordinate
+/// range checks, the kMinTriangleArea check and the degenerate filter run exactly as in every
+/// build; tris() holds the non-degenerate triangles in scene (prim) order; bounds(), hash(),
+/// generation(), scene_triangles(), geometry_of(), binary_stats() (0 nodes and leaves) and refit()
+/// work. The layout accessors (bvh2() to mbvh4_wide(), make_layout, tri_packs, leaf_variant,
+/// leaves) throw Error: a backend that needs a hierarchy refuses such a build (Backend::prepare,
+/// Backend::trace), and so do trace_one and trace_reference. O(n), no sort. Appended last: the
+/// cache header stores the value (a none build is never cached; build_cached, save).
 enum class BuildQuality {
   low,     ///< Morton-code LBVH (Karras 2012): several times faster to build, slower to trace
   medium,  ///< binned SAH (Wald 2007): the default
   high,    ///< spatial splits (SBVH, Stich et al. 2009); host/core/bvh/sbvh.cpp
+  none,    ///< no hierarchy: the triangles alone, for the dacrt backends (see above)
 };
 const char* to_string(BuildQuality q);
 BuildQuality parse_quality(const std::string& s);  ///< throws Error on an unknown name
@@ -137,7 +147,8 @@ struct LayoutStats {
 /// (thread-safe) and kept.
 class Accel {
 public:
-  /// Builds the binary BVH. Throws Error if the scene has no non-degenerate triangle, fails
+  /// Builds the binary BVH (with BuildQuality::none: only the triangle records, no hierarchy;
+  /// O(n), parallel). Throws Error if the scene has no non-degenerate triangle, fails
   /// Scene::validate (a vertex index out of range, a NaN or infinite vertex) or
   /// `opt.traversal_cost` is negative or not finite, or if its coordinates leave the exactly traced
   /// range (kMaxCoordinate, kMinSceneScale); other options are clamped to what works
@@ -157,7 +168,9 @@ public:
   /// DIR (threads or processes) are safe. Throws Error when DIR cannot be made, when the entry is
   /// one of `other_files` (same file, by inode or path), when the file cannot be written (saying
   /// what was wrong with the old one, if anything), and as build does. Cost of a hit: reading the
-  /// file and O(triangles) checks, far less than a build.
+  /// file and O(triangles) checks, far less than a build. With BuildQuality::none it builds
+  /// without reading or writing DIR (the report's path stays empty): that build is O(n), no dearer
+  /// than reading and checking an entry would be.
   struct CacheOptions {
     std::string dir;  ///< the cache directory
     /// The files the calling command reads or writes (scene, rays, outputs): an entry that is one
@@ -184,7 +197,8 @@ public:
   /// The cache key: a content hash of the scene's vertices and triangles, the options that shape
   /// the tree (not threads) and the library version.
   static std::uint64_t cache_key(const Scene& scene, const BuildOptions& opt);
-  /// Writes this build to `path` (atomically, through a temporary) under `key`.
+  /// Writes this build to `path` (atomically, through a temporary) under `key`. Throws Error for
+  /// a build of quality none (it has no tree to keep; rebuilding it is O(n)).
   void save(const std::string& path, std::uint64_t key) const;
   /// Reads a build written by save; throws Error naming the path and what is wrong when the file
   /// is a symbolic link (never followed), truncated, damaged (checksum), of another format version
@@ -193,6 +207,10 @@ public:
   static std::unique_ptr<Accel> load(const std::string& path, std::uint64_t key);
 
   ~Accel();
+  /// False for a build of BuildQuality::none: then bvh2(), mbvh2(), mbvh4(), mbvh8(),
+  /// mbvh4_wide(), make_layout(), tri_packs(), leaf_variant() and leaves() throw Error ("this
+  /// build has no hierarchy (quality none) ..."); tris() and the rest work.
+  bool has_hierarchy() const;
   const Bvh2& bvh2() const;
   const Mbvh2& mbvh2() const;   ///< MBVH2 layout (Aila–Laine nodes with links), made on first use
   const Mbvh4& mbvh4() const;   ///< MBVH4 layout (depth-aware SAH-guided collapse), made on first use
@@ -206,8 +224,13 @@ public:
   /// refit tree again (O(nodes), the collapse and packs: conference about 20 ms), and may choose
   /// other leaves, as the boxes moved.
   const LeafVariant& leaf_variant(unsigned block) const;
+  /// The triangle records: leaf-ordered (a spatial-split build may hold a triangle more than
+  /// once), or with quality none the non-degenerate triangles once each in scene order. Every
+  /// record's prim id is its triangle's (tri_prim).
   const AlignedVector<Tri>& tris() const;
   const std::vector<Leaf>& leaves() const;
+  /// Triangles of the scene kept out of the build as degenerate (zero area).
+  std::size_t degenerate_triangles() const;
   const Box& bounds() const;
   std::size_t scene_triangles() const;
   /// Geometries of the scene it was built from (Scene::geometry_count(); 1 after Accel::load).
@@ -217,7 +240,8 @@ public:
   GeomPrim geometry_of(std::uint32_t prim) const;
   const LayoutStats& binary_stats() const;
   const BuildOptions& options() const;
-  /// 64-bit hash of the build's bytes (nodes, leaves, triangles); equal across thread counts.
+  /// 64-bit hash of the build's bytes (nodes, leaves, triangles; quality none: its triangles);
+  /// equal across thread counts.
   /// Changes when refit() moves a vertex. Computed on the first call (thread-safe; O(bytes),
   /// parallel over options().threads) and kept: a build that is only traced never pays for it.
   std::uint64_t hash() const;
@@ -225,7 +249,8 @@ public:
   /// re-uploads it when (&accel, hash(), generation()) changes since its last prepare().
   std::uint64_t generation() const;
 
-  /// Refits the build to new vertex positions with the same topology: `moved` must be the scene
+  /// Refits the build to new vertex positions with the same topology (quality none: recomputes
+  /// the triangles and bounds(), with the same checks and refusals): `moved` must be the scene
   /// this Accel was built from (the same triangles, the same vertex indices, the same meshes with
   /// the same triangle counts) with vertices moved; a scene of views is read through them, so the
   /// caller may move the vertices in its own buffers and refit with the same Scene.
@@ -249,6 +274,9 @@ private:
   /// anything is allocated.
   static std::unique_ptr<Accel> load_entry(const std::string& path, std::uint64_t key, const Scene* scene);
   void drop_leaf_variants();  ///< refit: forget the leaf variants (remade on next use)
+  /// Throws the Error of a build without a hierarchy (quality none), naming accessor `what`.
+  void require_hierarchy(const char* what) const;
+  void refit_triangles(const Scene& moved);  ///< refit of a build without a hierarchy (refit.cpp)
   struct Impl;  ///< host/core/layouts.h
   std::unique_ptr<Impl> impl_;
 };

@@ -65,11 +65,13 @@ public:
   virtual bool supports_precision(Precision p) const { return p == Precision::robust; }
   /// Makes the backend ready to trace `acc` with these options (uploads only the layout needed;
   /// repeated calls with the same build are free). Called by trace() if not done before.
-  /// Checks `opt` first (check_trace_options, naming this backend).
+  /// Checks `opt` first (check_trace_options, naming this backend), and refuses a build without a
+  /// hierarchy (BuildQuality::none) unless the backend's BackendInfo::needs_hierarchy is false.
   void prepare(const Accel& acc, const TraceOptions& opt);
   /// Traces `rays`, filling `out` in ray order (TraceOutput). Throws Error on failure. First, for
   /// every backend alike: checks `opt` (check_trace_options), refuses a layout / traversal pair
-  /// or a precision the backend lacks (supports, supports_precision) and a ray outside the exactly
+  /// or a precision the backend lacks (supports, supports_precision), a build without a hierarchy
+  /// when the backend needs one (as prepare) and a ray outside the exactly
   /// traced range (check_ray_range), each Error naming this backend; then prepares (prepare) and
   /// sizes `out`; an empty batch ends there. One backend object may be used from several threads:
   /// its prepare and trace calls take the object's lock, so they run one at a time (a CPU backend
@@ -142,7 +144,10 @@ struct BackendInfo {
   std::function<std::vector<std::string>()> pending_problems;
   /// The settings this backend reads (BackendOptions::settings).
   std::vector<BackendSetting> settings;
-  /// False for a backend that traces the build's triangles without its hierarchy (dacrt).
+  /// Whether the backend traces a build's hierarchy (its layouts). False for a backend that traces
+  /// from Accel::tris() and bounds() alone (dacrt): it also traces a build of BuildQuality::none,
+  /// which every other backend refuses (Backend::prepare, Backend::trace), and a CLI command whose
+  /// every backend has it false builds with quality none unless --quality says otherwise.
   bool needs_hierarchy = true;
 };
 
@@ -156,6 +161,9 @@ std::vector<BackendInfo> list_backends();
 /// for). A listed backend that then fails to start has a fault (a driver, a device), not missing
 /// hardware. `left_out`, if given, gets "NAME: why" for every other registered name. Starts none.
 std::vector<std::string> runnable_backends(std::vector<std::string>* left_out = nullptr);
+/// BackendInfo::needs_hierarchy of the registered backend `name` (false if the backend an alias
+/// stands for has it false); true for a name not registered.
+bool backend_needs_hierarchy(const std::string& name);
 /// Makes a backend by name; throws Error naming the known backends, or saying why a known
 /// backend is not built or cannot start, or naming a setting of `opt` that no backend of its
 /// family declares (BackendOptions).

@@ -45,11 +45,19 @@ enum class Query { closest, any };
 /// (closest hit: stack_ordered, any hit and MBVH2: stack) but for rare order-dependent ties
 /// (docs/backends.md): the reference (cpu-scalar) traces packet traversals as that traversal,
 /// ray by ray.
+/// dacrt: divide-and-conquer ray tracing without a hierarchy (Afra 2012, after Keller & Waechter
+/// 2011; thesis ch. 6): the dacrt backends trace any build, a build of BuildQuality::none too,
+/// from its triangles alone, and ignore the layout (reports show it as "-"). Its answers are
+/// packet_single_ray's traversal's up to the same classified ties; the reference traces it as that
+/// traversal, ray by ray, on a build with a hierarchy (reference_supports is still false for it:
+/// cpu-scalar and the SIMD cpu backends do not list it).
 enum class Traversal { stack, bitstack, stack_ordered, bitstack_retest, packet_ranged, packet_partition, packet, dacrt };
 /// Whether `t` traces packets of rays (the cpu backend's packet traversals).
 inline bool is_packet(Traversal t) {
   return t == Traversal::packet_ranged || t == Traversal::packet_partition || t == Traversal::packet;
 }
+/// Whether `t` is the divide-and-conquer traversal (no hierarchy; the layout is ignored).
+inline bool is_dacrt(Traversal t) { return t == Traversal::dacrt; }
 /// The single-ray traversal whose answers a packet traversal gives, and which its hybrid switch
 /// traces incoherent packets with: closest hit the ordered stack (the faster single-ray closest
 /// hit on MBVH4 and MBVH8, docs/benchmarks.md), any hit and MBVH2 (no ordered stack) the stack.
@@ -58,10 +66,12 @@ constexpr Traversal packet_single_ray(Layout l, bool any) {
   return any || l == Layout::mbvh2 ? Traversal::stack : Traversal::stack_ordered;
 }
 /// The stack-based twin a bitstack traversal must reproduce (itself for stack traversals; stack
-/// for the packet traversals, whose every ray's answer is the stack traversal's).
+/// for the packet traversals, whose every ray's answer is the stack traversal's; itself for dacrt,
+/// which has no twin).
 Traversal stack_twin(Traversal t);
 /// Whether the reference traversals implement the pair (bitstack_retest: MBVH4 only;
-/// stack_ordered: MBVH4 and MBVH8).
+/// stack_ordered: MBVH4 and MBVH8; dacrt: never, though trace_reference and trace_one accept it
+/// and trace packet_single_ray's traversal for it, ray by ray).
 bool reference_supports(Layout layout, Traversal traversal);
 /// Accuracy mode (the run-time-vs-error benchmark). robust, the default: the conservative slab
 /// test (Ize 2013) and the watertight triangle test (Woop et al. 2013). exact: answers bit-identical
@@ -92,6 +102,8 @@ struct TraceOptions {
   unsigned leaf_block = 0;
 };
 
+/// The text a report shows for the layout of `opt`: "-" for dacrt (which ignores it), else its name.
+const char* layout_label(const TraceOptions& opt);
 /// Throws Error naming `who` and the value when opt.leaf_block is above 64 (every backend's and
 /// the reference's trace call it first).
 void check_leaf_block(const TraceOptions& opt, const std::string& who);
@@ -140,15 +152,19 @@ struct TraceOutput {
 
 /// Bytes of traversal state one ray needs in the given layout and traversal (TRAVERSAL.md §5):
 /// stack = entries * 4 + stack pointer + current node (ordered stack: 8-byte entries); bitstack =
-/// current node + 64-bit word (MBVH8: 128-bit word); packets: the packet's stack per ray.
+/// current node + 64-bit word (MBVH8: 128-bit word); packets: the packet's stack per ray; dacrt:
+/// 32, the ray record the recursion permutes (the dacrt backends' state_bytes adds the rest).
 std::size_t state_bytes_per_ray(Layout layout, Traversal traversal);
 
-/// Traces one ray with the scalar reference traversal. If `stats` is given, counts work; if
+/// Traces one ray with the scalar reference traversal (dacrt as packet_single_ray's traversal).
+/// Throws Error on a build without a hierarchy (BuildQuality::none). If `stats` is given, counts work; if
 /// `leaf_log` is given, appends every visited leaf reference in visit order.
 Hit trace_one(const Accel& acc, const Ray& ray, const TraceOptions& opt, RayStats* stats = nullptr,
               std::vector<std::int32_t>* leaf_log = nullptr);
 
-/// Traces a batch with the scalar reference traversals on `threads` workers (0 = all).
+/// Traces a batch with the scalar reference traversals on `threads` workers (0 = all); dacrt and
+/// the packet traversals as packet_single_ray's traversal, ray by ray. Throws Error on a build
+/// without a hierarchy (BuildQuality::none).
 /// `progress` (may be null) is called with the number of rays finished so far.
 void trace_reference(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out,
                      unsigned threads, const std::function<void(std::size_t)>& progress = {});
