@@ -80,7 +80,7 @@ if "$MBVH" devices --ready 2>/dev/null | grep -qx embree; then EMBREE=",embree";
   echo "compiler: $(c++ --version 2>/dev/null | head -1)"
   echo "code: $(git -C "$ROOT" rev-parse --short HEAD 2>/dev/null || echo unknown)$(git -C "$ROOT" diff --quiet 2>/dev/null || echo ' (modified)')"
   echo "dacrt: $DACRT$([ -n "$STANDIN" ] && echo ' (STAND-IN: not the dacrt backend)')"
-  echo "embree: ${EMBREE:+yes}${EMBREE:-not in this binary}"
+  echo "embree: $([ -n "$EMBREE" ] && echo yes || echo "does not start here")"
   echo "rays: $RAYS a kind; frames: $FRAMES; ablations: $ABL_RAYS rays, $ABL_ROUNDS rounds; quick: $QUICK"
 } > "$OUT/machine.txt"
 cat "$OUT/machine.txt" >&2
