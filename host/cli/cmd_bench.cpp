@@ -100,8 +100,9 @@ int run_dynamic_command(const BenchArgs& a, const std::vector<OutputTarget>& out
   Progress p("dynamic frames", d.frames);
   const DynamicReport rep = run_dynamic(l.scene, *l.acc, d, [&p](std::size_t f, std::size_t) { p.update(f); });
   p.finish();
-  say("scene %s, %zu triangles, %u frames moved by the smooth displacement (info --refit's, its phase by frame)\n"
-      "cpu %s, %u threads\n\n%s", l.scene.name.c_str(), l.scene.triangle_count(), d.frames, rep.cpu.c_str(),
+  say("scene %s, %zu triangles (%zu degenerate left out: a displacement would give them area, which a refit refuses), "
+      "%u frames moved by the smooth displacement (info --refit's, its phase by frame)\ncpu %s, %u threads\n\n%s",
+      l.scene.name.c_str(), l.scene.triangle_count(), rep.left_out, d.frames, rep.cpu.c_str(),
       resolve_threads(a.scene.threads), rep.table().c_str());
   say("\nmodes: rebuild = Accel::build of the moved scene, refit = Accel::refit of the first frame's build, update = "
       "refit of a flat build (no hierarchy), each + the trace of every kind; x update: ms/frame over the update lane's; "

@@ -330,14 +330,13 @@ DynamicReport run_dynamic(const Scene& scene, const Accel& acc, const DynamicOpt
   // -- frame 0, the unmoved scene: every lane's warm-up (untimed), its kept build made and the
   // resident bytes it keeps measured; then frames 1..N, each lane's step timed in an order
   // rotated frame by frame, so a drift in the machine's load slows every lane alike
-  Scene moved = scene;
+  const Scene base = without_degenerate(scene, acc);
+  rep.left_out = scene.triangle_count() - base.triangle_count();
+  Scene moved = base;
   for (unsigned f = 0; f <= opt.frames; ++f) {
-    std::unique_ptr<Accel> ref_build;
-    if (f > 0) {
-      displace_vertices(scene.vertices, moved.vertices, bounds, f);
-      ref_build = Accel::build(moved, build);
-    }
-    const Accel& ref = f > 0 ? *ref_build : acc;
+    if (f > 0) displace_vertices(base.vertices, moved.vertices, bounds, f);
+    const std::unique_ptr<Accel> ref_build = Accel::build(moved, build);
+    const Accel& ref = *ref_build;
     const FrameRays fr = frame_rays(moved, ref, primary, light, items, opt.threads);
     for (std::size_t k = 0; k < lanes.size(); ++k) {
       Lane& lane = lanes[(k + f) % lanes.size()];
@@ -424,6 +423,7 @@ std::string DynamicReport::json() const {
   j["flags"] = flags;
   j["scene"] = scene;
   j["triangles"] = triangles;
+  j["degenerate_left_out"] = left_out;
   j["records"] = nlohmann::json::array();
   const auto bytes = [](std::int64_t b) { return b < 0 ? nlohmann::json(nullptr) : nlohmann::json(b); };
   const auto or_null = [](double v) { return v > 0 ? nlohmann::json(v) : nlohmann::json(nullptr); };

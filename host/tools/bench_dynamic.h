@@ -86,6 +86,7 @@ struct DynamicReport {
   std::string machine, cpu, compiler, flags;
   std::string scene;
   std::size_t triangles = 0;
+  std::size_t left_out = 0;  ///< degenerate triangles left out of the moving scene
   std::vector<DynamicRecord> records;
   std::string table() const;   ///< the medians, then the frames' total ms, one column per lane
   std::string json() const;    ///< BenchReport's document: the run's keys and `records`
@@ -94,7 +95,10 @@ struct DynamicReport {
 };
 
 /// Runs DynamicOptions::frames frames of `scene` (built as `acc`, which fixes the displacement's
-/// extent, the camera and the light): frame f moves every vertex by displace_vertices(f); an
+/// extent, the camera and the light) without its degenerate triangles (without_degenerate: a
+/// displacement would give them area, which a refit refuses; they are never hit, and the
+/// answers' prim ids are those of the scene without them; DynamicReport::left_out counts them):
+/// frame f moves every vertex by displace_vertices(f); an
 /// untimed reference build of the moved scene makes the frame's shadow rays (from its primary
 /// hits) and reference answers; then every lane's step (its update, then one trace per kind) is
 /// timed, the lanes in an order rotated frame by frame, and its answers are verified. Throws

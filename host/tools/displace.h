@@ -4,6 +4,7 @@
 #pragma once
 #include <span>
 
+#include "mbvh/accel.h"
 #include "mbvh/scene.h"
 
 namespace mbvh {
@@ -16,5 +17,12 @@ namespace mbvh {
 /// original place and a refit of the original build stays about as good frame after frame.
 /// Requires moved.size() == original.size() and frame >= 1. O(vertices), one thread.
 void displace_vertices(std::span<const Vec3f> original, std::span<Vec3f> moved, const Box& bounds, unsigned frame);
+
+/// `scene` (an owned scene: no mesh views) with only the triangles `acc`, its build, keeps: the
+/// degenerate (zero-area) ones left out, the rest in scene order, renumbered; vertices and name
+/// as they are. A displacement gives a degenerate triangle whose vertices are distinct area,
+/// which Accel::refit refuses (it is in no leaf); without them every frame refits. Throws Error
+/// for a scene of mesh views. O(triangles).
+Scene without_degenerate(const Scene& scene, const Accel& acc);
 
 }  // namespace mbvh
