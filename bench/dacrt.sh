@@ -118,8 +118,10 @@ log "memory: $name"
 "$MBVH" info "$scene" > "$OUT/mem-info.txt" 2>&1
 /usr/bin/time -v "$MBVH" --version > /dev/null 2> "$OUT/mem-process.time"
 for b in cpu "$DACRT"; do
+  trav=()
+  [ "$b" = "$DACRT" ] && trav=(--traversal "$DACRT_TRAV")  # dacrt traces only its own
   for f in mem1 mem; do
-    /usr/bin/time -v "$MBVH" trace "$scene" --backend "$b" --rays "$OUT/$f.rays" --threads 2 \
+    /usr/bin/time -v "$MBVH" trace "$scene" --backend "$b" "${trav[@]}" --rays "$OUT/$f.rays" --threads 2 \
       > "$OUT/mem-$b-$f.txt" 2> "$OUT/mem-$b-$f.time"
   done
 done
