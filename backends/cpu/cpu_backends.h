@@ -1,12 +1,28 @@
 // SPDX-License-Identifier: MIT
 // cpu_backends.h — the CPU backends' registration entry points and the per-ISA kernel table.
 #pragma once
+#include <cstddef>
 #include <span>
+#include <string>
 
 #include "mbvh/backend.h"
 #include "mbvh/trace.h"
 
 namespace mbvh {
+
+/// The dacrt backends' settings (BackendOptions `dacrt.*`, backends/cpu/dacrt_backend.cpp): how
+/// the recursion of divide-and-conquer ray tracing (Áfra, EG 2012; backends/cpu/dacrt/) splits
+/// the triangles and when it stops. Every value gives exact answers; they trade speed only.
+struct DacrtSettings {
+  enum class Partition { adaptive, sah, middle };
+  Partition partition = Partition::adaptive;  ///< adaptive: SAH where active rays / triangles > ratio, else middle
+  float ratio = 2.0f;          ///< the adaptive switch
+  unsigned bins = 16;          ///< SAH bins per axis on the centroid bounds
+  unsigned leaf_rays = 16;     ///< the naive leaf below this many active rays
+  unsigned leaf_tris = 8;      ///< the naive leaf at this many triangles or fewer
+  bool ordered = true;         ///< near child first by the first active ray's direction sign
+  std::size_t chunk = 131072;  ///< rays per independent task (fixed: answers do not depend on the threads)
+};
 
 /// One ISA's compiled kernels (backends/cpu/isa_kernels.cpp, built once per ISA). Only call
 /// `trace` after CPUID says the ISA is there.
@@ -15,7 +31,19 @@ struct CpuKernels {
   /// hybrid: the packet traversals trace an incoherent packet ray by ray (the `cpu.packet-hybrid`
   /// setting; off: every packet as a packet, for tests and measurements).
   void (*trace)(const Accel&, std::span<const Ray>, const TraceOptions&, TraceOutput&, unsigned threads, bool hybrid);
+  /// Divide-and-conquer ray tracing over acc.tris() (backends/cpu/dacrt/): no hierarchy read.
+  void (*dacrt)(const Accel&, std::span<const Ray>, const TraceOptions&, TraceOutput&, unsigned threads,
+                const DacrtSettings&);
 };
+
+/// The kernels of the best ISA this CPU has (AVX-512, else AVX2, within MBVH_CPU_ISA's cap), or
+/// null with `missing` saying why there are none (backends/cpu/simd_backend.cpp).
+const CpuKernels* best_cpu_kernels(std::string& missing);
+
+/// The portable (scalar) dacrt: the same recursion, box tests and triangle tests one ray at a time
+/// (backends/cpu/dacrt_scalar.cpp); the same bytes as the SIMD kernels'.
+void dacrt_scalar(const Accel&, std::span<const Ray>, const TraceOptions&, TraceOutput&, unsigned threads,
+                  const DacrtSettings&);
 
 /// The cpu family's `cpu.leaf-block` setting: the leaf block (TraceOptions::leaf_block) a cpu
 /// backend traces when a call leaves it 0 — `fallback` (4 on the SIMD backends, 1 on cpu-scalar)
@@ -30,5 +58,6 @@ BackendSetting cpu_packet_hybrid_setting(const char* note = "");
 
 void register_cpu_scalar_backend();
 void register_cpu_simd_backends();
+void register_dacrt_backends();
 
 }  // namespace mbvh

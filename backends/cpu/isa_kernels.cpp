@@ -5,7 +5,8 @@
 // the std and host inline functions this unit instantiates, and the linker may keep those AVX-512
 // copies for the portable code too (a crash on a CPU without it). Then, between MBVH_ISA_BEGIN and
 // MBVH_ISA_END, the ISA-namespaced code: the reference's traversal engine (host/core/trace), the
-// SIMD kernel policy (simd/), the packet traversals (packet/) and the entry point. The policy
+// SIMD kernel policy (simd/), the packet traversals (packet/), divide-and-conquer ray tracing
+// (dacrt/) and the entry points. The policy
 // tests an MBVH4 node's four boxes or an MBVH8 node's eight at once and a leaf's triangles eight
 // at a time; the traversals are the reference's — the same operations in the same order, so the
 // answers are bit-identical to cpu-scalar's. Áfra & Szirmay-Kalos 2014 for the traversals (Áfra's
@@ -56,6 +57,7 @@ MBVH_ISA_BEGIN
 #include "backends/cpu/packet/triangle.h"
 #include "backends/cpu/packet/traverse.h"
 #include "backends/cpu/packet/batch.h"
+#include "backends/cpu/dacrt/simd.h"
 
 namespace mbvh {
 inline namespace MBVH_ISA_NS {
@@ -81,6 +83,6 @@ MBVH_ISA_END
 
 namespace mbvh {
 extern const CpuKernels MBVH_CPU_KERNELS_NAME;
-const CpuKernels MBVH_CPU_KERNELS_NAME{MBVH_STR(MBVH_CPU_ISA), &MBVH_ISA_NS::trace};
+const CpuKernels MBVH_CPU_KERNELS_NAME{MBVH_STR(MBVH_CPU_ISA), &MBVH_ISA_NS::trace, &MBVH_ISA_NS::dacrt::trace_dacrt};
 
 }  // namespace mbvh

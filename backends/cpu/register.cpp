@@ -29,6 +29,7 @@ BackendSetting cpu_packet_hybrid_setting(const char* note) {
 void register_cpu_backends() {
   register_cpu_scalar_backend();
   register_cpu_simd_backends();
+  register_dacrt_backends();
 }
 
 }  // namespace mbvh

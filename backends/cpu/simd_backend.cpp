@@ -102,6 +102,13 @@ void add(const char* name, const char* summary, const CpuKernels& k, bool (*avai
 
 }  // namespace
 
+const CpuKernels* best_cpu_kernels(std::string& missing) {
+  if (has_avx512()) return &cpu_kernels_avx512;
+  if (has_avx2()) return &cpu_kernels_avx2;
+  missing = isa_cap() == IsaCap::invalid ? invalid_cap_message() : "this CPU has neither AVX-512 nor AVX2";
+  return nullptr;
+}
+
 void register_cpu_simd_backends() {
   const IsaCap cap = isa_cap();
   const auto why = [cap](const char* missing) {

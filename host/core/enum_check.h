@@ -19,10 +19,10 @@ template <> struct Names<Layout> {
   static constexpr const char* known = "mbvh2, mbvh4, mbvh8";
 };
 template <> struct Names<Traversal> {
-  static constexpr int count = 7;
+  static constexpr int count = 8;
   static constexpr const char* type = "Traversal";
   static constexpr const char* known =
-      "stack, bitstack, stack-ordered, bitstack-retest, packet-ranged, packet-partition, packet";
+      "stack, bitstack, stack-ordered, bitstack-retest, packet-ranged, packet-partition, packet, dacrt";
 };
 template <> struct Names<Query> {
   static constexpr int count = 2;

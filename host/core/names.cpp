@@ -55,6 +55,7 @@ const char* to_string(Traversal t) {
     case Traversal::packet_ranged: return "packet-ranged";
     case Traversal::packet_partition: return "packet-partition";
     case Traversal::packet: return "packet";
+    case Traversal::dacrt: return "dacrt";
   }
   return "?";
 }
@@ -73,6 +74,7 @@ Traversal parse_traversal(const std::string& s) {
   if (s == "packet-ranged") return Traversal::packet_ranged;
   if (s == "packet-partition") return Traversal::packet_partition;
   if (s == "packet") return Traversal::packet;
+  if (s == "dacrt") return Traversal::dacrt;
   throw Error("unknown traversal '" + s +
               "' (known: stack, bitstack, stack-ordered, bitstack-retest, packet-ranged, packet-partition, packet)");
 }

@@ -22,7 +22,7 @@ inline namespace MBVH_ISA_NS {
 /// packet_single_ray's, ray by ray); the pair is one reference_supports.
 template <bool Any, class K, class St>
 inline Hit dispatch(const TraceView& v, const typename K::Ray& r, Layout l, Traversal t, St& st) {
-  if (is_packet(t)) t = packet_single_ray(l, Any);  // a packet traversal's answers, ray by ray
+  if (is_packet(t) || t == Traversal::dacrt) t = packet_single_ray(l, Any);  // a packet traversal's answers, ray by ray
   if (l == Layout::mbvh2)
     return t == Traversal::stack ? trace_mbvh2_stack<Any, St, K>(v, r, st) : trace_mbvh2_bitstack<Any, St, K>(v, r, st);
   if (l == Layout::mbvh8) {
@@ -31,7 +31,7 @@ inline Hit dispatch(const TraceView& v, const typename K::Ray& r, Layout l, Trav
       case Traversal::bitstack: return trace_mbvh8_bitstack<Any, St, K>(v, r, st);
       case Traversal::stack_ordered: return trace_wide_stack_ordered<Any, St, K, Node8>(v, r, st);
       case Traversal::bitstack_retest: return miss_hit();
-      case Traversal::packet_ranged: case Traversal::packet_partition: case Traversal::packet: break;  // mapped above
+      case Traversal::packet_ranged: case Traversal::packet_partition: case Traversal::packet: case Traversal::dacrt: break;  // mapped above
     }
     return miss_hit();
   }
@@ -40,7 +40,7 @@ inline Hit dispatch(const TraceView& v, const typename K::Ray& r, Layout l, Trav
     case Traversal::bitstack: return trace_mbvh4_bitstack<Any, St, K>(v, r, st);
     case Traversal::stack_ordered: return trace_wide_stack_ordered<Any, St, K>(v, r, st);
     case Traversal::bitstack_retest: return trace_mbvh4_bitstack_retest<Any, St, K>(v, r, st);
-    case Traversal::packet_ranged: case Traversal::packet_partition: case Traversal::packet: break;  // mapped above
+    case Traversal::packet_ranged: case Traversal::packet_partition: case Traversal::packet: case Traversal::dacrt: break;  // mapped above
   }
   return miss_hit();
 }

@@ -142,6 +142,8 @@ struct BackendInfo {
   std::function<std::vector<std::string>()> pending_problems;
   /// The settings this backend reads (BackendOptions::settings).
   std::vector<BackendSetting> settings;
+  /// False for a backend that traces the build's triangles without its hierarchy (dacrt).
+  bool needs_hierarchy = true;
 };
 
 /// Adds a backend to the registry (a later registration of the same name replaces it).

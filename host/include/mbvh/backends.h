@@ -3,7 +3,7 @@
 // included by mbvh/mbvh.h: the core, mbvh::core, defines none of these). The core knows no
 // backend: a program registers the ones it links, once, before make_backend or list_backends.
 //   mbvh::register_builtin_backends();   // mbvh::mbvh: every backend this build has
-//   mbvh::register_cpu_backends();       // mbvh::cpu only: cpu-scalar, cpu, cpu-avx2, cpu-avx512
+//   mbvh::register_cpu_backends();       // mbvh::cpu only: cpu-scalar, cpu, cpu-avx2, cpu-avx512, dacrt, dacrt-scalar
 // Registering twice replaces the entries (harmless). Thread-safe.
 #pragma once
 #include "mbvh/config.h"

@@ -45,7 +45,7 @@ enum class Query { closest, any };
 /// (closest hit: stack_ordered, any hit and MBVH2: stack) but for rare order-dependent ties
 /// (docs/backends.md): the reference (cpu-scalar) traces packet traversals as that traversal,
 /// ray by ray.
-enum class Traversal { stack, bitstack, stack_ordered, bitstack_retest, packet_ranged, packet_partition, packet };
+enum class Traversal { stack, bitstack, stack_ordered, bitstack_retest, packet_ranged, packet_partition, packet, dacrt };
 /// Whether `t` traces packets of rays (the cpu backend's packet traversals).
 inline bool is_packet(Traversal t) {
   return t == Traversal::packet_ranged || t == Traversal::packet_partition || t == Traversal::packet;

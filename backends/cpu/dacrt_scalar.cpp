@@ -1,0 +1,70 @@
+// SPDX-License-Identifier: MIT
+// dacrt_scalar.cpp — the portable kernel policy of divide-and-conquer ray tracing (dacrt/recursion.h):
+// one ray at a time, the reference's own box_test operations and tri_test (intersect.h). The
+// `dacrt-scalar` backend; the reference the SIMD policy (dacrt/simd.h) reproduces bit for bit.
+#include "backends/cpu/dacrt/recursion.h"
+
+namespace mbvh {
+namespace {
+
+struct ScalarPolicy {
+  using Side = RayPre;  ///< the whole prepared ray, by id
+  struct Local {};
+
+  static bool set_up(const Ray& r, dacrt::RayRec& rec, RayPre& p, bool fast) {
+    if (!prepare_ray(r, p)) return false;
+    if (fast) relax_ray(p);
+    dacrt::fill_record(p, rec);
+    return true;
+  }
+
+  template <bool Fast>
+  static std::size_t filter(dacrt::Work<ScalarPolicy>& w, std::size_t n, const dacrt::Bounds& box) {
+    std::size_t k = 0;
+    for (std::size_t p = 0; p < n; ++p)
+      if (dacrt::box_hit<Fast>(w.rec[p], box)) {
+        if (p != k) dacrt::swap_rays(w, k, p);
+        ++k;
+      }
+    return k;
+  }
+
+  template <bool Any, bool Fast, bool Stats>
+  static void leaf(dacrt::Work<ScalarPolicy>& w, std::size_t na, std::uint32_t tb, std::uint32_t te) {
+    for (std::size_t p = 0; p < na; ++p) {
+      dacrt::RayRec& rec = w.rec[p];
+      const std::uint32_t id = w.id[p];
+      const RayPre& pre = w.side[id];
+      float tmax = rec.tmax;
+      Hit best = Any ? miss_hit() : w.hits[id];
+      for (std::uint32_t j = tb; j < te; ++j) {
+        const Tri& tri = w.tris[w.tid[j]];
+        if constexpr (Stats) ++w.stats[id].tris;
+        float t, u, v;
+        const bool hit = Fast ? tri_test_mt(pre, tri, tmax, t, u, v) : tri_test(pre, tri, tmax, t, u, v);
+        if (!hit) continue;
+        const std::uint32_t prim = tri_prim(tri);
+        if constexpr (Any) {
+          w.occluded[id] = 1;
+          tmax = -1.0f;  // below every tmin: every later filter drops the ray
+          break;
+        }
+        if (t < best.t || prim < best.prim) {  // visit_leaf's rule: equal t -> smaller prim id
+          best = Hit{t, u, v, prim};
+          tmax = t;
+        }
+      }
+      rec.tmax = tmax;
+      if constexpr (!Any) w.hits[id] = best;
+    }
+  }
+};
+
+}  // namespace
+
+void dacrt_scalar(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out, unsigned threads,
+                  const DacrtSettings& s) {
+  dacrt::trace<ScalarPolicy>(acc, rays, opt, out, threads, s);
+}
+
+}  // namespace mbvh
