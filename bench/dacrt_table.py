@@ -44,7 +44,7 @@ def speed_table(pattern, title, targets):
         rs = [r for r in recs if (r["scene"], r["ray_kind"], r["query"]) == (scene, kind, query)]
         for threads, field in ([("2", "mrays_per_s"), ("1", "mrays_per_s_1_thread")] if one else
                                [(str(rs[0]["threads"]), "mrays_per_s")]):
-            cpu = [r for r in rs if r["backend"] == "cpu"]
+            cpu = [r for r in rs if r["backend"] == "cpu" and r["traversal"] != "dacrt"]  # its BVH traversals
             bit = next((r[field] for r in cpu if r["traversal"] == "bitstack"), 0)
             best = max(cpu, key=lambda r: r[field] or 0, default=None)
             d = next((r[field] for r in rs if r["backend"] == DACRT), 0)

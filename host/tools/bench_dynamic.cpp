@@ -53,7 +53,7 @@ bool needs_hierarchy(const Info& info) {
 template <class Q = BuildQuality>
 Q flat_quality(Q without_none) {
   if constexpr (requires { Q::none; }) return Q::none;
-  else return without_none;  // no backend traces a flat build yet: never an update lane
+  else return without_none;  // until then the update lane refits a full build (its record's `build` says which)
 }
 
 // Whether the registered backend `name` needs a hierarchy (BackendInfo::needs_hierarchy).
@@ -318,6 +318,7 @@ DynamicReport run_dynamic(const Scene& scene, const Accel& acc, const DynamicOpt
         r.traversal = to_string(to.traversal);
         r.precision = to_string(to.precision);
         r.mode = to_string(m);
+        r.build = to_string(m == FrameMode::update ? flat.quality : build.quality);
         for (const Item& it : items) {
           r.kinds.push_back(to_string(it.kind));
           r.queries.push_back(to_string(it.query));
@@ -454,6 +455,7 @@ std::string DynamicReport::json() const {
                             {"traversal", r.traversal},
                             {"precision", r.precision},
                             {"mode", r.mode},
+                            {"build", r.build},
                             {"ray_kind", join(r.kinds)},
                             {"query", join(r.queries)},
                             {"rays", rays},

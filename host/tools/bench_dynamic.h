@@ -60,6 +60,7 @@ struct DynamicFrame {
 /// One lane's frames and their medians.
 struct DynamicRecord {
   std::string scene, backend, isa, device, layout, traversal, precision, mode;
+  std::string build;  ///< the quality of the builds the lane makes or refits (update: none)
   std::vector<std::string> kinds, queries;  ///< per kind traced: its ray kind and query
   unsigned threads = 0, frames = 0;
   double median_ms = 0, min_ms = 0, max_ms = 0;  ///< of the frames' total_ms
