@@ -303,6 +303,47 @@ TEST_CASE("MBVH_CPU_ISA=avx2 runs the cpu backend as an AVX2-only machine would 
   CHECK(bad.output.find("MBVH_CPU_ISA=sse4 is not an ISA: set avx2 or avx512") != std::string::npos);
 }
 
+TEST_CASE("mbvh bench --dynamic times rebuilt, refitted and flat frames on the same rays and verifies each", "[cli]") {
+  // a backend that traces without a hierarchy (dacrt) joins as soon as this binary registers it:
+  // registered, it must be built and start here, so the test cannot pass without it
+  std::string backends = "cpu-scalar";
+  bool flat = false;
+  for (const mbvh::BackendInfo& b : mbvh::list_backends())
+    if (b.name == "dacrt") {
+      INFO("dacrt is registered; not built: " << b.unavailable);
+      REQUIRE(b.make);
+      REQUIRE_NOTHROW(mbvh::make_backend("dacrt"));
+      backends += ",dacrt";
+      flat = true;
+    }
+  TempDir dir;
+  const std::string json = dir.file("d.json");
+  const auto r = run_cli("bench gen:sphere:24 --backend " + backends +
+                         " --dynamic 2 --width 40 --height 24 --threads 2 --json " + json);
+  INFO(r.output);
+  REQUIRE(r.code == 0);
+  CHECK_THAT(r.output, Catch::Contains("rebuild+trace") && Catch::Contains("refit+trace") && Catch::Contains(" yes"));
+  CHECK_THAT(r.output, !Catch::Contains("MISMATCH"));
+  const auto j = nlohmann::json::parse(std::ifstream(json));
+  REQUIRE(j["records"].size() == (flat ? 3u : 2u));  // cpu-scalar rebuild and refit (, dacrt update)
+  for (const auto& rec : j["records"]) {
+    CHECK(rec["verified"] == true);
+    CHECK(rec["verify_mismatches"] == 0);
+    CHECK(rec["ray_kind"] == "primary,shadow");
+    CHECK(rec["query"] == "closest,any");  // each kind its own query
+    REQUIRE(rec["per_frame"].size() == 2);
+    for (const auto& f : rec["per_frame"]) {
+      CHECK(f["rays"][0] == 40 * 24);  // the image's primary rays, the same every frame
+      CHECK(f["rays"][1].get<int>() > 0);  // shadow rays from the frame's primary hits
+      CHECK(f["total_ms"].get<double>() >= f["update_ms"].get<double>());
+    }
+    CHECK(rec["ms_per_frame"].get<double>() > 0);
+    if (rec["mode"] == "refit+trace") CHECK(rec["time_vs_rebuild"].get<double>() > 0);
+    if (flat) CHECK(rec["time_vs_update"].get<double>() > 0);
+    if (rec["mode"] == "update+trace") CHECK(rec["backend"] == "dacrt");
+  }
+}
+
 TEST_CASE("mbvh devices --ready lists each backend that starts here once - --resolve names the one a name runs as",
           "[cli]") {
   // standard output only: the names (the device backends say their device on standard error)

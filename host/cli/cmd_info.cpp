@@ -1,12 +1,12 @@
 // SPDX-License-Identifier: MIT
 // cmd_info.cpp — `mbvh info`: the scene and per-layout build statistics, as a table and as JSON;
 // with --refit, a refit of the build timed beside a rebuild.
-#include <cmath>
 #include <nlohmann/json.hpp>
 
 #include "host/cli/commands.h"
 #include "host/core/layouts.h"
 #include "host/core/parallel.h"
+#include "host/tools/displace.h"
 
 namespace mbvh::cli {
 
@@ -124,18 +124,10 @@ std::string info_json(const Loaded& l) {
 // scene's extent), then rebuilds the moved scene with the same options, and prints both times and
 // SAH costs side by side.
 void info_refit(const SceneArgs& a, Loaded& l) {
-  // -- move the vertices
+  // -- move the vertices (frame 1 of bench --dynamic's displacement)
   Scene moved = l.scene;
   moved.name += " (moved)";
-  const Box b = l.acc->bounds();
-  const Vec3f e = b.extent();
-  const float ext = std::max({e.x, e.y, e.z});
-  for (Vec3f& v : moved.vertices) {
-    const Vec3f p = v;
-    v.x = p.x + 0.002f * ext * std::sin(6.0f * p.y / ext);
-    v.y = p.y + 0.002f * ext * std::sin(6.0f * p.z / ext);
-    v.z = p.z + 0.002f * ext * std::sin(6.0f * p.x / ext);
-  }
+  displace_vertices(l.scene.vertices, moved.vertices, l.acc->bounds(), 1);
   // -- refit, then rebuild with the same options
   l.acc->refit(moved);
   const double refit_ms = l.acc->last_refit_ms();

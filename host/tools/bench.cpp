@@ -14,6 +14,7 @@
 #include <memory>
 #include <nlohmann/json.hpp>
 
+#include "mbvh/error.h"
 #include "mbvh/backend.h"
 #include "host/core/compare.h"
 #include "host/core/parallel.h"
@@ -35,6 +36,16 @@ std::string cpu_model() {
       return p == std::string::npos ? line : line.substr(p + 2);
     }
   return "unknown CPU";
+}
+
+void describe_machine(std::string& machine, std::string& cpu, std::string& compiler, std::string& flags) {
+  utsname u{};
+  uname(&u);
+  machine = std::string(u.nodename) + " " + u.sysname + " " + u.release + " " + u.machine + ", " +
+            std::to_string(resolve_threads(0)) + " hardware threads";
+  cpu = cpu_model();
+  compiler = std::string("g++ ") + __VERSION__;
+  flags = MBVH_COMPILE_FLAGS;
 }
 
 bool BenchReport::verified() const {
@@ -152,10 +163,12 @@ static nlohmann::json report_json(const BenchReport& rep) {
 
 std::string BenchReport::json() const { return report_json(*this).dump(2); }
 
-std::string BenchReport::csv() const {
+std::string BenchReport::csv() const { return records_csv(json()); }
+
+std::string records_csv(const std::string& json_text) {
   // the JSON records flattened: one header line (the record's keys, then the run's machine,
   // cpu, compiler and flags), one line per record; strings quoted, quotes doubled
-  const nlohmann::json j = report_json(*this);
+  const nlohmann::json j = nlohmann::json::parse(json_text);
   auto cell = [](const nlohmann::json& v) {
     if (v.is_null()) return std::string();  // not measured: an empty cell
     if (!v.is_string()) return v.dump();
@@ -167,7 +180,7 @@ std::string BenchReport::csv() const {
   if (j["records"].empty()) return out;
   std::vector<std::string> keys;
   for (const auto& [k, v] : j["records"][0].items())
-    if (!v.is_structured()) keys.push_back(k);  // the histograms stay in the JSON
+    if (!v.is_structured()) keys.push_back(k);  // the histograms and per-frame lists stay in the JSON
   const char* run_keys[] = {"machine", "cpu", "compiler", "flags"};
   for (const auto& k : keys) out += k + ",";
   for (const char* k : run_keys) out += std::string(k) + (k == run_keys[3] ? "\n" : ",");
@@ -199,34 +212,47 @@ static double ratio_vs_fastest(const std::vector<BenchRecord>& all, const BenchR
   return best > 0 ? r.mrays_per_s / best : 0;
 }
 
+ReferenceAnswers::ReferenceAnswers(const Accel& acc, std::vector<Ray> r) : rays(std::move(r)) {
+  oracle = oracle_tie_rule(acc, rays);
+  settle = oracle_settlement(acc, rays, oracle);
+}
+
+void ReferenceAnswers::reference_for(const Accel& acc, Query q, unsigned threads) {
+  if (have_ref && ref_query == q) return;
+  TraceOptions refo;
+  refo.query = q;
+  refo.layout = Layout::mbvh4;
+  refo.traversal = Traversal::stack;
+  ref = {};
+  closest = {};
+  trace_reference(acc, rays, refo, ref, threads);
+  if (q == Query::any) trace_reference(acc, rays, TraceOptions{}, closest, threads);
+  have_ref = true;
+  ref_query = q;
+}
+
+std::size_t ReferenceAnswers::mismatches(const TraceOutput& out, Query q) const {
+  if (!have_ref || ref_query != q) throw Error("ReferenceAnswers: no reference answer of that query (reference_for)");
+  return (q == Query::any ? compare_occlusion_arrays(out.occluded, ref.occluded, closest.hits, rays)
+                          : compare_hit_arrays(out.hits, ref.hits, {}, settle))
+      .mismatches;
+}
+
 namespace {
 
-// One ray kind's rays and what every variant on them is checked against: the oracle's rules, the
-// brute force on a spread subset (BenchOptions::error_rays) and, per query, the reference answer.
-struct KindRays {
+// One ray kind's rays and what every variant on them is checked against: ReferenceAnswers, and
+// the brute force on a spread subset (BenchOptions::error_rays).
+struct KindRays : ReferenceAnswers {
   RayKind kind;
-  std::vector<Ray> rays;
-  TieRule oracle, settle;  // settle: differences the tie rules leave open (a peer's)
   std::vector<std::size_t> sub;
   std::function<bool(const Ray&, const Hit&)> in_plane;
   std::vector<Hit> brute;
-  bool have_ref = false;
-  Query ref_query = Query::closest;
-  TraceOutput ref, closest;  // closest: the closest hits, for any-hit queries
 
   // `acc`: the build the variants trace; `tree`: a build with a hierarchy of the same scene (acc
-  // itself, or run_bench's reference build when acc has none), for the rays and the reference.
-  KindRays(const Scene& scene, const Accel& acc, const Accel& tree, const BenchOptions& opt, RayKind k) : kind(k) {
-    RayGenOptions ro;
-    ro.kind = kind;
-    ro.count = opt.count;
-    ro.seed = opt.seed;
-    ro.threads = opt.threads;
-    ro.has_camera = opt.has_camera;
-    ro.camera = opt.camera;
-    rays = generate_rays(scene, tree, ro);  // the same rays from either build (raygen.h)
-    oracle = oracle_tie_rule(acc, rays);
-    settle = oracle_settlement(acc, rays, oracle);
+  // itself, or run_bench's reference build when acc has none), for the rays and the reference
+  // (reference_for(tree, ...)).
+  KindRays(const Scene& scene, const Accel& acc, const Accel& tree, const BenchOptions& opt, RayKind k)
+      : ReferenceAnswers(acc, generate_rays(scene, tree, ray_options(opt, k))), kind(k) {
     sub = spread_indices(rays.size(), opt.error_rays);
     in_plane = in_plane_rule(acc);
     brute.resize(sub.size());
@@ -235,29 +261,22 @@ struct KindRays {
     });
   }
 
-  // The reference answer of query `q` every timed result is verified against (made once per
-  // query): the reference traversal (cpu-scalar) on `tree`, a build with a hierarchy.
-  void reference_for(const Accel& tree, Query q, unsigned threads) {
-    if (have_ref && ref_query == q) return;
-    TraceOptions refo;
-    refo.query = q;
-    refo.layout = Layout::mbvh4;
-    refo.traversal = Traversal::stack;
-    ref = {};
-    closest = {};
-    trace_reference(tree, rays, refo, ref, threads);
-    if (q == Query::any) trace_reference(tree, rays, TraceOptions{}, closest, threads);
-    have_ref = true;
-    ref_query = q;
+  static RayGenOptions ray_options(const BenchOptions& opt, RayKind kind) {
+    RayGenOptions ro;
+    ro.kind = kind;
+    ro.count = opt.count;
+    ro.seed = opt.seed;
+    ro.threads = opt.threads;
+    ro.has_camera = opt.has_camera;
+    ro.camera = opt.camera;
+    return ro;
   }
 };
 
 // Verifies `out` (the variant's answer) against the reference, and for closest hits measures the
 // error against the brute force and the leaks out of a closed mesh.
 void verify(const KindRays& k, const TraceOutput& out, const TraceOptions& to, BenchRecord& r) {
-  const Comparison c = to.query == Query::any ? compare_occlusion_arrays(out.occluded, k.ref.occluded, k.closest.hits, k.rays)
-                                              : compare_hit_arrays(out.hits, k.ref.hits, {}, k.settle);
-  r.verify_mismatches = c.mismatches;
+  r.verify_mismatches = k.mismatches(out, to.query);
   if (to.query != Query::closest) return;
   r.error_rays = k.sub.size();
   std::vector<Hit> h;
@@ -351,13 +370,7 @@ void count_work(const Accel& acc, const std::vector<Ray>& rays, Backend& b, cons
 
 // The machine, compiler and BVH a report was measured on.
 void describe_run(const Accel& acc, BenchReport& rep) {
-  utsname u{};
-  uname(&u);
-  rep.machine = std::string(u.nodename) + " " + u.sysname + " " + u.release + " " + u.machine + ", " +
-                std::to_string(resolve_threads(0)) + " hardware threads";
-  rep.cpu = cpu_model();
-  rep.compiler = std::string("g++ ") + __VERSION__;
-  rep.flags = MBVH_COMPILE_FLAGS;
+  describe_machine(rep.machine, rep.cpu, rep.compiler, rep.flags);
   char hash[32];
   std::snprintf(hash, sizeof hash, "%016llx", static_cast<unsigned long long>(acc.hash()));
   rep.bvh_hash = hash;

@@ -9,6 +9,7 @@
 
 #include "mbvh/accel.h"
 #include "mbvh/backend.h"
+#include "host/core/compare.h"
 #include "host/tools/raygen.h"
 #include "host/tools/variants.h"
 #include "mbvh/trace.h"
@@ -92,5 +93,32 @@ BenchReport run_bench(const Scene& scene, const Accel& acc, const BenchOptions& 
 
 /// CPU model name, from /proc/cpuinfo.
 std::string cpu_model();
+/// Where a report was measured (BenchReport's fields of that name): the host, kernel, machine
+/// and hardware threads; the CPU model; the compiler; this build type's compiler flags.
+void describe_machine(std::string& machine, std::string& cpu, std::string& compiler, std::string& flags);
+/// A report's JSON document (`machine`, `cpu`, `compiler`, `flags` and an array `records` of
+/// objects) as CSV: a header line with the first record's plain keys (arrays and objects stay
+/// in the JSON) and the run's four keys, then one line per record; strings quoted, quotes
+/// doubled, a null an empty cell. "" when there is no record. BenchReport::csv's format.
+std::string records_csv(const std::string& json);
+
+/// A batch of rays and the answers bench verifies every timed answer to them against: the
+/// reference traversal (cpu-scalar, MBVH4 stack) on `acc`, compared ray by ray with compare.h's
+/// tie rules, differences they leave open settled by the brute force (check.h
+/// oracle_settlement). The tie rules read `acc`, which must outlive this.
+struct ReferenceAnswers {
+  ReferenceAnswers(const Accel& acc, std::vector<Ray> rays);
+  /// Makes the reference answer of query `q` (kept until another query is asked for).
+  void reference_for(const Accel& acc, Query q, unsigned threads);
+  /// The genuine mismatches of `out`, a trace of `rays` with query `q`, against the reference
+  /// answer of `q` (reference_for first; throws Error otherwise).
+  std::size_t mismatches(const TraceOutput& out, Query q) const;
+
+  std::vector<Ray> rays;
+  TieRule oracle, settle;  ///< settle: differences the tie rules leave open (a peer's)
+  bool have_ref = false;
+  Query ref_query = Query::closest;
+  TraceOutput ref, closest;  ///< closest: the closest hits, for any-hit queries
+};
 
 }  // namespace mbvh

@@ -156,6 +156,34 @@ Ray spawn_ray(const Vec3f& p0, const Vec3f& p1, const Vec3f& p2, float u, float 
   return Ray{o.x, o.y, o.z, 0.0f, dir.x, dir.y, dir.z, tmax};
 }
 
+bool shadow_ray(const Scene& scene, const Hit& h, const Vec3f& light, Ray& out) {
+  Vec3f a, b, c;
+  tri_vertices(scene, h.prim, a, b, c);
+  const float b0 = 1.0f - h.u - h.v;
+  const V3 p{b0 * a.x + h.u * b.x + h.v * c.x, b0 * a.y + h.u * b.y + h.v * c.y, b0 * a.z + h.u * b.z + h.v * c.z};
+  const V3 to = d3(light) - p;
+  const double dist = std::sqrt(dot(to, to));
+  if (!(dist > 0)) return false;
+  out = spawn_ray(a, b, c, h.u, h.v, f3(to * (1.0 / dist)), static_cast<float>(dist));
+  return true;
+}
+
+std::vector<Ray> image_rays(const Camera& cam, unsigned width, unsigned height, std::uint64_t seed) {
+  constexpr unsigned kTile = 8;
+  Rng rng(seed * 4 + static_cast<std::uint64_t>(RayKind::primary));
+  std::vector<Ray> rays;
+  rays.reserve(std::size_t(width) * height);
+  const double aspect = double(width) / double(height);
+  for (unsigned ty = 0; ty < height; ty += kTile)
+    for (unsigned tx = 0; tx < width; tx += kTile)
+      for (unsigned y = ty; y < std::min(ty + kTile, height); ++y)
+        for (unsigned x = tx; x < std::min(tx + kTile, width); ++x) {
+          const double px = (x + rng.uniform_d()) / width, py = (y + rng.uniform_d()) / height;
+          rays.push_back(camera_ray(cam, px, py, aspect));
+        }
+  return rays;
+}
+
 std::vector<Ray> generate_rays(const Scene& scene, const Accel& acc, const RayGenOptions& opt) try {
   if (!acc.has_hierarchy() && opt.kind != RayKind::primary && opt.kind != RayKind::random && opt.kind != RayKind::inside) {
     // rays from hits (shadow, diffuse, path; special probes the scene) are found by the reference
@@ -237,16 +265,11 @@ std::vector<Ray> generate_rays(const Scene& scene, const Accel& acc, const RayGe
       const Hit& h = out.hits[i];
       const double r1 = rng.uniform_d(), r2 = rng.uniform_d();  // drawn for every ray: deterministic
       if (h.prim == MBVH_MISS_PRIM) continue;
-      Vec3f a, b, c;
-      tri_vertices(scene, h.prim, a, b, c);
-      const float b0 = 1.0f - h.u - h.v;
-      const V3 p{b0 * a.x + h.u * b.x + h.v * c.x, b0 * a.y + h.u * b.y + h.v * c.y, b0 * a.z + h.u * b.z + h.v * c.z};
       if (opt.kind == RayKind::shadow) {
-        const V3 to = d3(light) - p;
-        const double dist = std::sqrt(dot(to, to));
-        if (!(dist > 0)) continue;
-        rays.push_back(spawn_ray(a, b, c, h.u, h.v, f3(to * (1.0 / dist)), static_cast<float>(dist)));
+        if (Ray r; shadow_ray(scene, h, light, r)) rays.push_back(r);
       } else {
+        Vec3f a, b, c;
+        tri_vertices(scene, h.prim, a, b, c);
         // cosine-weighted direction about the normal facing the incoming ray
         const V3 n = facing_normal_d(a, b, c, V3{prim[i].dx, prim[i].dy, prim[i].dz});
         rays.push_back(spawn_ray(a, b, c, h.u, h.v, f3(cosine_direction_d(n, r1, r2)), INFINITY));

@@ -60,6 +60,17 @@ struct RayGenOptions {
 /// rays. Throws Error if the camera sees no geometry or has a camera_problem.
 std::vector<Ray> generate_rays(const Scene& scene, const Accel& acc, const RayGenOptions& opt);
 
+/// The shadow ray of closest hit `h` (not a miss) on `scene`'s triangle: from the hit point
+/// (spawn_ray's offset) toward `light`, tmax the distance to it. False (out untouched) when the
+/// point is the light.
+bool shadow_ray(const Scene& scene, const Hit& h, const Vec3f& light, Ray& out);
+
+/// Primary rays of a width x height image from `cam` (the horizontal field widened by the
+/// aspect), one jittered sample per pixel, in 8x8 tiles (rows of tiles, each tile row by row;
+/// partial tiles at the right and bottom edges), deterministic by seed. Requires
+/// camera_problem(cam) == "" and width, height >= 1.
+std::vector<Ray> image_rays(const Camera& cam, unsigned width, unsigned height, std::uint64_t seed);
+
 /// pbrt-v4-style secondary ray: the hit point on triangle (p0, p1, p2) at barycentrics (u, v),
 /// its origin pushed off the surface along the geometric normal by the point's error bound
 /// γ(7)·Σ|b_i·P_i|, to the side `dir` leaves from, then rounded away one more ulp.
