@@ -45,6 +45,14 @@ inline mbvh::VariantGrid all_backends() {
   return g;
 }
 
+/// `o` with the backend's own traversal where it has none of the hierarchy's (dacrt, which traces
+/// the triangles without one): a test written for the hierarchy's traversals runs such a backend on
+/// its own, which gives the reference's answers (up to the classified ties of another visit order).
+inline mbvh::TraceOptions own_traversal(const mbvh::Backend& b, mbvh::TraceOptions o) {
+  if (!b.supports(o.layout, o.traversal) && b.supports(o.layout, mbvh::Traversal::dacrt)) o.traversal = mbvh::Traversal::dacrt;
+  return o;
+}
+
 /// `g` with the packet traversals added (cpu-scalar traces them as their stack twin, the SIMD
 /// cpu backends as packets; the other backends do not have them).
 inline mbvh::VariantGrid with_packets(mbvh::VariantGrid g) {

@@ -70,7 +70,7 @@ Scene owned_twin(const std::vector<CallerMesh>& meshes) {
 /// the stack (a peer library answers only as mbvh4/stack).
 TraceOptions options_for(const Backend& b) {
   TraceOptions o;
-  for (Traversal t : {Traversal::bitstack, Traversal::stack})
+  for (Traversal t : {Traversal::bitstack, Traversal::stack, Traversal::dacrt})
     for (Layout l : {Layout::mbvh4, Layout::mbvh2})
       if (b.supports(l, t)) {
         o.layout = l;

@@ -42,7 +42,9 @@ TEST_CASE("hostile: several threads tracing on one backend object give the singl
     INFO("backend " << name);
     auto backend = make_backend(name, BackendOptions{});
     // two option sets, so that concurrent calls also switch the backend's prepared layout and query
-    const Traversal t = backend->supports(Layout::mbvh4, Traversal::stack) ? Traversal::stack : Traversal::bitstack;
+    const Traversal t = backend->supports(Layout::mbvh4, Traversal::stack) ? Traversal::stack
+                        : backend->supports(Layout::mbvh4, Traversal::bitstack) ? Traversal::bitstack
+                                                                                : Traversal::dacrt;
     const Layout other = backend->supports(Layout::mbvh2, t) ? Layout::mbvh2 : Layout::mbvh4;
     const TraceOptions opts[2] = {TraceOptions{Layout::mbvh4, t, Query::closest, false},
                                   TraceOptions{other, t, Query::any, false}};

@@ -244,7 +244,7 @@ TEST_CASE("range: rays whose direction leaves the traced range are refused by ev
       auto b = make_backend(name);
       TraceOutput out;
       for (const Query q : {Query::closest, Query::any}) {
-        const TraceOptions o{Layout::mbvh4, Traversal::stack, q, false};
+        const TraceOptions o = mbvh_test::own_traversal(*b, TraceOptions{Layout::mbvh4, Traversal::stack, q, false});
         CHECK_THROWS_WITH(b->trace(*acc, rays, o, out), Catch::Contains(name + ": ray 17 (origin") &&
                                                              Catch::Contains("leaves the range traced exactly") &&
                                                              Catch::Contains("kMaxRayCube"));

@@ -98,7 +98,9 @@ TEST_CASE("render: the same seed gives the same image on every backend and threa
       auto b = make_backend(name);
       if (b->peer()) continue;  // a peer library agrees up to ties only
       INFO(name << ", " << to_string(mode));
-      const RenderResult got = render(s, *acc, *b, o);
+      RenderOptions own = o;
+      own.traversal = mbvh_test::own_traversal(*b, TraceOptions{o.layout, o.traversal}).traversal;
+      const RenderResult got = render(s, *acc, *b, own);
       CHECK(got.rays == ref.rays);
       CHECK(std::memcmp(got.rgb.data(), ref.rgb.data(), ref.rgb.size() * sizeof(float)) == 0);
     }

@@ -28,6 +28,7 @@ using namespace mbvh;
 namespace {
 
 using mbvh_test::all_backends;
+using mbvh_test::own_traversal;
 using mbvh_test::packets_always;
 using mbvh_test::with_packets;
 
@@ -212,7 +213,7 @@ TEST_CASE("stress: accuracy modes: exact is robust bit for bit - fast leaks wher
   for (const auto& name : all_backends().backends) {
     auto backend = make_backend(name);
     const Layout l = backend->supports(Layout::mbvh4, Traversal::stack) ? Layout::mbvh4 : Layout::mbvh2;
-    TraceOptions robust{l, Traversal::stack, Query::closest, false};
+    const TraceOptions robust = own_traversal(*backend, TraceOptions{l, Traversal::stack, Query::closest, false});
     TraceOptions exact = robust, fast = robust;
     exact.precision = Precision::exact;
     fast.precision = Precision::fast;
