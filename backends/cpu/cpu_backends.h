@@ -2,6 +2,8 @@
 // cpu_backends.h — the CPU backends' registration entry points and the per-ISA kernel table.
 #pragma once
 #include <cstddef>
+#include <memory>
+#include <vector>
 #include <span>
 #include <string>
 
@@ -24,6 +26,13 @@ struct DacrtSettings {
   std::size_t chunk = 131072;  ///< rays per independent task (fixed: answers do not depend on the threads)
 };
 
+/// A dacrt kernel's buffers, kept by its backend between trace calls (a call that needs no more
+/// than the last one allocates nothing, and touches no fresh page): one per worker and one shared.
+struct DacrtScratch {
+  virtual ~DacrtScratch() = default;
+};
+using DacrtBuffers = std::vector<std::unique_ptr<DacrtScratch>>;
+
 /// One ISA's compiled kernels (backends/cpu/isa_kernels.cpp, built once per ISA). Only call
 /// `trace` after CPUID says the ISA is there.
 struct CpuKernels {
@@ -33,7 +42,7 @@ struct CpuKernels {
   void (*trace)(const Accel&, std::span<const Ray>, const TraceOptions&, TraceOutput&, unsigned threads, bool hybrid);
   /// Divide-and-conquer ray tracing over acc.tris() (backends/cpu/dacrt/): no hierarchy read.
   void (*dacrt)(const Accel&, std::span<const Ray>, const TraceOptions&, TraceOutput&, unsigned threads,
-                const DacrtSettings&);
+                const DacrtSettings&, DacrtBuffers&);
 };
 
 /// The kernels of the best ISA this CPU has (AVX-512, else AVX2, within MBVH_CPU_ISA's cap), or
@@ -43,7 +52,7 @@ const CpuKernels* best_cpu_kernels(std::string& missing);
 /// The portable (scalar) dacrt: the same recursion, box tests and triangle tests one ray at a time
 /// (backends/cpu/dacrt_scalar.cpp); the same bytes as the SIMD kernels'.
 void dacrt_scalar(const Accel&, std::span<const Ray>, const TraceOptions&, TraceOutput&, unsigned threads,
-                  const DacrtSettings&);
+                  const DacrtSettings&, DacrtBuffers&);
 
 /// The cpu family's `cpu.leaf-block` setting: the leaf block (TraceOptions::leaf_block) a cpu
 /// backend traces when a call leaves it 0 — `fallback` (4 on the SIMD backends, 1 on cpu-scalar)

@@ -93,11 +93,12 @@ public:
 
 protected:
   /// Nothing is made ahead: the triangles' boxes are computed by every trace (O(triangles), in
-  /// parallel), so a refit or another build needs no bookkeeping.
+  /// parallel), so a refit or another build needs no bookkeeping; the buffers they and the rays'
+  /// records go in are kept between calls.
   void do_prepare(const Accel&, const TraceOptions&) override {}
   void trace_batch(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
-    if (kernels_) kernels_->dacrt(acc, rays, opt, out, threads_, s_);
-    else dacrt_scalar(acc, rays, opt, out, threads_, s_);
+    if (kernels_) kernels_->dacrt(acc, rays, opt, out, threads_, s_, buffers_);
+    else dacrt_scalar(acc, rays, opt, out, threads_, s_, buffers_);
   }
 
 private:
@@ -105,6 +106,8 @@ private:
   const CpuKernels* kernels_;  ///< null: the scalar policy
   unsigned threads_;
   DacrtSettings s_;
+  /// The kernel's buffers, kept between calls: a batch no larger than the last allocates nothing.
+  DacrtBuffers buffers_;
 };
 
 }  // namespace

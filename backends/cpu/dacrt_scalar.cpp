@@ -2,6 +2,8 @@
 // dacrt_scalar.cpp — the portable kernel policy of divide-and-conquer ray tracing (dacrt/recursion.h):
 // one ray at a time, the reference's own box_test operations and tri_test (intersect.h). The
 // `dacrt-scalar` backend; the reference the SIMD policy (dacrt/simd.h) reproduces bit for bit.
+#include <bit>
+
 #include "backends/cpu/dacrt/recursion.h"
 
 namespace mbvh {
@@ -18,15 +20,18 @@ struct ScalarPolicy {
     return true;
   }
 
+  /// One bit a ray: box_hit, the reference's slab test.
   template <bool Fast>
-  static std::size_t filter(dacrt::Work<ScalarPolicy>& w, std::size_t n, const dacrt::Bounds& box) {
-    std::size_t k = 0;
-    for (std::size_t p = 0; p < n; ++p)
-      if (dacrt::box_hit<Fast>(w.rec[p], box)) {
-        if (p != k) dacrt::swap_rays(w, k, p);
-        ++k;
-      }
-    return k;
+  static std::size_t test(dacrt::Work<ScalarPolicy>& w, std::size_t n, const dacrt::Bounds& box) {
+    std::size_t na = 0;
+    for (std::size_t b = 0; b < n; b += 64) {
+      std::uint64_t word = 0;
+      const std::size_t e = std::min(n, b + 64);
+      for (std::size_t p = b; p < e; ++p) word |= std::uint64_t(dacrt::box_hit<Fast>(w.rec[p], box) ? 1 : 0) << (p - b);
+      w.bits[b / 64] = word;
+      na += static_cast<std::size_t>(std::popcount(word));
+    }
+    return na;
   }
 
   template <bool Any, bool Fast, bool Stats>
@@ -38,7 +43,7 @@ struct ScalarPolicy {
       float tmax = rec.tmax;
       Hit best = Any ? miss_hit() : w.hits[id];
       for (std::uint32_t j = tb; j < te; ++j) {
-        const Tri& tri = w.tris[w.tid[j]];
+        const Tri& tri = w.tris[w.tri[j].id];
         if constexpr (Stats) ++w.stats[id].tris;
         float t, u, v;
         const bool hit = Fast ? tri_test_mt(pre, tri, tmax, t, u, v) : tri_test(pre, tri, tmax, t, u, v);
@@ -63,8 +68,8 @@ struct ScalarPolicy {
 }  // namespace
 
 void dacrt_scalar(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out, unsigned threads,
-                  const DacrtSettings& s) {
-  dacrt::trace<ScalarPolicy>(acc, rays, opt, out, threads, s);
+                  const DacrtSettings& s, DacrtBuffers& buffers) {
+  dacrt::trace<ScalarPolicy>(acc, rays, opt, out, threads, s, buffers);
 }
 
 }  // namespace mbvh

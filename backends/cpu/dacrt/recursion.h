@@ -12,7 +12,9 @@
 //   place with their ids, so the active rays of a step are always a prefix of the array (the paper
 //   moves its records the same way); what only the leaf reads (the shear of the watertight test)
 //   stays in a side array by id.
-// - Triangles are ids permuted in place over precomputed boxes; the split is the middle of the
+// - Triangles are 32-byte records (box and id) permuted in place, so a step reads its triangles'
+//   boxes in sequence (the paper permutes ids over boxes it keeps in place; by id, the boxes of
+//   a step lie anywhere in memory); the split is the middle of the
 //   centroid bounds' longest axis, or a binned SAH over all three axes where the active rays per
 //   triangle exceed `ratio` (the paper's adaptive partitioning; its threshold "1-2").
 // - Exact under the numerical contract: the filter is the conservative slab test (box_test's
@@ -27,10 +29,12 @@
 // policies make the same decisions bit for bit, so dacrt and dacrt-scalar give the same bytes.
 #pragma once
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <cstdint>
 #include <memory>
 #include <span>
+#include <stdexcept>
 #include <vector>
 
 #include "backends/cpu/cpu_backends.h"
@@ -71,6 +75,15 @@ struct Bounds {
   }
 };
 
+/// A triangle's box and its index in Accel::tris(), permuted in place by the partitioning.
+struct alignas(32) TriRec {
+  float lo[3];
+  std::uint32_t id;
+  float hi[3];
+  float pad;
+};
+static_assert(sizeof(TriRec) == 32, "the partition moves 32-byte records");
+
 inline Bounds tri_bounds(const Tri& t) {
   Bounds b;
   b.grow(t.v0, t.v0);
@@ -79,6 +92,9 @@ inline Bounds tri_bounds(const Tri& t) {
   return b;
 }
 inline void centroid2(const Bounds& b, float c[3]) {
+  for (int a = 0; a < 3; ++a) c[a] = b.lo[a] + b.hi[a];
+}
+inline void centroid2(const TriRec& b, float c[3]) {
   for (int a = 0; a < 3; ++a) c[a] = b.lo[a] + b.hi[a];
 }
 
@@ -94,8 +110,9 @@ struct Work {
   std::uint8_t* occluded = nullptr;
   RayStats* stats = nullptr;
   const Tri* tris = nullptr;
-  const Bounds* boxes = nullptr;
-  std::uint32_t* tid = nullptr;
+  TriRec* tri = nullptr;  ///< the chunk's triangle records, permuted
+  std::uint64_t* bits = nullptr;   ///< the filter's verdicts, one bit a ray (a step's, used at once)
+  std::uint64_t* tbits = nullptr;  ///< the partition's sides, one bit a triangle (likewise)
   const DacrtSettings* s = nullptr;
   typename K::Local* local = nullptr;
 };
@@ -108,6 +125,10 @@ struct Split {
   float mid2 = 0;
   float lo = 0, scale = 0;
   unsigned bins = 0, bin = 0;
+  bool left(const TriRec& t) const {
+    const float c = t.lo[axis] + t.hi[axis];
+    return sah ? bin_of(c) <= bin : c < mid2;
+  }
   bool left(const float c[3]) const {
     if (!sah) return c[axis] < mid2;
     return bin_of(c[axis]) <= bin;
@@ -132,8 +153,7 @@ inline Split middle_split(const Bounds& cb) {
 
 /// A binned SAH split (Wald 2007) over the three axes of the centroid bounds: the bin boundary
 /// with the least count-weighted area of the two sides' triangle boxes.
-inline Split sah_split(const std::uint32_t* tid, std::uint32_t tb, std::uint32_t te, const Bounds* boxes, const Bounds& cb,
-                       unsigned bins) {
+inline Split sah_split(const TriRec* tri, std::uint32_t tb, std::uint32_t te, const Bounds& cb, unsigned bins) {
   constexpr unsigned kMaxBins = 64;
   bins = std::clamp(bins, 2u, kMaxBins);
   Split per_axis[3];
@@ -149,14 +169,14 @@ inline Split sah_split(const std::uint32_t* tid, std::uint32_t tb, std::uint32_t
     sp.scale = float(bins) / cb.extent(a);
   }
   for (std::uint32_t j = tb; j < te; ++j) {
-    const Bounds& b = boxes[tid[j]];
+    const TriRec& b = tri[j];
     float c[3];
     centroid2(b, c);
     for (int a = 0; a < 3; ++a) {
       if (per_axis[a].axis < 0) continue;
       const unsigned k = per_axis[a].bin_of(c[a]);
       ++count[a][k];
-      box[a][k].grow(b);
+      box[a][k].grow(b.lo, b.hi);
     }
   }
   Split best;
@@ -190,6 +210,35 @@ inline Split sah_split(const std::uint32_t* tid, std::uint32_t tb, std::uint32_t
   return best;
 }
 
+/// Moves the record and id at `from` to `to` and back (the in-place filter's swap).
+template <class K>
+[[gnu::always_inline]] inline void swap_rays(Work<K>& w, std::size_t to, std::size_t from) {
+  std::swap(w.rec[to], w.rec[from]);
+  std::swap(w.id[to], w.id[from]);
+}
+
+/// Moves the items whose bit is set (k of the n, bits[i / 64] bit i % 64) to the front [0, k):
+/// each unset one of the front swapped with a set one of the back, both taken in order (Hoare's
+/// pairing: only the misplaced items move). Bits past n must be clear.
+template <class Swap>
+inline void pair_to_front(const std::uint64_t* bits, std::size_t n, std::size_t k, Swap&& swap) {
+  if (k == 0 || k == n) return;
+  std::size_t wi = 0, wj = k / 64;  // the words scanned in the front and in the back region
+  std::uint64_t front = ~bits[0], back = bits[wj] & (~std::uint64_t(0) << (k % 64));
+  const std::size_t last = (k - 1) / 64;
+  for (;;) {
+    while (front == 0 && wi < last) front = ~bits[++wi];
+    if (front == 0) break;
+    const std::size_t i = wi * 64 + static_cast<std::size_t>(std::countr_zero(front));
+    if (i >= k) break;
+    front &= front - 1;
+    while (back == 0) back = bits[++wj];  // as many set items behind k as unset ones before it
+    const std::size_t j = wj * 64 + static_cast<std::size_t>(std::countr_zero(back));
+    back &= back - 1;
+    swap(i, j);
+  }
+}
+
 /// The recursion over one chunk. Any: occlusion; Fast: the `fast` precision's tests.
 template <class K, bool Any, bool Fast, bool Stats>
 struct Recursion {
@@ -199,7 +248,7 @@ struct Recursion {
   static constexpr unsigned kMaxDepth = 64;
 
   void node(std::size_t n, std::uint32_t tb, std::uint32_t te, const Bounds& box, const Bounds& cb, unsigned depth) {
-    const std::size_t na = K::template filter<Fast>(w, n, box);
+    const std::size_t na = filter(n, box);
     if constexpr (Stats) {
       for (std::size_t p = 0; p < n; ++p) ++w.stats[w.id[p]].box_tests;
       for (std::size_t p = 0; p < na; ++p) {
@@ -214,29 +263,26 @@ struct Recursion {
     if (na < s.leaf_rays || m <= s.leaf_tris || depth >= kMaxDepth) return leaf(na, tb, te);
     const bool sah = s.partition == DacrtSettings::Partition::sah ||
                      (s.partition == DacrtSettings::Partition::adaptive && double(na) > double(s.ratio) * double(m));
-    Split sp = sah ? sah_split(w.tid, tb, te, w.boxes, cb, s.bins) : middle_split(cb);
+    Split sp = sah ? sah_split(w.tri, tb, te, cb, s.bins) : middle_split(cb);
     if (sp.axis < 0) return leaf(na, tb, te);
-    // partition the ids in place, growing each side's box and centroid bounds: a branch-free
-    // Lomuto pass (every id swapped with the first right one, the boundary advanced for a left
-    // one; the side's bounds grown by index), since which side an id takes is as good as random
-    Bounds box2[2], cen2[2];  // [0] right, [1] left
-    std::uint32_t i = tb;
-    constexpr std::uint32_t kAhead = 16;  // the boxes are read by id, out of order: fetched ahead
-    for (std::uint32_t p = tb; p < te; ++p) {
-      if (p + kAhead < te) __builtin_prefetch(&w.boxes[w.tid[p + kAhead]]);
-      const std::uint32_t t = w.tid[p];
-      const Bounds& b = w.boxes[t];
-      float c[3];
-      centroid2(b, c);
-      const std::uint32_t l = sp.left(c) ? 1u : 0u;
-      w.tid[p] = w.tid[i];
-      w.tid[i] = t;
-      i += l;
-      box2[l].grow(b);
-      cen2[l].grow(c, c);
+    // partition the records in place: one bit a triangle (its side), the left ones paired to the
+    // front (pair_to_front), then each side's box and centroid bounds in a pass over its records
+    // in sequence (which side a triangle takes is as good as random: no branch decides it)
+    const TriRec* tr = w.tri + tb;
+    std::size_t nl = 0;
+    for (std::uint32_t b = 0; b < m; b += 64) {
+      std::uint64_t word = 0;
+      const std::uint32_t e = std::min(m, b + 64);
+      for (std::uint32_t p = b; p < e; ++p) word |= std::uint64_t(sp.left(tr[p]) ? 1 : 0) << (p - b);
+      w.tbits[b / 64] = word;
+      nl += static_cast<std::size_t>(std::popcount(word));
     }
-    const Bounds &lb = box2[1], &rb = box2[0], &lc = cen2[1], &rc = cen2[0];
-    if (i == tb || i == te) return leaf(na, tb, te);
+    if (nl == 0 || nl == m) return leaf(na, tb, te);
+    pair_to_front(w.tbits, m, nl, [&](std::size_t a, std::size_t b) { std::swap(w.tri[tb + a], w.tri[tb + b]); });
+    const auto i = static_cast<std::uint32_t>(tb + nl);
+    Bounds lb, rb, lc, rc;
+    side_bounds(w.tri + tb, w.tri + i, lb, lc);
+    side_bounds(w.tri + i, w.tri + te, rb, rc);
     // the near side first: the first active ray's direction sign on the split axis (Wald, Boulos &
     // Shirley 2007's cheap order, as the paper does); its hits shrink tmax before the far side's filter
     const bool right_first = s.ordered && std::signbit(w.rec[0].inv[sp.axis]);
@@ -249,6 +295,35 @@ struct Recursion {
     }
   }
 
+  /// The filter: the policy's slab tests write one bit a ray (K::test), then the active rays move
+  /// to the front, each inactive one of the front swapped with an active one of the back, both
+  /// taken in order (Hoare's pairing: only the misplaced records move). Returns the active count.
+  std::size_t filter(std::size_t n, const Bounds& box) {
+    const std::size_t na = K::template test<Fast>(w, n, box);
+    pair_to_front(w.bits, n, na, [&](std::size_t i, std::size_t j) { swap_rays(w, i, j); });
+    return na;
+  }
+
+  /// The box and centroid bounds of the records [b, e).
+  static void side_bounds(const TriRec* b, const TriRec* e, Bounds& box, Bounds& cen) {
+    float lo[4] = {INFINITY, INFINITY, INFINITY, INFINITY}, hi[4] = {-INFINITY, -INFINITY, -INFINITY, -INFINITY};
+    float clo[4] = {INFINITY, INFINITY, INFINITY, INFINITY}, chi[4] = {-INFINITY, -INFINITY, -INFINITY, -INFINITY};
+    for (const TriRec* r = b; r != e; ++r)
+      for (int a = 0; a < 3; ++a) {
+        const float c = r->lo[a] + r->hi[a];
+        lo[a] = std::min(lo[a], r->lo[a]);
+        hi[a] = std::max(hi[a], r->hi[a]);
+        clo[a] = std::min(clo[a], c);
+        chi[a] = std::max(chi[a], c);
+      }
+    for (int a = 0; a < 3; ++a) {
+      box.lo[a] = lo[a];
+      box.hi[a] = hi[a];
+      cen.lo[a] = clo[a];
+      cen.hi[a] = chi[a];
+    }
+  }
+
   void leaf(std::size_t na, std::uint32_t tb, std::uint32_t te) {
     if constexpr (Stats)
       for (std::size_t p = 0; p < na; ++p) ++w.stats[w.id[p]].leaves;
@@ -256,18 +331,19 @@ struct Recursion {
   }
 };
 
-/// A worker's buffers, kept across its chunks.
+/// A worker's buffers, kept across its chunks and (by the backend) across calls.
 template <class K>
-struct Scratch {
+struct Scratch : DacrtScratch {
   std::vector<RayRec> rec;
   std::vector<std::uint32_t> id;
   std::vector<typename K::Side> side;
-  std::vector<std::uint32_t> tid;
+  std::vector<TriRec> tri;
+  std::vector<std::uint64_t> bits, tbits;
   typename K::Local local;
 };
 
 template <class K, bool Any, bool Fast, bool Stats>
-void trace_chunk(Work<K>& w, std::size_t n_rays, std::uint32_t m, const Bounds& root, const Bounds& croot,
+void trace_chunk(Work<K>& w, std::size_t n_rays, std::uint32_t m, const TriRec* boxes, const Bounds& root, const Bounds& croot,
                  std::size_t& invalid) {
   std::size_t nv = 0;
   for (std::size_t i = 0; i < n_rays; ++i) {
@@ -280,29 +356,48 @@ void trace_chunk(Work<K>& w, std::size_t n_rays, std::uint32_t m, const Bounds& 
     }
     w.id[nv++] = static_cast<std::uint32_t>(i);
   }
-  for (std::uint32_t t = 0; t < m; ++t) w.tid[t] = t;
+  std::copy(boxes, boxes + m, w.tri);
   if (nv == 0 || m == 0) return;
   Recursion<K, Any, Fast, Stats>{w}.node(nv, 0, m, root, croot, 0);
 }
 
-/// Traces `rays` against acc.tris() with policy K: the triangle boxes first (parallel), then the
-/// chunks of s.chunk rays, each a task of parallel_for.
+/// Traces `rays` against acc.tris() with policy K: the triangle records first (parallel), then the
+/// chunks of s.chunk rays, each a task of parallel_for on its own copy of them.
+/// The triangle records every chunk starts from, kept across calls.
+struct SharedScratch : DacrtScratch {
+  std::vector<TriRec> boxes;
+};
+
 template <class K>
 void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out, unsigned threads,
-           const DacrtSettings& s) {
+           const DacrtSettings& s, DacrtBuffers& buffers) {
   const AlignedVector<Tri>& tris = acc.tris();
   const auto m = static_cast<std::uint32_t>(tris.size());
-  std::vector<Bounds> boxes(m);
+  const unsigned workers = resolve_threads(threads);
+  if (buffers.size() != workers + 1 || !dynamic_cast<SharedScratch*>(buffers[0].get())) {
+    buffers.clear();
+    buffers.push_back(std::make_unique<SharedScratch>());
+    for (unsigned k = 0; k < workers; ++k) buffers.push_back(std::make_unique<Scratch<K>>());
+  }
+  std::vector<TriRec>& boxes = static_cast<SharedScratch&>(*buffers[0]).boxes;
+  boxes.resize(m);
   constexpr std::size_t kBoxGrain = 16384;
   const std::size_t parts = (m + kBoxGrain - 1) / kBoxGrain;
   std::vector<Bounds> part_box(parts), part_c(parts);
   parallel_for(m, kBoxGrain, threads, [&](std::size_t b, std::size_t e, unsigned) {
     Bounds pb, pc;
     for (std::size_t i = b; i < e; ++i) {
-      boxes[i] = tri_bounds(tris[i]);
+      const Bounds b = tri_bounds(tris[i]);
+      TriRec& r = boxes[i];
+      for (int a = 0; a < 3; ++a) {
+        r.lo[a] = b.lo[a];
+        r.hi[a] = b.hi[a];
+      }
+      r.id = static_cast<std::uint32_t>(i);
+      r.pad = 0.0f;
       float c[3];
-      centroid2(boxes[i], c);
-      pb.grow(boxes[i]);
+      centroid2(b, c);
+      pb.grow(b);
       pc.grow(c, c);
     }
     part_box[b / kBoxGrain] = pb;
@@ -314,21 +409,21 @@ void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt,
     croot.grow(part_c[k]);
   }
   out.resize_for(rays.size(), opt);  // every ray's entries are written by its chunk
-  const unsigned workers = resolve_threads(threads);
   const std::size_t chunk = std::max<std::size_t>(s.chunk, 1);
-  std::vector<std::unique_ptr<Scratch<K>>> scratch(workers);
   std::vector<std::size_t> invalid((rays.size() + chunk - 1) / chunk, 0);
   const bool any = opt.query == Query::any, fast = opt.precision == Precision::fast;
   parallel_for(rays.size(), chunk, workers, [&](std::size_t b, std::size_t e, unsigned worker) {
-    auto& sc = scratch[worker];
-    if (!sc) sc = std::make_unique<Scratch<K>>();
+    auto* sc = dynamic_cast<Scratch<K>*>(buffers[1 + worker].get());
+    if (!sc) throw std::logic_error("dacrt: a worker's buffers are of another kernel");
     const std::size_t n = e - b;
     if (sc->rec.size() < n) {
       sc->rec.resize(n);
       sc->id.resize(n);
       sc->side.resize(n);
+      sc->bits.resize(n / 64 + 1);
     }
-    sc->tid.resize(m);
+    sc->tri.resize(m);
+    sc->tbits.resize(m / 64 + 1);
     Work<K> w;
     w.rec = sc->rec.data();
     w.id = sc->id.data();
@@ -338,12 +433,13 @@ void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt,
     w.occluded = any ? out.occluded.data() + b : nullptr;
     w.stats = opt.stats ? out.stats.data() + b : nullptr;
     w.tris = tris.data();
-    w.boxes = boxes.data();
-    w.tid = sc->tid.data();
+    w.tri = sc->tri.data();
+    w.bits = sc->bits.data();
+    w.tbits = sc->tbits.data();
     w.s = &s;
     w.local = &sc->local;
     std::size_t& inv = invalid[b / chunk];
-#define MBVH_DACRT_CASE(A, F, S) trace_chunk<K, A, F, S>(w, n, m, root, croot, inv)
+#define MBVH_DACRT_CASE(A, F, S) trace_chunk<K, A, F, S>(w, n, m, boxes.data(), root, croot, inv)
     if (any) {
       if (fast) { if (opt.stats) MBVH_DACRT_CASE(true, true, true); else MBVH_DACRT_CASE(true, true, false); }
       else { if (opt.stats) MBVH_DACRT_CASE(true, false, true); else MBVH_DACRT_CASE(true, false, false); }
@@ -382,13 +478,6 @@ inline void fill_record(const RayPre& p, RayRec& rec) {
   }
   rec.tmin = p.tmin;
   rec.tmax = p.tmax;
-}
-
-/// Moves the record and id at `from` to `to` and back (the in-place filter's swap).
-template <class K>
-[[gnu::always_inline]] inline void swap_rays(Work<K>& w, std::size_t to, std::size_t from) {
-  std::swap(w.rec[to], w.rec[from]);
-  std::swap(w.id[to], w.id[from]);
 }
 
 }  // namespace dacrt

@@ -56,49 +56,41 @@ struct SimdPolicy {
     return true;
   }
 
-  /// Eight records per pass: box_hit's operations lane by lane (blendv on the sign of inv picks
-  /// the near plane as signbit does; maxps/minps discard NaN as max_nan/min_nan), the active
-  /// records moved to the front in order (a Lomuto partition: the same permutation as the scalar
-  /// filter's).
+  /// One bit a ray, eight records per pass: box_hit's operations lane by lane (blendv on the sign
+  /// of inv picks the near plane as signbit does; maxps/minps discard NaN as max_nan/min_nan).
   template <bool Fast>
-  static std::size_t filter(Work<SimdPolicy>& w, std::size_t n, const Bounds& b) {
+  static std::size_t test(Work<SimdPolicy>& w, std::size_t n, const Bounds& b) {
     const __m256 lo[3] = {_mm256_set1_ps(b.lo[0]), _mm256_set1_ps(b.lo[1]), _mm256_set1_ps(b.lo[2])};
     const __m256 hi[3] = {_mm256_set1_ps(b.hi[0]), _mm256_set1_ps(b.hi[1]), _mm256_set1_ps(b.hi[2])};
     const __m256 kf = _mm256_set1_ps(kFarFactor), slack = _mm256_set1_ps(kCullSlack);
-    std::size_t k = 0, p = 0;
-    for (; p + 8 <= n; p += 8) {
-      __m256 r[8];
-      for (int l = 0; l < 8; ++l) r[l] = _mm256_load_ps(w.rec[p + l].o);
-      transpose8(r);  // o x, y, z, tmin, inv x, y, z, tmax
-      __m256 tn[3], tf[3];
-      for (int a = 0; a < 3; ++a) {
-        const __m256 inv = r[4 + a];
-        const __m256 near = _mm256_blendv_ps(lo[a], hi[a], inv), far = _mm256_blendv_ps(hi[a], lo[a], inv);
-        tn[a] = _mm256_mul_ps(_mm256_sub_ps(near, r[a]), inv);
-        tf[a] = _mm256_mul_ps(_mm256_sub_ps(far, r[a]), Fast ? inv : _mm256_mul_ps(inv, kf));
+    std::size_t na = 0;
+    for (std::size_t base = 0; base < n; base += 64) {
+      std::uint64_t word = 0;
+      const std::size_t e = std::min(n, base + 64);
+      std::size_t p = base;
+      for (; p + 8 <= e; p += 8) {
+        __m256 r[8];
+        for (int l = 0; l < 8; ++l) r[l] = _mm256_load_ps(w.rec[p + l].o);
+        transpose8(r);  // o x, y, z, tmin, inv x, y, z, tmax
+        __m256 tn[3], tf[3];
+        for (int a = 0; a < 3; ++a) {
+          const __m256 inv = r[4 + a];
+          const __m256 near = _mm256_blendv_ps(lo[a], hi[a], inv), far = _mm256_blendv_ps(hi[a], lo[a], inv);
+          tn[a] = _mm256_mul_ps(_mm256_sub_ps(near, r[a]), inv);
+          tf[a] = _mm256_mul_ps(_mm256_sub_ps(far, r[a]), Fast ? inv : _mm256_mul_ps(inv, kf));
+        }
+        const __m256 te = _mm256_max_ps(tn[2], _mm256_max_ps(tn[1], _mm256_max_ps(tn[0], r[3])));
+        const __m256 tx = _mm256_min_ps(tf[2], _mm256_min_ps(tf[1], _mm256_min_ps(tf[0], _mm256_mul_ps(r[7], slack))));
+        word |= std::uint64_t(static_cast<unsigned>(_mm256_movemask_ps(_mm256_cmp_ps(te, tx, _CMP_LE_OQ)))) << (p - base);
       }
-      const __m256 te = _mm256_max_ps(tn[2], _mm256_max_ps(tn[1], _mm256_max_ps(tn[0], r[3])));
-      const __m256 tx = _mm256_min_ps(tf[2], _mm256_min_ps(tf[1], _mm256_min_ps(tf[0], _mm256_mul_ps(r[7], slack))));
-      unsigned m = static_cast<unsigned>(_mm256_movemask_ps(_mm256_cmp_ps(te, tx, _CMP_LE_OQ)));
-      if (m == 0xFFu && k == p) {  // all eight stay where they are
-        k += 8;
-        continue;
-      }
-      for (; m != 0; m &= m - 1) {
-        const std::size_t at = p + static_cast<std::size_t>(std::countr_zero(m));
-        if (at != k) swap_rays(w, k, at);
-        ++k;
-      }
+      for (; p < e; ++p) word |= std::uint64_t(box_hit<Fast>(w.rec[p], b) ? 1 : 0) << (p - base);
+      w.bits[base / 64] = word;
+      na += static_cast<std::size_t>(std::popcount(word));
     }
-    for (; p < n; ++p)
-      if (box_hit<Fast>(w.rec[p], b)) {
-        if (p != k) swap_rays(w, k, p);
-        ++k;
-      }
-    return k;
+    return na;
   }
 
-  /// The rays [0, na) against the triangles tid[tb, te), 64 rays at a time: each triangle against
+  /// The rays [0, na) against the triangles tri[tb, te), 64 rays at a time: each triangle against
   /// every SIMD ray of the packet (tri_group: watertight; tri_group_mt: fast), keeping each ray's
   /// smallest (t, prim) (closest) or stopping a ray at its first hit (any).
   template <bool Any, bool Fast, bool Stats>
@@ -162,7 +154,7 @@ struct SimdPolicy {
       P.k[2] = code0 >> 4 & 3;
       P.tcull_lo = INFINITY;
       for (std::uint32_t j = tb; j < te; ++j) {
-        const Tri& tri = w.tris[w.tid[j]];
+        const Tri& tri = w.tris[w.tri[j].id];
         __m256 vb[3][3];
         const float* rows[3] = {tri.v0, tri.v1, tri.v2};
         for (int q = 0; q < 3; ++q)
@@ -202,8 +194,8 @@ struct SimdPolicy {
 
 /// The ISA's dacrt entry (CpuKernels::dacrt).
 inline void trace_dacrt(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out,
-                        unsigned threads, const DacrtSettings& s) {
-  trace<SimdPolicy>(acc, rays, opt, out, threads, s);
+                        unsigned threads, const DacrtSettings& s, DacrtBuffers& buffers) {
+  trace<SimdPolicy>(acc, rays, opt, out, threads, s, buffers);
 }
 
 }  // namespace dacrt
