@@ -23,7 +23,7 @@ struct DacrtSettings {
   unsigned leaf_rays = 16;     ///< the naive leaf below this many active rays
   unsigned leaf_tris = 8;      ///< the naive leaf at this many triangles or fewer
   bool ordered = true;         ///< near child first by the first active ray's direction sign
-  std::size_t chunk = 131072;  ///< rays per independent task (fixed: answers do not depend on the threads)
+  std::size_t chunk = 262144;  ///< rays per independent task (fixed: answers do not depend on the threads)
 };
 
 /// A dacrt kernel's buffers, kept by its backend between trace calls (a call that needs no more

@@ -34,10 +34,9 @@ struct SimdSide {
 
 struct SimdPolicy {
   using Side = SimdSide;
-  /// The leaf's packet of up to 64 rays and the original rays its undecided lanes re-prepare.
+  /// The leaf's packet of up to 64 rays.
   struct Local {
     std::unique_ptr<packet::Packet> P = std::make_unique<packet::Packet>();
-    Ray src[packet::Packet::N];
   };
 
   static bool set_up(const Ray& r, RayRec& rec, SimdSide& sd, bool fast) {
@@ -98,7 +97,7 @@ struct SimdPolicy {
     using packet::Packet;
     using packet::kLanes;
     Packet& P = *w.local->P;
-    P.src = w.local->src;
+    P.src = w.rays;  // an undecided lane prepares its own ray from the batch, by id
     for (std::size_t p0 = 0; p0 < na; p0 += Packet::N) {
       const int cnt = static_cast<int>(std::min<std::size_t>(Packet::N, na - p0));
       const int groups = (cnt + kLanes - 1) / kLanes;
@@ -122,8 +121,8 @@ struct SimdPolicy {
         for (int a = 0; a < 3; ++a) {
           P.to[a][s] = rec.o[sd.k[a]];
           P.ts[a][s] = sd.s[a];
-          P.k1[a][s] = sd.k[a] == 1 ? -1 : 0;
-          P.k2[a][s] = sd.k[a] == 2 ? -1 : 0;
+          P.k1[a][s] = -static_cast<std::int32_t>(sd.k[a] == 1);
+          P.k2[a][s] = -static_cast<std::int32_t>(sd.k[a] == 2);
           if constexpr (Fast) {
             P.o[a][s] = rec.o[a];
             P.d[a][s] = sd.d[a];
@@ -139,7 +138,6 @@ struct SimdPolicy {
           P.v[s] = h.v;
           P.prim[s] = h.prim;
         }
-        w.local->src[packet::ray_of(s)] = w.rays[id];
         const std::uint32_t code = sd.k[0] | sd.k[1] << 2 | sd.k[2] << 4;
         if (s == 0) code0 = code;
         uniform = uniform && code == code0;
@@ -148,6 +146,7 @@ struct SimdPolicy {
         const int left = cnt - g * kLanes;
         P.live[g] = P.valid[g] = static_cast<std::uint8_t>(left >= kLanes ? 0xFFu : (1u << left) - 1u);
       }
+      P.src_of = w.id + p0;
       P.uniform_k = uniform;
       P.k[0] = code0 & 3;
       P.k[1] = code0 >> 2 & 3;

@@ -74,6 +74,9 @@ struct Packet {
   alignas(32) float to[3][N], ts[3][N];            ///< the triangle test's permuted origin and shear
   alignas(32) std::int32_t k1[3][N], k2[3][N];     ///< role x, y, z reads coordinate 1 / 2 (all ones)
   const mbvh::Ray* src = nullptr;  ///< the packet's rays (the scalar test of an undecided lane prepares its own)
+  /// Where slot s's ray is in src: src_of[s] when set (dacrt's leaves, whose rays are ids into
+  /// their batch), else ray_of(s).
+  const std::uint32_t* src_of = nullptr;
   std::uint8_t live[kGroups];   ///< valid lanes; any hit: not yet occluded
   std::uint8_t valid[kGroups];  ///< valid lanes (the counters of the others stay 0)
   bool uniform_k = false;      ///< every valid lane has the same kx, ky, kz

@@ -106,7 +106,7 @@ template <bool Any, bool UniformK>
     const int l = i + std::countr_zero(f);
     float tt, uu, vv;
     RayPre pre{};
-    prepare_ray_simd(P.src[ray_of(l)], pre);  // valid: only live lanes are tested
+    prepare_ray_simd(P.src[P.src_of ? P.src_of[l] : static_cast<std::uint32_t>(ray_of(l))], pre);  // valid: only live lanes are tested
     if (tri_test(pre, tri, P.t[l], tt, uu, vv)) {
       if constexpr (Any) {
         sure |= 1u << (l - i);
