@@ -5,7 +5,7 @@
 # timed result verified by `mbvh bench` first; ratios taken within the run, medians:
 #   speed      the conference room (interior view): path (the 8-bounce path tracer's bounce rays),
 #              primary and diffuse rays closest hit, shadow rays any hit, RAYS a kind; cpu (MBVH4
-#              stack, bitstack, ordered stack), dacrt and, where it starts, embree; 2 threads with
+#              and MBVH8 stack, bitstack, ordered stack), dacrt and, where it starts, embree; 2 threads with
 #              --scaling (each variant also on 1 thread, its passes interleaved)
 #   hairball   gen:hairball:2900000 (the paper's Hairball size), path rays, 2 threads
 #   dynamic    `mbvh bench --dynamic FRAMES` on the conference room and Sponza: primary and shadow
@@ -89,13 +89,13 @@ cat "$OUT/machine.txt" >&2
 row="$(scene_rows "$SCENES" "$SPEED_NAME")"
 IFS='|' read -r name scene camera <<< "$row"
 # shellcheck disable=SC2054  # the commas are mbvh's lists
-SPEED=(--backend "cpu,$DACRT$EMBREE" --layout mbvh4 --traversal "stack,bitstack,stack-ordered$TRAV_EXTRA"
+SPEED=(--backend "cpu,$DACRT$EMBREE" --layout mbvh4,mbvh8 --traversal "stack,bitstack,stack-ordered$TRAV_EXTRA"
        --count "$RAYS" --threads 2 --scaling "${EXTRA[@]}")
 CLOSEST_KINDS=path,primary,diffuse run_queries "speed-$name" "$scene" "$camera" "${SPEED[@]}"
 
 # -- the hairball, 2 threads, path rays
 log "hairball $HAIRBALL: path rays"
-"$MBVH" bench "$HAIRBALL" --backend "cpu,$DACRT" --layout mbvh4 --traversal "bitstack,stack-ordered$TRAV_EXTRA" \
+"$MBVH" bench "$HAIRBALL" --backend "cpu,$DACRT" --layout mbvh4,mbvh8 --traversal "bitstack,stack-ordered$TRAV_EXTRA" \
   --query closest --kinds path --count "$RAYS" --threads 2 "${EXTRA[@]}" --json "$OUT/hairball-closest.json" \
   | tee "$OUT/hairball-closest.txt" >&2
 
