@@ -32,6 +32,8 @@ struct DacrtScratch {
   virtual ~DacrtScratch() = default;
 };
 using DacrtBuffers = std::vector<std::unique_ptr<DacrtScratch>>;
+/// The SIMD policy's side record of a ray (dacrt/simd.h), for Backend::state_bytes.
+constexpr std::size_t kDacrtSimdSideBytes = 40;
 
 /// One ISA's compiled kernels (backends/cpu/isa_kernels.cpp, built once per ISA). Only call
 /// `trace` after CPUID says the ISA is there.

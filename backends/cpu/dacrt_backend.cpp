@@ -86,9 +86,10 @@ public:
   std::string isa() const override { return kernels_ ? kernels_->isa : "scalar"; }
   bool supports(Layout, Traversal t) const override { return t == Traversal::dacrt; }
   bool supports_precision(Precision) const override { return true; }
-  /// The working set per ray: its filter record, id and side record (dacrt/recursion.h).
+  /// The working set per ray: its filter record, id and side record (dacrt/recursion.h; the
+  /// scalar policy's side is the prepared ray and its best hit).
   std::size_t state_bytes(const TraceOptions&) const override {
-    return sizeof(dacrt::RayRec) + sizeof(std::uint32_t) + (kernels_ ? 32 : sizeof(RayPre));
+    return sizeof(dacrt::RayRec) + sizeof(std::uint32_t) + (kernels_ ? kDacrtSimdSideBytes : sizeof(RayPre) + sizeof(Hit));
   }
 
 protected:

@@ -10,15 +10,21 @@ namespace mbvh {
 namespace {
 
 struct ScalarPolicy {
-  using Side = RayPre;  ///< the whole prepared ray, by id
+  /// The whole prepared ray and the best hit so far, permuted with the ray's record.
+  struct Side {
+    RayPre pre;
+    Hit best;
+  };
   struct Local {};
 
-  static bool set_up(const Ray& r, dacrt::RayRec& rec, RayPre& p, bool fast) {
-    if (!prepare_ray(r, p)) return false;
-    if (fast) relax_ray(p);
-    dacrt::fill_record(p, rec);
+  static bool set_up(const Ray& r, dacrt::RayRec& rec, Side& side, bool fast) {
+    if (!prepare_ray(r, side.pre)) return false;
+    if (fast) relax_ray(side.pre);
+    dacrt::fill_record(side.pre, rec);
+    side.best = miss_hit();
     return true;
   }
+  static Hit best(const dacrt::Work<ScalarPolicy>& w, std::size_t p) { return w.side[p].best; }
 
   /// One bit a ray: box_hit, the reference's slab test.
   template <bool Fast>
@@ -39,9 +45,9 @@ struct ScalarPolicy {
     for (std::size_t p = 0; p < na; ++p) {
       dacrt::RayRec& rec = w.rec[p];
       const std::uint32_t id = w.id[p];
-      const RayPre& pre = w.side[id];
+      const RayPre& pre = w.side[p].pre;
       float tmax = rec.tmax;
-      Hit best = Any ? miss_hit() : w.hits[id];
+      Hit best = w.side[p].best;
       for (std::uint32_t j = tb; j < te; ++j) {
         const Tri& tri = w.tris[w.tri[j].id];
         if constexpr (Stats) ++w.stats[id].tris;
@@ -60,7 +66,7 @@ struct ScalarPolicy {
         }
       }
       rec.tmax = tmax;
-      if constexpr (!Any) w.hits[id] = best;
+      if constexpr (!Any) w.side[p].best = best;
     }
   }
 };

@@ -10,8 +10,9 @@
 // What is ours (the papers leave it open or measure otherwise; docs/backends.md, "dacrt"):
 // - Rays are 32-byte filter records (origin, tmin, reciprocal direction, current tmax) permuted in
 //   place with their ids, so the active rays of a step are always a prefix of the array (the paper
-//   moves its records the same way); what only the leaf reads (the shear of the watertight test)
-//   stays in a side array by id.
+//   moves its records the same way); what only the leaf reads (the shear of the watertight test,
+//   the best hit so far) in a side array permuted with them, so a leaf reads its rays' in sequence
+//   (by id it would read them anywhere in memory).
 // - Triangles are 32-byte records (box and id) permuted in place, so a step reads its triangles'
 //   boxes in sequence (the paper permutes ids over boxes it keeps in place; by id, the boxes of
 //   a step lie anywhere in memory); the split is the middle of the
@@ -98,7 +99,7 @@ inline void centroid2(const TriRec& b, float c[3]) {
   for (int a = 0; a < 3; ++a) c[a] = b.lo[a] + b.hi[a];
 }
 
-/// One chunk's working set: its rays' records and ids (permuted together), the policy's side
+/// One chunk's working set: its rays' records, ids and side records (permuted together), the
 /// array by id, the outputs by id (the chunk's slice), and the triangle ids (permuted).
 template <class K>
 struct Work {
@@ -210,11 +211,12 @@ inline Split sah_split(const TriRec* tri, std::uint32_t tb, std::uint32_t te, co
   return best;
 }
 
-/// Moves the record and id at `from` to `to` and back (the in-place filter's swap).
+/// Swaps the rays at `to` and `from`: record, id and side record (the in-place filter's move).
 template <class K>
 [[gnu::always_inline]] inline void swap_rays(Work<K>& w, std::size_t to, std::size_t from) {
   std::swap(w.rec[to], w.rec[from]);
   std::swap(w.id[to], w.id[from]);
+  std::swap(w.side[to], w.side[from]);
 }
 
 /// Moves the items whose bit is set (k of the n, bits[i / 64] bit i % 64) to the front [0, k):
@@ -350,7 +352,7 @@ void trace_chunk(Work<K>& w, std::size_t n_rays, std::uint32_t m, const TriRec* 
     if constexpr (Any) w.occluded[i] = 0;
     else w.hits[i] = miss_hit();
     if constexpr (Stats) w.stats[i] = RayStats{};
-    if (!K::set_up(w.rays[i], w.rec[nv], w.side[i], Fast)) {
+    if (!K::set_up(w.rays[i], w.rec[nv], w.side[nv], Fast)) {
       ++invalid;
       continue;
     }
@@ -359,6 +361,8 @@ void trace_chunk(Work<K>& w, std::size_t n_rays, std::uint32_t m, const TriRec* 
   std::copy(boxes, boxes + m, w.tri);
   if (nv == 0 || m == 0) return;
   Recursion<K, Any, Fast, Stats>{w}.node(nv, 0, m, root, croot, 0);
+  if constexpr (!Any)
+    for (std::size_t p = 0; p < nv; ++p) w.hits[w.id[p]] = K::best(w, p);  // the answers, by id
 }
 
 /// Traces `rays` against acc.tris() with policy K: the triangle records first (parallel), then the
@@ -384,9 +388,9 @@ void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt,
   constexpr std::size_t kBoxGrain = 16384;
   const std::size_t parts = (m + kBoxGrain - 1) / kBoxGrain;
   std::vector<Bounds> part_box(parts), part_c(parts);
-  parallel_for(m, kBoxGrain, threads, [&](std::size_t b, std::size_t e, unsigned) {
+  parallel_for(m, kBoxGrain, threads, [&](std::size_t first, std::size_t end, unsigned) {
     Bounds pb, pc;
-    for (std::size_t i = b; i < e; ++i) {
+    for (std::size_t i = first; i < end; ++i) {
       const Bounds b = tri_bounds(tris[i]);
       TriRec& r = boxes[i];
       for (int a = 0; a < 3; ++a) {
@@ -400,8 +404,8 @@ void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt,
       pb.grow(b);
       pc.grow(c, c);
     }
-    part_box[b / kBoxGrain] = pb;
-    part_c[b / kBoxGrain] = pc;
+    part_box[first / kBoxGrain] = pb;
+    part_c[first / kBoxGrain] = pc;
   });
   Bounds root, croot;
   for (std::size_t k = 0; k < parts; ++k) {

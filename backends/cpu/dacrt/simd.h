@@ -23,14 +23,17 @@ inline namespace MBVH_ISA_NS {
 namespace {
 namespace dacrt {
 
-/// What the leaf reads of a ray beyond its record, by id: the direction (the fast precision's
-/// Möller–Trumbore) and the watertight test's shear and axes.
+/// What the leaf reads of a ray beyond its record, permuted with it: the watertight test's shear
+/// and axes, the best hit so far (its t is the record's tmax) and the direction (the fast
+/// precision's Möller–Trumbore).
 struct SimdSide {
+  float s[3];         ///< sx, sy, sz
+  std::uint8_t k[4];  ///< kx, ky, kz
+  float u, v;
+  std::uint32_t prim;
   float d[3];
-  float s[3];            ///< sx, sy, sz
-  std::uint8_t k[4];     ///< kx, ky, kz
-  std::uint32_t pad = 0;
 };
+static_assert(sizeof(SimdSide) == kDacrtSimdSideBytes, "the dacrt backends' state_bytes counts it");
 
 struct SimdPolicy {
   using Side = SimdSide;
@@ -52,7 +55,13 @@ struct SimdPolicy {
     sd.k[1] = static_cast<std::uint8_t>(p.ky);
     sd.k[2] = static_cast<std::uint8_t>(p.kz);
     sd.k[3] = 0;
+    sd.u = sd.v = 0.0f;
+    sd.prim = MBVH_MISS_PRIM;
     return true;
+  }
+  static Hit best(const Work<SimdPolicy>& w, std::size_t p) {
+    const SimdSide& sd = w.side[p];
+    return sd.prim == MBVH_MISS_PRIM ? miss_hit() : Hit{w.rec[p].tmax, sd.u, sd.v, sd.prim};
   }
 
   /// One bit a ray, eight records per pass: box_hit's operations lane by lane (blendv on the sign
@@ -116,8 +125,7 @@ struct SimdPolicy {
           continue;
         }
         const RayRec& rec = w.rec[p0 + s];
-        const std::uint32_t id = w.id[p0 + s];
-        const SimdSide& sd = w.side[id];
+        const SimdSide& sd = w.side[p0 + s];
         for (int a = 0; a < 3; ++a) {
           P.to[a][s] = rec.o[sd.k[a]];
           P.ts[a][s] = sd.s[a];
@@ -130,14 +138,9 @@ struct SimdPolicy {
         }
         P.tmin[s] = rec.tmin;
         P.t[s] = rec.tmax;
-        if constexpr (Any) {
-          P.prim[s] = MBVH_MISS_PRIM;
-        } else {
-          const Hit& h = w.hits[id];
-          P.u[s] = h.u;
-          P.v[s] = h.v;
-          P.prim[s] = h.prim;
-        }
+        P.u[s] = sd.u;
+        P.v[s] = sd.v;
+        P.prim[s] = sd.prim;
         const std::uint32_t code = sd.k[0] | sd.k[1] << 2 | sd.k[2] << 4;
         if (s == 0) code0 = code;
         uniform = uniform && code == code0;
@@ -182,10 +185,11 @@ struct SimdPolicy {
       }
       if constexpr (!Any)
         for (int s = 0; s < cnt; ++s) {
-          RayRec& rec = w.rec[p0 + s];
-          if (P.t[s] == rec.tmax && P.prim[s] == w.hits[w.id[p0 + s]].prim) continue;
-          rec.tmax = P.t[s];
-          w.hits[w.id[p0 + s]] = Hit{P.t[s], P.u[s], P.v[s], P.prim[s]};
+          SimdSide& sd = w.side[p0 + s];
+          w.rec[p0 + s].tmax = P.t[s];
+          sd.u = P.u[s];
+          sd.v = P.v[s];
+          sd.prim = P.prim[s];
         }
     }
   }
