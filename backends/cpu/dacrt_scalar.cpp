@@ -10,7 +10,7 @@ namespace mbvh {
 namespace {
 
 struct ScalarPolicy {
-  /// The whole prepared ray and the best hit so far, permuted with the ray's record.
+  /// The whole prepared ray and the best hit so far, by id.
   struct Side {
     RayPre pre;
     Hit best;
@@ -24,7 +24,7 @@ struct ScalarPolicy {
     side.best = miss_hit();
     return true;
   }
-  static Hit best(const dacrt::Work<ScalarPolicy>& w, std::size_t p) { return w.side[p].best; }
+  static Hit best(const dacrt::Work<ScalarPolicy>& w, std::size_t p) { return w.side[w.id[p]].best; }
 
   /// One bit a ray: box_hit, the reference's slab test.
   template <bool Fast>
@@ -45,9 +45,9 @@ struct ScalarPolicy {
     for (std::size_t p = 0; p < na; ++p) {
       dacrt::RayRec& rec = w.rec[p];
       const std::uint32_t id = w.id[p];
-      const RayPre& pre = w.side[p].pre;
+      const RayPre& pre = w.side[id].pre;
       float tmax = rec.tmax;
-      Hit best = w.side[p].best;
+      Hit best = w.side[id].best;
       for (std::uint32_t j = tb; j < te; ++j) {
         const Tri& tri = w.tris[w.tri[j].id];
         if constexpr (Stats) ++w.stats[id].tris;
@@ -66,7 +66,7 @@ struct ScalarPolicy {
         }
       }
       rec.tmax = tmax;
-      if constexpr (!Any) w.side[p].best = best;
+      if constexpr (!Any) w.side[id].best = best;
     }
   }
 };

@@ -11,8 +11,8 @@
 // - Rays are 32-byte filter records (origin, tmin, reciprocal direction, current tmax) permuted in
 //   place with their ids, so the active rays of a step are always a prefix of the array (the paper
 //   moves its records the same way); what only the leaf reads (the shear of the watertight test,
-//   the best hit so far) in a side array permuted with them, so a leaf reads its rays' in sequence
-//   (by id it would read them anywhere in memory).
+//   the best hit so far) stays in a side array by id, fetched ahead by the leaf (moving it with the
+//   records at every filter step moves far more bytes than a leaf reads).
 // - Triangles are 32-byte records (box and id) permuted in place, so a step reads its triangles'
 //   boxes in sequence (the paper permutes ids over boxes it keeps in place; by id, the boxes of
 //   a step lie anywhere in memory); the split is the middle of the
@@ -99,7 +99,7 @@ inline void centroid2(const TriRec& b, float c[3]) {
   for (int a = 0; a < 3; ++a) c[a] = b.lo[a] + b.hi[a];
 }
 
-/// One chunk's working set: its rays' records, ids and side records (permuted together), the
+/// One chunk's working set: its rays' records and ids (permuted together), side records by id, the
 /// array by id, the outputs by id (the chunk's slice), and the triangle ids (permuted).
 template <class K>
 struct Work {
@@ -211,12 +211,11 @@ inline Split sah_split(const TriRec* tri, std::uint32_t tb, std::uint32_t te, co
   return best;
 }
 
-/// Swaps the rays at `to` and `from`: record, id and side record (the in-place filter's move).
+/// Swaps the rays at `to` and `from`: record and id (the in-place filter's move).
 template <class K>
 [[gnu::always_inline]] inline void swap_rays(Work<K>& w, std::size_t to, std::size_t from) {
   std::swap(w.rec[to], w.rec[from]);
   std::swap(w.id[to], w.id[from]);
-  std::swap(w.side[to], w.side[from]);
 }
 
 /// Moves the items whose bit is set (k of the n, bits[i / 64] bit i % 64) to the front [0, k):
@@ -352,7 +351,7 @@ void trace_chunk(Work<K>& w, std::size_t n_rays, std::uint32_t m, const TriRec* 
     if constexpr (Any) w.occluded[i] = 0;
     else w.hits[i] = miss_hit();
     if constexpr (Stats) w.stats[i] = RayStats{};
-    if (!K::set_up(w.rays[i], w.rec[nv], w.side[nv], Fast)) {
+    if (!K::set_up(w.rays[i], w.rec[nv], w.side[i], Fast)) {
       ++invalid;
       continue;
     }

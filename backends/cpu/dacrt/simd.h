@@ -23,7 +23,7 @@ inline namespace MBVH_ISA_NS {
 namespace {
 namespace dacrt {
 
-/// What the leaf reads of a ray beyond its record, permuted with it: the watertight test's shear
+/// What the leaf reads of a ray beyond its record, by id: the watertight test's shear
 /// and axes, the best hit so far (its t is the record's tmax) and the direction (the fast
 /// precision's Möller–Trumbore).
 struct SimdSide {
@@ -60,7 +60,7 @@ struct SimdPolicy {
     return true;
   }
   static Hit best(const Work<SimdPolicy>& w, std::size_t p) {
-    const SimdSide& sd = w.side[p];
+    const SimdSide& sd = w.side[w.id[p]];
     return sd.prim == MBVH_MISS_PRIM ? miss_hit() : Hit{w.rec[p].tmax, sd.u, sd.v, sd.prim};
   }
 
@@ -112,6 +112,11 @@ struct SimdPolicy {
       const int groups = (cnt + kLanes - 1) / kLanes;
       std::uint32_t code0 = 0;
       bool uniform = true;
+      for (int s = 0; s < cnt; ++s) {  // the side records lie anywhere: every one asked for first
+        const char* line = reinterpret_cast<const char*>(&w.side[w.id[p0 + s]]);
+        __builtin_prefetch(line);
+        __builtin_prefetch(line + sizeof(SimdSide) - 1);
+      }
       for (int s = 0; s < groups * kLanes; ++s) {
         if (s >= cnt) {  // a lane past the rays: never tested (masked), its values only kept finite
           for (int a = 0; a < 3; ++a) {
@@ -125,7 +130,7 @@ struct SimdPolicy {
           continue;
         }
         const RayRec& rec = w.rec[p0 + s];
-        const SimdSide& sd = w.side[p0 + s];
+        const SimdSide& sd = w.side[w.id[p0 + s]];
         for (int a = 0; a < 3; ++a) {
           P.to[a][s] = rec.o[sd.k[a]];
           P.ts[a][s] = sd.s[a];
@@ -185,7 +190,7 @@ struct SimdPolicy {
       }
       if constexpr (!Any)
         for (int s = 0; s < cnt; ++s) {
-          SimdSide& sd = w.side[p0 + s];
+          SimdSide& sd = w.side[w.id[p0 + s]];
           w.rec[p0 + s].tmax = P.t[s];
           sd.u = P.u[s];
           sd.v = P.v[s];
