@@ -9,7 +9,8 @@
 #              --scaling (each variant also on 1 thread, its passes interleaved)
 #   hairball   gen:hairball:2900000 (the paper's Hairball size), path rays, 2 threads
 #   dynamic    `mbvh bench --dynamic FRAMES` on the conference room and Sponza: primary and shadow
-#              rays of a 1024x768 image, cpu rebuild+trace and refit+trace against dacrt update+trace
+#              rays of a 1024x768 image, cpu rebuild+trace and refit+trace (its best traversal, the MBVH8
+#              ordered stack) against dacrt update+trace
 #   memory     max RSS (/usr/bin/time -v) of `mbvh trace --rays FILE` (path rays written first by
 #              `mbvh rays`) on dacrt and cpu, with 1 ray and with RAYS, and of `mbvh --version`
 #   ablations  dacrt's settings one at a time on the path rays of the conference room and the
@@ -105,6 +106,7 @@ for dname in "${DYN_NAMES[@]}"; do
   log "dynamic: $name, $FRAMES frames"
   # shellcheck disable=SC2086  # the camera is words
   "$MBVH" bench "$scene" --backend "cpu,$DACRT" --dynamic "$FRAMES" --kinds primary,shadow "${DYN_IMAGE[@]}" \
+    --layout mbvh8 --traversal stack-ordered \
     --threads 2 $camera --json "$OUT/dynamic-$name.json" | tee "$OUT/dynamic-$name.txt" >&2
 done
 

@@ -18,7 +18,7 @@ namespace mbvh {
 struct DacrtSettings {
   enum class Partition { adaptive, sah, middle };
   Partition partition = Partition::adaptive;  ///< adaptive: SAH where active rays / triangles > ratio, else middle
-  float ratio = 2.0f;          ///< the adaptive switch
+  float ratio = 8.0f;          ///< the adaptive switch
   unsigned bins = 16;          ///< SAH bins per axis on the centroid bounds
   unsigned leaf_rays = 16;     ///< the naive leaf below this many active rays
   unsigned leaf_tris = 8;      ///< the naive leaf at this many triangles or fewer

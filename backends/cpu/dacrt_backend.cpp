@@ -17,12 +17,18 @@
 namespace mbvh {
 namespace {
 
+std::string ratio_text(float r) {
+  char t[32];
+  std::snprintf(t, sizeof t, "%g", static_cast<double>(r));
+  return t;
+}
+
 std::vector<BackendSetting> dacrt_settings() {
   const DacrtSettings d;
   return {
       {"dacrt.partition", "how a step splits its triangles: adaptive (SAH where active rays per triangle exceed dacrt.ratio, "
                           "else the middle of the centroid bounds; the default), sah or middle"},
-      {"dacrt.ratio", "active rays per triangle above which adaptive partitioning takes the SAH (default 2)"},
+      {"dacrt.ratio", "active rays per triangle above which adaptive partitioning takes the SAH (default " + ratio_text(d.ratio) + ")"},
       {"dacrt.bins", "SAH bins per axis, 2 to 64 (default " + std::to_string(d.bins) + ")"},
       {"dacrt.leaf-rays", "intersect naively below this many active rays (default " + std::to_string(d.leaf_rays) + ")"},
       {"dacrt.leaf-tris", "intersect naively at this many triangles or fewer (default " + std::to_string(d.leaf_tris) + ")"},
@@ -73,8 +79,7 @@ public:
       : name_(std::move(name)), kernels_(k), threads_(resolve_threads(o.threads)), s_(parse_settings(o)) {}
   std::string name() const override { return name_; }
   std::string describe() const override {
-    char ratio[32];
-    std::snprintf(ratio, sizeof ratio, "%g", static_cast<double>(s_.ratio));
+    const std::string ratio = ratio_text(s_.ratio);
     return name_ + ": divide-and-conquer ray tracing, no hierarchy (" +
            (kernels_ ? std::string(kernels_->isa) + " filter of 8 rays a pass, leaves of 64 rays a triangle"
                      : std::string("scalar filter and leaves")) +
