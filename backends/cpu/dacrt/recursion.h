@@ -419,12 +419,11 @@ void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt,
     auto* sc = dynamic_cast<Scratch<K>*>(buffers[1 + worker].get());
     if (!sc) throw std::logic_error("dacrt: a worker's buffers are of another kernel");
     const std::size_t n = e - b;
-    if (sc->rec.size() < n) {
-      sc->rec.resize(n);
-      sc->id.resize(n);
-      sc->side.resize(n);
-      sc->bits.resize(n / 64 + 1);
-    }
+    // each on its own: a resize that threw leaves the others right for the next call
+    if (sc->rec.size() < n) sc->rec.resize(n);
+    if (sc->id.size() < n) sc->id.resize(n);
+    if (sc->side.size() < n) sc->side.resize(n);
+    if (sc->bits.size() < n / 64 + 1) sc->bits.resize(n / 64 + 1);
     sc->tri.resize(m);
     sc->tbits.resize(m / 64 + 1);
     Work<K> w;
