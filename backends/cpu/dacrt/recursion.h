@@ -130,10 +130,6 @@ struct Split {
     const float c = t.lo[axis] + t.hi[axis];
     return sah ? bin_of(c) <= bin : c < mid2;
   }
-  bool left(const float c[3]) const {
-    if (!sah) return c[axis] < mid2;
-    return bin_of(c[axis]) <= bin;
-  }
   unsigned bin_of(float c) const {
     const float f = (c - lo) * scale;
     return f >= float(bins - 1) ? bins - 1 : static_cast<unsigned>(f);
@@ -307,21 +303,11 @@ struct Recursion {
 
   /// The box and centroid bounds of the records [b, e).
   static void side_bounds(const TriRec* b, const TriRec* e, Bounds& box, Bounds& cen) {
-    float lo[4] = {INFINITY, INFINITY, INFINITY, INFINITY}, hi[4] = {-INFINITY, -INFINITY, -INFINITY, -INFINITY};
-    float clo[4] = {INFINITY, INFINITY, INFINITY, INFINITY}, chi[4] = {-INFINITY, -INFINITY, -INFINITY, -INFINITY};
-    for (const TriRec* r = b; r != e; ++r)
-      for (int a = 0; a < 3; ++a) {
-        const float c = r->lo[a] + r->hi[a];
-        lo[a] = std::min(lo[a], r->lo[a]);
-        hi[a] = std::max(hi[a], r->hi[a]);
-        clo[a] = std::min(clo[a], c);
-        chi[a] = std::max(chi[a], c);
-      }
-    for (int a = 0; a < 3; ++a) {
-      box.lo[a] = lo[a];
-      box.hi[a] = hi[a];
-      cen.lo[a] = clo[a];
-      cen.hi[a] = chi[a];
+    for (const TriRec* r = b; r != e; ++r) {
+      float c[3];
+      centroid2(*r, c);
+      box.grow(r->lo, r->hi);
+      cen.grow(c, c);
     }
   }
 
