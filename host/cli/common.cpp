@@ -209,21 +209,6 @@ Loaded load_and_build(const SceneArgs& a, bool verbose) {
 
 // -- backends and devices
 
-Layout default_layout(const Backend& b, Traversal t) {
-  return !b.supports(Layout::mbvh4, t) && b.supports(Layout::mbvh2, t) ? Layout::mbvh2 : Layout::mbvh4;
-}
-
-bool only_dacrt(const Backend& b) {
-  bool dacrt = false;
-  for (Layout l : {Layout::mbvh2, Layout::mbvh4, Layout::mbvh8})
-    for (int t = 0; t <= static_cast<int>(Traversal::dacrt); ++t) {
-      if (!b.supports(l, static_cast<Traversal>(t))) continue;
-      if (!is_dacrt(static_cast<Traversal>(t))) return false;
-      dacrt = true;
-    }
-  return dacrt;
-}
-
 void DeviceArgs::add(CLI::App* c) {
   c->add_option("--cl-device", cl_device,
                 "OpenCL device: P:D (platform:device), N (index), gpu, cpu or accelerator (the first of that type) or "

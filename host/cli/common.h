@@ -125,11 +125,6 @@ Loaded load_and_build(const SceneArgs& a, bool verbose = true);
 
 // -- backends and devices
 
-/// The layout used when --layout is not given: MBVH4, or MBVH2 where the backend has no MBVH4
-/// traversal of that kind (vulkan).
-Layout default_layout(const Backend& b, Traversal t);
-/// Whether dacrt is the only traversal `b` has (on any layout): --traversal then defaults to it.
-bool only_dacrt(const Backend& b);
 
 /// --cl-device, --vk-device: which device the OpenCL and Vulkan backends use; --cl-mapping;
 /// --vk-validation.

@@ -52,19 +52,6 @@ void check_not_foreign(const std::string& name, const char* what, const void* da
                 "DESIGN.md)");
 }
 
-// Rays: every value finite, except tmax, which may be +inf (the default: no far limit). A NaN,
-// an infinite origin, direction or tmin, or tmax = -inf is no ray a program meant to write.
-void check_ray_values(const std::string& name, std::span<const Ray> rays) {
-  static const char* const field[8] = {"origin x", "origin y", "origin z", "tmin", "direction x", "direction y", "direction z", "tmax"};
-  for (std::size_t i = 0; i < rays.size(); ++i) {
-    const float v[8] = {rays[i].ox, rays[i].oy, rays[i].oz, rays[i].tmin, rays[i].dx, rays[i].dy, rays[i].dz, rays[i].tmax};
-    for (int k = 0; k < 8; ++k)
-      if (!std::isfinite(v[k]) && !(k == 7 && v[k] > 0))
-        throw Error(name + ": ray " + std::to_string(i) + " has " + field[k] + " = " + std::to_string(v[k]) +
-                    " (a ray file holds finite values; only tmax may be +inf); is this a ray file?");
-  }
-}
-
 void check_occlusion_values(const std::string& name, std::span<const std::uint8_t> occ) {
   for (std::size_t i = 0; i < occ.size(); ++i)
     if (occ[i] > 1)
@@ -75,7 +62,7 @@ void check_occlusion_values(const std::string& name, std::span<const std::uint8_
 template <class T>
 void check_records(const std::string& name, const char* what, std::span<const T> r) {
   check_not_foreign(name, what, r.data(), r.size_bytes());
-  if constexpr (std::is_same_v<T, Ray>) check_ray_values(name, r);
+  if constexpr (std::is_same_v<T, Ray>) check_ray_values(name, r, "; is this a ray file?");
   if constexpr (std::is_same_v<T, std::uint8_t>) check_occlusion_values(name, r);
 }
 
@@ -120,5 +107,18 @@ std::vector<std::uint8_t> read_occlusion(const std::string& path) { return read_
 void write_rays(const std::string& path, std::span<const Ray> r) { write_bytes(path, r.data(), r.size_bytes()); }
 void write_hits(const std::string& path, std::span<const Hit> h) { write_bytes(path, h.data(), h.size_bytes()); }
 void write_occlusion(const std::string& path, std::span<const std::uint8_t> o) { write_bytes(path, o.data(), o.size_bytes()); }
+
+// Rays: every value finite, except tmax, which may be +inf (the default: no far limit). A NaN,
+// an infinite origin, direction or tmin, or tmax = -inf is no ray a program meant to write.
+void check_ray_values(const std::string& name, std::span<const Ray> rays, const char* hint) {
+  static const char* const field[8] = {"origin x", "origin y", "origin z", "tmin", "direction x", "direction y", "direction z", "tmax"};
+  for (std::size_t i = 0; i < rays.size(); ++i) {
+    const float v[8] = {rays[i].ox, rays[i].oy, rays[i].oz, rays[i].tmin, rays[i].dx, rays[i].dy, rays[i].dz, rays[i].tmax};
+    for (int k = 0; k < 8; ++k)
+      if (!std::isfinite(v[k]) && !(k == 7 && v[k] > 0))
+        throw Error(name + ": ray " + std::to_string(i) + " has " + field[k] + " = " + std::to_string(v[k]) +
+                    " (rays hold finite values; only tmax may be +inf)" + (hint ? hint : ""));
+  }
+}
 
 }  // namespace mbvh

@@ -50,6 +50,21 @@ bool backend_needs_hierarchy(const std::string& name) {
   return true;
 }
 
+Layout default_layout(const Backend& b, Traversal t) {
+  return !b.supports(Layout::mbvh4, t) && b.supports(Layout::mbvh2, t) ? Layout::mbvh2 : Layout::mbvh4;
+}
+
+bool only_dacrt(const Backend& b) {
+  bool dacrt = false;
+  for (Layout l : {Layout::mbvh2, Layout::mbvh4, Layout::mbvh8})
+    for (int t = 0; t <= static_cast<int>(Traversal::dacrt); ++t) {
+      if (!b.supports(l, static_cast<Traversal>(t))) continue;
+      if (!is_dacrt(static_cast<Traversal>(t))) return false;
+      dacrt = true;
+    }
+  return dacrt;
+}
+
 namespace {
 
 // Throws Error naming `b` when `acc` has no hierarchy (quality none) and b needs one

@@ -164,6 +164,12 @@ std::vector<std::string> runnable_backends(std::vector<std::string>* left_out = 
 /// BackendInfo::needs_hierarchy of the registered backend `name` (false if the backend an alias
 /// stands for has it false); true for a name not registered.
 bool backend_needs_hierarchy(const std::string& name);
+/// The layout a caller that names none traces with traversal `t` on `b`: MBVH4, or MBVH2 where
+/// `b` has no MBVH4 traversal of that kind (vulkan). The CLI's and the bindings' default.
+Layout default_layout(const Backend& b, Traversal t);
+/// Whether dacrt is the only traversal `b` has (on any layout): a caller that names no traversal
+/// then traces dacrt (the CLI's and the bindings' default), else bitstack.
+bool only_dacrt(const Backend& b);
 /// Makes a backend by name; throws Error naming the known backends, or saying why a known
 /// backend is not built or cannot start, or naming a setting of `opt` that no backend of its
 /// family declares (BackendOptions).
