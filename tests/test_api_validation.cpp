@@ -16,7 +16,7 @@
 #include "mbvh/config.h"
 #include "host/core/layouts.h"
 #include "mbvh/backend.h"
-#include "host/core/compare.h"
+#include "mbvh/compare.h"
 #include "mbvh/error.h"
 #include "tests/helpers.h"
 #include "host/core/parallel.h"

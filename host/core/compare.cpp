@@ -1,6 +1,6 @@
 // SPDX-License-Identifier: MIT
 // compare.cpp — tie classification of DESIGN.md's numerical contract.
-#include "host/core/compare.h"
+#include "mbvh/compare.h"
 
 #include <algorithm>
 #include <cmath>

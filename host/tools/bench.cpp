@@ -16,7 +16,7 @@
 
 #include "mbvh/error.h"
 #include "mbvh/backend.h"
-#include "host/core/compare.h"
+#include "mbvh/compare.h"
 #include "host/core/parallel.h"
 #include "host/tools/stats.h"
 #include "host/tools/variants.h"

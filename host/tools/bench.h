@@ -9,7 +9,7 @@
 
 #include "mbvh/accel.h"
 #include "mbvh/backend.h"
-#include "host/core/compare.h"
+#include "mbvh/compare.h"
 #include "host/tools/raygen.h"
 #include "host/tools/variants.h"
 #include "mbvh/trace.h"

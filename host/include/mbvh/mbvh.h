@@ -1,7 +1,7 @@
 // SPDX-License-Identifier: MIT
 // mbvh.h — the core's one header (mbvh::core): scenes (mbvh/scene.h), the build (mbvh/accel.h),
 // rays, hits and trace options (mbvh/trace.h), the backend interface and its registry
-// (mbvh/backend.h), the caller's meshes, geometry-id hits and one-ray calls (mbvh/geometry.h), the
+// (mbvh/backend.h), ray-by-ray comparison of answers with classified ties (mbvh/compare.h), the caller's meshes, geometry-id hits and one-ray calls (mbvh/geometry.h), the
 // ray / hit files (mbvh/rays.h), errors (mbvh/error.h) and the version (mbvh/version.h:
 // MBVH_VERSION_STRING, mbvh::version()). The calls that register backends are defined by the
 // backend libraries, not the core: a program that links them includes <mbvh/backends.h> too.
@@ -16,6 +16,7 @@
 #pragma once
 #include "mbvh/accel.h"
 #include "mbvh/backend.h"
+#include "mbvh/compare.h"
 #include "mbvh/config.h"
 #include "mbvh/error.h"
 #include "mbvh/geometry.h"
