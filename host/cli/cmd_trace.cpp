@@ -53,8 +53,8 @@ int run_trace(TraceArgs& a, const CLI::App& cmd) {
   a.scene.no_hierarchy_for({a.backend});  // a dacrt backend alone: no BVH built (quality none)
   BackendOptions bo = a.dev.options(a.scene.threads, a.scene.quality);
   auto backend = make_backend(a.backend, bo);
-  if (cmd.count("--traversal") == 0 && only_dacrt(*backend)) {  // its one traversal; the layout is ignored
-    o.traversal = Traversal::dacrt;
+  if (cmd.count("--traversal") == 0) {  // bitstack; dacrt (layout ignored) or stack where the backend lacks it
+    o.traversal = default_traversal(*backend);
     a.traversal = to_string(o.traversal);
   }
   if (cmd.count("--layout") == 0) {
@@ -105,7 +105,7 @@ Command add_trace(CLI::App& app) {
   a->rays.add(c, true);
   c->add_option("--backend", a->backend, "backend (see `mbvh devices`)");
   c->add_option("--layout", a->layout, "mbvh2, mbvh4 or mbvh8 (default: mbvh4, or mbvh2 where the backend has only that)");
-  c->add_option("--traversal", a->traversal, "stack, bitstack, stack-ordered or bitstack-retest (bitstack-retest: MBVH4 only); packet-ranged, packet-partition or packet (cpu: packets of 64 rays over MBVH2, the layout for the hybrid's single rays); dacrt (no hierarchy, the layout ignored; the default of a backend that has only it)");
+  c->add_option("--traversal", a->traversal, "stack, bitstack, stack-ordered or bitstack-retest (bitstack-retest: MBVH4 only); packet-ranged, packet-partition or packet (cpu: packets of 64 rays over MBVH2, the layout for the hybrid's single rays); dacrt (no hierarchy, the layout ignored). Default: bitstack; dacrt on a backend that has only it, stack on one without bitstack (embree)");
   c->add_option("--query", a->query, "closest (writes hits, 16 B/ray) or any (writes occlusion, 1 B/ray)");
   c->add_option("-o,--output", a->out, "output file ('-': standard output)");
   c->add_flag("--stats", a->stats, "also count work per ray (slower)");

@@ -54,6 +54,11 @@ Layout default_layout(const Backend& b, Traversal t) {
   return !b.supports(Layout::mbvh4, t) && b.supports(Layout::mbvh2, t) ? Layout::mbvh2 : Layout::mbvh4;
 }
 
+Traversal default_traversal(const Backend& b) {
+  if (only_dacrt(b)) return Traversal::dacrt;
+  return b.supports(default_layout(b, Traversal::bitstack), Traversal::bitstack) ? Traversal::bitstack : Traversal::stack;
+}
+
 bool only_dacrt(const Backend& b) {
   bool dacrt = false;
   for (Layout l : {Layout::mbvh2, Layout::mbvh4, Layout::mbvh8})

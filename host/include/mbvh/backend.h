@@ -170,6 +170,10 @@ Layout default_layout(const Backend& b, Traversal t);
 /// Whether dacrt is the only traversal `b` has (on any layout): a caller that names no traversal
 /// then traces dacrt (the CLI's and the bindings' default), else bitstack.
 bool only_dacrt(const Backend& b);
+/// The traversal a caller that names none traces on `b`: dacrt where that is b's only traversal
+/// (only_dacrt), else bitstack (the stackless traversal of Afra & Szirmay-Kalos) where b has it on
+/// default_layout(b, bitstack), else stack (the embree peer). The CLI's and the bindings' default.
+Traversal default_traversal(const Backend& b);
 /// Makes a backend by name; throws Error naming the known backends, or saying why a known
 /// backend is not built or cannot start, or naming a setting of `opt` that no backend of its
 /// family declares (BackendOptions).
