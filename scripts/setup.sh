@@ -9,6 +9,7 @@ PACKAGES=(build-essential cmake ninja-build pkg-config catch2 libzstd-dev zlib1g
           ocl-icd-opencl-dev opencl-headers pocl-opencl-icd
           libvulkan-dev mesa-vulkan-drivers glslang-tools vulkan-validationlayers
           libembree-dev
+          python3-dev pybind11-dev python3-numpy python3-pytest python3-venv
           ${MBVH_EXTRA_PACKAGES:-})
 
 missing=()
@@ -27,7 +28,11 @@ mbvh_build() {  # DIR [CMAKE_ARGS...]; MBVH_TARGETS="a b" builds only those targ
   local dir="$1"
   shift
   echo "== configuring and building in $dir $* ${MBVH_TARGETS:+(targets: $MBVH_TARGETS)}"
-  cmake -S "$ROOT" -B "$dir" -G Ninja -DCMAKE_BUILD_TYPE=Release "$@" >/dev/null
+  # the Python module is built for Debian's python3 (python3-numpy, python3-pytest), not whichever
+  # python3 comes first on PATH; MBVH_PYTHON_EXE picks another
+  local py="${MBVH_PYTHON_EXE:-}"
+  [ -n "$py" ] || [ ! -x /usr/bin/python3 ] || py=/usr/bin/python3
+  cmake -S "$ROOT" -B "$dir" -G Ninja -DCMAKE_BUILD_TYPE=Release ${py:+"-DPython3_EXECUTABLE=$py"} "$@" >/dev/null
   # shellcheck disable=SC2086
   cmake --build "$dir" --parallel "$(nproc)" ${MBVH_TARGETS:+--target $MBVH_TARGETS}
 }

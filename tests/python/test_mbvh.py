@@ -266,3 +266,10 @@ def test_cache_dir_stats_and_traversals(tmp_path):
         none.trace(rays, backend="cpu")
     b = a1.bench(rays, repeat=2)
     assert b["rays"] == 2000 and len(b["seconds"]) == 2 and b["mrays_per_s"] > 0
+
+
+def test_the_readme_example_runs():
+    example = os.path.join(os.path.dirname(__file__), "../../examples/trace_mesh.py")
+    out = subprocess.run([os.sys.executable, example, BUNNY], check=True, capture_output=True, text=True).stdout
+    lines = out.splitlines()
+    assert len(lines) == 5 and all(line.startswith(f"ray {i}: triangle ") for i, line in enumerate(lines)), out
