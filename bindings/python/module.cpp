@@ -15,6 +15,7 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <shared_mutex>
 #include <optional>
 #include <string>
 #include <vector>
@@ -165,6 +166,9 @@ struct PyAccel {
   std::unique_ptr<Accel> acc;
   py::object scene;  ///< the PyScene it was built from (refit, the mesh helpers)
   std::mutex mutex;  ///< guards `backends` (the backends themselves serialise their calls)
+  /// Traces share the build, refit changes it (Accel::refit: no trace may run meanwhile); taken
+  /// with the GIL released, so a thread waiting for it never blocks the interpreter.
+  std::shared_mutex use;
   std::map<std::string, std::unique_ptr<Backend>> backends;
 
   // The backend `name` with these threads and settings, made on first use and kept: a device
@@ -220,6 +224,7 @@ py::object trace(PyAccel& a, const py::handle& rays_in, const Variant& v) {
   TraceOutput out;
   {
     py::gil_scoped_release nogil;
+    std::shared_lock<std::shared_mutex> lock(a.use);
     b->trace(*a.acc, rays, o, out);
   }
   return results(std::move(out), o);
@@ -231,6 +236,7 @@ py::dict bench(PyAccel& a, const py::handle& rays_in, const Variant& v, unsigned
   std::vector<double> seconds;
   {
     py::gil_scoped_release nogil;
+    std::shared_lock<std::shared_mutex> lock(a.use);
     TraceOutput out;
     b->prepare(*a.acc, o);
     b->trace(*a.acc, rays, o, out);  // warm: caches, the workers, a device's pipeline
@@ -284,6 +290,7 @@ py::list check(PyAccel& a, const py::handle& rays_in, std::optional<std::vector<
     py::dict d;
     {
       py::gil_scoped_release nogil;
+      std::shared_lock<std::shared_mutex> lock(a.use);
       TraceOutput out, ref, ref_closest;
       b->trace(*a.acc, rays, o, out);
       TraceOptions ro = with_leaves_of(*b, o);
@@ -314,6 +321,7 @@ py::list check(PyAccel& a, const py::handle& rays_in, std::optional<std::vector<
     TraceOutput ref;
     {
       py::gil_scoped_release nogil;
+      std::shared_lock<std::shared_mutex> lock(a.use);
       trace_reference(*a.acc, rays.first(n), ro, ref, v.threads);
       for (std::size_t i = 0; i < n; ++i) oracle[i] = brute_force(*a.acc, rays[i]);
     }
@@ -428,9 +436,9 @@ PYBIND11_MODULE(_mbvh, m) {
       .def("refit", [](PyAccel& a) {
         PyScene& s = a.scene.cast<PyScene&>();
         py::gil_scoped_release nogil;
-        std::lock_guard<std::mutex> lock(a.mutex);
+        std::unique_lock<std::shared_mutex> lock(a.use);
         a.acc->refit(s.scene);
-      })
+      }, "Refits the build to its scene's vertices after they were changed in place (waits for traces to finish).")
       .def("trace", [](PyAccel& a, const py::handle& rays, const std::string& backend, const std::string& query,
                        unsigned threads, std::optional<std::string> layout, std::optional<std::string> traversal,
                        const std::string& precision, std::map<std::string, std::string> settings, bool stats) {
