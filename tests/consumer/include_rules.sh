@@ -6,25 +6,26 @@
 #   host/core:    no backend, tool or program
 #   backends:     no tool or program
 #   host/tools:   no backend or program (tools reach backends through the registry)
+#   bindings:     only the public headers (mbvh/...), as any user of the library (C, Python)
 # Each rule is first shown a line that breaks it, so the check cannot pass by matching nothing.
 set -euo pipefail
 src="$1"
 # each rule: a folder, what it may not include, and a line that breaks the rule
-dirs=(host/include host/core backends host/tools)
+dirs=(host/include host/core backends host/tools bindings)
 patterns=('#include "(host|backends)/' '#include "(backends|host/tools|host/cli)/' '#include "host/(tools|cli)/'
-          '#include "(backends|host/cli)/')
+          '#include "(backends|host/cli)/' '#include ["<](host|backends|tests)/')
 planted=('#include "host/core/layouts.h"' '#include "backends/cpu/cpu_backends.h"' '#include "host/tools/check.h"'
-         '#include "host/cli/common.h"')
+         '#include "host/cli/common.h"' '#include "host/core/layouts.h"')
 status=0
 for i in "${!dirs[@]}"; do
   dir="${dirs[$i]}" pattern="${patterns[$i]}"
   grep -qE "^[[:space:]]*$pattern" <<<"${planted[$i]}" \
     || { echo "error: the rule for $dir does not see the line ${planted[$i]}: the check is blind" >&2; exit 1; }
   [ -d "$src/$dir" ] || { echo "error: $src/$dir is missing: the check is blind" >&2; exit 1; }
-  if grep -rnE --include='*.h' --include='*.cpp' --include='*.hpp' "^[[:space:]]*$pattern" "$src/$dir"; then
+  if grep -rnE --include='*.h' --include='*.c' --include='*.cpp' --include='*.hpp' "^[[:space:]]*$pattern" "$src/$dir"; then
     echo "error: $dir includes what lies above it (the lines above; pattern: $pattern)" >&2
     status=1
   fi
 done
-[ "$status" = 0 ] && echo "include rules: host/include, host/core, backends and host/tools include only what lies below them"
+[ "$status" = 0 ] && echo "include rules: host/include, host/core, backends, host/tools and bindings include only what lies below them"
 exit "$status"
