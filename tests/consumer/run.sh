@@ -4,12 +4,16 @@
 #   1. full: `cmake --install BUILD` into WORK/full, then examples/trace_scene.cpp built against it
 #      with find_package(mbvh COMPONENTS cpu opencl vulkan embree) and run; the same file built
 #      with `g++ -std=c++20 $(pkg-config --cflags --libs --static mbvh)` and run;
+#   1c. the C API, installed: libmbvh_c exports only mbvh_* functions; examples/trace_c.c built in
+#      a C-only CMake project with find_package(mbvh COMPONENTS c) and run, and built with
+#      `cc -std=c99 -pedantic -Werror $(pkg-config --cflags --libs mbvh_c)` and run (one shared
+#      library: no C++ runtime or backend library on the C program's link line);
 #   2. the core alone: a program including <mbvh/mbvh.h> builds against libmbvh_core only, and
 #      the backends' registration calls are not declared there (they are <mbvh/backends.h>'s);
 #   3. add_subdirectory, CPU-only, shared libraries: the consumer project adds mbvh's source tree
 #      with OpenCL, Vulkan and Embree made unfindable (CMAKE_DISABLE_FIND_PACKAGE_*: AUTO must
-#      build without them) and without setting C++20 itself, builds and runs the example;
-#   4. CPU-only find_package: that build installed into WORK/cpu, the example built against it
+#      build without them) and without setting C++20 itself, builds and runs the examples (C++, C);
+#   4. CPU-only find_package: that build installed into WORK/cpu, the examples built against it
 #      with find_package(mbvh COMPONENTS cpu) and run; find_package(mbvh COMPONENTS opencl) must
 #      fail there with a message naming the missing component.
 set -euo pipefail
@@ -25,7 +29,8 @@ ok() { echo "PASS: $*"; passed=$((passed + 1)); }
 
 step "install the full build into $WORK/full"
 cmake --install "$BUILD" --prefix "$WORK/full" >/dev/null
-for f in include/mbvh/mbvh.h include/mbvh/config.h lib/cmake/mbvh/mbvhConfig.cmake lib/pkgconfig/mbvh.pc bin/mbvh; do
+for f in include/mbvh/mbvh.h include/mbvh/mbvh_c.h include/mbvh/config.h lib/cmake/mbvh/mbvhConfig.cmake lib/pkgconfig/mbvh.pc \
+         lib/pkgconfig/mbvh_c.pc lib/libmbvh_c.so bin/mbvh; do
   [ -e "$WORK/full/$f" ] || { echo "error: $WORK/full/$f was not installed" >&2; exit 1; }
 done
 # Outputs are captured before grep reads them: `cmd | grep -q` under pipefail fails at random when
@@ -39,6 +44,7 @@ cmake -S "$CONSUMER" -B "$WORK/full-consumer" -G Ninja -DCMAKE_BUILD_TYPE=Releas
   -DCMAKE_PREFIX_PATH="$WORK/full" "-DMBVH_COMPONENTS=cpu;opencl;vulkan;embree" >/dev/null
 cmake --build "$WORK/full-consumer" >/dev/null
 "$WORK/full-consumer/trace_scene"
+"$WORK/full-consumer/trace_c"
 ok "find_package(mbvh COMPONENTS cpu opencl vulkan embree) from an install"
 "$WORK/full/bin/mbvh" --version
 PKG_CONFIG_PATH="$WORK/full/lib/pkgconfig" pkg-config --modversion mbvh
@@ -47,6 +53,24 @@ g++ -std=c++20 -O1 -o "$WORK/pc-example" "$ROOT/examples/trace_scene.cpp" \
   $(PKG_CONFIG_PATH="$WORK/full/lib/pkgconfig" pkg-config --cflags --libs --static mbvh)
 "$WORK/pc-example"
 ok "pkg-config --cflags --libs --static mbvh"
+
+step "the C API from the install: a C-only project, pkg-config mbvh_c"
+# the library exports the C API's functions and nothing of the C++ library inside it
+exported="$(nm -D --defined-only "$WORK/full/lib/libmbvh_c.so" | awk '$2 ~ /^[TDBRVWi]$/ {print $3}')"
+grep -q "^mbvh_trace$" <<<"$exported" || { echo "error: libmbvh_c.so does not export mbvh_trace" >&2; exit 1; }
+if grep -v "^mbvh_" <<<"$exported"; then
+  echo "error: libmbvh_c.so exports the symbols above, which are not the C API's (bindings/c/mbvh_c.map)" >&2
+  exit 1
+fi
+cmake -S "$CONSUMER/c" -B "$WORK/c-consumer" -G Ninja -DCMAKE_BUILD_TYPE=Release -DCMAKE_PREFIX_PATH="$WORK/full" >/dev/null
+cmake --build "$WORK/c-consumer" >/dev/null
+"$WORK/c-consumer/trace_c"
+ok "find_package(mbvh COMPONENTS c) in a C-only project from an install"
+# shellcheck disable=SC2046
+cc -std=c99 -pedantic -Wall -Wextra -Werror -O1 -o "$WORK/pc-example-c" "$ROOT/examples/trace_c.c" \
+  $(PKG_CONFIG_PATH="$WORK/full/lib/pkgconfig" pkg-config --cflags --libs mbvh_c) -Wl,-rpath,"$WORK/full/lib"
+"$WORK/pc-example-c"
+ok "cc -std=c99 \$(pkg-config --cflags --libs mbvh_c)"
 
 step "the core alone: <mbvh/mbvh.h> declares only what mbvh::core defines"
 cat > "$WORK/core-only.cpp" <<'EOF'
@@ -86,6 +110,7 @@ if grep -qE "^CMAKE_CXX_STANDARD|^CMAKE_CXX_FLAGS:.*fp-contract" "$WORK/sub/CMak
 fi
 cmake --build "$WORK/sub" >/dev/null
 "$WORK/sub/trace_scene"
+"$WORK/sub/trace_c"
 # the program and the tests are not built for a consumer; the core library links no backend
 [ ! -e "$WORK/sub/mbvh/mbvh" ] && [ ! -e "$WORK/sub/mbvh/mbvh-tests" ]
 libs="$(ldd "$WORK/sub/trace_scene")"
@@ -102,6 +127,7 @@ cmake -S "$CONSUMER" -B "$WORK/cpu-consumer" -G Ninja -DCMAKE_BUILD_TYPE=Release
   -DCMAKE_PREFIX_PATH="$WORK/cpu" -DMBVH_COMPONENTS=cpu >/dev/null
 cmake --build "$WORK/cpu-consumer" >/dev/null
 LD_LIBRARY_PATH="$WORK/cpu/lib" "$WORK/cpu-consumer/trace_scene"
+LD_LIBRARY_PATH="$WORK/cpu/lib" "$WORK/cpu-consumer/trace_c"
 if cmake -S "$CONSUMER" -B "$WORK/cpu-consumer-cl" -G Ninja -DCMAKE_PREFIX_PATH="$WORK/cpu" \
      -DMBVH_COMPONENTS=opencl > "$WORK/cl.log" 2>&1; then
   echo "error: find_package(mbvh COMPONENTS opencl) succeeded on a CPU-only install" >&2
