@@ -8,6 +8,10 @@
 #      a C-only CMake project with find_package(mbvh COMPONENTS c) and run, and built with
 #      `cc -std=c99 -pedantic -Werror $(pkg-config --cflags --libs mbvh_c)` and run (one shared
 #      library: no C++ runtime or backend library on the C program's link line);
+#   1p. the Python module, installed: the build's interpreter (Debian's /usr/bin/python3) imports it
+#      from PREFIX/lib/python3.X/site-packages with PYTHONPATH and runs examples/trace_mesh.py;
+#      `pip install --no-build-isolation .` packages the build (MBVH_BUILD_DIR) into a venv
+#      made with --system-site-packages, whose python runs the example;
 #   2. the core alone: a program including <mbvh/mbvh.h> builds against libmbvh_core only, and
 #      the backends' registration calls are not declared there (they are <mbvh/backends.h>'s);
 #   3. add_subdirectory, CPU-only, shared libraries: the consumer project adds mbvh's source tree
@@ -71,6 +75,27 @@ cc -std=c99 -pedantic -Wall -Wextra -Werror -O1 -o "$WORK/pc-example-c" "$ROOT/e
   $(PKG_CONFIG_PATH="$WORK/full/lib/pkgconfig" pkg-config --cflags --libs mbvh_c) -Wl,-rpath,"$WORK/full/lib"
 "$WORK/pc-example-c"
 ok "cc -std=c99 \$(pkg-config --cflags --libs mbvh_c)"
+
+step "the Python module from the install, and packaged by pip into a venv"
+py="$(sed -n 's/^Python3_EXECUTABLE:[A-Z]*=//p' "$BUILD/CMakeCache.txt")"
+if ! compgen -G "$BUILD/python/mbvh/_mbvh*.so" >/dev/null || [ -z "$py" ]; then
+  echo "error: $BUILD has no Python module (MBVH_PYTHON; Debian: python3-dev pybind11-dev)" >&2
+  exit 1
+fi
+site="$(compgen -G "$WORK/full/lib/python3*/site-packages")"
+run_example() {  # PYTHON: examples/trace_mesh.py on the bunny, five hits
+  "$1" "$ROOT/examples/trace_mesh.py" "$ROOT/../shared/scenes/bun_zipper.ply.zst" > "$WORK/py.out"
+  [ "$(grep -c '^ray [0-4]: triangle ' "$WORK/py.out")" = 5 ] || { cat "$WORK/py.out" >&2; exit 1; }
+}
+(cd "$WORK" && PYTHONPATH="$site" "$py" -c "import mbvh, sys; sys.exit(not mbvh.__file__.startswith('$site'))")
+(cd "$WORK" && PYTHONPATH="$site" run_example "$py")
+ok "$py imports mbvh from the install (PYTHONPATH=${site#"$WORK/full/"})"
+"$py" -m venv --system-site-packages "$WORK/venv"
+MBVH_BUILD_DIR="$BUILD" "$WORK/venv/bin/pip" install -q --no-build-isolation "$ROOT" > "$WORK/pip.log" 2>&1 \
+  || { cat "$WORK/pip.log" >&2; exit 1; }
+(cd "$WORK" && "$WORK/venv/bin/python" -c "import mbvh, sys; sys.exit(not mbvh.__file__.startswith('$WORK/venv/'))")
+(cd "$WORK" && run_example "$WORK/venv/bin/python")
+ok "pip install --no-build-isolation . into a venv (the build packaged)"
 
 step "the core alone: <mbvh/mbvh.h> declares only what mbvh::core defines"
 cat > "$WORK/core-only.cpp" <<'EOF'
