@@ -3,6 +3,7 @@
 // program (or the user) registers the backends it links (mbvh/backends.h).
 #include <algorithm>
 #include <charconv>
+#include <cmath>
 #include <mutex>
 
 #include "mbvh/backend.h"
@@ -140,6 +141,95 @@ void Backend::trace(const Accel& acc, std::span<const Ray> rays, const TraceOpti
   out.resize_for(rays.size(), o);
   if (rays.empty()) return;
   trace_batch(acc, rays, o, out);
+}
+
+TraceOptions default_ray_query_options(Query q) {
+  TraceOptions o;
+  o.layout = Layout::mbvh8;
+  o.traversal = q == Query::any ? Traversal::stack : Traversal::stack_ordered;
+  o.query = q;
+  return o;
+}
+
+RayQueryKernels Backend::ray_query_kernels(const Accel&, const TraceOptions&, const TraceOptions&) {
+  throw Error(name() + ": no single-ray query (Backend::ray_query): only the SIMD cpu backends (cpu, cpu-avx2, "
+              "cpu-avx512) have one; trace batches of rays on " + name());
+}
+
+namespace {
+
+// x rounded to a float toward +inf (Up) or -inf: the float bounds of the quick range test, so a
+// float that passes them passes the double comparisons of check_ray_range.
+template <bool Up>
+float round_to_float(double x) {
+  float f = static_cast<float>(x);
+  if (Up ? double(f) < x : double(f) > x) f = std::nextafter(f, Up ? INFINITY : -INFINITY);
+  return f;
+}
+
+}  // namespace
+
+void Backend::check_ray_query_options(const Accel& acc, const TraceOptions& opt) {
+  check_trace_options(opt, name());
+  refuse_unsupported(*this, opt);
+  refuse_flat_build(*this, acc);
+  if (opt.stats)
+    throw Error(name() + ": a single-ray query counts no statistics (TraceOptions::stats): trace a batch for them");
+  if (is_packet(opt.traversal) || is_dacrt(opt.traversal))
+    throw Error(name() + ": traversal '" + to_string(opt.traversal) + "' traces batches of rays, not one ray per call; a "
+                "single ray's answer there is its single-ray traversal's: ask for '" +
+                to_string(packet_single_ray(opt.layout, false)) + "' (closest hit) or '" +
+                to_string(packet_single_ray(opt.layout, true)) + "' (any hit)");
+}
+
+RayQuery Backend::make_ray_query(const Accel& acc, TraceOptions c, TraceOptions a) {
+  check_ray_query_options(acc, c);
+  check_ray_query_options(acc, a);
+  c = with_leaves_of(*this, c);
+  a = with_leaves_of(*this, a);
+  c.query = Query::closest;
+  a.query = Query::any;
+  prepare(acc, c);
+  prepare(acc, a);
+  RayQueryKernels k = ray_query_kernels(acc, c, a);
+  if (!k.closest || !k.any || !k.state) throw Error(name() + ": its single-ray query kernels are missing");
+  RayQuery q;
+  q.closest_ = k.closest;
+  q.any_ = k.any;
+  q.state_ = k.state.get();
+  q.keep_ = std::move(k.state);
+  q.accel_ = &acc;
+  q.closest_opt_ = c;
+  q.any_opt_ = a;
+  q.who_ = runs_as();
+  // the quick range test: with every origin component within S (the scene's largest coordinate),
+  // M = S in check_ray_range, which then bounds the direction's largest component D alone
+  const Box& box = acc.bounds();
+  const double S = box.empty() ? 0.0
+                               : std::max({std::fabs(box.lo.x), std::fabs(box.lo.y), std::fabs(box.lo.z),
+                                           std::fabs(box.hi.x), std::fabs(box.hi.y), std::fabs(box.hi.z)});
+  if (!(S > 0)) {  // check_ray_range accepts every ray
+    q.o_max_ = INFINITY;
+    q.d_lo_ = 0;
+    q.d_hi_ = INFINITY;
+  } else {
+    const double S3 = S * S * S;
+    q.o_max_ = static_cast<float>(S);  // exact: a float coordinate
+    q.d_lo_ = round_to_float<true>(std::max(S3 / kMaxRayCube, S / kMaxRayRatio));
+    q.d_hi_ = round_to_float<false>(std::min(S3 / kMinRayCube, S * kMaxRayRatio));
+  }
+  return q;
+}
+
+RayQuery Backend::ray_query(const Accel& acc, const TraceOptions& opt) { return make_ray_query(acc, opt, opt); }
+
+RayQuery Backend::ray_query(const Accel& acc) {
+  return make_ray_query(acc, default_ray_query_options(Query::closest), default_ray_query_options(Query::any));
+}
+
+void RayQuery::check_slow(const Ray& r) const {
+  if (!accel_) throw Error("RayQuery: an empty query (made by its default constructor): make one with Backend::ray_query");
+  check_ray_range(*accel_, std::span<const Ray>(&r, 1), who_ + " (RayQuery)");
 }
 
 std::string BackendOptions::get(const std::string& name, const std::string& fallback) const {

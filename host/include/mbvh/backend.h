@@ -5,6 +5,7 @@
 #pragma once
 #include <cstddef>
 #include <functional>
+#include <cmath>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -51,6 +52,83 @@ struct BackendSetting {
   std::string help;
 };
 
+/// What a backend's single-ray query runs (Backend::ray_query_kernels): one function per query,
+/// and the state they read, made once. The functions may be called from any number of threads at
+/// once: they read `state` (and the Accel it points into) only.
+struct RayQueryKernels {
+  Hit (*closest)(const void* state, const Ray& ray) = nullptr;
+  bool (*any)(const void* state, const Ray& ray) = nullptr;
+  std::shared_ptr<const void> state;
+};
+
+/// A prepared, immutable single-ray query: one closest-hit or any-hit ray per call from the
+/// caller's own threads, with no lock, no allocation and no set-up per call (Backend::ray_query
+/// makes it, once). Each call is one range check (a few compares; see below) and one call through
+/// a function pointer into the backend's kernel, which reads the Accel's layout and leaves, resolved
+/// when the query was made. Any number of threads may call one query (or several queries on one
+/// Accel) at once; copies share the prepared state.
+///
+///   auto cpu = mbvh::make_backend("cpu");
+///   const mbvh::RayQuery q = cpu->ray_query(*accel);  // once: resolves the layout, leaves, ISA kernels
+///   mbvh::Hit h = q.intersect(ray);                   // from any thread, any number at once
+///   bool blocked = q.occluded(shadow_ray);
+///
+/// Answers: intersect() gives, bit for bit, the Hit that Backend::trace of that backend writes for
+/// the ray with options(Query::closest), occluded() the flag it writes with options(Query::any).
+/// An invalid ray (ray_valid false) is a defined miss (not occluded). A ray outside the range traced
+/// exactly (check_ray_range) throws Error naming it, as Backend::trace does: the call tests the ray
+/// against bounds precomputed from the scene's largest coordinate (about ten operations: origin
+/// components within the scene's coordinate range and the direction's largest component within the
+/// band those allow), and only a ray that fails that quick test takes the full check_ray_range.
+///
+/// Lifetime: the query points into the Accel (its layout, leaves and triangles): the Accel must
+/// outlive it and must not be refit while it is used (refit drops the leaf variants the query
+/// reads): make a new query after a refit. The Backend object may go; the query does not use it.
+class RayQuery {
+public:
+  RayQuery() = default;  ///< empty: intersect and occluded throw Error (valid() is false)
+  /// The ray's closest hit (a miss: prim MBVH_MISS_PRIM, t = +inf).
+  Hit intersect(const Ray& ray) const {
+    check(ray);
+    return closest_(state_, ray);
+  }
+  /// Whether some triangle lies in [tmin, tmax] along the ray.
+  bool occluded(const Ray& ray) const {
+    check(ray);
+    return any_(state_, ray);
+  }
+  /// The options whose Backend::trace output the query's answers equal, bit for bit: layout,
+  /// traversal, precision and the leaf block resolved (with_leaves_of), query `q`.
+  const TraceOptions& options(Query q) const { return q == Query::any ? any_opt_ : closest_opt_; }
+  /// The backend that made it (its runs_as() name, e.g. "cpu-avx512").
+  const std::string& backend() const { return who_; }
+  bool valid() const { return closest_ != nullptr; }
+
+private:
+  friend class Backend;
+  /// The quick range test: true for a ray surely inside the exactly traced range (or with a NaN,
+  /// which the kernel answers as an invalid ray: a defined miss).
+  void check(const Ray& r) const {
+    const auto mx = [](float a, float b) { return a > b ? a : b; };  // a NaN may go either way: see above
+    const float mo = mx(mx(std::fabs(r.ox), std::fabs(r.oy)), std::fabs(r.oz));
+    const float d = mx(mx(std::fabs(r.dx), std::fabs(r.dy)), std::fabs(r.dz));
+    if (!(mo <= o_max_ && d >= d_lo_ && d <= d_hi_)) [[unlikely]]
+      check_slow(r);
+  }
+  /// The full check_ray_range of one ray (throws Error for a ray out of range); throws Error for
+  /// an empty query.
+  void check_slow(const Ray& r) const;
+
+  Hit (*closest_)(const void*, const Ray&) = nullptr;
+  bool (*any_)(const void*, const Ray&) = nullptr;
+  const void* state_ = nullptr;
+  float o_max_ = -1, d_lo_ = INFINITY, d_hi_ = -INFINITY;  // empty: every ray takes check_slow
+  const Accel* accel_ = nullptr;
+  std::shared_ptr<const void> keep_;  ///< owns state_
+  TraceOptions closest_opt_, any_opt_;
+  std::string who_;
+};
+
 class Backend {
 public:
   virtual ~Backend() = default;
@@ -78,6 +156,19 @@ public:
   /// still spreads each call over its workers); for calls that overlap, use one backend object
   /// per thread.
   void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out);
+  /// A single-ray query on `acc` (RayQuery): made once, then called from any number of the
+  /// caller's threads with no lock and no allocation. `opt`'s layout, traversal, precision and leaf
+  /// block are traced for both queries (its query field is ignored). Without `opt`: the fastest exact
+  /// single-ray traversals of this path, default_ray_query_options (closest hit: MBVH8 ordered
+  /// stack; any hit: MBVH8 stack). Checks as trace does (options, supports, precision, a build
+  /// without a hierarchy), then refuses, naming this backend: statistics (`opt.stats`: the query
+  /// counts nothing; trace a batch for them), a packet traversal and dacrt (they trace batches of
+  /// rays; their single-ray answers are packet_single_ray's traversal: ask for that), and a backend
+  /// without a single-ray path (only the SIMD cpu backends have one: cpu, cpu-avx2, cpu-avx512).
+  /// Prepares the build as trace does (the layout, the leaves' packs; kept by the Accel). Cost:
+  /// prepare's once, then O(1).
+  RayQuery ray_query(const Accel& acc, const TraceOptions& opt);
+  RayQuery ray_query(const Accel& acc);
   /// The instruction set the traversal runs on a CPU backend ("scalar", "avx2", "avx512"); ""
   /// for a device backend or a library that picks its own (the device line says more).
   virtual std::string isa() const { return ""; }
@@ -109,13 +200,26 @@ protected:
   /// backend that does not write every ray's answer resets it) and the object's lock held (so
   /// never prepare or trace from here: the lock is not recursive).
   virtual void trace_batch(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) = 0;
+  /// The kernels of a single-ray query tracing `closest` and `any` (checked, supported, leaf block
+  /// resolved, the build prepared for both): what ray_query wraps. Called without the object's
+  /// lock. The default throws Error: this backend has no single-ray path.
+  virtual RayQueryKernels ray_query_kernels(const Accel& acc, const TraceOptions& closest, const TraceOptions& any);
   /// Sets last_device_seconds() for the trace in progress (trace() clears it to -1 first).
   void set_device_seconds(double s) { device_seconds_ = s; }
 
 private:
+  /// ray_query's checks of one query's options, each Error naming this backend.
+  void check_ray_query_options(const Accel& acc, const TraceOptions& opt);
+  /// ray_query with `closest` and `any` (their query fields set here).
+  RayQuery make_ray_query(const Accel& acc, TraceOptions closest, TraceOptions any);
   std::mutex mutex_;  ///< serialises prepare and trace on one object (its device state, its caches)
   double device_seconds_ = -1;  ///< last_device_seconds()
 };
+
+/// The options Backend::ray_query(acc) traces for query `q`: the fastest exact single-ray
+/// traversals measured (docs/benchmarks.md, "Single rays from the caller's threads"): closest hit
+/// MBVH8 ordered stack, any hit MBVH8 stack; robust precision, the backend's own leaf block.
+TraceOptions default_ray_query_options(Query q);
 
 /// `opt` with leaf_block set to what `b` traces for it: the options the reference (cpu-scalar,
 /// trace_reference) must trace to give `b`'s answers bit for bit.

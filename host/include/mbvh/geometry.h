@@ -76,8 +76,10 @@ void intersect(Backend& backend, const Accel& accel, std::span<const Ray> rays, 
 void occluded(Backend& backend, const Accel& accel, std::span<const Ray> rays, std::span<std::uint8_t> occluded,
               const TraceOptions& opt = {});
 
-/// One ray's closest hit: intersect on a batch of one. Convenient, not fast on a device backend
-/// (one dispatch per call): batch rays where speed matters.
+/// One ray's closest hit: intersect on a batch of one. Convenient, not fast: each call takes the
+/// backend's lock and its set-up (a dispatch on a device backend). For one ray per call from the
+/// caller's threads, make a RayQuery once (Backend::ray_query, mbvh/backend.h: no lock, no
+/// allocation per call) and map its Hit with to_geom_hit; or batch rays.
 GeomHit intersect1(Backend& backend, const Accel& accel, const Ray& ray, const TraceOptions& opt = {});
 /// Whether one ray is occluded: occluded on a batch of one.
 bool occluded1(Backend& backend, const Accel& accel, const Ray& ray, const TraceOptions& opt = {});
