@@ -18,6 +18,7 @@
 #include "mbvh/backend.h"
 #include "mbvh/compare.h"
 #include "mbvh/error.h"
+#include "mbvh/log.h"
 #include "tests/helpers.h"
 #include "host/core/parallel.h"
 #include "host/tools/raygen.h"
@@ -376,4 +377,17 @@ TEST_CASE("backend settings belong to their backend - unknown names are refused 
   r = mbvh_test::run_cli("trace gen:sphere:8 --count 10 --set nonsense -o " + dir.file("x.hits"));
   CHECK(r.code == 2);
   CHECK_THAT(r.output, Catch::Contains("--set 'nonsense': expected FAMILY.NAME=VALUE"));
+}
+
+TEST_CASE("the log callback gets the library's messages, returns the one it replaces, and none drops them", "[api]") {
+  std::vector<std::string> got;
+  const mbvh::LogCallback before = mbvh::set_log_callback(
+      [&](mbvh::LogLevel level, const std::string& m) { got.push_back(std::string(mbvh::to_string(level)) + " " + m); });
+  mbvh::log_message(mbvh::LogLevel::info, "one");
+  mbvh::log_message(mbvh::LogLevel::warning, "two");
+  const mbvh::LogCallback mine = mbvh::set_log_callback({});
+  CHECK(static_cast<bool>(mine));
+  mbvh::log_message(mbvh::LogLevel::info, "dropped");
+  CHECK(got == std::vector<std::string>{"info one", "warning two"});
+  mbvh::set_log_callback(before);  // the test program's own, if it set one
 }

@@ -29,6 +29,7 @@
 #include "host/core/layouts.h"
 #include "mbvh/backend.h"
 #include "mbvh/error.h"
+#include "mbvh/log.h"
 #include "trace_cl.h"  // kTraceCl: shaders/trace.cl with mbvh_layout.h inlined (cmake/embed_cl.cmake)
 
 namespace mbvh {
@@ -85,11 +86,13 @@ public:
       static std::set<std::string> said;
       const std::lock_guard<std::mutex> lock(m);
       if (said.insert(name_ + " " + dev_.id()).second)
-        std::fprintf(stderr, "%s: OpenCL device %s%s; %s\n", name_.c_str(), dev_.describe().c_str(),
-                     o.get("opencl.device").empty() && devices.size() > 1
-                         ? (" (chosen from " + std::to_string(devices.size()) + " devices; pick one with the opencl.device setting, --cl-device)").c_str()
-                         : "",
-                     map_.gpu ? "GPU mapping" : "CPU mapping");
+        log_message(LogLevel::info,
+                    name_ + ": OpenCL device " + dev_.describe() +
+                        (o.get("opencl.device").empty() && devices.size() > 1
+                             ? " (chosen from " + std::to_string(devices.size()) +
+                                   " devices; pick one with the opencl.device setting, --cl-device)"
+                             : std::string()) +
+                        "; " + (map_.gpu ? "GPU mapping" : "CPU mapping"));
     }
     // exactness needs correctly rounded float division and double for the watertight fallback
     if (!(cl::device_value<cl_device_fp_config>(dev_.device, CL_DEVICE_SINGLE_FP_CONFIG) &
@@ -303,8 +306,9 @@ private:
     static std::set<std::string> said;
     const std::lock_guard<std::mutex> lock(m);
     if (said.insert(name_ + " " + dev_.id() + " " + std::to_string(local)).second)
-      std::fprintf(stderr, "%s: GPU mapping: %zu work-items per work-group (%s: preferred multiple %zu, at most %zu)\n",
-                   name_.c_str(), local, name.c_str(), multiple, most);
+      log_message(LogLevel::info, name_ + ": GPU mapping: " + std::to_string(local) + " work-items per work-group (" + name +
+                                      ": preferred multiple " + std::to_string(multiple) + ", at most " +
+                                      std::to_string(most) + ")");
     return local;
   }
 

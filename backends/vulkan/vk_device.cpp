@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "mbvh/error.h"
+#include "mbvh/log.h"
 
 namespace mbvh::vk {
 
@@ -32,10 +33,11 @@ void Device::init(const Instance& instance, const DeviceRequest& o) {
     static std::set<unsigned> said;
     const std::lock_guard<std::mutex> lock(m);
     if (said.insert(entry_.index).second)
-      std::fprintf(stderr, "vulkan: Vulkan device %s%s\n", entry_.describe().c_str(),
-                   o.selector.empty() && devices.size() > 1
-                       ? (" (chosen from " + std::to_string(devices.size()) + " devices; pick one with the vulkan.device setting, --vk-device)").c_str()
-                       : "");
+      log_message(LogLevel::info, "vulkan: Vulkan device " + entry_.describe() +
+                                      (o.selector.empty() && devices.size() > 1
+                                           ? " (chosen from " + std::to_string(devices.size()) +
+                                                 " devices; pick one with the vulkan.device setting, --vk-device)"
+                                           : std::string()));
   }
 
   // -- what the shader needs

@@ -254,6 +254,16 @@ const char* mbvh_version(void) { return mbvh::version(); }
 unsigned mbvh_c_api_version(void) { return MBVH_C_API_VERSION; }
 const char* mbvh_last_error(void) { return g_message; }
 
+void mbvh_set_log_callback(mbvh_log_callback callback, void* user) {
+  if (!callback) {
+    mbvh::set_log_callback({});
+    return;
+  }
+  mbvh::set_log_callback([callback, user](mbvh::LogLevel level, const std::string& m) {
+    callback(static_cast<int>(level), m.c_str(), user);
+  });
+}
+
 const char* mbvh_status_string(mbvh_status status) {
   switch (read_enum(status)) {
     case MBVH_OK: return "MBVH_OK";

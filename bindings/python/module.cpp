@@ -352,6 +352,35 @@ std::unique_ptr<PyAccel> build(const py::object& scene_obj, const std::string& q
   return a;
 }
 
+// mbvh.set_log: the library's messages to a Python callable. The callable is held by a shared_ptr
+// whose last owner may be a thread without the GIL (a copy the library took while logging), so
+// its deleter takes the GIL; the old callback is swapped out with the GIL released (a thread
+// logging may wait for the GIL while the library's log lock is free: mbvh/log.h) and dropped
+// with it held.
+void set_log(const py::object& fn) {
+  LogCallback cb;
+  if (!fn.is_none()) {
+    if (!PyCallable_Check(fn.ptr())) throw py::type_error("set_log: expected a callable or None");
+    std::shared_ptr<py::object> held(new py::object(fn), [](py::object* p) {
+      py::gil_scoped_acquire gil;
+      delete p;
+    });
+    cb = [held](LogLevel level, const std::string& message) {
+      py::gil_scoped_acquire gil;
+      try {
+        (*held)(to_string(level), message);
+      } catch (py::error_already_set& e) {
+        e.discard_as_unraisable("mbvh log callback");
+      }
+    };
+  }
+  LogCallback old;
+  {
+    py::gil_scoped_release nogil;
+    old = set_log_callback(std::move(cb));
+  }
+}
+
 const char* const kTraceDoc = R"(Traces rays, an (N, 8) float32 C-contiguous array of the project's ray records
 (origin x y z, tmin, direction x y z, tmax; a .rays file's bytes), read in place without a copy.
 query="closest" returns a structured array of dtype HIT_DTYPE (t, u, v, prim; 16 bytes a ray,
@@ -383,6 +412,12 @@ PYBIND11_MODULE(_mbvh, m) {
   m.attr("HIT_DTYPE") = py::dtype::of<Hit>();
   m.attr("STATS_DTYPE") = py::dtype::of<RayStats>();
 
+  m.def("set_log", &set_log, py::arg("callback"),
+        "Where the library's messages go (the device a backend chose): callback(level, message) with level \"debug\",\n"
+        "\"info\" or \"warning\", called from any thread with the GIL taken; None (the default) drops them. The\n"
+        "library never writes to standard output or error.");
+  // at exit, the callback goes before the interpreter does
+  py::module_::import("atexit").attr("register")(py::cpp_function([] { set_log(py::none()); }));
   m.def("backends", [](bool runnable) {
     if (runnable) return runnable_backends();
     std::vector<std::string> names;

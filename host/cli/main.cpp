@@ -12,6 +12,7 @@
 #include "host/cli/commands.h"
 #include "host/cli/progress.h"
 #include "mbvh/backends.h"
+#include "mbvh/log.h"
 #include "mbvh/version.h"
 
 namespace {
@@ -54,6 +55,8 @@ int run(int argc, char** argv) {
 
 int main(int argc, char** argv) {
   mbvh::register_builtin_backends();  // the program links every backend of this build
+  // the library's messages (the device a backend chose) go to standard error, one line each
+  mbvh::set_log_callback([](mbvh::LogLevel, const std::string& m) { std::fprintf(stderr, "%s\n", m.c_str()); });
   int rc = run(argc, argv);
   // the report is an output too: a failed write to standard output fails the run
   if (std::fflush(stdout) != 0 || std::ferror(stdout)) {

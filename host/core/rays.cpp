@@ -111,6 +111,17 @@ void write_occlusion(const std::string& path, std::span<const std::uint8_t> o) {
 // Rays: every value finite, except tmax, which may be +inf (the default: no far limit). A NaN,
 // an infinite origin, direction or tmin, or tmax = -inf is no ray a program meant to write.
 void check_ray_values(const std::string& name, std::span<const Ray> rays, const char* hint) {
+  // First a branch-free scan of the exponent bits (NaN and infinity have them all set; tmax may be
+  // exactly +inf), which the compiler vectorises: the bindings check every batch they trace.
+  // Only a batch with a bad ray goes through the loop below, which names it.
+  unsigned bad = 0;
+  for (const Ray& r : rays) {
+    std::uint32_t w[8];
+    std::memcpy(w, &r, sizeof w);
+    for (int k = 0; k < 7; ++k) bad |= (w[k] & 0x7F800000u) == 0x7F800000u;
+    bad |= ((w[7] & 0x7F800000u) == 0x7F800000u) & (w[7] != 0x7F800000u);
+  }
+  if (!bad) return;
   static const char* const field[8] = {"origin x", "origin y", "origin z", "tmin", "direction x", "direction y", "direction z", "tmax"};
   for (std::size_t i = 0; i < rays.size(); ++i) {
     const float v[8] = {rays[i].ox, rays[i].oy, rays[i].oz, rays[i].tmin, rays[i].dx, rays[i].dy, rays[i].dz, rays[i].tmax};

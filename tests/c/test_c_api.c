@@ -673,6 +673,24 @@ done:
   mbvh_backend_release(NULL);
 }
 
+/* The log callback gets the library's messages: the device the vulkan backend chose (said once per
+ * device in a process, so this runs before any other test makes a backend); none after NULL. */
+static int g_log_lines = 0;
+static void count_device_lines(int level, const char* message, void* user) {
+  CHECK(level == 1 && user == &g_log_lines);
+  if (strstr(message, "vulkan: Vulkan device ") == message) ++g_log_lines;
+}
+
+static void test_log_callback(void) {
+  mbvh_backend* b = NULL;
+  mbvh_set_log_callback(count_device_lines, &g_log_lines);
+  const mbvh_status st = mbvh_backend_create("vulkan", 1, NULL, 0, &b);
+  if (st == MBVH_OK) CHECK(g_log_lines == 1);
+  else printf("c api: the log callback's device line not checked: vulkan cannot start here (%s)\n", mbvh_last_error());
+  mbvh_backend_release(b);
+  mbvh_set_log_callback(NULL, NULL);
+}
+
 int main(int argc, char** argv) {
   const int backends_only = argc > 1 && strcmp(argv[1], "backends") == 0;
   if (argc > 1 && !backends_only) {
@@ -685,6 +703,7 @@ int main(int argc, char** argv) {
   }
   test_library();
   if (!backends_only) {
+    test_log_callback();
     test_scene_from_arrays();
     test_loaded_scenes();
     test_errors();

@@ -273,3 +273,27 @@ def test_the_readme_example_runs():
     out = subprocess.run([os.sys.executable, example, BUNNY], check=True, capture_output=True, text=True).stdout
     lines = out.splitlines()
     assert len(lines) == 5 and all(line.startswith(f"ray {i}: triangle ") for i, line in enumerate(lines)), out
+
+
+def test_library_messages_go_to_the_log_callback_never_to_stderr():
+    devices = [b for b in ("vulkan", "opencl-wide") if b in mbvh.backends(runnable=True)]
+    if not devices:
+        pytest.skip("no device backend starts here: nothing logs")
+    code = ("import sys, mbvh\n"
+            "lines = []\n"
+            "if sys.argv[1] == 'log':\n"
+            "    mbvh.set_log(lambda level, m: lines.append(level + ' ' + m))\n"
+            "a = mbvh.build('gen:sphere:8')\n"
+            f"for b in {devices!r}:\n"
+            "    a.trace(mbvh.rays([[0, 0, 5]], [[0, 0, -1]]), backend=b)\n"
+            "print('\\n'.join(lines))\n")
+    quiet = subprocess.run([os.sys.executable, "-c", code, "none"], check=True, capture_output=True, text=True)
+    assert quiet.stderr == "" and quiet.stdout.strip() == ""
+    logged = subprocess.run([os.sys.executable, "-c", code, "log"], check=True, capture_output=True, text=True)
+    assert logged.stderr == ""
+    if "vulkan" in devices:
+        assert "info vulkan: Vulkan device " in logged.stdout
+    if "opencl-wide" in devices:
+        assert "info opencl-wide: OpenCL device " in logged.stdout
+    with pytest.raises(TypeError, match="callable"):
+        mbvh.set_log(42)

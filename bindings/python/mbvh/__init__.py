@@ -21,10 +21,10 @@ from typing import Any, Mapping, Optional, Sequence, Union
 
 import numpy as np
 
-from ._mbvh import HIT_DTYPE, MISS, STATS_DTYPE, Error, Scene, __version__, _build, backends, load
+from ._mbvh import HIT_DTYPE, MISS, STATS_DTYPE, Error, Scene, __version__, _build, backends, load, set_log
 
 __all__ = ["Accel", "Error", "HIT_DTYPE", "Hits", "MISS", "STATS_DTYPE", "Scene", "__version__", "backends", "build",
-           "load", "rays"]
+           "load", "rays", "set_log"]
 
 
 def rays(origins: Any, directions: Any, tmin: Any = 0.0, tmax: Any = math.inf) -> np.ndarray:

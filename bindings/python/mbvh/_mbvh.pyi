@@ -1,6 +1,6 @@
 # SPDX-License-Identifier: MIT
 # Type stubs of mbvh._mbvh, the compiled part of the mbvh package (bindings/python/module.cpp).
-from typing import Any, Mapping, Optional, Sequence
+from typing import Any, Callable, Mapping, Optional, Sequence
 
 import numpy as np
 
@@ -57,3 +57,5 @@ class _Accel:
 
 def _build(scene: Scene, quality: str = "medium", threads: int = 0, cache_dir: Optional[str] = None,
            max_leaf: int = 8, bins: int = 32) -> _Accel: ...
+
+def set_log(callback: Optional[Callable[[str, str], Any]]) -> None: ...

@@ -195,6 +195,13 @@ MBVH_C_API unsigned mbvh_c_api_version(void);  /* the linked library's MBVH_C_AP
 MBVH_C_API const char* mbvh_last_error(void);
 /* The status's name ("MBVH_ERROR_INVALID_ARGUMENT"); "unknown status" for another value. */
 MBVH_C_API const char* mbvh_status_string(mbvh_status status);
+/* Where the library's messages go (the device a backend chose; mbvh/log.h): the library never
+ * writes to standard output or error. callback(level, message, user) gets each message, one line
+ * without a newline, level 0 debug, 1 info, 2 warning; it may be called from any thread, from
+ * several at once, and once more by a thread that took it just before it was replaced. NULL (the
+ * default) drops them. */
+typedef void (*mbvh_log_callback)(int level, const char* message, void* user);
+MBVH_C_API void mbvh_set_log_callback(mbvh_log_callback callback, void* user);
 
 /* -- scenes */
 /* A scene from a file (.obj, .ply, optionally .zst-compressed) or a generator spec ("gen:sphere:64",
