@@ -45,6 +45,10 @@ struct CpuKernels {
   /// Divide-and-conquer ray tracing over acc.tris() (backends/cpu/dacrt/): no hierarchy read.
   void (*dacrt)(const Accel&, std::span<const Ray>, const TraceOptions&, TraceOutput&, unsigned threads,
                 const DacrtSettings&, DacrtBuffers&);
+  /// The single-ray query (Backend::ray_query) of `closest` and `any` (checked, a single-ray
+  /// traversal each, leaf blocks resolved, the build prepared): the views of both resolved now,
+  /// the kernels a function each (fixed traversals for the defaults, default_ray_query_options).
+  RayQueryKernels (*ray_query)(const Accel&, const TraceOptions& closest, const TraceOptions& any);
 };
 
 /// The kernels of the best ISA this CPU has (AVX-512, else AVX2, within MBVH_CPU_ISA's cap), or

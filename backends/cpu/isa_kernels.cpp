@@ -74,6 +74,81 @@ void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt,
   else trace_parallel<SimdKernelsT<false>>(acc, rays, opt, out, threads);
 }
 
+// -- the single-ray query (Backend::ray_query): the views resolved once, at make; per call the
+// batch's steps for one ray (run_batch: prepare, relax, finish, the traversal), nothing else
+
+/// What a query's kernels read: the view of each query (0: closest, 1: any) and its pair.
+struct OneRayState {
+  TraceView view[2];
+  Layout layout[2];
+  Traversal traversal[2];
+};
+
+/// One ray of query Any through `Trace` (a traversal of view `v`), as run_batch traces it.
+template <bool Any, class K, class Trace>
+[[gnu::always_inline]] inline Hit one_ray(const TraceView& v, const Ray& ray, Trace trace) {
+  typename K::Ray r;
+  if (!K::prepare(ray, r)) return miss_hit();
+  if constexpr (K::fast) relax_ray(r);
+  K::finish(r, v);
+  NoStats st;
+  return trace(r, st);
+}
+
+/// Any pair, chosen per call (dispatch's switch).
+template <bool Any, class K>
+Hit one_ray_any_pair(const void* state, const Ray& ray) {
+  const auto& s = *static_cast<const OneRayState*>(state);
+  const TraceView& v = s.view[Any];
+  return one_ray<Any, K>(v, ray, [&](const typename K::Ray& r, NoStats& st) {
+    return dispatch<Any, K>(v, r, s.layout[Any], s.traversal[Any], st);
+  });
+}
+/// The defaults (default_ray_query_options), traversal fixed: closest hit MBVH8 ordered stack,
+/// any hit MBVH8 stack.
+template <class K>
+Hit one_ray_closest_mbvh8_ordered(const void* state, const Ray& ray) {
+  const TraceView& v = static_cast<const OneRayState*>(state)->view[0];
+  return one_ray<false, K>(v, ray, [&](const typename K::Ray& r, NoStats& st) {
+    return trace_wide_stack_ordered<false, NoStats, K, Node8>(v, r, st);
+  });
+}
+template <class K>
+Hit one_ray_any_mbvh8_stack(const void* state, const Ray& ray) {
+  const TraceView& v = static_cast<const OneRayState*>(state)->view[1];
+  return one_ray<true, K>(v, ray, [&](const typename K::Ray& r, NoStats& st) { return trace_mbvh8_stack<true, NoStats, K>(v, r, st); });
+}
+
+template <Hit (*F)(const void*, const Ray&)>
+bool occluded_by(const void* state, const Ray& ray) {
+  return F(state, ray).prim != MBVH_MISS_PRIM;
+}
+
+template <class K>
+RayQueryKernels query_kernels(const TraceOptions& c, const TraceOptions& a) {
+  RayQueryKernels k;
+  k.closest = c.layout == Layout::mbvh8 && c.traversal == Traversal::stack_ordered ? &one_ray_closest_mbvh8_ordered<K>
+                                                                                    : &one_ray_any_pair<false, K>;
+  k.any = a.layout == Layout::mbvh8 && a.traversal == Traversal::stack ? &occluded_by<&one_ray_any_mbvh8_stack<K>>
+                                                                        : &occluded_by<&one_ray_any_pair<true, K>>;
+  return k;
+}
+
+RayQueryKernels ray_query(const Accel& acc, const TraceOptions& c, const TraceOptions& a) {
+  auto s = std::make_shared<OneRayState>();
+  const TraceOptions* o[2] = {&c, &a};
+  for (int q = 0; q < 2; ++q) {  // the batch's view: packs, packed references (trace_parallel)
+    s->view[q] = trace_view(acc, o[q]->layout, true, o[q]->leaf_block, true);
+    s->layout[q] = o[q]->layout;
+    s->traversal[q] = o[q]->traversal;
+  }
+  // one precision for both: the query's options share it (Backend::ray_query)
+  RayQueryKernels k = c.precision == Precision::fast ? query_kernels<SimdKernelsT<true>>(c, a)
+                                                     : query_kernels<SimdKernelsT<false>>(c, a);
+  k.state = std::move(s);
+  return k;
+}
+
 }  // namespace
 }  // namespace MBVH_ISA_NS
 }  // namespace mbvh
@@ -83,6 +158,7 @@ MBVH_ISA_END
 
 namespace mbvh {
 extern const CpuKernels MBVH_CPU_KERNELS_NAME;
-const CpuKernels MBVH_CPU_KERNELS_NAME{MBVH_STR(MBVH_CPU_ISA), &MBVH_ISA_NS::trace, &MBVH_ISA_NS::dacrt::trace_dacrt};
+const CpuKernels MBVH_CPU_KERNELS_NAME{MBVH_STR(MBVH_CPU_ISA), &MBVH_ISA_NS::trace, &MBVH_ISA_NS::dacrt::trace_dacrt,
+                                         &MBVH_ISA_NS::ray_query};
 
 }  // namespace mbvh

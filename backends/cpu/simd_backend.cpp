@@ -74,6 +74,11 @@ public:
   void trace_batch(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
     kernels_.trace(acc, rays, opt, out, threads_, hybrid_);
   }
+  /// The single-ray query: this ISA's kernels, the views resolved now (Backend::ray_query has
+  /// prepared the build for both queries).
+  RayQueryKernels ray_query_kernels(const Accel& acc, const TraceOptions& closest, const TraceOptions& any) override {
+    return kernels_.ray_query(acc, closest, any);
+  }
 
 private:
   std::string name_;
