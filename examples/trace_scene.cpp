@@ -1,15 +1,17 @@
 // SPDX-License-Identifier: MIT
 // trace_scene.cpp — the README's library example: a scene from the caller's arrays, one build,
-// closest hits and occlusion on the fastest verified backend (`cpu`), the answer checked.
+// closest hits and occlusion on the fastest verified backend (`cpu`), the answer checked. It links
+// mbvh::cpu (the cpu backends alone: no OpenCL, Vulkan or Embree library) or mbvh::mbvh (every
+// backend of the build; mbvh::register_builtin_backends() registers them all).
 #include <cmath>
 #include <cstdio>
 #include <vector>
 
-#include <mbvh/backends.h>  // register_builtin_backends (mbvh::mbvh)
+#include <mbvh/backends.h>  // register_cpu_backends (mbvh::cpu), register_builtin_backends (mbvh::mbvh)
 #include <mbvh/mbvh.h>      // Scene, Accel, Ray, Hit, backends; errors are mbvh::Error
 
 int main() {
-  mbvh::register_builtin_backends();  // every backend of this build (mbvh::mbvh)
+  mbvh::register_cpu_backends();  // cpu, cpu-scalar, dacrt (every backend: register_builtin_backends)
   mbvh::Scene scene;  // a unit square at z = 0, two triangles (or: mbvh::load_scene("scene.obj.zst"))
   scene.vertices = {{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}};
   scene.triangles = {{0, 1, 2}, {0, 2, 3}};
