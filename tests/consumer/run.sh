@@ -1,9 +1,18 @@
 #!/usr/bin/env bash
 # SPDX-License-Identifier: MIT
-# run.sh BUILD WORK — mbvh as a user gets it, each step must pass:
-#   1. full: `cmake --install BUILD` into WORK/full, then examples/trace_scene.cpp built against it
-#      with find_package(mbvh COMPONENTS cpu opencl vulkan embree) and run; the same file built
-#      with `g++ -std=c++20 $(pkg-config --cflags --libs --static mbvh)` and run;
+# run.sh BUILD WORK [SHARED_BUILD] — mbvh as a user gets it, each step must pass (SHARED_BUILD: a full
+# build configured with -DBUILD_SHARED_LIBS=ON, whose install steps 1a and 1b check too):
+#   1. full: `cmake --install BUILD` into WORK/full (static libraries unless BUILD set
+#      BUILD_SHARED_LIBS), then examples/trace_scene.cpp built against it with
+#      find_package(mbvh COMPONENTS cpu opencl vulkan embree) and mbvh::mbvh, and run;
+#   1a. a CPU-only program from that full install: find_package(mbvh COMPONENTS cpu) and mbvh::cpu,
+#      configured with OpenCL, Vulkan, Embree and TBB unfindable (a CPU-only program must not need
+#      them), run; `ldd` shows no libOpenCL, libvulkan, libembree or libtbb (the installed program,
+#      which links them, shows the check can see them);
+#   1b. pkg-config: the example compiled with `g++ $(pkg-config --cflags mbvh)` (no -std flag of its
+#      own: Cflags carry -std=c++20) and linked with plain `pkg-config --libs mbvh` (no --static,
+#      static libraries), with `--libs --static mbvh`, and with `--libs mbvh-cpu` (whose binary
+#      `ldd` shows no device library), each run;
 #   1c. the C API, installed: libmbvh_c exports only mbvh_* functions; examples/trace_c.c built in
 #      a C-only CMake project with find_package(mbvh COMPONENTS c) and run, and built with
 #      `cc -std=c99 -pedantic -Werror $(pkg-config --cflags --libs mbvh_c)` and run (one shared
@@ -17,19 +26,34 @@
 #   3. add_subdirectory, CPU-only, shared libraries: the consumer project adds mbvh's source tree
 #      with OpenCL, Vulkan and Embree made unfindable (CMAKE_DISABLE_FIND_PACKAGE_*: AUTO must
 #      build without them) and without setting C++20 itself, builds and runs the examples (C++, C);
-#   4. CPU-only find_package: that build installed into WORK/cpu, the examples built against it
-#      with find_package(mbvh COMPONENTS cpu) and run; find_package(mbvh COMPONENTS opencl) must
-#      fail there with a message naming the missing component.
+#   4. CPU-only find_package: that build installed into WORK/cpu (shared libraries), the examples
+#      built against it with find_package(mbvh COMPONENTS cpu) and mbvh::cpu (the README's way) and
+#      run, `ldd` showing no device library; find_package(mbvh COMPONENTS opencl) must fail there
+#      with a message naming the missing component; the example built with
+#      `g++ $(pkg-config --cflags --libs mbvh)` from the shared install and run.
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)"
 BUILD="$(cd "$1" && pwd)"
 WORK="$2"
+SHARED_BUILD="${3:+$(cd "$3" && pwd)}"
 rm -rf "$WORK"
 mkdir -p "$WORK"
 CONSUMER="$ROOT/tests/consumer"
 passed=0
 step() { echo "== consumer: $*"; }
 ok() { echo "PASS: $*"; passed=$((passed + 1)); }
+pc() { PKG_CONFIG_PATH="$1/lib/pkgconfig" pkg-config "${@:2}"; }  # PREFIX ARGS: pkg-config on PREFIX's .pc files
+# the libraries a CPU-only program must not load (ldd lists what its libraries load too: Embree's TBB)
+device_libs="libOpenCL|libvulkan|libembree|libtbb"
+no_device_libs() {  # BINARY WHAT
+  local libs
+  libs="$(ldd "$1")"
+  if grep -E "$device_libs" <<<"$libs"; then
+    echo "error: $2 loads the device libraries above; a CPU-only program (mbvh::cpu, mbvh-cpu.pc) must load no" \
+         "OpenCL, Vulkan, Embree or TBB library" >&2
+    exit 1
+  fi
+}
 
 step "install the full build into $WORK/full"
 cmake --install "$BUILD" --prefix "$WORK/full" >/dev/null
@@ -49,14 +73,66 @@ cmake -S "$CONSUMER" -B "$WORK/full-consumer" -G Ninja -DCMAKE_BUILD_TYPE=Releas
 cmake --build "$WORK/full-consumer" >/dev/null
 "$WORK/full-consumer/trace_scene"
 "$WORK/full-consumer/trace_c"
-ok "find_package(mbvh COMPONENTS cpu opencl vulkan embree) from an install"
+ok "find_package(mbvh COMPONENTS cpu opencl vulkan embree) and mbvh::mbvh from an install"
 "$WORK/full/bin/mbvh" --version
-PKG_CONFIG_PATH="$WORK/full/lib/pkgconfig" pkg-config --modversion mbvh
-# shellcheck disable=SC2046
-g++ -std=c++20 -O1 -o "$WORK/pc-example" "$ROOT/examples/trace_scene.cpp" \
-  $(PKG_CONFIG_PATH="$WORK/full/lib/pkgconfig" pkg-config --cflags --libs --static mbvh)
-"$WORK/pc-example"
-ok "pkg-config --cflags --libs --static mbvh"
+
+# full_install_checks PREFIX NAME: a CPU-only program, and pkg-config, from the full install at PREFIX
+full_install_checks() {
+  local prefix="$1" name="$2" m cflags
+  step "a CPU-only program from the $name install: find_package(mbvh COMPONENTS cpu), mbvh::cpu"
+  # linked with --no-as-needed (some toolchains drop unused libraries by default): ldd then shows
+  # every library the link line named
+  if ! cmake -S "$CONSUMER" -B "$WORK/$name-cpu-only" -G Ninja -DCMAKE_BUILD_TYPE=Release -DCMAKE_PREFIX_PATH="$prefix" \
+         -DCMAKE_EXE_LINKER_FLAGS=-Wl,--no-as-needed \
+         -DMBVH_COMPONENTS=cpu -DMBVH_TARGET=mbvh::cpu -DMBVH_WITH_C=OFF -DCMAKE_DISABLE_FIND_PACKAGE_OpenCL=ON \
+         -DCMAKE_DISABLE_FIND_PACKAGE_Vulkan=ON -DCMAKE_DISABLE_FIND_PACKAGE_embree=ON -DCMAKE_DISABLE_FIND_PACKAGE_TBB=ON \
+         > "$WORK/$name-cpu-only.log" 2>&1; then
+    cat "$WORK/$name-cpu-only.log" >&2
+    echo "error: find_package(mbvh COMPONENTS cpu) with mbvh::cpu needs OpenCL, Vulkan, Embree or TBB (above)" >&2
+    exit 1
+  fi
+  cmake --build "$WORK/$name-cpu-only" >/dev/null
+  "$WORK/$name-cpu-only/trace_scene"
+  no_device_libs "$WORK/$name-cpu-only/trace_scene" "find_package(mbvh COMPONENTS cpu) + mbvh::cpu from the $name install"
+  ok "find_package(mbvh COMPONENTS cpu) and mbvh::cpu from the $name install: no OpenCL, Vulkan, Embree or TBB loaded"
+
+  step "pkg-config from the $name install: mbvh, mbvh-cpu"
+  pc "$prefix" --modversion mbvh
+  for m in mbvh mbvh-cpu; do
+    cflags="$(pc "$prefix" --cflags $m)"
+    grep -q -- "-std=c++20" <<<"$cflags" || { echo "error: pkg-config --cflags $m lacks -std=c++20: $cflags" >&2; exit 1; }
+  done
+  # compiled once with the Cflags alone, linked three ways (the rpath finds shared libraries; a
+  # no-op for static ones; --no-as-needed as above)
+  # shellcheck disable=SC2046
+  g++ -O1 -c -o "$WORK/$name-pc.o" "$ROOT/examples/trace_scene.cpp" $(pc "$prefix" --cflags mbvh)
+  # shellcheck disable=SC2046
+  g++ -o "$WORK/$name-pc" "$WORK/$name-pc.o" -Wl,--no-as-needed $(pc "$prefix" --libs mbvh) -Wl,-rpath,"$prefix/lib"
+  "$WORK/$name-pc"
+  if grep -qE "^#define MBVH_HAVE_(OPENCL|VULKAN|EMBREE) " "$prefix/include/mbvh/config.h"; then
+    full_libs="$(ldd "$WORK/$name-pc")"  # every backend's libraries: the ldd checks can see them
+    grep -qE "$device_libs" <<<"$full_libs" \
+      || { echo "error: ldd shows no device library where the example links mbvh.pc: the ldd checks would see nothing" >&2; exit 1; }
+  fi
+  ok "g++ \$(pkg-config --cflags --libs mbvh) from the $name install: no -std flag of its own, no --static"
+  # shellcheck disable=SC2046
+  g++ -o "$WORK/$name-pc-static" "$WORK/$name-pc.o" $(pc "$prefix" --libs --static mbvh) -Wl,-rpath,"$prefix/lib"
+  "$WORK/$name-pc-static"
+  ok "pkg-config --libs --static mbvh from the $name install"
+  # shellcheck disable=SC2046
+  g++ -o "$WORK/$name-pc-cpu" "$WORK/$name-pc.o" -Wl,--no-as-needed $(pc "$prefix" --libs mbvh-cpu) -Wl,-rpath,"$prefix/lib"
+  "$WORK/$name-pc-cpu"
+  no_device_libs "$WORK/$name-pc-cpu" "the example linked with pkg-config --libs mbvh-cpu from the $name install"
+  ok "pkg-config --libs mbvh-cpu from the $name install: no OpenCL, Vulkan, Embree or TBB loaded"
+}
+full_install_checks "$WORK/full" full
+if [ -n "$SHARED_BUILD" ]; then
+  step "install the full shared build $SHARED_BUILD into $WORK/full-shared"
+  grep -qE "^BUILD_SHARED_LIBS:[A-Z]*=(ON|1|TRUE|YES)$" "$SHARED_BUILD/CMakeCache.txt" \
+    || { echo "error: $SHARED_BUILD was not configured with -DBUILD_SHARED_LIBS=ON" >&2; exit 1; }
+  cmake --install "$SHARED_BUILD" --prefix "$WORK/full-shared" >/dev/null
+  full_install_checks "$WORK/full-shared" full-shared
+fi
 
 step "the C API from the install: a C-only project, pkg-config mbvh_c"
 # the library exports the C API's functions and nothing of the C++ library inside it
@@ -125,7 +201,9 @@ ok "the core alone: <mbvh/mbvh.h> built against mbvh_core only; the registration
 step "add_subdirectory, CPU-only (OpenCL, Vulkan, Embree unfindable), shared libraries"
 cmake -S "$CONSUMER" -B "$WORK/sub" -G Ninja -DCMAKE_BUILD_TYPE=Release -DMBVH_SOURCE_DIR="$ROOT" \
   -DMBVH_INSTALL=ON -DBUILD_SHARED_LIBS=ON -DCMAKE_DISABLE_FIND_PACKAGE_OpenCL=ON -DCMAKE_DISABLE_FIND_PACKAGE_Vulkan=ON \
-  -DCMAKE_DISABLE_FIND_PACKAGE_embree=ON | tee "$WORK/sub-configure.log" | grep "mbvh:" || true
+  -DCMAKE_DISABLE_FIND_PACKAGE_embree=ON `# and the library needs none of the program's, the tests' or Python's:` \
+  -DCMAKE_DISABLE_FIND_PACKAGE_CLI11=ON -DCMAKE_DISABLE_FIND_PACKAGE_nlohmann_json=ON -DCMAKE_DISABLE_FIND_PACKAGE_ZLIB=ON \
+  -DCMAKE_DISABLE_FIND_PACKAGE_Catch2=ON -DCMAKE_DISABLE_FIND_PACKAGE_Python3=ON -DCMAKE_DISABLE_FIND_PACKAGE_pybind11=ON | tee "$WORK/sub-configure.log" | grep "mbvh:" || true
 grep -q "the OPENCL backend is not built" "$WORK/sub-configure.log"
 grep -q "the EMBREE backend is not built" "$WORK/sub-configure.log"
 # nothing of mbvh's own leaks into the consumer's cache
@@ -149,15 +227,21 @@ ok "add_subdirectory, CPU-only, shared"
 step "install the CPU-only build into $WORK/cpu"
 cmake --install "$WORK/sub" --prefix "$WORK/cpu" >/dev/null
 cmake -S "$CONSUMER" -B "$WORK/cpu-consumer" -G Ninja -DCMAKE_BUILD_TYPE=Release \
-  -DCMAKE_PREFIX_PATH="$WORK/cpu" -DMBVH_COMPONENTS=cpu >/dev/null
+  -DCMAKE_PREFIX_PATH="$WORK/cpu" -DMBVH_COMPONENTS=cpu -DMBVH_TARGET=mbvh::cpu >/dev/null
 cmake --build "$WORK/cpu-consumer" >/dev/null
 LD_LIBRARY_PATH="$WORK/cpu/lib" "$WORK/cpu-consumer/trace_scene"
 LD_LIBRARY_PATH="$WORK/cpu/lib" "$WORK/cpu-consumer/trace_c"
+LD_LIBRARY_PATH="$WORK/cpu/lib" no_device_libs "$WORK/cpu-consumer/trace_scene" "mbvh::cpu from a CPU-only shared install"
 if cmake -S "$CONSUMER" -B "$WORK/cpu-consumer-cl" -G Ninja -DCMAKE_PREFIX_PATH="$WORK/cpu" \
      -DMBVH_COMPONENTS=opencl > "$WORK/cl.log" 2>&1; then
   echo "error: find_package(mbvh COMPONENTS opencl) succeeded on a CPU-only install" >&2
   exit 1
 fi
 grep -q "no 'opencl' backend" "$WORK/cl.log"
-ok "find_package(mbvh COMPONENTS cpu) from a CPU-only install; opencl refused"
+ok "find_package(mbvh COMPONENTS cpu) and mbvh::cpu from a CPU-only shared install; opencl refused"
+# shellcheck disable=SC2046
+g++ -O1 -o "$WORK/pc-shared" "$ROOT/examples/trace_scene.cpp" $(pc "$WORK/cpu" --cflags --libs mbvh) \
+  -Wl,-rpath,"$WORK/cpu/lib"
+"$WORK/pc-shared"
+ok "g++ \$(pkg-config --cflags --libs mbvh) from a shared install"
 echo "consumer: $passed passed"
