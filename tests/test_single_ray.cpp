@@ -105,7 +105,8 @@ TEST_CASE("single-ray query: every ray equals the batch trace and the reference,
       CHECK(def.backend() == name);
       CHECK(def.options(Query::closest).layout == Layout::mbvh8);
       CHECK(def.options(Query::closest).traversal == Traversal::stack_ordered);
-      CHECK(def.options(Query::any).traversal == Traversal::stack);
+      CHECK(def.options(Query::any).layout == Layout::mbvh8);
+      CHECK(def.options(Query::any).traversal == Traversal::stack_ordered);
       CHECK(def.options(Query::closest).leaf_block == backend->leaf_block(TraceOptions{}));
       check_query(*backend, *acc, def, rays);
       // every other single-ray pair, a precision and a leaf block (the kernels chosen per call)
@@ -226,12 +227,17 @@ TEST_CASE("single-ray query: unsupported options, backends and out-of-range rays
     CHECK_THROWS_WITH(q.intersect(r), Catch::Contains("(RayQuery): ray 0") && Catch::Contains("leaves the range traced exactly"));
     CHECK_THROWS_WITH(q.occluded(r), Catch::Contains("leaves the range traced exactly"));
   }
-  // the quick test's edges: an origin beyond the scene's coordinates, a direction at the bounds,
-  // pass on to the full check, which accepts them as Backend::trace does
-  const Ray outside{40, 0.02f, 0.01f, 0, -1, 0, 0, INFINITY};
-  TraceOutput out;
-  cpu->trace(*acc, std::vector<Ray>{outside}, q.options(Query::closest), out);
-  const Hit h = q.intersect(outside);
-  CHECK(std::memcmp(&h, &out.hits[0], sizeof(Hit)) == 0);
-  CHECK(h.prim != MBVH_MISS_PRIM);
+  // an origin outside the scene passes the quick test (up to 2^16 times the scene's largest
+  // coordinate); one farther away, or a direction far from unit length, passes on to the full
+  // check, which accepts them as Backend::trace does
+  const Ray outside{40, 0.02f, 0.01f, 0, -1, 0, 0, INFINITY}, far_away{1e6f, 0.02f, 0.01f, 0, -1, 0, 0, INFINITY},
+      short_dir{0.01f, 0.02f, 5, 0, 0, 0, -0x1p-90f, INFINITY};
+  for (const Ray& r : {outside, far_away, short_dir}) {
+    TraceOutput out;
+    cpu->trace(*acc, std::vector<Ray>{r}, q.options(Query::closest), out);
+    const Hit h = q.intersect(r);
+    CHECK(std::memcmp(&h, &out.hits[0], sizeof(Hit)) == 0);
+    CHECK(h.prim != MBVH_MISS_PRIM);
+    CHECK(q.occluded(r));
+  }
 }

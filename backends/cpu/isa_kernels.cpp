@@ -104,8 +104,7 @@ Hit one_ray_any_pair(const void* state, const Ray& ray) {
     return dispatch<Any, K>(v, r, s.layout[Any], s.traversal[Any], st);
   });
 }
-/// The defaults (default_ray_query_options), traversal fixed: closest hit MBVH8 ordered stack,
-/// any hit MBVH8 stack.
+/// The default (default_ray_query_options), traversal fixed: MBVH8 ordered stack, both queries.
 template <class K>
 Hit one_ray_closest_mbvh8_ordered(const void* state, const Ray& ray) {
   const TraceView& v = static_cast<const OneRayState*>(state)->view[0];
@@ -114,9 +113,11 @@ Hit one_ray_closest_mbvh8_ordered(const void* state, const Ray& ray) {
   });
 }
 template <class K>
-Hit one_ray_any_mbvh8_stack(const void* state, const Ray& ray) {
+Hit one_ray_any_mbvh8_ordered(const void* state, const Ray& ray) {
   const TraceView& v = static_cast<const OneRayState*>(state)->view[1];
-  return one_ray<true, K>(v, ray, [&](const typename K::Ray& r, NoStats& st) { return trace_mbvh8_stack<true, NoStats, K>(v, r, st); });
+  return one_ray<true, K>(v, ray, [&](const typename K::Ray& r, NoStats& st) {
+    return trace_wide_stack_ordered<true, NoStats, K, Node8>(v, r, st);
+  });
 }
 
 template <Hit (*F)(const void*, const Ray&)>
@@ -129,8 +130,8 @@ RayQueryKernels query_kernels(const TraceOptions& c, const TraceOptions& a) {
   RayQueryKernels k;
   k.closest = c.layout == Layout::mbvh8 && c.traversal == Traversal::stack_ordered ? &one_ray_closest_mbvh8_ordered<K>
                                                                                     : &one_ray_any_pair<false, K>;
-  k.any = a.layout == Layout::mbvh8 && a.traversal == Traversal::stack ? &occluded_by<&one_ray_any_mbvh8_stack<K>>
-                                                                        : &occluded_by<&one_ray_any_pair<true, K>>;
+  k.any = a.layout == Layout::mbvh8 && a.traversal == Traversal::stack_ordered ? &occluded_by<&one_ray_any_mbvh8_ordered<K>>
+                                                                                : &occluded_by<&one_ray_any_pair<true, K>>;
   return k;
 }
 

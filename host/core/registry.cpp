@@ -146,7 +146,7 @@ void Backend::trace(const Accel& acc, std::span<const Ray> rays, const TraceOpti
 TraceOptions default_ray_query_options(Query q) {
   TraceOptions o;
   o.layout = Layout::mbvh8;
-  o.traversal = q == Query::any ? Traversal::stack : Traversal::stack_ordered;
+  o.traversal = Traversal::stack_ordered;  // both queries: the fastest measured, bench/results/single-ray-2026-12-04
   o.query = q;
   return o;
 }
@@ -202,8 +202,13 @@ RayQuery Backend::make_ray_query(const Accel& acc, TraceOptions c, TraceOptions 
   q.closest_opt_ = c;
   q.any_opt_ = a;
   q.who_ = runs_as();
-  // the quick range test: with every origin component within S (the scene's largest coordinate),
-  // M = S in check_ray_range, which then bounds the direction's largest component D alone
+  q.who_check_ = q.who_ + " (RayQuery)";
+  // the quick range test: every origin component within O = max(S, min(2^16 S, 2^41)) (S: the
+  // scene's largest coordinate) makes check_ray_range's M = max(S, the origin's) at most O, and its
+  // bounds then hold for every direction whose largest component D lies in [d_lo, d_hi], d_lo from
+  // O (M^3 and M / D grow with M; the products round monotonically) and d_hi from S. O is far
+  // beyond the scene (a camera or light outside it) yet keeps d_lo below 2^-4 in every scene
+  // Accel::build accepts (S <= 2^40).
   const Box& box = acc.bounds();
   const double S = box.empty() ? 0.0
                                : std::max({std::fabs(box.lo.x), std::fabs(box.lo.y), std::fabs(box.lo.z),
@@ -214,8 +219,9 @@ RayQuery Backend::make_ray_query(const Accel& acc, TraceOptions c, TraceOptions 
     q.d_hi_ = INFINITY;
   } else {
     const double S3 = S * S * S;
-    q.o_max_ = static_cast<float>(S);  // exact: a float coordinate
-    q.d_lo_ = round_to_float<true>(std::max(S3 / kMaxRayCube, S / kMaxRayRatio));
+    const double O = std::max(S, std::min(S * 0x1p16, 0x1p41));  // a power of two times a float: exact
+    q.o_max_ = static_cast<float>(O);
+    q.d_lo_ = round_to_float<true>(std::max(O * O * O / kMaxRayCube, O / kMaxRayRatio));
     q.d_hi_ = round_to_float<false>(std::min(S3 / kMinRayCube, S * kMaxRayRatio));
   }
   return q;
@@ -229,7 +235,7 @@ RayQuery Backend::ray_query(const Accel& acc) {
 
 void RayQuery::check_slow(const Ray& r) const {
   if (!accel_) throw Error("RayQuery: an empty query (made by its default constructor): make one with Backend::ray_query");
-  check_ray_range(*accel_, std::span<const Ray>(&r, 1), who_ + " (RayQuery)");
+  check_ray_range(*accel_, std::span<const Ray>(&r, 1), who_check_);
 }
 
 std::string BackendOptions::get(const std::string& name, const std::string& fallback) const {

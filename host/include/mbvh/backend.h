@@ -77,9 +77,9 @@ struct RayQueryKernels {
 /// the ray with options(Query::closest), occluded() the flag it writes with options(Query::any).
 /// An invalid ray (ray_valid false) is a defined miss (not occluded). A ray outside the range traced
 /// exactly (check_ray_range) throws Error naming it, as Backend::trace does: the call tests the ray
-/// against bounds precomputed from the scene's largest coordinate (about ten operations: origin
-/// components within the scene's coordinate range and the direction's largest component within the
-/// band those allow), and only a ray that fails that quick test takes the full check_ray_range.
+/// against bounds precomputed from the scene's largest coordinate S (about ten operations: origin
+/// components within max(S, min(2^16 S, 2^41)) and the direction's largest component within the
+/// band that allows), and only a ray that fails that quick test takes the full check_ray_range.
 ///
 /// Lifetime: the query points into the Accel (its layout, leaves and triangles): the Accel must
 /// outlive it and must not be refit while it is used (refit drops the leaf variants the query
@@ -116,7 +116,7 @@ private:
       check_slow(r);
   }
   /// The full check_ray_range of one ray (throws Error for a ray out of range); throws Error for
-  /// an empty query.
+  /// an empty query. No allocation unless it throws.
   void check_slow(const Ray& r) const;
 
   Hit (*closest_)(const void*, const Ray&) = nullptr;
@@ -126,7 +126,8 @@ private:
   const Accel* accel_ = nullptr;
   std::shared_ptr<const void> keep_;  ///< owns state_
   TraceOptions closest_opt_, any_opt_;
-  std::string who_;
+  std::string who_;        ///< backend()
+  std::string who_check_;  ///< check_slow's name for check_ray_range, made once
 };
 
 class Backend {
@@ -159,8 +160,7 @@ public:
   /// A single-ray query on `acc` (RayQuery): made once, then called from any number of the
   /// caller's threads with no lock and no allocation. `opt`'s layout, traversal, precision and leaf
   /// block are traced for both queries (its query field is ignored). Without `opt`: the fastest exact
-  /// single-ray traversals of this path, default_ray_query_options (closest hit: MBVH8 ordered
-  /// stack; any hit: MBVH8 stack). Checks as trace does (options, supports, precision, a build
+  /// single-ray traversal of this path, default_ray_query_options (MBVH8 ordered stack). Checks as trace does (options, supports, precision, a build
   /// without a hierarchy), then refuses, naming this backend: statistics (`opt.stats`: the query
   /// counts nothing; trace a batch for them), a packet traversal and dacrt (they trace batches of
   /// rays; their single-ray answers are packet_single_ray's traversal: ask for that), and a backend
@@ -217,8 +217,8 @@ private:
 };
 
 /// The options Backend::ray_query(acc) traces for query `q`: the fastest exact single-ray
-/// traversals measured (docs/benchmarks.md, "Single rays from the caller's threads"): closest hit
-/// MBVH8 ordered stack, any hit MBVH8 stack; robust precision, the backend's own leaf block.
+/// traversal measured (docs/benchmarks.md, "Single rays from the caller's threads"): MBVH8 ordered
+/// stack for both queries; robust precision, the backend's own leaf block.
 TraceOptions default_ray_query_options(Query q);
 
 /// `opt` with leaf_block set to what `b` traces for it: the options the reference (cpu-scalar,
