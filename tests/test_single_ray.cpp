@@ -106,7 +106,7 @@ TEST_CASE("single-ray query: every ray equals the batch trace and the reference,
       CHECK(def.options(Query::closest).layout == Layout::mbvh8);
       CHECK(def.options(Query::closest).traversal == Traversal::stack_ordered);
       CHECK(def.options(Query::any).layout == Layout::mbvh8);
-      CHECK(def.options(Query::any).traversal == Traversal::stack_ordered);
+      CHECK(def.options(Query::any).traversal == Traversal::bitstack);
       CHECK(def.options(Query::closest).leaf_block == backend->leaf_block(TraceOptions{}));
       check_query(*backend, *acc, def, rays);
       // every other single-ray pair, a precision and a leaf block (the kernels chosen per call)

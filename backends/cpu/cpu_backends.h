@@ -47,7 +47,7 @@ struct CpuKernels {
                 const DacrtSettings&, DacrtBuffers&);
   /// The single-ray query (Backend::ray_query) of `closest` and `any` (checked, a single-ray
   /// traversal each, leaf blocks resolved, the build prepared): the views of both resolved now,
-  /// the kernels a function each (the traversal fixed for the default, default_ray_query_options).
+  /// the kernels a function each (the traversal fixed for the defaults, default_ray_query_options).
   RayQueryKernels (*ray_query)(const Accel&, const TraceOptions& closest, const TraceOptions& any);
 };
 

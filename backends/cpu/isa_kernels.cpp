@@ -104,7 +104,8 @@ Hit one_ray_any_pair(const void* state, const Ray& ray) {
     return dispatch<Any, K>(v, r, s.layout[Any], s.traversal[Any], st);
   });
 }
-/// The default (default_ray_query_options), traversal fixed: MBVH8 ordered stack, both queries.
+/// The defaults (default_ray_query_options), traversal fixed: closest hit MBVH8 ordered stack, any
+/// hit MBVH8 bitstack.
 template <class K>
 Hit one_ray_closest_mbvh8_ordered(const void* state, const Ray& ray) {
   const TraceView& v = static_cast<const OneRayState*>(state)->view[0];
@@ -113,10 +114,10 @@ Hit one_ray_closest_mbvh8_ordered(const void* state, const Ray& ray) {
   });
 }
 template <class K>
-Hit one_ray_any_mbvh8_ordered(const void* state, const Ray& ray) {
+Hit one_ray_any_mbvh8_bitstack(const void* state, const Ray& ray) {
   const TraceView& v = static_cast<const OneRayState*>(state)->view[1];
   return one_ray<true, K>(v, ray, [&](const typename K::Ray& r, NoStats& st) {
-    return trace_wide_stack_ordered<true, NoStats, K, Node8>(v, r, st);
+    return trace_mbvh8_bitstack<true, NoStats, K>(v, r, st);
   });
 }
 
@@ -130,8 +131,8 @@ RayQueryKernels query_kernels(const TraceOptions& c, const TraceOptions& a) {
   RayQueryKernels k;
   k.closest = c.layout == Layout::mbvh8 && c.traversal == Traversal::stack_ordered ? &one_ray_closest_mbvh8_ordered<K>
                                                                                     : &one_ray_any_pair<false, K>;
-  k.any = a.layout == Layout::mbvh8 && a.traversal == Traversal::stack_ordered ? &occluded_by<&one_ray_any_mbvh8_ordered<K>>
-                                                                                : &occluded_by<&one_ray_any_pair<true, K>>;
+  k.any = a.layout == Layout::mbvh8 && a.traversal == Traversal::bitstack ? &occluded_by<&one_ray_any_mbvh8_bitstack<K>>
+                                                                           : &occluded_by<&one_ray_any_pair<true, K>>;
   return k;
 }
 

@@ -160,7 +160,8 @@ public:
   /// A single-ray query on `acc` (RayQuery): made once, then called from any number of the
   /// caller's threads with no lock and no allocation. `opt`'s layout, traversal, precision and leaf
   /// block are traced for both queries (its query field is ignored). Without `opt`: the fastest exact
-  /// single-ray traversal of this path, default_ray_query_options (MBVH8 ordered stack). Checks as trace does (options, supports, precision, a build
+  /// single-ray traversals of this path, default_ray_query_options (closest hit: MBVH8 ordered
+  /// stack; any hit: MBVH8 bitstack). Checks as trace does (options, supports, precision, a build
   /// without a hierarchy), then refuses, naming this backend: statistics (`opt.stats`: the query
   /// counts nothing; trace a batch for them), a packet traversal and dacrt (they trace batches of
   /// rays; their single-ray answers are packet_single_ray's traversal: ask for that), and a backend
@@ -217,8 +218,9 @@ private:
 };
 
 /// The options Backend::ray_query(acc) traces for query `q`: the fastest exact single-ray
-/// traversal measured (docs/benchmarks.md, "Single rays from the caller's threads"): MBVH8 ordered
-/// stack for both queries; robust precision, the backend's own leaf block.
+/// traversals measured (docs/benchmarks.md, "Single rays from the caller's threads"): closest hit
+/// the MBVH8 ordered stack, any hit the MBVH8 bitstack; robust precision, the backend's own leaf
+/// block.
 TraceOptions default_ray_query_options(Query q);
 
 /// `opt` with leaf_block set to what `b` traces for it: the options the reference (cpu-scalar,
