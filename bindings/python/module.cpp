@@ -70,20 +70,23 @@ void check_rows(const py::array& a, const char* what, std::size_t cols, bool ind
 }
 
 // The rays of an (N, 8) float32 C-contiguous array (the project's 32-byte ray record: origin,
-// tmin, direction, tmax), read in place: no copy. NaN or infinite values (tmax = +inf excepted)
-// are a ValueError naming the ray, before anything is traced.
+// tmin, direction, tmax), read in place: no copy. Their values are checked by check_values.
 std::span<const Ray> rays_of(const py::array& a) {
   check_rows(a, "rays", 8, false);
   if (a.shape(0) > 0 && a.strides(0) != 32)
     throw py::value_error("rays: the array is not C-contiguous (row stride " + std::to_string(a.strides(0)) +
                           " bytes, a ray record is 32): pass np.ascontiguousarray(rays)");
-  const std::span<const Ray> rays(static_cast<const Ray*>(a.data()), static_cast<std::size_t>(a.shape(0)));
+  return {static_cast<const Ray*>(a.data()), static_cast<std::size_t>(a.shape(0))};
+}
+
+// NaN or infinite values (tmax = +inf excepted) are a ValueError naming the ray, before anything
+// is traced. Called with the GIL released, on the call's threads (a pass over the rays).
+void check_values(std::span<const Ray> rays, unsigned threads) {
   try {
-    check_ray_values("rays", rays);
+    check_ray_values("rays", rays, nullptr, threads);
   } catch (const Error& e) {
     throw py::value_error(e.what());
   }
-  return rays;
 }
 
 // -- arrays out: a vector's storage handed to numpy (no copy of the results)
@@ -224,6 +227,7 @@ py::object trace(PyAccel& a, const py::handle& rays_in, const Variant& v) {
   TraceOutput out;
   {
     py::gil_scoped_release nogil;
+    check_values(rays, v.threads);
     std::shared_lock<std::shared_mutex> lock(a.use);
     b->trace(*a.acc, rays, o, out);
   }
@@ -236,11 +240,15 @@ py::dict bench(PyAccel& a, const py::handle& rays_in, const Variant& v, unsigned
   std::vector<double> seconds;
   {
     py::gil_scoped_release nogil;
+    check_values(rays, v.threads);
     std::shared_lock<std::shared_mutex> lock(a.use);
-    TraceOutput out;
     b->prepare(*a.acc, o);
-    b->trace(*a.acc, rays, o, out);  // warm: caches, the workers, a device's pipeline
+    {
+      TraceOutput warm;
+      b->trace(*a.acc, rays, o, warm);  // warm: caches, the workers, a device's pipeline
+    }
     for (unsigned i = 0; i < std::max(1u, repeat); ++i) {
+      TraceOutput out;  // fresh, as a trace() caller's: its first touch is part of the time
       const auto t0 = std::chrono::steady_clock::now();
       b->trace(*a.acc, rays, o, out);
       seconds.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
@@ -281,6 +289,10 @@ py::dict comparison(const Comparison& c) {
 py::list check(PyAccel& a, const py::handle& rays_in, std::optional<std::vector<std::string>> names, const Variant& v,
                std::size_t brute) {
   const std::span<const Ray> rays = rays_of(as_array(rays_in, "rays"));
+  {
+    py::gil_scoped_release nogil;
+    check_values(rays, v.threads);
+  }
   const std::vector<std::string> list = names ? *names : runnable_backends();
   py::list report;
   for (const std::string& name : list) {

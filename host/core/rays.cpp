@@ -3,6 +3,7 @@
 #include "mbvh/rays.h"
 
 #include <algorithm>
+#include <atomic>
 #include <bit>
 #include <cmath>
 #include <cstring>
@@ -10,6 +11,7 @@
 
 #include "mbvh/error.h"
 #include "host/core/io/output.h"
+#include "host/core/parallel.h"
 #include "host/core/resources.h"
 
 namespace mbvh {
@@ -110,16 +112,35 @@ void write_occlusion(const std::string& path, std::span<const std::uint8_t> o) {
 
 // Rays: every value finite, except tmax, which may be +inf (the default: no far limit). A NaN,
 // an infinite origin, direction or tmin, or tmax = -inf is no ray a program meant to write.
-void check_ray_values(const std::string& name, std::span<const Ray> rays, const char* hint) {
-  // First a branch-free scan of the exponent bits (NaN and infinity have them all set; tmax may be
-  // exactly +inf), which the compiler vectorises: the bindings check every batch they trace.
-  // Only a batch with a bad ray goes through the loop below, which names it.
+namespace {
+// Whether rays[b, e) hold a NaN or an infinity (tmax = +inf excepted): a branch-free scan of the
+// exponent bits (NaN and infinity have them all set; tmax may be exactly +inf), which the
+// compiler vectorises.
+bool any_bad_value(std::span<const Ray> rays, std::size_t b, std::size_t e) {
   unsigned bad = 0;
-  for (const Ray& r : rays) {
+  for (std::size_t i = b; i < e; ++i) {
     std::uint32_t w[8];
-    std::memcpy(w, &r, sizeof w);
+    std::memcpy(w, &rays[i], sizeof w);
     for (int k = 0; k < 7; ++k) bad |= (w[k] & 0x7F800000u) == 0x7F800000u;
     bad |= ((w[7] & 0x7F800000u) == 0x7F800000u) & (w[7] != 0x7F800000u);
+  }
+  return bad != 0;
+}
+}  // namespace
+
+void check_ray_values(const std::string& name, std::span<const Ray> rays, const char* hint, unsigned threads) {
+  // The scan first (the bindings check every batch they trace: on `threads` workers where the
+  // batch is large); only a batch with a bad ray goes through the loop below, which names it.
+  constexpr std::size_t kChunk = 1 << 16;
+  bool bad = false;
+  if (threads == 1 || rays.size() <= kChunk) {
+    bad = any_bad_value(rays, 0, rays.size());
+  } else {
+    std::atomic<bool> found{false};
+    parallel_for(rays.size(), kChunk, threads, [&](std::size_t b, std::size_t e, unsigned) {
+      if (any_bad_value(rays, b, e)) found.store(true, std::memory_order_relaxed);
+    });
+    bad = found.load();
   }
   if (!bad) return;
   static const char* const field[8] = {"origin x", "origin y", "origin z", "tmin", "direction x", "direction y", "direction z", "tmax"};

@@ -120,6 +120,14 @@ def test_bad_arrays_are_clear_exceptions(cornell):
     bad[3, 5] = np.nan
     with pytest.raises(ValueError, match="rays: ray 3 has direction y = nan"):
         accel.trace(bad)
+    big = mbvh.rays(np.zeros((200000, 3)), [[1, 0, 0]])  # checked in chunks on the call's threads
+    big[150001, 3] = -np.inf
+    with pytest.raises(ValueError, match="rays: ray 150001 has tmin = -inf"):
+        accel.trace(big, threads=2)
+    big[150001, 3] = 0
+    big[199999, 7] = -np.inf
+    with pytest.raises(ValueError, match="ray 199999 has tmax = -inf"):
+        accel.trace(big, threads=2)
     bad = rays.copy()
     bad[2, 0] = np.inf
     with pytest.raises(ValueError, match="ray 2 has origin x = inf"):

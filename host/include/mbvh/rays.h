@@ -24,8 +24,10 @@ void write_bytes(const std::string& path, const void* data, std::size_t bytes);
 std::vector<Ray> rays_from_bytes(const std::string& name, const char* data, std::size_t size);
 /// Throws Error naming `name` and the ray's index and field when a ray holds a NaN or infinite
 /// value (tmax = +inf excepted: no far limit); `hint`, if given, ends the message. What read_rays
-/// checks, for rays from memory (the C and Python bindings). O(rays).
-void check_ray_values(const std::string& name, std::span<const Ray> rays, const char* hint = nullptr);
+/// checks, for rays from memory (the C and Python bindings). O(rays), on up to `threads` workers
+/// (0: every hardware thread) for a large batch.
+void check_ray_values(const std::string& name, std::span<const Ray> rays, const char* hint = nullptr,
+                      unsigned threads = 1);
 void write_rays(const std::string& path, std::span<const Ray> rays);
 std::vector<Hit> read_hits(const std::string& path);
 void write_hits(const std::string& path, std::span<const Hit> hits);
