@@ -120,6 +120,8 @@ def test_bad_arrays_are_clear_exceptions(cornell):
     bad[3, 5] = np.nan
     with pytest.raises(ValueError, match="rays: ray 3 has direction y = nan"):
         accel.trace(bad)
+    degenerate = mbvh.rays(np.zeros((3, 3)), [[0, 0, 0], [1, 0, 0], [1, 0, 0]], tmin=[0, 2, 0], tmax=[1, 1, 1])
+    assert (accel.trace(degenerate)["prim"][:2] == mbvh.MISS).all()  # zero direction, tmin > tmax: defined misses
     big = mbvh.rays(np.zeros((200000, 3)), [[1, 0, 0]])  # checked in chunks on the call's threads
     big[150001, 3] = -np.inf
     with pytest.raises(ValueError, match="rays: ray 150001 has tmin = -inf"):
