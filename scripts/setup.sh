@@ -9,7 +9,7 @@ PACKAGES=(build-essential cmake ninja-build pkg-config catch2 libzstd-dev zlib1g
           ocl-icd-opencl-dev opencl-headers pocl-opencl-icd
           libvulkan-dev mesa-vulkan-drivers glslang-tools vulkan-validationlayers
           libembree-dev
-          python3-dev pybind11-dev python3-numpy python3-pytest python3-venv
+          python3-dev pybind11-dev python3-numpy python3-pytest python3-venv python3-setuptools python3-wheel
           ${MBVH_EXTRA_PACKAGES:-})
 
 missing=()
