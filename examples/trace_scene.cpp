@@ -20,8 +20,8 @@ int main() {
   std::vector<mbvh::Ray> rays;             // origin, tmin, direction, tmax
   for (float x : {0.25f, 0.75f, 1.5f}) rays.push_back({x, 0.5f, 1, 0, 0, 0, -1, INFINITY});
   mbvh::TraceOutput hits, shadow;
-  cpu->trace(*accel, rays, {mbvh::Layout::mbvh4, mbvh::Traversal::bitstack, mbvh::Query::closest}, hits);
-  cpu->trace(*accel, rays, {mbvh::Layout::mbvh4, mbvh::Traversal::bitstack, mbvh::Query::any}, shadow);
+  cpu->trace(*accel, rays, {}, hits);  // the defaults: this backend's fastest exact traversal
+  cpu->trace(*accel, rays, {.query = mbvh::Query::any}, shadow);
   std::printf("mbvh %s, %s\n", mbvh::version(), cpu->describe().c_str());
   for (std::size_t i = 0; i < rays.size(); ++i) {
     const mbvh::Hit& h = hits.hits[i];

@@ -20,6 +20,7 @@ public:
   }
   std::string isa() const override { return "scalar"; }
   bool supports(Layout l, Traversal t) const override { return reference_supports(l, t); }
+  std::vector<std::pair<Layout, Traversal>> fastest(Query q) const override { return reference_fastest(q); }
   bool supports_precision(Precision) const override { return true; }
   /// The reference traces any leaf variant asked for; its own choice is the build's leaves (or
   /// cpu.leaf-block).

@@ -143,37 +143,31 @@ int read_enum(const E& field) {
   invalid(fn, std::string(field) + " = " + std::to_string(value) + " is none of " + valid);
 }
 
-// The DEFAULT values stay as they are: resolved against a backend (resolve).
+// The DEFAULT values stay automatic (TraceOptions' defaults): resolved against a backend (resolve).
 struct Variant {
-  bool default_layout = true, default_traversal = true;
   mbvh::TraceOptions opt;
 };
 
 Variant to_variant(const char* fn, int layout, int traversal) {
   Variant v;
   switch (layout) {
-    case MBVH_LAYOUT_DEFAULT: break;
-    case MBVH_LAYOUT_MBVH2: v.default_layout = false, v.opt.layout = mbvh::Layout::mbvh2; break;
-    case MBVH_LAYOUT_MBVH4: v.default_layout = false, v.opt.layout = mbvh::Layout::mbvh4; break;
-    case MBVH_LAYOUT_MBVH8: v.default_layout = false, v.opt.layout = mbvh::Layout::mbvh8; break;
+    case MBVH_LAYOUT_DEFAULT: v.opt.layout = mbvh::Layout::automatic; break;
+    case MBVH_LAYOUT_MBVH2: v.opt.layout = mbvh::Layout::mbvh2; break;
+    case MBVH_LAYOUT_MBVH4: v.opt.layout = mbvh::Layout::mbvh4; break;
+    case MBVH_LAYOUT_MBVH8: v.opt.layout = mbvh::Layout::mbvh8; break;
     default:
       bad_enum(fn, "layout", layout, "MBVH_LAYOUT_DEFAULT (0), MBVH_LAYOUT_MBVH2 (2), MBVH_LAYOUT_MBVH4 (4), MBVH_LAYOUT_MBVH8 (8)");
   }
   if (traversal < MBVH_TRAVERSAL_DEFAULT || traversal > MBVH_TRAVERSAL_DACRT)
     bad_enum(fn, "traversal", traversal, "the mbvh_traversal values, MBVH_TRAVERSAL_DEFAULT (0) to MBVH_TRAVERSAL_DACRT (8)");
-  if (traversal != MBVH_TRAVERSAL_DEFAULT) {
-    v.default_traversal = false;
-    v.opt.traversal = static_cast<mbvh::Traversal>(traversal - 1);  // the orders match (the asserts above)
-  }
+  v.opt.traversal = traversal == MBVH_TRAVERSAL_DEFAULT ? mbvh::Traversal::automatic
+                                                        : static_cast<mbvh::Traversal>(traversal - 1);  // the orders match (the asserts above)
   return v;
 }
 
-// What `mbvh trace` traces when no layout or traversal is named (host/cli/cmd_trace.cpp).
-void resolve(const mbvh::Backend& b, Variant& v) {
-  if (v.default_traversal) v.opt.traversal = mbvh::default_traversal(b);
-  if (v.default_layout) v.opt.layout = mbvh::default_layout(b, v.opt.traversal);
-  v.default_traversal = v.default_layout = false;
-}
+// What mbvh_trace and `mbvh trace` trace when no layout or traversal is named: the backend's
+// fastest exact traversal for the query (mbvh::resolve_options).
+void resolve(const mbvh::Backend& b, Variant& v) { v.opt = mbvh::resolve_options(b, v.opt); }
 
 // Every published size of an options struct (MBVH_C_API_VERSION 1: one).
 template <class T>
@@ -499,7 +493,12 @@ mbvh_status mbvh_backend_supports(const mbvh_backend* backend, mbvh_layout layou
     require(fn, backend, "backend");
     require(fn, supported, "supported");
     Variant v = to_variant(fn, read_enum(layout), read_enum(traversal));
-    resolve(*backend->backend, v);
+    try {
+      resolve(*backend->backend, v);  // DEFAULT: as a closest-hit mbvh_trace resolves it
+    } catch (const mbvh::Error&) {
+      *supported = 0;  // no pair fits: a layout on which the backend has no traversal
+      return;
+    }
     *supported = backend->backend->supports(v.opt.layout, v.opt.traversal) ? 1 : 0;
   });
 }

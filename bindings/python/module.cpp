@@ -201,17 +201,17 @@ struct Variant {
   bool stats = false;
 };
 
-// The backend and options of a call; layout and traversal default as `mbvh trace` does
-// (default_traversal, default_layout), so the answers are the program's byte for byte.
+// The backend and options of a call; layout and traversal default as `mbvh trace` does (the
+// backend's fastest, resolve_options), so the answers are the program's byte for byte.
 std::pair<Backend*, TraceOptions> resolve(PyAccel& a, const Variant& v) {
   Backend& b = a.backend(v.backend, v.threads, v.settings);
   TraceOptions o;
   o.query = parse_query(v.query);
   o.precision = parse_precision(v.precision);
   o.stats = v.stats;
-  o.traversal = v.traversal ? parse_traversal(*v.traversal) : default_traversal(b);
-  o.layout = v.layout ? parse_layout(*v.layout) : default_layout(b, o.traversal);
-  return {&b, o};
+  if (v.traversal) o.traversal = parse_traversal(*v.traversal);
+  if (v.layout) o.layout = parse_layout(*v.layout);
+  return {&b, resolve_options(b, o)};
 }
 
 py::object results(TraceOutput&& out, const TraceOptions& o) {

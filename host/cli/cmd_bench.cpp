@@ -68,7 +68,7 @@ DynamicOptions dynamic_options(const BenchArgs& a) {
   d.grid = a.grid.parse();
   if (!given("--layout")) d.grid.layouts = {Layout::mbvh4, Layout::mbvh2, Layout::mbvh8};
   d.first_layout = !given("--layout") || a.first_layout;
-  if (!given("--traversal")) d.grid.traversals = {TraceOptions{}.traversal};
+  if (!given("--traversal")) d.grid.traversals = {Traversal::bitstack};
   if (!given("--query")) d.grid.queries.clear();
   d.kinds = parse_list<RayKind>(given("--kinds") ? a.kinds : "primary,shadow", parse_ray_kind);
   d.frames = a.dynamic;

@@ -15,7 +15,7 @@ namespace {
 struct RenderArgs {
   SceneArgs scene;
   DeviceArgs dev;
-  std::string backend = "cpu", layout = "mbvh4", traversal = "bitstack", mode = "path", out;
+  std::string backend = "cpu", layout = "auto", traversal = "auto", mode = "path", out;
   std::string precision = "robust", pfm, reference, curve;
   RenderOptions o;
   std::vector<float> camera;
@@ -59,7 +59,7 @@ std::string curve_json(const RenderArgs& a, const Backend& backend, const Scene&
   return j.dump(1) + "\n";
 }
 
-int run_render(const RenderArgs& a, const CLI::App& cmd) {
+int run_render(const RenderArgs& a) {
   const std::vector<OutputTarget> outs{{"-o", a.out}, {"--pfm", a.pfm}, {"--curve", a.curve, true}};
   prepare_outputs(outs, {{"scene", a.scene.scene}, {"--reference", a.reference}});
   // -- options, backend, variant
@@ -68,12 +68,15 @@ int run_render(const RenderArgs& a, const CLI::App& cmd) {
   SceneArgs scene = a.scene;
   scene.no_hierarchy_for({a.backend});  // a dacrt backend alone: no BVH built (quality none)
   auto backend = make_backend(a.backend, a.dev.options(scene.threads, scene.quality));
-  // a backend without a bitstack (embree) renders with its stack, one with only dacrt with that,
-  // unless --traversal says otherwise
-  if (!cmd.count("--traversal") && only_dacrt(*backend)) o.traversal = Traversal::dacrt;
-  else if (!cmd.count("--traversal") && !backend->supports(default_layout(*backend, o.traversal), o.traversal))
-    o.traversal = Traversal::stack;
-  o.layout = cmd.count("--layout") ? parse_layout(a.layout) : default_layout(*backend, o.traversal);
+  // auto (the default): the backend's fastest exact closest-hit traversal, named in the report
+  {
+    TraceOptions t;
+    t.layout = parse_layout(a.layout);
+    t.traversal = o.traversal;
+    t = resolve_options(*backend, t);
+    o.layout = t.layout;
+    o.traversal = t.traversal;
+  }
   // -- scene and render
   Loaded l = load_and_build(scene);
   if (!quiet()) std::fprintf(stderr, "backend: %s\n", backend->describe().c_str());
@@ -115,8 +118,8 @@ Command add_render(CLI::App& app) {
   auto* c = app.add_subcommand("render", "render an image on a backend: 8-bounce diffuse path tracing, AO or normals");
   a->scene.add(c);
   c->add_option("--backend", a->backend, "backend (see `mbvh devices`)");
-  c->add_option("--layout", a->layout, "mbvh2, mbvh4 or mbvh8 (default: mbvh4, or mbvh2 where the backend has only that)");
-  c->add_option("--traversal", a->traversal, "stack, bitstack, stack-ordered, bitstack-retest, or packet-ranged, packet-partition, packet (cpu: 8x8-tile packets), or dacrt (no hierarchy; the default of a backend that has only it)");
+  c->add_option("--layout", a->layout, "mbvh2, mbvh4, mbvh8 or auto (the default: the layout the backend traces fastest with the traversal)");
+  c->add_option("--traversal", a->traversal, "stack, bitstack, stack-ordered, bitstack-retest, or packet-ranged, packet-partition, packet (cpu: 8x8-tile packets), or dacrt (no hierarchy), or auto (the default: the backend's fastest exact closest-hit traversal, docs/library.md \"Defaults\"; the report names it)");
   c->add_option("--mode", a->mode, "path (8-bounce diffuse, point light and sky), ao or normals");
   c->add_option("--spp", o.spp, "samples per pixel")->check(integer_in(1, 1u << 20));
   c->add_option("--bounces", o.bounces, "path mode: diffuse bounces after the primary hit")->check(integer_in(0, 1024));
@@ -130,7 +133,7 @@ Command add_render(CLI::App& app) {
   c->add_option("--reference", a->reference, "PFM of the same size: report the RMSE against it after every sample pass");
   c->add_option("--curve", a->curve, "with --reference: write the RMSE-against-time curve as JSON");
   a->dev.add(c);
-  return {c, [a, c] { return run_render(*a, *c); }};
+  return {c, [a] { return run_render(*a); }};
 }
 
 }  // namespace mbvh::cli

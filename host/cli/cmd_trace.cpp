@@ -12,7 +12,7 @@ struct TraceArgs {
   SceneArgs scene;
   RayArgs rays;
   DeviceArgs dev;
-  std::string backend = "cpu", layout = "mbvh4", traversal = "bitstack", query = "closest", out, precision = "robust";
+  std::string backend = "cpu", layout = "auto", traversal = "auto", query = "closest", out, precision = "robust";
   bool stats = false;
 };
 
@@ -40,7 +40,7 @@ TraceOutput trace_batches(Backend& backend, const Accel& acc, const std::vector<
   return out;
 }
 
-int run_trace(TraceArgs& a, const CLI::App& cmd) {
+int run_trace(TraceArgs& a) {
   const OutputTarget hits_to{"-o", a.out};
   prepare_outputs({hits_to}, {{"scene", a.scene.scene}, {"--rays", a.rays.rays_file}});
   // -- the variant and the backend
@@ -53,14 +53,10 @@ int run_trace(TraceArgs& a, const CLI::App& cmd) {
   a.scene.no_hierarchy_for({a.backend});  // a dacrt backend alone: no BVH built (quality none)
   BackendOptions bo = a.dev.options(a.scene.threads, a.scene.quality);
   auto backend = make_backend(a.backend, bo);
-  if (cmd.count("--traversal") == 0) {  // bitstack; dacrt (layout ignored) or stack where the backend lacks it
-    o.traversal = default_traversal(*backend);
-    a.traversal = to_string(o.traversal);
-  }
-  if (cmd.count("--layout") == 0) {
-    o.layout = default_layout(*backend, o.traversal);
-    a.layout = to_string(o.layout);
-  }
+  // auto (the default): the backend's fastest exact traversal for the query, named in the report
+  o = resolve_options(*backend, o);
+  a.layout = to_string(o.layout);
+  a.traversal = to_string(o.traversal);
   if (!backend->supports(o.layout, o.traversal))
     throw Error("backend '" + a.backend + "' does not support " + a.layout + "/" + a.traversal);
   if (!backend->supports_precision(o.precision))
@@ -104,14 +100,14 @@ Command add_trace(CLI::App& app) {
   a->scene.add(c);
   a->rays.add(c, true);
   c->add_option("--backend", a->backend, "backend (see `mbvh devices`)");
-  c->add_option("--layout", a->layout, "mbvh2, mbvh4 or mbvh8 (default: mbvh4, or mbvh2 where the backend has only that)");
-  c->add_option("--traversal", a->traversal, "stack, bitstack, stack-ordered or bitstack-retest (bitstack-retest: MBVH4 only); packet-ranged, packet-partition or packet (cpu: packets of 64 rays over MBVH2, the layout for the hybrid's single rays); dacrt (no hierarchy, the layout ignored). Default: bitstack; dacrt on a backend that has only it, stack on one without bitstack (embree)");
+  c->add_option("--layout", a->layout, "mbvh2, mbvh4, mbvh8 or auto (the default: the layout the backend traces fastest with the traversal)");
+  c->add_option("--traversal", a->traversal, "stack, bitstack, stack-ordered or bitstack-retest (bitstack-retest: MBVH4 only); packet-ranged, packet-partition or packet (cpu: packets of 64 rays over MBVH2, the layout for the hybrid's single rays); dacrt (no hierarchy, the layout ignored); auto (the default: the backend's fastest exact traversal for the query, docs/library.md \"Defaults\"; the report names it)");
   c->add_option("--query", a->query, "closest (writes hits, 16 B/ray) or any (writes occlusion, 1 B/ray)");
   c->add_option("-o,--output", a->out, "output file ('-': standard output)");
   c->add_flag("--stats", a->stats, "also count work per ray (slower)");
   c->add_option("--precision", a->precision, "accuracy mode: robust (default), exact or fast");
   a->dev.add(c);
-  return {c, [a, c] { return run_trace(*a, *c); }};
+  return {c, [a] { return run_trace(*a); }};
 }
 
 }  // namespace mbvh::cli

@@ -9,13 +9,22 @@
 
 namespace mbvh {
 
-const char* to_string(Layout l) { return l == Layout::mbvh2 ? "mbvh2" : l == Layout::mbvh4 ? "mbvh4" : "mbvh8"; }
+const char* to_string(Layout l) {
+  switch (l) {
+    case Layout::mbvh2: return "mbvh2";
+    case Layout::mbvh4: return "mbvh4";
+    case Layout::mbvh8: return "mbvh8";
+    case Layout::automatic: return "auto";
+  }
+  return "?";
+}
 
 Layout parse_layout(const std::string& s) {
   if (s == "mbvh2") return Layout::mbvh2;
   if (s == "mbvh4") return Layout::mbvh4;
   if (s == "mbvh8") return Layout::mbvh8;
-  throw Error("unknown layout '" + s + "' (known: mbvh2, mbvh4, mbvh8)");
+  if (s == "auto") return Layout::automatic;
+  throw Error("unknown layout '" + s + "' (known: mbvh2, mbvh4, mbvh8, auto)");
 }
 
 const char* to_string(BuildQuality q) {
@@ -63,6 +72,7 @@ const char* to_string(Traversal t) {
     case Traversal::packet_partition: return "packet-partition";
     case Traversal::packet: return "packet";
     case Traversal::dacrt: return "dacrt";
+    case Traversal::automatic: return "auto";
   }
   return "?";
 }
@@ -84,8 +94,10 @@ Traversal parse_traversal(const std::string& s) {
   if (s == "packet-partition") return Traversal::packet_partition;
   if (s == "packet") return Traversal::packet;
   if (s == "dacrt") return Traversal::dacrt;
+  if (s == "auto") return Traversal::automatic;
   throw Error("unknown traversal '" + s +
-              "' (known: stack, bitstack, stack-ordered, bitstack-retest, packet-ranged, packet-partition, packet, dacrt)");
+              "' (known: stack, bitstack, stack-ordered, bitstack-retest, packet-ranged, packet-partition, packet, dacrt, "
+              "auto)");
 }
 
 }  // namespace mbvh

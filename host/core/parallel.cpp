@@ -9,7 +9,8 @@
 // the caller while it works) runs its chunks inline on that thread; a call from another thread
 // while the pool is busy gets threads of its own for that call (the previous behaviour) instead
 // of waiting. At exit the pool's destructor wakes and joins every worker (nothing leaks under
-// ASan/LSan).
+// ASan/LSan). A task runner set by the caller (mbvh/tasks.h) replaces the pool: the job's workers
+// become its tasks.
 #include "host/core/parallel.h"
 
 #include <algorithm>
@@ -19,7 +20,10 @@
 #include <exception>
 #include <mutex>
 #include <thread>
+#include <memory>
 #include <vector>
+
+#include "mbvh/tasks.h"
 
 namespace mbvh {
 
@@ -133,7 +137,22 @@ Pool& pool() {
   return p;
 }
 
+std::mutex g_runner_mutex;
+std::shared_ptr<const TaskRunner> g_runner;  ///< null: the pool
+
+std::shared_ptr<const TaskRunner> task_runner() {
+  std::lock_guard<std::mutex> lock(g_runner_mutex);
+  return g_runner;
+}
+
 }  // namespace
+
+TaskRunner set_task_runner(TaskRunner runner) {
+  auto next = runner ? std::make_shared<const TaskRunner>(std::move(runner)) : nullptr;
+  std::lock_guard<std::mutex> lock(g_runner_mutex);
+  std::swap(g_runner, next);
+  return next ? *next : TaskRunner{};
+}
 
 void parallel_for(std::size_t n, std::size_t grain, unsigned threads,
                   const std::function<void(std::size_t, std::size_t, unsigned)>& fn) {
@@ -148,6 +167,15 @@ void parallel_for(std::size_t n, std::size_t grain, unsigned threads,
   if (job.workers <= 1 || t_in_parallel) {
     job.workers = 1;  // one worker, or a nested call: inline on this thread
     job.work(0);
+  } else if (const std::shared_ptr<const TaskRunner> runner = task_runner()) {
+    // the caller's scheduler: one task per worker, each claiming chunks (Job::work catches)
+    (*runner)(job.workers, [&job](std::size_t w) {
+      if (w >= job.workers) return;  // not one of the tasks asked for
+      InParallel inside;
+      job.work(static_cast<unsigned>(w));
+    });
+    InParallel inside;
+    job.work(0);  // chunks a runner left unclaimed (it skipped a task): run here, now that no task runs
   } else if (!pool().try_run(job)) {
     std::vector<std::thread> extra;  // the pool serves another caller: threads for this call
     for (unsigned w = 1; w < job.workers; ++w)

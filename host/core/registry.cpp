@@ -51,26 +51,6 @@ bool backend_needs_hierarchy(const std::string& name) {
   return true;
 }
 
-Layout default_layout(const Backend& b, Traversal t) {
-  return !b.supports(Layout::mbvh4, t) && b.supports(Layout::mbvh2, t) ? Layout::mbvh2 : Layout::mbvh4;
-}
-
-Traversal default_traversal(const Backend& b) {
-  if (only_dacrt(b)) return Traversal::dacrt;
-  return b.supports(default_layout(b, Traversal::bitstack), Traversal::bitstack) ? Traversal::bitstack : Traversal::stack;
-}
-
-bool only_dacrt(const Backend& b) {
-  bool dacrt = false;
-  for (Layout l : {Layout::mbvh2, Layout::mbvh4, Layout::mbvh8})
-    for (int t = 0; t <= static_cast<int>(Traversal::dacrt); ++t) {
-      if (!b.supports(l, static_cast<Traversal>(t))) continue;
-      if (!is_dacrt(static_cast<Traversal>(t))) return false;
-      dacrt = true;
-    }
-  return dacrt;
-}
-
 namespace {
 
 // Throws Error naming `b` when `acc` has no hierarchy (quality none) and b needs one
@@ -85,8 +65,31 @@ void refuse_flat_build(const Backend& b, const Accel& acc) {
 
 }  // namespace
 
-void Backend::prepare(const Accel& acc, const TraceOptions& opt) {
-  check_trace_options(opt, name());
+std::vector<std::pair<Layout, Traversal>> Backend::fastest(Query q) const {
+  // measured on the SIMD cpu backends (docs/library.md, "Defaults"): MBVH8 first, closest hit with
+  // the ordered stack, any hit with the bitstack (as Backend::ray_query's defaults); then the rest,
+  // MBVH4 before MBVH2, the stacks before the bitstacks (the device backends' order), dacrt last
+  if (q == Query::any)
+    return {{Layout::mbvh8, Traversal::bitstack},      {Layout::mbvh8, Traversal::stack},
+            {Layout::mbvh4, Traversal::stack},         {Layout::mbvh4, Traversal::bitstack},
+            {Layout::mbvh8, Traversal::stack_ordered}, {Layout::mbvh4, Traversal::stack_ordered},
+            {Layout::mbvh2, Traversal::stack},         {Layout::mbvh2, Traversal::bitstack},
+            {Layout::mbvh4, Traversal::bitstack_retest}, {Layout::mbvh4, Traversal::dacrt}};
+  return {{Layout::mbvh8, Traversal::stack_ordered}, {Layout::mbvh8, Traversal::stack},
+          {Layout::mbvh4, Traversal::stack_ordered}, {Layout::mbvh4, Traversal::stack},
+          {Layout::mbvh8, Traversal::bitstack},      {Layout::mbvh4, Traversal::bitstack},
+          {Layout::mbvh2, Traversal::stack},         {Layout::mbvh2, Traversal::bitstack},
+          {Layout::mbvh4, Traversal::bitstack_retest}, {Layout::mbvh4, Traversal::dacrt}};
+}
+
+TraceOptions resolve_options(const Backend& b, TraceOptions opt) {
+  if (opt.layout != Layout::automatic && opt.traversal != Traversal::automatic) return opt;
+  return resolve_by(b.fastest(opt.query), [&b](Layout l, Traversal t) { return b.supports(l, t); }, opt, b.name());
+}
+
+void Backend::prepare(const Accel& acc, const TraceOptions& asked) {
+  check_trace_options(asked, name());
+  const TraceOptions opt = resolve_options(*this, asked);
   refuse_flat_build(*this, acc);
   std::lock_guard<std::mutex> lock(mutex_);
   do_prepare(acc, opt);
@@ -127,9 +130,10 @@ void refuse_unsupported(const Backend& b, const TraceOptions& opt) {
 
 }  // namespace
 
-void Backend::trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) {
-  // -- checks, each naming this backend
-  check_trace_options(opt, name());
+void Backend::trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& asked, TraceOutput& out) {
+  // -- checks, each naming this backend; an automatic layout or traversal resolved
+  check_trace_options(asked, name());
+  const TraceOptions opt = resolve_options(*this, asked);
   refuse_unsupported(*this, opt);
   refuse_flat_build(*this, acc);
   check_ray_range(acc, rays, name());
@@ -230,7 +234,12 @@ RayQuery Backend::make_ray_query(const Accel& acc, TraceOptions c, TraceOptions 
   return q;
 }
 
-RayQuery Backend::ray_query(const Accel& acc, const TraceOptions& opt) { return make_ray_query(acc, opt, opt); }
+RayQuery Backend::ray_query(const Accel& acc, const TraceOptions& opt) {
+  TraceOptions c = opt, a = opt;
+  c.query = Query::closest;
+  a.query = Query::any;
+  return make_ray_query(acc, resolve_options(*this, c), resolve_options(*this, a));
+}
 
 RayQuery Backend::ray_query(const Accel& acc) {
   return make_ray_query(acc, default_ray_query_options(Query::closest), default_ray_query_options(Query::any));

@@ -28,8 +28,8 @@ struct RenderOptions {
   std::uint64_t seed = 1;
   bool has_camera = false;  ///< `camera` instead of default_camera
   Camera camera;
-  Layout layout = Layout::mbvh4;
-  Traversal traversal = Traversal::bitstack;
+  Layout layout = Layout::automatic;        ///< automatic: resolved per query by the backend (resolve_options)
+  Traversal traversal = Traversal::automatic;
   unsigned threads = 0;   ///< host shading threads (0 = all)
   Precision precision = Precision::robust;  ///< the backend's accuracy mode
   /// If set (width x height x 3 linear floats), the RMSE of the running mean against it after

@@ -2,6 +2,8 @@
 // variants.cpp — the variant walk of check and bench (variants.h).
 #include "host/tools/variants.h"
 
+#include "mbvh/error.h"
+
 namespace mbvh {
 
 std::map<std::string, std::unique_ptr<Backend>> make_backends(const VariantGrid& grid, const BackendOptions& options) {
@@ -16,24 +18,33 @@ void for_each_variant(const VariantGrid& grid, const std::map<std::string, std::
     for (Precision pr : grid.precisions)
       for (const auto& name : grid.backends) {
         Backend& b = *backends.at(name);
-        const auto run = [&](Layout l, Traversal t) {
+        const auto options = [&](Layout l, Traversal t) {
           TraceOptions o;
           o.layout = l;
           o.traversal = t;
           o.query = q;
           o.precision = pr;
-          fn(name, b, o);
+          return o;
         };
         for (Layout l : grid.layouts)
           for (Traversal t : grid.traversals) {
             if (is_dacrt(t)) continue;  // once below
-            if (!b.supports(l, t) || !b.supports_precision(pr)) continue;  // e.g. bitstack-retest on MBVH2
-            run(l, t);
+            TraceOptions o = options(l, t);
+            if (l == Layout::automatic || t == Traversal::automatic) {  // auto: what the backend traces for it
+              try {
+                o = resolve_options(b, o);
+              } catch (const Error&) {
+                continue;  // no pair fits (a layout the backend lacks)
+              }
+              if (is_dacrt(o.traversal)) continue;  // once below
+            }
+            if (!b.supports(o.layout, o.traversal) || !b.supports_precision(pr)) continue;  // e.g. bitstack-retest on MBVH2
+            fn(name, b, o);
           }
         // dacrt ignores the layout: one variant (on the grid's first layout), whatever the grid's
         // traversals, for a backend that has it
         if (!grid.layouts.empty() && b.supports(grid.layouts.front(), Traversal::dacrt) && b.supports_precision(pr))
-          run(grid.layouts.front(), Traversal::dacrt);
+          fn(name, b, options(grid.layouts.front(), Traversal::dacrt));
       }
 }
 

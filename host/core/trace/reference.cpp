@@ -108,23 +108,69 @@ void check_leaf_block(const TraceOptions& opt, const std::string& who) {
 }
 
 void check_trace_options(const TraceOptions& opt, const std::string& who) {
-  check_enum(opt.layout, who, "TraceOptions::layout");
-  check_enum(opt.traversal, who, "TraceOptions::traversal");
+  check_enum_or_auto(opt.layout, who, "TraceOptions::layout");
+  check_enum_or_auto(opt.traversal, who, "TraceOptions::traversal");
   check_enum(opt.query, who, "TraceOptions::query");
   check_enum(opt.precision, who, "TraceOptions::precision");
   check_leaf_block(opt, who);
 }
 
-// The reference traces opt's pair: one reference_supports, or dacrt (as packet_single_ray's
-// traversal, whose answers dacrt gives up to classified ties); on a build with a hierarchy.
-static void require_supported(const Accel& acc, const TraceOptions& opt) {
+std::vector<std::pair<Layout, Traversal>> reference_fastest(Query q) {
+  // measured (docs/library.md, "Defaults"): the scalar kernels trace MBVH4 fastest, closest hit with
+  // the ordered stack, any hit with the plain stack
+  if (q == Query::any)
+    return {{Layout::mbvh4, Traversal::stack},         {Layout::mbvh8, Traversal::stack},
+            {Layout::mbvh4, Traversal::bitstack},      {Layout::mbvh8, Traversal::bitstack},
+            {Layout::mbvh2, Traversal::stack},         {Layout::mbvh2, Traversal::bitstack},
+            {Layout::mbvh4, Traversal::stack_ordered}, {Layout::mbvh8, Traversal::stack_ordered},
+            {Layout::mbvh4, Traversal::bitstack_retest}};
+  return {{Layout::mbvh4, Traversal::stack_ordered}, {Layout::mbvh8, Traversal::stack_ordered},
+          {Layout::mbvh4, Traversal::stack},         {Layout::mbvh8, Traversal::stack},
+          {Layout::mbvh4, Traversal::bitstack},      {Layout::mbvh8, Traversal::bitstack},
+          {Layout::mbvh2, Traversal::stack},         {Layout::mbvh2, Traversal::bitstack},
+          {Layout::mbvh4, Traversal::bitstack_retest}};
+}
+
+TraceOptions resolve_by(const std::vector<std::pair<Layout, Traversal>>& ranking,
+                        const std::function<bool(Layout, Traversal)>& supports, TraceOptions opt, const std::string& who) {
+  const bool any_layout = opt.layout == Layout::automatic, any_traversal = opt.traversal == Traversal::automatic;
+  if (!any_layout && !any_traversal) return opt;
+  check_trace_options(opt, who);
+  const auto fits = [&](Layout l, Traversal t) {
+    return (any_layout || l == opt.layout) && (any_traversal || t == opt.traversal) && supports(l, t);
+  };
+  for (const auto& [l, t] : ranking)
+    if (fits(l, t)) {
+      opt.layout = l;
+      opt.traversal = t;
+      return opt;
+    }
+  // a pair the ranking leaves out (a traversal named with an automatic layout: dacrt, a packet
+  // traversal): the first layout that has it
+  if (!any_traversal)
+    for (const Layout l : {Layout::mbvh8, Layout::mbvh4, Layout::mbvh2})
+      if (supports(l, opt.traversal)) {
+        opt.layout = l;
+        return opt;
+      }
+  throw Error(who + ": no traversal fits layout " + to_string(opt.layout) + " and traversal " + to_string(opt.traversal) +
+              " (name both, or leave one automatic where this backend has the other)");
+}
+
+// The reference traces opt's pair (an automatic one resolved by reference_fastest): one
+// reference_supports, or dacrt (as packet_single_ray's traversal, whose answers dacrt gives up to
+// classified ties); on a build with a hierarchy. Returns the options it traces.
+static TraceOptions require_supported(const Accel& acc, TraceOptions opt) {
   check_trace_options(opt, "cpu-scalar");
+  opt = resolve_by(reference_fastest(opt.query),
+                   [](Layout l, Traversal t) { return is_dacrt(t) || reference_supports(l, t); }, opt, "cpu-scalar");
   if (!acc.has_hierarchy())
     throw Error("cpu-scalar: this build has no hierarchy (quality none): only the dacrt backend traces it; build with "
                 "quality low, medium or high");
   if (!is_dacrt(opt.traversal) && !reference_supports(opt.layout, opt.traversal))
     throw Error(std::string("traversal '") + to_string(opt.traversal) + "' is not defined for layout " + to_string(opt.layout) +
                 " (bitstack-retest is an MBVH4 traversal; MBVH2 has no ordered stack)");
+  return opt;
 }
 
 template <class K>
@@ -143,9 +189,9 @@ static Hit trace_one_with(const TraceView& v, RayPre& r, const TraceOptions& opt
   return any ? dispatch<true, K>(v, r, opt.layout, opt.traversal, st) : dispatch<false, K>(v, r, opt.layout, opt.traversal, st);
 }
 
-Hit trace_one(const Accel& acc, const Ray& ray, const TraceOptions& opt, RayStats* stats,
+Hit trace_one(const Accel& acc, const Ray& ray, const TraceOptions& asked, RayStats* stats,
               std::vector<std::int32_t>* leaf_log) {
-  require_supported(acc, opt);
+  const TraceOptions opt = require_supported(acc, asked);
   check_ray_range(acc, std::span<const Ray>(&ray, 1), "cpu-scalar");
   RayPre r;
   if (!prepare_ray(ray, r)) return miss_hit();
@@ -154,9 +200,9 @@ Hit trace_one(const Accel& acc, const Ray& ray, const TraceOptions& opt, RayStat
                                           : trace_one_with<ScalarKernels>(v, r, opt, stats, leaf_log);
 }
 
-void trace_reference(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out,
+void trace_reference(const Accel& acc, std::span<const Ray> rays, const TraceOptions& asked, TraceOutput& out,
                      unsigned threads, const std::function<void(std::size_t)>& progress) {
-  require_supported(acc, opt);
+  const TraceOptions opt = require_supported(acc, asked);
   check_ray_range(acc, rays, "cpu-scalar");
   if (opt.precision == Precision::fast) trace_parallel<ScalarKernelsT<true>>(acc, rays, opt, out, threads, progress);
   else trace_parallel<ScalarKernels>(acc, rays, opt, out, threads, progress);

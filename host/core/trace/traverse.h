@@ -33,6 +33,7 @@ inline Hit dispatch(const TraceView& v, const typename K::Ray& r, Layout l, Trav
       case Traversal::bitstack_retest: return miss_hit();
       case Traversal::packet_ranged: case Traversal::packet_partition: case Traversal::packet: case Traversal::dacrt:
         break;  // mapped above
+      case Traversal::automatic: break;  // resolved at the entry points (resolve_options)
     }
     return miss_hit();
   }
@@ -43,6 +44,7 @@ inline Hit dispatch(const TraceView& v, const typename K::Ray& r, Layout l, Trav
     case Traversal::bitstack_retest: return trace_mbvh4_bitstack_retest<Any, St, K>(v, r, st);
     case Traversal::packet_ranged: case Traversal::packet_partition: case Traversal::packet: case Traversal::dacrt:
       break;  // mapped above
+    case Traversal::automatic: break;  // resolved at the entry points (resolve_options)
   }
   return miss_hit();
 }

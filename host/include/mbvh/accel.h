@@ -56,7 +56,9 @@ struct TriPacks;
 struct LeafVariant;
 
 
-enum class Layout { mbvh2, mbvh4, mbvh8 };
+/// The node layouts; automatic ("auto"): the layout the backend traces fastest for the query
+/// (TraceOptions, resolve_options in backend.h), resolved before anything is built or traced.
+enum class Layout { mbvh2, mbvh4, mbvh8, automatic };
 const char* to_string(Layout l);
 Layout parse_layout(const std::string& s);  ///< throws Error on an unknown name
 

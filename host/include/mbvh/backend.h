@@ -11,6 +11,7 @@
 #include <mutex>
 #include <span>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "mbvh/accel.h"
@@ -189,6 +190,13 @@ public:
   /// the build's own leaves (1) whatever is asked. Compare a backend with the reference at this
   /// value (with_leaves_of).
   virtual unsigned leaf_block(const TraceOptions&) const { return 1; }
+  /// The layout / traversal pairs this backend traces, fastest first for query `q`, measured per
+  /// backend and ISA (docs/library.md, "Defaults"): what Layout::automatic and Traversal::automatic
+  /// resolve to (resolve_options takes the first pair that fits what the options fix). Exact
+  /// traversals only, no packet traversal (they pay off on coherent batches alone: ask for them).
+  /// The default: the SIMD cpu backends' order (MBVH8 ordered stack for closest hit, MBVH8 bitstack
+  /// for any hit, then the rest), of which resolve_options skips the pairs this backend lacks.
+  virtual std::vector<std::pair<Layout, Traversal>> fastest(Query q) const;
   /// Bytes of traversal state per ray for these options (TRAVERSAL.md §5).
   virtual std::size_t state_bytes(const TraceOptions& opt) const { return state_bytes_per_ray(opt.layout, opt.traversal); }
 
@@ -223,9 +231,19 @@ private:
 /// block.
 TraceOptions default_ray_query_options(Query q);
 
-/// `opt` with leaf_block set to what `b` traces for it: the options the reference (cpu-scalar,
-/// trace_reference) must trace to give `b`'s answers bit for bit.
+/// `opt` with its automatic layout and traversal (TraceOptions' defaults) replaced by what `b`
+/// traces fastest for opt.query: the first pair of b.fastest(opt.query) that b supports and that
+/// keeps whichever of the two `opt` names (a named layout with an automatic traversal: the fastest
+/// traversal b has on that layout; a named traversal with an automatic layout: the fastest layout
+/// b has it on). Unchanged when both are named. Throws Error naming `b` when no pair fits (a
+/// layout on which b has no traversal). Backend::trace, prepare and ray_query call it first; call
+/// it to learn what they trace (reports, comparisons with the reference).
+TraceOptions resolve_options(const Backend& b, TraceOptions opt);
+
+/// `opt` resolved for `b` (resolve_options) with leaf_block set to what `b` traces for it: the
+/// options the reference (cpu-scalar, trace_reference) must trace to give `b`'s answers bit for bit.
 inline TraceOptions with_leaves_of(const Backend& b, TraceOptions opt) {
+  opt = resolve_options(b, opt);
   opt.leaf_block = b.leaf_block(opt);
   return opt;
 }
@@ -270,16 +288,6 @@ std::vector<std::string> runnable_backends(std::vector<std::string>* left_out = 
 /// BackendInfo::needs_hierarchy of the registered backend `name` (false if the backend an alias
 /// stands for has it false); true for a name not registered.
 bool backend_needs_hierarchy(const std::string& name);
-/// The layout a caller that names none traces with traversal `t` on `b`: MBVH4, or MBVH2 where
-/// `b` has no MBVH4 traversal of that kind (vulkan). The CLI's and the bindings' default.
-Layout default_layout(const Backend& b, Traversal t);
-/// Whether dacrt is the only traversal `b` has (on any layout): a caller that names no traversal
-/// then traces dacrt (the CLI's and the bindings' default), else bitstack.
-bool only_dacrt(const Backend& b);
-/// The traversal a caller that names none traces on `b`: dacrt where that is b's only traversal
-/// (only_dacrt), else bitstack (the stackless traversal of Afra & Szirmay-Kalos) where b has it on
-/// default_layout(b, bitstack), else stack (the embree peer). The CLI's and the bindings' default.
-Traversal default_traversal(const Backend& b);
 /// Makes a backend by name; throws Error naming the known backends, or saying why a known
 /// backend is not built or cannot start, or naming a setting of `opt` that no backend of its
 /// family declares (BackendOptions).

@@ -23,5 +23,6 @@
 #include "mbvh/log.h"
 #include "mbvh/rays.h"
 #include "mbvh/scene.h"
+#include "mbvh/tasks.h"
 #include "mbvh/trace.h"
 #include "mbvh/version.h"

@@ -87,15 +87,15 @@ typedef enum mbvh_status {
 
 /* -- trace options (the values of the C++ API's Layout, Traversal, Query, Precision) */
 typedef enum mbvh_layout {
-  MBVH_LAYOUT_DEFAULT = 0, /* what `mbvh trace` picks: MBVH4, or MBVH2 where the backend has no MBVH4 traversal of that kind (vulkan) */
+  MBVH_LAYOUT_DEFAULT = 0, /* what `mbvh trace` picks: the layout the backend traces fastest (with the traversal, if named) */
   MBVH_LAYOUT_MBVH2 = 2,
   MBVH_LAYOUT_MBVH4 = 4,
   MBVH_LAYOUT_MBVH8 = 8
 } mbvh_layout;
 
 typedef enum mbvh_traversal {
-  MBVH_TRAVERSAL_DEFAULT = 0, /* what `mbvh trace` picks: dacrt on a backend that has only it (dacrt, dacrt-scalar), else
-                                 bitstack where the backend has it, else stack (embree) */
+  MBVH_TRAVERSAL_DEFAULT = 0, /* what `mbvh trace` picks: the backend's fastest exact traversal for the query (on the
+                                 layout, if named): docs/library.md, "Defaults"; mbvh_backend_resolve says which */
   MBVH_TRAVERSAL_STACK = 1,
   MBVH_TRAVERSAL_BITSTACK = 2,        /* the stackless bitstack traversal (Afra & Szirmay-Kalos 2014) */
   MBVH_TRAVERSAL_STACK_ORDERED = 3,   /* MBVH4 and MBVH8 */
@@ -273,7 +273,7 @@ MBVH_C_API mbvh_status mbvh_backend_runs_as(const mbvh_backend* backend, const c
 /* 1 for a peer library (embree): its own BVH, so its answers agree with mbvh's up to ties (the
  * same distance on another triangle, a hit on a shared edge), not bit for bit. */
 MBVH_C_API mbvh_status mbvh_backend_is_peer(const mbvh_backend* backend, int* peer);
-/* Whether it traces this layout and traversal (DEFAULT values resolved as mbvh_trace does). */
+/* Whether it traces this layout and traversal (DEFAULT values resolved as a closest-hit mbvh_trace does). */
 MBVH_C_API mbvh_status mbvh_backend_supports(const mbvh_backend* backend, mbvh_layout layout, mbvh_traversal traversal,
                                              int* supported);
 /* Replaces the DEFAULT layout and traversal and a leaf_block of 0 in `options` by what mbvh_trace

@@ -9,6 +9,7 @@
 #include <new>
 #include <span>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "mbvh/accel.h"
@@ -51,7 +52,11 @@ enum class Query { closest, any };
 /// packet_single_ray's traversal's up to the same classified ties; the reference traces it as that
 /// traversal, ray by ray, on a build with a hierarchy (reference_supports is still false for it:
 /// cpu-scalar and the SIMD cpu backends do not list it).
-enum class Traversal { stack, bitstack, stack_ordered, bitstack_retest, packet_ranged, packet_partition, packet, dacrt };
+/// automatic ("auto"): the backend's fastest exact traversal for the query (on the layout asked, or
+/// with the layout it traces fastest when that is automatic too): Backend::fastest's ranking,
+/// measured per backend and ISA (docs/library.md, "Defaults"), resolved by resolve_options before
+/// anything is prepared or traced. The default of TraceOptions.
+enum class Traversal { stack, bitstack, stack_ordered, bitstack_retest, packet_ranged, packet_partition, packet, dacrt, automatic };
 /// Whether `t` traces packets of rays (the cpu backend's packet traversals).
 inline bool is_packet(Traversal t) {
   return t == Traversal::packet_ranged || t == Traversal::packet_partition || t == Traversal::packet;
@@ -88,9 +93,12 @@ const char* to_string(Traversal t);
 Query parse_query(const std::string& s);          ///< throws Error on an unknown name
 Traversal parse_traversal(const std::string& s);  ///< throws Error on an unknown name
 
+/// What to trace. The defaults trace the backend's fastest exact traversal for the query
+/// (Layout::automatic, Traversal::automatic; resolve_options says which): set layout and traversal
+/// to trace a given one, e.g. MBVH4 bitstack, the stackless traversal of Áfra & Szirmay-Kalos.
 struct TraceOptions {
-  Layout layout = Layout::mbvh4;
-  Traversal traversal = Traversal::bitstack;
+  Layout layout = Layout::automatic;
+  Traversal traversal = Traversal::automatic;
   Query query = Query::closest;
   bool stats = false;  ///< fill TraceOutput::stats (costs time; off compiles counters away)
   Precision precision = Precision::robust;  ///< accuracy mode
@@ -112,6 +120,16 @@ void check_leaf_block(const TraceOptions& opt, const std::string& who);
 /// its leaf block is out of range (check_leaf_block). Backend::prepare and Backend::trace, the
 /// reference's trace and the library's other entry points taking TraceOptions call it first.
 void check_trace_options(const TraceOptions& opt, const std::string& who);
+
+/// The reference's (cpu-scalar's) layout / traversal pairs, fastest first for query `q` (measured:
+/// docs/library.md, "Defaults"): what the reference's entry points (trace_reference, trace_one)
+/// resolve an automatic layout or traversal to, as Backend::fastest does for a backend.
+std::vector<std::pair<Layout, Traversal>> reference_fastest(Query q);
+/// `opt` with its automatic layout and traversal resolved by `ranking` (the first pair that keeps
+/// what `opt` names and that `supports` holds for); unchanged when both are named. Throws Error
+/// naming `who` when no pair fits. Backend's resolve_options and the reference's entry points use it.
+TraceOptions resolve_by(const std::vector<std::pair<Layout, Traversal>>& ranking,
+                        const std::function<bool(Layout, Traversal)>& supports, TraceOptions opt, const std::string& who);
 
 /// Throws Error naming the trace results of `n` rays (hits or occlusion flags, statistics if
 /// asked) and their bytes: what a std::bad_alloc sizing a TraceOutput becomes.
