@@ -164,7 +164,7 @@ int main(int argc, char** argv) try {
           // -- answers: every ray against the flattened BVH, a sample against the double brute force
           if (q == Query::closest) {
             const Comparison c = compare_flattened(s, flat, rays, out.hits, fh);
-            const std::size_t sample = std::min<std::size_t>(rays.size(), 2000);
+            const std::size_t sample = std::min<std::size_t>(rays.size(), 200);
             std::vector<Hit> brute(sample);
             const std::size_t stride = rays.size() / sample;
             std::vector<Ray> srays(sample);
