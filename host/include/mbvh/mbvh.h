@@ -20,6 +20,7 @@
 #include "mbvh/config.h"
 #include "mbvh/error.h"
 #include "mbvh/geometry.h"
+#include "mbvh/instance.h"
 #include "mbvh/log.h"
 #include "mbvh/rays.h"
 #include "mbvh/scene.h"
