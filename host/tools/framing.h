@@ -36,7 +36,7 @@ using ClosestHits = std::function<void(const std::vector<Ray>&, std::vector<Hit>
 ///    at least a third of the way to the far side; else the freest of them); it looks level at
 ///    the far side, fov 60 degrees.
 /// 3. Otherwise: default_camera(b), outside.
-/// Deterministic: 1,536 + up to 45 rays, the same on every backend whose hit distances agree
+/// Deterministic: 1,536 + up to 54 rays, the same on every backend whose hit distances agree
 /// (all of mbvh's). Requires a non-empty box.
 Framing frame_scene(const Box& b, const ClosestHits& trace);
 
