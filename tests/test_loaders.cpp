@@ -12,6 +12,7 @@
 #include "host/core/layouts.h"
 #include "host/core/trace/traverse.h"
 #include "mbvh/error.h"
+#include "mbvh/log.h"
 #include "host/tools/render.h"
 #include "host/core/resources.h"
 #include "mbvh/scene.h"
@@ -369,4 +370,82 @@ TEST_CASE("generated scenes: closed sphere and cube exact counts clear errors", 
   CHECK_THAT(error_of([] { load_scene("gen:teapot:3"); }), Catch::Contains("unknown generator 'teapot'"));
   CHECK_THAT(error_of([] { load_scene("gen:sphere:abc"); }), Catch::Contains("'abc'"));
   CHECK_THAT(error_of([] { load_scene("gen:sphere:1"); }), Catch::Contains("must be an integer in"));
+}
+
+namespace {
+
+// A zstd frame holding `content` (at most 255 bytes) in one raw block.
+std::string zstd_raw(const std::string& content) {
+  REQUIRE(content.size() <= 255);
+  std::string f = "\x28\xb5\x2f\xfd";
+  f += '\x20';                                    // single segment, a 1-byte content size
+  f += static_cast<char>(content.size());
+  const std::uint32_t header = (static_cast<std::uint32_t>(content.size()) << 3) | 1u;  // size, raw, last
+  return f + std::string(reinterpret_cast<const char*>(&header), 3) + content;
+}
+
+// Collects the library's log messages for one scope.
+struct LogCapture {
+  std::vector<std::string> lines;
+  LogCallback before;
+  LogCapture() : before(set_log_callback([this](LogLevel, const std::string& m) { lines.push_back(m); })) {}
+  ~LogCapture() { set_log_callback(before); }
+  std::string all() const {
+    std::string s;
+    for (const auto& l : lines) s += l + "\n";
+    return s;
+  }
+};
+
+}  // namespace
+
+TEST_CASE("OBJ: usemtl gives triangles materials, mtllib's Kd their colours; missing or bad MTLs warn", "[loader][obj]") {
+  TempDir dir;
+  const std::string faces = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3\nusemtl red\nf 1 2 3 4\nusemtl  blue green \nf 1 3 4\nusemtl red\nf 2 3 4\n";
+  SECTION("in-memory parse: names, per-triangle indices, grey, no file read") {
+    const Scene s = obj("mtllib nowhere.mtl\n" + faces);
+    REQUIRE(s.materials.size() == 2);
+    CHECK(s.materials[0].name == "red");
+    CHECK(s.materials[1].name == "blue green");
+    CHECK(s.materials[1].diffuse.x == 0.7f);
+    CHECK(s.triangle_materials == std::vector<std::uint32_t>{kNoMaterial, 0, 0, 1, 0});
+    CHECK(obj("v 0 0 0\nv 1 0 0\nv 1 1 0\nf 1 2 3\n").triangle_materials.empty());
+  }
+  SECTION("the MTL beside the OBJ, the OBJ plain and zstd-compressed, the MTL compressed too") {
+    dir.write("m.mtl", "# colours\nnewmtl red\nKa 0 0 0\nKd 0.9 0.1 0.2\r\nnewmtl blue green\nKd 0.25\nnewmtl unused\nKd 1 1 1\n");
+    for (const std::string& name : {std::string("a.obj"), std::string("a.obj.zst")}) {
+      const std::string text = "mtllib m.mtl\n" + faces;
+      LogCapture log;
+      const Scene s = load_scene(dir.write(name, name == "a.obj" ? text : zstd_raw(text)));
+      INFO(name << "\n" << log.all());
+      CHECK(log.lines.empty());
+      REQUIRE(s.materials.size() == 2);
+      CHECK((s.materials[0].diffuse.x == 0.9f && s.materials[0].diffuse.y == 0.1f && s.materials[0].diffuse.z == 0.2f));
+      CHECK((s.materials[1].diffuse.x == 0.25f && s.materials[1].diffuse.z == 0.25f));  // one value: grey
+    }
+    dir.write("z.mtl.zst", zstd_raw("newmtl red\nKd 0 0 1\n"));
+    LogCapture log;
+    const Scene s = load_scene(dir.write("z.obj", "mtllib z.mtl\n" + faces));
+    CHECK(s.materials[0].diffuse.z == 1.0f);
+    CHECK_THAT(log.all(), Catch::Contains("1 of 2 materials are in no material library") && Catch::Contains("'blue green'"));
+  }
+  SECTION("a missing MTL, a bad Kd and no mtllib warn, and the scene still loads grey") {
+    LogCapture log;
+    const Scene s = load_scene(dir.write("b.obj", "mtllib nowhere.mtl\n" + faces));
+    REQUIRE(log.lines.size() == 1);
+    CHECK_THAT(log.lines[0], Catch::Contains("b.obj:1") && Catch::Contains("'nowhere.mtl' not found") && Catch::Contains("grey"));
+    CHECK(s.materials[0].diffuse.x == 0.7f);
+    CHECK(s.triangles.size() == 5);
+    dir.write("bad.mtl", "newmtl red\nKd 0.5 nan 0.5\nKd spectral x.spd\nnewmtl blue green\nKd 2 0.5 -0\n");
+    log.lines.clear();
+    const Scene t = load_scene(dir.write("c.obj", "mtllib bad.mtl\n" + faces));
+    REQUIRE(log.lines.size() == 1);
+    CHECK_THAT(log.lines[0], Catch::Contains("bad.mtl:2") && Catch::Contains("0.5 nan 0.5") && Catch::Contains("(and 1 more)"));
+    CHECK(t.materials[0].diffuse.y == 0.7f);
+    CHECK((t.materials[1].diffuse.x == 1.0f && t.materials[1].diffuse.y == 0.5f && t.materials[1].diffuse.z == 0.0f));  // clamped to [0, 1]
+    log.lines.clear();
+    load_scene(dir.write("d.obj", faces));
+    REQUIRE(log.lines.size() == 1);
+    CHECK_THAT(log.lines[0], Catch::Contains("names no mtllib"));
+  }
 }

@@ -6,6 +6,7 @@
 #include <catch2/catch.hpp>
 #include <zlib.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <fstream>
@@ -14,6 +15,7 @@
 #include "host/core/layouts.h"
 #include "host/core/trace/traverse.h"
 #include "mbvh/error.h"
+#include "mbvh/log.h"
 #include "host/tools/render.h"
 #include "tests/backends.h"
 #include "tests/helpers.h"
@@ -102,6 +104,7 @@ TEST_CASE("render: the same seed gives the same image on every backend and threa
       own.traversal = mbvh_test::own_traversal(*b, TraceOptions{o.layout, o.traversal}).traversal;
       const RenderResult got = render(s, *acc, *b, own);
       CHECK(got.rays == ref.rays);
+      CHECK(camera_argument(got.camera) == camera_argument(ref.camera));  // the default camera: the same probes' answers
       CHECK(std::memcmp(got.rgb.data(), ref.rgb.data(), ref.rgb.size() * sizeof(float)) == 0);
     }
     for (unsigned threads : {1u, 3u}) {
@@ -201,4 +204,120 @@ TEST_CASE("render: bad requests are clear errors", "[render]") {
   r = mbvh_test::run_cli("render gen:cube:4 --width 16 --height 16 --spp 1 -o " + dir.file("no/such/dir/x.png"));
   CHECK(r.code != 0);
   CHECK_THAT(r.output, Catch::Contains("no/such/dir/x.png"));
+}
+
+namespace {
+
+// The spread of an image's pixel values (max - min over every channel).
+float spread(const std::vector<float>& rgb) {
+  const auto [lo, hi] = std::minmax_element(rgb.begin(), rgb.end());
+  return *hi - *lo;
+}
+
+bool inside(const Box& b, const Vec3f& p) {
+  return p.x > b.lo.x && p.x < b.hi.x && p.y > b.lo.y && p.y < b.hi.y && p.z > b.lo.z && p.z < b.hi.z;
+}
+
+}  // namespace
+
+TEST_CASE("render: without a camera, an enclosed scene is framed from inside, an object from outside", "[render]") {
+  auto cpu = make_backend("cpu");
+  SECTION("a closed box: from inside, and the image is not one grey") {
+    const Scene s = load_scene("gen:cube:4");
+    const auto acc = Accel::build(s);
+    const RenderResult r = render(s, *acc, *cpu, small(RenderMode::path));
+    INFO(r.camera_rule);
+    CHECK_THAT(r.camera_rule, Catch::StartsWith("inside") && Catch::Contains("walled on 6 of its 6 sides"));
+    CHECK(inside(acc->bounds(), r.camera.eye));
+    CHECK(spread(r.rgb) > 0.1f);
+    // every primary ray of an inside view hits a wall: the normals image has no black (sky) pixel
+    const RenderResult n = render(s, *acc, *cpu, small(RenderMode::normals));
+    for (std::size_t p = 0; p < n.rgb.size(); p += 3) CHECK(n.rgb[p] + n.rgb[p + 1] + n.rgb[p + 2] > 0);
+  }
+  SECTION("an open box (a Cornell box without its front): from inside, looking in through the opening") {
+    // gen:cube's walls with the +z side cut away: the triangles whose vertices all have z = max
+    Scene s = load_scene("gen:cube:4");
+    const Box b = s.bounds();
+    std::erase_if(s.triangles, [&](const auto& t) {
+      return s.vertices[t[0]].z == b.hi.z && s.vertices[t[1]].z == b.hi.z && s.vertices[t[2]].z == b.hi.z;
+    });
+    const auto acc = Accel::build(s);
+    const RenderResult r = render(s, *acc, *cpu, small(RenderMode::path));
+    INFO(r.camera_rule);
+    CHECK_THAT(r.camera_rule, Catch::StartsWith("inside") && Catch::Contains("open: +z") && Catch::Contains("through its open +z side"));
+    CHECK(r.camera.eye.z == b.hi.z);  // in the opening
+    CHECK(r.camera.target.z == b.lo.z);  // looking at the back wall
+    CHECK((r.camera.eye.x == r.camera.target.x && r.camera.eye.y == r.camera.target.y));
+  }
+  SECTION("single objects: from outside, default_camera as before") {
+    for (const std::string& spec : {std::string("gen:sphere:32"), std::string("gen:torus:32"), mbvh_test::scene_path("bun_zipper.ply.zst")}) {
+      const Scene s = load_scene(spec);
+      const auto acc = Accel::build(s);
+      const RenderResult r = render(s, *acc, *cpu, small(RenderMode::normals));
+      INFO(spec << ": " << r.camera_rule);
+      CHECK_THAT(r.camera_rule, Catch::StartsWith("outside"));
+      CHECK(camera_argument(r.camera) == camera_argument(default_camera(acc->bounds())));
+    }
+  }
+  SECTION("the program says which camera it chose, and that --camera renders the same image") {
+    mbvh_test::TempDir dir;
+    auto r = mbvh_test::run_cli("render gen:cube:4 --width 24 --height 16 --spp 1 -o " + dir.file("a.png"));
+    INFO(r.output);
+    REQUIRE(r.code == 0);
+    const std::size_t at = r.output.find("--camera ");
+    REQUIRE(at != std::string::npos);
+    CHECK_THAT(r.output, Catch::Contains("camera: inside"));
+    const std::string camera = r.output.substr(at + 9, r.output.find('\n', at) - at - 9);
+    auto again = mbvh_test::run_cli("render gen:cube:4 --width 24 --height 16 --spp 1 --camera " + camera + " -o " + dir.file("b.png"));
+    INFO(again.output);
+    REQUIRE(again.code == 0);
+    CHECK_THAT(again.output, !Catch::Contains("camera: "));
+    std::ifstream a(dir.file("a.png"), std::ios::binary), b(dir.file("b.png"), std::ios::binary);
+    CHECK(std::string(std::istreambuf_iterator<char>(a), {}) == std::string(std::istreambuf_iterator<char>(b), {}));
+  }
+}
+
+TEST_CASE("render: the MTL's diffuse colours are the surfaces' albedos; a missing MTL still renders", "[render]") {
+  // two unit quads side by side in z = 0, red on the left, blue on the right, seen head-on
+  mbvh_test::TempDir dir;
+  dir.write("two.mtl", "newmtl red\nKd 0.9 0.1 0.1\nnewmtl blue\nKd 0.1 0.2 0.8\n");
+  // (a speck behind the camera gives the box depth: the point light, near the box's top centre, in front of the quads)
+  const std::string quads = "v -1 -1 0\nv 0 -1 0\nv 0 1 0\nv -1 1 0\nv 1 -1 0\nv 1 1 0\nv 0 0 2\nv 0.01 0 2\nv 0 0.01 2\n"
+                            "usemtl red\nf 1 2 3 4\nusemtl blue\nf 2 5 6 3\nf 7 8 9\n";
+  RenderOptions o = small(RenderMode::path);
+  o.bounces = 0;  // direct light only: a pixel is albedo x (light x cosine / distance^2), per channel
+  o.has_camera = true;
+  o.camera.eye = {0, 0, 1.2f};
+  o.camera.target = {0, 0, 0};
+  auto cpu = make_backend("cpu");
+  const Scene s = load_scene(dir.write("two.obj", "mtllib two.mtl\n" + quads));
+  const auto acc = Accel::build(s);
+  const RenderResult r = render(s, *acc, *cpu, o);
+  const auto px = [&](unsigned x, unsigned y) { return &r.rgb[(std::size_t(y) * r.width + x) * 3]; };
+  const float* left = px(8, 15);
+  const float* right = px(31, 15);
+  INFO(left[0] << " " << left[1] << " " << left[2] << " / " << right[0] << " " << right[1] << " " << right[2]);
+  REQUIRE(left[0] > 0.05f);
+  REQUIRE(right[2] > 0.05f);
+  CHECK(left[0] / left[1] == Approx(9.0f).epsilon(1e-4));
+  CHECK(left[1] == Approx(left[2]).epsilon(1e-5));
+  CHECK(right[2] / right[0] == Approx(8.0f).epsilon(1e-4));
+  CHECK(right[1] / right[0] == Approx(2.0f).epsilon(1e-4));
+  // without the MTL: a warning, and the same surfaces in the renderer's grey
+  std::vector<std::string> log;
+  const LogCallback before = set_log_callback([&log](LogLevel, const std::string& m) { log.push_back(m); });
+  const Scene g = load_scene(dir.write("grey.obj", "mtllib missing.mtl\n" + quads));
+  set_log_callback(before);
+  REQUIRE(log.size() == 1);
+  CHECK_THAT(log[0], Catch::Contains("missing.mtl"));
+  const auto gacc = Accel::build(g);
+  const RenderResult gr = render(g, *gacc, *cpu, o);
+  const float* grey = &gr.rgb[(std::size_t(15) * gr.width + 8) * 3];
+  CHECK((grey[0] > 0.05f && grey[0] == grey[1] && grey[1] == grey[2]));
+  CHECK(grey[0] / left[0] == Approx(0.7f / 0.9f).epsilon(1e-4));
+  // the program: the warning on standard error, the image written
+  auto run = mbvh_test::run_cli("render " + dir.file("grey.obj") + " --width 16 --height 16 --spp 1 -o " + dir.file("g.png"));
+  INFO(run.output);
+  CHECK(run.code == 0);
+  CHECK_THAT(run.output, Catch::Contains("'missing.mtl' not found") && Catch::Contains("wrote"));
 }

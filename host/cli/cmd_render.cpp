@@ -1,6 +1,7 @@
 // SPDX-License-Identifier: MIT
 // cmd_render.cpp — `mbvh render`: render an image on a backend (host/tools/render.h): 8-bounce
-// diffuse path tracing, AO or normals; a PNG, optionally the linear PFM and an error curve.
+// diffuse path tracing, AO or normals; a PNG, optionally the linear PFM and an error curve. Without
+// --camera it reports the camera frame_scene chose, as a --camera argument.
 #include <nlohmann/json.hpp>
 
 #include "host/cli/commands.h"
@@ -84,6 +85,8 @@ int run_render(const RenderArgs& a) {
   Progress p("rendering", o.spp);
   const RenderResult res = render(l.scene, *l.acc, *backend, o, [&p](unsigned d, unsigned) { p.update(d); });
   p.finish();
+  if (!res.camera_rule.empty())  // the default camera: what it is, so a user can reuse or vary it
+    say("camera: %s\n  --camera %s\n", res.camera_rule.c_str(), camera_argument(res.camera).c_str());
   // -- all outputs or none: the PNG is not left behind when the PFM or the curve cannot be written
   const std::vector<std::uint8_t> png = png_bytes(a.out, res.width, res.height, to_srgb8(res.rgb));
   std::vector<OutputWrite> writes{{outs[0], png.data(), png.size()}};

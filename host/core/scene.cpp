@@ -11,6 +11,7 @@
 
 #include "mbvh/error.h"
 #include "host/core/io/input.h"
+#include "host/core/io/mtl.h"
 #include "host/core/io/obj.h"
 #include "host/core/layouts.h"  // hash_bytes
 #include "host/core/resources.h"
@@ -186,7 +187,10 @@ Scene load_scene(const std::string& path) try {
       return true;
     });
     if (!parser && !ply) decide();  // a file shorter than 6 bytes
-    if (!ply) s = parser->finish();
+    if (!ply) {
+      s = parser->finish();
+      read_materials(s, path, parser->material_libraries());
+    }
   }
   if (ply) {
     std::vector<char> data = read_file(path);

@@ -63,11 +63,16 @@ Rng path_rng(std::uint64_t seed, std::size_t pixel, unsigned sample) {
 
 struct Surface {
   Vec3f a, b, c, n, p;  ///< triangle, normal facing the incoming ray, hit point
+  Rgb albedo;           ///< its material's diffuse colour, or grey
 };
 
 Surface surface(const Scene& s, const Ray& ray, const Hit& h) {
   Surface f;
   tri_vertices(s, h.prim, f.a, f.b, f.c);
+  f.albedo = Rgb{kAlbedo, kAlbedo, kAlbedo};
+  if (s.triangle_materials.size() == s.triangle_count())
+    if (const std::uint32_t m = s.triangle_materials[h.prim]; m < s.materials.size())
+      f.albedo = Rgb{s.materials[m].diffuse.x, s.materials[m].diffuse.y, s.materials[m].diffuse.z};
   f.n = facing_normal(f.a, f.b, f.c, Vec3f{ray.dx, ray.dy, ray.dz});
   const float b0 = 1.0f - h.u - h.v;
   for (int k = 0; k < 3; ++k) f.p[k] = b0 * f.a[k] + h.u * f.b[k] + h.v * f.c[k];
@@ -87,7 +92,17 @@ public:
     if (!backend.supports(opt.layout, opt.traversal))
       throw Error("render: backend '" + backend.name() + "' has no " + to_string(opt.layout) + "/" +
                   to_string(opt.traversal) + " traversal");
-    cam_ = opt.has_camera ? opt.camera : default_camera(acc.bounds());
+    if (opt.has_camera) cam_ = opt.camera;
+    else {
+      const Framing f = frame_scene(acc.bounds(), [this](const std::vector<Ray>& rays, std::vector<Hit>& hits) {
+        TraceOutput out;
+        backend_.trace(acc_, rays, TraceOptions{opt_.layout, opt_.traversal, Query::closest, false, opt_.precision}, out);
+        hits = std::move(out.hits);
+      });
+      cam_ = f.camera;
+      res_.camera_rule = f.rule;
+    }
+    res_.camera = cam_;
     if (const std::string p = camera_problem(cam_); !p.empty()) throw Error("render: camera: " + p);
     light_ = default_light(acc.bounds());
     const Vec3f e = acc.bounds().extent();
@@ -227,13 +242,14 @@ private:
         const float cosl = (to.x * f.n.x + to.y * f.n.y + to.z * f.n.z) / d;
         if (cosl > 0 && d > 0) {
           shadow[i] = spawn_ray(f.a, f.b, f.c, h.u, h.v, Vec3f{to.x / d, to.y / d, to.z / d}, d);
-          const float k = kAlbedo / std::numbers::pi_v<float> * light_power_ * cosl / d2;
-          direct[i] = Rgb{p.thr.r * k, p.thr.g * k, p.thr.b * k};
+          // per channel, the products in the order of the grey renderer's (the same grey images, bit for bit)
+          const auto lambert = [&](float albedo) { return albedo / std::numbers::pi_v<float> * light_power_ * cosl / d2; };
+          direct[i] = Rgb{p.thr.r * lambert(f.albedo.r), p.thr.g * lambert(f.albedo.g), p.thr.b * lambert(f.albedo.b)};
           lit[i] = 1;
         }
         // the next bounce: cosine-weighted, throughput times the albedo (Lambertian)
         next[i] = spawn_ray(f.a, f.b, f.c, h.u, h.v, cosine_direction(f.n, r1, r2), INFINITY);
-        p.thr = Rgb{p.thr.r * kAlbedo, p.thr.g * kAlbedo, p.thr.b * kAlbedo};
+        p.thr = Rgb{p.thr.r * f.albedo.r, p.thr.g * f.albedo.g, p.thr.b * f.albedo.b};
         alive[i] = 1;
       });
       // -- the shadow / AO rays, compacted (in path order), traced as one any-hit batch
@@ -287,8 +303,9 @@ std::vector<Ray> path_tracer_rays(const Scene& scene, const Accel& acc, std::siz
   o.spp = 1;
   o.threads = threads;
   o.capture = &rays;
-  o.has_camera = camera != nullptr;
-  if (camera) o.camera = *camera;
+  // the benchmark's rays keep the outside framing they were recorded with (not frame_scene's)
+  o.has_camera = true;
+  o.camera = camera ? *camera : default_camera(acc.bounds());
   for (std::uint64_t pass = 0; rays.size() < std::max<std::size_t>(count, 1); ++pass) {
     o.seed = seed + pass;
     render(scene, acc, *tracer, o);

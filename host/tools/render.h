@@ -10,6 +10,7 @@
 
 #include "mbvh/accel.h"
 #include "mbvh/backend.h"
+#include "host/tools/framing.h"
 #include "host/tools/image.h"
 #include "host/tools/raygen.h"
 #include "mbvh/scene.h"
@@ -26,7 +27,7 @@ struct RenderOptions {
   unsigned bounces = 8;   ///< path mode: diffuse bounces after the primary hit
   RenderMode mode = RenderMode::path;
   std::uint64_t seed = 1;
-  bool has_camera = false;  ///< `camera` instead of default_camera
+  bool has_camera = false;  ///< `camera` instead of the scene's framing (framing.h frame_scene)
   Camera camera;
   Layout layout = Layout::automatic;        ///< automatic: resolved per query by the backend (resolve_options)
   Traversal traversal = Traversal::automatic;
@@ -54,10 +55,14 @@ struct RenderResult {
   double trace_seconds = 0;        ///< time inside Backend::trace
   double total_seconds = 0;        ///< the whole render, shading and ray generation included
   std::vector<CurvePoint> curve;   ///< with RenderOptions::reference: one point per sample pass
+  Camera camera;                   ///< the camera rendered from: the given one or the scene's framing
+  std::string camera_rule;         ///< without a given camera: how frame_scene chose it (Framing::rule)
   double mrays_per_s() const { return trace_seconds > 0 ? static_cast<double>(rays) / trace_seconds * 1e-6 : 0; }
 };
 
-/// Renders `scene` (built as `acc`) on `backend`. Lambertian surfaces (albedo 0.7), a point light
+/// Renders `scene` (built as `acc`) on `backend`, from opt.camera or, without one, the camera
+/// frame_scene picks (its probe rays traced on `backend`, not counted in RenderResult::rays).
+/// Lambertian surfaces (albedo: the triangle's material's diffuse colour, else grey 0.7), a point light
 /// at default_light with shadow rays (any hit) and a sky for rays that leave the scene. Every
 /// random number depends only on (seed, pixel, sample, bounce), and every pixel's samples are
 /// summed in sample order, so the same seed gives the same image on every backend whose answers

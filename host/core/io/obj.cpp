@@ -1,6 +1,8 @@
 // SPDX-License-Identifier: MIT
-// obj.cpp — a fast Wavefront OBJ reader: v and f lines only (vt/vn/groups/materials ignored),
-// all four face-index forms, negative indices, fan triangulation (0, k, k+1).
+// obj.cpp — a fast Wavefront OBJ reader: v, f, usemtl and mtllib lines (vt/vn/groups ignored),
+// all four face-index forms, negative indices, fan triangulation (0, k, k+1). `usemtl` gives the
+// triangles after it a material (Scene::triangle_materials); `mtllib` names are kept for
+// load_scene, which reads their colours (mtl.cpp).
 // It never drops or shifts geometry silently: a UTF-8 byte-order mark at the start is skipped,
 // LF and CRLF line ends are read, and these are errors naming the line: a carriage return inside
 // a line (classic Mac line ends), a NUL byte (binary data, UTF-16), a statement that is not an
@@ -76,6 +78,7 @@ void ObjParser::refuse_binary(const char* data, std::size_t size) const {
 // build of the scene so far will need: both refused before the file goes on.
 void ObjParser::check_budget() const {
   const std::uint64_t held = 12 * std::uint64_t(s_.vertices.capacity()) + 12 * std::uint64_t(s_.triangles.capacity()) +
+                             4 * std::uint64_t(s_.triangle_materials.capacity()) +
                              partial_.size() + sizeof(Pending) * std::uint64_t(forward_.capacity());
   require_memory(name_, held,
                  "to hold the " + std::to_string(s_.vertices.size()) + " vertices and " + std::to_string(s_.triangles.size()) +
@@ -199,10 +202,36 @@ void ObjParser::parse_line(const char* p, const char* next) {
     if (face_.size() < 3)
       fail_at(name, line, "face has " + std::to_string(face_.size()) + " vertices (at least 3 needed)");
     for (std::size_t k = 1; k + 1 < face_.size(); ++k) s.triangles.push_back({face_[0], face_[k], face_[k + 1]});
+    if (!s.materials.empty()) s.triangle_materials.resize(s.triangles.size(), material_);
+  } else if (is(q, ke, "usemtl")) {
+    // -- material of the faces that follow: the rest of the line, trimmed (names may hold spaces)
+    const char* b = skip_space(ke, eol);
+    const char* e = eol;
+    while (e > b && is_space(e[-1])) --e;
+    if (b == e) {
+      material_ = kNoMaterial;
+      return;
+    }
+    std::string m(b, e);
+    auto [it, added] = material_index_.try_emplace(m, static_cast<std::uint32_t>(s.materials.size()));
+    if (added) {
+      if (s.materials.empty()) s.triangle_materials.assign(s.triangles.size(), kNoMaterial);  // the faces before
+      s.materials.push_back(Material{std::move(m)});  // grey until read_materials finds its Kd
+    }
+    material_ = it->second;
+  } else if (is(q, ke, "mtllib")) {
+    // -- material libraries: one or more file names
+    for (q = ke;;) {
+      q = skip_space(q, eol);
+      if (q >= eol) break;
+      const char* te = token_end(q, eol);
+      libraries_.push_back({std::string(q, te), line});
+      q = te;
+    }
   } else if (!is_other_keyword(q, ke)) {
     fail_at(name, line, "unknown statement '" + printable(q, ke) + "' (not an OBJ keyword)");
   }
-  // the other keywords (vt, vn, g, o, s, mtllib, usemtl, l, p, curves and surfaces) are ignored
+  // the other keywords (vt, vn, g, o, s, l, p, curves and surfaces) are ignored
 }
 
 Scene parse_obj(const std::string& name, const char* data, std::size_t size) {

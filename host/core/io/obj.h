@@ -6,6 +6,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <string>
+#include <unordered_map>
 #include <vector>
 
 #include "host/core/resources.h"
@@ -22,8 +23,14 @@ class ObjParser {
   /// and naming the file and the estimate when the scene so far, one build of it and the
   /// partial line exceed the budget.
   void feed(const char* data, std::size_t size);
-  /// The last line (one without a line end), the check of forward vertex indices, the scene.
+  /// The last line (one without a line end), the check of forward vertex indices, the scene
+  /// (with its `usemtl` names as materials, grey until read_materials gives them colours).
   Scene finish();
+
+  /// An `mtllib` file name and the line that named it.
+  struct Library { std::string file; std::size_t line; };
+  /// The `mtllib` file names read so far, in file order.
+  const std::vector<Library>& material_libraries() const { return libraries_; }
 
  private:
   void refuse_binary(const char* data, std::size_t size) const;
@@ -40,6 +47,9 @@ class ObjParser {
   char first_[2] = {0, 0};          // the file's first two bytes (a UTF-16 byte-order mark?)
   std::vector<Pending> forward_;    // positive indices beyond the vertices read so far
   std::vector<std::uint32_t> face_;
+  std::vector<Library> libraries_;
+  std::unordered_map<std::string, std::uint32_t> material_index_;  // usemtl name -> s_.materials
+  std::uint32_t material_ = kNoMaterial;                            // the current usemtl
 };
 
 }  // namespace mbvh

@@ -89,6 +89,15 @@ struct GeomPrim {
   std::uint32_t prim_id = 0xFFFFFFFFu;  ///< MBVH_MISS_PRIM when geom_id is kInvalidGeometry
 };
 
+/// A surface material read from an OBJ file's MTL library (`newmtl` NAME with its `Kd`).
+struct Material {
+  std::string name;                 ///< the `usemtl` name
+  Vec3f diffuse{0.7f, 0.7f, 0.7f};  ///< linear RGB albedo in [0, 1]: the MTL's Kd, grey when it has none
+};
+
+/// The material index of a triangle that has none (faces before the OBJ file's first `usemtl`).
+constexpr std::uint32_t kNoMaterial = 0xFFFFFFFFu;
+
 /// A scene: either owned arrays (vertices, triangles: what the loaders and generators produce) or
 /// views of the caller's meshes (add_mesh), never both. Owned: triangle i is the i-th triangle of
 /// the file after fan-triangulating polygons as (0, k, k+1), its prim id is i, and the scene is
@@ -102,6 +111,13 @@ struct Scene {
   std::string display_name() const { return name.empty() ? std::string("scene (unnamed)") : name; }
   std::vector<Vec3f> vertices;
   std::vector<std::array<std::uint32_t, 3>> triangles;
+  /// Materials of an owned scene loaded from OBJ: every `usemtl` name in first-use order, with
+  /// its diffuse colour from the `mtllib` files (load_scene reads them). Empty for PLY and
+  /// generated scenes. Neither materials nor triangle_materials are part of hash() or of a build.
+  std::vector<Material> materials;
+  /// Per triangle of an owned scene: its index into `materials` (kNoMaterial: none); empty when
+  /// the file names no material, else exactly triangles.size() entries.
+  std::vector<std::uint32_t> triangle_materials;
 
   /// Adds a view of a caller-owned mesh and returns its geometry id (0, 1, ... in call order).
   /// The view's buffers are not copied: they must stay alive and unchanged while anything reads
@@ -155,7 +171,9 @@ private:
 
 /// Loads a scene from a path (.obj, .ply, optionally .zst-compressed) or a generator spec
 /// ("gen:sphere:64", "gen:soup:100000:7", "gen:hairball:1000000", "gen:exponential:200",
-/// "gen:cube:16"). Throws Error naming the file, line and what was wrong on malformed input, and
+/// "gen:cube:16"). An OBJ file's materials get their diffuse colours from the MTL files its
+/// `mtllib` lines name (a missing or bad MTL is a warning through log_message, never an error:
+/// those materials stay grey). Throws Error naming the file, line and what was wrong on malformed input, and
 /// naming the path or spec and the estimate when the scene and one build of it would not fit in
 /// the memory budget (MBVH_MEMORY_LIMIT, else the available memory), checked before allocating wherever the size is known first
 /// (file and decompressed sizes, PLY counts, generator parameters). An input that is not a
@@ -163,6 +181,7 @@ private:
 Scene load_scene(const std::string& path_or_spec);
 
 /// Parsers on an in-memory buffer (already decompressed); `name` is used in error messages.
+/// parse_obj keeps the `usemtl` names as grey materials and reads no MTL file.
 /// Neither drops or shifts geometry silently: a leading UTF-8 byte-order mark is skipped, CRLF
 /// line ends are accepted, and anything else they cannot read exactly is an Error naming the
 /// line (see the notes atop host/core/io/obj.cpp and host/core/io/ply.cpp).
