@@ -323,5 +323,8 @@ TEST_CASE("dacrt: bad settings and unsupported variants are clear errors", "[dac
   const auto acc = Accel::build(load_scene("gen:sphere:16"));
   const std::vector<Ray> rays(3, Ray{0, 0, 5, 0, 0, 0, -1, INFINITY});
   TraceOutput out;
-  CHECK_THROWS_WITH(b->trace(*acc, rays, TraceOptions{}, out), Catch::Contains("dacrt-scalar"));
+  CHECK_THROWS_WITH(b->trace(*acc, rays, TraceOptions{Layout::mbvh4, Traversal::bitstack}, out),
+                    Catch::Contains("dacrt-scalar"));
+  b->trace(*acc, rays, TraceOptions{}, out);  // the defaults: its own traversal, dacrt
+  CHECK(resolve_options(*b, TraceOptions{}).traversal == Traversal::dacrt);
 }

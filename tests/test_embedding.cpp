@@ -136,7 +136,12 @@ TEST_CASE("defaults: a named layout or traversal is kept, the other resolved; a 
   for (const std::string& n : runnable_backends())
     if (n == "embree") {
       const auto e = make_backend("embree");
-      CHECK_THROWS_WITH(resolve_options(*e, o), Catch::Contains("embree") && Catch::Contains("mbvh2"));
+      const TraceOptions r = resolve_options(*e, o);  // MBVH2 kept, nothing fits: refused by trace, naming what it has
+      CHECK(r.layout == Layout::mbvh2);
+      const Scene s = load_scene("gen:sphere:8");
+      const auto acc = Accel::build(s);
+      TraceOutput out;
+      CHECK_THROWS_WITH(e->trace(*acc, some_rays(s, *acc, 10), o, out), Catch::Contains("embree") && Catch::Contains("mbvh2"));
     }
   // past the entry points, an unresolved auto is refused by name
   CHECK_THROWS_WITH(state_bytes_per_ray(Layout::automatic, Traversal::stack), Catch::Contains("auto"));

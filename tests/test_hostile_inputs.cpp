@@ -99,7 +99,9 @@ TEST_CASE("hostile: enum values cast from out-of-range ints are refused at every
     CHECK_THROWS_WITH(Accel::build_cached(s, bo, dir.path.string()), Catch::Contains("BuildOptions::quality is 7"));
   }
   const auto acc = Accel::build(s);
-  CHECK_THROWS_WITH(acc->make_layout(static_cast<Layout>(3)), Catch::Contains("the layout is 3, not a Layout"));
+  CHECK_THROWS_WITH(acc->make_layout(static_cast<Layout>(4)), Catch::Contains("the layout is 4, not a Layout"));
+  // automatic (3) is resolved at the entry points taking TraceOptions; past them it is refused by name
+  CHECK_THROWS_WITH(acc->make_layout(Layout::automatic), Catch::Contains("the layout is auto"));
   CHECK_THROWS_WITH(state_bytes_per_ray(Layout::mbvh4, static_cast<Traversal>(11)),
                     Catch::Contains("the traversal is 11, not a Traversal"));
   const std::vector<Ray> rays(4, Ray{0, 0, 5, 0, 0, 0, -1, INFINITY});
@@ -119,8 +121,8 @@ TEST_CASE("hostile: enum values cast from out-of-range ints are refused at every
     o.layout = static_cast<Layout>(-1);
     bad.push_back({o, "TraceOptions::layout is -1, not a Layout"});
     o = TraceOptions{Layout::mbvh4, Traversal::stack, Query::closest, false};
-    o.traversal = static_cast<Traversal>(8);  // one past dacrt, the last
-    bad.push_back({o, "TraceOptions::traversal is 8, not a Traversal"});
+    o.traversal = static_cast<Traversal>(9);  // one past automatic, the last
+    bad.push_back({o, "TraceOptions::traversal is 9, not a Traversal"});
   }
   for (const Bad& b : bad) {
     INFO(b.says);

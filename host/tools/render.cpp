@@ -321,8 +321,16 @@ double rmse(const std::vector<float>& a, const std::vector<float>& b) {
   return a.empty() ? 0.0 : std::sqrt(sum / static_cast<double>(a.size()));
 }
 
-RenderResult render(const Scene& scene, const Accel& acc, Backend& backend, const RenderOptions& opt,
+RenderResult render(const Scene& scene, const Accel& acc, Backend& backend, const RenderOptions& asked,
                     const std::function<void(unsigned, unsigned)>& progress) {
+  // an automatic layout or traversal: the backend's fastest closest-hit pair, for every bounce
+  RenderOptions opt = asked;
+  TraceOptions t;
+  t.layout = opt.layout;
+  t.traversal = opt.traversal;
+  t = resolve_options(backend, t);
+  opt.layout = t.layout;
+  opt.traversal = t.traversal;
   Renderer r(scene, acc, backend, opt);
   return r.run(progress);
 }

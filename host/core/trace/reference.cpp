@@ -153,8 +153,11 @@ TraceOptions resolve_by(const std::vector<std::pair<Layout, Traversal>>& ranking
         opt.layout = l;
         return opt;
       }
-  throw Error(who + ": no traversal fits layout " + to_string(opt.layout) + " and traversal " + to_string(opt.traversal) +
-              " (name both, or leave one automatic where this backend has the other)");
+  // nothing fits: the automatic field takes the pair's old default (MBVH4, stack), which the
+  // caller's support check then refuses by name as any pair the backend lacks
+  if (any_layout) opt.layout = Layout::mbvh4;
+  if (any_traversal) opt.traversal = Traversal::stack;
+  return opt;
 }
 
 // The reference traces opt's pair (an automatic one resolved by reference_fastest): one

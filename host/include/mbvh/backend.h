@@ -235,9 +235,10 @@ TraceOptions default_ray_query_options(Query q);
 /// traces fastest for opt.query: the first pair of b.fastest(opt.query) that b supports and that
 /// keeps whichever of the two `opt` names (a named layout with an automatic traversal: the fastest
 /// traversal b has on that layout; a named traversal with an automatic layout: the fastest layout
-/// b has it on). Unchanged when both are named. Throws Error naming `b` when no pair fits (a
-/// layout on which b has no traversal). Backend::trace, prepare and ray_query call it first; call
-/// it to learn what they trace (reports, comparisons with the reference).
+/// b has it on). Unchanged when both are named. When no pair fits (a layout on which b has no
+/// traversal), the automatic one becomes MBVH4 or stack, which trace then refuses naming what b
+/// has. Backend::trace, prepare and ray_query call it first; call it to learn what they trace
+/// (reports, comparisons with the reference).
 TraceOptions resolve_options(const Backend& b, TraceOptions opt);
 
 /// `opt` resolved for `b` (resolve_options) with leaf_block set to what `b` traces for it: the

@@ -126,8 +126,10 @@ void check_trace_options(const TraceOptions& opt, const std::string& who);
 /// resolve an automatic layout or traversal to, as Backend::fastest does for a backend.
 std::vector<std::pair<Layout, Traversal>> reference_fastest(Query q);
 /// `opt` with its automatic layout and traversal resolved by `ranking` (the first pair that keeps
-/// what `opt` names and that `supports` holds for); unchanged when both are named. Throws Error
-/// naming `who` when no pair fits. Backend's resolve_options and the reference's entry points use it.
+/// what `opt` names and that `supports` holds for); unchanged when both are named. When no pair
+/// fits (a layout or traversal the backend lacks), the automatic one becomes MBVH4 or stack, which
+/// the caller's support check refuses naming what the backend has. Throws Error naming `who` for an
+/// enum out of range (check_trace_options). Backend's resolve_options and the reference use it.
 TraceOptions resolve_by(const std::vector<std::pair<Layout, Traversal>>& ranking,
                         const std::function<bool(Layout, Traversal)>& supports, TraceOptions opt, const std::string& who);
 
