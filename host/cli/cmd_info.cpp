@@ -50,9 +50,9 @@ MemoryReport memory_report(const Loaded& l) {
 }
 
 void print_memory_row(const char* what, const Accel::MemoryStats& s, std::size_t n) {
-  const double t = double(n);
-  say("  %-30s %8.2f MB %8.1f B/tri (tree %.1f, nodes %.1f, triangles %.1f, packs %.1f)\n", what, s.total() / 1e6,
-      s.total() / t, s.tree / t, s.nodes / t, s.triangles / t, s.packs / t);
+  const double t = double(n), total = double(s.total());
+  say("  %-30s %8.2f MB %8.1f B/tri (tree %.1f, nodes %.1f, triangles %.1f, packs %.1f)\n", what, total / 1e6,
+      total / t, double(s.tree) / t, double(s.nodes) / t, double(s.triangles) / t, double(s.packs) / t);
 }
 
 void print_memory(const MemoryReport& m) {
@@ -60,8 +60,8 @@ void print_memory(const MemoryReport& m) {
   print_memory_row("after the build", m.build, m.triangles);
   print_memory_row("+ cpu default traces prepared", m.traced, m.triangles);
   print_memory_row("+ every layout above", m.all, m.triangles);
-  say("  %-30s %8.2f MB %8.1f B/tri (the caller's, not the build's)\n", "scene arrays", m.scene / 1e6,
-      m.scene / double(m.triangles));
+  say("  %-30s %8.2f MB %8.1f B/tri (the caller's, not the build's)\n", "scene arrays", double(m.scene) / 1e6,
+      double(m.scene) / double(m.triangles));
 }
 
 nlohmann::json memory_json(const Accel::MemoryStats& s) {
