@@ -60,6 +60,11 @@ TEST_CASE("leaf variants regroup the one build: every triangle once, conservativ
       INFO("block " << block);
       const LeafVariant& v = acc->leaf_variant(block);
       REQUIRE(&v == &acc->leaf_variant(block));  // made once, kept
+      const Bvh2 tree = v.tree();  // made anew at each call, the same bytes every time
+      REQUIRE(tree.nodes.size() == v.tree().nodes.size());
+      REQUIRE(std::memcmp(tree.nodes.data(), v.tree().nodes.data(), tree.nodes.size() * sizeof(Bvh2::Node)) == 0);
+      REQUIRE(tree.leaf_boxes.size() == v.leaves.size());
+      CHECK(tree.largest_leaf == v.largest_leaf);
       // -- the same triangles, each in exactly one leaf, every leaf a range of the build's order
       std::vector<int> seen(acc->tris().size(), 0);
       std::size_t in_leaves = 0, base = 0;
@@ -73,7 +78,7 @@ TEST_CASE("leaf variants regroup the one build: every triangle once, conservativ
         for (std::uint32_t k = l.first; k < l.first + l.count; ++k) ids.push_back(tri_prim(acc->tris()[k]));
         std::sort(ids.begin(), ids.end());
         REQUIRE(std::adjacent_find(ids.begin(), ids.end()) == ids.end());  // never twice in one leaf
-        const Box& lb = v.bvh2.leaf_boxes[i];
+        const Box& lb = tree.leaf_boxes[i];
         for (std::uint32_t k = l.first; k < l.first + l.count; ++k) {
           ++seen[k];
           const Tri& t = acc->tris()[k];
@@ -90,9 +95,9 @@ TEST_CASE("leaf variants regroup the one build: every triangle once, conservativ
       CHECK(v.leaves.size() <= acc->leaves().size());
       if (acc->leaves().size() > 100) CHECK(v.leaves.size() < acc->leaves().size());  // fuller leaves
       // -- inner boxes contain their children; the layouts made from it are well formed
-      for (std::size_t i = 0; i < v.bvh2.nodes.size(); ++i)
-        for (std::int32_t c : v.bvh2.nodes[i].child)
-          if (c != MBVH_EMPTY) REQUIRE(contains(v.bvh2.nodes[i].box, v.bvh2.box(c)));
+      for (std::size_t i = 0; i < tree.nodes.size(); ++i)
+        for (std::int32_t c : tree.nodes[i].child)
+          if (c != MBVH_EMPTY) REQUIRE(contains(tree.nodes[i].box, tree.box(c)));
       REQUIRE_NOTHROW(validate_layout(v.mbvh2(), v.leaves.size()));
       REQUIRE_NOTHROW(validate_layout(v.mbvh4(), v.leaves.size()));
       REQUIRE_NOTHROW(validate_layout(v.mbvh8(), v.leaves.size()));
@@ -109,11 +114,11 @@ TEST_CASE("leaf variants regroup the one build: every triangle once, conservativ
           }
         return c;
       };
-      const Mbvh8 greedy = make_mbvh8(v.bvh2, v.leaves);
+      const Mbvh8 greedy = make_mbvh8(tree, v.leaves);
       CHECK(cost8(v.mbvh8()) <= cost8(greedy) * (1 + 1e-6));
       CHECK(v.mbvh8().nodes.size() <= greedy.nodes.size());
       CHECK(v.mbvh8().stats.depth <= MBVH_MBVH8_LEVEL_CAP);
-      const Mbvh4 greedy4 = make_mbvh4(v.bvh2, v.leaves);
+      const Mbvh4 greedy4 = make_mbvh4(tree, v.leaves);
       CHECK(v.mbvh4().nodes.size() <= greedy4.nodes.size());
       CHECK(v.mbvh4().stats.depth <= MBVH_MBVH4_LEVEL_CAP);
       // -- deterministic: the same variant from a build at another thread count
@@ -342,3 +347,33 @@ TEST_CASE("degenerate triangles never reach a leaf - empty scenes are an error",
   CHECK_THROWS_AS(Accel::build(empty), Error);
 }
 
+
+TEST_CASE("Accel::memory counts each part's records as they are made", "[build]") {
+  const Scene s = load_scene("gen:sphere:24");
+  CHECK(s.memory_bytes() >= s.vertices.size() * sizeof(Vec3f) + s.triangles.size() * 12);
+  const auto acc = Accel::build(s);
+  const Accel::MemoryStats m0 = acc->memory();
+  const Bvh2& b = acc->bvh2();
+  CHECK(m0.tree == b.nodes.size() * sizeof(Bvh2::Node) + b.leaf_boxes.size() * sizeof(Box) + acc->leaves().size() * sizeof(Leaf));
+  CHECK(m0.triangles == acc->tris().size() * sizeof(Tri));
+  CHECK(m0.nodes == 0);
+  CHECK(m0.packs == 0);
+  CHECK(m0.total() == m0.tree + m0.triangles);
+  // -- a layout and the packs, made on first use, are counted from then on
+  acc->make_layout(Layout::mbvh4);
+  const TriPacks& p = acc->tri_packs();
+  const Accel::MemoryStats m1 = acc->memory();
+  CHECK(m1.nodes == acc->mbvh4().nodes.size() * sizeof(Node4));
+  CHECK(m1.packs == p.packs.size() * sizeof(Tri4) + p.leaves.size() * sizeof(Leaf));
+  CHECK(m1.tree == m0.tree);
+  // -- a leaf variant: its leaf table, layout, packs and packed nodes; its tree is not kept
+  const LeafVariant& v = acc->leaf_variant(4);
+  const void* packed = v.packed_nodes(Layout::mbvh8, acc->tris());
+  const Accel::MemoryStats m2 = acc->memory();
+  const TriPacks& vp = v.tri_packs(acc->tris());
+  const std::size_t copy = packed ? v.mbvh8().nodes.size() * sizeof(Node8) : 0;
+  CHECK(m2.tree == m0.tree);
+  CHECK(m2.nodes == m1.nodes + v.leaves.size() * sizeof(Leaf) + v.mbvh8().nodes.size() * sizeof(Node8) + copy);
+  CHECK(m2.packs == m1.packs + vp.packs.size() * sizeof(Tri4) + vp.leaves.size() * sizeof(Leaf));
+  CHECK(m2.triangles == m0.triangles);
+}

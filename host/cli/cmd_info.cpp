@@ -23,6 +23,51 @@ std::pair<LayoutStats, LayoutStats> cpu_leaf_stats(const Accel& acc) {
   return s;
 }
 
+// What a build holds at three points (Accel::memory): right after the build, once the cpu
+// backend's default traces are prepared (TraceOptions{}, closest and any hit) and once every
+// layout the table shows is made; and the scene's own arrays.
+struct MemoryReport {
+  Accel::MemoryStats build, traced, all;
+  std::size_t scene = 0, triangles = 1;
+};
+
+// The build's memory now, then with the default cpu traces prepared (where the cpu backend runs).
+MemoryReport memory_report(const Loaded& l) {
+  MemoryReport m;
+  m.build = l.acc->memory();
+  m.scene = l.scene.memory_bytes();
+  m.triangles = std::max<std::size_t>(l.acc->scene_triangles(), 1);
+  m.traced = m.build;
+  if (l.acc->has_hierarchy()) {
+    auto cpu = make_backend("cpu");
+    TraceOptions to;
+    cpu->prepare(*l.acc, to);
+    to.query = Query::any;
+    cpu->prepare(*l.acc, to);
+    m.traced = l.acc->memory();
+  }
+  return m;
+}
+
+void print_memory_row(const char* what, const Accel::MemoryStats& s, std::size_t n) {
+  const double t = double(n), total = double(s.total());
+  say("  %-30s %8.2f MB %8.1f B/tri (tree %.1f, nodes %.1f, triangles %.1f, packs %.1f)\n", what, total / 1e6,
+      total / t, double(s.tree) / t, double(s.nodes) / t, double(s.triangles) / t, double(s.packs) / t);
+}
+
+void print_memory(const MemoryReport& m) {
+  say("\nmemory held by the build (Accel::memory; MB = 10^6 bytes, per scene triangle):\n");
+  print_memory_row("after the build", m.build, m.triangles);
+  print_memory_row("+ cpu default traces prepared", m.traced, m.triangles);
+  print_memory_row("+ every layout above", m.all, m.triangles);
+  say("  %-30s %8.2f MB %8.1f B/tri (the caller's, not the build's)\n", "scene arrays", double(m.scene) / 1e6,
+      double(m.scene) / double(m.triangles));
+}
+
+nlohmann::json memory_json(const Accel::MemoryStats& s) {
+  return {{"tree", s.tree}, {"nodes", s.nodes}, {"triangles", s.triangles}, {"packs", s.packs}, {"total", s.total()}};
+}
+
 struct InfoArgs {
   SceneArgs scene;
   std::string json;
@@ -48,14 +93,18 @@ void print_flat_info(const SceneArgs& a, const Loaded& l) {
 }
 
 // The report: the scene, the build and one row per layout.
-void print_info(const SceneArgs& a, const Loaded& l) {
+void print_info(const SceneArgs& a, const Loaded& l, MemoryReport& mem) {
   const Accel& acc = *l.acc;
   const Box b = acc.bounds();
   say("scene      %s\n", l.scene.name.c_str());
   say("triangles  %zu (%zu degenerate, kept out of leaves), %zu vertices, loaded in %.1f ms\n",
       l.scene.triangle_count(), acc.degenerate_triangles(), l.scene.vertices.size(), l.load_ms);
   say("bounds     (%g, %g, %g) .. (%g, %g, %g)\n", b.lo.x, b.lo.y, b.lo.z, b.hi.x, b.hi.y, b.hi.z);
-  if (!acc.has_hierarchy()) return print_flat_info(a, l);
+  if (!acc.has_hierarchy()) {
+    print_flat_info(a, l);
+    mem.all = acc.memory();
+    return print_memory(mem);
+  }
   say("build      %s, %u bins, max leaf %u, leaf block %u, depth cap %u, %u threads; hash %016llx\n",
       acc.options().quality == BuildQuality::low    ? "Morton LBVH (quality low)"
       : acc.options().quality == BuildQuality::high ? "SBVH, spatial splits (quality high)"
@@ -85,14 +134,16 @@ void print_info(const SceneArgs& a, const Loaded& l) {
   print_stats_row(v8, state_bytes_per_ray(Layout::mbvh8, Traversal::stack), state_bytes_per_ray(Layout::mbvh8, Traversal::bitstack));
   say("(mbvh4:4, mbvh8:4: what the SIMD cpu backends trace by default: this build's leaves regrouped for leaf tests of\n"
       " 4 triangles, %zu leaves of up to %zu; MBVH4 and MBVH8 by the SAH-optimal collapse)\n",
-      lv.leaves.size(), lv.bvh2.largest_leaf);
+      lv.leaves.size(), lv.largest_leaf);
   say("\ntraversal state per ray: stack %zu B, bitstack %zu B (%.1fx smaller)\n",
       state_bytes_per_ray(Layout::mbvh2, Traversal::stack), state_bytes_per_ray(Layout::mbvh2, Traversal::bitstack),
       double(state_bytes_per_ray(Layout::mbvh2, Traversal::stack)) / double(state_bytes_per_ray(Layout::mbvh2, Traversal::bitstack)));
+  mem.all = acc.memory();
+  print_memory(mem);
 }
 
 // --json: the same statistics as a JSON document.
-std::string info_json(const Loaded& l) {
+std::string info_json(const Loaded& l, const MemoryReport& mem) {
   const Accel& acc = *l.acc;
   const LayoutStats& bs = acc.binary_stats();
   nlohmann::json j;
@@ -107,6 +158,12 @@ std::string info_json(const Loaded& l) {
   j["references"] = acc.tris().size();
   j["degenerate"] = acc.degenerate_triangles();
   j["hierarchy"] = acc.has_hierarchy();
+  j["memory"] = {{"build", memory_json(mem.build)}, {"cpu_default_traces", memory_json(mem.traced)},
+                 {"all_layouts", memory_json(mem.all)}, {"scene", mem.scene},
+                 {"bytes_per_triangle", {{"build", double(mem.build.total()) / double(mem.triangles)},
+                                         {"cpu_default_traces", double(mem.traced.total()) / double(mem.triangles)},
+                                         {"all_layouts", double(mem.all.total()) / double(mem.triangles)},
+                                         {"scene", double(mem.scene) / double(mem.triangles)}}}};
   if (!acc.has_hierarchy()) {  // quality none: the triangles alone
     j["layouts"] = nlohmann::json::array();
     return j.dump(2) + "\n";
@@ -153,9 +210,10 @@ void info_refit(const SceneArgs& a, Loaded& l) {
 int run_info(const InfoArgs& a) {
   prepare_outputs({{"--json", a.json, true}}, {{"scene", a.scene.scene}});
   Loaded l = load_and_build(a.scene, false);
-  print_info(a.scene, l);
+  MemoryReport mem = memory_report(l);
+  print_info(a.scene, l, mem);
   if (!a.json.empty()) {
-    const std::string text = info_json(l);
+    const std::string text = info_json(l, mem);
     write_bytes_to({"--json", a.json, true}, text.data(), text.size());
   }
   if (a.refit) info_refit(a.scene, l);

@@ -67,12 +67,22 @@ struct TriPacks {
 /// binary tree with subtrees regrouped into leaves where the SAH prices a leaf in blocks of
 /// `block` triangles, over the build's own triangles in the build's order, and its layouts and
 /// SIMD packs made on first use (thread-safe, as Accel's own); its MBVH4 and MBVH8 by the
-/// SAH-optimal collapse (make_mbvh4_sah, make_mbvh8_sah).
+/// SAH-optimal collapse (make_mbvh4_sah, make_mbvh8_sah). The regrouped tree is not kept (only a
+/// collapse reads it): tree() makes it again from the build's, the same bytes every time.
 struct LeafVariant {
   unsigned block = 1;
   float node_cost = 1;  ///< the build's BuildOptions::traversal_cost
-  Bvh2 bvh2;
-  std::vector<Leaf> leaves;
+  unsigned max_leaf = 1;  ///< the largest regrouped leaf (regroup_leaves)
+  /// The build's tree, leaves and triangles this variant regroups: the Accel's own (refit drops the
+  /// variants before it changes them).
+  const Bvh2* src = nullptr;
+  const std::vector<Leaf>* src_leaves = nullptr;
+  const AlignedVector<Tri>* src_tris = nullptr;
+  std::vector<Leaf> leaves;    ///< the regrouped leaves, in the order tree() references them
+  std::size_t largest_leaf = 0;  ///< triangles of its largest leaf
+  /// The regrouped binary tree (its leaf i is leaves[i]): regroup_leaves of the build's, made at
+  /// each call (O(nodes)).
+  Bvh2 tree() const;
   const Mbvh2& mbvh2() const;
   const Mbvh4& mbvh4() const;
   const Mbvh8& mbvh8() const;
@@ -82,6 +92,12 @@ struct LeafVariant {
   /// ~(first pack << 3 | count - 1) (TraceView::packed_refs), made on first use; nullptr when a
   /// leaf holds more than 8 triangles (a leaf the depth cap forced) or the packs pass 2^28 - 2.
   const void* packed_nodes(Layout l, const AlignedVector<Tri>& tris) const;
+  /// The bytes of what has been made on first use so far (Accel::memory): layouts and packed-reference
+  /// copies (nodes), packs and their leaf table (packs).
+  struct Bytes {
+    std::size_t nodes = 0, packs = 0;
+  };
+  Bytes bytes() const;
 
 private:
   mutable std::once_flag once2_, once4_, once8_, oncep_, oncek_[3];

@@ -48,6 +48,12 @@ decltype(auto) allocating(const std::string& what, std::uint64_t bytes, F&& fn) 
   }
 }
 
+/// Returns the allocator's free memory to the system (glibc: malloc_trim; elsewhere nothing), so
+/// what a build's temporaries occupied stops counting as resident: glibc's dynamic mmap threshold
+/// otherwise serves them from the heap, which keeps their pages after they are freed. Called once a
+/// build, a load or a structure made on first use has freed its temporaries. O(free heap).
+void release_free_heap();
+
 /// Bytes one build of a scene costs beyond the scene (the builder's references, the BVH2 and the
 /// MBVH2, MBVH4 and MBVH8 layouts): 128 a triangle and 56 a vertex, fitted to the peak RSS of
 /// `mbvh info` on gen:hairball (0.53 vertices a triangle, 155 B a triangle in all) and gen:soup

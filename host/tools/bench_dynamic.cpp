@@ -3,11 +3,8 @@
 // structure rebuilt, refitted or updated flat, then traced, timed in rotated order, verified.
 #include "host/tools/bench_dynamic.h"
 
-#include <malloc.h>
-
 #include <algorithm>
 #include <cstdio>
-#include <fstream>
 #include <map>
 #include <memory>
 #include <nlohmann/json.hpp>
@@ -17,6 +14,7 @@
 #include "host/core/parallel.h"
 #include "host/tools/bench.h"
 #include "host/tools/displace.h"
+#include "host/tools/resident.h"
 #include "host/tools/stats.h"
 #include "mbvh/error.h"
 #include "mbvh/trace.h"
@@ -41,31 +39,6 @@ bool DynamicReport::verified() const {
 }
 
 namespace {
-
-// -- Resident memory, by /proc/self: VmRSS now and VmHWM, its peak since the last reset (writing
-// 5 to clear_refs, Linux 4.0 on). Freed heap is returned first (malloc_trim), so a step's peak
-// counts what it allocates, not what an earlier step left in the allocator's free lists.
-std::int64_t status_bytes(const char* key) {
-  std::ifstream f("/proc/self/status");
-  std::string line;
-  while (std::getline(f, line))
-    if (line.rfind(key, 0) == 0) return std::stoll(line.substr(std::string(key).size())) * 1024;
-  return -1;
-}
-bool reset_peak() {
-  malloc_trim(0);
-  std::ofstream f("/proc/self/clear_refs");
-  f << "5";
-  f.flush();
-  return static_cast<bool>(f);
-}
-struct MemoryProbe {
-  bool on = reset_peak();
-  std::int64_t base = -1;
-  void start() { base = on && reset_peak() ? status_bytes("VmRSS:") : -1; }
-  std::int64_t peak_extra() const { return base < 0 ? -1 : std::max<std::int64_t>(0, status_bytes("VmHWM:") - base); }
-  std::int64_t rss_now() const { return on ? status_bytes("VmRSS:") : -1; }
-};
 
 // One traced item of a frame: a ray kind and the query it is traced with.
 struct Item {

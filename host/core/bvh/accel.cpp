@@ -40,6 +40,10 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
   if (!scene.meshes().empty() && !scene.triangles.empty()) scene.validate();
   if (!std::isfinite(opt_in.traversal_cost) || opt_in.traversal_cost < 0)
     throw Error("BuildOptions::traversal_cost " + std::to_string(opt_in.traversal_cost) + " must be finite and >= 0");
+  // the free heap returned once the build's temporaries below are gone (destroyed before this)
+  struct ReleaseOnReturn {
+    ~ReleaseOnReturn() { release_free_heap(); }
+  } release_on_return;
   std::unique_ptr<Accel> acc(new Accel());
   acc->impl_->opt_ = opt_in;
   BuildOptions& opt = acc->impl_->opt_;
@@ -186,9 +190,40 @@ std::uint64_t Accel::hash() const {
 std::uint64_t Accel::generation() const { return impl_->generation_; }
 double Accel::last_refit_ms() const { return impl_->refit_ms_; }
 
+namespace {
+
+template <class V>
+std::size_t bytes_of(const V& v) {
+  return v.size() * sizeof(typename V::value_type);
+}
+std::size_t tree_bytes(const Bvh2& b, const std::vector<Leaf>& leaves) {
+  return bytes_of(b.nodes) + bytes_of(b.leaf_boxes) + bytes_of(leaves);
+}
+
+}  // namespace
+
+Accel::MemoryStats Accel::memory() const {
+  const Impl& m = *impl_;
+  MemoryStats s;
+  s.tree = tree_bytes(m.bvh2_, m.leaves_);
+  s.nodes = bytes_of(m.mbvh2_.nodes) + bytes_of(m.mbvh4_.nodes) + bytes_of(m.mbvh8_.nodes) + bytes_of(m.mbvh4w_.nodes);
+  s.triangles = bytes_of(m.tris_);
+  s.packs = bytes_of(m.packs_.packs) + bytes_of(m.packs_.leaves);
+  std::lock_guard<std::mutex> lock(m.variants_m_);
+  for (const auto& [block, v] : m.variants_) {
+    const LeafVariant::Bytes b = v->bytes();
+    s.nodes += b.nodes;
+    s.packs += b.packs;
+  }
+  return s;
+}
+
 const Mbvh2& Accel::mbvh2() const {
   require_hierarchy("mbvh2");
-  std::call_once(impl_->once2_, [this] { impl_->mbvh2_ = make_mbvh2(impl_->bvh2_, impl_->leaves_); });
+  std::call_once(impl_->once2_, [this] {
+    impl_->mbvh2_ = make_mbvh2(impl_->bvh2_, impl_->leaves_);
+    release_free_heap();
+  });
   return impl_->mbvh2_;
 }
 
@@ -202,19 +237,28 @@ void Accel::make_layout(Layout l) const {
 
 const Mbvh8& Accel::mbvh8() const {
   require_hierarchy("mbvh8");
-  std::call_once(impl_->once8_, [this] { impl_->mbvh8_ = make_mbvh8(impl_->bvh2_, impl_->leaves_, impl_->opt_.threads); });
+  std::call_once(impl_->once8_, [this] {
+    impl_->mbvh8_ = make_mbvh8(impl_->bvh2_, impl_->leaves_, impl_->opt_.threads);
+    release_free_heap();
+  });
   return impl_->mbvh8_;
 }
 
 const Mbvh4& Accel::mbvh4() const {
   require_hierarchy("mbvh4");
-  std::call_once(impl_->once4_, [this] { impl_->mbvh4_ = make_mbvh4(impl_->bvh2_, impl_->leaves_, impl_->opt_.threads); });
+  std::call_once(impl_->once4_, [this] {
+    impl_->mbvh4_ = make_mbvh4(impl_->bvh2_, impl_->leaves_, impl_->opt_.threads);
+    release_free_heap();
+  });
   return impl_->mbvh4_;
 }
 
 const TriPacks& Accel::tri_packs() const {
   require_hierarchy("tri_packs");
-  std::call_once(impl_->oncep_, [this] { impl_->packs_ = make_tri_packs(impl_->tris_, impl_->leaves_); });
+  std::call_once(impl_->oncep_, [this] {
+    impl_->packs_ = make_tri_packs(impl_->tris_, impl_->leaves_);
+    release_free_heap();
+  });
   return impl_->packs_;
 }
 

@@ -15,6 +15,7 @@
 
 #include "host/core/bvh/builder.h"
 #include "host/core/layouts.h"
+#include "host/core/resources.h"
 #include "host/core/trace/view.h"  // the packed leaf references
 #include "mbvh/error.h"
 
@@ -157,9 +158,13 @@ const LeafVariant& Accel::leaf_variant(unsigned block) const {
     v->node_cost = impl_->opt_.traversal_cost;
     // max leaf: the build's, but at least one full block (a regrouped leaf of B triangles costs
     // one test)
-    const unsigned max_leaf = std::max(impl_->opt_.max_leaf, block);
-    regroup_leaves(impl_->bvh2_, impl_->leaves_, impl_->tris_, block, max_leaf, impl_->opt_.traversal_cost, v->bvh2,
-                   v->leaves);
+    v->max_leaf = std::max(impl_->opt_.max_leaf, block);
+    v->src = &impl_->bvh2_;
+    v->src_leaves = &impl_->leaves_;
+    v->src_tris = &impl_->tris_;
+    Bvh2 tree;
+    regroup_leaves(impl_->bvh2_, impl_->leaves_, impl_->tris_, block, v->max_leaf, v->node_cost, tree, v->leaves);
+    v->largest_leaf = tree.largest_leaf;
   }
   return *v;
 }
@@ -169,16 +174,32 @@ void Accel::drop_leaf_variants() {
   impl_->variants_.clear();
 }
 
+Bvh2 LeafVariant::tree() const {
+  Bvh2 t;
+  std::vector<Leaf> l;
+  regroup_leaves(*src, *src_leaves, *src_tris, block, max_leaf, node_cost, t, l);
+  return t;
+}
+
 const Mbvh2& LeafVariant::mbvh2() const {
-  std::call_once(once2_, [this] { m2_ = make_mbvh2(bvh2, leaves); });
+  std::call_once(once2_, [this] {
+    m2_ = make_mbvh2(tree(), leaves);
+    release_free_heap();
+  });
   return m2_;
 }
 const Mbvh4& LeafVariant::mbvh4() const {
-  std::call_once(once4_, [this] { m4_ = make_mbvh4_sah(bvh2, leaves, block, node_cost); });
+  std::call_once(once4_, [this] {
+    m4_ = make_mbvh4_sah(tree(), leaves, block, node_cost);
+    release_free_heap();
+  });
   return m4_;
 }
 const Mbvh8& LeafVariant::mbvh8() const {
-  std::call_once(once8_, [this] { m8_ = make_mbvh8_sah(bvh2, leaves, block, node_cost); });
+  std::call_once(once8_, [this] {
+    m8_ = make_mbvh8_sah(tree(), leaves, block, node_cost);
+    release_free_heap();
+  });
   return m8_;
 }
 void LeafVariant::make_layout(Layout l) const {
@@ -190,8 +211,17 @@ const TriPacks& LeafVariant::tri_packs(const AlignedVector<Tri>& tris) const {
   std::call_once(oncep_, [this, &tris] {
     packs_ = make_tri_packs(tris, leaves);
     packable_ = std::all_of(packs_.leaves.begin(), packs_.leaves.end(), [](const Leaf& f) { return packable(f); });
+    release_free_heap();
   });
   return packs_;
+}
+
+LeafVariant::Bytes LeafVariant::bytes() const {
+  auto of = [](const auto& v) { return v.size() * sizeof(v[0]); };
+  Bytes b;
+  b.nodes = of(leaves) + of(m2_.nodes) + of(m4_.nodes) + of(m8_.nodes) + of(k2_) + of(k4_) + of(k8_);
+  b.packs = of(packs_.packs) + of(packs_.leaves);
+  return b;
 }
 
 namespace {

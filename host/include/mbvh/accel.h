@@ -247,6 +247,23 @@ public:
   /// Changes when refit() moves a vertex. Computed on the first call (thread-safe; O(bytes),
   /// parallel over options().threads) and kept: a build that is only traced never pays for it.
   std::uint64_t hash() const;
+  /// The bytes a build holds, by part: the records of each array it keeps, counting only what
+  /// has been made so far (layouts, packs and leaf variants are made on first use, by a trace or
+  /// the accessors). Not the scene: the caller's (Scene::memory_bytes).
+  struct MemoryStats {
+    /// The binary trees: the build's (nodes, leaf boxes, leaf table), which refit, the layouts'
+    /// collapse, hash() and save() read, and each leaf variant's regrouped one.
+    std::size_t tree = 0;
+    /// The traced node records: MBVH2/4/8, the 16-wide view, the leaf variants' layouts, their
+    /// leaf tables and the copies whose leaf references locate the packs.
+    std::size_t nodes = 0;
+    std::size_t triangles = 0;  ///< the triangle records (tris(), 48 bytes each)
+    std::size_t packs = 0;      ///< the SIMD leaf packs (160 bytes per four triangles) and their leaf tables
+    std::size_t total() const { return tree + nodes + triangles + packs; }
+  };
+  /// This build's MemoryStats. O(leaf variants); not concurrently with a call that makes a layout,
+  /// packs or a leaf variant (a trace's first preparation, the accessors above) or with refit().
+  MemoryStats memory() const;
   /// Starts at 0 and is bumped by every refit(): a backend that copied the build to a device
   /// re-uploads it when (&accel, hash(), generation()) changes since its last prepare().
   std::uint64_t generation() const;

@@ -152,6 +152,12 @@ struct Scene {
     const auto t = m.triangle(prim - static_cast<std::size_t>(offsets_[g]));
     a = m.vertex(t[0]), b = m.vertex(t[1]), c = m.vertex(t[2]);
   }
+  /// Bytes the scene's own arrays hold (their capacity): an owned scene's vertices and triangles;
+  /// for a scene of views, the view records only (the caller's buffers are the caller's). O(1).
+  std::size_t memory_bytes() const {
+    return vertices.capacity() * sizeof(Vec3f) + triangles.capacity() * sizeof(triangles[0]) +
+           meshes_.capacity() * sizeof(MeshView) + offsets_.capacity() * sizeof(std::uint64_t);
+  }
   /// Throws Error (naming the scene, the geometry when it has views, the triangle and the index
   /// or coordinate) if a triangle names a vertex that does not exist or uses a vertex with a NaN
   /// or infinite coordinate. Unused vertices are not looked at. O(triangles).
