@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # SPDX-License-Identifier: MIT
-# setup.sh — sourced by scripts/demo and scripts/test. Installs what is missing (Debian 12, as
-# root) and defines mbvh_build DIR [CMAKE_ARGS...], which configures and builds mbvh in DIR.
+# setup.sh — sourced by scripts/demo, scripts/test and scripts/cross-aarch64. Installs what is
+# missing (Debian 12, as root) and defines mbvh_install PACKAGE... (the same for a stage's own
+# packages) and mbvh_build DIR [CMAKE_ARGS...], which configures and builds mbvh in DIR.
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 BUILD="${MBVH_BUILD_DIR:-$ROOT/build}"
@@ -12,17 +13,19 @@ PACKAGES=(build-essential cmake ninja-build pkg-config catch2 libzstd-dev zlib1g
           python3-dev pybind11-dev python3-numpy python3-pytest python3-venv python3-setuptools python3-wheel
           ${MBVH_EXTRA_PACKAGES:-})
 
-missing=()
-for p in "${PACKAGES[@]}"; do
-  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
-done
-if ((${#missing[@]})); then
+mbvh_install() {  # PACKAGE...: apt-get installs those not installed (a stage's own: scripts/cross-aarch64)
+  local missing=() p
+  for p in "$@"; do
+    dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+  done
+  ((${#missing[@]})) || return 0
   echo "== installing: ${missing[*]}"
-  SUDO=""
-  [ "$(id -u)" = 0 ] || SUDO="sudo"
-  $SUDO apt-get update -qq
-  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
-fi
+  local sudo=""
+  [ "$(id -u)" = 0 ] || sudo="sudo"
+  $sudo apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+}
+mbvh_install "${PACKAGES[@]}"
 
 mbvh_build() {  # DIR [CMAKE_ARGS...]; MBVH_TARGETS="a b" builds only those targets
   local dir="$1"

@@ -7,6 +7,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <nlohmann/json.hpp>
 
 #include <sys/stat.h>
@@ -286,6 +287,7 @@ TEST_CASE("mbvh refuses FIFOs directories and devices as inputs without hanging 
   CHECK_THAT(r.output, Catch::Contains("gen:hairball:400000000: needs about 66 GiB"));
 }
 
+#ifdef MBVH_HAVE_CPU_SIMD
 TEST_CASE("MBVH_CPU_ISA=avx2 runs the cpu backend as an AVX2-only machine would - a bad value is a clear error",
           "[cli][isa]") {
   const auto capped = run_cli("devices", "MBVH_CPU_ISA=avx2");
@@ -300,7 +302,83 @@ TEST_CASE("MBVH_CPU_ISA=avx2 runs the cpu backend as an AVX2-only machine would 
   const auto bad = run_cli("trace gen:cube:4 --count 200 --backend cpu", "MBVH_CPU_ISA=sse4");
   INFO(bad.output);
   CHECK(bad.code == 2);
-  CHECK(bad.output.find("MBVH_CPU_ISA=sse4 is not an ISA: set avx2 or avx512") != std::string::npos);
+  CHECK(bad.output.find("MBVH_CPU_ISA=sse4 is not an ISA: set scalar, avx2 or avx512") != std::string::npos);
+}
+#else
+TEST_CASE("the portable build has no x86 SIMD backend - a bad MBVH_CPU_ISA is still a clear error", "[cli][isa]") {
+  const auto devices = run_cli("devices");
+  INFO(devices.output);
+  REQUIRE(devices.code == 0);
+  CHECK(devices.output.find("(= cpu-scalar)") != std::string::npos);
+  const auto avx2 = run_cli("trace gen:cube:4 --count 200 --backend cpu-avx2");
+  INFO(avx2.output);
+  CHECK(avx2.code == 2);
+  CHECK(avx2.output.find("backend 'cpu-avx2' is not available in this build: this build has no x86 SIMD kernels") !=
+        std::string::npos);
+  const auto bad = run_cli("trace gen:cube:4 --count 200 --backend cpu", "MBVH_CPU_ISA=sse4");
+  INFO(bad.output);
+  CHECK(bad.code == 2);
+  CHECK(bad.output.find("MBVH_CPU_ISA=sse4 is not an ISA: set scalar, avx2 or avx512") != std::string::npos);
+}
+#endif
+
+// A machine without AVX2 (MBVH_CPU_ISA=scalar makes this one count as one; the portable build is
+// one by itself): `cpu` and `dacrt` run the portable kernels under their own names, say so once
+// in the log (standard error), and trace cpu-scalar's bytes; cpu-avx2 asked by name names why it
+// cannot start.
+TEST_CASE("without AVX2 cpu and dacrt fall back to the portable kernels with a notice - the same answers", "[cli][isa]") {
+  const std::string no_simd = "MBVH_CPU_ISA=scalar";
+  TempDir dir;
+  const std::string rays = dir.file("r.rays");
+  REQUIRE(run_cli("rays gen:sphere:32 --kind diffuse --count 3000 -o " + rays).code == 0);
+  const auto bytes = [](const std::string& path) {
+    std::ifstream f(path, std::ios::binary);
+    return std::string(std::istreambuf_iterator<char>(f), {});
+  };
+  const auto stderr_of = [&](const std::string& args) {  // standard error alone: the log
+    return mbvh_test::run_shell("{ env " + no_simd + " " + mbvh_test::cli_path() + " " + args + " 2>&1 >/dev/null; }");
+  };
+  // -- `devices`: cpu and dacrt stand for the portable backends
+  const auto resolved =
+      mbvh_test::run_shell("{ env " + no_simd + " " + mbvh_test::cli_path() + " devices --resolve cpu 2>/dev/null; }");
+  CHECK(resolved.output == "cpu-scalar\n");
+  // -- cpu: the notice, once, and cpu-scalar's bytes (closest and any hit)
+  for (const char* query : {"closest", "any"}) {
+    INFO(query);
+    const std::string q = std::string(" --query ") + query;
+    const auto fallback = stderr_of("trace gen:sphere:32 --rays " + rays + q + " --backend cpu -o " + dir.file("cpu.hits"));
+    INFO(fallback.output);
+    REQUIRE(fallback.code == 0);
+    const std::string notice = "backend 'cpu' runs cpu-scalar, the portable kernels: ";
+    const std::size_t at = fallback.output.find(notice);
+    CHECK(at != std::string::npos);
+    CHECK(fallback.output.find(notice, at + 1) == std::string::npos);  // one line, not one per batch
+#ifdef MBVH_HAVE_CPU_SIMD
+    CHECK_THAT(fallback.output, Catch::Contains(notice + "MBVH_CPU_ISA=scalar turns the SIMD kernels off"));
+#else
+    CHECK_THAT(fallback.output, Catch::Contains(notice + "this build has no SIMD kernels for "));
+#endif
+    REQUIRE(run_cli("trace gen:sphere:32 --rays " + rays + q + " --backend cpu-scalar -o " + dir.file("scalar.hits")).code == 0);
+    const std::string got = bytes(dir.file("cpu.hits"));
+    CHECK(got.size() >= 3000);  // a byte (any hit) or a hit record (closest) a ray
+    CHECK(got == bytes(dir.file("scalar.hits")));
+  }
+  // -- dacrt: the same, as dacrt-scalar
+  const auto dacrt = stderr_of("trace gen:sphere:32 --rays " + rays + " --backend dacrt -o " + dir.file("dacrt.hits"));
+  INFO(dacrt.output);
+  REQUIRE(dacrt.code == 0);
+  CHECK_THAT(dacrt.output, Catch::Contains("backend 'dacrt' runs dacrt-scalar, the portable kernels: "));
+  REQUIRE(run_cli("trace gen:sphere:32 --rays " + rays + " --backend dacrt-scalar -o " + dir.file("ds.hits")).code == 0);
+  CHECK(bytes(dir.file("dacrt.hits")) == bytes(dir.file("ds.hits")));
+  // -- cpu-avx2 by name: no fallback, an error naming why
+  const auto avx2 = run_cli("trace gen:sphere:32 --rays " + rays + " --backend cpu-avx2", no_simd);
+  INFO(avx2.output);
+  CHECK(avx2.code == 2);
+#ifdef MBVH_HAVE_CPU_SIMD
+  CHECK_THAT(avx2.output, Catch::Contains("backend 'cpu-avx2' cannot start: AVX2 is turned off by MBVH_CPU_ISA=scalar"));
+#else
+  CHECK_THAT(avx2.output, Catch::Contains("backend 'cpu-avx2' is not available in this build"));
+#endif
 }
 
 TEST_CASE("mbvh bench --dynamic times rebuilt, refitted and flat frames on the same rays and verifies each", "[cli]") {
@@ -362,12 +440,14 @@ TEST_CASE("mbvh devices --ready lists each backend that starts here once - --res
       CHECK(cpu.code == 0);
       CHECK(cpu.output == b.alias_of + "\n");
     }
+#ifdef MBVH_HAVE_CPU_SIMD
   if (__builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma")) {
     CHECK(names("devices --resolve cpu", "MBVH_CPU_ISA=avx2").output == "cpu-avx2\n");
     const auto off = run_cli("devices --resolve cpu-avx512", "MBVH_CPU_ISA=avx2");
     CHECK(off.code == 2);
     CHECK_THAT(off.output, Catch::Contains("backend 'cpu-avx512' cannot start"));
   }
+#endif
 }
 
 TEST_CASE("mbvh conventions - version and default backend and exit codes and quiet", "[cli]") {

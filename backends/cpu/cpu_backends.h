@@ -35,8 +35,8 @@ using DacrtBuffers = std::vector<std::unique_ptr<DacrtScratch>>;
 /// The SIMD policy's side record of a ray (dacrt/simd.h), for Backend::state_bytes.
 constexpr std::size_t kDacrtSimdSideBytes = 40;
 
-/// One ISA's compiled kernels (backends/cpu/isa_kernels.cpp, built once per ISA). Only call
-/// `trace` after CPUID says the ISA is there.
+/// One ISA's compiled kernels (backends/cpu/isa_kernels.cpp, built once per ISA on x86-64:
+/// MBVH_HAVE_CPU_SIMD). Only call `trace` after CPUID says the ISA is there.
 struct CpuKernels {
   const char* isa;
   /// hybrid: the packet traversals trace an incoherent packet ray by ray (the `cpu.packet-hybrid`
@@ -51,9 +51,29 @@ struct CpuKernels {
   RayQueryKernels (*ray_query)(const Accel&, const TraceOptions& closest, const TraceOptions& any);
 };
 
-/// The kernels of the best ISA this CPU has (AVX-512, else AVX2, within MBVH_CPU_ISA's cap), or
-/// null with `missing` saying why there are none (backends/cpu/simd_backend.cpp).
-const CpuKernels* best_cpu_kernels(std::string& missing);
+/// What `cpu` and `dacrt` run on this machine (backends/cpu/simd_backend.cpp), from the build
+/// (MBVH_HAVE_CPU_SIMD), CPUID and MBVH_CPU_ISA (unset, scalar, avx2 or avx512).
+struct CpuChoice {
+  /// The kernels of the best ISA this CPU has (AVX-512, else AVX2, within MBVH_CPU_ISA's cap);
+  /// null: the portable (scalar) kernels, or none (`error`).
+  const CpuKernels* kernels = nullptr;
+  /// With no kernels: why `cpu` and `dacrt` run the portable kernels of cpu-scalar and
+  /// dacrt-scalar ("this CPU has no AVX2 and FMA", "MBVH_CPU_ISA=scalar turns the SIMD kernels
+  /// off", a build without them), the text of their notice.
+  std::string portable_because;
+  /// Set when nothing may run: MBVH_CPU_ISA holds no ISA (a message naming the value).
+  std::string error;
+};
+CpuChoice choose_cpu_kernels();
+
+/// Registers `info` (cpu-scalar's or dacrt-scalar's, named `name`: cpu, dacrt) as a second name
+/// of the portable backend `portable`: its summary says so and why (`because`), and every backend
+/// it makes logs that once (LogLevel::info, mbvh/log.h): "backend 'cpu' runs cpu-scalar, the
+/// portable kernels: this CPU has no AVX2 and FMA".
+void register_portable_alias(BackendInfo info, const std::string& portable, const std::string& because);
+
+/// cpu-scalar's registration under `name` (cpu-scalar; cpu where that runs the portable kernels).
+BackendInfo cpu_scalar_info(const std::string& name);
 
 /// The portable (scalar) dacrt: the same recursion, box tests and triangle tests one ray at a time
 /// (backends/cpu/dacrt_scalar.cpp); the same bytes as the SIMD kernels'.

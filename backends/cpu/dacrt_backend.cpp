@@ -2,7 +2,8 @@
 // dacrt_backend.cpp — the `dacrt` backends: divide-and-conquer ray tracing without an acceleration
 // structure (Áfra, EG 2012; the thesis' chapter 6; backends/cpu/dacrt/recursion.h). `dacrt` runs the
 // SIMD policy of the best ISA this CPU has (the cpu backends' per-ISA build, isa_kernels.cpp),
-// `dacrt-scalar` the portable one; both give the same bytes. They read only the build's triangles
+// `dacrt-scalar` the portable one; both give the same bytes. Where there is no SIMD ISA (as for
+// `cpu`: simd_backend.cpp), `dacrt` is dacrt-scalar under a second name. They read only the build's triangles
 // (Accel::tris) and trace any build, a hierarchy's or one of quality none.
 #include <cerrno>
 #include <cmath>
@@ -89,6 +90,7 @@ public:
            std::to_string(threads_) + " thread(s)";
   }
   std::string isa() const override { return kernels_ ? kernels_->isa : "scalar"; }
+  std::string runs_as() const override { return kernels_ ? name_ : "dacrt-scalar"; }
   bool supports(Layout, Traversal t) const override { return t == Traversal::dacrt; }
   bool supports_precision(Precision) const override { return true; }
   /// The working set per ray: its filter record, id and side record (dacrt/recursion.h; the
@@ -116,32 +118,36 @@ private:
   DacrtBuffers buffers_;
 };
 
+BackendInfo dacrt_info(const std::string& name, const CpuKernels* k) {
+  BackendInfo info;
+  info.name = name;
+  info.make = [name, k](const BackendOptions& o) { return std::unique_ptr<Backend>(new DacrtBackend(name, k, o)); };
+  info.needs_hierarchy = false;
+  info.settings = dacrt_settings();
+  return info;
+}
+
 }  // namespace
 
 void register_dacrt_backends() {
-  BackendInfo simd;
-  simd.name = "dacrt";
-  simd.summary = "divide-and-conquer ray tracing without a hierarchy (thesis ch. 6), the best ISA of this CPU";
-  simd.make = [](const BackendOptions& o) -> std::unique_ptr<Backend> {
-    std::string missing;
-    const CpuKernels* k = best_cpu_kernels(missing);
-    if (!k) throw Error("backend 'dacrt' cannot start: " + missing + " (use dacrt-scalar)");
-    return std::make_unique<DacrtBackend>("dacrt", k, o);
-  };
-  simd.missing_hardware = [] {
-    std::string missing;
-    return best_cpu_kernels(missing) ? std::string() : missing;
-  };
-  simd.needs_hierarchy = false;
-  simd.settings = dacrt_settings();
-  register_backend(std::move(simd));
-
-  BackendInfo scalar;
-  scalar.name = "dacrt-scalar";
+  // `dacrt`: the best ISA's kernels; without one (choose_cpu_kernels), dacrt-scalar's under this
+  // name, with a notice; a bad MBVH_CPU_ISA stops it
+  const CpuChoice best = choose_cpu_kernels();
+  if (!best.portable_because.empty()) {
+    register_portable_alias(dacrt_info("dacrt", nullptr), "dacrt-scalar", best.portable_because);
+  } else {
+    BackendInfo simd = dacrt_info("dacrt", best.kernels);
+    simd.summary = "divide-and-conquer ray tracing without a hierarchy (thesis ch. 6), the best ISA of this CPU";
+    if (!best.kernels) {
+      simd.make = [e = best.error](const BackendOptions&) -> std::unique_ptr<Backend> {
+        throw Error("backend 'dacrt' cannot start: " + e);
+      };
+      simd.missing_hardware = [e = best.error] { return e; };
+    }
+    register_backend(std::move(simd));
+  }
+  BackendInfo scalar = dacrt_info("dacrt-scalar", nullptr);
   scalar.summary = "divide-and-conquer ray tracing without a hierarchy, portable scalar reference of the recursion";
-  scalar.make = [](const BackendOptions& o) { return std::unique_ptr<Backend>(new DacrtBackend("dacrt-scalar", nullptr, o)); };
-  scalar.needs_hierarchy = false;
-  scalar.settings = dacrt_settings();
   register_backend(std::move(scalar));
 }
 

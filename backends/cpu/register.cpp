@@ -1,11 +1,13 @@
 // SPDX-License-Identifier: MIT
-// register.cpp — mbvh::cpu's registration entry point (mbvh/backends.h) and the cpu family's
-// shared setting, cpu.leaf-block.
+// register.cpp — mbvh::cpu's registration entry point (mbvh/backends.h), the cpu family's
+// shared settings (cpu.leaf-block, cpu.packet-hybrid) and the portable fallback's second names.
 #include <string>
+#include <utility>
 
 #include "backends/cpu/cpu_backends.h"
 #include "mbvh/backends.h"
 #include "mbvh/error.h"
+#include "mbvh/log.h"
 
 namespace mbvh {
 
@@ -24,6 +26,18 @@ BackendSetting cpu_leaf_block_setting(const char* fallback) {
 BackendSetting cpu_packet_hybrid_setting(const char* note) {
   return {"cpu.packet-hybrid", std::string("packet traversals: a packet of incoherent rays is traced ray by ray (1, the default) "
                                            "or every packet as a packet (0)") + note};
+}
+
+void register_portable_alias(BackendInfo info, const std::string& portable, const std::string& because) {
+  const std::string notice = "backend '" + info.name + "' runs " + portable + ", the portable kernels: " + because;
+  info.alias_of = portable;
+  info.summary = "the best kernels of this machine; here " + portable + "'s portable ones (" + because + ")";
+  info.make = [make = std::move(info.make), notice](const BackendOptions& o) {
+    std::unique_ptr<Backend> b = make(o);  // settings refused before the notice
+    log_message(LogLevel::info, notice);
+    return b;
+  };
+  register_backend(std::move(info));
 }
 
 void register_cpu_backends() {

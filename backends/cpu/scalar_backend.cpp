@@ -1,7 +1,10 @@
 // SPDX-License-Identifier: MIT
 // scalar_backend.cpp — the `cpu-scalar` backend: the host's reference traversals (MBVH2 and
-// MBVH4, stack and bitstack, closest and any hit) multi-threaded over ray batches.
+// MBVH4, stack and bitstack, closest and any hit) multi-threaded over ray batches. The portable
+// kernels: `cpu` runs them too where there are no SIMD ones (simd_backend.cpp).
 #include <algorithm>
+#include <string>
+#include <utility>
 
 #include "backends/cpu/cpu_backends.h"
 #include "host/core/layouts.h"
@@ -13,12 +16,14 @@ namespace {
 
 class ScalarBackend final : public Backend {
 public:
-  explicit ScalarBackend(const BackendOptions& o) : threads_(resolve_threads(o.threads)), own_block_(cpu_leaf_block(o, 1)) {}
-  std::string name() const override { return "cpu-scalar"; }
+  ScalarBackend(std::string name, const BackendOptions& o)
+      : name_(std::move(name)), threads_(resolve_threads(o.threads)), own_block_(cpu_leaf_block(o, 1)) {}
+  std::string name() const override { return name_; }
   std::string describe() const override {
-    return "cpu-scalar: reference scalar traversals, " + std::to_string(threads_) + " thread(s)";
+    return name_ + ": reference scalar traversals, " + std::to_string(threads_) + " thread(s)";
   }
   std::string isa() const override { return "scalar"; }
+  std::string runs_as() const override { return "cpu-scalar"; }
   bool supports(Layout l, Traversal t) const override { return reference_supports(l, t); }
   std::vector<std::pair<Layout, Traversal>> fastest(Query q) const override { return reference_fastest(q); }
   bool supports_precision(Precision) const override { return true; }
@@ -34,16 +39,22 @@ public:
   }
 
 private:
+  std::string name_;  ///< cpu-scalar, or `cpu` where that runs the portable kernels
   unsigned threads_;
   unsigned own_block_;
 };
 
 }  // namespace
 
-void register_cpu_scalar_backend() {
-  register_backend({"cpu-scalar", "scalar reference traversals (MBVH2/MBVH4, stack/bitstack), multi-threaded",
-                    [](const BackendOptions& o) { return std::unique_ptr<Backend>(new ScalarBackend(o)); }, "", {}, "", {}, {},
-                    {cpu_leaf_block_setting("1"), cpu_packet_hybrid_setting("; cpu-scalar traces every ray alone")}});
+BackendInfo cpu_scalar_info(const std::string& name) {
+  BackendInfo info;
+  info.name = name;
+  info.summary = "scalar reference traversals (MBVH2/MBVH4, stack/bitstack), multi-threaded";
+  info.make = [name](const BackendOptions& o) { return std::unique_ptr<Backend>(new ScalarBackend(name, o)); };
+  info.settings = {cpu_leaf_block_setting("1"), cpu_packet_hybrid_setting("; cpu-scalar traces every ray alone")};
+  return info;
 }
+
+void register_cpu_scalar_backend() { register_backend(cpu_scalar_info("cpu-scalar")); }
 
 }  // namespace mbvh

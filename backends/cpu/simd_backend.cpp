@@ -1,38 +1,55 @@
 // SPDX-License-Identifier: MIT
 // simd_backend.cpp — the `cpu` backends: `cpu-avx2` and `cpu-avx512` run the per-ISA kernels of
 // isa_kernels.cpp; `cpu` picks the best this machine has, chosen once from CPUID. Forcing an
-// ISA the machine lacks fails with a clear message. MBVH_CPU_ISA=avx2 caps the ISA (as Embree's
-// `isa=` setting does): the AVX-512 kernels then count as absent, as on an AVX2-only machine.
+// ISA the machine lacks fails with a clear message. MBVH_CPU_ISA caps the ISA (as Embree's `isa=`
+// setting does): avx2 makes the AVX-512 kernels count as absent, as on an AVX2-only machine;
+// scalar makes both count as absent, as on a CPU without AVX2. Where there are no SIMD kernels (such
+// a CPU, that cap, or a build without them: any target but x86-64), `cpu` runs cpu-scalar's
+// portable kernels and says so in the log.
 #include <cstdlib>
 #include <cstring>
+#include <string>
 
 #include "backends/cpu/cpu_backends.h"
 #include "host/core/layouts.h"
 #include "mbvh/backend.h"
+#include "mbvh/config.h"
 #include "mbvh/error.h"
 #include "host/core/parallel.h"
 
 namespace mbvh {
 
+#ifdef MBVH_HAVE_CPU_SIMD
 extern const CpuKernels cpu_kernels_avx2;
 extern const CpuKernels cpu_kernels_avx512;
+#endif
 
 namespace {
 
-// MBVH_CPU_ISA: unset or empty = the best this CPU has; avx2 = no AVX-512; avx512 = as unset. Any
-// other value stops every SIMD backend with a message naming it (registration cannot throw).
-enum class IsaCap { best, avx2, invalid };
+// MBVH_CPU_ISA: unset or empty = the best this CPU has; avx2 = no AVX-512; scalar = no SIMD
+// kernels; avx512 = as unset. Any other value stops every SIMD backend and `cpu` with a message
+// naming it (registration cannot throw).
+enum class IsaCap { best, avx2, scalar, invalid };
 IsaCap isa_cap() {
   const char* cap = std::getenv("MBVH_CPU_ISA");
   if (!cap || !*cap || std::strcmp(cap, "avx512") == 0) return IsaCap::best;
-  return std::strcmp(cap, "avx2") == 0 ? IsaCap::avx2 : IsaCap::invalid;
+  if (std::strcmp(cap, "avx2") == 0) return IsaCap::avx2;
+  return std::strcmp(cap, "scalar") == 0 ? IsaCap::scalar : IsaCap::invalid;
 }
 std::string invalid_cap_message() {
   return std::string("MBVH_CPU_ISA=") + std::getenv("MBVH_CPU_ISA") +
-         " is not an ISA: set avx2 or avx512, or unset it for the best this CPU has";
+         " is not an ISA: set scalar, avx2 or avx512, or unset it for the best this CPU has";
 }
 
-bool has_avx2() { return isa_cap() != IsaCap::invalid && __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma"); }
+}  // namespace
+
+#ifdef MBVH_HAVE_CPU_SIMD
+namespace {
+
+bool has_avx2() {
+  const IsaCap cap = isa_cap();
+  return (cap == IsaCap::best || cap == IsaCap::avx2) && __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+}
 bool has_avx512() {
   return isa_cap() == IsaCap::best && __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl");
 }
@@ -107,11 +124,15 @@ void add(const char* name, const char* summary, const CpuKernels& k, bool (*avai
 
 }  // namespace
 
-const CpuKernels* best_cpu_kernels(std::string& missing) {
-  if (has_avx512()) return &cpu_kernels_avx512;
-  if (has_avx2()) return &cpu_kernels_avx2;
-  missing = isa_cap() == IsaCap::invalid ? invalid_cap_message() : "this CPU has neither AVX-512 nor AVX2";
-  return nullptr;
+CpuChoice choose_cpu_kernels() {
+  CpuChoice c;
+  const IsaCap cap = isa_cap();
+  if (cap == IsaCap::invalid) c.error = invalid_cap_message();
+  else if (has_avx512()) c.kernels = &cpu_kernels_avx512;
+  else if (has_avx2()) c.kernels = &cpu_kernels_avx2;
+  else if (cap == IsaCap::scalar) c.portable_because = "MBVH_CPU_ISA=scalar turns the SIMD kernels off";
+  else c.portable_because = "this CPU has no AVX2 and FMA";
+  return c;
 }
 
 void register_cpu_simd_backends() {
@@ -120,13 +141,52 @@ void register_cpu_simd_backends() {
     return cap == IsaCap::invalid ? invalid_cap_message() : std::string(missing);
   };
   add("cpu-avx2", "SIMD MBVH4/MBVH8 node tests and leaves, AVX2 build", cpu_kernels_avx2, &has_avx2,
-      why("this CPU has no AVX2"));
+      why(cap == IsaCap::scalar ? "AVX2 is turned off by MBVH_CPU_ISA=scalar" : "this CPU has no AVX2 and FMA"));
   add("cpu-avx512", "SIMD MBVH4/MBVH8 node tests and leaves, AVX-512 build", cpu_kernels_avx512, &has_avx512,
-      why(cap == IsaCap::avx2 ? "AVX-512 is turned off by MBVH_CPU_ISA=avx2" : "this CPU has no AVX-512F/VL"));
-  const bool avx512 = has_avx512();
-  add("cpu", "SIMD MBVH4/MBVH8 node tests and leaves, the best ISA of this CPU (AVX-512, else AVX2)",
-      avx512 ? cpu_kernels_avx512 : cpu_kernels_avx2, avx512 ? &has_avx512 : &has_avx2,
-      why("this CPU has neither AVX-512 nor AVX2 (use cpu-scalar)"), avx512 ? "cpu-avx512" : "cpu-avx2");
+      why(cap == IsaCap::avx2 || cap == IsaCap::scalar
+              ? (cap == IsaCap::avx2 ? "AVX-512 is turned off by MBVH_CPU_ISA=avx2" : "AVX-512 is turned off by MBVH_CPU_ISA=scalar")
+              : "this CPU has no AVX-512F/VL"));
+  // `cpu`: the best ISA; without one, cpu-scalar under this name (with a notice); a bad
+  // MBVH_CPU_ISA stops it as it stops the ISA backends
+  const CpuChoice best = choose_cpu_kernels();
+  if (!best.portable_because.empty()) {
+    register_portable_alias(cpu_scalar_info("cpu"), "cpu-scalar", best.portable_because);
+    return;
+  }
+  const bool avx512 = best.kernels == &cpu_kernels_avx512;
+  add("cpu", "SIMD MBVH4/MBVH8 node tests and leaves, the best ISA of this CPU (AVX-512, else AVX2, else cpu-scalar)",
+      avx512 ? cpu_kernels_avx512 : cpu_kernels_avx2, avx512 ? &has_avx512 : &has_avx2, why(""),
+      avx512 ? "cpu-avx512" : "cpu-avx2");
 }
+
+#else  // the portable build: no SIMD kernels; `cpu` is cpu-scalar
+
+CpuChoice choose_cpu_kernels() {
+  CpuChoice c;
+  if (isa_cap() == IsaCap::invalid) c.error = invalid_cap_message();
+  else c.portable_because = "this build has no SIMD kernels for " MBVH_TARGET_PROCESSOR " (they are x86-64's: MBVH_CPU_SIMD)";
+  return c;
+}
+
+void register_cpu_simd_backends() {
+  for (const char* name : {"cpu-avx2", "cpu-avx512"}) {
+    BackendInfo info;
+    info.name = name;
+    info.summary = "SIMD MBVH4/MBVH8 node tests and leaves, x86-64 only";
+    info.unavailable = "this build has no x86 SIMD kernels (a build for " MBVH_TARGET_PROCESSOR "; MBVH_CPU_SIMD is x86-64 only)";
+    register_backend(std::move(info));
+  }
+  const CpuChoice c = choose_cpu_kernels();
+  if (!c.error.empty()) {  // a bad MBVH_CPU_ISA: `cpu` cannot start, naming it
+    BackendInfo info = cpu_scalar_info("cpu");
+    info.make = [e = c.error](const BackendOptions&) -> std::unique_ptr<Backend> { throw Error("backend 'cpu' cannot start: " + e); };
+    info.missing_hardware = [e = c.error] { return e; };
+    register_backend(std::move(info));
+    return;
+  }
+  register_portable_alias(cpu_scalar_info("cpu"), "cpu-scalar", c.portable_because);
+}
+
+#endif
 
 }  // namespace mbvh

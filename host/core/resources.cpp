@@ -87,11 +87,15 @@ std::uint64_t address_space_left() {
 
 MemoryBudget system_budget() {
   if (const std::uint64_t avail = mem_available()) return {avail, "MemAvailable in /proc/meminfo; set MBVH_MEMORY_LIMIT to change"};
+  // no /proc (a POSIX system other than Linux): the physical memory, where sysconf can say it
+  // (_SC_PHYS_PAGES is an extension: Linux, the BSDs, macOS); else no limit but the caller's
+#ifdef _SC_PHYS_PAGES
   const long pages = sysconf(_SC_PHYS_PAGES), page = sysconf(_SC_PAGESIZE);
   if (pages > 0 && page > 0)
     return {static_cast<std::uint64_t>(pages) * static_cast<std::uint64_t>(page),
             "physical memory; set MBVH_MEMORY_LIMIT to change"};
-  return {UINT64_MAX, "unknown"};
+#endif
+  return {UINT64_MAX, "unknown; set MBVH_MEMORY_LIMIT to bound it"};
 }
 
 }  // namespace

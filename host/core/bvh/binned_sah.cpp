@@ -38,7 +38,9 @@ constexpr std::size_t kGrain = 16384;
 // min(+0, -0) keeps the operand order, which differs, so a tree's bytes may change with the
 // threshold while its splits do not). Below 64 records sparse bins take fewer instructions.
 constexpr std::uint32_t kDenseMin = 64;
+#if defined(__SSE2__)  // dense bins are SSE rows: elsewhere (aarch64) every node takes sparse bins
 static_assert(DenseBins::kMax == kMaxBins);
+#endif
 
 struct Bin {  // lane 3 unused
   alignas(16) float lo[4];
