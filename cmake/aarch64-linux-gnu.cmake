@@ -13,10 +13,10 @@ set(CMAKE_C_COMPILER aarch64-linux-gnu-gcc)
 set(CMAKE_CXX_COMPILER aarch64-linux-gnu-g++)
 # -L: the target's dynamic loader and C/C++ runtime (Debian's cross packages put them there)
 set(CMAKE_CROSSCOMPILING_EMULATOR qemu-aarch64 -L /usr/aarch64-linux-gnu)
-# Programs are linked statically: under qemu-user 7.2 (Debian 12) a dynamically linked aarch64
-# program spins forever in its first pthread_create (a four-thread std::thread test does; the same
-# program linked with -static runs), and every multi-threaded build and trace would hang.
-set(CMAKE_EXE_LINKER_FLAGS_INIT "-static")
+# Programs are linked statically (MBVH_STATIC_LINK): under qemu-user 7.2 (Debian 12) a dynamically
+# linked aarch64 program spins forever in its first pthread_create (a four-thread std::thread test
+# does; the same program linked with -static runs), and every multi-threaded build and trace would hang.
+set(MBVH_STATIC_LINK ON CACHE BOOL "" FORCE)
 # The target's libraries and CMake packages: the multiarch directories (/usr/lib/aarch64-linux-gnu,
 # found through CMAKE_LIBRARY_ARCHITECTURE) and the arch-independent ones under /usr; never a
 # host program's library (find_library searches no x86-64 directory with this architecture).

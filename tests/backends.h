@@ -45,6 +45,15 @@ inline mbvh::VariantGrid all_backends() {
   return g;
 }
 
+/// The SIMD cpu backends this machine runs (cpu-avx2, cpu-avx512; MBVH_TEST_BACKENDS narrows them):
+/// the backends with a single-ray query (RayQuery), so the ones instancing traces on too.
+inline std::vector<std::string> simd_cpu_backends() {
+  std::vector<std::string> names;
+  for (const std::string& n : mbvh::runnable_backends())
+    if (n.rfind("cpu-avx", 0) == 0 && backend_selected(n)) names.push_back(n);
+  return names;
+}
+
 /// `o` with the backend's own traversal where it has none of the hierarchy's (dacrt, which traces
 /// the triangles without one): a test written for the hierarchy's traversals runs such a backend on
 /// its own, which gives the reference's answers (up to the classified ties of another visit order).

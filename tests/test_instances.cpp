@@ -22,13 +22,6 @@ using namespace mbvh;
 
 namespace {
 
-std::vector<std::string> simd_backends() {
-  std::vector<std::string> names;
-  for (const std::string& n : runnable_backends())
-    if (n.rfind("cpu-avx", 0) == 0 && mbvh_test::backend_selected(n)) names.push_back(n);
-  return names;
-}
-
 /// The contract's answer without the top level: every instance whose mask meets `mask`, traced
 /// on its object-space ray by a query made apart from the scene's; the smallest t, equal t to the
 /// smaller instance (Hit.prim holds the flattened prim id).
@@ -128,7 +121,7 @@ Comparison check_scene(const InstanceScene& s, Backend& backend, const std::vect
 
 TEST_CASE("instances: answers equal the contract's bit for bit and the flattened brute force up to ties",
           "[instances]") {
-  const std::vector<std::string> names = simd_backends();
+  const std::vector<std::string> names = mbvh_test::simd_cpu_backends();
   if (names.empty()) {
     WARN("no SIMD cpu backend runs here: nothing to test");
     return;
@@ -151,7 +144,7 @@ TEST_CASE("instances: answers equal the contract's bit for bit and the flattened
 }
 
 TEST_CASE("instances: hits name the instance, the geometry and the triangle", "[instances]") {
-  const std::vector<std::string> names = simd_backends();
+  const std::vector<std::string> names = mbvh_test::simd_cpu_backends();
   if (names.empty()) return;
   // one mesh of two geometries (unit quads side by side at z = 0), a second of one
   const float quad_a[12] = {0, 0, 0, 1, 0, 0, 1, 1, 0, 0, 1, 0};
@@ -204,7 +197,7 @@ TEST_CASE("instances: hits name the instance, the geometry and the triangle", "[
 }
 
 TEST_CASE("instances: ray masks skip the instances they do not meet", "[instances]") {
-  const std::vector<std::string> names = simd_backends();
+  const std::vector<std::string> names = mbvh_test::simd_cpu_backends();
   if (names.empty()) return;
   auto backend = make_backend(names[0]);
   const std::shared_ptr<const Accel> sphere = Accel::build(generate_scene("sphere:16"));
@@ -251,7 +244,7 @@ TEST_CASE("instances: ray masks skip the instances they do not meet", "[instance
 }
 
 TEST_CASE("instances: refit and rebuild after moving instances equal a fresh build", "[instances]") {
-  const std::vector<std::string> names = simd_backends();
+  const std::vector<std::string> names = mbvh_test::simd_cpu_backends();
   if (names.empty()) return;
   auto backend = make_backend(names[0]);
   const std::shared_ptr<const Accel> sphere = Accel::build(generate_scene("sphere:20"));
@@ -287,7 +280,7 @@ TEST_CASE("instances: refit and rebuild after moving instances equal a fresh bui
 }
 
 TEST_CASE("instances: zero instances and zero meshes are a scene every ray misses", "[instances]") {
-  const std::vector<std::string> names = simd_backends();
+  const std::vector<std::string> names = mbvh_test::simd_cpu_backends();
   if (names.empty()) return;
   auto backend = make_backend(names[0]);
   const std::shared_ptr<const Accel> sphere = Accel::build(generate_scene("sphere:8"));
@@ -308,7 +301,7 @@ TEST_CASE("instances: zero instances and zero meshes are a scene every ray misse
 }
 
 TEST_CASE("instances: invalid rays are counted misses; bad input is refused by name", "[instances]") {
-  const std::vector<std::string> names = simd_backends();
+  const std::vector<std::string> names = mbvh_test::simd_cpu_backends();
   if (names.empty()) return;
   auto backend = make_backend(names[0]);
   const std::shared_ptr<const Accel> sphere = Accel::build(generate_scene("sphere:8"));

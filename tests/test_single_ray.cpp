@@ -22,14 +22,6 @@ using namespace mbvh;
 
 namespace {
 
-/// The SIMD cpu backends this machine runs (cpu-avx2, cpu-avx512; MBVH_TEST_BACKENDS narrows them).
-std::vector<std::string> simd_backends() {
-  std::vector<std::string> names;
-  for (const std::string& n : runnable_backends())
-    if (n.rfind("cpu-avx", 0) == 0 && mbvh_test::backend_selected(n)) names.push_back(n);
-  return names;
-}
-
 /// Rays of several kinds (primary, diffuse, shadow, random and the special rays: invalid ones,
 /// grazing ones, shared edges), `n` of each.
 std::vector<Ray> mixed_rays(const Scene& scene, const Accel& acc, std::size_t n) {
@@ -86,7 +78,7 @@ void check_query(Backend& backend, const Accel& acc, const RayQuery& q, const st
 
 TEST_CASE("single-ray query: every ray equals the batch trace and the reference, each layout and traversal",
           "[single-ray]") {
-  const std::vector<std::string> names = simd_backends();
+  const std::vector<std::string> names = mbvh_test::simd_cpu_backends();
   if (names.empty()) {
     WARN("no SIMD cpu backend runs here: nothing to test");
     return;
@@ -126,7 +118,7 @@ TEST_CASE("single-ray query: every ray equals the batch trace and the reference,
 }
 
 TEST_CASE("single-ray query: threads calling one query on one shared Accel agree with the batch", "[single-ray]") {
-  const std::vector<std::string> names = simd_backends();
+  const std::vector<std::string> names = mbvh_test::simd_cpu_backends();
   if (names.empty()) return;
   const Scene scene = load_scene("gen:hairball:30000");
   const auto acc = Accel::build(scene);
@@ -188,7 +180,7 @@ TEST_CASE("single-ray query: unsupported options, backends and out-of-range rays
   const RayQuery empty;
   CHECK(!empty.valid());
   refused([&] { (void)empty.intersect(Ray{0, 0, 5, 0, 0, 0, -1, INFINITY}); }, "an empty query");
-  const std::vector<std::string> names = simd_backends();
+  const std::vector<std::string> names = mbvh_test::simd_cpu_backends();
   if (names.empty()) return;
   auto cpu = make_backend(names.front());
   TraceOptions stats{Layout::mbvh4, Traversal::stack};
