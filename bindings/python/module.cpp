@@ -402,8 +402,8 @@ query="closest" returns a structured array of dtype HIT_DTYPE (t, u, v, prim; 16
 a .hits file's bytes; a miss has prim = MISS and t = inf); query="any" returns a uint8 array
 (1: occluded), an occlusion file's bytes. With stats=True, a tuple (answers, per-ray counters).
 backend: a name of backends(); threads: CPU workers (0: every core); layout and traversal default
-as `mbvh trace` does (bitstack on MBVH4, or MBVH2 where the backend has no MBVH4 traversal; dacrt
-for the dacrt backends; stack for embree). The GIL is released while tracing.)";
+as `mbvh trace` does: the backend's fastest exact traversal for the query ("auto"; e.g. cpu: MBVH8
+ordered stack for closest hit, MBVH8 bitstack for any hit). The GIL is released while tracing.)";
 
 }  // namespace
 
