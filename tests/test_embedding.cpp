@@ -88,7 +88,7 @@ TEST_CASE("defaults: TraceOptions{} traces each backend's fastest exact traversa
         CHECK(r.traversal == (q == Query::any ? Traversal::bitstack : Traversal::stack_ordered));
       } else if (name == "cpu-scalar") {
         CHECK(r.layout == Layout::mbvh4);
-        CHECK(r.traversal == (q == Query::any ? Traversal::stack : Traversal::stack_ordered));
+        CHECK(r.traversal == Traversal::stack_ordered);
       } else if (b->peer()) {
         CHECK(r.traversal == Traversal::stack);
       } else {  // the device backends: MBVH4 stack
@@ -159,7 +159,7 @@ TEST_CASE("defaults: mbvh trace names the traversal it picked", "[defaults]") {
       mbvh_test::run_cli("trace gen:sphere:16 --backend cpu-scalar --kind shadow --query any --count 1000");
   INFO(a.output);
   REQUIRE(a.code == 0);
-  CHECK(a.output.find("mbvh4/stack/any") != std::string::npos);
+  CHECK(a.output.find("mbvh4/stack-ordered/any") != std::string::npos);
 }
 
 TEST_CASE("task hook: the caller's runner runs the build and the trace, with the pool's answers", "[tasks]") {
