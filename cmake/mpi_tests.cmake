@@ -1,0 +1,27 @@
+# SPDX-License-Identifier: MIT
+# mpi_tests.cmake — the MPI tests (included by CMakeLists.txt when mbvh::mpi is built): each runs
+# under FindMPI's mpiexec on this host only (shared memory, loopback), as root where CI runs as
+# root, with more ranks than cores allowed, and a TIMEOUT so a hung rank cannot hold CI. Label
+# `mpi` (the Release stage's; scripts/test). Without MPI one test says "not built".
+
+# Open MPI's settings for one host (docs/mpi.md): run as root, oversubscribe 2 cores, no network.
+set(MBVH_MPI_TEST_ENV
+  "OMPI_ALLOW_RUN_AS_ROOT=1" "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1" "OMPI_MCA_rmaps_base_oversubscribe=1"
+  "OMPI_MCA_btl=self,vader" "OMPI_MCA_btl_vader_single_copy_mechanism=none"
+  "OMPI_MCA_btl_tcp_if_include=lo" "OMPI_MCA_oob_tcp_if_include=lo" "OMPI_MCA_hwloc_base_binding_policy=none"
+  "PRTE_MCA_rmaps_default_mapping_policy=:oversubscribe")
+
+# mbvh_mpi_test(NAME RANKS TIMEOUT COMMAND...): COMMAND on RANKS ranks of this host.
+function(mbvh_mpi_test name ranks timeout)
+  add_test(NAME "mpi: ${name}"
+           COMMAND ${MPIEXEC_EXECUTABLE} ${MPIEXEC_NUMPROC_FLAG} ${ranks} ${MPIEXEC_PREFLAGS} ${ARGN} ${MPIEXEC_POSTFLAGS})
+  set_tests_properties("mpi: ${name}" PROPERTIES LABELS mpi TIMEOUT ${timeout} ENVIRONMENT "${MBVH_MPI_TEST_ENV}")
+endfunction()
+
+# mbvh_mpi_script_test(NAME TIMEOUT SCRIPT ARGS...): a shell script that runs mpiexec itself
+# (several runs and their comparisons); it gets MBVH, MBVH_MPI, MPIEXEC and the scenes directory.
+function(mbvh_mpi_script_test name timeout script)
+  add_test(NAME "mpi: ${name}" COMMAND bash ${PROJECT_SOURCE_DIR}/${script} ${ARGN})
+  set_tests_properties("mpi: ${name}" PROPERTIES LABELS mpi TIMEOUT ${timeout}
+    ENVIRONMENT "${MBVH_MPI_TEST_ENV};MBVH=$<TARGET_FILE:mbvh-cli>;MBVH_MPI=$<TARGET_FILE:mbvh-mpi>;MPIEXEC=${MPIEXEC_EXECUTABLE};MBVH_SCENES_DIR=${MBVH_SCENES_DIR}")
+endfunction()
