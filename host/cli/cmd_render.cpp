@@ -4,6 +4,7 @@
 // --camera it reports the camera frame_scene chose, as a --camera argument.
 #include <nlohmann/json.hpp>
 
+#include "host/cli/args.h"
 #include "host/cli/commands.h"
 #include "host/cli/progress.h"
 #include "host/tools/image.h"
@@ -11,44 +12,41 @@
 
 namespace mbvh::cli {
 
-namespace {
-
-struct RenderArgs {
-  SceneArgs scene;
-  DeviceArgs dev;
-  std::string backend = "cpu", layout = "auto", traversal = "auto", mode = "path", out;
-  std::string precision = "robust", pfm, reference, curve;
-  RenderOptions o;
-  std::vector<float> camera;
-};
-
-// The render options from the arguments (all but the layout and traversal, which depend on the
-// backend), and --reference read into `reference`.
-RenderOptions render_options(const RenderArgs& a, std::vector<float>& reference) {
+RenderOptions RenderArgs::options(const Backend& b, std::vector<float>& ref) const {
+  const RenderArgs& a = *this;
   if (const std::uint64_t pixels = std::uint64_t(a.o.width) * a.o.height; pixels > fits_in_memory(kBytesPerPixel))
     throw Error("--width " + std::to_string(a.o.width) + " --height " + std::to_string(a.o.height) + ": " +
                 std::to_string(pixels) + " pixels of " + std::to_string(kBytesPerPixel) +
                 " bytes each do not fit in this machine's memory");
   require_ray_memory("--width " + std::to_string(a.o.width) + " --height " + std::to_string(a.o.height),
                      std::uint64_t(a.o.width) * a.o.height, kBytesPerPixel, "pixels");
-  RenderOptions o = a.o;
-  o.mode = parse_render_mode(a.mode);
-  o.traversal = parse_traversal(a.traversal);
-  o.threads = a.scene.threads;
-  o.precision = parse_precision(a.precision);
-  set_camera(a.camera, o.has_camera, o.camera);
+  RenderOptions r = a.o;
+  r.mode = parse_render_mode(a.mode);
+  r.traversal = parse_traversal(a.traversal);
+  r.threads = a.scene.threads;
+  r.precision = parse_precision(a.precision);
+  set_camera(a.camera, r.has_camera, r.camera);
   if (!a.reference.empty()) {
     unsigned w = 0, h = 0;
-    reference = read_pfm(a.reference, w, h);
-    if (w != o.width || h != o.height)
+    ref = read_pfm(a.reference, w, h);
+    if (w != r.width || h != r.height)
       throw Error(a.reference + ": the reference is " + std::to_string(w) + "x" + std::to_string(h) + ", the image " +
-                  std::to_string(o.width) + "x" + std::to_string(o.height));
-    o.reference = &reference;
+                  std::to_string(r.width) + "x" + std::to_string(r.height));
+    r.reference = &ref;
   } else if (!a.curve.empty()) {
     throw Error("--curve needs --reference (the converged image the curve measures against)");
   }
-  return o;
+  // auto (the default): the backend's fastest exact closest-hit traversal, named in the report
+  TraceOptions t;
+  t.layout = parse_layout(a.layout);
+  t.traversal = r.traversal;
+  t = resolve_options(b, t);
+  r.layout = t.layout;
+  r.traversal = t.traversal;
+  return r;
 }
+
+namespace {
 
 // --curve: the RMSE against time, as JSON.
 std::string curve_json(const RenderArgs& a, const Backend& backend, const Scene& scene, const RenderResult& res) {
@@ -65,19 +63,10 @@ int run_render(const RenderArgs& a) {
   prepare_outputs(outs, {{"scene", a.scene.scene}, {"--reference", a.reference}});
   // -- options, backend, variant
   std::vector<float> reference;
-  RenderOptions o = render_options(a, reference);
   SceneArgs scene = a.scene;
   scene.no_hierarchy_for({a.backend});  // a dacrt backend alone: no BVH built (quality none)
   auto backend = make_backend(a.backend, a.dev.options(scene.threads, scene.quality));
-  // auto (the default): the backend's fastest exact closest-hit traversal, named in the report
-  {
-    TraceOptions t;
-    t.layout = parse_layout(a.layout);
-    t.traversal = o.traversal;
-    t = resolve_options(*backend, t);
-    o.layout = t.layout;
-    o.traversal = t.traversal;
-  }
+  const RenderOptions o = a.options(*backend, reference);
   // -- scene and render
   Loaded l = load_and_build(scene);
   if (!quiet()) std::fprintf(stderr, "backend: %s\n", backend->describe().c_str());
@@ -115,27 +104,30 @@ int run_render(const RenderArgs& a) {
 
 }  // namespace
 
-Command add_render(CLI::App& app) {
-  auto a = std::make_shared<RenderArgs>();
-  RenderOptions& o = a->o;
-  auto* c = app.add_subcommand("render", "render an image on a backend: 8-bounce diffuse path tracing, AO or normals");
-  a->scene.add(c);
-  c->add_option("--backend", a->backend, "backend (see `mbvh devices`)");
-  c->add_option("--layout", a->layout, "mbvh2, mbvh4, mbvh8 or auto (the default: the layout the backend traces fastest with the traversal)");
-  c->add_option("--traversal", a->traversal, "stack, bitstack, stack-ordered, bitstack-retest, or packet-ranged, packet-partition, packet (cpu: 8x8-tile packets), or dacrt (no hierarchy), or auto (the default: the backend's fastest exact closest-hit traversal, docs/library.md \"Defaults\"; the report names it)");
-  c->add_option("--mode", a->mode, "path (8-bounce diffuse, point light and sky), ao or normals");
+void RenderArgs::add(CLI::App* c) {
+  scene.add(c);
+  c->add_option("--backend", backend, "backend (see `mbvh devices`)");
+  c->add_option("--layout", layout, "mbvh2, mbvh4, mbvh8 or auto (the default: the layout the backend traces fastest with the traversal)");
+  c->add_option("--traversal", traversal, "stack, bitstack, stack-ordered, bitstack-retest, or packet-ranged, packet-partition, packet (cpu: 8x8-tile packets), or dacrt (no hierarchy), or auto (the default: the backend's fastest exact closest-hit traversal, docs/library.md \"Defaults\"; the report names it)");
+  c->add_option("--mode", mode, "path (8-bounce diffuse, point light and sky), ao or normals");
   c->add_option("--spp", o.spp, "samples per pixel")->check(integer_in(1, 1u << 20));
   c->add_option("--bounces", o.bounces, "path mode: diffuse bounces after the primary hit")->check(integer_in(0, 1024));
   c->add_option("--width", o.width, "image width")->check(integer_in(1, 65536));
   c->add_option("--height", o.height, "image height")->check(integer_in(1, 65536));
   c->add_option("--seed", o.seed, "seed of every random number of the image")->check(integer_in(0, UINT64_MAX));
-  add_camera_option(c, a->camera);
-  c->add_option("-o,--output", a->out, "PNG file ('-': standard output, not a terminal)")->required();
-  c->add_option("--precision", a->precision, "accuracy mode: robust (default), exact or fast");
-  c->add_option("--pfm", a->pfm, "also write the linear image as PFM (a reference for --reference)");
-  c->add_option("--reference", a->reference, "PFM of the same size: report the RMSE against it after every sample pass");
-  c->add_option("--curve", a->curve, "with --reference: write the RMSE-against-time curve as JSON");
-  a->dev.add(c);
+  add_camera_option(c, camera);
+  c->add_option("-o,--output", out, "PNG file ('-': standard output, not a terminal)")->required();
+  c->add_option("--precision", precision, "accuracy mode: robust (default), exact or fast");
+  c->add_option("--pfm", pfm, "also write the linear image as PFM (a reference for --reference)");
+  c->add_option("--reference", reference, "PFM of the same size: report the RMSE against it after every sample pass");
+  c->add_option("--curve", curve, "with --reference: write the RMSE-against-time curve as JSON");
+  dev.add(c);
+}
+
+Command add_render(CLI::App& app) {
+  auto a = std::make_shared<RenderArgs>();
+  auto* c = app.add_subcommand("render", "render an image on a backend: 8-bounce diffuse path tracing, AO or normals");
+  a->add(c);
   return {c, [a] { return run_render(*a); }};
 }
 

@@ -1,20 +1,13 @@
 // SPDX-License-Identifier: MIT
 // cmd_trace.cpp — `mbvh trace`: trace rays on one backend and variant; write hits (closest) or
 // occlusion (any).
+#include "host/cli/args.h"
 #include "host/cli/commands.h"
 #include "host/cli/progress.h"
 
 namespace mbvh::cli {
 
 namespace {
-
-struct TraceArgs {
-  SceneArgs scene;
-  RayArgs rays;
-  DeviceArgs dev;
-  std::string backend = "cpu", layout = "auto", traversal = "auto", query = "closest", out, precision = "robust";
-  bool stats = false;
-};
 
 // Traces in batches so a long run shows progress; results are concatenated in ray order. `ms`:
 // the time spent in Backend::trace.
@@ -44,23 +37,10 @@ int run_trace(TraceArgs& a) {
   const OutputTarget hits_to{"-o", a.out};
   prepare_outputs({hits_to}, {{"scene", a.scene.scene}, {"--rays", a.rays.rays_file}});
   // -- the variant and the backend
-  TraceOptions o;
-  o.layout = parse_layout(a.layout);
-  o.traversal = parse_traversal(a.traversal);
-  o.query = parse_query(a.query);
-  o.stats = a.stats;
-  o.precision = parse_precision(a.precision);
   a.scene.no_hierarchy_for({a.backend});  // a dacrt backend alone: no BVH built (quality none)
   BackendOptions bo = a.dev.options(a.scene.threads, a.scene.quality);
   auto backend = make_backend(a.backend, bo);
-  // auto (the default): the backend's fastest exact traversal for the query, named in the report
-  o = resolve_options(*backend, o);
-  a.layout = to_string(o.layout);
-  a.traversal = to_string(o.traversal);
-  if (!backend->supports(o.layout, o.traversal))
-    throw Error("backend '" + a.backend + "' does not support " + a.layout + "/" + a.traversal);
-  if (!backend->supports_precision(o.precision))
-    throw Error("backend '" + a.backend + "' does not support precision '" + a.precision + "'");
+  const TraceOptions o = a.options(*backend);
   // -- scene, rays, trace
   a.rays.check_memory();
   Loaded l = load_and_build(a.scene);
@@ -94,19 +74,41 @@ int run_trace(TraceArgs& a) {
 
 }  // namespace
 
+void TraceArgs::add(CLI::App* c) {
+  scene.add(c);
+  rays.add(c, true);
+  c->add_option("--backend", backend, "backend (see `mbvh devices`)");
+  c->add_option("--layout", layout, "mbvh2, mbvh4, mbvh8 or auto (the default: the layout the backend traces fastest with the traversal)");
+  c->add_option("--traversal", traversal, "stack, bitstack, stack-ordered or bitstack-retest (bitstack-retest: MBVH4 only); packet-ranged, packet-partition or packet (cpu: packets of 64 rays over MBVH2, the layout for the hybrid's single rays); dacrt (no hierarchy, the layout ignored); auto (the default: the backend's fastest exact traversal for the query, docs/library.md \"Defaults\"; the report names it)");
+  c->add_option("--query", query, "closest (writes hits, 16 B/ray) or any (writes occlusion, 1 B/ray)");
+  c->add_option("-o,--output", out, "output file ('-': standard output)");
+  c->add_flag("--stats", stats, "also count work per ray (slower)");
+  c->add_option("--precision", precision, "accuracy mode: robust (default), exact or fast");
+  dev.add(c);
+}
+
+TraceOptions TraceArgs::options(const Backend& b) {
+  TraceOptions o;
+  o.layout = parse_layout(layout);
+  o.traversal = parse_traversal(traversal);
+  o.query = parse_query(query);
+  o.stats = stats;
+  o.precision = parse_precision(precision);
+  // auto (the default): the backend's fastest exact traversal for the query, named in the report
+  o = resolve_options(b, o);
+  layout = to_string(o.layout);
+  traversal = to_string(o.traversal);
+  if (!b.supports(o.layout, o.traversal))
+    throw Error("backend '" + backend + "' does not support " + layout + "/" + traversal);
+  if (!b.supports_precision(o.precision))
+    throw Error("backend '" + backend + "' does not support precision '" + precision + "'");
+  return o;
+}
+
 Command add_trace(CLI::App& app) {
   auto a = std::make_shared<TraceArgs>();
   auto* c = app.add_subcommand("trace", "trace rays; write hits (closest) or occlusion (any)");
-  a->scene.add(c);
-  a->rays.add(c, true);
-  c->add_option("--backend", a->backend, "backend (see `mbvh devices`)");
-  c->add_option("--layout", a->layout, "mbvh2, mbvh4, mbvh8 or auto (the default: the layout the backend traces fastest with the traversal)");
-  c->add_option("--traversal", a->traversal, "stack, bitstack, stack-ordered or bitstack-retest (bitstack-retest: MBVH4 only); packet-ranged, packet-partition or packet (cpu: packets of 64 rays over MBVH2, the layout for the hybrid's single rays); dacrt (no hierarchy, the layout ignored); auto (the default: the backend's fastest exact traversal for the query, docs/library.md \"Defaults\"; the report names it)");
-  c->add_option("--query", a->query, "closest (writes hits, 16 B/ray) or any (writes occlusion, 1 B/ray)");
-  c->add_option("-o,--output", a->out, "output file ('-': standard output)");
-  c->add_flag("--stats", a->stats, "also count work per ray (slower)");
-  c->add_option("--precision", a->precision, "accuracy mode: robust (default), exact or fast");
-  a->dev.add(c);
+  a->add(c);
   return {c, [a] { return run_trace(*a); }};
 }
 

@@ -168,7 +168,7 @@ BuildOptions SceneArgs::build_options() const {
   return bo;
 }
 
-Loaded load_and_build(const SceneArgs& a, bool verbose) {
+Loaded load_and_build(const SceneArgs& a, bool verbose, const AccelMaker& make) {
   Loaded l;
   // -- load
   auto t0 = Clock::now();
@@ -182,8 +182,8 @@ Loaded load_and_build(const SceneArgs& a, bool verbose) {
   Accel::CacheReport cr;
   std::uint64_t max_bytes = 0;
   if (!a.cache_max_size.empty()) parse_size(a.cache_max_size, max_bytes);  // checked by the option's validator
-  l.acc = a.cache.empty() ? Accel::build(l.scene, bo)
-                          : Accel::build_cached(l.scene, bo, Accel::CacheOptions{a.cache, g_command_files, max_bytes}, &cr);
+  const Accel::CacheOptions co{a.cache, g_command_files, max_bytes};
+  l.acc = make ? make(l.scene, bo, co, &cr) : a.cache.empty() ? Accel::build(l.scene, bo) : Accel::build_cached(l.scene, bo, co, &cr);
   const double ms = ms_since(t1);
   p.finish();
   // -- report

@@ -119,9 +119,14 @@ struct Loaded {
   double load_ms = 0;
 };
 
+/// What makes the BVH in load_and_build instead of Accel::build / Accel::build_cached (mbvh-mpi:
+/// one rank builds, the others read its build); it gets the --cache directory (empty without it).
+using AccelMaker = std::function<std::unique_ptr<Accel>(const Scene&, const BuildOptions&, const Accel::CacheOptions&,
+                                                        Accel::CacheReport*)>;
+
 /// Loads the scene and builds (or reads from --cache) its BVH with a progress bar; reports the
 /// scene, the build and its hash on standard error when `verbose` or with --cache.
-Loaded load_and_build(const SceneArgs& a, bool verbose = true);
+Loaded load_and_build(const SceneArgs& a, bool verbose = true, const AccelMaker& make = {});
 
 // -- backends and devices
 

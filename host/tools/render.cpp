@@ -92,11 +92,12 @@ public:
     if (!backend.supports(opt.layout, opt.traversal))
       throw Error("render: backend '" + backend.name() + "' has no " + to_string(opt.layout) + "/" +
                   to_string(opt.traversal) + " traversal");
+    const Box bounds = opt.bounds ? *opt.bounds : acc.bounds();
     if (opt.has_camera) cam_ = opt.camera;
     else {
-      const Framing f = frame_scene(acc.bounds(), [this](const std::vector<Ray>& rays, std::vector<Hit>& hits) {
+      const Framing f = frame_scene(bounds, [this](const std::vector<Ray>& rays, std::vector<Hit>& hits) {
         TraceOutput out;
-        backend_.trace(acc_, rays, TraceOptions{opt_.layout, opt_.traversal, Query::closest, false, opt_.precision}, out);
+        trace_batch(rays, TraceOptions{opt_.layout, opt_.traversal, Query::closest, false, opt_.precision}, out);
         hits = std::move(out.hits);
       });
       cam_ = f.camera;
@@ -104,8 +105,8 @@ public:
     }
     res_.camera = cam_;
     if (const std::string p = camera_problem(cam_); !p.empty()) throw Error("render: camera: " + p);
-    light_ = default_light(acc.bounds());
-    const Vec3f e = acc.bounds().extent();
+    light_ = default_light(bounds);
+    const Vec3f e = bounds.extent();
     diag2_ = e.x * e.x + e.y * e.y + e.z * e.z;
     light_power_ = 0.08f * diag2_;  // lights the scene at about half its diagonal
     ao_radius_ = 0.1f * std::sqrt(diag2_);
@@ -115,19 +116,29 @@ public:
   /// row (clipped at the image's edges), as tiled renderers trace them: 64 consecutive camera rays
   /// are one tile, a packet of the cpu backend's packet traversals (MBVH_PACKET_RAYS), and the
   /// shadow and next rays keep the order of their paths.
-  static std::vector<std::uint32_t> tile_order(unsigned w, unsigned h) {
+  /// With RenderOptions::tiles, the pixels of those tiles in their order.
+  static std::vector<std::uint32_t> tile_order(unsigned w, unsigned h, const std::vector<std::uint32_t>* tiles) {
     constexpr unsigned kTile = 8;
     std::vector<std::uint32_t> order;
-    order.reserve(static_cast<std::size_t>(w) * h);
-    for (unsigned ty = 0; ty < h; ty += kTile)
-      for (unsigned tx = 0; tx < w; tx += kTile)
-        for (unsigned y = ty; y < std::min(h, ty + kTile); ++y)
-          for (unsigned x = tx; x < std::min(w, tx + kTile); ++x) order.push_back(y * w + x);
+    const std::uint32_t count = tile_count(w, h);
+    auto add_tile = [&](std::uint32_t t) {
+      if (t >= count)
+        throw Error("render: tile " + std::to_string(t) + " is not one of the image's " + std::to_string(count) + " tiles");
+      const unsigned tx = (t % tiles_x(w)) * kTile, ty = (t / tiles_x(w)) * kTile;
+      for (unsigned y = ty; y < std::min(h, ty + kTile); ++y)
+        for (unsigned x = tx; x < std::min(w, tx + kTile); ++x) order.push_back(y * w + x);
+    };
+    if (tiles) {
+      for (std::uint32_t t : *tiles) add_tile(t);
+    } else {
+      order.reserve(static_cast<std::size_t>(w) * h);
+      for (std::uint32_t t = 0; t < count; ++t) add_tile(t);
+    }
     return order;
   }
 
   RenderResult run(const std::function<void(unsigned, unsigned)>& progress) {
-    tile_order_ = tile_order(opt_.width, opt_.height);
+    tile_order_ = tile_order(opt_.width, opt_.height, opt_.tiles);
     const auto t0 = std::chrono::steady_clock::now();
     res_.width = opt_.width;
     res_.height = opt_.height;
@@ -160,9 +171,15 @@ private:
     o.precision = opt_.precision;
     if (opt_.capture && q == Query::closest) opt_.capture->insert(opt_.capture->end(), rays.begin(), rays.end());
     const auto t0 = std::chrono::steady_clock::now();
-    backend_.trace(acc_, rays, o, out);
+    trace_batch(rays, o, out);
     res_.trace_seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     res_.rays += rays.size();
+  }
+
+  // The backend's trace, or RenderOptions::tracer (a collective call: made for empty batches too).
+  void trace_batch(std::span<const Ray> rays, const TraceOptions& o, TraceOutput& out) {
+    if (opt_.tracer) opt_.tracer(rays, o, out);
+    else backend_.trace(acc_, rays, o, out);
   }
 
   void add(std::uint32_t pixel, const Rgb& c) {
@@ -181,7 +198,7 @@ private:
   }
 
   void sample_pass(unsigned sample) {
-    const std::size_t pixels = static_cast<std::size_t>(opt_.width) * opt_.height;
+    const std::size_t pixels = tile_order_.size();  // all of them, or those of RenderOptions::tiles
     const double aspect = double(opt_.width) / double(opt_.height);
     std::vector<Path> paths(pixels, Path{0, {1, 1, 1}, Rng(0)});
     std::vector<Ray> rays(pixels);
@@ -199,7 +216,9 @@ private:
     std::vector<Ray> next, shadow;
     std::vector<Path> next_paths;
     std::vector<Rgb> direct;
-    for (unsigned bounce = 0; bounce < bounces && !rays.empty(); ++bounce) {
+    // with a collective tracer every rank makes the same calls, so no early end on an empty batch
+    const bool collective = static_cast<bool>(opt_.tracer);
+    for (unsigned bounce = 0; bounce < bounces && (collective || !rays.empty()); ++bounce) {
       trace(rays, Query::closest, hits);
       const std::size_t n = rays.size();
       if (opt_.mode == RenderMode::normals) {
@@ -260,7 +279,7 @@ private:
           lit_paths.push_back(static_cast<std::uint32_t>(i));
           lit_rays.push_back(shadow[i]);
         }
-      if (!lit_rays.empty()) trace(lit_rays, Query::any, occ);
+      if (collective || !lit_rays.empty()) trace(lit_rays, Query::any, occ);
       for_each(lit_paths.size(), [&](std::size_t k) {
         if (!occ.occluded[k]) add(paths[lit_paths[k]].pixel, direct[lit_paths[k]]);
       });

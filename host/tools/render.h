@@ -5,6 +5,7 @@
 #pragma once
 #include <cstdint>
 #include <functional>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -39,7 +40,25 @@ struct RenderOptions {
   /// If set, every closest-hit ray the renderer traces (all bounces, in order) is appended: the
   /// `path` ray kind of the benchmark.
   std::vector<Ray>* capture = nullptr;
+  /// If set, only the pixels of these 8x8 tiles are rendered (tile t: column t % tiles_x(width),
+  /// row t / tiles_x(width)), in this order; the other pixels stay 0. Every pixel's value is the
+  /// one a whole render gives it (mbvh-mpi: each rank renders its tiles).
+  const std::vector<std::uint32_t>* tiles = nullptr;
+  /// If set, traces every batch instead of backend.trace: mbvh-mpi's collective trace over the
+  /// ranks' parts of the scene. It is then called the same number of times whatever the batch
+  /// sizes (empty batches too): once for the camera's probe rays without a camera, then for every
+  /// sample pass, per bounce, one closest-hit batch and one any-hit batch (normals: the first
+  /// closest-hit batch only; ao: one bounce).
+  std::function<void(std::span<const Ray>, const TraceOptions&, TraceOutput&)> tracer;
+  /// If set, the scene's bounds (framing, light, AO radius) instead of acc.bounds(): with
+  /// `tracer`, `acc` may hold a part of the scene.
+  const Box* bounds = nullptr;
 };
+
+/// The 8x8 tiles across an image `width` pixels wide (RenderOptions::tiles).
+inline unsigned tiles_x(unsigned width) { return (width + 7) / 8; }
+/// The 8x8 tiles of a width x height image.
+inline std::uint32_t tile_count(unsigned width, unsigned height) { return tiles_x(width) * ((height + 7) / 8); }
 
 /// One point of the image-error-against-time curve.
 struct CurvePoint {

@@ -74,6 +74,29 @@ enum class Schedule { static_batches, dynamic };
 const char* to_string(Schedule s);
 Schedule parse_schedule(const std::string& s);  ///< "static" or "dynamic"; throws Error otherwise
 
+/// The dynamic schedule's work queue: `total` items (batches, tiles) in P queues, queue r holding
+/// the contiguous share [total*r/P, total*(r+1)/P) of rank r. next() takes the next item of this
+/// rank's queue and, once that is empty, steals from the queue with the most items left, until
+/// every queue is empty (-1). The counters live in a window on rank 0, changed by one-sided atomic
+/// fetch-and-add (MPI_Fetch_and_op): no rank serves requests. Collective construction and
+/// destruction; next() is called by each rank alone, any number of times.
+class WorkQueue {
+public:
+  WorkQueue(const Comm& comm, std::uint64_t total, Traffic* traffic = nullptr);
+  ~WorkQueue();
+  WorkQueue(const WorkQueue&) = delete;
+  WorkQueue& operator=(const WorkQueue&) = delete;
+  std::int64_t next();
+  /// The first item of rank r's queue (r = P: total).
+  std::uint64_t queue_begin(int r) const;
+
+private:
+  Comm comm_;
+  std::uint64_t total_;
+  Traffic* traffic_;
+  MPI_Win win_ = MPI_WIN_NULL;
+};
+
 struct ScheduleOptions {
   Schedule schedule = Schedule::static_batches;
   std::size_t batch = 65536;  ///< rays per batch (at least 1)
