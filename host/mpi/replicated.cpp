@@ -139,6 +139,46 @@ std::int64_t WorkQueue::next() {
   return item;
 }
 
+// What trace() keeps between calls, so a repeated trace of as many rays touches no fresh memory
+// (on these machines a first-touched page costs microseconds: fresh buffers for 1M rays cost as much
+// as tracing them): this rank's rays and answers, the gathered answers and, for the dynamic
+// schedule, the root's window of rays. Freed when MPI_Finalize begins (an attribute of
+// MPI_COMM_SELF), while MPI_Win_free can still be called.
+struct Scratch {
+  std::vector<Ray> rays;
+  TraceOutput part;
+  std::vector<char> gathered;
+  std::vector<std::uint64_t> batches;
+  MPI_Comm win_comm = MPI_COMM_NULL;  ///< the window's communicator
+  MPI_Win win = MPI_WIN_NULL;
+  Ray* exposed = nullptr;
+  std::uint64_t capacity = 0;  ///< rays the window holds
+  void free_window() {
+    if (win != MPI_WIN_NULL) MPI_Win_free(&win);  // collective over win_comm
+    win_comm = MPI_COMM_NULL;
+    exposed = nullptr;
+    capacity = 0;
+  }
+};
+
+Scratch& scratch() {
+  static Scratch* s = [] {
+    auto* p = new Scratch;
+    int key = MPI_KEYVAL_INVALID;
+    MPI_Comm_create_keyval(MPI_COMM_NULL_COPY_FN,
+                           [](MPI_Comm, int, void* v, void*) {
+                             auto* sc = static_cast<Scratch*>(v);
+                             sc->free_window();
+                             delete sc;
+                             return MPI_SUCCESS;
+                           },
+                           &key, nullptr);
+    MPI_Comm_set_attr(MPI_COMM_SELF, key, p);
+    return p;
+  }();
+  return *s;
+}
+
 void trace(const Comm& comm, Backend& backend, const Accel& acc, std::span<const Ray> rays, const TraceOptions& asked,
            TraceOutput& out, const ScheduleOptions& sched, Traffic* t) {
   if (asked.stats) throw Error("mbvh::mpi::trace: statistics (TraceOptions::stats) are not gathered over ranks");
@@ -146,123 +186,131 @@ void trace(const Comm& comm, Backend& backend, const Accel& acc, std::span<const
   const TraceOptions opt = resolve_options(backend, asked);
   const bool any = opt.query == Query::any;
   const int P = comm.size(), me = comm.rank();
+  Scratch& sc = scratch();
   // -- the ray count and batches, from the root; the root checks the range once, naming the ray
   std::uint64_t n = comm.root() ? rays.size() : 0;
   if (comm.root() && acc.has_hierarchy()) check_ray_range(acc, rays, backend.name());
   call(t, "MPI_Bcast (ray count)", 8, 8, [&] { return MPI_Bcast(&n, 1, MPI_UINT64_T, 0, comm.comm); });
   const std::uint64_t batch = sched.batch, batches = (n + batch - 1) / batch;
   auto batch_rays = [&](std::uint64_t b) { return std::min(batch, n - b * batch); };
+  // rank r's share: the batches [batches*r/P, batches*(r+1)/P), rays [share(r), share(r+1))
+  auto share = [&](int r) { return std::min(n, batches * static_cast<std::uint64_t>(r) / static_cast<std::uint64_t>(P) * batch); };
   const RecordType ray_t(sizeof(Ray)), res_t(any ? 1 : static_cast<int>(sizeof(Hit)));
   const std::size_t res_bytes = any ? 1 : sizeof(Hit);
-  // -- which batches this rank traces, and their rays
-  std::vector<std::uint64_t> mine;  // batch indices, in the order traced
-  std::vector<Ray> local;
+  if (comm.root()) out.reset(n, opt);
+  char* answers = comm.root() ? (any ? reinterpret_cast<char*>(out.occluded.data()) : reinterpret_cast<char*>(out.hits.data())) : nullptr;
+  auto answer_bytes = [&](const TraceOutput& o) {
+    return any ? reinterpret_cast<const char*>(o.occluded.data()) : reinterpret_cast<const char*>(o.hits.data());
+  };
+  std::uint64_t invalid = 0;
   if (sched.schedule == Schedule::static_batches) {
-    // batch b on rank b mod P; the root packs each rank's batches together for one MPI_Scatterv
-    for (std::uint64_t b = static_cast<std::uint64_t>(me); b < batches; b += static_cast<std::uint64_t>(P))
-      mine.push_back(b);
-    std::vector<int> counts(static_cast<std::size_t>(P), 0), displs(static_cast<std::size_t>(P), 0);
-    std::vector<Ray> packed;
-    if (comm.root()) {
-      packed.reserve(n);
-      for (int r = 0; r < P; ++r) {
-        displs[static_cast<std::size_t>(r)] = count(packed.size(), "MPI_Scatterv (rays)");
-        for (std::uint64_t b = static_cast<std::uint64_t>(r); b < batches; b += static_cast<std::uint64_t>(P))
-          packed.insert(packed.end(), rays.begin() + static_cast<std::ptrdiff_t>(b * batch),
-                        rays.begin() + static_cast<std::ptrdiff_t>(b * batch + batch_rays(b)));
-        counts[static_cast<std::size_t>(r)] = count(packed.size(), "MPI_Scatterv (rays)") - displs[static_cast<std::size_t>(r)];
-      }
+    // static: each rank its contiguous share (the root's rays sent straight from the caller's
+    // array, the answers gathered straight into `out`: no packing)
+    std::vector<int> counts(static_cast<std::size_t>(P)), displs(static_cast<std::size_t>(P));
+    for (int r = 0; r < P; ++r) {
+      displs[static_cast<std::size_t>(r)] = count(share(r), "MPI_Scatterv (rays)");
+      counts[static_cast<std::size_t>(r)] = count(share(r + 1) - share(r), "MPI_Scatterv (rays)");
     }
-    std::uint64_t mine_n = 0;
-    for (std::uint64_t b : mine) mine_n += batch_rays(b);
-    local.resize(mine_n);
-    call(t, "MPI_Scatterv (rays)", comm.root() ? (n - mine_n) * sizeof(Ray) : 0, comm.root() ? 0 : mine_n * sizeof(Ray), [&] {
-      return MPI_Scatterv(packed.data(), counts.data(), displs.data(), ray_t.type, local.data(),
-                          count(mine_n, "MPI_Scatterv (rays)"), ray_t.type, 0, comm.comm);
+    const std::uint64_t mine = share(me + 1) - share(me);
+    if (!comm.root()) sc.rays.resize(mine);
+    call(t, "MPI_Scatterv (rays)", comm.root() ? (n - mine) * sizeof(Ray) : 0, comm.root() ? 0 : mine * sizeof(Ray), [&] {
+      return MPI_Scatterv(rays.data(), counts.data(), displs.data(), ray_t.type, comm.root() ? MPI_IN_PLACE : sc.rays.data(),
+                          count(mine, "MPI_Scatterv (rays)"), ray_t.type, 0, comm.comm);
+    });
+    // one trace call, so the backend's threads share all of this rank's rays
+    backend.trace(acc, comm.root() ? rays.subspan(0, mine) : std::span<const Ray>(sc.rays), opt, sc.part);
+    invalid = sc.part.invalid;
+    if (comm.root()) std::copy_n(answer_bytes(sc.part), mine * res_bytes, answers);
+    call(t, "MPI_Gatherv (answers)", comm.root() ? 0 : mine * res_bytes, comm.root() ? (n - mine) * res_bytes : 0, [&] {
+      return MPI_Gatherv(comm.root() ? MPI_IN_PLACE : answer_bytes(sc.part), count(mine, "MPI_Gatherv (answers)"), res_t.type,
+                         answers, counts.data(), displs.data(), res_t.type, 0, comm.comm);
     });
   } else {
     // dynamic: batches from the work queue (its own share first, then stolen); each batch's rays
-    // read from the root's window (one-sided: no rank serves requests)
-    WorkQueue queue(comm, batches, t);
-    MPI_Win rwin = MPI_WIN_NULL;
-    Ray* exposed = nullptr;  // the root's copy of the rays, in an allocated window (see WorkQueue)
-    call(t, "MPI_Win_allocate (rays)", 0, 0, [&] {
-      return MPI_Win_allocate(static_cast<MPI_Aint>(comm.root() ? n * sizeof(Ray) : 0), sizeof(Ray), MPI_INFO_NULL,
-                              comm.comm, &exposed, &rwin);
-    });
-    if (comm.root()) std::copy(rays.begin(), rays.end(), exposed);
-    struct Window {  // freed however this leaves
-      MPI_Win& w;
-      ~Window() { MPI_Win_free(&w); }
-    } window{rwin};
-    call(t, "MPI_Barrier (rays)", 0, 0, [&] { return MPI_Barrier(comm.comm); });  // the rays are in place
-    call(t, "MPI_Win_lock_all", 0, 0, [&] { return MPI_Win_lock_all(0, rwin); });
-    for (std::int64_t b; (b = queue.next()) >= 0;) {
-      const std::uint64_t ub = static_cast<std::uint64_t>(b), k = batch_rays(ub);
-      mine.push_back(ub);
-      local.resize(local.size() + k);
-      call(t, "MPI_Get (rays)", 0, comm.root() ? 0 : k * sizeof(Ray), [&] {
-        return MPI_Get(local.data() + local.size() - k, count(k, "MPI_Get (rays)"), ray_t.type, 0,
-                       static_cast<MPI_Aint>(ub * batch), count(k, "MPI_Get (rays)"), ray_t.type, rwin);
+    // read from the root's window (one-sided: no rank serves requests), kept between calls
+    if (sc.win != MPI_WIN_NULL) {
+      int same = MPI_UNEQUAL;
+      MPI_Comm_compare(sc.win_comm, comm.comm, &same);
+      if (same != MPI_IDENT || n > sc.capacity) sc.free_window();  // every rank knows n: they agree
+    }
+    if (sc.win == MPI_WIN_NULL) {
+      // MPI_Win_allocate (see WorkQueue); room for the rays of this call
+      call(t, "MPI_Win_allocate (rays)", 0, 0, [&] {
+        return MPI_Win_allocate(static_cast<MPI_Aint>(comm.root() ? n * sizeof(Ray) : 0), sizeof(Ray), MPI_INFO_NULL,
+                                comm.comm, &sc.exposed, &sc.win);
       });
-      call(t, "MPI_Win_flush", 0, 0, [&] { return MPI_Win_flush(0, rwin); });
+      sc.win_comm = comm.comm;
+      sc.capacity = n;
     }
-    call(t, "MPI_Win_unlock_all", 0, 0, [&] { return MPI_Win_unlock_all(rwin); });
+    if (comm.root()) std::copy(rays.begin(), rays.end(), sc.exposed);
+    call(t, "MPI_Barrier (rays)", 0, 0, [&] { return MPI_Barrier(comm.comm); });  // the rays are in place
+    sc.batches.clear();
+    sc.rays.clear();
+    {
+      WorkQueue queue(comm, batches, t);
+      call(t, "MPI_Win_lock_all", 0, 0, [&] { return MPI_Win_lock_all(0, sc.win); });
+      for (std::int64_t b; (b = queue.next()) >= 0;) {
+        const std::uint64_t ub = static_cast<std::uint64_t>(b), k = batch_rays(ub);
+        sc.batches.push_back(ub);
+        sc.rays.resize(sc.rays.size() + k);
+        call(t, "MPI_Get (rays)", 0, comm.root() ? 0 : k * sizeof(Ray), [&] {
+          return MPI_Get(sc.rays.data() + sc.rays.size() - k, count(k, "MPI_Get (rays)"), ray_t.type, 0,
+                         static_cast<MPI_Aint>(ub * batch), count(k, "MPI_Get (rays)"), ray_t.type, sc.win);
+        });
+        call(t, "MPI_Win_flush", 0, 0, [&] { return MPI_Win_flush(0, sc.win); });
+      }
+      call(t, "MPI_Win_unlock_all", 0, 0, [&] { return MPI_Win_unlock_all(sc.win); });
+    }
+    backend.trace(acc, sc.rays, opt, sc.part);
+    invalid = sc.part.invalid;
+    // -- gather: which batches each rank traced, then their answers, placed in ray order
+    const int nb = count(sc.batches.size(), "MPI_Gather (batches)");
+    std::vector<int> nbs(comm.root() ? static_cast<std::size_t>(P) : 0), bdispl(nbs.size(), 0);
+    call(t, "MPI_Gather (batch counts)", 4, comm.root() ? 4u * static_cast<unsigned>(P) : 0, [&] {
+      return MPI_Gather(&nb, 1, MPI_INT, nbs.data(), 1, MPI_INT, 0, comm.comm);
+    });
+    std::vector<std::uint64_t> all_batches;
+    std::vector<int> rcounts(nbs.size(), 0), rdispl(nbs.size(), 0);
+    if (comm.root()) {
+      int sum = 0;
+      for (std::size_t r = 0; r < nbs.size(); ++r) {
+        bdispl[r] = sum;
+        sum += nbs[r];
+      }
+      all_batches.resize(static_cast<std::size_t>(sum));
+    }
+    call(t, "MPI_Gatherv (batch ids)", sc.batches.size() * 8, comm.root() ? all_batches.size() * 8 : 0, [&] {
+      return MPI_Gatherv(sc.batches.data(), nb, MPI_UINT64_T, all_batches.data(), nbs.data(), bdispl.data(), MPI_UINT64_T,
+                         0, comm.comm);
+    });
+    if (comm.root()) {
+      std::uint64_t at = 0;
+      std::size_t k = 0;
+      for (std::size_t r = 0; r < nbs.size(); ++r) {
+        rdispl[r] = count(at, "MPI_Gatherv (answers)");
+        for (int j = 0; j < nbs[r]; ++j) at += batch_rays(all_batches[k++]);
+        rcounts[r] = count(at, "MPI_Gatherv (answers)") - rdispl[r];
+      }
+      sc.gathered.resize(at * res_bytes);
+    }
+    call(t, "MPI_Gatherv (answers)", comm.root() ? 0 : sc.rays.size() * res_bytes,
+         comm.root() ? (n - sc.rays.size()) * res_bytes : 0, [&] {
+           return MPI_Gatherv(answer_bytes(sc.part), count(sc.rays.size(), "MPI_Gatherv (answers)"), res_t.type,
+                              sc.gathered.data(), rcounts.data(), rdispl.data(), res_t.type, 0, comm.comm);
+         });
+    if (comm.root()) {
+      std::uint64_t from = 0;
+      for (std::uint64_t b : all_batches) {
+        const std::uint64_t k = batch_rays(b);
+        std::copy_n(sc.gathered.data() + from * res_bytes, k * res_bytes, answers + b * batch * res_bytes);
+        from += k;
+      }
+    }
   }
-  // -- trace this rank's rays: one call, so the backend's threads share all of them
-  TraceOutput part;
-  backend.trace(acc, local, opt, part);
-  // -- gather: which batches each rank traced, then their answers, placed in ray order
-  std::uint64_t invalid = part.invalid, total_invalid = 0;
+  std::uint64_t total_invalid = 0;
   call(t, "MPI_Reduce (invalid)", 8, 8, [&] { return MPI_Reduce(&invalid, &total_invalid, 1, MPI_UINT64_T, MPI_SUM, 0, comm.comm); });
-  const int nb = count(mine.size(), "MPI_Gather (batches)");
-  std::vector<int> nbs(comm.root() ? static_cast<std::size_t>(P) : 0), bdispl(nbs.size(), 0);
-  call(t, "MPI_Gather (batch counts)", 4, comm.root() ? 4u * static_cast<unsigned>(P) : 0, [&] {
-    return MPI_Gather(&nb, 1, MPI_INT, nbs.data(), 1, MPI_INT, 0, comm.comm);
-  });
-  std::vector<std::uint64_t> all_batches;
-  std::vector<int> rcounts(nbs.size(), 0), rdispl(nbs.size(), 0);
-  if (comm.root()) {
-    int sum = 0;
-    for (std::size_t r = 0; r < nbs.size(); ++r) {
-      bdispl[r] = sum;
-      sum += nbs[r];
-    }
-    all_batches.resize(static_cast<std::size_t>(sum));
-  }
-  call(t, "MPI_Gatherv (batch ids)", mine.size() * 8, comm.root() ? all_batches.size() * 8 : 0, [&] {
-    return MPI_Gatherv(mine.data(), nb, MPI_UINT64_T, all_batches.data(), nbs.data(), bdispl.data(), MPI_UINT64_T, 0,
-                       comm.comm);
-  });
-  std::vector<char> gathered;
-  if (comm.root()) {
-    std::uint64_t at = 0;
-    std::size_t k = 0;
-    for (std::size_t r = 0; r < nbs.size(); ++r) {
-      rdispl[r] = count(at, "MPI_Gatherv (answers)");
-      for (int j = 0; j < nbs[r]; ++j) at += batch_rays(all_batches[k++]);
-      rcounts[r] = count(at, "MPI_Gatherv (answers)") - rdispl[r];
-    }
-    gathered.resize(at * res_bytes);
-  }
-  const void* send = any ? static_cast<const void*>(part.occluded.data()) : static_cast<const void*>(part.hits.data());
-  call(t, "MPI_Gatherv (answers)", comm.root() ? 0 : local.size() * res_bytes, comm.root() ? (n - local.size()) * res_bytes : 0, [&] {
-    return MPI_Gatherv(send, count(local.size(), "MPI_Gatherv (answers)"), res_t.type, gathered.data(), rcounts.data(),
-                       rdispl.data(), res_t.type, 0, comm.comm);
-  });
-  if (!comm.root()) {
-    out = TraceOutput{};
-    return;
-  }
-  out.reset(n, opt);
-  char* dst = any ? reinterpret_cast<char*>(out.occluded.data()) : reinterpret_cast<char*>(out.hits.data());
-  std::uint64_t from = 0;
-  for (std::uint64_t b : all_batches) {
-    const std::uint64_t k = batch_rays(b);
-    std::copy_n(gathered.data() + from * res_bytes, k * res_bytes, dst + b * batch * res_bytes);
-    from += k;
-  }
-  out.invalid = total_invalid;
+  if (comm.root()) out.invalid = total_invalid;
+  else out = TraceOutput{};
 }
 
 }  // namespace mbvh::mpi

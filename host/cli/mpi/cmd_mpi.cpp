@@ -57,6 +57,12 @@ Traffic total_traffic(const Comm& comm, const Traffic& t) {
   return Traffic{s_all, v_all[0], v_all[1], v_all[2]};
 }
 
+// What `now` added since `before` (a Traffic only grows).
+Traffic since(const Traffic& now, const Traffic& before) {
+  return Traffic{now.seconds - before.seconds, now.bytes_sent - before.bytes_sent, now.bytes_received - before.bytes_received,
+                 now.calls - before.calls};
+}
+
 // load_and_build's maker for the replicated mode: rank 0 builds, the others read its build.
 AccelMaker shared_maker(const Comm& comm, Traffic* t) {
   return [comm, t](const Scene& s, const BuildOptions& o, const Accel::CacheOptions& c, Accel::CacheReport* r) {
@@ -142,18 +148,17 @@ std::unique_ptr<DataScene> load_data_scene(const Comm& comm, const SceneArgs& a,
 
 // One distributed trace of rank 0's `rays` (the others pass none): replicated over `acc`, or data-parallel
 // over `ds`; rank 0 gets every answer in ray order.
-TraceOutput distributed_trace(const Comm& comm, Backend& backend, const Accel* acc, const DataScene* ds,
-                              std::span<const Ray> rays, const TraceOptions& o, const Distribution& d, Traffic* t) {
-  TraceOutput out;
+void distributed_trace(const Comm& comm, Backend& backend, const Accel* acc, const DataScene* ds, std::span<const Ray> rays,
+                       const TraceOptions& o, const Distribution& d, TraceOutput& out, Traffic* t) {
   if (!ds) {
     mpi::trace(comm, backend, *acc, rays, o, out, d.schedule_options(), t);
-    return out;
+    return;
   }
   std::uint64_t n = 0;
   const std::vector<Ray> mine = scatter_shares(comm, rays, n, t);
   TraceOutput part;
   mpi::trace_data_parallel(comm, backend, ds->part, mine, o, part, t);
-  return gather_shares(comm, part, o, n, t);
+  out = gather_shares(comm, part, o, n, t);
 }
 
 std::string ranks_label(const Comm& comm, unsigned threads) {
@@ -191,12 +196,10 @@ int run_trace(const Comm& comm, MpiTraceArgs& a) {
   const Traffic before = tr;
   call(nullptr, "MPI_Barrier", 0, 0, [&] { return MPI_Barrier(comm.comm); });
   const auto t0 = Clock::now();
-  const TraceOutput out = distributed_trace(comm, *backend, &acc, ds.get(), rays, o, a.d, &tr);
+  TraceOutput out;
+  distributed_trace(comm, *backend, &acc, ds.get(), rays, o, a.d, out, &tr);
   const double ms = ms_since(t0);
-  Traffic used = tr;
-  used.seconds -= before.seconds;
-  used.bytes_sent -= before.bytes_sent;
-  const Traffic all = total_traffic(comm, used);
+  const Traffic all = total_traffic(comm, since(tr, before));
   if (!comm.root()) return 0;
   std::size_t hits = 0;
   if (o.query == Query::any) for (auto v : out.occluded) hits += v;
@@ -253,6 +256,7 @@ int run_render(const Comm& comm, MpiRenderArgs& a) {
       mpi::trace_data_parallel(comm, *backend, ds->part, rays, to, out, &tr);
     };
   }
+  const Traffic before = tr;  // the render's share: the build's waits left out
   const auto t0 = Clock::now();
   // the camera: the given one, or the framing every rank computes alike (no tiles rendered)
   std::string camera_rule;
@@ -305,7 +309,7 @@ int run_render(const Comm& comm, MpiRenderArgs& a) {
   MPI_Reduce(&rays, &all_rays, 1, MPI_UINT64_T, MPI_SUM, 0, comm.comm);
   MPI_Reduce(&trace_s, &all_trace, 1, MPI_DOUBLE, MPI_SUM, 0, comm.comm);
   const double seconds = ms_since(t0) * 1e-3;
-  const Traffic all = total_traffic(comm, tr);
+  const Traffic all = total_traffic(comm, since(tr, before));
   if (!comm.root()) return 0;
   if (!camera_rule.empty()) say("camera: %s\n  --camera %s\n", camera_rule.c_str(), camera_argument(o.camera).c_str());
   const std::vector<std::uint8_t> png = png_bytes(a.r.out, o.width, o.height, to_srgb8(image));
@@ -423,7 +427,7 @@ int run_bench(const Comm& comm, BenchArgs& b) {
       Traffic t;
       call(nullptr, "MPI_Barrier", 0, 0, [&] { return MPI_Barrier(comm.comm); });
       const double t0 = MPI_Wtime();
-      out = distributed_trace(comm, *s.backend, &local_accel(s), s.ds.get(), rays, o, a.d, &t);
+      distributed_trace(comm, *s.backend, &local_accel(s), s.ds.get(), rays, o, a.d, out, &t);
       double wall = MPI_Wtime() - t0, slowest = 0;
       MPI_Allreduce(&wall, &slowest, 1, MPI_DOUBLE, MPI_MAX, comm.comm);
       const Traffic all = total_traffic(comm, t);
@@ -483,7 +487,8 @@ int run_check(const Comm& comm, MpiRunArgs& a) {
     for (Query q : {Query::closest, Query::any}) {
       const TraceOptions o = a.options(*s.backend, q);
       s.backend->prepare(local_accel(s), o);
-      const TraceOutput out = distributed_trace(comm, *s.backend, &local_accel(s), s.ds.get(), rays, o, a.d, &s.tr);
+      TraceOutput out;
+      distributed_trace(comm, *s.backend, &local_accel(s), s.ds.get(), rays, o, a.d, out, &s.tr);
       if (!comm.root()) continue;
       // one process: the reference traversal (cpu-scalar's) on the whole BVH
       TraceOutput ref;
