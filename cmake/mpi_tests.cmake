@@ -25,3 +25,13 @@ function(mbvh_mpi_script_test name timeout script)
   set_tests_properties("mpi: ${name}" PROPERTIES LABELS mpi TIMEOUT ${timeout}
     ENVIRONMENT "${MBVH_MPI_TEST_ENV};MBVH=$<TARGET_FILE:mbvh-cli>;MBVH_MPI=$<TARGET_FILE:mbvh-mpi>;MPIEXEC=${MPIEXEC_EXECUTABLE};MBVH_SCENES_DIR=${MBVH_SCENES_DIR}")
 endfunction()
+
+# -- the tests (the data-parallel ones below them)
+mbvh_mpi_script_test("replicated, 2 ranks: trace and render cmp-equal to one process; an error on a rank" 300
+                     tests/mpi/replicated.sh 2)
+mbvh_mpi_script_test("replicated, 3 ranks: trace and render cmp-equal to one process; an error on a rank" 300
+                     tests/mpi/replicated.sh 3)
+# the plain program never links libmpi (its dynamic dependencies, captured before they are searched)
+add_test(NAME "mpi: mbvh links no libmpi"
+         COMMAND bash -c "deps=\"$(ldd \"$1\")\" && echo \"$deps\" | grep -c . && ! grep -qi libmpi <<<\"$deps\"" _ $<TARGET_FILE:mbvh-cli>)
+set_tests_properties("mpi: mbvh links no libmpi" PROPERTIES LABELS mpi TIMEOUT 30)

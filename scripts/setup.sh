@@ -9,7 +9,7 @@ BUILD="${MBVH_BUILD_DIR:-$ROOT/build}"
 PACKAGES=(build-essential cmake ninja-build pkg-config catch2 libzstd-dev zlib1g-dev nlohmann-json3-dev libcli11-dev zstd python3-matplotlib
           ocl-icd-opencl-dev opencl-headers pocl-opencl-icd
           libvulkan-dev mesa-vulkan-drivers glslang-tools vulkan-validationlayers
-          libembree-dev
+          libembree-dev openmpi-bin libopenmpi-dev
           python3-dev pybind11-dev python3-numpy python3-pytest python3-venv python3-setuptools python3-wheel
           ${MBVH_EXTRA_PACKAGES:-})
 
