@@ -44,7 +44,7 @@ step() { echo "== consumer: $*"; }
 ok() { echo "PASS: $*"; passed=$((passed + 1)); }
 pc() { PKG_CONFIG_PATH="$1/lib/pkgconfig" pkg-config "${@:2}"; }  # PREFIX ARGS: pkg-config on PREFIX's .pc files
 # the libraries a CPU-only program must not load (ldd lists what its libraries load too: Embree's TBB)
-device_libs="libOpenCL|libvulkan|libembree|libtbb"
+device_libs="libOpenCL|libvulkan|libembree|libtbb|libmpi"
 no_device_libs() {  # BINARY WHAT
   local libs
   libs="$(ldd "$1")"
@@ -76,6 +76,19 @@ cmake --build "$WORK/full-consumer" >/dev/null
 ok "find_package(mbvh COMPONENTS cpu opencl vulkan embree) and mbvh::mbvh from an install"
 "$WORK/full/bin/mbvh" --version
 
+# mbvh::mpi, asked for: find_package(mbvh COMPONENTS cpu mpi) finds MPI itself; examples/mpi_trace.cpp
+# on 2 ranks of this host (the settings of cmake/mpi_tests.cmake)
+if [ -e "$WORK/full/lib/cmake/mbvh/mbvhMpiTargets.cmake" ]; then
+  step "mbvh::mpi from the install: find_package(mbvh COMPONENTS cpu mpi), examples/mpi_trace.cpp on 2 ranks"
+  cmake -S "$CONSUMER" -B "$WORK/mpi-consumer" -G Ninja -DCMAKE_BUILD_TYPE=Release -DCMAKE_PREFIX_PATH="$WORK/full" \
+    "-DMBVH_COMPONENTS=cpu;mpi" -DMBVH_TARGET=mbvh::cpu -DMBVH_WITH_C=OFF -DMBVH_WITH_MPI=ON >/dev/null
+  cmake --build "$WORK/mpi-consumer" >/dev/null
+  OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 OMPI_MCA_btl=self,vader \
+    OMPI_MCA_btl_vader_single_copy_mechanism=none OMPI_MCA_rmaps_base_oversubscribe=1 \
+    mpirun -np 2 "$WORK/mpi-consumer/mpi_trace"
+  ok "find_package(mbvh COMPONENTS cpu mpi) and mbvh::mpi from an install: examples/mpi_trace.cpp on 2 ranks"
+fi
+
 # full_install_checks PREFIX NAME: a CPU-only program, and pkg-config, from the full install at PREFIX
 full_install_checks() {
   local prefix="$1" name="$2" m cflags
@@ -86,15 +99,15 @@ full_install_checks() {
          -DCMAKE_EXE_LINKER_FLAGS=-Wl,--no-as-needed \
          -DMBVH_COMPONENTS=cpu -DMBVH_TARGET=mbvh::cpu -DMBVH_WITH_C=OFF -DCMAKE_DISABLE_FIND_PACKAGE_OpenCL=ON \
          -DCMAKE_DISABLE_FIND_PACKAGE_Vulkan=ON -DCMAKE_DISABLE_FIND_PACKAGE_embree=ON -DCMAKE_DISABLE_FIND_PACKAGE_TBB=ON \
-         > "$WORK/$name-cpu-only.log" 2>&1; then
+         -DCMAKE_DISABLE_FIND_PACKAGE_MPI=ON > "$WORK/$name-cpu-only.log" 2>&1; then
     cat "$WORK/$name-cpu-only.log" >&2
-    echo "error: find_package(mbvh COMPONENTS cpu) with mbvh::cpu needs OpenCL, Vulkan, Embree or TBB (above)" >&2
+    echo "error: find_package(mbvh COMPONENTS cpu) with mbvh::cpu needs OpenCL, Vulkan, Embree, TBB or MPI (above)" >&2
     exit 1
   fi
   cmake --build "$WORK/$name-cpu-only" >/dev/null
   "$WORK/$name-cpu-only/trace_scene"
   no_device_libs "$WORK/$name-cpu-only/trace_scene" "find_package(mbvh COMPONENTS cpu) + mbvh::cpu from the $name install"
-  ok "find_package(mbvh COMPONENTS cpu) and mbvh::cpu from the $name install: no OpenCL, Vulkan, Embree or TBB loaded"
+  ok "find_package(mbvh COMPONENTS cpu) and mbvh::cpu from the $name install: no OpenCL, Vulkan, Embree, TBB or MPI needed or loaded"
 
   step "pkg-config from the $name install: mbvh, mbvh-cpu"
   pc "$prefix" --modversion mbvh
