@@ -1,0 +1,87 @@
+#!/usr/bin/env bash
+# SPDX-License-Identifier: MIT
+# mpi.sh [--quick] [OUT] — mbvh-mpi on this host (docs/mpi.md), one run, side by side:
+#   1. replicated: `mbvh bench` (1 process x 2 threads) against `mpirun -np 2 mbvh-mpi bench`
+#      (2 ranks x 1 thread) and -np 1 x 2 threads, on 1M path rays of conference (the thesis'
+#      workload), alternated ROUNDS times; Mrays/s medians, the ratio, the share of the ranks' time
+#      in MPI calls and the bytes moved a ray; static and dynamic batches;
+#   2. data-parallel: `mbvh-mpi bench --distribute data` at 1-4 ranks on conference and the 1M
+#      hairball (primary, shadow, diffuse rays): rounds, forwards a ray, bytes a ray, verified.
+# Results: OUT (default bench/out/mpi) *.txt and summary.md. Open MPI's settings for one host as in
+# cmake/mpi_tests.cmake.
+set -euo pipefail
+source "$(dirname "${BASH_SOURCE[0]}")/lib.sh"
+bench_args "$ROOT/bench/out/mpi" "$@"
+MBVH_MPI="${MBVH_MPI:-$ROOT/build/mbvh-mpi}"
+export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 OMPI_MCA_rmaps_base_oversubscribe=1 \
+  OMPI_MCA_btl=self,vader OMPI_MCA_btl_vader_single_copy_mechanism=none OMPI_MCA_hwloc_base_binding_policy=none
+conference="$SCENES/conference.obj.zst"
+count=1000000 rounds=3 dp_count=200000
+if [ "$QUICK" = 1 ]; then count=200000 rounds=1 dp_count=20000; fi
+summary="$OUT/summary.md"
+{
+  echo "# mbvh-mpi on $(hostname), $(date -u '+%Y-%m-%d %H:%M UTC')"
+  echo
+  echo "CPU: $(sed -n 's/^model name\s*: //p' /proc/cpuinfo | head -1), $(nproc) cores; $(mpirun --version | head -1)"
+  echo
+} > "$summary"
+
+# -- 1. replicated against one process
+mrays() { awk '$1 == "path" { print $3 }' "$1"; }
+share() { awk '$1 == "path" { print $4 }' "$1"; }
+bytes() { awk '$1 == "path" { print $5 }' "$1"; }
+for r in $(seq 1 "$rounds"); do
+  log "round $r: mbvh bench, 1 process x 2 threads"
+  "$MBVH" bench "$conference" --kinds path --count "$count" --threads 2 --layout mbvh8 --traversal stack-ordered \
+    --query closest --json "$OUT/one-$r.json" > "$OUT/one-$r.txt"
+  for sched in static dynamic; do
+    log "round $r: mbvh-mpi bench, 2 ranks x 1 thread, $sched batches"
+    mpirun -np 2 "$MBVH_MPI" bench "$conference" --kinds path --count "$count" --threads 1 --schedule "$sched" \
+      > "$OUT/np2-$sched-$r.txt"
+    log "round $r: mbvh-mpi bench, 1 rank x 2 threads, $sched batches"
+    mpirun -np 1 "$MBVH_MPI" bench "$conference" --kinds path --count "$count" --threads 2 --schedule "$sched" \
+      > "$OUT/np1-$sched-$r.txt"
+  done
+done
+median() { sort -g | awk '{ v[NR] = $1 } END { print v[int((NR + 1) / 2)] }'; }
+one=$(for r in $(seq 1 "$rounds"); do python3 -c "import json,sys; print(json.load(open(sys.argv[1]))['records'][0]['mrays_per_s'])" "$OUT/one-$r.json"; done | median)
+{
+  echo "## Replicated: conference, $count path rays (closest hit), $rounds rounds, medians"
+  echo
+  echo "| run | Mrays/s | / mbvh bench 2 threads | MPI share | bytes moved a ray |"
+  echo "|---|---|---|---|---|"
+  echo "| mbvh bench, 1 process x 2 threads (mbvh8/stack-ordered) | $one | 1.00 | - | - |"
+  for sched in static dynamic; do
+    for np in 2 1; do
+      m=$(for r in $(seq 1 "$rounds"); do mrays "$OUT/np$np-$sched-$r.txt"; done | median)
+      s=$(for r in $(seq 1 "$rounds"); do share "$OUT/np$np-$sched-$r.txt" | tr -d %; done | median)
+      b=$(for r in $(seq 1 "$rounds"); do bytes "$OUT/np$np-$sched-$r.txt"; done | median)
+      t=$([ "$np" = 2 ] && echo "2 ranks x 1 thread" || echo "1 rank x 2 threads")
+      echo "| mbvh-mpi bench, $t, $sched batches | $m | $(awk -v a="$m" -v b="$one" 'BEGIN { printf "%.2f", a / b }') | $s % | $b |"
+    done
+  done
+  echo
+} >> "$summary"
+
+# -- 2. data-parallel
+{
+  echo "## Data-parallel: $dp_count rays a kind, 2 threads in all (ranks x threads <= 2 where it can)"
+  echo
+  echo "| scene | ranks | kind | Mrays/s | MPI share | bytes a ray | rounds | forwards a ray | verified |"
+  echo "|---|---|---|---|---|---|---|---|---|"
+} >> "$summary"
+for scene in conference hairball; do
+  s="$conference"
+  [ "$scene" = hairball ] && s="gen:hairball:1000000"
+  for np in 1 2 3 4; do
+    threads=$(( np == 1 ? 2 : 1 ))
+    log "data-parallel: $scene on $np ranks"
+    mpirun -np "$np" "$MBVH_MPI" bench "$s" --distribute data --kinds primary,shadow,diffuse --count "$dp_count" \
+      --threads "$threads" --reps 1 > "$OUT/data-$scene-np$np.txt"
+    awk -v scene="$scene" -v np="$np" '$1 ~ /^(primary|shadow|diffuse)$/ {
+      v = ""; for (i = 9; i <= NF; ++i) v = v (i > 9 ? " " : "") $i
+      printf "| %s | %s | %s | %s | %s | %s | %s | %s | %s |\n", scene, np, $1, $3, $4, $5, $6, $7, v }' \
+      "$OUT/data-$scene-np$np.txt" >> "$summary"
+  done
+done
+cat "$summary"
