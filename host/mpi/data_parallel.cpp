@@ -123,55 +123,48 @@ std::uint64_t spread21(std::uint64_t v) {
   return v;
 }
 
-// The whole scene's non-degenerate triangles (the build's rule: twice_area_sq != 0), each with
-// the centre of its box; a triangle with area too small to trace is refused as Accel::build
-// refuses it, by its global id.
-struct Kept {
-  std::vector<std::uint32_t> prims;
-  std::vector<Vec3f> centroids;
-  Box centroid_bounds;
-};
-
-Kept non_degenerate(const Scene& scene) {
-  Kept k;
+// The whole scene's non-degenerate triangles (the build's rule: twice_area_sq != 0) in Morton
+// order of the centres of their boxes (21 bits an axis of the centres' bounds; equal codes by prim
+// id): the same order on every rank. A triangle with area too small to trace is refused as
+// Accel::build refuses it, by its global id. Two passes over the triangles (the centres' bounds,
+// then the codes), so the only array is the sorted (code, prim) pairs: 16 bytes a triangle, freed
+// before the part's build.
+std::vector<std::pair<std::uint64_t, std::uint32_t>> morton_order(const Scene& scene) {
   const std::size_t n = scene.triangle_count();
-  for (std::size_t i = 0; i < n; ++i) {
-    Vec3f a, b, c;
-    scene.triangle(i, a, b, c);
-    const double a2 = build::twice_area_sq(a, b, c);
-    if (a2 == 0) continue;
+  auto centre = [&](std::size_t i, Vec3f& c) {  // false: degenerate
+    Vec3f a, b, d;
+    scene.triangle(i, a, b, d);
+    const double a2 = build::twice_area_sq(a, b, d);
+    if (a2 == 0) return false;
     if (build::too_small(a2)) build::throw_too_small(scene, static_cast<std::uint32_t>(i), "");
     Box box;
-    box.grow(a), box.grow(b), box.grow(c);
-    k.prims.push_back(static_cast<std::uint32_t>(i));
-    k.centroids.push_back(box.center());
-    k.centroid_bounds.grow(box.center());
-  }
-  return k;
-}
-
-// The kept triangles' prim ids in Morton order of their centroids (21 bits an axis of the
-// centroid bounds; equal codes by prim id): the same order on every rank.
-std::vector<std::uint32_t> morton_order(const Kept& k) {
-  const Box& cb = k.centroid_bounds;
+    box.grow(a), box.grow(b), box.grow(d);
+    c = box.center();
+    return true;
+  };
+  Box cb;
+  std::size_t kept = 0;
+  for (std::size_t i = 0; i < n; ++i)
+    if (Vec3f c; centre(i, c)) cb.grow(c), ++kept;
   float scale[3];
   for (int a = 0; a < 3; ++a) {
     const float ext = cb.hi[a] - cb.lo[a];
     scale[a] = ext > 0 ? 2097152.0f / ext : 0.0f;
   }
-  std::vector<std::pair<std::uint64_t, std::uint32_t>> keyed(k.prims.size());
-  for (std::size_t i = 0; i < k.prims.size(); ++i) {
+  std::vector<std::pair<std::uint64_t, std::uint32_t>> keyed;
+  keyed.reserve(kept);
+  for (std::size_t i = 0; i < n; ++i) {
+    Vec3f c;
+    if (!centre(i, c)) continue;
     std::uint64_t code = 0;
     for (int a = 0; a < 3; ++a) {
-      const float f = (k.centroids[i][a] - cb.lo[a]) * scale[a];
+      const float f = (c[a] - cb.lo[a]) * scale[a];
       code |= spread21(std::min<std::uint64_t>(2097151u, static_cast<std::uint64_t>(f > 0 ? f : 0))) << (2 - a);
     }
-    keyed[i] = {code, k.prims[i]};
+    keyed.push_back({code, static_cast<std::uint32_t>(i)});
   }
   std::sort(keyed.begin(), keyed.end());
-  std::vector<std::uint32_t> order(keyed.size());
-  for (std::size_t i = 0; i < keyed.size(); ++i) order[i] = keyed[i].second;
-  return order;
+  return keyed;
 }
 
 // The views of this rank's triangles: their vertex indices copied into part.indices (ascending
@@ -251,7 +244,9 @@ Reach reach(const Part& part, std::span<const Ray> rays, std::size_t& invalid) {
   return r;
 }
 
-// A ray on its way to a part: the ray (tmax: the owner's best t so far) and its index on its owner.
+// A ray on its way to a part: the ray (tmax: the owner's best t so far) and its index on its
+// owner. The answers return in the order the records came, so the owner matches them by position;
+// the index names the ray for a forwarding that passes rays on from part to part instead.
 struct Record {
   Ray ray;
   std::uint32_t index;
@@ -304,17 +299,20 @@ Part partition(const Comm& comm, const Scene& scene, const BuildOptions& opt, Tr
   part.scene.name = scene.display_name() + " (part " + std::to_string(me) + " of " + std::to_string(P) + ")";
 
   // -- the non-degenerate triangles in Morton order, cut into P runs of equal counts (the first
-  //    K mod P runs hold one more); this rank's run in ascending prim order
-  const std::vector<std::uint32_t> order = morton_order(non_degenerate(scene));
-  const std::uint64_t K = order.size();
-  if (K == 0)
-    throw Error(scene.display_name() + ": the scene has no non-degenerate triangle (" +
-                std::to_string(scene.triangle_count()) + " triangles)");
-  auto begin = [&](std::uint64_t r) { return K * r / static_cast<std::uint64_t>(P); };
-  part.rank_triangles.resize(P);
-  for (int r = 0; r < P; ++r) part.rank_triangles[r] = begin(r + 1) - begin(r);
-  part.local_to_global.assign(order.begin() + begin(me), order.begin() + begin(me + 1));
-  std::sort(part.local_to_global.begin(), part.local_to_global.end());
+  //    runs differ by one at most); this rank's run in ascending prim order
+  {
+    const std::vector<std::pair<std::uint64_t, std::uint32_t>> order = morton_order(scene);
+    const std::uint64_t K = order.size();
+    if (K == 0)
+      throw Error(scene.display_name() + ": the scene has no non-degenerate triangle (" +
+                  std::to_string(scene.triangle_count()) + " triangles)");
+    auto begin = [&](std::uint64_t r) { return K * r / static_cast<std::uint64_t>(P); };
+    part.rank_triangles.resize(P);
+    for (int r = 0; r < P; ++r) part.rank_triangles[r] = begin(r + 1) - begin(r);
+    part.local_to_global.reserve(part.rank_triangles[me]);
+    for (std::uint64_t k = begin(me); k < begin(me + 1); ++k) part.local_to_global.push_back(order[k].second);
+    std::sort(part.local_to_global.begin(), part.local_to_global.end());
+  }
 
   // -- this rank's triangles as views of the whole scene's mesh, and their BVH
   make_views(scene, part);
@@ -400,12 +398,14 @@ void trace_data_parallel(const Comm& comm, Backend& backend, const Part& part, s
 
     // -- the records, by destination part; tmax: the best t so far (tri_test accepts t = tmax,
     //    so a hit at the best t with a smaller prim is still found), else the ray's own
-    std::stable_sort(sends.begin(), sends.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
-    std::vector<std::uint64_t> send_counts(P, 0);
+    std::vector<std::uint64_t> send_counts(P, 0), at(P, 0);
+    for (const auto& s : sends) ++send_counts[s.first];
+    for (int q = 1; q < P; ++q) at[q] = at[q - 1] + send_counts[q - 1];
+    std::vector<std::uint32_t> owner_index(sends.size());  // by record: the ray it carries
     std::vector<Record> records(sends.size());
-    for (std::size_t k = 0; k < sends.size(); ++k) {
-      const auto [q, i] = sends[k];
-      ++send_counts[q];
+    for (const auto& [q, i] : sends) {
+      const std::uint64_t k = at[q]++;
+      owner_index[k] = i;
       records[k] = Record{rays[i], i, 0};
       if (!any && forwarding == Forwarding::ordered && out.hits[i].prim != MBVH_MISS_PRIM) records[k].ray.tmax = out.hits[i].t;
     }
@@ -418,15 +418,15 @@ void trace_data_parallel(const Comm& comm, Backend& backend, const Part& part, s
     if (any) {
       const std::vector<std::uint8_t> back =
           alltoallv(comm, flag_type, occluded_in, recv_counts, send_counts, me, "answers returned in a round", traffic);
-      for (std::size_t k = 0; k < sends.size(); ++k) out.occluded[sends[k].second] |= back[k];
+      for (std::size_t k = 0; k < back.size(); ++k) out.occluded[owner_index[k]] |= back[k];
       continue;
     }
     const std::vector<Hit> back =
         alltoallv(comm, hit_type, hits_in, recv_counts, send_counts, me, "answers returned in a round", traffic);
     // -- the owner keeps the lexicographic minimum of (t, global prim)
-    for (std::size_t k = 0; k < sends.size(); ++k) {
+    for (std::size_t k = 0; k < back.size(); ++k) {
       const Hit& h = back[k];
-      Hit& best = out.hits[sends[k].second];
+      Hit& best = out.hits[owner_index[k]];
       if (h.prim != MBVH_MISS_PRIM && (best.prim == MBVH_MISS_PRIM || h.t < best.t || (h.t == best.t && h.prim < best.prim)))
         best = h;
     }
