@@ -45,7 +45,7 @@ namespace {
 
 // -- MPI helpers: a contiguous datatype of one record, the count exchange and MPI_Alltoallv
 
-// A committed MPI datatype of `bytes` contiguous bytes (one ray record, one hit): counts and
+// A committed MPI datatype of `bytes` contiguous bytes (one ray, one hit): counts and
 // displacements then count records, not bytes, so a round may move up to INT_MAX records a rank.
 class Contiguous {
 public:
@@ -222,6 +222,7 @@ struct Reach {
 Reach reach(const Part& part, std::span<const Ray> rays, std::size_t& invalid) {
   Reach r;
   r.first.reserve(rays.size() + 1);
+  r.entry.reserve(rays.size()), r.part.reserve(rays.size());  // at least one part a ray, mostly
   r.first.push_back(0);
   std::vector<std::pair<float, std::uint32_t>> hit;
   for (const Ray& ray : rays) {
@@ -236,7 +237,7 @@ Reach reach(const Part& part, std::span<const Ray> rays, std::size_t& invalid) {
         if (!b.empty() && box_test(p, b.lo.x, b.hi.x, b.lo.y, b.hi.y, b.lo.z, b.hi.z, p.tmax * kCullSlack, entry))
           hit.push_back({entry, static_cast<std::uint32_t>(q)});
       }
-      std::sort(hit.begin(), hit.end());
+      if (hit.size() > 1) std::sort(hit.begin(), hit.end());
     }
     for (const auto& [e, q] : hit) r.entry.push_back(e), r.part.push_back(q);
     r.first.push_back(r.entry.size());
@@ -244,32 +245,27 @@ Reach reach(const Part& part, std::span<const Ray> rays, std::size_t& invalid) {
   return r;
 }
 
-// A ray on its way to a part: the ray (tmax: the owner's best t so far) and its index on its
-// owner. The answers return in the order the records came, so the owner matches them by position;
-// the index names the ray for a forwarding that passes rays on from part to part instead.
-struct Record {
-  Ray ray;
-  std::uint32_t index;
-  std::uint32_t pad;
-};
-static_assert(sizeof(Record) == 40);
-
-// This part's answers to the records it received: closest hits with global prim ids, or
+// This part's answers to the rays it received: closest hits with global prim ids, or
 // occlusion flags. Every forwarded ray is valid for the whole scene (its owner checked it); the
 // backend checks it again against this part's smaller bounds (Backend::trace's check_ray_range),
 // which a ray valid for the whole scene can fail when this part's triangles span a much smaller
 // range than the scene's (S^3 / D below kMinRayCube): that is an Error naming the part, never a
 // ray dropped as a miss.
-void trace_part(Backend& backend, const Part& part, const std::vector<Record>& in, const TraceOptions& opt,
+void trace_part(Backend& backend, const Part& part, const std::vector<Ray>& rays, const TraceOptions& opt,
                 std::vector<Hit>& hits, std::vector<std::uint8_t>& occluded) {
   hits.clear(), occluded.clear();
-  if (in.empty()) return;
+  if (rays.empty()) return;
   if (!part.accel)
-    throw Error("data-parallel trace (rank " + std::to_string(part.rank) + "): internal: " + std::to_string(in.size()) +
+    throw Error("data-parallel trace (rank " + std::to_string(part.rank) + "): internal: " + std::to_string(rays.size()) +
                 " rays came to a rank without triangles");
-  std::vector<Ray> rays(in.size());
-  for (std::size_t i = 0; i < in.size(); ++i) rays[i] = in[i].ray;
-  try {
+  // The range's upper limits (M^3 / D, M / D) only loosen as S shrinks; its lower ones (S^3 / D,
+  // S / D) depend on S alone, so a part whose largest coordinate is the scene's passes every ray
+  // its owner passed, and only a part of smaller S is checked here first, for the message.
+  auto largest = [](const Box& b) {
+    return std::max({std::fabs(b.lo.x), std::fabs(b.lo.y), std::fabs(b.lo.z), std::fabs(b.hi.x), std::fabs(b.hi.y),
+                     std::fabs(b.hi.z)});
+  };
+  if (largest(part.accel->bounds()) < largest(part.scene_bounds)) try {
     check_ray_range(part.accel->bounds(), rays, "ray");
   } catch (const Error& e) {
     throw Error("data-parallel trace (rank " + std::to_string(part.rank) + " of " + std::to_string(part.ranks) +
@@ -361,7 +357,7 @@ void trace_data_parallel(const Comm& comm, Backend& backend, const Part& part, s
   // -- per ray, the parts it reaches, nearest entry first; a cursor into them
   const Reach rc = reach(part, rays, out.invalid);
   std::vector<std::size_t> cursor(rc.first.begin(), rc.first.end() - 1);
-  const Contiguous record_type(sizeof(Record), traffic), hit_type(sizeof(Hit), traffic);
+  const Contiguous ray_type(sizeof(Ray), traffic), hit_type(sizeof(Hit), traffic);
   const Contiguous flag_type(1, traffic);
   ForwardStats st;
   st.rays = rays.size();
@@ -396,22 +392,24 @@ void trace_data_parallel(const Comm& comm, Backend& backend, const Part& part, s
     ++st.rounds;
     st.forwards += mine;
 
-    // -- the records, by destination part; tmax: the best t so far (tri_test accepts t = tmax,
-    //    so a hit at the best t with a smaller prim is still found), else the ray's own
+    // -- the rays, by destination part (32 bytes each: the answers return in the order the rays
+    //    came, so the owner knows each answer's ray by its position, owner_index, and sends no
+    //    index); tmax: the best t so far (tri_test accepts t = tmax, so a hit at the best t with a
+    //    smaller prim is still found), else the ray's own
     std::vector<std::uint64_t> send_counts(P, 0), at(P, 0);
     for (const auto& s : sends) ++send_counts[s.first];
     for (int q = 1; q < P; ++q) at[q] = at[q - 1] + send_counts[q - 1];
-    std::vector<std::uint32_t> owner_index(sends.size());  // by record: the ray it carries
-    std::vector<Record> records(sends.size());
+    std::vector<std::uint32_t> owner_index(sends.size());  // by position sent: the ray's index here
+    std::vector<Ray> forwarded(sends.size());
     for (const auto& [q, i] : sends) {
       const std::uint64_t k = at[q]++;
       owner_index[k] = i;
-      records[k] = Record{rays[i], i, 0};
-      if (!any && forwarding == Forwarding::ordered && out.hits[i].prim != MBVH_MISS_PRIM) records[k].ray.tmax = out.hits[i].t;
+      forwarded[k] = rays[i];
+      if (!any && forwarding == Forwarding::ordered && out.hits[i].prim != MBVH_MISS_PRIM) forwarded[k].tmax = out.hits[i].t;
     }
     const std::vector<std::uint64_t> recv_counts = exchange_counts(comm, send_counts, traffic);
-    const std::vector<Record> in =
-        alltoallv(comm, record_type, records, send_counts, recv_counts, me, "rays forwarded in a round", traffic);
+    const std::vector<Ray> in =
+        alltoallv(comm, ray_type, forwarded, send_counts, recv_counts, me, "rays forwarded in a round", traffic);
 
     // -- this part's answers, back to the owners in the order they came
     trace_part(backend, part, in, opt, hits_in, occluded_in);
