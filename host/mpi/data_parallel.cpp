@@ -123,39 +123,56 @@ std::uint64_t spread21(std::uint64_t v) {
   return v;
 }
 
+// The largest coordinate magnitude of a box: check_ray_range's S.
+float largest(const Box& b) {
+  return std::max({std::fabs(b.lo.x), std::fabs(b.lo.y), std::fabs(b.lo.z), std::fabs(b.hi.x), std::fabs(b.hi.y),
+                   std::fabs(b.hi.z)});
+}
+
 // The whole scene's non-degenerate triangles (the build's rule: twice_area_sq != 0) in Morton
 // order of the centres of their boxes (21 bits an axis of the centres' bounds; equal codes by prim
-// id): the same order on every rank. A triangle with area too small to trace is refused as
-// Accel::build refuses it, by its global id. Two passes over the triangles (the centres' bounds,
-// then the codes), so the only array is the sorted (code, prim) pairs: 16 bytes a triangle, freed
-// before the part's build.
-std::vector<std::pair<std::uint64_t, std::uint32_t>> morton_order(const Scene& scene) {
+// id): the same order on every rank; and the first triangle that reaches the scene's largest
+// coordinate magnitude (the anchor, Part::anchor). A triangle with area too small to trace is
+// refused as Accel::build refuses it, by its global id. Two passes over the triangles (the
+// centres' bounds, then the codes), so the only array is the sorted (code, prim) pairs: 16 bytes
+// a triangle, freed before the part's build.
+struct MortonOrder {
+  std::vector<std::pair<std::uint64_t, std::uint32_t>> keyed;
+  std::uint32_t anchor = MBVH_MISS_PRIM;
+};
+
+MortonOrder morton_order(const Scene& scene) {
   const std::size_t n = scene.triangle_count();
-  auto centre = [&](std::size_t i, Vec3f& c) {  // false: degenerate
+  auto bounds = [&](std::size_t i, Box& box) {  // false: degenerate
     Vec3f a, b, d;
     scene.triangle(i, a, b, d);
     const double a2 = build::twice_area_sq(a, b, d);
     if (a2 == 0) return false;
     if (build::too_small(a2)) build::throw_too_small(scene, static_cast<std::uint32_t>(i), "");
-    Box box;
+    box = Box{};
     box.grow(a), box.grow(b), box.grow(d);
-    c = box.center();
     return true;
   };
+  MortonOrder out;
   Box cb;
   std::size_t kept = 0;
+  float top = -1;
   for (std::size_t i = 0; i < n; ++i)
-    if (Vec3f c; centre(i, c)) cb.grow(c), ++kept;
+    if (Box box; bounds(i, box)) {
+      cb.grow(box.center()), ++kept;
+      if (largest(box) > top) top = largest(box), out.anchor = static_cast<std::uint32_t>(i);
+    }
   float scale[3];
   for (int a = 0; a < 3; ++a) {
     const float ext = cb.hi[a] - cb.lo[a];
     scale[a] = ext > 0 ? 2097152.0f / ext : 0.0f;
   }
-  std::vector<std::pair<std::uint64_t, std::uint32_t>> keyed;
+  std::vector<std::pair<std::uint64_t, std::uint32_t>>& keyed = out.keyed;
   keyed.reserve(kept);
   for (std::size_t i = 0; i < n; ++i) {
-    Vec3f c;
-    if (!centre(i, c)) continue;
+    Box box;
+    if (!bounds(i, box)) continue;
+    const Vec3f c = box.center();
     std::uint64_t code = 0;
     for (int a = 0; a < 3; ++a) {
       const float f = (c[a] - cb.lo[a]) * scale[a];
@@ -164,14 +181,13 @@ std::vector<std::pair<std::uint64_t, std::uint32_t>> morton_order(const Scene& s
     keyed.push_back({code, static_cast<std::uint32_t>(i)});
   }
   std::sort(keyed.begin(), keyed.end());
-  return keyed;
+  return out;
 }
 
-// The views of this rank's triangles: their vertex indices copied into part.indices (ascending
-// global ids), one view a geometry of the whole scene that holds some, over that geometry's own
-// vertex buffer (the whole scene's; not copied).
-void make_views(const Scene& scene, Part& part) {
-  const std::vector<std::uint32_t>& ids = part.local_to_global;
+// The views of the triangles `ids` (global ids; local triangle i is ids[i]): their vertex indices
+// copied into part.indices, one view a run of one geometry of the whole scene, over that
+// geometry's own vertex buffer (the whole scene's; not copied).
+void make_views(const Scene& scene, const std::vector<std::uint32_t>& ids, Part& part) {
   part.indices.resize(ids.size());
   std::vector<std::pair<std::size_t, std::size_t>> runs;  // (geometry, first local triangle)
   for (std::size_t i = 0; i < ids.size(); ++i) {
@@ -245,12 +261,10 @@ Reach reach(const Part& part, std::span<const Ray> rays, std::size_t& invalid) {
   return r;
 }
 
-// This part's answers to the rays it received: closest hits with global prim ids, or
-// occlusion flags. Every forwarded ray is valid for the whole scene (its owner checked it); the
-// backend checks it again against this part's smaller bounds (Backend::trace's check_ray_range),
-// which a ray valid for the whole scene can fail when this part's triangles span a much smaller
-// range than the scene's (S^3 / D below kMinRayCube): that is an Error naming the part, never a
-// ray dropped as a miss.
+// This part's answers to the rays it received: closest hits with global prim ids, or occlusion
+// flags. Every ray came valid for the whole scene (its owner checked it); Backend::trace checks
+// it again against this part's build, whose largest coordinate is the scene's (Part::anchor), so
+// that check passes every ray the owner's did.
 void trace_part(Backend& backend, const Part& part, const std::vector<Ray>& rays, const TraceOptions& opt,
                 std::vector<Hit>& hits, std::vector<std::uint8_t>& occluded) {
   hits.clear(), occluded.clear();
@@ -258,20 +272,6 @@ void trace_part(Backend& backend, const Part& part, const std::vector<Ray>& rays
   if (!part.accel)
     throw Error("data-parallel trace (rank " + std::to_string(part.rank) + "): internal: " + std::to_string(rays.size()) +
                 " rays came to a rank without triangles");
-  // The range's upper limits (M^3 / D, M / D) only loosen as S shrinks; its lower ones (S^3 / D,
-  // S / D) depend on S alone, so a part whose largest coordinate is the scene's passes every ray
-  // its owner passed, and only a part of smaller S is checked here first, for the message.
-  auto largest = [](const Box& b) {
-    return std::max({std::fabs(b.lo.x), std::fabs(b.lo.y), std::fabs(b.lo.z), std::fabs(b.hi.x), std::fabs(b.hi.y),
-                     std::fabs(b.hi.z)});
-  };
-  if (largest(part.accel->bounds()) < largest(part.scene_bounds)) try {
-    check_ray_range(part.accel->bounds(), rays, "ray");
-  } catch (const Error& e) {
-    throw Error("data-parallel trace (rank " + std::to_string(part.rank) + " of " + std::to_string(part.ranks) +
-                "): a ray valid for the whole scene leaves the range traced exactly against this rank's part, whose "
-                "triangles span a smaller range than the scene's: " + e.what());
-  }
   TraceOutput out;
   backend.trace(*part.accel, rays, opt, out);
   if (opt.query == Query::any) {
@@ -279,8 +279,9 @@ void trace_part(Backend& backend, const Part& part, const std::vector<Ray>& rays
     return;
   }
   hits = std::move(out.hits);
+  const std::size_t own = part.local_to_global.size();
   for (Hit& h : hits)
-    if (h.prim != MBVH_MISS_PRIM) h.prim = part.local_to_global[h.prim];
+    if (h.prim != MBVH_MISS_PRIM) h.prim = h.prim < own ? part.local_to_global[h.prim] : part.anchor;
 }
 
 ForwardStats g_last;  // last_forward_stats: this process's last trace_data_parallel
@@ -296,8 +297,11 @@ Part partition(const Comm& comm, const Scene& scene, const BuildOptions& opt, Tr
 
   // -- the non-degenerate triangles in Morton order, cut into P runs of equal counts (the first
   //    runs differ by one at most); this rank's run in ascending prim order
+  std::uint32_t anchor = MBVH_MISS_PRIM;
   {
-    const std::vector<std::pair<std::uint64_t, std::uint32_t>> order = morton_order(scene);
+    const MortonOrder mo = morton_order(scene);
+    const std::vector<std::pair<std::uint64_t, std::uint32_t>>& order = mo.keyed;
+    anchor = mo.anchor;
     const std::uint64_t K = order.size();
     if (K == 0)
       throw Error(scene.display_name() + ": the scene has no non-degenerate triangle (" +
@@ -310,13 +314,33 @@ Part partition(const Comm& comm, const Scene& scene, const BuildOptions& opt, Tr
     std::sort(part.local_to_global.begin(), part.local_to_global.end());
   }
 
+  // -- this rank's box; a part whose coordinates all lie below the scene's largest one builds the
+  //    anchor too, so its build has the scene's range (Part::anchor)
+  Box own, anchor_box;
+  for (std::uint32_t id : part.local_to_global) {
+    Vec3f a, b, c;
+    scene.triangle(id, a, b, c);
+    own.grow(a), own.grow(b), own.grow(c);
+  }
+  if (!part.local_to_global.empty()) {
+    Vec3f a, b, c;
+    scene.triangle(anchor, a, b, c);
+    anchor_box.grow(a), anchor_box.grow(b), anchor_box.grow(c);
+    if (largest(own) < largest(anchor_box)) part.anchor = anchor;
+  }
+
   // -- this rank's triangles as views of the whole scene's mesh, and their BVH
-  make_views(scene, part);
+  if (part.anchor == MBVH_MISS_PRIM) {
+    make_views(scene, part.local_to_global, part);
+  } else {
+    std::vector<std::uint32_t> ids = part.local_to_global;
+    ids.push_back(part.anchor);
+    make_views(scene, ids, part);
+  }
   if (!part.local_to_global.empty()) part.accel = Accel::build(part.scene, opt);
 
   // -- every rank's box (MPI_Allgather), and the counts checked: ranks given other scenes differ there
   PartRecord mine{};
-  const Box own = part.accel ? part.accel->bounds() : Box{};
   for (int a = 0; a < 3; ++a) mine.lo[a] = own.lo[a], mine.hi[a] = own.hi[a];
   mine.triangles = part.local_to_global.size();
   std::vector<PartRecord> all(P);

@@ -196,7 +196,7 @@ void check_partition(const Scene& scene, const mpi::Part& part, std::size_t non_
   CHECK(part.local_to_global.size() == part.rank_triangles[part.rank], "");
   CHECK(std::is_sorted(part.local_to_global.begin(), part.local_to_global.end()), "");
   CHECK(std::adjacent_find(part.local_to_global.begin(), part.local_to_global.end()) == part.local_to_global.end(), "");
-  CHECK(part.scene.triangle_count() == part.local_to_global.size(), "");
+  CHECK(part.scene.triangle_count() == part.local_to_global.size() + (part.anchor != MBVH_MISS_PRIM), "");
   CHECK(part.scene.vertices.empty(), "the part copied the vertex array");
   for (std::size_t i = 0; i < part.local_to_global.size(); ++i) {  // the same triangle, by global id
     Vec3f a, b, c, x, y, z;
@@ -317,6 +317,53 @@ void check_views() {
   compare_with_one_process(whole.get(), *backend, rays, opt, r, "two views random closest ordered");
 }
 
+float largest_magnitude(const Box& b) {
+  return std::max({std::fabs(b.lo.x), std::fabs(b.lo.y), std::fabs(b.lo.z), std::fabs(b.hi.x), std::fabs(b.hi.y),
+                   std::fabs(b.hi.z)});
+}
+
+// A part of tiny coordinates beside a scene of unit ones: half the triangles within 2^-38 of the
+// origin (alone, below kMinSceneScale: Accel::build would refuse them), half near (1, 1, 1). The
+// part builds the anchor with them, and a ray with a long direction, which the whole scene accepts
+// but the tiny part's own range would refuse (S^3 / D below kMinRayCube), is traced as in one process.
+void check_tiny_part() {
+  Scene s;
+  s.name = "tiny and unit";
+  const float e = 0x1p-44f;
+  for (int i = 0; i < 64; ++i) {  // tiny: a fan of slivers in z = 0; unit: a row of triangles in z = 1
+    const float x = e * static_cast<float>(i);
+    const std::uint32_t v = static_cast<std::uint32_t>(s.vertices.size());
+    s.vertices.insert(s.vertices.end(), {{x, 0, 0}, {x + e, 0, 0}, {x, e, 0}});
+    s.triangles.push_back({v, v + 1, v + 2});
+  }
+  for (int i = 0; i < 64; ++i) {
+    const float x = 1 + 0.01f * static_cast<float>(i);
+    const std::uint32_t v = static_cast<std::uint32_t>(s.vertices.size());
+    s.vertices.insert(s.vertices.end(), {{x, 1, 1}, {x + 0.01f, 1, 1}, {x, 1.01f, 1}});
+    s.triangles.push_back({v, v + 1, v + 2});
+  }
+  const mpi::Part part = mpi::partition(Comm{}, s, BuildOptions{});
+  check_partition(s, part, s.triangles.size());
+  int anchored = part.anchor != MBVH_MISS_PRIM;
+  MPI_Allreduce(MPI_IN_PLACE, &anchored, 1, MPI_INT, MPI_SUM, MPI_COMM_WORLD);
+  CHECK(anchored >= 1, "no part of tiny coordinates built the anchor");
+  if (part.anchor != MBVH_MISS_PRIM) CHECK(largest_magnitude(part.accel->bounds()) == largest_magnitude(part.scene_bounds), "");
+  std::unique_ptr<Accel> whole = g_rank == 0 ? Accel::build(s) : nullptr;
+  std::vector<Ray> rays;
+  for (int i = 0; i < 64; ++i)  // down onto the slivers, directions 2^28 long; and onto the unit row
+    rays.push_back(Ray{e * (static_cast<float>(i) + 0.25f), e * 0.25f, 1, 0, 0, 0, -0x1p28f, INFINITY});
+  for (int i = 0; i < 64; ++i) rays.push_back(Ray{1.0025f + 0.01f * static_cast<float>(i), 1.0025f, 2, 0, 0, 0, -1, INFINITY});
+  auto backend = make_backend("cpu-scalar", BackendOptions{1, {}});
+  for (Query q : {Query::closest, Query::any}) {
+    TraceOptions opt;
+    opt.query = q;
+    const DpRun r = run_dp(*backend, part, rays, opt, Forwarding::ordered);
+    compare_with_one_process(whole.get(), *backend, rays, opt, r, std::string("tiny part ") + to_string(q));
+    if (g_rank == 0 && q == Query::closest)
+      for (std::size_t i = 0; i < rays.size(); ++i) CHECK(r.hits[i].prim == i, "ray " + std::to_string(i));
+  }
+}
+
 // load_scene_part counts 1/parts of the build: a budget that refuses the whole build admits a
 // quarter of it (each rank on its own: not collective).
 void check_memory_share() {
@@ -405,6 +452,7 @@ int main(int argc, char** argv) {
       check_memory_share();
       check_one_triangle();
       check_views();
+      check_tiny_part();
       check_scene("gen:needles:3000", {RayKind::primary, RayKind::random}, 10000, true);
       check_scene("gen:hairball:100000", {RayKind::primary, RayKind::shadow, RayKind::diffuse}, 20000, true);
       check_scene(scenes_dir() + "/conference.obj.zst", {RayKind::primary, RayKind::shadow, RayKind::diffuse}, 30000, true);

@@ -102,9 +102,17 @@ struct Part {
   std::vector<Box> rank_bounds;            ///< every rank's part (an empty box: no triangle)
   std::vector<std::uint64_t> rank_triangles;  ///< every rank's triangle count
   std::vector<std::uint32_t> local_to_global; ///< this rank's triangles' global prim ids, ascending
+  /// The anchor: a triangle of the whole scene (global id) that reaches its largest coordinate
+  /// magnitude, built into this part as one more triangle (local id local_to_global.size(), last)
+  /// when the part's own triangles all lie nearer the origin; MBVH_MISS_PRIM when not. The exactly
+  /// traced range is the scene's (Accel::build's kMinSceneScale, check_ray_range's S): without it a
+  /// part of small coordinates could refuse its build or a ray the whole scene accepts. It is a
+  /// real triangle, answered with its global id (as the part that owns it answers), so the owner's
+  /// minimum is unchanged; rank_bounds and the routing leave it out.
+  std::uint32_t anchor = 0xFFFFFFFFu;
   Scene scene;                             ///< this rank's triangles (views into the whole scene's mesh)
   /// The vertex indices of this rank's triangles (local triangle i: global local_to_global[i]),
-  /// which `scene`'s views read; the vertices are the whole scene's, not copied.
+  /// then the anchor's if any, which `scene`'s views read; the vertices are the whole scene's, not copied.
   std::vector<std::array<std::uint32_t, 3>> indices;
   std::unique_ptr<Accel> accel;            ///< their BVH; null when this rank has no triangle
 };
@@ -136,8 +144,8 @@ Forwarding parse_forwarding(const std::string& s);  ///< "ordered" or "broadcast
 /// are one process's on the whole scene except the order-dependent ties of docs/backends.md.
 /// opt.stats is refused; every rank passes the same options and backend. Throws Error (on the rank
 /// that owns the ray) for a ray outside the range traced exactly in the whole scene (as
-/// check_ray_range against its bounds), and on a rank whose part's smaller bounds leave a
-/// forwarded ray outside the range traced exactly there (docs/mpi.md, "Data-parallel").
+/// check_ray_range against its bounds); a part never refuses a ray the whole scene accepts (its
+/// build has the scene's range: Part::anchor).
 /// Cost: at most P rounds of two MPI_Alltoallv and one MPI_Allreduce; each ray is traced on the
 /// parts it visits.
 void trace_data_parallel(const Comm& comm, Backend& backend, const Part& part, std::span<const Ray> rays,
