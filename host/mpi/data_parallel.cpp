@@ -48,7 +48,7 @@ namespace {
 // A committed MPI datatype of `bytes` contiguous bytes (one ray, one hit): counts and
 // displacements then count records, not bytes, so a round may move up to INT_MAX records a rank.
 class Contiguous {
-public:
+ public:
   Contiguous(std::size_t bytes, Traffic* t) {
     detail::call(t, "MPI_Type_contiguous", 0, 0,
                  [&] { return MPI_Type_contiguous(static_cast<int>(bytes), MPI_BYTE, &type_); });
@@ -65,7 +65,7 @@ public:
   Contiguous& operator=(const Contiguous&) = delete;
   MPI_Datatype get() const { return type_; }
 
-private:
+ private:
   MPI_Datatype type_ = MPI_DATATYPE_NULL;
 };
 
@@ -270,8 +270,8 @@ void trace_part(Backend& backend, const Part& part, const std::vector<Ray>& rays
   hits.clear(), occluded.clear();
   if (rays.empty()) return;
   if (!part.accel)
-    throw Error("data-parallel trace (rank " + std::to_string(part.rank) + "): internal: " + std::to_string(rays.size()) +
-                " rays came to a rank without triangles");
+    throw Error("data-parallel trace (rank " + std::to_string(part.rank) +
+                "): internal: " + std::to_string(rays.size()) + " rays came to a rank without triangles");
   TraceOutput out;
   backend.trace(*part.accel, rays, opt, out);
   if (opt.query == Query::any) {
@@ -295,8 +295,8 @@ Part partition(const Comm& comm, const Scene& scene, const BuildOptions& opt, Tr
   part.rank = me, part.ranks = P;
   part.scene.name = scene.display_name() + " (part " + std::to_string(me) + " of " + std::to_string(P) + ")";
 
-  // -- the non-degenerate triangles in Morton order, cut into P runs of equal counts (the first
-  //    runs differ by one at most); this rank's run in ascending prim order
+  // -- the non-degenerate triangles in Morton order, cut into P runs of equal counts (differing
+  //    by one at most); this rank's run in ascending prim order
   std::uint32_t anchor = MBVH_MISS_PRIM;
   {
     const MortonOrder mo = morton_order(scene);
@@ -369,13 +369,19 @@ void trace_data_parallel(const Comm& comm, Backend& backend, const Part& part, s
   g_last = ForwardStats{};
   // -- checks: options, the part, the rays against the whole scene's range
   check_trace_options(asked, who);
-  if (asked.stats) throw Error(who + ": statistics (TraceOptions::stats) are not collected across ranks; trace in one process for them");
+  if (asked.stats)
+    throw Error(who +
+                ": statistics (TraceOptions::stats) are not collected across ranks; trace in one process for them");
   const TraceOptions opt = resolve_options(backend, asked);
   const bool any = opt.query == Query::any;
   if (part.ranks != P || part.rank != me || part.rank_bounds.size() != static_cast<std::size_t>(P))
-    throw Error(who + ": the part was made for rank " + std::to_string(part.rank) + " of " + std::to_string(part.ranks) +
-                ", not for this communicator's rank " + std::to_string(me) + " of " + std::to_string(P));
+    throw Error(who + ": the part was made for rank " + std::to_string(part.rank) + " of " +
+                std::to_string(part.ranks) + ", not for this communicator's rank " + std::to_string(me) + " of " +
+                std::to_string(P));
   check_ray_range(part.scene_bounds, rays, backend.name());
+  if (rays.size() > UINT32_MAX)  // the rounds name a ray by a 32-bit index
+    throw Error(who + ": " + std::to_string(rays.size()) +
+                " rays in one call; at most 2^32 - 1 a rank (trace them in batches)");
   out.reset(rays.size(), opt);
 
   // -- per ray, the parts it reaches, nearest entry first; a cursor into them
@@ -409,9 +415,8 @@ void trace_data_parallel(const Comm& comm, Backend& backend, const Part& part, s
       sends.push_back({rc.part[cursor[i]++], static_cast<std::uint32_t>(i)});
     }
     std::uint64_t mine = sends.size(), total = 0;
-    detail::call(traffic, "MPI_Allreduce", 8, 8, [&] {
-      return MPI_Allreduce(&mine, &total, 1, MPI_UINT64_T, MPI_SUM, comm.comm);
-    });
+    detail::call(traffic, "MPI_Allreduce", 8, 8,
+                 [&] { return MPI_Allreduce(&mine, &total, 1, MPI_UINT64_T, MPI_SUM, comm.comm); });
     if (total == 0) break;
     ++st.rounds;
     st.forwards += mine;
@@ -429,7 +434,8 @@ void trace_data_parallel(const Comm& comm, Backend& backend, const Part& part, s
       const std::uint64_t k = at[q]++;
       owner_index[k] = i;
       forwarded[k] = rays[i];
-      if (!any && forwarding == Forwarding::ordered && out.hits[i].prim != MBVH_MISS_PRIM) forwarded[k].tmax = out.hits[i].t;
+      if (!any && forwarding == Forwarding::ordered && out.hits[i].prim != MBVH_MISS_PRIM)
+        forwarded[k].tmax = out.hits[i].t;
     }
     const std::vector<std::uint64_t> recv_counts = exchange_counts(comm, send_counts, traffic);
     const std::vector<Ray> in =
@@ -449,7 +455,8 @@ void trace_data_parallel(const Comm& comm, Backend& backend, const Part& part, s
     for (std::size_t k = 0; k < back.size(); ++k) {
       const Hit& h = back[k];
       Hit& best = out.hits[owner_index[k]];
-      if (h.prim != MBVH_MISS_PRIM && (best.prim == MBVH_MISS_PRIM || h.t < best.t || (h.t == best.t && h.prim < best.prim)))
+      if (h.prim != MBVH_MISS_PRIM &&
+          (best.prim == MBVH_MISS_PRIM || h.t < best.t || (h.t == best.t && h.prim < best.prim)))
         best = h;
     }
   }

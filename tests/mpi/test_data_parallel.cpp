@@ -42,8 +42,8 @@ int g_rank = 0;
   MPI_Abort(MPI_COMM_WORLD, 1);
   std::abort();
 }
-#define CHECK(cond, ...)                                                      \
-  do {                                                                        \
+#define CHECK(cond, ...)                                                         \
+  do {                                                                           \
     if (!(cond)) fail(__FILE__, __LINE__, std::string(#cond " ") + __VA_ARGS__); \
   } while (0)
 
@@ -111,7 +111,8 @@ DpRun run_dp(Backend& backend, const mpi::Part& part, const std::vector<Ray>& ra
   MPI_Gatherv(src, mine, MPI_BYTE, all.data(), counts.data(), displs.data(), MPI_BYTE, 0, MPI_COMM_WORLD);
   if (me == 0) {
     CHECK(static_cast<std::size_t>(total) == rays.size() * each, "");
-    if (any) run.occluded.assign(all.begin(), all.end());
+    if (any)
+      run.occluded.assign(all.begin(), all.end());
     else {
       run.hits.resize(rays.size());
       std::memcpy(run.hits.data(), all.data(), all.size());
@@ -146,23 +147,26 @@ void compare_with_one_process(const Accel* whole_on_root, Backend& reference, co
     const TieRule settle = [&](std::size_t i, const Hit&, const Hit&) {
       const Hit o = brute_force(whole, rays[i]);
       for (std::uint8_t f : {run.occluded[i], ref.occluded[i]})
-        if ((f != 0) != (o.prim != MBVH_MISS_PRIM) && !(o.prim != MBVH_MISS_PRIM && compare_occlusion(1, 0, o, rays[i]) == Verdict::tie))
+        if ((f != 0) != (o.prim != MBVH_MISS_PRIM) &&
+            !(o.prim != MBVH_MISS_PRIM && compare_occlusion(1, 0, o, rays[i]) == Verdict::tie))
           return false;
       return true;
     };
     c = compare_occlusion_arrays(run.occluded, ref.occluded, closest.hits, rays, {}, {}, settle);
-    for (std::size_t i = 0; i < rays.size(); ++i) bit_same += run.occluded[i] == ref.occluded[i], hits += run.occluded[i];
+    for (std::size_t i = 0; i < rays.size(); ++i)
+      bit_same += run.occluded[i] == ref.occluded[i], hits += run.occluded[i];
   }
   char line[400];
-  std::snprintf(line, sizeof line,
-                "  %-44s %6zu rays, %6zu hit: %6zu bit-same, %zu ties, %zu mismatches; rounds %u, forwards/ray %.3f, %.3f s",
-                label.c_str(), rays.size(), hits, bit_same, c.ties, c.mismatches, run.rounds,
-                run.rays ? double(run.forwards) / double(run.rays) : 0.0, run.seconds);
+  std::snprintf(
+      line, sizeof line,
+      "  %-44s %6zu rays, %6zu hit: %6zu bit-same, %zu ties, %zu mismatches; rounds %u, forwards/ray %.3f, %.3f s",
+      label.c_str(), rays.size(), hits, bit_same, c.ties, c.mismatches, run.rounds,
+      run.rays ? double(run.forwards) / double(run.rays) : 0.0, run.seconds);
   note(line);
   CHECK(c.mismatches == 0, label + ": " + std::to_string(c.mismatches) + " genuine mismatches, first ray " +
                                std::to_string(c.first_mismatches.empty() ? 0 : c.first_mismatches[0]));
-  CHECK(double(bit_same) >= 0.9999 * double(rays.size()), label + ": only " + std::to_string(bit_same) + " of " +
-                                                              std::to_string(rays.size()) + " answers bit-identical");
+  CHECK(double(bit_same) >= 0.9999 * double(rays.size()),
+        label + ": only " + std::to_string(bit_same) + " of " + std::to_string(rays.size()) + " answers bit-identical");
 }
 
 // Rank 0 builds the whole scene and makes the rays; every rank gets them.
@@ -186,7 +190,9 @@ std::vector<Ray> make_rays(const Scene& scene, const Accel* whole, RayKind kind,
 // balanced, boxes those of the parts, the whole scene's bounds.
 void check_partition(const Scene& scene, const mpi::Part& part, std::size_t non_degenerate) {
   const int P = part.ranks;
-  CHECK(part.rank_triangles.size() == static_cast<std::size_t>(P) && part.rank_bounds.size() == static_cast<std::size_t>(P), "");
+  CHECK(part.rank_triangles.size() == static_cast<std::size_t>(P) &&
+            part.rank_bounds.size() == static_cast<std::size_t>(P),
+        "");
   std::uint64_t sum = 0, largest = 0;
   for (std::uint64_t c : part.rank_triangles) sum += c, largest = std::max(largest, c);
   CHECK(sum == non_degenerate, std::to_string(sum) + " vs " + std::to_string(non_degenerate));
@@ -235,13 +241,15 @@ void check_scene(const std::string& spec, const std::vector<RayKind>& kinds, std
   MPI_Bcast(&nd, 1, MPI_UNSIGNED_LONG_LONG, 0, MPI_COMM_WORLD);
   const mpi::Part part = mpi::partition(Comm{}, scene, bo);
   check_partition(scene, part, nd);
-  if (whole) CHECK(std::memcmp(&whole->bounds(), &part.scene_bounds, sizeof(Box)) == 0, "scene bounds differ from one build's");
+  if (whole)
+    CHECK(std::memcmp(&whole->bounds(), &part.scene_bounds, sizeof(Box)) == 0, "scene bounds differ from one build's");
   std::string parts;
   for (int r = 0; r < part.ranks; ++r) {
     const Box& b = part.rank_bounds[r];
     char line[200];
     std::snprintf(line, sizeof line, "\n  part %d: %llu triangles, box (%g %g %g) - (%g %g %g)", r,
-                  static_cast<unsigned long long>(part.rank_triangles[r]), b.lo.x, b.lo.y, b.lo.z, b.hi.x, b.hi.y, b.hi.z);
+                  static_cast<unsigned long long>(part.rank_triangles[r]), b.lo.x, b.lo.y, b.lo.z, b.hi.x, b.hi.y,
+                  b.hi.z);
     parts += line;
   }
   note(spec + ": " + std::to_string(nd) + " triangles on " + std::to_string(part.ranks) + " ranks" + parts);
@@ -284,7 +292,8 @@ void check_one_triangle() {
     CHECK(c.forwards == 1, std::to_string(c.forwards));
     if (g_rank == 0) {
       CHECK(c.hits[0].prim == 0 && c.hits[0].t == 1.0f, "");
-      CHECK(c.hits[1].prim == MBVH_MISS_PRIM && c.hits[2].prim == MBVH_MISS_PRIM && c.hits[3].prim == MBVH_MISS_PRIM, "");
+      CHECK(c.hits[1].prim == MBVH_MISS_PRIM && c.hits[2].prim == MBVH_MISS_PRIM && c.hits[3].prim == MBVH_MISS_PRIM,
+            "");
     }
     opt.query = Query::any;
     const DpRun a = run_dp(*backend, part, rays, opt, f);
@@ -306,7 +315,8 @@ void check_views() {
   views.name = "two views";
   const std::size_t half = owned.triangles.size() / 2;
   views.add_mesh(MeshView{v.data(), owned.vertices.size(), 16, idx.data(), half, 12});
-  views.add_mesh(MeshView{v.data(), owned.vertices.size(), 16, idx.data() + 3 * half, owned.triangles.size() - half, 12});
+  views.add_mesh(
+      MeshView{v.data(), owned.vertices.size(), 16, idx.data() + 3 * half, owned.triangles.size() - half, 12});
   const mpi::Part part = mpi::partition(Comm{}, views, BuildOptions{});
   check_partition(views, part, owned.triangles.size());
   std::unique_ptr<Accel> whole = g_rank == 0 ? Accel::build(views) : nullptr;
@@ -347,12 +357,14 @@ void check_tiny_part() {
   int anchored = part.anchor != MBVH_MISS_PRIM;
   MPI_Allreduce(MPI_IN_PLACE, &anchored, 1, MPI_INT, MPI_SUM, MPI_COMM_WORLD);
   CHECK(anchored >= 1, "no part of tiny coordinates built the anchor");
-  if (part.anchor != MBVH_MISS_PRIM) CHECK(largest_magnitude(part.accel->bounds()) == largest_magnitude(part.scene_bounds), "");
+  if (part.anchor != MBVH_MISS_PRIM)
+    CHECK(largest_magnitude(part.accel->bounds()) == largest_magnitude(part.scene_bounds), "");
   std::unique_ptr<Accel> whole = g_rank == 0 ? Accel::build(s) : nullptr;
   std::vector<Ray> rays;
   for (int i = 0; i < 64; ++i)  // down onto the slivers, directions 2^28 long; and onto the unit row
     rays.push_back(Ray{e * (static_cast<float>(i) + 0.25f), e * 0.25f, 1, 0, 0, 0, -0x1p28f, INFINITY});
-  for (int i = 0; i < 64; ++i) rays.push_back(Ray{1.0025f + 0.01f * static_cast<float>(i), 1.0025f, 2, 0, 0, 0, -1, INFINITY});
+  for (int i = 0; i < 64; ++i)
+    rays.push_back(Ray{1.0025f + 0.01f * static_cast<float>(i), 1.0025f, 2, 0, 0, 0, -1, INFINITY});
   auto backend = make_backend("cpu-scalar", BackendOptions{1, {}});
   for (Query q : {Query::closest, Query::any}) {
     TraceOptions opt;
@@ -398,8 +410,10 @@ void check_memory_share() {
     refused = true;
   }
   CHECK(refused, "load_scene after load_scene_part was not refused");
-  if (before) setenv("MBVH_MEMORY_LIMIT", saved.c_str(), 1);
-  else unsetenv("MBVH_MEMORY_LIMIT");
+  if (before)
+    setenv("MBVH_MEMORY_LIMIT", saved.c_str(), 1);
+  else
+    unsetenv("MBVH_MEMORY_LIMIT");
   note("memory share: MBVH_MEMORY_LIMIT=" + std::to_string(limit) + " refuses load_scene, admits load_scene_part(4)");
 }
 
@@ -430,7 +444,8 @@ void bench(const std::string& spec, std::size_t count) {
         run_dp(*backend, part, rays, opt, f);  // warm
         const DpRun r = run_dp(*backend, part, rays, opt, f);
         char line[300];
-        std::snprintf(line, sizeof line, "%s %s %s %s on %d ranks: %.3f s (one process, one thread: %.3f s), rounds %u, forwards/ray %.3f",
+        std::snprintf(line, sizeof line,
+                      "%s %s %s %s on %d ranks: %.3f s (one process, one thread: %.3f s), rounds %u, forwards/ray %.3f",
                       spec.c_str(), to_string(k), to_string(q), mpi::to_string(f), part.ranks, r.seconds, one, r.rounds,
                       double(r.forwards) / double(r.rays));
         note(line);
@@ -455,7 +470,8 @@ int main(int argc, char** argv) {
       check_tiny_part();
       check_scene("gen:needles:3000", {RayKind::primary, RayKind::random}, 10000, true);
       check_scene("gen:hairball:100000", {RayKind::primary, RayKind::shadow, RayKind::diffuse}, 20000, true);
-      check_scene(scenes_dir() + "/conference.obj.zst", {RayKind::primary, RayKind::shadow, RayKind::diffuse}, 30000, true);
+      check_scene(scenes_dir() + "/conference.obj.zst", {RayKind::primary, RayKind::shadow, RayKind::diffuse}, 30000,
+                  true);
       note("data-parallel: all checks passed");
     }
   } catch (const std::exception& e) {
