@@ -146,7 +146,7 @@ Forwarding parse_forwarding(const std::string& s);  ///< "ordered" or "broadcast
 /// that owns the ray) for a ray outside the range traced exactly in the whole scene (as
 /// check_ray_range against its bounds); a part never refuses a ray the whole scene accepts (its
 /// build has the scene's range: Part::anchor).
-/// Cost: at most P rounds of two MPI_Alltoallv and one MPI_Allreduce; each ray is traced on the
+/// Cost: at most P rounds of an MPI_Alltoall, two MPI_Alltoallv and an MPI_Allreduce; each ray is traced on the
 /// parts it visits.
 void trace_data_parallel(const Comm& comm, Backend& backend, const Part& part, std::span<const Ray> rays,
                          const TraceOptions& opt, TraceOutput& out, Traffic* traffic = nullptr,
