@@ -38,3 +38,11 @@ set_tests_properties("mpi: mbvh links no libmpi" PROPERTIES LABELS mpi TIMEOUT 3
 if(TARGET mbvh-example-mpi)
   mbvh_mpi_test("examples/mpi_trace.cpp on 3 ranks: bit for bit one process" 3 120 $<TARGET_FILE:mbvh-example-mpi>)
 endif()
+# the data-parallel mode (tests/mpi/test_data_parallel.cpp): partition, trace_data_parallel against
+# one process's cpu-scalar, load_scene_part's memory share; on 2 and 3 ranks (more ranks than cores)
+add_executable(mbvh-mpi-tests tests/mpi/test_data_parallel.cpp)
+target_compile_options(mbvh-mpi-tests PRIVATE ${MBVH_WARNINGS})
+target_link_libraries(mbvh-mpi-tests PRIVATE mbvh_mpi mbvh_tools mbvh)
+target_compile_definitions(mbvh-mpi-tests PRIVATE MBVH_SCENES_DIR="${MBVH_SCENES_DIR}")
+mbvh_mpi_test("data-parallel on 2 ranks" 2 120 $<TARGET_FILE:mbvh-mpi-tests>)
+mbvh_mpi_test("data-parallel on 3 ranks" 3 120 $<TARGET_FILE:mbvh-mpi-tests>)

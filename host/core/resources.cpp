@@ -11,6 +11,7 @@
 #endif
 
 #include <algorithm>
+#include <atomic>
 #include <cerrno>
 #include <charconv>
 #include <cstdio>
@@ -135,6 +136,20 @@ std::uint64_t scene_memory_estimate(std::uint64_t triangles, std::uint64_t verti
   triangles = std::min(triangles, UINT64_MAX / 1024);
   vertices = std::min(vertices, UINT64_MAX / 1024);
   return 12 * vertices + 12 * triangles + build_memory_estimate(triangles, vertices);
+}
+
+namespace {
+std::atomic<unsigned> g_build_share{1};
+}  // namespace
+
+ScopedBuildShare::ScopedBuildShare(unsigned parts) : previous_(g_build_share.exchange(std::max(parts, 1u))) {}
+ScopedBuildShare::~ScopedBuildShare() { g_build_share.store(previous_); }
+
+unsigned build_share() { return g_build_share.load(); }
+
+std::uint64_t loading_build_estimate(std::uint64_t triangles, std::uint64_t vertices) {
+  const std::uint64_t whole = build_memory_estimate(triangles, vertices), parts = build_share();
+  return whole / parts + (whole % parts != 0);
 }
 
 std::uint64_t regular_file_size(const std::string& path, const std::string& what) {

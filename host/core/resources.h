@@ -63,6 +63,30 @@ std::uint64_t build_memory_estimate(std::uint64_t triangles, std::uint64_t verti
 /// vertex, 12 a triangle) and through one build.
 std::uint64_t scene_memory_estimate(std::uint64_t triangles, std::uint64_t vertices);
 
+/// The build share: how many processes will each build one part of the scene being loaded. A
+/// data-parallel program (mbvh::mpi, load_scene_part) loads the whole scene in every process but
+/// builds only 1/parts of it there, so its memory checks must count the scene and 1/parts of one
+/// build; everything else loads with the default, 1 (the whole build). Process-wide while an
+/// object lives (scoped; nested objects restore the share before them): it applies to every load
+/// in the process meanwhile, on any thread, so set it around one load, not while other threads
+/// load scenes of their own.
+class ScopedBuildShare {
+public:
+  explicit ScopedBuildShare(unsigned parts);  ///< parts 0 counts as 1
+  ~ScopedBuildShare();
+  ScopedBuildShare(const ScopedBuildShare&) = delete;
+  ScopedBuildShare& operator=(const ScopedBuildShare&) = delete;
+
+private:
+  unsigned previous_;
+};
+/// The build share now in force (1 unless a ScopedBuildShare lives).
+unsigned build_share();
+/// What loading a scene counts for the build that follows it: build_memory_estimate divided by
+/// build_share(), rounded up. load_scene, the OBJ parser and the generators check this, so the
+/// plain program (share 1) counts the whole build as before.
+std::uint64_t loading_build_estimate(std::uint64_t triangles, std::uint64_t vertices);
+
 /// The size of the regular file at `path`, without opening it; throws Error naming the path and
 /// `what` (e.g. "scene", "ray") when it cannot be examined or is a directory, FIFO, socket or
 /// device: opening a FIFO blocks until a writer comes and a device may never end.

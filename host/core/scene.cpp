@@ -197,8 +197,9 @@ Scene load_scene(const std::string& path) try {
     s = parse_ply(path, data.data(), data.size());
   }
   // -- the build comes next in every command: refuse it here rather than run out of memory there
-  require_memory(path, build_memory_estimate(s.triangles.size(), s.vertices.size()),
-                 "to build its " + std::to_string(s.triangles.size()) + " triangles");
+  require_memory(path, loading_build_estimate(s.triangles.size(), s.vertices.size()),
+                 (build_share() == 1 ? std::string("to build its ") : "to build 1/" + std::to_string(build_share()) + " of its ") +
+                     std::to_string(s.triangles.size()) + " triangles");
   return s;
 } catch (const std::bad_alloc&) {  // the scene's arrays or a PLY file's bytes: named, the amount unknown
   throw_out_of_memory(path + ": loading the scene", 0);

@@ -315,8 +315,13 @@ namespace {
 // Refuses, before generating, a scene of this size whose generation and build would not fit in
 // memory (`extra`: the generator's own scratch memory).
 void require_fit(const std::string& spec, std::uint64_t triangles, std::uint64_t vertices, std::uint64_t extra = 0) {
-  require_memory("gen:" + spec, scene_memory_estimate(triangles, vertices) + extra,
-                 std::to_string(triangles) + " triangles, " + std::to_string(vertices) + " vertices, and their build");
+  // the scene itself (12 bytes a vertex and a triangle, as scene_memory_estimate) and the build's
+  // share that this process will make (loading_build_estimate: all of it but in a data-parallel load)
+  const std::uint64_t scene = scene_memory_estimate(triangles, vertices) - build_memory_estimate(triangles, vertices);
+  const unsigned share = build_share();
+  require_memory("gen:" + spec, scene + loading_build_estimate(triangles, vertices) + extra,
+                 std::to_string(triangles) + " triangles, " + std::to_string(vertices) + " vertices, and " +
+                     (share == 1 ? std::string("their build") : "1/" + std::to_string(share) + " of their build"));
 }
 
 // Refuses a spec with more parameters than its generator takes (`usage`: its form in

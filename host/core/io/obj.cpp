@@ -84,7 +84,7 @@ void ObjParser::check_budget() const {
                  "to hold the " + std::to_string(s_.vertices.size()) + " vertices and " + std::to_string(s_.triangles.size()) +
                      " triangles read by line " + std::to_string(line_) + (partial_.empty() ? "" : " and a line of " + format_bytes(partial_.size())),
                  budget_);
-  require_memory(name_, build_memory_estimate(s_.triangles.size(), s_.vertices.size()),
+  require_memory(name_, loading_build_estimate(s_.triangles.size(), s_.vertices.size()),
                  "to build its " + std::to_string(s_.triangles.size()) + " triangles read by line " + std::to_string(line_), budget_);
 }
 

@@ -12,6 +12,7 @@
 #include "host/core/parallel.h"
 #include "host/core/resources.h"
 #include "host/core/trace/batch.h"
+#include "host/core/trace/ray_range.h"
 #include "mbvh/trace.h"
 
 namespace mbvh {
@@ -60,7 +61,10 @@ bool ray_valid(const Ray& ray) {
 }
 
 void check_ray_range(const Accel& acc, std::span<const Ray> rays, const std::string& who) {
-  const Box& box = acc.bounds();
+  check_ray_range(acc.bounds(), rays, who);
+}
+
+void check_ray_range(const Box& box, std::span<const Ray> rays, const std::string& who) {
   if (box.empty()) return;  // no triangle to hit
   const double S = std::max({std::fabs(box.lo.x), std::fabs(box.lo.y), std::fabs(box.lo.z), std::fabs(box.hi.x),
                              std::fabs(box.hi.y), std::fabs(box.hi.z)});

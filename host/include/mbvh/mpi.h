@@ -19,6 +19,7 @@
 #pragma once
 #include <mpi.h>
 
+#include <array>
 #include <cstddef>
 #include <cstdint>
 #include <memory>
@@ -111,7 +112,10 @@ void trace(const Comm& comm, Backend& backend, const Accel& acc, std::span<const
 // -- data-parallel: every rank holds the scene's mesh and the BVH of its part
 
 /// Loads a scene that will be partitioned over `parts` ranks: load_scene, with its memory check
-/// counting the scene and 1/parts of one build of it (each rank builds only its part).
+/// counting the scene and 1/parts of one build of it (each rank builds only its part): under
+/// MBVH_MEMORY_LIMIT=B, a scene whose build load_scene refuses in one process may load on each of
+/// `parts` ranks. Not collective (each rank loads on its own); parts 0 counts as 1. Throws as
+/// load_scene does.
 Scene load_scene_part(const std::string& path_or_spec, unsigned parts);
 
 /// This rank's part of the scene: the triangles it owns, their BVH and every rank's bounds.
@@ -121,25 +125,60 @@ struct Part {
   std::vector<Box> rank_bounds;            ///< every rank's part (an empty box: no triangle)
   std::vector<std::uint64_t> rank_triangles;  ///< every rank's triangle count
   std::vector<std::uint32_t> local_to_global; ///< this rank's triangles' global prim ids, ascending
+  /// The anchor: a triangle of the whole scene (global id) that reaches its largest coordinate
+  /// magnitude, built into this part as one more triangle (local id local_to_global.size(), last)
+  /// when the part's own triangles all lie nearer the origin; MBVH_MISS_PRIM when not. The exactly
+  /// traced range is the scene's (Accel::build's kMinSceneScale, check_ray_range's S): without it a
+  /// part of small coordinates could refuse its build or a ray the whole scene accepts. It is a
+  /// real triangle, answered with its global id (as the part that owns it answers), so the owner's
+  /// minimum is unchanged; rank_bounds and the routing leave it out.
+  std::uint32_t anchor = 0xFFFFFFFFu;
   Scene scene;                             ///< this rank's triangles (views into the whole scene's mesh)
-  std::unique_ptr<Accel> accel;            ///< their BVH
+  /// The vertex indices of this rank's triangles (local triangle i: global local_to_global[i]),
+  /// then the anchor's if any, which `scene`'s views read; the vertices are the whole scene's, not copied.
+  std::vector<std::array<std::uint32_t, 3>> indices;
+  std::unique_ptr<Accel> accel;            ///< their BVH; null when this rank has no triangle
 };
 
 /// Splits `scene` (every rank passes the same) into comm.size() parts of equal triangle counts, in
 /// Morton order of the triangles' centroids, and builds this rank's part with `opt`. The whole
-/// scene must outlive the Part (its scene views the mesh).
+/// scene must outlive the Part (its scene views the mesh). Degenerate (zero-area) triangles go to
+/// no part (no build keeps them: they are never hit); the others keep their global prim ids. With
+/// fewer triangles than ranks some ranks get none (accel null, an empty box). Throws Error as
+/// Scene::validate and Accel::build do (a triangle too small to trace is named by its global id),
+/// and when the ranks' scenes differ (their triangle counts do). Cost: O(T log T) on every rank
+/// (the sort), one build of T/P triangles, one MPI_Allgather of P boxes.
 Part partition(const Comm& comm, const Scene& scene, const BuildOptions& opt, Traffic* traffic = nullptr);
+
+/// How trace_data_parallel forwards rays. ordered: the parts in order of the ray's entry into
+/// their boxes, one a round, each with the best t so far as tmax, until no part left can hold a
+/// nearer hit (closest) or one occludes the ray (any) — the design of docs/mpi.md. broadcast: the
+/// baseline, every ray sent at once to every part whose box it enters, with its own tmax (one
+/// round; more forwards and more work per ray, the same answers up to the same ties).
+enum class Forwarding { ordered, broadcast };
+const char* to_string(Forwarding f);
+Forwarding parse_forwarding(const std::string& s);  ///< "ordered" or "broadcast"; throws Error otherwise
 
 /// Traces `rays` (this rank's own: any number, empty included) over every rank's part: each ray
 /// visits the parts its box test reaches, nearest entry first, each with its best t so far, in
 /// bulk-synchronous rounds (MPI_Alltoallv), until no part left can hold a nearer hit (closest) or
 /// one part occludes it (any). `out` receives this rank's answers, in its ray order, global prim
-/// ids. opt.stats is refused.
+/// ids; out.invalid counts this rank's invalid rays (defined misses, never forwarded). The answers
+/// are one process's on the whole scene except the order-dependent ties of docs/backends.md.
+/// opt.stats is refused; every rank passes the same options and backend. Throws Error (on the rank
+/// that owns the ray) for a ray outside the range traced exactly in the whole scene (as
+/// check_ray_range against its bounds); a part never refuses a ray the whole scene accepts (its
+/// build has the scene's range: Part::anchor).
+/// Cost: at most P rounds of an MPI_Alltoall, two MPI_Alltoallv and an MPI_Allreduce; each ray is traced on the
+/// parts it visits.
 void trace_data_parallel(const Comm& comm, Backend& backend, const Part& part, std::span<const Ray> rays,
-                         const TraceOptions& opt, TraceOutput& out, Traffic* traffic = nullptr);
+                         const TraceOptions& opt, TraceOutput& out, Traffic* traffic = nullptr,
+                         Forwarding forwarding = Forwarding::ordered);
 
-/// What the last trace_data_parallel call on this rank did: rounds, and rays sent to a part
-/// (forwards, this rank's own rays sent to any part including itself).
+/// What the last trace_data_parallel call on this rank did: rounds (exchange rounds, the same on
+/// every rank), this rank's own rays, and forwards (this rank's own rays sent to a part, its own
+/// included: a ray that visits three parts counts three). forwards / rays is what the ordered
+/// forwarding saves over broadcast.
 struct ForwardStats {
   unsigned rounds = 0;
   std::uint64_t rays = 0, forwards = 0;
