@@ -35,6 +35,10 @@ mbvh_mpi_script_test("replicated, 3 ranks: trace and render cmp-equal to one pro
 add_test(NAME "mpi: mbvh links no libmpi"
          COMMAND bash -c "deps=\"$(ldd \"$1\")\" && echo \"$deps\" | grep -c . && ! grep -qi libmpi <<<\"$deps\"" _ $<TARGET_FILE:mbvh-cli>)
 set_tests_properties("mpi: mbvh links no libmpi" PROPERTIES LABELS mpi TIMEOUT 30)
+mbvh_mpi_script_test("data-parallel, 2 ranks: check, trace and a render under a per-rank budget against one process" 300
+                     tests/mpi/data.sh 2)
+mbvh_mpi_script_test("data-parallel, 3 ranks: check, trace and a render under a per-rank budget against one process" 300
+                     tests/mpi/data.sh 3)
 if(TARGET mbvh-example-mpi)
   mbvh_mpi_test("examples/mpi_trace.cpp on 3 ranks: bit for bit one process" 3 120 $<TARGET_FILE:mbvh-example-mpi>)
 endif()

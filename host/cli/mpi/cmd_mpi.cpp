@@ -7,6 +7,7 @@
 // (mpi::trace_data_parallel); render shades each rank's tiles on it, its paths crossing the parts.
 #include <algorithm>
 #include <cmath>
+#include <cstdlib>
 
 #include "host/cli/args.h"
 #include "host/cli/mpi/cmd_mpi.h"
@@ -55,6 +56,13 @@ Traffic total_traffic(const Comm& comm, const Traffic& t) {
   MPI_Reduce(&s, &s_all, 1, MPI_DOUBLE, MPI_SUM, 0, comm.comm);
   MPI_Reduce(v, v_all, 3, MPI_UINT64_T, MPI_SUM, 0, comm.comm);
   return Traffic{s_all, v_all[0], v_all[1], v_all[2]};
+}
+
+// The test hook of the error path: MBVH_MPI_TEST_FAIL=R makes rank R fail here, after the scene is
+// loaded and before anything is written, as a rank that cannot read its input would.
+void test_hook(const Comm& comm, const char* where) {
+  if (const char* r = std::getenv("MBVH_MPI_TEST_FAIL"); r && *r && std::to_string(comm.rank()) == r)
+    throw Error(std::string("MBVH_MPI_TEST_FAIL: a failure injected into ") + where + " on this rank");
 }
 
 // What `now` added since `before` (a Traffic only grows).
@@ -135,9 +143,12 @@ std::unique_ptr<DataScene> load_data_scene(const Comm& comm, const SceneArgs& a,
   const auto t1 = Clock::now();
   d->part = mpi::partition(comm, d->scene, bo, t);
   const double ms = ms_since(t1);
-  std::uint64_t largest = 0;
-  for (std::uint64_t c : d->part.rank_triangles) largest = std::max(largest, c);
-  const double fair = static_cast<double>(d->scene.triangle_count()) / comm.size();
+  std::uint64_t largest = 0, all = 0;  // of the non-degenerate triangles, which the parts share
+  for (std::uint64_t c : d->part.rank_triangles) {
+    largest = std::max(largest, c);
+    all += c;
+  }
+  const double fair = static_cast<double>(all) / comm.size();
   if (!quiet())
     std::fprintf(stderr, "scene %s: %zu triangles, loaded in %.1f ms; %d parts built in %.1f ms (the largest %llu triangles, "
                          "%.3f of an equal share)\n",
@@ -193,6 +204,7 @@ int run_trace(const Comm& comm, MpiTraceArgs& a) {
   if (comm.root()) rays = a.t.rays.rays_file.empty() ? a.t.rays.get(l, a.t.scene.threads) : read_rays(a.t.rays.rays_file);
   if (!quiet()) std::fprintf(stderr, "backend: %s, on %s\n", backend->describe().c_str(), ranks_label(comm, a.t.scene.threads).c_str());
   backend->prepare(acc, o);
+  test_hook(comm, "trace");
   const Traffic before = tr;
   call(nullptr, "MPI_Barrier", 0, 0, [&] { return MPI_Barrier(comm.comm); });
   const auto t0 = Clock::now();
@@ -250,6 +262,7 @@ int run_render(const Comm& comm, MpiRenderArgs& a) {
   const Accel& acc = ds ? *ds->part.accel : *l.acc;
   if (!quiet()) std::fprintf(stderr, "backend: %s, on %s\n", backend->describe().c_str(), ranks_label(comm, scene.threads).c_str());
   backend->prepare(acc, TraceOptions{o.layout, o.traversal, Query::closest, false, o.precision});
+  test_hook(comm, "render");
   if (ds) {
     o.bounds = &ds->part.scene_bounds;
     o.tracer = [&](std::span<const Ray> rays, const TraceOptions& to, TraceOutput& out) {
