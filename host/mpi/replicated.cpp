@@ -144,20 +144,76 @@ std::int64_t WorkQueue::next() {
 // as tracing them): this rank's rays and answers, the gathered answers and, for the dynamic
 // schedule, the root's window of rays. Freed when MPI_Finalize begins (an attribute of
 // MPI_COMM_SELF), while MPI_Win_free can still be called.
+// A window kept between calls (see Scratch): allocated by MPI_Win_allocate (Open MPI's
+// single-host one-sided component, osc/sm, serves allocated windows only) or, `shared`, by
+// MPI_Win_allocate_shared (every rank reads and writes the root's segment directly). Only the root's
+// segment has bytes. ensure() is collective; every rank passes the same arguments.
+struct KeptWindow {
+  MPI_Comm comm = MPI_COMM_NULL;
+  MPI_Win win = MPI_WIN_NULL;
+  char* base = nullptr;  ///< the root's segment (on every rank, for a shared window)
+  std::uint64_t bytes = 0;
+  void free() {
+    if (win != MPI_WIN_NULL) {
+      MPI_Win_unlock_all(win);
+      MPI_Win_free(&win);  // collective over comm
+    }
+    comm = MPI_COMM_NULL;
+    base = nullptr;
+    bytes = 0;
+  }
+  void ensure(const Comm& c, std::uint64_t need, bool shared, Traffic* t) {
+    if (win != MPI_WIN_NULL) {
+      int same = MPI_UNEQUAL;
+      MPI_Comm_compare(comm, c.comm, &same);
+      if (same == MPI_IDENT && need <= bytes) return;
+      free();
+    }
+    const MPI_Aint size = static_cast<MPI_Aint>(c.root() ? need : 0);
+    call(t, shared ? "MPI_Win_allocate_shared" : "MPI_Win_allocate", 0, 0, [&] {
+      return shared ? MPI_Win_allocate_shared(size, 1, MPI_INFO_NULL, c.comm, &base, &win)
+                    : MPI_Win_allocate(size, 1, MPI_INFO_NULL, c.comm, &base, &win);
+    });
+    if (shared && !c.root()) {  // the root's segment, mapped here
+      MPI_Aint sz = 0;
+      int unit = 0;
+      call(t, "MPI_Win_shared_query", 0, 0, [&] { return MPI_Win_shared_query(win, 0, &sz, &unit, &base); });
+    }
+    comm = c.comm;
+    bytes = need;
+    call(t, "MPI_Win_lock_all", 0, 0, [&] { return MPI_Win_lock_all(0, win); });  // one epoch, open while kept
+  }
+};
+
+// What trace() keeps between calls, so a repeated trace of as many rays touches no fresh memory
+// (on these machines a first-touched page costs microseconds: fresh buffers for 1M rays cost as much
+// as tracing them): this rank's rays and answers, the dynamic schedule's window of rays, the
+// static schedule's shared window on one host, and whether the communicator is on one host.
+// Freed when MPI_Finalize begins (an attribute of MPI_COMM_SELF), while windows can still be freed.
 struct Scratch {
   std::vector<Ray> rays;
   TraceOutput part;
   std::vector<char> gathered;
   std::vector<std::uint64_t> batches;
-  MPI_Comm win_comm = MPI_COMM_NULL;  ///< the window's communicator
-  MPI_Win win = MPI_WIN_NULL;
-  Ray* exposed = nullptr;
-  std::uint64_t capacity = 0;  ///< rays the window holds
-  void free_window() {
-    if (win != MPI_WIN_NULL) MPI_Win_free(&win);  // collective over win_comm
-    win_comm = MPI_COMM_NULL;
-    exposed = nullptr;
-    capacity = 0;
+  KeptWindow rays_window, shared;
+  MPI_Comm host_comm = MPI_COMM_NULL;  ///< the communicator one_host was found for
+  bool one_host = false;
+  /// Whether every rank of `c` runs on this host (can share memory): found once per communicator.
+  bool on_one_host(const Comm& c, Traffic* t) {
+    int same = MPI_UNEQUAL;
+    if (host_comm != MPI_COMM_NULL) MPI_Comm_compare(host_comm, c.comm, &same);
+    if (same != MPI_IDENT) {
+      MPI_Comm node = MPI_COMM_NULL;
+      call(t, "MPI_Comm_split_type", 0, 0, [&] { return MPI_Comm_split_type(c.comm, MPI_COMM_TYPE_SHARED, 0, MPI_INFO_NULL, &node); });
+      int n = 0, all = 0;
+      MPI_Comm_size(node, &n);
+      MPI_Comm_free(&node);
+      n = n == c.size() ? 1 : 0;  // every rank must agree
+      call(t, "MPI_Allreduce (one host)", 4, 4, [&] { return MPI_Allreduce(&n, &all, 1, MPI_INT, MPI_MIN, c.comm); });
+      one_host = all == 1;
+      host_comm = c.comm;
+    }
+    return one_host;
   }
 };
 
@@ -168,7 +224,8 @@ Scratch& scratch() {
     MPI_Comm_create_keyval(MPI_COMM_NULL_COPY_FN,
                            [](MPI_Comm, int, void* v, void*) {
                              auto* sc = static_cast<Scratch*>(v);
-                             sc->free_window();
+                             sc->rays_window.free();
+                             sc->shared.free();
                              delete sc;
                              return MPI_SUCCESS;
                            },
@@ -179,6 +236,18 @@ Scratch& scratch() {
   return *s;
 }
 
+// backend.trace of one rank's rays [lo, lo + rays.size()) of the call; an Error (a ray out of the
+// traced range) names the rays' place in the call
+void trace_share(Backend& backend, const Accel& acc, std::span<const Ray> rays, std::uint64_t lo, const TraceOptions& opt,
+                 TraceOutput& out) {
+  try {
+    backend.trace(acc, rays, opt, out);
+  } catch (const Error& e) {
+    throw Error("rays " + std::to_string(lo) + " to " + std::to_string(lo + rays.size()) + " of the call (ray i there is ray " +
+                std::to_string(lo) + " + i): " + e.what());
+  }
+}
+
 void trace(const Comm& comm, Backend& backend, const Accel& acc, std::span<const Ray> rays, const TraceOptions& asked,
            TraceOutput& out, const ScheduleOptions& sched, Traffic* t) {
   if (asked.stats) throw Error("mbvh::mpi::trace: statistics (TraceOptions::stats) are not gathered over ranks");
@@ -187,9 +256,8 @@ void trace(const Comm& comm, Backend& backend, const Accel& acc, std::span<const
   const bool any = opt.query == Query::any;
   const int P = comm.size(), me = comm.rank();
   Scratch& sc = scratch();
-  // -- the ray count and batches, from the root; the root checks the range once, naming the ray
+  // -- the ray count and batches, from the root
   std::uint64_t n = comm.root() ? rays.size() : 0;
-  if (comm.root() && acc.has_hierarchy()) check_ray_range(acc, rays, backend.name());
   call(t, "MPI_Bcast (ray count)", 8, 8, [&] { return MPI_Bcast(&n, 1, MPI_UINT64_T, 0, comm.comm); });
   const std::uint64_t batch = sched.batch, batches = (n + batch - 1) / batch;
   auto batch_rays = [&](std::uint64_t b) { return std::min(batch, n - b * batch); };
@@ -197,15 +265,93 @@ void trace(const Comm& comm, Backend& backend, const Accel& acc, std::span<const
   auto share = [&](int r) { return std::min(n, batches * static_cast<std::uint64_t>(r) / static_cast<std::uint64_t>(P) * batch); };
   const RecordType ray_t(sizeof(Ray)), res_t(any ? 1 : static_cast<int>(sizeof(Hit)));
   const std::size_t res_bytes = any ? 1 : sizeof(Hit);
-  if (comm.root()) out.reset(n, opt);
-  char* answers = comm.root() ? (any ? reinterpret_cast<char*>(out.occluded.data()) : reinterpret_cast<char*>(out.hits.data())) : nullptr;
-  auto answer_bytes = [&](const TraceOutput& o) {
-    return any ? reinterpret_cast<const char*>(o.occluded.data()) : reinterpret_cast<const char*>(o.hits.data());
+  auto answer_bytes = [&](TraceOutput& o) {
+    return any ? reinterpret_cast<char*>(o.occluded.data()) : reinterpret_cast<char*>(o.hits.data());
+  };
+  auto resize = [&](TraceOutput& o, std::uint64_t k) {  // the answers of k rays (kept: the first ones)
+    if (any) o.occluded.resize(k);
+    else o.hits.resize(k);
   };
   std::uint64_t invalid = 0;
-  if (sched.schedule == Schedule::static_batches) {
-    // static: each rank its contiguous share (the root's rays sent straight from the caller's
-    // array, the answers gathered straight into `out`: no packing)
+  if (P > 1 && sched.shared_memory && sc.on_one_host(comm, t)) {
+    // every rank on this host: the other ranks' rays and answers pass through a window of shared
+    // memory (MPI-3) in the root's segment: the root copies the rays in, each rank traces straight
+    // from it and copies its answers there, and the root copies those into `out` (two copies a
+    // byte, where MPI_Scatterv and MPI_Gatherv make four); the root traces its own batches from the
+    // caller's array. Static: each rank its contiguous share of the batches, traced in one call;
+    // dynamic: a batch at a time from the work queue.
+    const bool dynamic = sched.schedule == Schedule::dynamic;
+    sc.shared.ensure(comm, n * (sizeof(Ray) + res_bytes), true, t);
+    Ray* srays = reinterpret_cast<Ray*>(sc.shared.base);
+    char* sanswers = sc.shared.base + n * sizeof(Ray);
+    // the rays the other ranks may trace: all of them (dynamic), or theirs (static)
+    if (comm.root()) std::copy(rays.begin() + static_cast<std::ptrdiff_t>(dynamic ? 0 : share(1)), rays.end(), srays + (dynamic ? 0 : share(1)));
+    auto sync = [&](const char* what) {  // the window's stores before the barrier, seen after it
+      call(t, "MPI_Win_sync", 0, 0, [&] { return MPI_Win_sync(sc.shared.win); });
+      call(t, what, 0, 0, [&] { return MPI_Barrier(comm.comm); });
+      call(t, "MPI_Win_sync", 0, 0, [&] { return MPI_Win_sync(sc.shared.win); });
+    };
+    sync("MPI_Barrier (rays in the shared window)");
+    std::uint64_t traced = 0;
+    // traces rays [lo, lo + k): the root's straight into `out`, the others' into the window
+    auto trace_rays = [&](std::uint64_t lo, std::uint64_t k) {
+      if (comm.root()) {
+        if (!dynamic) {  // its share, in one call, straight into `out`
+          trace_share(backend, acc, rays.subspan(lo, k), lo, opt, out);
+          invalid += out.invalid;
+          return;
+        }
+        trace_share(backend, acc, rays.subspan(lo, k), lo, opt, sc.part);
+        std::copy_n(answer_bytes(sc.part), k * res_bytes, answer_bytes(out) + lo * res_bytes);
+      } else {
+        trace_share(backend, acc, std::span<const Ray>(srays + lo, k), lo, opt, sc.part);
+        std::copy_n(answer_bytes(sc.part), k * res_bytes, sanswers + lo * res_bytes);
+      }
+      invalid += sc.part.invalid;
+      traced += k;
+    };
+    std::vector<std::uint8_t> roots;  // the root's: which batches it traced itself
+    if (!dynamic) {
+      trace_rays(share(me), share(me + 1) - share(me));
+    } else {
+      if (comm.root()) {
+        out.reset(n, opt);
+        roots.assign(batches, 0);
+      }
+      WorkQueue queue(comm, batches, t);
+      for (std::int64_t b; (b = queue.next()) >= 0;) {
+        const std::uint64_t ub = static_cast<std::uint64_t>(b);
+        trace_rays(ub * batch, batch_rays(ub));
+        if (comm.root()) roots[ub] = 1;
+      }
+    }
+    if (t && !comm.root()) {  // moved through shared memory: counted as MPI_Scatterv and MPI_Gatherv would count them
+      t->bytes_received += traced * sizeof(Ray);
+      t->bytes_sent += traced * res_bytes;
+    }
+    sync("MPI_Barrier (answers in the shared window)");
+    if (comm.root()) {
+      std::uint64_t moved = 0;
+      if (!dynamic) {
+        resize(out, n);
+        moved = n - share(1);
+        std::copy_n(sanswers + share(1) * res_bytes, moved * res_bytes, answer_bytes(out) + share(1) * res_bytes);
+      } else {
+        for (std::uint64_t b = 0; b < batches; ++b)
+          if (!roots[b]) {
+            std::copy_n(sanswers + b * batch * res_bytes, batch_rays(b) * res_bytes, answer_bytes(out) + b * batch * res_bytes);
+            moved += batch_rays(b);
+          }
+      }
+      if (t) {
+        t->bytes_sent += moved * sizeof(Ray);
+        t->bytes_received += moved * res_bytes;
+      }
+    }
+  } else if (sched.schedule == Schedule::static_batches) {
+    // static: each rank its contiguous share, sent with one MPI_Scatterv straight from the caller's
+    // array; the root traces its share straight into `out`, and the others' answers are gathered
+    // after it (no packing, no staging copy)
     std::vector<int> counts(static_cast<std::size_t>(P)), displs(static_cast<std::size_t>(P));
     for (int r = 0; r < P; ++r) {
       displs[static_cast<std::size_t>(r)] = count(share(r), "MPI_Scatterv (rays)");
@@ -218,51 +364,50 @@ void trace(const Comm& comm, Backend& backend, const Accel& acc, std::span<const
                           count(mine, "MPI_Scatterv (rays)"), ray_t.type, 0, comm.comm);
     });
     // one trace call, so the backend's threads share all of this rank's rays
-    backend.trace(acc, comm.root() ? rays.subspan(0, mine) : std::span<const Ray>(sc.rays), opt, sc.part);
-    invalid = sc.part.invalid;
-    if (comm.root()) std::copy_n(answer_bytes(sc.part), mine * res_bytes, answers);
+    TraceOutput& mine_out = comm.root() ? out : sc.part;
+    trace_share(backend, acc, comm.root() ? rays.subspan(0, mine) : std::span<const Ray>(sc.rays), share(me), opt, mine_out);
+    invalid = mine_out.invalid;
+    if (comm.root()) resize(out, n);
     call(t, "MPI_Gatherv (answers)", comm.root() ? 0 : mine * res_bytes, comm.root() ? (n - mine) * res_bytes : 0, [&] {
       return MPI_Gatherv(comm.root() ? MPI_IN_PLACE : answer_bytes(sc.part), count(mine, "MPI_Gatherv (answers)"), res_t.type,
-                         answers, counts.data(), displs.data(), res_t.type, 0, comm.comm);
+                         comm.root() ? answer_bytes(out) : nullptr, counts.data(), displs.data(), res_t.type, 0, comm.comm);
     });
   } else {
-    // dynamic: batches from the work queue (its own share first, then stolen); each batch's rays
-    // read from the root's window (one-sided: no rank serves requests), kept between calls
-    if (sc.win != MPI_WIN_NULL) {
-      int same = MPI_UNEQUAL;
-      MPI_Comm_compare(sc.win_comm, comm.comm, &same);
-      if (same != MPI_IDENT || n > sc.capacity) sc.free_window();  // every rank knows n: they agree
-    }
-    if (sc.win == MPI_WIN_NULL) {
-      // MPI_Win_allocate (see WorkQueue); room for the rays of this call
-      call(t, "MPI_Win_allocate (rays)", 0, 0, [&] {
-        return MPI_Win_allocate(static_cast<MPI_Aint>(comm.root() ? n * sizeof(Ray) : 0), sizeof(Ray), MPI_INFO_NULL,
-                                comm.comm, &sc.exposed, &sc.win);
-      });
-      sc.win_comm = comm.comm;
-      sc.capacity = n;
-    }
-    if (comm.root()) std::copy(rays.begin(), rays.end(), sc.exposed);
+    // dynamic: a batch at a time from the work queue (its own share first, then stolen), its rays
+    // read from the root's window (one-sided: no rank serves requests; the window is kept between
+    // calls), traced, its answers kept for the gather
+    sc.rays_window.ensure(comm, n * sizeof(Ray), false, t);  // every rank knows n: they agree
+    if (comm.root()) std::copy(rays.begin(), rays.end(), reinterpret_cast<Ray*>(sc.rays_window.base));
+    call(t, "MPI_Win_sync", 0, 0, [&] { return MPI_Win_sync(sc.rays_window.win); });
     call(t, "MPI_Barrier (rays)", 0, 0, [&] { return MPI_Barrier(comm.comm); });  // the rays are in place
     sc.batches.clear();
-    sc.rays.clear();
+    sc.gathered.clear();
+    std::uint64_t traced = 0;
     {
       WorkQueue queue(comm, batches, t);
-      call(t, "MPI_Win_lock_all", 0, 0, [&] { return MPI_Win_lock_all(0, sc.win); });
       for (std::int64_t b; (b = queue.next()) >= 0;) {
         const std::uint64_t ub = static_cast<std::uint64_t>(b), k = batch_rays(ub);
         sc.batches.push_back(ub);
-        sc.rays.resize(sc.rays.size() + k);
-        call(t, "MPI_Get (rays)", 0, comm.root() ? 0 : k * sizeof(Ray), [&] {
-          return MPI_Get(sc.rays.data() + sc.rays.size() - k, count(k, "MPI_Get (rays)"), ray_t.type, 0,
-                         static_cast<MPI_Aint>(ub * batch), count(k, "MPI_Get (rays)"), ray_t.type, sc.win);
-        });
-        call(t, "MPI_Win_flush", 0, 0, [&] { return MPI_Win_flush(0, sc.win); });
+        std::span<const Ray> batch_rays_of_b;
+        if (comm.root()) {
+          batch_rays_of_b = rays.subspan(ub * batch, k);
+        } else {
+          sc.rays.resize(k);
+          call(t, "MPI_Get (rays)", 0, k * sizeof(Ray), [&] {
+            return MPI_Get(sc.rays.data(), count(k, "MPI_Get (rays)"), ray_t.type, 0,
+                           static_cast<MPI_Aint>(ub * batch * sizeof(Ray)), count(k, "MPI_Get (rays)"), ray_t.type,
+                           sc.rays_window.win);
+          });
+          call(t, "MPI_Win_flush", 0, 0, [&] { return MPI_Win_flush(0, sc.rays_window.win); });
+          batch_rays_of_b = sc.rays;
+        }
+        trace_share(backend, acc, batch_rays_of_b, ub * batch, opt, sc.part);
+        invalid += sc.part.invalid;
+        const char* a = answer_bytes(sc.part);
+        sc.gathered.insert(sc.gathered.end(), a, a + k * res_bytes);
+        traced += k;
       }
-      call(t, "MPI_Win_unlock_all", 0, 0, [&] { return MPI_Win_unlock_all(sc.win); });
     }
-    backend.trace(acc, sc.rays, opt, sc.part);
-    invalid = sc.part.invalid;
     // -- gather: which batches each rank traced, then their answers, placed in ray order
     const int nb = count(sc.batches.size(), "MPI_Gather (batches)");
     std::vector<int> nbs(comm.root() ? static_cast<std::size_t>(P) : 0), bdispl(nbs.size(), 0);
@@ -283,6 +428,7 @@ void trace(const Comm& comm, Backend& backend, const Accel& acc, std::span<const
       return MPI_Gatherv(sc.batches.data(), nb, MPI_UINT64_T, all_batches.data(), nbs.data(), bdispl.data(), MPI_UINT64_T,
                          0, comm.comm);
     });
+    std::vector<char> gathered;  // the root's: every rank's answers, rank by rank
     if (comm.root()) {
       std::uint64_t at = 0;
       std::size_t k = 0;
@@ -291,18 +437,19 @@ void trace(const Comm& comm, Backend& backend, const Accel& acc, std::span<const
         for (int j = 0; j < nbs[r]; ++j) at += batch_rays(all_batches[k++]);
         rcounts[r] = count(at, "MPI_Gatherv (answers)") - rdispl[r];
       }
-      sc.gathered.resize(at * res_bytes);
+      gathered.resize(at * res_bytes);
     }
-    call(t, "MPI_Gatherv (answers)", comm.root() ? 0 : sc.rays.size() * res_bytes,
-         comm.root() ? (n - sc.rays.size()) * res_bytes : 0, [&] {
-           return MPI_Gatherv(answer_bytes(sc.part), count(sc.rays.size(), "MPI_Gatherv (answers)"), res_t.type,
-                              sc.gathered.data(), rcounts.data(), rdispl.data(), res_t.type, 0, comm.comm);
-         });
+    call(t, "MPI_Gatherv (answers)", comm.root() ? 0 : traced * res_bytes, comm.root() ? (n - traced) * res_bytes : 0, [&] {
+      return MPI_Gatherv(sc.gathered.data(), count(traced, "MPI_Gatherv (answers)"), res_t.type, gathered.data(),
+                         rcounts.data(), rdispl.data(), res_t.type, 0, comm.comm);
+    });
     if (comm.root()) {
+      out.reset(n, opt);
+      char* answers = answer_bytes(out);
       std::uint64_t from = 0;
       for (std::uint64_t b : all_batches) {
         const std::uint64_t k = batch_rays(b);
-        std::copy_n(sc.gathered.data() + from * res_bytes, k * res_bytes, answers + b * batch * res_bytes);
+        std::copy_n(gathered.data() + from * res_bytes, k * res_bytes, answers + b * batch * res_bytes);
         from += k;
       }
     }

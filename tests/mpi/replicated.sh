@@ -4,7 +4,8 @@
 # (ctest, label mpi: cmake/mpi_tests.cmake gives MBVH, MBVH_MPI, MPIEXEC, MBVH_SCENES_DIR and Open
 # MPI's settings):
 #   - `trace` of Sponza's path rays, static and dynamic batches (small batches: every rank gets
-#     several, and the dynamic ranks steal): the hits `cmp`-equal to `mbvh trace`'s, closest and any;
+#     several, and the dynamic ranks steal), through shared memory and as messages: the hits
+#     `cmp`-equal to `mbvh trace`'s, closest and any;
 #   - `render` of conference, static and dynamic tiles: the PFM `cmp`-equal to `mbvh render`'s;
 #   - an error on the last rank (MBVH_MPI_TEST_FAIL): exit status 2, the rank named, no output.
 set -euo pipefail
@@ -22,10 +23,13 @@ conference="$MBVH_SCENES_DIR/conference.obj.zst"
 for query in closest any; do
   "$MBVH" trace "$sponza" --rays path.rays --query "$query" -o ref.$query -q --threads 1
   for schedule in static dynamic; do
-    mpi trace "$sponza" --rays path.rays --query "$query" -o np.$query.$schedule --threads 1 --schedule "$schedule" \
-      --batch 4096 -q
-    cmp ref.$query np.$query.$schedule || fail "trace --query $query --schedule $schedule on $ranks ranks differs from mbvh trace"
-    echo "PASS: trace --query $query --schedule $schedule on $ranks ranks: cmp-equal to mbvh trace"
+    for memory in "" --no-shared-memory; do
+      mpi trace "$sponza" --rays path.rays --query "$query" -o np.$query.$schedule$memory --threads 1 \
+        --schedule "$schedule" --batch 4096 -q $memory
+      cmp ref.$query np.$query.$schedule$memory ||
+        fail "trace --query $query --schedule $schedule $memory on $ranks ranks differs from mbvh trace"
+      echo "PASS: trace --query $query --schedule $schedule $memory on $ranks ranks: cmp-equal to mbvh trace"
+    done
   done
 done
 

@@ -33,6 +33,7 @@ using mpi::detail::count;
 struct Distribution {
   std::string distribute = "replicated", schedule = "static";
   std::size_t batch = 65536;
+  bool no_shared = false;
   bool data() const { return distribute == "data"; }
   void add(CLI::App* c, bool with_schedule) {
     c->add_option("--distribute", distribute,
@@ -45,8 +46,11 @@ struct Distribution {
                   "from the rank with the most left)")
         ->check(CLI::IsMember({"static", "dynamic"}));
     c->add_option("--batch", batch, "replicated: rays per batch")->check(integer_in(1, 1u << 30));
+    c->add_flag("--no-shared-memory", no_shared,
+                "replicated: send rays and answers as messages even where every rank runs on one host (by default "
+                "they pass through a window of shared memory there)");
   }
-  mpi::ScheduleOptions schedule_options() const { return {mpi::parse_schedule(schedule), batch}; }
+  mpi::ScheduleOptions schedule_options() const { return {mpi::parse_schedule(schedule), batch, !no_shared}; }
 };
 
 // The sum over ranks of every rank's traffic, on rank 0.

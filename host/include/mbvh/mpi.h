@@ -101,6 +101,10 @@ private:
 struct ScheduleOptions {
   Schedule schedule = Schedule::static_batches;
   std::size_t batch = 65536;  ///< rays per batch (at least 1)
+  /// Where every rank runs on one host: rays and answers through a window of shared memory (MPI-3,
+  /// two copies a byte). False: as messages, as across hosts (MPI_Scatterv and MPI_Gatherv, or
+  /// one-sided MPI_Get for the dynamic schedule).
+  bool shared_memory = true;
 };
 
 /// Traces `rays` (read on the root only; the other ranks pass an empty span) on every rank's
