@@ -1,12 +1,18 @@
 #!/usr/bin/env bash
 # SPDX-License-Identifier: MIT
 # mpi.sh [--quick] [OUT] — mbvh-mpi on this host (docs/mpi.md), one run, side by side:
-#   1. replicated: `mbvh bench` (1 process x 2 threads) against `mpirun -np 2 mbvh-mpi bench`
+#   0. replicated, bit for bit: 300K path rays of Sponza traced on 1-4 ranks (static and dynamic
+#      batches) and conference rendered at 256x256, 2 spp on 2-4 ranks (static and dynamic tiles),
+#      each `cmp`-ed with one process's output;
+#   1. replicated, speed: `mbvh bench` (1 process x 2 threads) against `mpirun -np 2 mbvh-mpi bench`
 #      (2 ranks x 1 thread) and -np 1 x 2 threads, on 1M path rays of conference (the thesis'
 #      workload), alternated ROUNDS times; Mrays/s medians, the ratio, the share of the ranks' time
 #      in MPI calls and the bytes moved a ray; static and dynamic batches;
-#   2. data-parallel: `mbvh-mpi bench --distribute data` at 1-4 ranks on conference and the 1M
-#      hairball (primary, shadow, diffuse rays): rounds, forwards a ray, bytes a ray, verified.
+#   2. data-parallel: `mbvh-mpi check --distribute data` at 2-4 ranks on conference and the 1M
+#      hairball (primary, shadow, diffuse, path rays), and `mbvh-mpi bench --distribute data` at
+#      1-4 ranks (rounds, forwards a ray, bytes a ray, verified);
+#   3. a scene one process refuses under a per-rank budget (the 4M hairball, MBVH_MEMORY_LIMIT=400M)
+#      rendered on 4 ranks under it, the image compared with one process's (no budget).
 # Results: OUT (default bench/out/mpi) *.txt and summary.md. Open MPI's settings for one host as in
 # cmake/mpi_tests.cmake.
 set -euo pipefail
@@ -25,6 +31,36 @@ summary="$OUT/summary.md"
   echo "CPU: $(sed -n 's/^model name\s*: //p' /proc/cpuinfo | head -1), $(nproc) cores; $(mpirun --version | head -1)"
   echo
 } > "$summary"
+
+# -- 0. replicated, bit for bit
+sponza="$SCENES/sponza_dabrovic.obj.zst"
+n_path=300000
+[ "$QUICK" = 1 ] && n_path=30000
+"$MBVH" rays "$sponza" --kind path --count "$n_path" -o "$OUT/path.rays" -q
+"$MBVH" trace "$sponza" --rays "$OUT/path.rays" -o "$OUT/one.hits" -q
+"$MBVH" render "$conference" --spp 2 --width 256 --height 256 --pfm "$OUT/one.pfm" -o "$OUT/one.png" -q
+{
+  echo "## Replicated, bit for bit: $n_path path rays of Sponza; conference at 256x256, 2 spp"
+  echo
+  echo "| run | ranks | cmp with one process |"
+  echo "|---|---|---|"
+} >> "$summary"
+for np in 1 2 3 4; do
+  for sched in static dynamic; do
+    log "trace on $np ranks, $sched batches"
+    mpirun -np "$np" "$MBVH_MPI" trace "$sponza" --rays "$OUT/path.rays" -o "$OUT/np.hits" --threads 1 --schedule "$sched" -q
+    echo "| trace, $sched batches | $np | $(cmp -s "$OUT/one.hits" "$OUT/np.hits" && echo equal || echo DIFFERENT) |" >> "$summary"
+  done
+done
+for np in 2 3 4; do
+  for tiles in static dynamic; do
+    log "render on $np ranks, $tiles tiles"
+    mpirun -np "$np" "$MBVH_MPI" render "$conference" --spp 2 --width 256 --height 256 --pfm "$OUT/np.pfm" -o "$OUT/np.png" \
+      --threads 1 --tiles "$tiles" -q
+    echo "| render (PFM), $tiles tiles | $np | $(cmp -s "$OUT/one.pfm" "$OUT/np.pfm" && echo equal || echo DIFFERENT) |" >> "$summary"
+  done
+done
+echo >> "$summary"
 
 # -- 1. replicated against one process
 mrays() { awk '$1 == "path" { print $3 }' "$1"; }
@@ -65,6 +101,31 @@ one=$(for r in $(seq 1 "$rounds"); do python3 -c "import json,sys; print(json.lo
 
 # -- 2. data-parallel
 {
+  echo "## Data-parallel against one process: \`mbvh-mpi check --distribute data\`, $dp_count rays a kind"
+  echo
+  echo "| scene | ranks | kind | query | bit-identical | ties | genuine mismatches |"
+  echo "|---|---|---|---|---|---|---|"
+} >> "$summary"
+for scene in conference hairball; do
+  s="$conference"
+  [ "$scene" = hairball ] && s="gen:hairball:1000000"
+  for np in 2 3 4; do
+    log "data-parallel check: $scene on $np ranks"
+    mpirun -np "$np" "$MBVH_MPI" check "$s" --distribute data --kinds primary,shadow,diffuse,path --count "$dp_count" \
+      --threads 1 > "$OUT/check-$scene-np$np.txt" 2> "$OUT/check-$scene-np$np.err" || true
+    awk -v scene="$scene" -v np="$np" '$2 ~ /^(closest|any)$/ { printf "| %s | %s | %s | %s | %s | %s | %s |\n", scene, np, $1, $2, $4, $5, $6 }' \
+      "$OUT/check-$scene-np$np.txt" >> "$summary"
+    grep -o "the largest [0-9]* triangles, [0-9.]* of an equal share" "$OUT/check-$scene-np$np.err" | sed "s/^/  $scene, $np ranks: /" >> "$OUT/balance.txt" || true
+  done
+done
+{
+  echo
+  echo "Partition balance (the largest part against an equal share):"
+  echo
+  sed 's/^/-/' "$OUT/balance.txt"
+  echo
+} >> "$summary"
+{
   echo "## Data-parallel: $dp_count rays a kind, 2 threads in all (ranks x threads <= 2 where it can)"
   echo
   echo "| scene | ranks | kind | Mrays/s | MPI share | bytes a ray | rounds | forwards a ray | verified |"
@@ -79,9 +140,36 @@ for scene in conference hairball; do
     mpirun -np "$np" "$MBVH_MPI" bench "$s" --distribute data --kinds primary,shadow,diffuse --count "$dp_count" \
       --threads "$threads" --reps 1 > "$OUT/data-$scene-np$np.txt"
     awk -v scene="$scene" -v np="$np" '$1 ~ /^(primary|shadow|diffuse)$/ {
-      v = ""; for (i = 9; i <= NF; ++i) v = v (i > 9 ? " " : "") $i
+      v = ""; for (i = 8; i <= NF; ++i) v = v (i > 8 ? " " : "") $i
       printf "| %s | %s | %s | %s | %s | %s | %s | %s | %s |\n", scene, np, $1, $3, $4, $5, $6, $7, v }' \
       "$OUT/data-$scene-np$np.txt" >> "$summary"
   done
 done
+echo >> "$summary"
+
+# -- 3. refused by one process under a per-rank budget, rendered on 4 ranks under it
+big=gen:hairball:4000000
+[ "$QUICK" = 1 ] && big=gen:hairball:1000000
+limit=400M
+[ "$QUICK" = 1 ] && limit=100M
+log "$big under MBVH_MEMORY_LIMIT=$limit"
+refused=$(MBVH_MEMORY_LIMIT=$limit "$MBVH" info "$big" -q > /dev/null 2> "$OUT/refused.txt" && echo "NOT refused" || echo "refused (exit $?): $(cat "$OUT/refused.txt")")
+"$MBVH" render "$big" --spp 1 --width 256 --height 256 --pfm "$OUT/big-one.pfm" -o "$OUT/big-one.png" -q
+MBVH_MEMORY_LIMIT=$limit /usr/bin/time -v mpirun -np 4 -x MBVH_MEMORY_LIMIT "$MBVH_MPI" render "$big" --distribute data --spp 1 \
+  --width 256 --height 256 --pfm "$OUT/big-np4.pfm" -o "$OUT/big-np4.png" --threads 1 > "$OUT/big-np4.txt" 2>&1
+equal=$(python3 - "$OUT/big-one.pfm" "$OUT/big-np4.pfm" <<'PY'
+import sys
+a, b = (open(f, "rb").read()[-256 * 256 * 12:] for f in sys.argv[1:])
+same = sum(a[i:i + 12] == b[i:i + 12] for i in range(0, len(a), 12))
+print(f"{same} of {len(a) // 12} pixels equal ({100.0 * same / (len(a) // 12):.3f} %)")
+PY
+)
+{
+  echo "## A scene one process refuses, on 4 ranks: $big, MBVH_MEMORY_LIMIT=$limit a process"
+  echo
+  echo "- one process: $refused"
+  echo "- 4 ranks under the same budget: $(grep -o 'rendered.*' "$OUT/big-np4.txt" | head -1)"
+  echo "- the image against one process's (no budget): $equal"
+  echo
+} >> "$summary"
 cat "$summary"
