@@ -80,7 +80,7 @@ for r in $(seq 1 "$rounds"); do
   done
 done
 median() { sort -g | awk '{ v[NR] = $1 } END { print v[int((NR + 1) / 2)] }'; }
-one=$(for r in $(seq 1 "$rounds"); do python3 -c "import json,sys; print(json.load(open(sys.argv[1]))['records'][0]['mrays_per_s'])" "$OUT/one-$r.json"; done | median)
+one=$(for r in $(seq 1 "$rounds"); do python3 -c "import json,sys; print('%.3f' % json.load(open(sys.argv[1]))['records'][0]['mrays_per_s'])" "$OUT/one-$r.json"; done | median)
 {
   echo "## Replicated: conference, $count path rays (closest hit), $rounds rounds, medians"
   echo
@@ -172,4 +172,5 @@ PY
   echo "- the image against one process's (no budget): $equal"
   echo
 } >> "$summary"
+rm -f "$OUT"/*.rays "$OUT"/*.hits "$OUT"/*.pfm  # the compared files (the comparisons are in the summary)
 cat "$summary"

@@ -273,7 +273,10 @@ void trace(const Comm& comm, Backend& backend, const Accel& acc, std::span<const
     else o.hits.resize(k);
   };
   std::uint64_t invalid = 0;
-  if (P > 1 && sched.shared_memory && sc.on_one_host(comm, t)) {
+  if (P == 1) {  // one rank: the backend's trace, nothing to send
+    trace_share(backend, acc, rays, 0, opt, out);
+    invalid = out.invalid;
+  } else if (sched.shared_memory && sc.on_one_host(comm, t)) {
     // every rank on this host: the other ranks' rays and answers pass through a window of shared
     // memory (MPI-3) in the root's segment: the root copies the rays in, each rank traces straight
     // from it and copies its answers there, and the root copies those into `out` (two copies a

@@ -31,7 +31,7 @@ using mpi::detail::count;
 // -- the ranks' own options
 
 struct Distribution {
-  std::string distribute = "replicated", schedule = "static";
+  std::string distribute = "replicated", schedule = "static", forwarding = "ordered";
   std::size_t batch = 65536;
   bool no_shared = false;
   bool data() const { return distribute == "data"; }
@@ -40,6 +40,10 @@ struct Distribution {
                   "replicated (every rank holds the scene and one shared BVH: answers bit for bit one process's) or "
                   "data (each rank builds the BVH of 1/P of the triangles; rays are forwarded between the ranks)")
         ->check(CLI::IsMember({"replicated", "data"}));
+    c->add_option("--forwarding", forwarding,
+                  "data: ordered (each ray to the nearest part it reaches, with its best hit so far, round by round) or "
+                  "broadcast (to every part it reaches at once: the baseline)")
+        ->check(CLI::IsMember({"ordered", "broadcast"}));
     if (!with_schedule) return;
     c->add_option("--schedule", schedule,
                   "replicated: static (batch i on rank i mod P) or dynamic (each rank's share first, then stolen "
@@ -172,7 +176,7 @@ void distributed_trace(const Comm& comm, Backend& backend, const Accel* acc, con
   std::uint64_t n = 0;
   const std::vector<Ray> mine = scatter_shares(comm, rays, n, t);
   TraceOutput part;
-  mpi::trace_data_parallel(comm, backend, ds->part, mine, o, part, t);
+  mpi::trace_data_parallel(comm, backend, ds->part, mine, o, part, t, mpi::parse_forwarding(d.forwarding));
   out = gather_shares(comm, part, o, n, t);
 }
 
@@ -194,7 +198,7 @@ int run_trace(const Comm& comm, MpiTraceArgs& a) {
   if (a.d.data() && a.t.rays.rays_file.empty())
     throw Error("--distribute data traces a ray file (--rays; `mbvh rays` writes one): generating shadow, diffuse and "
                 "path rays needs the whole scene's BVH, which no rank holds");
-  a.t.scene.no_hierarchy_for({a.t.backend});
+  if (!a.d.data()) a.t.scene.no_hierarchy_for({a.t.backend});  // data: every part is built (its box routes the rays)
   auto backend = make_backend(a.t.backend, a.t.dev.options(a.t.scene.threads, a.t.scene.quality));
   const TraceOptions o = a.t.options(*backend);
   a.t.rays.check_memory();
@@ -253,7 +257,7 @@ int run_render(const Comm& comm, MpiRenderArgs& a) {
     throw Error("--tiles dynamic: with --distribute data every rank traces every batch together (a collective "
                 "trace), so the tiles are dealt statically");
   SceneArgs scene = a.r.scene;
-  scene.no_hierarchy_for({a.r.backend});
+  if (!a.d.data()) scene.no_hierarchy_for({a.r.backend});
   auto backend = make_backend(a.r.backend, a.r.dev.options(scene.threads, scene.quality));
   std::vector<float> reference;
   RenderOptions o = a.r.options(*backend, reference);
@@ -270,7 +274,7 @@ int run_render(const Comm& comm, MpiRenderArgs& a) {
   if (ds) {
     o.bounds = &ds->part.scene_bounds;
     o.tracer = [&](std::span<const Ray> rays, const TraceOptions& to, TraceOutput& out) {
-      mpi::trace_data_parallel(comm, *backend, ds->part, rays, to, out, &tr);
+      mpi::trace_data_parallel(comm, *backend, ds->part, rays, to, out, &tr, mpi::parse_forwarding(a.d.forwarding));
     };
   }
   const Traffic before = tr;  // the render's share: the build's waits left out
