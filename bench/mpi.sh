@@ -106,9 +106,9 @@ one=$(for r in $(seq 1 "$rounds"); do python3 -c "import json,sys; print('%.3f' 
   echo "| scene | ranks | kind | query | bit-identical | ties | genuine mismatches |"
   echo "|---|---|---|---|---|---|---|"
 } >> "$summary"
+scene_of() { [ "$1" = hairball ] && echo gen:hairball:1000000 || echo "$conference"; }  # NAME: its path or spec
 for scene in conference hairball; do
-  s="$conference"
-  [ "$scene" = hairball ] && s="gen:hairball:1000000"
+  s="$(scene_of "$scene")"
   for np in 2 3 4; do
     log "data-parallel check: $scene on $np ranks"
     mpirun -np "$np" "$MBVH_MPI" check "$s" --distribute data --kinds primary,shadow,diffuse,path --count "$dp_count" \
@@ -132,8 +132,7 @@ done
   echo "|---|---|---|---|---|---|---|---|---|"
 } >> "$summary"
 for scene in conference hairball; do
-  s="$conference"
-  [ "$scene" = hairball ] && s="gen:hairball:1000000"
+  s="$(scene_of "$scene")"
   for np in 1 2 3 4; do
     threads=$(( np == 1 ? 2 : 1 ))
     log "data-parallel: $scene on $np ranks"

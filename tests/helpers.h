@@ -7,8 +7,22 @@
 #include <filesystem>
 #include <fstream>
 #include <string>
+#include <type_traits>
 
 namespace mbvh_test {
+
+/// Whether triangle `prim` of `s` has zero area (its edges' cross product, in double, is zero):
+/// a degenerate triangle, which a build keeps out of its leaves. Scene: any type with
+/// triangle(prim, a, b, c) (mbvh::Scene).
+template <class Scene>
+bool zero_area(const Scene& s, std::size_t prim) {
+  std::decay_t<decltype(s.vertices[0])> a{}, b{}, c{};
+  s.triangle(prim, a, b, c);
+  const double e1[3] = {double(b.x) - a.x, double(b.y) - a.y, double(b.z) - a.z};
+  const double e2[3] = {double(c.x) - a.x, double(c.y) - a.y, double(c.z) - a.z};
+  const double n[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2], e1[0] * e2[1] - e1[1] * e2[0]};
+  return n[0] == 0 && n[1] == 0 && n[2] == 0;
+}
 
 inline std::string scene_path(const std::string& file) { return std::string(MBVH_SCENES_DIR) + "/" + file; }
 

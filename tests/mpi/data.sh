@@ -11,15 +11,9 @@
 #   - dynamic tiles, which the collective trace cannot take, are refused (exit status 2).
 set -euo pipefail
 ranks="$1"
-: "${MBVH:?}" "${MBVH_MPI:?}" "${MPIEXEC:?}" "${MBVH_SCENES_DIR:?}"
-work="$(mktemp -d)"
-trap 'rm -rf "$work"' EXIT
-cd "$work"
-fail() { echo "FAIL: $*" >&2; exit 1; }
-mpi() { "$MPIEXEC" -np "$ranks" "$@"; }
+# shellcheck source=tests/mpi/lib.sh
+source "$(dirname "${BASH_SOURCE[0]}")/lib.sh"
 py="$( [ -x /usr/bin/python3 ] && echo /usr/bin/python3 || echo python3)"
-sponza="$MBVH_SCENES_DIR/sponza_dabrovic.obj.zst"
-conference="$MBVH_SCENES_DIR/conference.obj.zst"
 
 mpi "$MBVH_MPI" check "$conference" --distribute data --kinds primary,shadow,diffuse,path --count 20000 --threads 1 \
   > check.log 2>&1 || { cat check.log; fail "check --distribute data on $ranks ranks"; }

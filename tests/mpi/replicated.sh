@@ -10,21 +10,15 @@
 #   - an error on the last rank (MBVH_MPI_TEST_FAIL): exit status 2, the rank named, no output.
 set -euo pipefail
 ranks="$1"
-: "${MBVH:?}" "${MBVH_MPI:?}" "${MPIEXEC:?}" "${MBVH_SCENES_DIR:?}"
-work="$(mktemp -d)"
-trap 'rm -rf "$work"' EXIT
-cd "$work"
-fail() { echo "FAIL: $*" >&2; exit 1; }
-mpi() { "$MPIEXEC" -np "$ranks" "$MBVH_MPI" "$@"; }
-sponza="$MBVH_SCENES_DIR/sponza_dabrovic.obj.zst"
-conference="$MBVH_SCENES_DIR/conference.obj.zst"
+# shellcheck source=tests/mpi/lib.sh
+source "$(dirname "${BASH_SOURCE[0]}")/lib.sh"
 
 "$MBVH" rays "$sponza" --kind path --count 60000 -o path.rays -q
 for query in closest any; do
   "$MBVH" trace "$sponza" --rays path.rays --query "$query" -o ref.$query -q --threads 1
   for schedule in static dynamic; do
     for memory in "" --no-shared-memory; do
-      mpi trace "$sponza" --rays path.rays --query "$query" -o np.$query.$schedule$memory --threads 1 \
+      mpi "$MBVH_MPI" trace "$sponza" --rays path.rays --query "$query" -o np.$query.$schedule$memory --threads 1 \
         --schedule "$schedule" --batch 4096 -q $memory
       cmp ref.$query np.$query.$schedule$memory ||
         fail "trace --query $query --schedule $schedule $memory on $ranks ranks differs from mbvh trace"
@@ -35,7 +29,7 @@ done
 
 "$MBVH" render "$conference" --spp 2 --width 96 --height 80 --pfm ref.pfm -o ref.png -q --threads 1
 for tiles in static dynamic; do
-  mpi render "$conference" --spp 2 --width 96 --height 80 --pfm np.$tiles.pfm -o np.$tiles.png --tiles "$tiles" \
+  mpi "$MBVH_MPI" render "$conference" --spp 2 --width 96 --height 80 --pfm np.$tiles.pfm -o np.$tiles.png --tiles "$tiles" \
     --threads 1 -q
   cmp ref.pfm np.$tiles.pfm || fail "render --tiles $tiles on $ranks ranks differs from mbvh render"
   echo "PASS: render --tiles $tiles on $ranks ranks: the PFM cmp-equal to mbvh render's"

@@ -19,6 +19,7 @@
 #include <vector>
 
 #include "host/core/resources.h"
+#include "tests/helpers.h"
 #include "host/tools/check.h"
 #include "host/tools/raygen.h"
 #include "mbvh/backend.h"
@@ -217,12 +218,7 @@ void check_partition(const Scene& scene, const mpi::Part& part, std::size_t non_
   MPI_Allreduce(MPI_IN_PLACE, s, 2, MPI_UNSIGNED_LONG_LONG, MPI_SUM, MPI_COMM_WORLD);
   unsigned long long w[2] = {0, 0};
   for (std::size_t p = 0; p < scene.triangle_count(); ++p) {
-    Vec3f a, b, c;
-    scene.triangle(p, a, b, c);
-    const double e1[3] = {double(b.x) - a.x, double(b.y) - a.y, double(b.z) - a.z};
-    const double e2[3] = {double(c.x) - a.x, double(c.y) - a.y, double(c.z) - a.z};
-    const double n[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2], e1[0] * e2[1] - e1[1] * e2[0]};
-    if (n[0] * n[0] + n[1] * n[1] + n[2] * n[2] != 0) w[0] += p, w[1] += 1ull * p * p;
+    if (!mbvh_test::zero_area(scene, p)) w[0] += p, w[1] += 1ull * p * p;
   }
   CHECK(s[0] == w[0] && s[1] == w[1], "the parts' ids are not the non-degenerate triangles once each");
   Box all;
