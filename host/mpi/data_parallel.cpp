@@ -85,9 +85,9 @@ std::vector<std::uint64_t> exchange_counts(const Comm& comm, const std::vector<s
 // displacements beyond INT_MAX records are an Error. Bytes counted in `t`: those to and from
 // other ranks (a rank's records to itself do not leave it).
 template <class T>
-std::vector<T> alltoallv(const Comm& comm, const Contiguous& type, const std::vector<T>& send,
-                         const std::vector<std::uint64_t>& send_counts, const std::vector<std::uint64_t>& recv_counts,
-                         int me, const char* what, Traffic* t) {
+void alltoallv(const Comm& comm, const Contiguous& type, const std::vector<T>& send,
+               const std::vector<std::uint64_t>& send_counts, const std::vector<std::uint64_t>& recv_counts, int me,
+               const char* what, Traffic* t, std::vector<T>& recv) {
   const std::size_t P = send_counts.size();
   std::vector<int> sc(P), sd(P), rc(P), rd(P);
   std::uint64_t so = 0, ro = 0, sent = 0, received = 0;
@@ -102,12 +102,11 @@ std::vector<T> alltoallv(const Comm& comm, const Contiguous& type, const std::ve
   }
   static_cast<void>(detail::count(so, what));  // the totals too: where the last rank's records end
   static_cast<void>(detail::count(ro, what));
-  std::vector<T> recv(ro);
+  recv.resize(ro);
   detail::call(t, "MPI_Alltoallv", sent, received, [&] {
     return MPI_Alltoallv(send.data(), sc.data(), sd.data(), type.get(), recv.data(), rc.data(), rd.data(), type.get(),
                          comm.comm);
   });
-  return recv;
 }
 
 // -- partition: Morton order of the centroids, equal counts
@@ -235,8 +234,8 @@ struct Reach {
   std::vector<std::uint32_t> part;
 };
 
-Reach reach(const Part& part, std::span<const Ray> rays, std::size_t& invalid) {
-  Reach r;
+void reach(const Part& part, std::span<const Ray> rays, std::size_t& invalid, Reach& r) {
+  r.first.clear(), r.entry.clear(), r.part.clear();
   r.first.reserve(rays.size() + 1);
   r.entry.reserve(rays.size()), r.part.reserve(rays.size());  // at least one part a ray, mostly
   r.first.push_back(0);
@@ -258,7 +257,6 @@ Reach reach(const Part& part, std::span<const Ray> rays, std::size_t& invalid) {
     for (const auto& [e, q] : hit) r.entry.push_back(e), r.part.push_back(q);
     r.first.push_back(r.entry.size());
   }
-  return r;
 }
 
 // This part's answers to the rays it received: closest hits with global prim ids, or occlusion
@@ -266,23 +264,35 @@ Reach reach(const Part& part, std::span<const Ray> rays, std::size_t& invalid) {
 // it again against this part's build, whose largest coordinate is the scene's (Part::anchor), so
 // that check passes every ray the owner's did.
 void trace_part(Backend& backend, const Part& part, const std::vector<Ray>& rays, const TraceOptions& opt,
-                std::vector<Hit>& hits, std::vector<std::uint8_t>& occluded) {
-  hits.clear(), occluded.clear();
-  if (rays.empty()) return;
+                TraceOutput& out) {
+  if (rays.empty()) {
+    out.hits.clear(), out.occluded.clear();
+    return;
+  }
   if (!part.accel)
     throw Error("data-parallel trace (rank " + std::to_string(part.rank) +
                 "): internal: " + std::to_string(rays.size()) + " rays came to a rank without triangles");
-  TraceOutput out;
   backend.trace(*part.accel, rays, opt, out);
-  if (opt.query == Query::any) {
-    occluded = std::move(out.occluded);
-    return;
-  }
-  hits = std::move(out.hits);
+  if (opt.query == Query::any) return;
   const std::size_t own = part.local_to_global.size();
-  for (Hit& h : hits)
+  for (Hit& h : out.hits)
     if (h.prim != MBVH_MISS_PRIM) h.prim = h.prim < own ? part.local_to_global[h.prim] : part.anchor;
 }
+
+// What trace_data_parallel keeps between calls, so a repeated trace of as many rays touches no
+// fresh memory (on these machines a first-touched page costs microseconds, as much as tracing a
+// ray): the per-ray reach and cursors, a round's sends and receipts, this part's answers.
+struct Scratch {
+  Reach rc;
+  std::vector<std::size_t> cursor;
+  std::vector<std::pair<std::uint32_t, std::uint32_t>> sends;
+  std::vector<std::uint32_t> owner_index;
+  std::vector<Ray> forwarded, in;
+  TraceOutput answers;
+  std::vector<Hit> hits_back;
+  std::vector<std::uint8_t> occluded_back;
+};
+Scratch g_scratch;  // trace_data_parallel is not reentrant (MPI calls from one thread, g_last)
 
 ForwardStats g_last;  // last_forward_stats: this process's last trace_data_parallel
 
@@ -385,16 +395,17 @@ void trace_data_parallel(const Comm& comm, Backend& backend, const Part& part, s
   out.reset(rays.size(), opt);
 
   // -- per ray, the parts it reaches, nearest entry first; a cursor into them
-  const Reach rc = reach(part, rays, out.invalid);
-  std::vector<std::size_t> cursor(rc.first.begin(), rc.first.end() - 1);
+  Scratch& sc = g_scratch;
+  reach(part, rays, out.invalid, sc.rc);
+  const Reach& rc = sc.rc;
+  std::vector<std::size_t>& cursor = sc.cursor;
+  cursor.assign(rc.first.begin(), rc.first.end() - 1);
   const Contiguous ray_type(sizeof(Ray), traffic), hit_type(sizeof(Hit), traffic);
   const Contiguous flag_type(1, traffic);
   ForwardStats st;
   st.rays = rays.size();
 
-  std::vector<std::pair<std::uint32_t, std::uint32_t>> sends;  // (part, ray) of this round
-  std::vector<Hit> hits_in;
-  std::vector<std::uint8_t> occluded_in;
+  auto& sends = sc.sends;  // (part, ray) of this round
   for (;;) {
     // -- this round's forwards: ordered, the ray's next part if its entry lies within the best t
     //    so far (closest; any hit: until occluded); broadcast, every part it reaches, at once
@@ -428,8 +439,10 @@ void trace_data_parallel(const Comm& comm, Backend& backend, const Part& part, s
     std::vector<std::uint64_t> send_counts(P, 0), at(P, 0);
     for (const auto& s : sends) ++send_counts[s.first];
     for (int q = 1; q < P; ++q) at[q] = at[q - 1] + send_counts[q - 1];
-    std::vector<std::uint32_t> owner_index(sends.size());  // by position sent: the ray's index here
-    std::vector<Ray> forwarded(sends.size());
+    std::vector<std::uint32_t>& owner_index = sc.owner_index;  // by position sent: the ray's index here
+    std::vector<Ray>& forwarded = sc.forwarded;
+    owner_index.resize(sends.size());
+    forwarded.resize(sends.size());
     for (const auto& [q, i] : sends) {
       const std::uint64_t k = at[q]++;
       owner_index[k] = i;
@@ -438,19 +451,20 @@ void trace_data_parallel(const Comm& comm, Backend& backend, const Part& part, s
         forwarded[k].tmax = out.hits[i].t;
     }
     const std::vector<std::uint64_t> recv_counts = exchange_counts(comm, send_counts, traffic);
-    const std::vector<Ray> in =
-        alltoallv(comm, ray_type, forwarded, send_counts, recv_counts, me, "rays forwarded in a round", traffic);
+    alltoallv(comm, ray_type, forwarded, send_counts, recv_counts, me, "rays forwarded in a round", traffic, sc.in);
 
     // -- this part's answers, back to the owners in the order they came
-    trace_part(backend, part, in, opt, hits_in, occluded_in);
+    trace_part(backend, part, sc.in, opt, sc.answers);
     if (any) {
-      const std::vector<std::uint8_t> back =
-          alltoallv(comm, flag_type, occluded_in, recv_counts, send_counts, me, "answers returned in a round", traffic);
+      const std::vector<std::uint8_t>& back = sc.occluded_back;
+      alltoallv(comm, flag_type, sc.answers.occluded, recv_counts, send_counts, me, "answers returned in a round", traffic,
+                sc.occluded_back);
       for (std::size_t k = 0; k < back.size(); ++k) out.occluded[owner_index[k]] |= back[k];
       continue;
     }
-    const std::vector<Hit> back =
-        alltoallv(comm, hit_type, hits_in, recv_counts, send_counts, me, "answers returned in a round", traffic);
+    const std::vector<Hit>& back = sc.hits_back;
+    alltoallv(comm, hit_type, sc.answers.hits, recv_counts, send_counts, me, "answers returned in a round", traffic,
+              sc.hits_back);
     // -- the owner keeps the lexicographic minimum of (t, global prim)
     for (std::size_t k = 0; k < back.size(); ++k) {
       const Hit& h = back[k];

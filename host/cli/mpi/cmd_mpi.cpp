@@ -92,7 +92,7 @@ AccelMaker shared_maker(const Comm& comm, Traffic* t) {
 // Rank r's share of n rays: [n*r/P, n*(r+1)/P).
 std::uint64_t share_begin(std::uint64_t n, int r, int P) { return n * static_cast<std::uint64_t>(r) / static_cast<std::uint64_t>(P); }
 
-std::vector<Ray> scatter_shares(const Comm& comm, std::span<const Ray> rays, std::uint64_t& n, Traffic* t) {
+void scatter_shares(const Comm& comm, std::span<const Ray> rays, std::uint64_t& n, Traffic* t, std::vector<Ray>& mine) {
   const int P = comm.size();
   n = comm.root() ? rays.size() : 0;
   call(t, "MPI_Bcast (ray count)", 8, 8, [&] { return MPI_Bcast(&n, 1, MPI_UINT64_T, 0, comm.comm); });
@@ -102,15 +102,15 @@ std::vector<Ray> scatter_shares(const Comm& comm, std::span<const Ray> rays, std
     counts[static_cast<std::size_t>(r)] = count((share_begin(n, r + 1, P) - share_begin(n, r, P)) * sizeof(Ray), "MPI_Scatterv (rays)");
   }
   const int me = comm.rank();
-  std::vector<Ray> mine(share_begin(n, me + 1, P) - share_begin(n, me, P));
+  mine.resize(share_begin(n, me + 1, P) - share_begin(n, me, P));
   call(t, "MPI_Scatterv (rays)", comm.root() ? (n - mine.size()) * sizeof(Ray) : 0, comm.root() ? 0 : mine.size() * sizeof(Ray), [&] {
     return MPI_Scatterv(rays.data(), counts.data(), displs.data(), MPI_BYTE, mine.data(),
                         counts[static_cast<std::size_t>(me)], MPI_BYTE, 0, comm.comm);
   });
-  return mine;
 }
 
-TraceOutput gather_shares(const Comm& comm, const TraceOutput& mine, const TraceOptions& o, std::uint64_t n, Traffic* t) {
+void gather_shares(const Comm& comm, const TraceOutput& mine, const TraceOptions& o, std::uint64_t n, Traffic* t,
+                   TraceOutput& out) {
   const int P = comm.size();
   const bool any = o.query == Query::any;
   const std::size_t each = any ? 1 : sizeof(Hit);
@@ -119,8 +119,8 @@ TraceOutput gather_shares(const Comm& comm, const TraceOutput& mine, const Trace
     displs[static_cast<std::size_t>(r)] = count(share_begin(n, r, P) * each, "MPI_Gatherv (answers)");
     counts[static_cast<std::size_t>(r)] = count((share_begin(n, r + 1, P) - share_begin(n, r, P)) * each, "MPI_Gatherv (answers)");
   }
-  TraceOutput out;
   if (comm.root()) out.reset(n, o);
+  else out = TraceOutput{};
   const void* send = any ? static_cast<const void*>(mine.occluded.data()) : static_cast<const void*>(mine.hits.data());
   void* recv = any ? static_cast<void*>(out.occluded.data()) : static_cast<void*>(out.hits.data());
   const int me = comm.rank();
@@ -131,7 +131,6 @@ TraceOutput gather_shares(const Comm& comm, const TraceOutput& mine, const Trace
   std::uint64_t inv = mine.invalid, all = 0;
   call(t, "MPI_Reduce (invalid)", 8, 8, [&] { return MPI_Reduce(&inv, &all, 1, MPI_UINT64_T, MPI_SUM, 0, comm.comm); });
   out.invalid = all;
-  return out;
 }
 
 // The data-parallel scene: the whole mesh (for shading) on every rank, this rank's part built.
@@ -174,10 +173,11 @@ void distributed_trace(const Comm& comm, Backend& backend, const Accel* acc, con
     return;
   }
   std::uint64_t n = 0;
-  const std::vector<Ray> mine = scatter_shares(comm, rays, n, t);
-  TraceOutput part;
+  static std::vector<Ray> mine;  // kept between calls: fresh pages cost as much as tracing
+  static TraceOutput part;
+  scatter_shares(comm, rays, n, t, mine);
   mpi::trace_data_parallel(comm, backend, ds->part, mine, o, part, t, mpi::parse_forwarding(d.forwarding));
-  out = gather_shares(comm, part, o, n, t);
+  gather_shares(comm, part, o, n, t, out);
 }
 
 std::string ranks_label(const Comm& comm, unsigned threads) {
