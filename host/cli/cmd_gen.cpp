@@ -1,6 +1,7 @@
 // SPDX-License-Identifier: MIT
 // cmd_gen.cpp — `mbvh gen`: write a scene's triangles to a .mtri file, a large generated one
 // streamed (gen:mandelbulb:RES[:K]) without ever holding it.
+#include <cctype>
 #include <chrono>
 
 #include "host/cli/commands.h"

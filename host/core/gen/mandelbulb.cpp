@@ -19,14 +19,18 @@
 //
 // Sparse walk (coarse to fine). The grid is cut into blocks of kBlock^3 cells; the inside test is
 // made first at the blocks' corners (the coarse grid). A block is refined (every vertex tested)
-// when its corners disagree or when one of them escaped late (at iteration K - 1 or K: close to
-// the surface in the escape-time sense). Other blocks take their corners' common sign at every
-// vertex except those shared with a refined block, which are tested, so the sign field is one
-// well-defined field and the mesh stays closed whatever is skipped. What is conservative: the
-// mesh is always closed, and every surface passing through a refined block is complete. What is
-// not: a feature lying entirely inside blocks whose eight corners agree and escaped early (a
-// thin filament or a small bubble between coarse samples) is not seen; tests/test_mtri.cpp
-// measures the triangles this loses against the dense walk.
+// when its corners disagree, or when one is near the surface in the escape-time sense: an
+// outside corner that escaped late (at iteration K - 5 or later), or an inside corner whose
+// orbit came within |w|^2 > 0.5 of the bailout's 4. Other blocks take their corners' common sign
+// at every vertex except those shared with a refined block, which are tested, so the sign field
+// is one well-defined field and the mesh stays closed whatever is skipped. What is conservative:
+// the mesh is always closed, and every surface passing through a refined block is complete. What
+// is not: a feature lying entirely inside a block whose eight corners agree and are all far in
+// that escape-time sense (a thin filament or a small bubble between coarse samples) is not seen;
+// nothing bounds the field between samples. tests/test_mtri.cpp checks the sparse walk's
+// triangles against the dense walk's (every vertex tested): the same bytes at RES 64 and 128;
+// docs/massive.md has the counts up to RES 512. The thresholds were chosen as the smallest that
+// give the dense surface there.
 //
 // Order and memory. Blocks are processed one z-layer of blocks at a time (a slab of kBlock cell
 // layers), in (y, x) order within a layer, the layer's blocks cut into fixed chunks run on the
@@ -49,8 +53,14 @@
 namespace mbvh {
 
 int mandelbulb_escape(double px, double py, double pz, unsigned iterations) {
+  double peak;
+  return mandelbulb_orbit(px, py, pz, iterations, peak);
+}
+
+int mandelbulb_orbit(double px, double py, double pz, unsigned iterations, double& peak) {
   double x = px, y = py, z = pz;
-  if (x * x + y * y + z * z > 4) return 0;
+  peak = x * x + y * y + z * z;
+  if (peak > 4) return 0;
   for (unsigned n = 1; n <= iterations; ++n) {
     const double x2 = x * x, y2 = y * y, z2 = z * z;
     const double x4 = x2 * x2, y4 = y2 * y2, z4 = z2 * z2;
@@ -67,14 +77,17 @@ int mandelbulb_escape(double px, double py, double pz, unsigned iterations) {
     }
     const double ny = py + -16.0 * y2 * k3 * k4 * k4 + k1 * k1;
     x = nx, y = ny, z = nz;
-    if (x * x + y * y + z * z > 4) return static_cast<int>(n);
+    const double r2 = x * x + y * y + z * z;
+    peak = std::max(peak, r2);
+    if (r2 > 4) return static_cast<int>(n);
   }
   return -1;
 }
 
 std::uint64_t mandelbulb_triangle_estimate(std::uint32_t res) {
-  // fitted above the measured counts (docs/massive.md): about 26 * RES^2.2, with a margin
-  return static_cast<std::uint64_t>(40.0 * std::pow(static_cast<double>(std::max<std::uint32_t>(res, 2)), 2.2)) + 1000;
+  // above the measured counts (docs/massive.md: 131,004 at RES 64, growing x5.4-5.5 a doubling) by 20 % or more
+  return static_cast<std::uint64_t>(1.2 * 131004.0 * std::pow(static_cast<double>(std::max<std::uint32_t>(res, 2)) / 64.0, 2.5)) +
+         1000;
 }
 
 namespace {
@@ -96,6 +109,8 @@ public:
       for (std::int64_t l = static_cast<std::int64_t>(bz) - 1; l <= bz + 1; ++l) activity(l);
       std::erase_if(act_, [bz](const auto& e) { return e.first + 1 < static_cast<std::int64_t>(bz); });
       std::erase_if(coarse_, [bz](const auto& e) { return e.first + 1 < static_cast<std::int64_t>(bz); });
+      for (int d = 0; d < 3; ++d) layer_[d] = &act_.at(static_cast<std::int64_t>(bz) - 1 + d);
+      layer_z_ = bz;
       // -- the blocks to polygonize: refined ones and their neighbours (the shell that closes the mesh)
       list.clear();
       for (std::uint32_t by = 0; by < nb_; ++by)
@@ -147,9 +162,11 @@ private:
     parallel_for(nc_, 1, o_.threads, [&](std::size_t lo, std::size_t hi, unsigned) {
       for (std::size_t cy = lo; cy < hi; ++cy)
         for (std::uint32_t cx = 0; cx < nc_; ++cx) {
-          const int n = escape(coarse_index(cx), coarse_index(static_cast<std::int64_t>(cy)), coarse_index(cz));
-          const std::uint32_t k = o_.iterations;
-          p[cy * nc_ + cx] = n < 0 ? kInside : static_cast<std::uint8_t>(kOutside | (n + 1 >= static_cast<int>(k) ? kLate : 0));
+          const std::uint32_t i = coarse_index(cx), j = coarse_index(static_cast<std::int64_t>(cy)), k = coarse_index(cz);
+          double peak = 0;
+          const int n = boundary(i, j, k) ? 0 : mandelbulb_orbit(grid(2ull * i), grid(2ull * j), grid(2ull * k), o_.iterations, peak);
+          const bool late = n >= 0 ? o_.late > 0 && static_cast<std::int64_t>(n) + o_.late >= o_.iterations + 1 : peak > o_.near_peak;
+          p[cy * nc_ + cx] = static_cast<std::uint8_t>((n < 0 ? kInside : kOutside) | (late ? kLate : 0));
         }
       evals += (hi - lo) * nc_;
     });
@@ -175,16 +192,17 @@ private:
         std::uint8_t c = 0;
         for (std::uint32_t d = 0; d < 4; ++d) {
           const std::size_t at = (by + (d >> 1)) * nc_ + bx + (d & 1);
-          c |= p0[at] | p1[at];
+          c = static_cast<std::uint8_t>(c | p0[at] | p1[at]);
         }
         a[by * nb_ + bx] = ((c & kInside) && (c & kOutside)) || (c & kLate);
       }
     return a;
   }
 
+  // Whether block (bx, by, bz) is refined; bz within one layer of the layer being polygonized.
   bool active(std::int64_t bx, std::int64_t by, std::int64_t bz) const {
     if (bx < 0 || by < 0 || bx >= nb_ || by >= nb_) return false;
-    return act_.at(bz)[static_cast<std::size_t>(by) * nb_ + static_cast<std::size_t>(bx)] != 0;
+    return (*layer_[bz - layer_z_ + 1])[static_cast<std::size_t>(by) * nb_ + static_cast<std::size_t>(bx)] != 0;
   }
   bool near_active(std::int64_t bx, std::int64_t by, std::int64_t bz) const {
     for (int dz = -1; dz <= 1; ++dz)
@@ -288,6 +306,8 @@ private:
   MandelbulbOptions o_;
   std::uint32_t r_, nb_, nc_;
   std::map<std::int64_t, std::vector<std::uint8_t>> coarse_, act_;
+  const std::vector<std::uint8_t>* layer_[3] = {};  // activity of the layers bz - 1, bz, bz + 1
+  std::int64_t layer_z_ = 0;                          // bz
   MandelbulbStats stats_;
 };
 

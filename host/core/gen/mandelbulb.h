@@ -15,6 +15,11 @@ struct MandelbulbOptions {
   std::uint32_t iterations = 8;  ///< K: iterations of the inside test
   unsigned threads = 0;          ///< 0: every hardware thread; the output does not depend on it
   bool dense = false;            ///< evaluate every grid vertex (the reference of the sparse walk)
+  /// The sparse walk refines a block whose corners disagree, or whose outside corner escaped at
+  /// iteration K + 1 - late or later (0: none), or whose inside corner's orbit reached
+  /// |w|^2 > near_peak (5: none). The spec's surface uses the defaults.
+  unsigned late = 6;
+  double near_peak = 0.5;
 };
 
 /// What one generation did (the triangles are what `emit` received).
@@ -30,6 +35,9 @@ struct MandelbulbStats {
 /// did not within K iterations (p is inside). Only + - * / and sqrt in double, so every IEEE
 /// machine gets the same answer.
 int mandelbulb_escape(double x, double y, double z, unsigned iterations);
+
+/// mandelbulb_escape, also giving the largest |w|^2 of the orbit's points (up to the escape).
+int mandelbulb_orbit(double x, double y, double z, unsigned iterations, double& peak);
 
 /// Generates the surface and calls emit(first triangle index, triangles) slab by slab, in order.
 /// Throws Error on a bad option; whatever `emit` throws ends the generation.
