@@ -15,7 +15,11 @@
 #include "mbvh/error.h"
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
-  static const std::string path = "/tmp/fuzz-mtri-" + std::to_string(::getpid()) + ".mtri";
+  static const struct Temp {
+    std::string path = "/tmp/fuzz-mtri-" + std::to_string(::getpid()) + ".mtri";
+    ~Temp() { ::unlink(path.c_str()); }
+  } temp;
+  const std::string& path = temp.path;
   if (FILE* f = std::fopen(path.c_str(), "wb")) {
     if (size > 0 && std::fwrite(data, 1, size, f) != size) __builtin_trap();
     std::fclose(f);
