@@ -112,10 +112,7 @@ public:
       for (int d = 0; d < 3; ++d) layer_[d] = &act_.at(static_cast<std::int64_t>(bz) - 1 + d);
       layer_z_ = bz;
       // -- the blocks to polygonize: refined ones and their neighbours (the shell that closes the mesh)
-      list.clear();
-      for (std::uint32_t by = 0; by < nb_; ++by)
-        for (std::uint32_t bx = 0; bx < nb_; ++bx)
-          if (near_active(bx, by, bz)) list.push_back(by * nb_ + bx);
+      near_active(list);
       stats_.blocks += list.size();
       // -- fixed chunks on the pool, concatenated in chunk order
       const std::size_t chunks = (list.size() + kChunkBlocks - 1) / kChunkBlocks;
@@ -204,12 +201,23 @@ private:
     if (bx < 0 || by < 0 || bx >= nb_ || by >= nb_) return false;
     return (*layer_[bz - layer_z_ + 1])[static_cast<std::size_t>(by) * nb_ + static_cast<std::size_t>(bx)] != 0;
   }
-  bool near_active(std::int64_t bx, std::int64_t by, std::int64_t bz) const {
-    for (int dz = -1; dz <= 1; ++dz)
-      for (int dy = -1; dy <= 1; ++dy)
-        for (int dx = -1; dx <= 1; ++dx)
-          if (active(bx + dx, by + dy, bz + dz)) return true;
-    return false;
+  // The blocks of layer layer_z_ with a refined block among their 26 neighbours or themselves, in
+  // (y, x) order: the refined flags of the three layers or-ed, then dilated along x and along y.
+  void near_active(std::vector<std::uint32_t>& list) {
+    const std::size_t n = nb_;
+    zor_.assign(n * n, 0);
+    for (const auto* l : layer_)
+      for (std::size_t i = 0; i < n * n; ++i) zor_[i] |= (*l)[i];
+    row_.assign(n * n, 0);
+    for (std::size_t y = 0; y < n; ++y)
+      for (std::size_t x = 0; x < n; ++x)
+        row_[y * n + x] = static_cast<std::uint8_t>(zor_[y * n + x] | (x > 0 ? zor_[y * n + x - 1] : 0) |
+                                                    (x + 1 < n ? zor_[y * n + x + 1] : 0));
+    list.clear();
+    for (std::size_t y = 0; y < n; ++y)
+      for (std::size_t x = 0; x < n; ++x)
+        if (row_[y * n + x] | (y > 0 ? row_[(y - 1) * n + x] : 0) | (y + 1 < n ? row_[(y + 1) * n + x] : 0))
+          list.push_back(static_cast<std::uint32_t>(y * n + x));
   }
   // Whether grid vertex (i, j, k) is a vertex of a refined block.
   bool in_active_block(std::uint32_t i, std::uint32_t j, std::uint32_t k) const {
@@ -308,6 +316,7 @@ private:
   std::map<std::int64_t, std::vector<std::uint8_t>> coarse_, act_;
   const std::vector<std::uint8_t>* layer_[3] = {};  // activity of the layers bz - 1, bz, bz + 1
   std::int64_t layer_z_ = 0;                          // bz
+  std::vector<std::uint8_t> zor_, row_;               // near_active's scratch
   MandelbulbStats stats_;
 };
 

@@ -66,17 +66,16 @@ void MtriWriter::flush_block() {
 }
 
 void MtriWriter::add(std::span<const SourceTri> tris) {
-  for (const SourceTri& t : tris) {
+  for (const SourceTri& t : tris)
     for (int k = 0; k < 3; ++k) bounds_.grow(Vec3f{t.v[3 * k], t.v[3 * k + 1], t.v[3 * k + 2]});
-    const char* p = reinterpret_cast<const char*>(&t);
-    std::size_t n = sizeof t;
-    while (n > 0) {  // a record may straddle two blocks
-      const std::size_t take = std::min<std::size_t>(n, kMtriBlockBytes - block_.size());
-      block_.insert(block_.end(), p, p + take);
-      p += take;
-      n -= take;
-      if (block_.size() == kMtriBlockBytes) flush_block();
-    }
+  const char* p = reinterpret_cast<const char*>(tris.data());
+  std::size_t n = tris.size_bytes();
+  while (n > 0) {  // records may straddle two blocks
+    const std::size_t take = std::min<std::size_t>(n, kMtriBlockBytes - block_.size());
+    block_.insert(block_.end(), p, p + take);
+    p += take;
+    n -= take;
+    if (block_.size() == kMtriBlockBytes) flush_block();
   }
   count_ += tris.size();
 }
