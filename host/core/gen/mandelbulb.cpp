@@ -21,7 +21,7 @@
 // made first at the blocks' corners (the coarse grid). A block is refined (every vertex tested)
 // when its corners disagree, or when one is near the surface in the escape-time sense: an
 // outside corner that escaped late (at iteration K - 5 or later), or an inside corner whose
-// orbit came within |w|^2 > 0.5 of the bailout's 4. Other blocks take their corners' common sign
+// orbit reached |w|^2 > 0.5 (the bailout is 4). Other blocks take their corners' common sign
 // at every vertex except those shared with a refined block, which are tested, so the sign field
 // is one well-defined field and the mesh stays closed whatever is skipped. What is conservative:
 // the mesh is always closed, and every surface passing through a refined block is complete. What
@@ -29,8 +29,8 @@
 // that escape-time sense (a thin filament or a small bubble between coarse samples) is not seen;
 // nothing bounds the field between samples. tests/test_mtri.cpp checks the sparse walk's
 // triangles against the dense walk's (every vertex tested): the same bytes at RES 64 and 128;
-// docs/massive.md has the counts up to RES 512. The thresholds were chosen as the smallest that
-// give the dense surface there.
+// docs/massive.md has the counts up to RES 512. The thresholds were chosen by that comparison:
+// weaker ones missed part of the dense surface (docs/massive.md).
 //
 // Order and memory. Blocks are processed one z-layer of blocks at a time (a slab of kBlock cell
 // layers), in (y, x) order within a layer, the layer's blocks cut into fixed chunks run on the
@@ -93,7 +93,7 @@ std::uint64_t mandelbulb_triangle_estimate(std::uint32_t res) {
 namespace {
 
 constexpr std::uint32_t kBlock = 4;         // cells along each edge of a block of the sparse walk
-constexpr std::size_t kChunkBlocks = 16;    // blocks per work item (fixed: the output order depends on it)
+constexpr std::size_t kChunkBlocks = 16;    // blocks per work item (the order does not depend on it: chunks are concatenated in order)
 
 // Corner codes of the coarse grid.
 constexpr std::uint8_t kInside = 1, kOutside = 2, kLate = 4;
