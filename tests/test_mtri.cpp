@@ -29,6 +29,7 @@ std::string bytes_of(const std::string& path) {
   std::ifstream f(path, std::ios::binary);
   return {std::istreambuf_iterator<char>(f), std::istreambuf_iterator<char>()};
 }
+bool run_shell_ok(const std::string& command) { return mbvh_test::run_shell(command).code == 0; }
 void put(const std::string& path, const std::string& bytes) { std::ofstream(path, std::ios::binary) << bytes; }
 
 template <class F>
@@ -213,4 +214,16 @@ TEST_CASE("mbvh gen: the same file at 1 and 2 threads; bad specs and paths exit 
   CHECK(r.code == 2);
   CHECK_THAT(r.output, Catch::Contains("must not replace an input"));
   CHECK(bytes_of(a) == bytes_of(b));
+}
+
+TEST_CASE("mbvh gen gen:mandelbulb:256 (acceptance B-1): 3,883,000 triangles, the same file at 1 and 2 threads", "[mtri][cli]") {
+  TempDir dir;
+  const std::string a = dir.file("a.mtri"), b = dir.file("b.mtri");
+  auto r = run_cli("gen gen:mandelbulb:256 -o " + a + " --threads 1");
+  INFO(r.output);
+  REQUIRE(r.code == 0);
+  CHECK_THAT(r.output, Catch::Contains("wrote 3883000 triangles"));
+  REQUIRE(run_cli("gen gen:mandelbulb:256 -o " + b + " --threads 2").code == 0);
+  CHECK(run_shell_ok("cmp -s " + a + " " + b));
+  CHECK(MtriReader(a).count() == 3883000u);
 }
