@@ -16,5 +16,6 @@ Command add_bench(CLI::App& app);        ///< cmd_bench.cpp: verified speed of e
 Command add_render(CLI::App& app);       ///< cmd_render.cpp: render an image on a backend
 Command add_build_bench(CLI::App& app);  ///< cmd_build_bench.cpp: build times, ours and embree's
 Command add_devices(CLI::App& app);      ///< cmd_devices.cpp: the backends and their devices
+Command add_gen(CLI::App& app);          ///< cmd_gen.cpp: write a (streamed) .mtri triangle file
 
 }  // namespace mbvh::cli

@@ -30,7 +30,8 @@ int run(int argc, char** argv) {
   app.fallthrough();  // --quiet may follow the subcommand
   app.add_flag("-q,--quiet", quiet(), "print nothing but errors (outputs are still written)");
   const Command commands[] = {add_info(app),   add_rays(app),   add_trace(app),       add_check(app),
-                              add_bench(app),  add_render(app), add_build_bench(app), add_devices(app)};
+                              add_bench(app),  add_render(app), add_build_bench(app), add_devices(app),
+                              add_gen(app)};
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {  // --help and --version exit 0; every usage error exits 2

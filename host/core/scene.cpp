@@ -12,6 +12,7 @@
 #include "mbvh/error.h"
 #include "host/core/io/input.h"
 #include "host/core/io/mtl.h"
+#include "host/core/io/mtri.h"
 #include "host/core/io/obj.h"
 #include "host/core/layouts.h"  // hash_bytes
 #include "host/core/resources.h"
@@ -157,6 +158,12 @@ Scene load_scene(const std::string& path) try {
   }
   std::string base = ends_with(path, ".zst") ? path.substr(0, path.size() - 4) : path;
   std::transform(base.begin(), base.end(), base.begin(), [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  // -- a .mtri file (by its name or its magic): streamed in checked blocks, never compressed
+  if (!ends_with(path, ".zst") && ends_with(base, ".mtri")) {
+    Scene s = load_mtri(path);
+    s.name = path;
+    return s;
+  }
   // -- an OBJ file is parsed as it streams in (decompressed as it is read), so it costs what its
   // geometry costs, never its size; a PLY file is read whole (its size checked before reading)
   bool ply = ends_with(base, ".ply");
@@ -169,6 +176,8 @@ Scene load_scene(const std::string& path) try {
       const std::size_t bom = head.size() >= 3 && std::memcmp(head.data(), "\xEF\xBB\xBF", 3) == 0 ? 3 : 0;
       ply = head.size() >= bom + 3 && std::memcmp(head.data() + bom, "ply", 3) == 0;
       if (ply) return false;
+      if (head.size() >= 6 && std::memcmp(head.data(), kMtriMagic, 6) == 0)
+        throw Error(path + ": a .mtri file (by its magic) under another name; name it NAME.mtri");
       if (!obj) throw Error(path + ": unknown scene format (expected .obj, .ply, optionally .zst, or gen:NAME:PARAMS)");
       parser.emplace(path);
       parser->feed(head.data(), head.size());

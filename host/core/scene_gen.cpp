@@ -8,6 +8,7 @@
 #include <numbers>
 
 #include "mbvh/error.h"
+#include "host/core/gen/mandelbulb.h"
 #include "host/core/random.h"
 #include "host/core/resources.h"
 #include "mbvh/scene.h"
@@ -295,12 +296,25 @@ std::string generator_help() {
          "gen:grid:N                   closed box [0,N]^3 of unit quads with integer coordinates (default 8)\n"
          "gen:plane:N                  flat N x N grid in z = 0 (default 32): zero-thickness boxes\n"
          "gen:needles:COUNT[:SEED]     needles, slivers and degenerate triangles (default 10000)\n"
+         "gen:mandelbulb:RES[:K]       power-8 Mandelbulb (K iterations, default 8) on a RES^3 grid (default 64), closed;\n"
+         "                             `mbvh gen` streams a large one to a .mtri file\n"
          "any of them + @scale=S@offset=O   every coordinate becomes v * S + O (in that order)\n";
 }
 
 namespace {
 Scene generate_base(const std::string& spec);
+MandelbulbOptions mandelbulb_options(const std::vector<std::string>& p, const std::string& spec);
+void at_most(const std::vector<std::string>& p, std::size_t params, const std::string& spec, const char* usage);
 }  // namespace
+
+bool streamed_mandelbulb(const std::string& spec, MandelbulbOptions& out) {
+  if (spec.find('@') != std::string::npos) return false;
+  const std::vector<std::string> p = split(spec, ':');
+  if (p[0] != "mandelbulb") return false;
+  at_most(p, 2, spec, "gen:mandelbulb:RES:K");
+  out = mandelbulb_options(p, spec);
+  return true;
+}
 
 Scene generate_scene(const std::string& full_spec) {
   const std::size_t at = full_spec.find('@');
@@ -332,6 +346,13 @@ void at_most(const std::vector<std::string>& p, std::size_t params, const std::s
                 std::to_string(params) + " (parameter " + std::to_string(params + 1) + " is '" + p[params + 1] + "')");
 }
 
+MandelbulbOptions mandelbulb_options(const std::vector<std::string>& p, const std::string& spec) {
+  MandelbulbOptions o;
+  o.res = static_cast<std::uint32_t>(param(p, 1, 64, 2, 65536, spec));
+  o.iterations = static_cast<std::uint32_t>(param(p, 2, 8, 1, 64, spec));
+  return o;
+}
+
 Scene generate_base(const std::string& spec) {
   const std::vector<std::string> p = split(spec, ':');
   const std::string& n = p[0];
@@ -340,7 +361,7 @@ Scene generate_base(const std::string& spec) {
       {"soup", 2, "gen:soup:COUNT:SEED"},            {"hairball", 2, "gen:hairball:COUNT:SEED"},
       {"exponential", 1, "gen:exponential:N"},       {"torus", 1, "gen:torus:SEGMENTS"},
       {"grid", 1, "gen:grid:N"},                     {"plane", 1, "gen:plane:N"},
-      {"needles", 2, "gen:needles:COUNT:SEED"}};
+      {"needles", 2, "gen:needles:COUNT:SEED"},      {"mandelbulb", 2, "gen:mandelbulb:RES:K"}};
   for (const auto& f : forms)
     if (n == f.name) at_most(p, f.params, spec, f.usage);
   if (n == "sphere") {
@@ -383,6 +404,14 @@ Scene generate_base(const std::string& spec) {
     const std::uint64_t count = param(p, 1, 10000, 1, 100'000'000, spec), seed = param(p, 2, 1, 0, UINT64_MAX, spec);
     require_fit(spec, count, 3 * count);
     return needles(count, seed);
+  }
+  if (n == "mandelbulb") {
+    const MandelbulbOptions o = mandelbulb_options(p, spec);
+    const std::uint64_t t = mandelbulb_triangle_estimate(o.res);
+    require_fit(spec, t, 3 * t);
+    Scene s;
+    generate_mandelbulb(o, [&s](std::uint64_t, std::span<const SourceTri> tris) { append_triangles(s, tris); });
+    return s;
   }
   throw Error("gen:" + spec + ": unknown generator '" + n + "'; known generators:\n" + generator_help());
 }

@@ -226,6 +226,16 @@ public:
   /// Gives the temporary the replaced file's mode and owner (or the umask's mode), writes, syncs
   /// and closes it; throws Error on any failure.
   void write(const void* data, std::size_t size) {
+    begin();
+    data_ = data;
+    size_ = size;
+    append(data, size);
+    finish();
+  }
+
+  /// Gives the temporary the replaced file's mode and owner (or the umask's mode): the first step
+  /// of a streamed write (append, patch, finish).
+  void begin() {
     // the owner where permitted (root); otherwise the new file is ours, as with any program that
     // replaces a file
     if (replaced_ && (replaced_->st_uid != ::geteuid() || replaced_->st_gid != ::getegid()) &&
@@ -233,12 +243,31 @@ public:
     }
     if (::fchmod(fd_, replaced_ ? (replaced_->st_mode & 07777) : (0666 & ~g_umask)) != 0)
       fail("cannot set the mode of the temporary file");
-    data_ = data;
-    size_ = size;
+  }
+  /// Appends bytes to the temporary.
+  void append(const void* data, std::size_t size) {
     if (const int e = write_all(fd_, data, size)) {
       errno = e;
       fail("write failed");
     }
+  }
+  /// Overwrites bytes already written at `offset` (a header written last).
+  void patch(std::uint64_t offset, const void* data, std::size_t size) {
+    const char* p = static_cast<const char*>(data);
+    while (size > 0) {
+      const ssize_t n = ::pwrite(fd_, p, size, static_cast<off_t>(offset));
+      if (n < 0 && errno == EINTR) continue;
+      if (n <= 0) {
+        if (n == 0) errno = EIO;
+        fail("write failed");
+      }
+      p += n;
+      offset += static_cast<std::uint64_t>(n);
+      size -= static_cast<std::size_t>(n);
+    }
+  }
+  /// Syncs and closes the temporary.
+  void finish() {
     if (::fsync(fd_) != 0) fail("write failed (fsync)");
     struct stat st {};
     if (::fstat(fd_, &st) != 0) fail("cannot stat the temporary file");
@@ -372,6 +401,44 @@ void write_outputs(std::span<const OutputWrite> outputs) {
         throw Error(label(o.to) + ": write to standard output failed: " + std::strerror(e));
   for (std::size_t i = 0; i < outputs.size(); ++i)
     if (staged[i]) staged[i]->commit(outputs[i].to);
+}
+
+// -- one output written as a stream
+
+struct StreamedOutput::Impl {
+  OutputTarget to;
+  std::unique_ptr<Staged> staged;
+};
+
+StreamedOutput::StreamedOutput(const OutputTarget& to) : impl_(std::make_unique<Impl>()) {
+  if (to.path == "-") throw Error(label(to) + ": this output is written as a stream and patched; name a file, not standard output");
+  if (to.shared) throw Error(label(to) + ": a streamed output cannot be shared");
+  const OutputTarget targets[1] = {to};
+  check_outputs(targets);
+  impl_->to = to;
+  impl_->staged = std::make_unique<Staged>(to, resolve(to));
+  impl_->staged->begin();
+}
+
+StreamedOutput::~StreamedOutput() = default;
+
+void StreamedOutput::write(const void* data, std::size_t size) {
+  if (!impl_->staged) throw Error(label(impl_->to) + ": written after commit");
+  impl_->staged->append(data, size);
+  bytes_ += size;
+}
+
+void StreamedOutput::patch(std::uint64_t offset, const void* data, std::size_t size) {
+  if (!impl_->staged) throw Error(label(impl_->to) + ": written after commit");
+  if (offset > bytes_ || size > bytes_ - offset) throw Error(label(impl_->to) + ": a patch beyond the bytes written");
+  impl_->staged->patch(offset, data, size);
+}
+
+void StreamedOutput::commit() {
+  if (!impl_->staged) throw Error(label(impl_->to) + ": committed twice");
+  impl_->staged->finish();
+  impl_->staged->commit(impl_->to);
+  impl_->staged.reset();
 }
 
 }  // namespace mbvh

@@ -3,6 +3,8 @@
 // temporary beside the target, never a device, FIFO, socket or directory; "-" is standard output.
 #pragma once
 #include <cstddef>
+#include <cstdint>
+#include <memory>
 #include <span>
 #include <string>
 
@@ -58,5 +60,32 @@ void check_outputs(std::span<const OutputTarget> outputs, std::span<const InputF
 /// in between, Error says so — a run never reports another run's data as its own (a `shared`
 /// target holding the same bytes as this run wrote is fine).
 void write_outputs(std::span<const OutputWrite> outputs);
+
+/// One output written as a stream, for files too large to hold (a generated .mtri): bytes are
+/// appended to a temporary beside the target (as write_outputs stages them, with the same checks
+/// and the same removal on errors and signals), earlier bytes may be patched (a header known
+/// last), and commit() syncs it and renames it over the target. Destroyed without commit(), the
+/// temporary is removed and the target untouched. Standard output ("-") and `shared` targets are
+/// refused (Error naming the option and path), as is anything check_outputs refuses.
+class StreamedOutput {
+public:
+  explicit StreamedOutput(const OutputTarget& to);
+  ~StreamedOutput();
+  StreamedOutput(const StreamedOutput&) = delete;
+  StreamedOutput& operator=(const StreamedOutput&) = delete;
+  /// Appends `size` bytes. Throws Error naming the output on a failed write.
+  void write(const void* data, std::size_t size);
+  /// Overwrites [offset, offset + size), which must lie within the bytes written so far.
+  void patch(std::uint64_t offset, const void* data, std::size_t size);
+  /// Syncs, closes and renames the temporary over the target (write_outputs' last steps).
+  void commit();
+  /// Bytes written so far.
+  std::uint64_t bytes() const { return bytes_; }
+
+private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+  std::uint64_t bytes_ = 0;
+};
 
 }  // namespace mbvh

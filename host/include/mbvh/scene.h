@@ -175,9 +175,10 @@ private:
   std::vector<std::uint64_t> offsets_{0};  ///< prim id of each view's first triangle, then the total
 };
 
-/// Loads a scene from a path (.obj, .ply, optionally .zst-compressed) or a generator spec
+/// Loads a scene from a path (.obj, .ply, optionally .zst-compressed; .mtri, a streamed triangle
+/// file, read in checked blocks with 3 vertices a triangle) or a generator spec
 /// ("gen:sphere:64", "gen:soup:100000:7", "gen:hairball:1000000", "gen:exponential:200",
-/// "gen:cube:16"). An OBJ file's materials get their diffuse colours from the MTL files its
+/// "gen:cube:16", "gen:mandelbulb:128"). An OBJ file's materials get their diffuse colours from the MTL files its
 /// `mtllib` lines name (a missing or bad MTL is a warning through log_message, never an error:
 /// those materials stay grey). Throws Error naming the file, line and what was wrong on malformed input, and
 /// naming the path or spec and the estimate when the scene and one build of it would not fit in
