@@ -30,7 +30,11 @@ void call(Traffic* t, const char* what, std::uint64_t sent, std::uint64_t receiv
     char msg[MPI_MAX_ERROR_STRING] = {};
     int len = 0;
     MPI_Error_string(rc, msg, &len);
-    throw Error(std::string("MPI: ") + what + " failed: " + std::string(msg, static_cast<std::size_t>(len)));
+    std::string hint;
+    if (std::string(what).find("MPI_Win_allocate") != std::string::npos)
+      hint = " (a window's memory: with MPI_Win_allocate_shared, shared memory (/dev/shm) must hold the rays and "
+             "answers, 48 bytes a ray; mbvh-mpi's --no-shared-memory --schedule static sends messages instead)";
+    throw Error(std::string("MPI: ") + what + " failed: " + std::string(msg, static_cast<std::size_t>(len)) + hint);
   }
 }
 

@@ -215,12 +215,14 @@ void make_views(const Scene& scene, const std::vector<std::uint32_t>& ids, Part&
   }
 }
 
-// One rank's part as every rank learns it (MPI_Allgather): its box and triangle count.
+// One rank's part as every rank learns it (MPI_Allgather): its box and triangle count, and the
+// content hash of the whole scene it partitioned (the ranks must have loaded the same scene).
 struct PartRecord {
   float lo[3], hi[3];
   std::uint64_t triangles;
+  std::uint64_t scene_hash;
 };
-static_assert(sizeof(PartRecord) == 32);
+static_assert(sizeof(PartRecord) == 40);
 
 // -- trace: per ray, the parts its box test reaches, by entry distance
 
@@ -353,12 +355,17 @@ Part partition(const Comm& comm, const Scene& scene, const BuildOptions& opt, Tr
   PartRecord mine{};
   for (int a = 0; a < 3; ++a) mine.lo[a] = own.lo[a], mine.hi[a] = own.hi[a];
   mine.triangles = part.local_to_global.size();
+  mine.scene_hash = scene.hash();
   std::vector<PartRecord> all(P);
   detail::call(traffic, "MPI_Allgather", sizeof(PartRecord) * (P - 1), sizeof(PartRecord) * (P - 1), [&] {
     return MPI_Allgather(&mine, sizeof(PartRecord), MPI_BYTE, all.data(), sizeof(PartRecord), MPI_BYTE, comm.comm);
   });
   part.rank_bounds.resize(P);
   for (int r = 0; r < P; ++r) {
+    if (all[r].scene_hash != mine.scene_hash)
+      throw Error("partition (rank " + std::to_string(me) + "): rank " + std::to_string(r) +
+                  " loaded another scene than this rank's " + scene.display_name() +
+                  " (another content hash): every rank must load the same scene");
     if (all[r].triangles != part.rank_triangles[r])
       throw Error("partition (rank " + std::to_string(me) + "): rank " + std::to_string(r) + " holds " +
                   std::to_string(all[r].triangles) + " triangles where this rank's scene gives it " +

@@ -65,9 +65,19 @@ std::unique_ptr<Accel> shared_accel(const Comm& comm, const Scene& scene, const 
   std::unique_ptr<Accel> acc;
   Accel::CacheReport mine;
   // the root builds (or reads) the entry first; then the others read it: one build, not P
-  if (comm.root()) acc = Accel::build_cached(scene, quiet, c, &mine);
+  // without a cache directory the BVH passes through a private one: an error there says so
+  auto build = [&] {
+    try {
+      return Accel::build_cached(scene, quiet, c, &mine);
+    } catch (const Error& e) {
+      if (!temporary) throw;
+      throw Error(std::string(e.what()) + " (the BVH passes from rank 0 to the others through a private directory "
+                  "under $TMPDIR, which must hold it: give --cache DIR elsewhere, or another TMPDIR)");
+    }
+  };
+  if (comm.root()) acc = build();
   call(t, "MPI_Barrier (build)", 0, 0, [&] { return MPI_Barrier(comm.comm); });
-  if (!comm.root()) acc = Accel::build_cached(scene, quiet, c, &mine);
+  if (!comm.root()) acc = build();
   call(t, "MPI_Barrier (read)", 0, 0, [&] { return MPI_Barrier(comm.comm); });
   if (temporary && comm.root()) {
     std::error_code ec;
@@ -97,6 +107,7 @@ WorkQueue::WorkQueue(const Comm& comm, std::uint64_t total, Traffic* t) : comm_(
   });
   for (std::size_t r = 0; r < n; ++r) base[r] = static_cast<std::int64_t>(queue_begin(static_cast<int>(r)));
   call(t, "MPI_Barrier (work queue)", 0, 0, [&] { return MPI_Barrier(comm.comm); });  // the counters are set
+  MPI_Win_set_errhandler(win_, MPI_ERRORS_RETURN);  // a failure is an Error (calls.h), not an abort
   call(t, "MPI_Win_lock_all (work queue)", 0, 0, [&] { return MPI_Win_lock_all(0, win_); });
 }
 
@@ -179,6 +190,7 @@ struct KeptWindow {
       int unit = 0;
       call(t, "MPI_Win_shared_query", 0, 0, [&] { return MPI_Win_shared_query(win, 0, &sz, &unit, &base); });
     }
+    MPI_Win_set_errhandler(win, MPI_ERRORS_RETURN);  // a failure is an Error (calls.h), not an abort
     comm = c.comm;
     bytes = need;
     call(t, "MPI_Win_lock_all", 0, 0, [&] { return MPI_Win_lock_all(0, win); });  // one epoch, open while kept
@@ -261,8 +273,9 @@ void trace(const Comm& comm, Backend& backend, const Accel& acc, std::span<const
   call(t, "MPI_Bcast (ray count)", 8, 8, [&] { return MPI_Bcast(&n, 1, MPI_UINT64_T, 0, comm.comm); });
   const std::uint64_t batch = sched.batch, batches = (n + batch - 1) / batch;
   auto batch_rays = [&](std::uint64_t b) { return std::min(batch, n - b * batch); };
-  // rank r's share: the batches [batches*r/P, batches*(r+1)/P), rays [share(r), share(r+1))
-  auto share = [&](int r) { return std::min(n, batches * static_cast<std::uint64_t>(r) / static_cast<std::uint64_t>(P) * batch); };
+  // static: rank r's share, the rays [share(r), share(r+1)): equal contiguous shares (the batch size
+  // is the dynamic schedule's unit of work)
+  auto share = [&](int r) { return n * static_cast<std::uint64_t>(r) / static_cast<std::uint64_t>(P); };
   const RecordType ray_t(sizeof(Ray)), res_t(any ? 1 : static_cast<int>(sizeof(Hit)));
   const std::size_t res_bytes = any ? 1 : sizeof(Hit);
   auto answer_bytes = [&](TraceOutput& o) {

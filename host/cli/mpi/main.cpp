@@ -10,6 +10,7 @@
 #include <cstdio>
 #include <exception>
 #include <new>
+#include <optional>
 #include <string>
 
 #include "host/cli/mpi/cmd_mpi.h"
@@ -46,12 +47,27 @@ int run(int argc, char** argv) {
   const mbvh::mpi::Comm comm;
   const Command commands[] = {add_mpi_trace(app, comm), add_mpi_render(app, comm), add_mpi_bench(app, comm),
                               add_mpi_check(app, comm)};
+  // every rank parses its command line; they must agree before any rank goes on into a collective
+  // call (ranks given different lines would wait there for ever): 0 run, 1 done (--help, --version),
+  // 2 a usage error. Rank 0 says why; a rank alone in error says so itself.
+  int parsed = 0;
+  std::optional<CLI::ParseError> error;
   try {
     app.parse(argc, argv);
-  } catch (const CLI::ParseError& e) {  // every rank parses the same line: rank 0 alone says why
-    if (g_rank == 0) return app.exit(e) == 0 ? 0 : 2;
-    return e.get_exit_code() == 0 ? 0 : 2;
+  } catch (const CLI::ParseError& e) {
+    parsed = e.get_exit_code() == 0 ? 1 : 2;
+    error.emplace(e);
   }
+  int worst = parsed, root = parsed;
+  MPI_Allreduce(&parsed, &worst, 1, MPI_INT, MPI_MAX, MPI_COMM_WORLD);
+  MPI_Bcast(&root, 1, MPI_INT, 0, MPI_COMM_WORLD);
+  if (error && (g_rank == 0 || (parsed == 2 && root != 2))) app.exit(*error);
+  if (worst == 2) {
+    if (g_rank == 0 && parsed != 2)
+      std::fprintf(stderr, "mbvh-mpi: error (rank 0/%d): the command line is not valid on every rank (above)\n", g_ranks);
+    return 2;
+  }
+  if (worst == 1) return 0;
   if (g_rank != 0) quiet() = true;  // the report is rank 0's
   if (quiet()) mbvh::Progress::set_enabled(false);
   try {
@@ -76,6 +92,9 @@ int main(int argc, char** argv) {
   }
   MPI_Comm_rank(MPI_COMM_WORLD, &g_rank);
   MPI_Comm_size(MPI_COMM_WORLD, &g_ranks);
+  // an MPI failure returns its code: mbvh::mpi turns it into an Error naming the call, which ends
+  // every rank through fail() with exit status 2 (MPI_ERRORS_ARE_FATAL would exit with MPI's own)
+  MPI_Comm_set_errhandler(MPI_COMM_WORLD, MPI_ERRORS_RETURN);
   mbvh::register_builtin_backends();
   mbvh::set_log_callback([](mbvh::LogLevel level, const std::string& m) {
     if (g_rank == 0) std::fprintf(stderr, "%s\n", m.c_str());
