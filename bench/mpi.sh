@@ -106,6 +106,7 @@ one=$(for r in $(seq 1 "$rounds"); do python3 -c "import json,sys; print('%.3f' 
   echo "| scene | ranks | kind | query | bit-identical | ties | genuine mismatches |"
   echo "|---|---|---|---|---|---|---|"
 } >> "$summary"
+: > "$OUT/balance.txt"
 scene_of() { [ "$1" = hairball ] && echo gen:hairball:1000000 || echo "$conference"; }  # NAME: its path or spec
 for scene in conference hairball; do
   s="$(scene_of "$scene")"
