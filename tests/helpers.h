@@ -5,11 +5,33 @@
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
+#include <exception>
 #include <fstream>
+#include <iterator>
 #include <string>
 #include <type_traits>
 
 namespace mbvh_test {
+
+/// What `f()` throws as an Error (any type with what(): mbvh::Error), or "(no error)".
+template <class F>
+std::string error_of(F f) {
+  try {
+    f();
+  } catch (const std::exception& e) {
+    return e.what();
+  }
+  return "(no error)";
+}
+
+/// The bytes of the file at `path` (empty if it cannot be read).
+inline std::string bytes_of(const std::string& path) {
+  std::ifstream f(path, std::ios::binary);
+  return {std::istreambuf_iterator<char>(f), std::istreambuf_iterator<char>()};
+}
+
+/// Writes `bytes` to `path`, replacing it.
+inline void put(const std::string& path, const std::string& bytes) { std::ofstream(path, std::ios::binary) << bytes; }
 
 /// Whether triangle `prim` of `s` has zero area (its edges' cross product, in double, is zero):
 /// a degenerate triangle, which a build keeps out of its leaves. Scene: any type with

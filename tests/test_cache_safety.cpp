@@ -20,16 +20,12 @@
 #include "tests/helpers.h"
 
 using namespace mbvh;
+using mbvh_test::put;
+using mbvh_test::bytes_of;
 using mbvh_test::run_cli;
 using mbvh_test::TempDir;
 
 namespace {
-
-std::string bytes_of(const std::string& p) {
-  std::ifstream f(p, std::ios::binary);
-  return {std::istreambuf_iterator<char>(f), std::istreambuf_iterator<char>()};
-}
-void put(const std::string& p, const std::string& b) { std::ofstream(p, std::ios::binary) << b; }
 
 // The one entry in a cache directory.
 std::string entry_in(const std::string& dir) {

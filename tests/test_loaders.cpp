@@ -19,6 +19,7 @@
 #include "tests/helpers.h"
 
 using namespace mbvh;
+using mbvh_test::error_of;
 using mbvh_test::TempDir;
 
 namespace {
@@ -26,15 +27,6 @@ namespace {
 Scene obj(const std::string& text) { return parse_obj("t.obj", text.data(), text.size()); }
 Scene ply(const std::string& text) { return parse_ply("t.ply", text.data(), text.size()); }
 
-template <class F>
-std::string error_of(F f) {
-  try {
-    f();
-  } catch (const Error& e) {
-    return e.what();
-  }
-  return "(no error)";
-}
 
 std::string le32f(float f) { std::string s(4, '\0'); std::memcpy(s.data(), &f, 4); return s; }
 std::string le64d(double d) { std::string s(8, '\0'); std::memcpy(s.data(), &d, 8); return s; }

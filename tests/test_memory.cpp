@@ -15,19 +15,10 @@
 #include "tests/helpers.h"
 
 using namespace mbvh;
+using mbvh_test::error_of;
 using mbvh_test::TempDir;
 
 namespace {
-
-template <class F>
-std::string error_of(F f) {
-  try {
-    f();
-  } catch (const Error& e) {
-    return e.what();
-  }
-  return "(no error)";
-}
 
 // Sets MBVH_MEMORY_LIMIT for one scope.
 struct MemoryLimit {

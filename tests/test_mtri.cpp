@@ -20,27 +20,16 @@
 #include "tests/helpers.h"
 
 using namespace mbvh;
+using mbvh_test::put;
+using mbvh_test::bytes_of;
+using mbvh_test::error_of;
 using mbvh_test::run_cli;
 using mbvh_test::TempDir;
 
 namespace {
 
-std::string bytes_of(const std::string& path) {
-  std::ifstream f(path, std::ios::binary);
-  return {std::istreambuf_iterator<char>(f), std::istreambuf_iterator<char>()};
-}
 bool run_shell_ok(const std::string& command) { return mbvh_test::run_shell(command).code == 0; }
-void put(const std::string& path, const std::string& bytes) { std::ofstream(path, std::ios::binary) << bytes; }
 
-template <class F>
-std::string error_of(F f) {
-  try {
-    f();
-  } catch (const Error& e) {
-    return e.what();
-  }
-  return "(no error)";
-}
 
 std::vector<SourceTri> mandelbulb(std::uint32_t res, unsigned threads, bool dense = false) {
   std::vector<SourceTri> all;
