@@ -7,7 +7,7 @@
 #   1. replicated, speed: `mbvh bench` (1 process x 2 threads) against `mpirun -np 2 mbvh-mpi bench`
 #      (2 ranks x 1 thread) and -np 1 x 2 threads, on 1M path rays of conference (the thesis'
 #      workload), alternated ROUNDS times; Mrays/s medians, the ratio, the share of the ranks' time
-#      in MPI calls and the bytes moved a ray; static and dynamic batches;
+#      in MPI calls and the bytes moved a ray; the static and dynamic schedules;
 #   2. data-parallel: `mbvh-mpi check --distribute data` at 2-4 ranks on conference and the 1M
 #      hairball (primary, shadow, diffuse, path rays), and `mbvh-mpi bench --distribute data` at
 #      1-4 ranks (rounds, forwards a ray, bytes a ray, verified);
@@ -93,7 +93,7 @@ one=$(for r in $(seq 1 "$rounds"); do python3 -c "import json,sys; print('%.3f' 
       s=$(for r in $(seq 1 "$rounds"); do share "$OUT/np$np-$sched-$r.txt" | tr -d %; done | median)
       b=$(for r in $(seq 1 "$rounds"); do bytes "$OUT/np$np-$sched-$r.txt"; done | median)
       t=$([ "$np" = 2 ] && echo "2 ranks x 1 thread" || echo "1 rank x 2 threads")
-      echo "| mbvh-mpi bench, $t, $sched batches | $m | $(awk -v a="$m" -v b="$one" 'BEGIN { printf "%.2f", a / b }') | $s % | $b |"
+      echo "| mbvh-mpi bench, $t, $sched schedule | $m | $(awk -v a="$m" -v b="$one" 'BEGIN { printf "%.2f", a / b }') | $s % | $b |"
     done
   done
   echo

@@ -67,6 +67,10 @@ struct Distribution {
                                           "replicated: send rays and answers as messages even where every rank runs on "
                                           "one host (by default they pass through a window of shared memory there)"));
   }
+  /// How the replicated rays are dealt, for reports: "static shares" or "dynamic batches of N".
+  std::string schedule_label() const {
+    return schedule == "dynamic" ? "dynamic batches of " + std::to_string(batch) : std::string("static shares");
+  }
   mpi::ScheduleOptions schedule_options() const { return {mpi::parse_schedule(schedule), batch, !no_shared}; }
 };
 
@@ -279,7 +283,7 @@ int run_trace(const Comm& comm, MpiTraceArgs& a) {
   say("traced %zu rays (%s/%s/%s, %s%s) on %s in %.1f ms: %.3f Mrays/s; %zu %s, %zu invalid; MPI calls %.1f %% of "
       "the ranks' time, %.1f bytes moved a ray\n",
       rays.size(), layout_label(o), a.t.traversal.c_str(), a.t.query.c_str(), a.d.distribute.c_str(),
-      a.d.data() ? "" : (", " + a.d.schedule + " batches of " + std::to_string(a.d.batch)).c_str(),
+      a.d.data() ? "" : (", " + a.d.schedule_label()).c_str(),
       ranks_label(comm, a.t.scene.threads).c_str(), ms, ms > 0 ? static_cast<double>(rays.size()) / ms * 1e-3 : 0.0, hits,
       o.query == Query::any ? "occluded" : "hits", out.invalid, ms > 0 ? 100.0 * all.seconds / (comm.size() * ms * 1e-3) : 0.0,
       rays.empty() ? 0.0 : static_cast<double>(all.bytes_received) / static_cast<double>(rays.size()));
@@ -554,7 +558,7 @@ int run_bench(const Comm& comm, BenchArgs& b) {
   if (comm.root())
     say("%s, %s; Mrays/s: the median of %u runs (wall time of the slowest rank, MPI calls included); MPI share: the "
         "ranks' time in MPI calls\n",
-        ranks_label(comm, a.scene.threads).c_str(), a.d.data() ? "data-parallel" : ("replicated, " + a.d.schedule + " batches of " + std::to_string(a.d.batch)).c_str(),
+        ranks_label(comm, a.scene.threads).c_str(), a.d.data() ? "data-parallel" : ("replicated, " + a.d.schedule_label()).c_str(),
         b.reps);
   return verified ? 0 : 1;
 }
