@@ -176,11 +176,11 @@ std::unique_ptr<DataScene> load_data_scene(const Comm& comm, const SceneArgs& a,
   if (!d->part.accel) {  // a stand-in the renderer can hold: one triangle of the scene, no hierarchy, never traced
     Scene one;
     for (std::size_t p = 0; p < d->scene.triangle_count() && one.triangles.empty(); ++p) {
-      Vec3f a, b, c;
-      d->scene.triangle(p, a, b, c);
-      const Vec3f e1{b.x - a.x, b.y - a.y, b.z - a.z}, e2{c.x - a.x, c.y - a.y, c.z - a.z};
+      Vec3f v0, v1, v2;
+      d->scene.triangle(p, v0, v1, v2);
+      const Vec3f e1{v1.x - v0.x, v1.y - v0.y, v1.z - v0.z}, e2{v2.x - v0.x, v2.y - v0.y, v2.z - v0.z};
       if (e1.y * e2.z - e1.z * e2.y != 0 || e1.z * e2.x - e1.x * e2.z != 0 || e1.x * e2.y - e1.y * e2.x != 0) {
-        one.vertices = {a, b, c};
+        one.vertices = {v0, v1, v2};
         one.triangles = {{0, 1, 2}};
       }
     }
