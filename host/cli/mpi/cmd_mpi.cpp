@@ -157,11 +157,14 @@ struct DataScene {
   std::unique_ptr<Accel> none;  ///< a rank without triangles (more ranks than triangles): an empty build
   /// This rank's part's build, or the empty one.
   const Accel& accel() const { return part.accel ? *part.accel : *none; }
-  /// Backend::prepare for this rank's part (a rank without triangles traces nothing).
-  void prepare(Backend& b, const TraceOptions& o) const {
-    if (part.accel) b.prepare(*part.accel, o);
-  }
 };
+
+// Backend::prepare for this rank's build: the replicated `whole`, or the data-parallel part (a
+// rank without triangles traces nothing).
+void prepare_local(Backend& b, const DataScene* ds, const Accel* whole, const TraceOptions& o) {
+  if (!ds) b.prepare(*whole, o);
+  else if (ds->part.accel) b.prepare(*ds->part.accel, o);
+}
 
 std::unique_ptr<DataScene> load_data_scene(const Comm& comm, const SceneArgs& a, Traffic* t) {
   auto d = std::make_unique<DataScene>();
@@ -173,20 +176,13 @@ std::unique_ptr<DataScene> load_data_scene(const Comm& comm, const SceneArgs& a,
     throw Error("--distribute data: each rank builds a BVH of its part (--quality none builds none)");
   const auto t1 = Clock::now();
   d->part = mpi::partition(comm, d->scene, bo, t);
-  if (!d->part.accel) {  // a stand-in the renderer can hold: one triangle of the scene, no hierarchy, never traced
-    Scene one;
-    for (std::size_t p = 0; p < d->scene.triangle_count() && one.triangles.empty(); ++p) {
-      Vec3f v0, v1, v2;
-      d->scene.triangle(p, v0, v1, v2);
-      const Vec3f e1{v1.x - v0.x, v1.y - v0.y, v1.z - v0.z}, e2{v2.x - v0.x, v2.y - v0.y, v2.z - v0.z};
-      if (e1.y * e2.z - e1.z * e2.y != 0 || e1.z * e2.x - e1.x * e2.z != 0 || e1.x * e2.y - e1.y * e2.x != 0) {
-        one.vertices = {v0, v1, v2};
-        one.triangles = {{0, 1, 2}};
-      }
-    }
+  if (!d->part.accel) {
+    // a stand-in the renderer can hold, never traced: a rank without triangles exists only where
+    // the scene has fewer triangles than there are ranks, so the whole scene without a hierarchy
+    // costs nothing
     BuildOptions flat = bo;
     flat.quality = BuildQuality::none;
-    d->none = Accel::build(one, flat);
+    d->none = Accel::build(d->scene, flat);
   }
   const double ms = ms_since(t1);
   std::uint64_t largest = 0, all = 0;  // of the non-degenerate triangles, which the parts share
@@ -266,8 +262,7 @@ int run_trace(const Comm& comm, MpiTraceArgs& a) {
   std::vector<Ray> rays;
   if (comm.root()) rays = a.t.rays.rays_file.empty() ? a.t.rays.get(l, a.t.scene.threads) : read_rays(a.t.rays.rays_file);
   if (!quiet()) std::fprintf(stderr, "backend: %s, on %s\n", backend->describe().c_str(), ranks_label(comm, a.t.scene.threads).c_str());
-  if (ds) ds->prepare(*backend, o);
-  else backend->prepare(acc, o);
+  prepare_local(*backend, ds.get(), &acc, o);
   test_hook(comm, "trace");
   const Traffic before = tr;
   call(nullptr, "MPI_Barrier", 0, 0, [&] { return MPI_Barrier(comm.comm); });
@@ -328,8 +323,7 @@ int run_render(const Comm& comm, MpiRenderArgs& a) {
   const Accel& acc = ds ? ds->accel() : *l.acc;
   if (!quiet()) std::fprintf(stderr, "backend: %s, on %s\n", backend->describe().c_str(), ranks_label(comm, scene.threads).c_str());
   const TraceOptions closest{o.layout, o.traversal, Query::closest, false, o.precision};
-  if (ds) ds->prepare(*backend, closest);
-  else backend->prepare(acc, closest);
+  prepare_local(*backend, ds.get(), &acc, closest);
   test_hook(comm, "render");
   if (ds) {
     o.bounds = &ds->part.scene_bounds;
@@ -480,11 +474,7 @@ Setup setup(const Comm& comm, MpiRunArgs& a) {
 
 const Accel& local_accel(const Setup& s) { return s.ds ? s.ds->accel() : *s.l.acc; }
 
-// Backend::prepare for this rank's build (a data-parallel rank without triangles: none).
-void prepare_local(const Setup& s, const TraceOptions& o) {
-  if (s.ds) s.ds->prepare(*s.backend, o);
-  else s.backend->prepare(*s.l.acc, o);
-}
+
 
 std::vector<Ray> root_rays(const Comm& comm, const MpiRunArgs& a, const Setup& s, RayKind k) {
   if (!comm.root()) return {};
@@ -506,7 +496,7 @@ int run_bench(const Comm& comm, BenchArgs& b) {
   for (RayKind k : kinds) {
     const Query q = k == RayKind::shadow ? Query::any : Query::closest;
     const TraceOptions o = a.options(*s.backend, q);
-    prepare_local(s, o);
+    prepare_local(*s.backend, s.ds.get(), s.l.acc.get(), o);
     const std::vector<Ray> rays = root_rays(comm, a, s, k);
     std::vector<double> walls, shares;
     TraceOutput out;
@@ -574,7 +564,7 @@ int run_check(const Comm& comm, MpiRunArgs& a) {
     TraceOutput closest_ref;
     for (Query q : {Query::closest, Query::any}) {
       const TraceOptions o = a.options(*s.backend, q);
-      prepare_local(s, o);
+      prepare_local(*s.backend, s.ds.get(), s.l.acc.get(), o);
       TraceOutput out;
       distributed_trace(comm, *s.backend, &local_accel(s), s.ds.get(), rays, o, a.d, out, &s.tr);
       if (!comm.root()) continue;
