@@ -17,5 +17,7 @@ Command add_render(CLI::App& app);       ///< cmd_render.cpp: render an image on
 Command add_build_bench(CLI::App& app);  ///< cmd_build_bench.cpp: build times, ours and embree's
 Command add_devices(CLI::App& app);      ///< cmd_devices.cpp: the backends and their devices
 Command add_gen(CLI::App& app);          ///< cmd_gen.cpp: write a (streamed) .mtri triangle file
+Command add_lod(CLI::App& app);          ///< cmd_lod.cpp: out-of-core LOD models: build, info, check
+Command add_lod_check(CLI::App& lod);    ///< cmd_lod_check.cpp: `lod check` (a subcommand of `lod`)
 
 }  // namespace mbvh::cli

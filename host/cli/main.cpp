@@ -31,7 +31,7 @@ int run(int argc, char** argv) {
   app.add_flag("-q,--quiet", quiet(), "print nothing but errors (outputs are still written)");
   const Command commands[] = {add_info(app),   add_rays(app),   add_trace(app),       add_check(app),
                               add_bench(app),  add_render(app), add_build_bench(app), add_devices(app),
-                              add_gen(app)};
+                              add_gen(app),    add_lod(app)};
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {  // --help and --version exit 0; every usage error exits 2

@@ -6,18 +6,12 @@
 #include <functional>
 #include <span>
 
+#include "mbvh/lod.h"
 #include "mbvh/scene.h"
 
 namespace mbvh {
 
-/// One streamed triangle: three float vertices (x, y, z each), 36 bytes, a .mtri record.
-struct SourceTri {
-  float v[9];
-};
-static_assert(sizeof(SourceTri) == 36);
-
-/// What a stream calls for each chunk: the index of its first triangle, and the triangles.
-using ChunkFn = std::function<void(std::uint64_t first, std::span<const SourceTri> tris)>;
+// SourceTri and ChunkFn are public (mbvh/lod.h): a TriangleSource streams them.
 
 /// Appends triangles to an owned scene as they come, vertices not shared: triangle i gets the
 /// vertices 3i, 3i + 1, 3i + 2 (a stream knows no vertex indices; the builders and the watertight
