@@ -23,6 +23,7 @@
 #include <sys/stat.h>
 #include <sys/statvfs.h>
 #include <unistd.h>
+#define ZSTD_STATIC_LINKING_ONLY  // ZSTD_getCParams, ZSTD_estimateCCtxSize_usingCParams: the batch's memory
 #include <zstd.h>
 
 #include <algorithm>
@@ -470,15 +471,18 @@ private:
 
 class BlockWriter {
 public:
+  /// Blocks a batch holds: compressed side by side on up to this many workers. A constant, so the
+  /// memory the build plans for (and with it the buckets and the file) does not depend on threads.
+  static constexpr unsigned kSlots = 8;
   BlockWriter(StreamedOutput& out, const std::string& path, int level, unsigned threads, std::vector<fmt::DirEntry>& dir)
-      : out_(out), path_(path), level_(level), threads_(resolve_threads(threads)), dir_(dir), ctx_(threads_, nullptr) {}
+      : out_(out), path_(path), level_(level), threads_(std::min(resolve_threads(threads), kSlots)), dir_(dir),
+        ctx_(threads_, nullptr) {}
   ~BlockWriter() {
     for (ZSTD_CCtx* c : ctx_) ZSTD_freeCCtx(c);
   }
   void add(BlockOut&& b) {
-    batch_bytes_ += b.raw.size();
     batch_.push_back(std::move(b));
-    if (batch_.size() >= 2 * threads_) flush();
+    if (batch_.size() >= kSlots) flush();
   }
   void flush() {
     if (batch_.empty()) return;
@@ -516,12 +520,11 @@ public:
       stored_ += packed[i].size();
     }
     batch_.clear();
-    batch_bytes_ = 0;
   }
-  /// Bytes a batch holds at most: its raw blocks and their compressed copies, and the contexts.
-  static std::uint64_t memory(unsigned threads, std::uint64_t block_bytes) {
-    const std::uint64_t t = resolve_threads(threads);
-    return 2 * t * (2 * block_bytes + 4096) + t * (std::uint64_t(3) << 20);
+  /// Bytes a batch holds at most: its raw blocks, their compressed copies and the contexts.
+  static std::uint64_t memory(std::uint64_t block_bytes, int level) {
+    const std::uint64_t ctx = ZSTD_estimateCCtxSize_usingCParams(ZSTD_getCParams(level, block_bytes, 0));
+    return kSlots * (2 * block_bytes + 2 * fmt::kAlign + ctx);
   }
 
 private:
@@ -532,7 +535,7 @@ private:
   std::vector<fmt::DirEntry>& dir_;
   std::vector<ZSTD_CCtx*> ctx_;
   std::vector<BlockOut> batch_;
-  std::uint64_t batch_bytes_ = 0, stored_ = 0;
+  std::uint64_t stored_ = 0;
 };
 
 // -- the unlinked temporary file of pass 2
@@ -629,11 +632,10 @@ BuildReport build(const TriangleSource& src, const std::string& out_path, const 
                             : (std::filesystem::path(out_path).has_parent_path() ? std::filesystem::path(out_path).parent_path().string()
                                                                                  : std::string("."));
   // what the build holds besides its buckets: the compression batch, the directory and the plan
-  const std::uint64_t reserve = (std::uint64_t(4) << 20) + BlockWriter::memory(threads, opt.block_bytes);
+  const std::uint64_t reserve = (std::uint64_t(4) << 20) + BlockWriter::memory(opt.block_bytes, opt.zstd_level);
   if (budget <= reserve + 1024 * kBucketBytesPerTriangle)
     throw Error(name + ": --memory " + bytes_str(budget) + " (" + mb.source + ") is too small: the build needs " +
-                bytes_str(reserve) + " for compressing blocks on " + std::to_string(threads) +
-                " threads and room for a bucket of 1024 triangles; raise --memory to at least " +
+                bytes_str(reserve) + " for compressing blocks and room for a bucket of 1024 triangles; raise --memory to at least " +
                 bytes_str(reserve + 1024 * kBucketBytesPerTriangle));
   const std::uint64_t cap = (budget - reserve) / kBucketBytesPerTriangle;  // triangles one bucket may hold
   // the output is checked (and its temporary made) before any pass
@@ -1092,8 +1094,9 @@ BuildReport build(const TriangleSource& src, const std::string& out_path, const 
     std::stable_sort(order.begin(), order.end(), [&](std::uint32_t a, std::uint32_t b) { return dir[a].depth < dir[b].depth; });
     std::uint64_t pinned = 0;
     std::uint32_t count = 0;
-    for (const std::uint32_t b : order) {
-      if (b != root_block && pinned + dir[b].raw_bytes > pin_limit) break;
+    for (const std::uint32_t b : order) {  // a block is pinned only under a pinned parent
+      const bool root = b == root_block;
+      if (!root && (!(dir[dir[b].parent_block].flags & fmt::kDirPinned) || pinned + dir[b].raw_bytes > pin_limit)) continue;
       dir[b].flags |= fmt::kDirPinned;
       pinned += dir[b].raw_bytes;
       ++count;
