@@ -496,6 +496,35 @@ TEST_CASE("lod cache: the bandwidth cap: N bytes at B bytes/s take at least N/B 
   }
 }
 
+TEST_CASE("lod info: the header's counts and sizes, as text and JSON; a damaged file exits 2 naming the field", "[lod][cli]") {
+  TempDir dir;
+  mbvh_test::SynthOptions o = tree(3, 2);
+  o.pin_depth = 1;
+  const mbvh_test::SynthModel m = mbvh_test::make_mlod(o);
+  const std::string path = dir.write("m.mlod", m.bytes);
+  const mbvh_test::RunResult r = mbvh_test::run_cli("lod info " + path);
+  INFO(r.output);
+  CHECK(r.code == 0);
+  CHECK(has(r.output, "blocks           13"));
+  CHECK(has(r.output, "pinned           4 blocks"));
+  CHECK(has(r.output, "1234abcd5678ef90"));
+  CHECK(has(r.output, "compression ratio"));
+  const mbvh_test::RunResult j = mbvh_test::run_cli("lod info " + path + " --json - --quiet");
+  INFO(j.output);
+  CHECK(j.code == 0);
+  const std::uint64_t minimum = minimum_budget(m.header);
+  CHECK(has(j.output, "\"blocks\": 13"));
+  CHECK(has(j.output, "\"pinned_bytes\": " + std::to_string(m.header.pinned_bytes)));
+  CHECK(has(j.output, "\"minimum_budget\": " + std::to_string(minimum)));
+  CHECK(has(j.output, "\"raw_bytes\": " + std::to_string(m.header.raw_bytes)));
+  CHECK(has(j.output, "\"triangles\": " + std::to_string(m.header.triangles)));
+  const std::string cut = dir.write("cut.mlod", m.bytes.substr(0, m.bytes.size() - 8));
+  const mbvh_test::RunResult e = mbvh_test::run_cli("lod info " + cut);
+  CHECK(e.code == 2);
+  CHECK(has(e.output, cut));
+  CHECK(has(e.output, "file_bytes"));
+}
+
 // Writes the fuzz target's seeds (tests/fuzz/corpus/mlod) when MBVH_LOD_SEED_DIR is set.
 TEST_CASE("lod cache: fuzz seeds", "[.lod-seeds]") {
   const char* out = std::getenv("MBVH_LOD_SEED_DIR");

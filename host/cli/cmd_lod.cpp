@@ -46,7 +46,7 @@ int run_lod_info(const LodInfoArgs& a) {
     }
     return s;
   };
-  const auto bytes = [&](std::uint64_t x) { return count(x) + " bytes (" + format_bytes(x) + ")"; };
+  const auto bytes = [&](std::uint64_t x) { return count(x) + " bytes" + (x < 1024 ? "" : " (" + format_bytes(x) + ")"); };
   char hash[32];
   std::snprintf(hash, sizeof hash, "%016llx", static_cast<unsigned long long>(h.source_hash));
   say("%s: .mlod version %u (mbvh %u.%u.%u)\n", a.model.c_str(), h.version, h.library_version >> 16,
