@@ -144,6 +144,9 @@ TEST_CASE("lod cache: opening refuses a damaged, truncated or extended file, nam
   s[offsetof(FileHeader, checksum) + 3] ^= 0x10;
   CHECK(has(refused(s), "checksum"));
   s = good;
+  s[kHeaderBytes - 1] ^= 1;  // the header's zero padding
+  CHECK(has(refused(s), "header padding"));
+  s = good;
   s[m.header.directory_offset + 5] ^= 2;
   CHECK(has(refused(s), "directory: its checksum"));
   s = good;

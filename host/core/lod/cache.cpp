@@ -89,11 +89,15 @@ ModelFile read_checked(int fd, const std::string& path, std::uint64_t size) {
   // -- the header: its own fields first, so that a damaged byte is named where it can be
   if (size < kHeaderBytes)
     throw Error(bad + "truncated: " + num(size) + " bytes, less than the " + num(kHeaderBytes) + "-byte header");
-  read_exactly(fd, path, &h, sizeof h, 0);
+  std::vector<char> head(kHeaderBytes);
+  read_exactly(fd, path, head.data(), kHeaderBytes, 0);
+  std::memcpy(&h, head.data(), sizeof h);
   if (std::memcmp(h.magic, kMagic, 8) != 0) throw Error(bad + "magic: no \"MBVHLOD\" header");
   if (h.version != kVersion)
     throw Error(bad + "version: format version " + num(h.version) + ", this library reads " + num(kVersion));
   if (h.checksum != header_checksum(h)) throw Error(bad + "checksum: the header's checksum does not match (the header is damaged)");
+  if (std::any_of(head.begin() + sizeof h, head.end(), [](char c) { return c != 0; }))
+    throw Error(bad + "header padding: bytes " + num(sizeof h) + ".." + num(kHeaderBytes) + " are not zero (the header is damaged)");
   if (h.header_bytes != kHeaderBytes) throw Error(bad + "header_bytes: " + num(h.header_bytes) + ", expected " + num(kHeaderBytes));
   const auto record = [&](const char* field, std::uint32_t got, std::size_t want) {
     if (got != want)
@@ -276,14 +280,14 @@ void check_block(const std::string& path, const FileHeader& h, const std::vector
   }
   for (std::uint32_t i = hd.treelets; i < hd.nodes; ++i)
     if (node_refs[i] != 1) throw Error(bad + "node " + num(i) + ": no child reference names it");
-  std::vector<std::pair<std::uint32_t, std::uint32_t>> targets(hd.links);
+  std::vector<std::uint64_t> targets(hd.links);  // block << 32 | node
   for (std::uint32_t i = 0; i < hd.links; ++i) {
     const Link k = load_at<Link>(raw, l.links + std::uint64_t(i) * sizeof(Link));
     const std::string at = bad + "link " + num(i) + ": ";
     if (link_refs[i] != 1) throw Error(at + "no child reference names it");
     if (k.block >= dir.size() || k.block == b || dir[k.block].parent_block != b)
       throw Error(at + "block " + num(k.block) + " is not a child block of this block (its directory entry names another parent)");
-    targets[i] = {k.block, k.node};
+    targets[i] = std::uint64_t(k.block) << 32 | k.node;
   }
   std::sort(targets.begin(), targets.end());
   if (std::adjacent_find(targets.begin(), targets.end()) != targets.end())
