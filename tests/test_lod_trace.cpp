@@ -170,7 +170,7 @@ TEST_CASE("lod: a small budget gives the unlimited budget's full-detail answers"
   const std::uint64_t budget = in.pinned_bytes + std::max<std::uint64_t>(4ull * in.block_bytes, (in.raw_bytes - in.pinned_bytes) / 4);
   auto small = lod::Model::open(b.model, cache_options(2, budget));
   for (RayKind kind : {RayKind::primary, RayKind::diffuse}) {
-    const std::vector<Ray> rays = rays_of(b, kind, 20000);
+    const std::vector<Ray> rays = rays_of(b, kind, 10000);
     lod::TraceOptions to;
     to.lod = false;
     CHECK(differing(trace(*small, rays, to), trace(*big, rays, to)) == 0);
@@ -191,10 +191,10 @@ TEST_CASE("lod: voxel hits keep the quality factor's error bound", "[lod]") {
   auto m = lod::Model::open(b.model, cache_options(2));
   const Box& box = b.acc->bounds();
   const double scale = std::max({box.hi.x - box.lo.x, box.hi.y - box.lo.y, box.hi.z - box.lo.z});
-  // primary rays: pixel cones of a 256-pixel-high image of the default camera (60 degrees);
+  // primary rays: pixel cones of a 64-pixel-high image of the default camera (60 degrees);
   // diffuse rays: the footprint at their origin (a pixel's at the camera's distance) widened by a
   // diffuse lobe's spread
-  const float pixel = static_cast<float>(2 * std::tan(30.0 * M_PI / 180) / 256);
+  const float pixel = static_cast<float>(2 * std::tan(30.0 * M_PI / 180) / 64);
   struct Case {
     RayKind kind;
     lod::RayCone cone;

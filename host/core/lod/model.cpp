@@ -124,7 +124,7 @@ public:
       if (pending.empty()) return;
 
       const std::uint64_t loads_before = cache_.stats().loads;
-      cache_.fetch_requested(!opt.lod);
+      load_requested(!opt.lod);
       const bool loaded = cache_.stats().loads != loads_before;
       if (completed > 0) {
         idle_rounds = 0;
@@ -140,9 +140,11 @@ public:
       // one ray (or no block to load) and still no answer
       if (!opt.lod) {
         const std::vector<std::uint32_t> damaged = cache_.damaged();
-        if (!damaged.empty())
-          throw Error(cache_.path() + ": block " + std::to_string(damaged.front()) +
-                      " is damaged (its checksum failed): full detail cannot be traced through it");
+        if (!damaged.empty()) {
+          const std::string why = cache_.damage(damaged.front());
+          throw Error((why.empty() ? cache_.path() + ": block " + std::to_string(damaged.front()) + " is damaged" : why) +
+                      ": full detail cannot be traced through it");
+        }
         throw Error(cache_.path() + ": the budget of " + std::to_string(cache_.stats().budget) +
                     " bytes is too small to trace at full detail: ray " + std::to_string(pending.front()) +
                     " needs more blocks at once than fit beside the pinned ones (" + std::to_string(info_.pinned_bytes) +
@@ -268,6 +270,24 @@ private:
         }
       }
     });
+  }
+
+  // Loads the blocks the deferred rays asked for. A round ends a frame of the cache (end_frame:
+  // in synchronous mode fetch_requested, otherwise the I/O threads, waited for): the blocks the
+  // round used are then the most recently used, so making room evicts the blocks of rays already
+  // answered before those of the rays still waiting (within one frame every block has the same
+  // stamp and the retraced rays evicted each other's blocks). At full detail a block found
+  // damaged is an Error naming it.
+  void load_requested(bool throw_on_damage) {
+    const std::size_t damaged_before = cache_.damaged().size();
+    cache_.end_frame();
+    cache_.wait_idle();
+    if (!throw_on_damage) return;
+    const std::vector<std::uint32_t> d = cache_.damaged();
+    if (d.size() > damaged_before) {
+      const std::string why = cache_.damage(d[damaged_before]);
+      throw Error(why.empty() ? cache_.path() + ": block " + std::to_string(d[damaged_before]) + " is damaged" : why);
+    }
   }
 
   // Block b resident, loading it (and the blocks above it) synchronously; the pointer is valid
