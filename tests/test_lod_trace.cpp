@@ -11,6 +11,7 @@
 #include <cstring>
 
 #include "helpers.h"
+#include "host/core/lod/format.h"
 #include "host/tools/check.h"
 #include "host/tools/lod_check.h"
 #include "host/tools/raygen.h"
@@ -244,4 +245,38 @@ TEST_CASE("lod: voxel hits keep the quality factor's error bound", "[lod]") {
     q0.quality = 0;
     CHECK(differing(trace(*m, rays, q0, cones), exact) == 0);
   }
+}
+
+TEST_CASE("lod: mbvh lod check: exit 0 on a good model, 2 naming a damaged block or another source", "[lod]") {
+  using mbvh_test::run_cli;
+  mbvh_test::TempDir tmp;
+  const std::string m = tmp.file("s.mlod");
+  REQUIRE(run_cli("lod build gen:sphere:48 -o " + m + " --block 16K --threads 2").code == 0);
+  const auto ok = run_cli("lod check " + m + " --against gen:sphere:48 --kinds primary,inside,shadow --count 3000 --threads 2", "", 300);
+  INFO(ok.output);
+  CHECK(ok.code == 0);
+  CHECK(ok.output.find("result: zero genuine mismatches, no leak") != std::string::npos);
+  CHECK(ok.output.find("leaks (valid rays from inside the closed mesh that hit nothing): 0") != std::string::npos);
+  CHECK(ok.output.find("(100.0000 %)") != std::string::npos);
+  // another source: refused before any tracing, naming both
+  const auto other = run_cli("lod check " + m + " --against gen:sphere:40 --count 100", "", 300);
+  INFO(other.output);
+  CHECK(other.code == 2);
+  CHECK(other.output.find("was built from another source") != std::string::npos);
+  // a flipped byte in a block that is not pinned: named at full detail, exit 2
+  std::string bytes = mbvh_test::bytes_of(m);
+  lod::format::FileHeader h;
+  std::memcpy(&h, bytes.data(), sizeof h);
+  std::vector<lod::format::DirEntry> dir(h.blocks);
+  std::memcpy(dir.data(), bytes.data() + h.directory_offset, dir.size() * sizeof(lod::format::DirEntry));
+  std::uint32_t victim = UINT32_MAX;
+  for (std::uint32_t b = 0; b < dir.size(); ++b)
+    if (!(dir[b].flags & lod::format::kDirPinned)) victim = b;  // the last: a fine block some ray needs
+  REQUIRE(victim != UINT32_MAX);
+  bytes[dir[victim].offset + dir[victim].stored_bytes / 2] ^= 0x5a;
+  const std::string bad = tmp.write("bad.mlod", bytes);
+  const auto damaged = run_cli("lod check " + bad + " --against gen:sphere:48 --kinds random,inside --count 20000 --threads 2", "", 300);
+  INFO(damaged.output);
+  CHECK(damaged.code == 2);
+  CHECK(damaged.output.find("block " + std::to_string(victim)) != std::string::npos);
 }
