@@ -219,7 +219,7 @@ TEST_CASE("lod: voxel hits keep the quality factor's error bound", "[lod]") {
         const lod::Hit& v = h[i];
         const float ext = std::max({v.box.hi.x - v.box.lo.x, v.box.hi.y - v.box.lo.y, v.box.hi.z - v.box.lo.z});
         const double w = double(c.cone.width0) + double(c.cone.spread) * v.t;
-        if (!(ext <= q * (c.cone.width0 + c.cone.spread * v.t)) || !(ext <= q * w * (1 + 1e-6))) ++violations;
+        if (!(ext <= q * c.cone.width0 + (q * c.cone.spread) * v.t) || !(ext <= q * w * (1 + 1e-6))) ++violations;
         // the hit point lies on the voxel's box (its entry) and the subtree's triangles inside it,
         // so the nearest is at most the box's diagonal away: <= sqrt(3) * extent <= sqrt(3) q w(t)
         if (i % 7 != 0) continue;  // a spread subset: voxel_triangles walks the subtree

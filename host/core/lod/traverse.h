@@ -124,22 +124,46 @@ inline float child_extent(const format::Node& n, unsigned slot) {
   return ex > ey ? (ex > ez ? ex : ez) : (ey > ez ? ey : ez);
 }
 
+/// The LOD metric's per-ray constants: quality * width0 and quality * spread.
+struct LodCone {
+  float qw0 = 0, qspread = 0;
+};
+inline LodCone lod_cone(const RayCone& cone, float quality) { return {quality * cone.width0, quality * cone.spread}; }
+
 /// Whether the LOD metric accepts node n's child `slot` (with a voxel) entered at d: its box's
-/// largest extent <= quality * (width0 + spread * d), the ray cone's width there.
-inline bool lod_accepts(const format::Node& n, unsigned slot, float d, float quality, const RayCone& cone) {
-  return child_extent(n, slot) <= quality * (cone.width0 + cone.spread * d);
+/// largest extent <= quality * width0 + (quality * spread) * d, quality times the ray cone's
+/// width there (in this float arithmetic; tests repeat it).
+inline bool lod_accepts(const format::Node& n, unsigned slot, float d, const LodCone& q) {
+  return child_extent(n, slot) <= q.qw0 + q.qspread * d;
 }
 
 /// Traces one prepared ray. `cone` null: no LOD for this ray. `stack` has c.stack_entries entries.
 template <bool Any>
 inline void trace_ray(const TraceContext& c, const RayPre& r, const RayCone* cone, Entry* stack, RayAnswer& ans) {
   using namespace format;
-  Hit& best = ans.hit;
-  best = Hit{};
+  // the best candidate so far in locals (a voxel's other fields go straight to ans.hit)
+  float best_t = INFINITY, best_u = 0, best_v = 0;
+  std::uint32_t best_prim = MBVH_MISS_PRIM;
+  HitKind kind = HitKind::miss;
+  const Tri* tri = nullptr;
+  std::uint32_t tri_block = 0;
+  const auto finish = [&] {
+    if (kind != HitKind::voxel) {
+      ans.hit = Hit{};
+      ans.hit.t = best_t, ans.hit.u = best_u, ans.hit.v = best_v, ans.hit.prim = best_prim;
+      ans.hit.kind = kind;
+    }
+    ans.tri = tri;
+    ans.tri_block = tri_block;
+  };
   float tmax = r.tmax;
   const bool lod = c.lod && cone != nullptr && c.quality > 0;
-  RayCone cn{};
-  if (lod) cn = *cone;
+  LodCone cn{};
+  if (lod) cn = lod_cone(*cone, c.quality);
+  BlockCache* const cache = c.cache;
+  const bool force = c.on_missing == OnMissing::force;
+  const unsigned entries = c.stack_entries;
+  const std::uint64_t step_limit = c.step_limit;
   BlockView bv;
   bv.set(c.root_block);
   const Node* n = bv.nodes + c.root_node;
@@ -152,35 +176,38 @@ inline void trace_ray(const TraceContext& c, const RayPre& r, const RayCone* con
   for (;;) {
     if (n) {
       // -- an inner node: test both children, take voxels the metric accepts, go nearer first
-      if (++steps > c.step_limit) throw_damaged_traversal(c, bv.index, "the hierarchy has a cycle (more node visits than nodes)");
+      if (++steps > step_limit) throw_damaged_traversal(c, bv.index, "the hierarchy has a cycle (more node visits than nodes)");
       const float tcull = tmax * kCullSlack;
-      float d[2];
-      bool h[2];
-      for (unsigned s = 0; s < 2; ++s)
-        h[s] = (n->ref[s] & kRefKind) != kRefEmpty &&
-               box_test(r, n->lo[s][0], n->hi[s][0], n->lo[s][1], n->hi[s][1], n->lo[s][2], n->hi[s][2], tcull, d[s]);
-      if (lod)
+      float d0 = 0, d1 = 0;
+      bool h0 = (n->ref[0] & kRefKind) != kRefEmpty &&
+                box_test(r, n->lo[0][0], n->hi[0][0], n->lo[0][1], n->hi[0][1], n->lo[0][2], n->hi[0][2], tcull, d0);
+      bool h1 = (n->ref[1] & kRefKind) != kRefEmpty &&
+                box_test(r, n->lo[1][0], n->hi[1][0], n->lo[1][1], n->hi[1][1], n->lo[1][2], n->hi[1][2], tcull, d1);
+      if (lod) {
         for (unsigned s = 0; s < 2; ++s) {
-          if (!h[s] || (n->ref[s] & kRefKind) == kRefLeaf || n->aux[s] == kNoVoxel) continue;
-          if (!lod_accepts(*n, s, d[s], c.quality, cn)) continue;
-          h[s] = false;  // not descended: the voxel stands for the subtree
-          if (d[s] <= tmax && d[s] < best.t) {
-            voxel_hit(r, bv, *n, s, d[s], false, best);
-            ans.tri = nullptr;
-            tmax = d[s];
-            if constexpr (Any) return;
+          bool& h = s ? h1 : h0;
+          const float d = s ? d1 : d0;
+          if (!h || (n->ref[s] & kRefKind) == kRefLeaf || n->aux[s] == kNoVoxel) continue;
+          if (!lod_accepts(*n, s, d, cn)) continue;
+          h = false;  // not descended: the voxel stands for the subtree
+          if (d <= tmax && d < best_t) {
+            voxel_hit(r, bv, *n, s, d, false, ans.hit);
+            best_t = d, best_prim = MBVH_MISS_PRIM, kind = HitKind::voxel, tri = nullptr;
+            tmax = d;
+            if constexpr (Any) return finish();
           }
         }
-      if (h[0] || h[1]) {
-        unsigned s = h[0] ? 0u : 1u;
-        if (h[0] && h[1]) {
-          s = d[1] < d[0] ? 1u : 0u;
-          if (sp == c.stack_entries) throw_damaged_traversal(c, bv.index, "the hierarchy is deeper than the header's depth");
-          stack[sp++] = Entry{n, bv.base, d[1 - s], 1 - s};
+      }
+      if (h0 || h1) {
+        unsigned s = h0 ? 0u : 1u;
+        if (h0 && h1) {
+          s = d1 < d0 ? 1u : 0u;
+          if (sp == entries) throw_damaged_traversal(c, bv.index, "the hierarchy is deeper than the header's depth");
+          stack[sp++] = Entry{n, bv.base, s ? d0 : d1, 1 - s};
         }
         pn = n;
         ps = s;
-        pd = d[s];
+        pd = s ? d1 : d0;
       }
       n = nullptr;  // visit the chosen child below, or pop
     }
@@ -195,33 +222,33 @@ inline void trace_ray(const TraceContext& c, const RayPre& r, const RayCone* con
             float t, u, v;
             if (!tri_test(r, bv.tris[i], tmax, t, u, v)) continue;
             const std::uint32_t prim = tri_prim(bv.tris[i]);
-            if (t < best.t || prim < best.prim) {  // t <= best.t holds: equal t -> smaller prim id
-              best.t = t, best.u = u, best.v = v, best.prim = prim;
-              best.kind = HitKind::triangle;
-              ans.tri = bv.tris + i;
-              ans.tri_block = bv.index;
+            if (t < best_t || prim < best_prim) {  // t <= best_t holds: equal t -> smaller prim id
+              best_t = t, best_u = u, best_v = v, best_prim = prim;
+              kind = HitKind::triangle;
+              tri = bv.tris + i;
+              tri_block = bv.index;
               tmax = t;
-              if constexpr (Any) return;
+              if constexpr (Any) return finish();
             }
           }
           break;
         }
         case kRefLink: {
           const Link& l = bv.links[idx];
-          if (const std::byte* p = c.cache->get(l.block)) {
+          if (const std::byte* p = cache->get(l.block)) {
             bv.set(p);
             n = bv.nodes + l.node;
-          } else if (c.on_missing == OnMissing::force) {
+          } else if (force) {
             if (pn->aux[ps] == kNoVoxel) throw_damaged_traversal(c, bv.index, "a link child has no voxel");
-            if (pd <= tmax && pd < best.t) {
-              voxel_hit(r, bv, *pn, ps, pd, true, best);
-              ans.tri = nullptr;
+            if (pd <= tmax && pd < best_t) {
+              voxel_hit(r, bv, *pn, ps, pd, true, ans.hit);
+              best_t = pd, best_prim = MBVH_MISS_PRIM, kind = HitKind::voxel, tri = nullptr;
               tmax = pd;
-              if constexpr (Any) return;
+              if constexpr (Any) return finish();
             }
           } else {
             ans.deferred = true;
-            if constexpr (Any) return;  // the first hit of a fully resident traversal is not known yet
+            if constexpr (Any) return finish();  // the first hit of a fully resident traversal is not known yet
           }
           break;
         }
@@ -232,7 +259,7 @@ inline void trace_ray(const TraceContext& c, const RayPre& r, const RayCone* con
     }
     // -- pop, culling entries beyond the best hit
     for (;;) {
-      if (sp == 0) return;
+      if (sp == 0) return finish();
       const Entry e = stack[--sp];
       if (!Any && e.d > tmax * kCullSlack) continue;
       if (e.block != bv.base) bv.set(e.block);
