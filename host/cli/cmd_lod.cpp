@@ -51,7 +51,9 @@ int run_lod_info(const LodInfoArgs& a) {
   std::snprintf(hash, sizeof hash, "%016llx", static_cast<unsigned long long>(h.source_hash));
   say("%s: .mlod version %u (mbvh %u.%u.%u)\n", a.model.c_str(), h.version, h.library_version >> 16,
       (h.library_version >> 8) & 0xff, h.library_version & 0xff);
-  say("triangles        %s (%s in leaves; the rest degenerate)\n", count(h.triangles).c_str(), count(h.tri_records).c_str());
+  const std::uint64_t degenerate = h.triangles - h.tri_records;
+  const std::string rest = degenerate ? ", " + count(degenerate) + " degenerate: in none" : "";
+  say("triangles        %s (%s in leaves%s)\n", count(h.triangles).c_str(), count(h.tri_records).c_str(), rest.c_str());
   say("nodes            %s (voxels %s, links %s)\n", count(h.nodes).c_str(), count(h.voxels).c_str(), count(h.links).c_str());
   say("blocks           %s (treelets %s, block depth up to %u)\n", count(h.blocks).c_str(), count(h.treelets).c_str(), max_depth);
   say("depth            %u binary levels\n", h.depth);
@@ -59,9 +61,10 @@ int run_lod_info(const LodInfoArgs& a) {
       double(h.bounds[3]), double(h.bounds[4]), double(h.bounds[5]));
   say("block_bytes      %s\n", bytes(h.block_bytes).c_str());
   say("raw bytes        %s\n", bytes(h.raw_bytes).c_str());
-  say("stored bytes     %s (compression ratio %.2f, zstd)\n", bytes(stored).c_str(), ratio);
+  say("stored bytes     %s (zstd; compression ratio raw / stored %.2f)\n", bytes(stored).c_str(), ratio);
   say("file bytes       %s\n", bytes(h.file_bytes).c_str());
-  say("pinned           %s blocks, %s\n", count(h.pinned_blocks).c_str(), bytes(h.pinned_bytes).c_str());
+  say("pinned           %s block%s, %s\n", count(h.pinned_blocks).c_str(), h.pinned_blocks == 1 ? "" : "s",
+      bytes(h.pinned_bytes).c_str());
   say("minimum budget   %s (pinned + 2 x block_bytes, or the raw bytes if fewer)\n", bytes(minimum).c_str());
   say("albedos          %s\n", count(h.albedos).c_str());
   say("source hash      %s\n", hash);
