@@ -2,22 +2,94 @@
 // cmd_lod.cpp — `mbvh lod`: the out-of-core LOD model (mbvh/lod.h; docs/massive.md): `lod build`
 // writes a .mlod from any triangle source, `lod info` prints its header, `lod check`
 // (cmd_lod_check.cpp) checks its full-detail answers against the in-core reference.
+#include <sys/stat.h>
+
+#include <cctype>
+
 #include <nlohmann/json.hpp>
 
 #include "host/cli/commands.h"
 #include "host/core/lod/cache.h"
+#include "host/core/parallel.h"
 #include "host/core/resources.h"
+#include "host/tools/resident.h"
 #include "mbvh/lod.h"
 
 namespace mbvh::cli {
 
 namespace {
 
-// TODO(lod build, lod info): the builder's helper fills these in.
-Command add_lod_build(CLI::App& lod) {
-  auto* c = lod.add_subcommand("build", "build a .mlod model from SOURCE (.mtri, a scene file or a gen: spec) within --memory");
-  return {c, [] { throw Error("lod build: not built yet"); return 2; }};
+struct LodBuildArgs {
+  std::string source, out, memory, block = "256K", temp, quality = "medium";
+  int zstd_level = 3;
+  unsigned threads = 0;
+};
+
+CLI::Validator size_check() {
+  return CLI::Validator(
+      [](std::string& v) {
+        std::uint64_t b = 0;
+        return parse_size(v, b) ? std::string() : "'" + v + "' is not a size (bytes, or with a K, M, G or T suffix, e.g. 8G)";
+      },
+      "SIZE");
 }
+
+int run_lod_build(const LodBuildArgs& a) {
+  std::string lower = a.out;
+  for (char& c : lower) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  if (lower.size() < 6 || lower.compare(lower.size() - 5, 5, ".mlod") != 0)
+    throw Error("-o " + a.out + ": the output is a .mlod model and must be named NAME.mlod");
+  prepare_outputs({OutputTarget{"-o", a.out}}, {{"source", a.source}});
+  lod::BuildOptions o;
+  if (!a.memory.empty()) parse_size(a.memory, o.memory_budget);  // checked by the option's validator
+  std::uint64_t block = 0;
+  parse_size(a.block, block);
+  if (block < (16u << 10) || block > (256u << 20)) throw Error("--block " + a.block + ": a block must be 16K to 256M");
+  o.block_bytes = static_cast<unsigned>(block);
+  o.zstd_level = a.zstd_level;
+  o.temp_dir = a.temp;
+  o.threads = a.threads;
+  o.tree.quality = parse_quality(a.quality);
+  o.tree.threads = a.threads;
+  if (!a.temp.empty()) {
+    struct stat st {};
+    if (::stat(a.temp.c_str(), &st) != 0 || !S_ISDIR(st.st_mode)) throw Error("--temp " + a.temp + ": not a directory");
+  }
+  const auto src = lod::open_triangles(a.source, a.threads);
+  const lod::BuildReport r = lod::build(*src, a.out, o);
+  say("wrote %s: %llu triangles in %llu bucket%s, %llu nodes, %llu voxels, %llu treelets in %llu blocks, depth %u\n",
+      a.out.c_str(), static_cast<unsigned long long>(r.triangles), static_cast<unsigned long long>(r.buckets),
+      r.buckets == 1 ? "" : "s", static_cast<unsigned long long>(r.nodes), static_cast<unsigned long long>(r.voxels),
+      static_cast<unsigned long long>(r.treelets), static_cast<unsigned long long>(r.blocks), r.depth);
+  say("raw %s, file %s (compression %.2fx), pinned %s; %.2f s on %u threads\n", format_bytes(r.raw_bytes).c_str(),
+      format_bytes(r.file_bytes).c_str(), r.file_bytes ? static_cast<double>(r.raw_bytes) / static_cast<double>(r.file_bytes) : 0.0,
+      format_bytes(r.pinned_bytes).c_str(), r.seconds, resolve_threads(a.threads));
+  const std::int64_t peak = status_bytes("VmHWM:");
+  say("peak resident memory %s (budget %s)\n", peak < 0 ? "unknown" : format_bytes(static_cast<std::uint64_t>(peak)).c_str(),
+      o.memory_budget ? format_bytes(o.memory_budget).c_str() : "the available memory");
+  return 0;
+}
+
+Command add_lod_build(CLI::App& lod) {
+  auto a = std::make_shared<LodBuildArgs>();
+  auto* c = lod.add_subcommand("build", "build a .mlod model from SOURCE (.mtri, a scene file or a gen: spec) within --memory");
+  c->add_option("source", a->source, "a .mtri file, gen:mandelbulb:RES[:K] (streamed), or any scene file or gen: spec (loaded)")
+      ->required();
+  c->add_option("-o,--output", a->out, "the .mlod file to write")->required();
+  c->add_option("--memory", a->memory,
+                "the memory the build may hold (bytes, or K, M, G, T); beyond one in-core build the model is cut into "
+                "buckets through a temporary file (default: MBVH_MEMORY_LIMIT, else the available memory)")
+      ->check(size_check());
+  c->add_option("--block", a->block, "the largest uncompressed block (16K to 256M)")->check(size_check());
+  c->add_option("--zstd-level", a->zstd_level, "zstd level of the blocks (1 to 19)")->check(integer_in(1, 19));
+  c->add_option("--temp", a->temp, "directory of the temporary bucket file (default: the output's directory)");
+  c->add_option("--threads", a->threads, "worker threads (0 = all hardware threads); the file does not depend on it")
+      ->check(integer_in(0, kMaxThreads));
+  c->add_option("--quality", a->quality, "the buckets' builder: low (LBVH) or medium (binned SAH)")
+      ->check(CLI::IsMember({"low", "medium"}));
+  return {c, [a] { return run_lod_build(*a); }};
+}
+
 
 struct LodInfoArgs {
   std::string model, json;
