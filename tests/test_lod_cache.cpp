@@ -535,7 +535,9 @@ TEST_CASE("write the fuzz-mlod seeds", "[.lod-seeds]") {
   if (!out) return;
   mbvh_test::SynthOptions a = tree(2, 2);
   a.tris_per_leaf = 1;
-  mbvh_test::put(std::string(out) + "/tree-2-2.mlod", mbvh_test::make_mlod(a).bytes);
+  const mbvh_test::SynthModel ma = mbvh_test::make_mlod(a);
+  mbvh_test::put(std::string(out) + "/tree-2-2.mlod", ma.bytes);
+  mbvh_test::put(std::string(out) + "/raw-root-block.bin", ma.raw[0]);  // the fuzz target's check_block input
   mbvh_test::SynthOptions b;
   b.albedos = 0;
   mbvh_test::put(std::string(out) + "/root-only.mlod", mbvh_test::make_mlod(b).bytes);
