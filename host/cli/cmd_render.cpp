@@ -6,6 +6,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <filesystem>
 
 #include <nlohmann/json.hpp>
 
@@ -339,7 +340,12 @@ int run_model_render(const RenderArgs& a, const LodArgs& l, CLI::App* app) {
   return 0;
 }
 
-bool is_model(const std::string& scene) { return scene.rfind("gen:", 0) != 0 && lod::is_model_file(scene); }
+// Whether `scene` names a .mlod model: only a regular file is opened to read its magic (a FIFO
+// would block; load_scene refuses what is not a regular file with its own message).
+bool is_model(const std::string& scene) {
+  std::error_code ec;
+  return scene.rfind("gen:", 0) != 0 && std::filesystem::is_regular_file(scene, ec) && lod::is_model_file(scene);
+}
 
 int run_render(const RenderArgs& a, const LodArgs& lod, CLI::App* app) {
   if (is_model(a.scene.scene)) return run_model_render(a, lod, app);
