@@ -227,3 +227,78 @@ TEST_CASE("lod render: an asynchronous frame equals the synchronous one once loa
   // the first frame, with only the pinned blocks, needed more (else the test shows nothing)
   CHECK(ma->stats().loads > 0);
 }
+
+TEST_CASE("lod render: voxel hits shade like surfaces (finite, lit, unit normals facing the eye)", "[lod][render]") {
+  TempDir dir;
+  const std::string path = dir.file("m.mlod");
+  build_model("gen:mandelbulb:64", path, 16u << 10);
+  lod::CacheOptions co;
+  co.synchronous = true;
+  const auto model = lod::Model::open(path, co);
+  ModelRenderOptions coarse;
+  coarse.quality = 16;  // coarse voxels wherever the footprint allows
+  RenderOptions o = small_options(RenderMode::normals, 0);
+  o.has_camera = true;
+  o.camera = default_camera(model->bounds());
+  const RenderResult n = render(*model, o, coarse);
+  REQUIRE(n.voxel_hits > 0);
+  // every pixel the model covers holds 0.5 (n + 1) of a unit normal
+  std::size_t covered = 0;
+  for (std::size_t p = 0; p < n.rgb.size(); p += 3) {
+    const float x = 2 * n.rgb[p] - 1, y = 2 * n.rgb[p + 1] - 1, z = 2 * n.rgb[p + 2] - 1;
+    if (n.rgb[p] == 0 && n.rgb[p + 1] == 0 && n.rgb[p + 2] == 0) continue;
+    ++covered;
+    CHECK(std::fabs(x * x + y * y + z * z - 1) < 1e-4f);
+  }
+  CHECK(covered > 0);
+  // path mode: a finite image, and voxel points lit by the light (their shadow rays leave their box)
+  RenderOptions p = small_options(RenderMode::path, 1);
+  p.has_camera = true;
+  p.camera = o.camera;
+  ModelRenderOptions full;
+  full.lod = false;
+  const RenderResult lodded = render(*model, p, coarse), exact = render(*model, p, full);
+  REQUIRE(lodded.voxel_hits > 0);
+  double sum_lod = 0, sum_exact = 0;
+  for (float v : lodded.rgb) {
+    CHECK(std::isfinite(v));
+    sum_lod += v;
+  }
+  for (float v : exact.rgb) sum_exact += v;
+  // the same light reaches about as much of the model: within a factor 2 of full detail's
+  CHECK(sum_lod > 0.5 * sum_exact);
+  CHECK(sum_lod < 2.0 * sum_exact);
+}
+
+TEST_CASE("lod render: camera path files and orbits", "[lod][render]") {
+  TempDir dir;
+  const std::string f = dir.write("p.txt", "# a path\n\n1,2,3,0,0,0\n 4 , 5 , 6 , 0 , 1 , 0 , 45 \r\n");
+  const std::vector<Camera> c = read_camera_path(f);
+  REQUIRE(c.size() == 2);
+  CHECK(c[0].eye.x == 1.0f);
+  CHECK(c[0].fov_deg == 60.0f);
+  CHECK(c[1].target.y == 1.0f);
+  CHECK(c[1].fov_deg == 45.0f);
+  CHECK_THAT(mbvh_test::error_of([&] { read_camera_path(dir.write("a.txt", "1,2,3,0,0\n")); }),
+             Catch::Contains("a.txt:1") && Catch::Contains("5 numbers"));
+  CHECK_THAT(mbvh_test::error_of([&] { read_camera_path(dir.write("b.txt", "1,2,3,0,0,0\n1,2,3,1,2,3\n")); }),
+             Catch::Contains("b.txt:2"));
+  CHECK_THAT(mbvh_test::error_of([&] { read_camera_path(dir.write("c.txt", "1,2,3,0,0,0,nan\n")); }), Catch::Contains("c.txt:1"));
+  CHECK_THAT(mbvh_test::error_of([&] { read_camera_path(dir.write("d.txt", "# nothing\n")); }), Catch::Contains("no camera"));
+  CHECK_THAT(mbvh_test::error_of([&] { read_camera_path(dir.file("missing.txt")); }), Catch::Contains("missing.txt"));
+  Box b;
+  b.grow(Vec3f{-1, -2, -1});
+  b.grow(Vec3f{1, 2, 3});
+  const std::vector<Camera> orbit = orbit_path(b, 4);
+  REQUIRE(orbit.size() == 4);
+  CHECK(camera_argument(orbit[0]) == camera_argument(default_camera(b)));
+  const Vec3f ctr = b.center();
+  const auto radius = [&](const Camera& k) { return std::hypot(k.eye.x - ctr.x, k.eye.z - ctr.z); };
+  for (const Camera& k : orbit) {
+    CHECK(k.eye.y == orbit[0].eye.y);
+    CHECK(std::fabs(radius(k) - radius(orbit[0])) < 1e-4f * radius(orbit[0]));
+    CHECK(camera_problem(k).empty());
+  }
+  // half way round: the eye opposite the first
+  CHECK(std::fabs((orbit[2].eye.x - ctr.x) + (orbit[0].eye.x - ctr.x)) < 1e-4f);
+}
