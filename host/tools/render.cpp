@@ -3,6 +3,9 @@
 // Path mode is the thesis' workload (Áfra, 2014: an 8-bounce diffuse path tracer over ray
 // batches): every bounce traces one batch of continuation rays (closest hit) and one batch of
 // shadow rays (any hit) on the chosen backend; shading, sampling and accumulation run on the host.
+// The same renderer draws an out-of-core lod::Model (the thesis' ch. 5): tracing and the surface
+// lookup go through HitSource, whose two implementations are an in-core scene on a backend and
+// the model (rays with cones; triangle hits shade as in core, voxel hits from their face).
 #include "host/tools/render.h"
 
 #include <algorithm>
@@ -73,7 +76,15 @@ constexpr float kDiffuseSpread = 0.2f;
 // fraction of the largest coordinate magnitude of the point and of the ray's origin (about 84
 // float ulps of it): beyond the rounding of o + t*d, so the ray leaves the face it hit.
 constexpr float kVoxelOffset = 1e-5f;
-
+// ... and skip their first kVoxelSkip * quality * w, w the footprint at the hit. The hierarchy's
+// boxes overlap (a BVH's siblings do; the paper's kd-tree cells did not), so the point of a voxel
+// hit often lies inside a neighbouring voxel's box, which a ray starting there would hit at once
+// (self-occlusion: voxel surfaces too dark). A voxel the secondary ray accepts near its origin has
+// a largest extent E <= quality * (w + spread * t) and is left within sqrt(3) E: skipping
+// 3 quality w would leave every such box behind, but also drops occlusion the LOD does resolve
+// (too bright); 1 quality w, the size of the voxels the footprint accepts, keeps AO closest to
+// full detail's (docs/massive.md, "Rendering a model", has the comparison).
+constexpr float kVoxelSkip = 1.0f;
 // A closest hit as the shader sees it: the same for a triangle of an in-core scene, a triangle of a
 // lod::Model (its vertices copied while its block was resident) and a model's LOD voxel.
 struct Surface {
@@ -82,15 +93,16 @@ struct Surface {
   float t = 0, u = 0, v = 0;
   bool voxel = false;
   float origin_scale = 0;  ///< voxel: the largest coordinate magnitude of the point and the ray's origin
+  float skip = 0;          ///< voxel: the tmin of its secondary rays (kVoxelSkip), set by the renderer
 
   /// A secondary ray from this surface: spawn_ray's error-bound offset on a triangle; on a voxel
   /// the point pushed off the face by kVoxelOffset (the ray leaves its box: a direction on the
-  /// normal's side of the face never re-enters the box behind it).
+  /// normal's side of the face never re-enters the box behind it), tmin `skip`.
   Ray spawn(const Vec3f& dir, float tmax) const {
     if (!voxel) return spawn_ray(a, b, c, u, v, dir, tmax);
     const float off = kVoxelOffset * origin_scale;
     const float s = n.x * dir.x + n.y * dir.y + n.z * dir.z < 0 ? -off : off;
-    return Ray{p.x + s * n.x, p.y + s * n.y, p.z + s * n.z, 0.0f, dir.x, dir.y, dir.z, tmax};
+    return Ray{p.x + s * n.x, p.y + s * n.y, p.z + s * n.z, std::min(skip, tmax), dir.x, dir.y, dir.z, tmax};
   }
 };
 
@@ -259,8 +271,10 @@ void check_options(const RenderOptions& opt) {
 
 class Renderer {
 public:
-  /// `bounds`: the scene's (framing, light, AO radius).
-  Renderer(HitSource& src, const Box& bounds, const RenderOptions& opt) : src_(src), opt_(opt) {
+  /// `bounds`: the scene's (framing, light, AO radius); `quality`: the LOD quality of a model's
+  /// voxels (0: none), which sets how far their secondary rays skip (kVoxelSkip).
+  Renderer(HitSource& src, const Box& bounds, const RenderOptions& opt, float quality = 0)
+      : src_(src), opt_(opt), quality_(quality) {
     if (opt.has_camera) cam_ = opt.camera;
     else {
       const Framing f = frame_scene(bounds, [this](const std::vector<Ray>& rays, std::vector<Hit>& hits) { src_.probe(rays, hits); });
@@ -415,9 +429,10 @@ private:
           }
           return;
         }
-        const Surface f = src_.surface(i, rays[i]);
+        Surface f = src_.surface(i, rays[i]);
         // the footprint at the hit point: the width every secondary ray's cone starts from
         const float width = with_cones ? cones[i].width0 + cones[i].spread * f.t : 0.0f;
+        if (f.voxel) f.skip = kVoxelSkip * quality_ * width;
         const double r1 = p.rng.uniform_d(), r2 = p.rng.uniform_d();
         if (opt_.mode == RenderMode::ao) {
           shadow[i] = f.spawn(cosine_direction(f.n, r1, r2), ao_radius_);
@@ -482,6 +497,7 @@ private:
   Vec3f light_;
   float diag2_ = 1, light_power_ = 1, ao_radius_ = 1;
   float pixel_angle_ = 0;
+  float quality_ = 0;
   RenderResult res_;
   std::vector<std::uint32_t> tile_order_;  ///< tile_order(), made by run
 };
@@ -546,7 +562,7 @@ RenderResult render(lod::Model& model, const RenderOptions& opt, const ModelRend
   if (!(mo.quality >= 0) || !std::isfinite(mo.quality))
     throw Error("render: --lod-quality " + std::to_string(mo.quality) + " is not a finite number >= 0");
   ModelSource src(model, mo);
-  Renderer r(src, opt.bounds ? *opt.bounds : model.bounds(), opt);
+  Renderer r(src, opt.bounds ? *opt.bounds : model.bounds(), opt, mo.lod ? mo.quality : 0.0f);
   RenderResult res = r.run(progress);
   res.voxel_hits = src.voxel_hits;
   res.forced_voxels = src.forced_voxels;

@@ -109,7 +109,8 @@ struct ModelRenderOptions {
 /// with synchronous loading (or with `lod` false) the image is the in-core render's, byte for
 /// byte. A voxel hit shades with its face's normal turned to face the ray and its face's colour at
 /// o + t d; its secondary rays start there, pushed off the face by 1e-5 of the point's largest
-/// coordinate. Without a camera, frame_scene's probes are traced at full detail. The default
+/// coordinate, and skip their first quality x the footprint at the hit (tmin: the hierarchy's
+/// boxes overlap, so the point often lies inside a neighbouring voxel). Without a camera, frame_scene's probes are traced at full detail. The default
 /// light and AO radius come from model.bounds() (= Accel::bounds() of the same triangles). Does
 /// not call Model::end_frame (the caller ends each frame). Throws Error for an empty image, a
 /// negative or non-finite quality, or what Model::trace throws.
