@@ -4,6 +4,7 @@
 // --camera it reports the camera frame_scene chose, as a --camera argument.
 #include <algorithm>
 #include <chrono>
+#include <cfloat>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -22,6 +23,13 @@
 
 namespace mbvh::cli {
 
+// --light x,y,z: the point light instead of the default one.
+static void set_light(const std::vector<float>& l, RenderOptions& r) {
+  if (l.empty()) return;
+  r.has_light = true;
+  r.light = Vec3f{l[0], l[1], l[2]};
+}
+
 RenderOptions RenderArgs::options(const Backend& b, std::vector<float>& ref) const {
   const RenderArgs& a = *this;
   if (const std::uint64_t pixels = std::uint64_t(a.o.width) * a.o.height; pixels > fits_in_memory(kBytesPerPixel))
@@ -36,6 +44,7 @@ RenderOptions RenderArgs::options(const Backend& b, std::vector<float>& ref) con
   r.threads = a.scene.threads;
   r.precision = parse_precision(a.precision);
   set_camera(a.camera, r.has_camera, r.camera);
+  set_light(a.light, r);
   if (!a.reference.empty()) {
     unsigned w = 0, h = 0;
     ref = read_pfm(a.reference, w, h);
@@ -186,6 +195,7 @@ int run_model_render(const RenderArgs& a, const LodArgs& l, CLI::App* app) {
   o.mode = parse_render_mode(a.mode);
   o.threads = a.scene.threads;
   set_camera(a.camera, o.has_camera, o.camera);
+  set_light(a.light, o);
   std::vector<float> reference;
   if (!a.reference.empty()) {
     unsigned w = 0, h = 0;
@@ -409,6 +419,10 @@ void RenderArgs::add(CLI::App* c) {
   c->add_option("--height", o.height, "image height")->check(integer_in(1, 65536));
   c->add_option("--seed", o.seed, "seed of every random number of the image")->check(integer_in(0, UINT64_MAX));
   add_camera_option(c, camera);
+  c->add_option("--light", light, "path mode: the point light x,y,z (default: near the top of the scene's box, centred)")
+      ->delimiter(',')
+      ->expected(3)
+      ->check(number_in(-FLT_MAX, FLT_MAX, true));
   c->add_option("-o,--output", out, "PNG file ('-': standard output, not a terminal)")->required();
   c->add_option("--precision", precision, "accuracy mode: robust (default), exact or fast");
   c->add_option("--pfm", pfm, "also write the linear image as PFM (a reference for --reference)");

@@ -283,7 +283,7 @@ public:
     }
     res_.camera = cam_;
     if (const std::string p = camera_problem(cam_); !p.empty()) throw Error("render: camera: " + p);
-    light_ = default_light(bounds);
+    light_ = opt.has_light ? opt.light : default_light(bounds);
     const Vec3f e = bounds.extent();
     diag2_ = e.x * e.x + e.y * e.y + e.z * e.z;
     light_power_ = 0.08f * diag2_;  // lights the scene at about half its diagonal

@@ -31,6 +31,8 @@ struct RenderOptions {
   std::uint64_t seed = 1;
   bool has_camera = false;  ///< `camera` instead of the scene's framing (framing.h frame_scene)
   Camera camera;
+  bool has_light = false;   ///< `light` instead of default_light(bounds)
+  Vec3f light;
   Layout layout = Layout::automatic;        ///< automatic: resolved per query by the backend (resolve_options)
   Traversal traversal = Traversal::automatic;
   unsigned threads = 0;   ///< host shading threads (0 = all)
