@@ -5,7 +5,7 @@
 
     python3 bench/plot_frames.py STATS.json [OUT.png] [--title TEXT]
 
-OUT.png (default: STATS.png beside the JSON) has two panels sharing the frame axis: the frame
+OUT.png (default: STATS-frames.png beside the JSON) has two panels sharing the frame axis: the frame
 time (ms; the median and 2x the median dashed, the stutter bound of issue 35) and the bytes held
 (the cache's resident and peak bytes, the budget, and the process' VmHWM, in MiB). A line of
 summary (first frame, median, max/median, fps) goes to standard output.
@@ -27,7 +27,7 @@ def main(argv):
     if not args:
         sys.exit(__doc__)
     src = args[0]
-    out = args[1] if len(args) > 1 else os.path.splitext(src)[0] + ".png"
+    out = args[1] if len(args) > 1 else os.path.splitext(src)[0] + "-frames.png"
     with open(src) as f:
         j = json.load(f)
     frames = j.get("frames")
