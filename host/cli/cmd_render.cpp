@@ -183,8 +183,11 @@ int run_model_render(const RenderArgs& a, const LodArgs& l, CLI::App* app) {
       throw Error(std::string(name) + " does not apply to a .mlod model (" + a.scene.scene + ")");
   if (!l.camera_path.empty() && !a.camera.empty()) throw Error("--camera and --camera-path: give one of them");
   const std::vector<OutputTarget> outs{{"-o", a.out}, {"--pfm", a.pfm}, {"--stats-json", l.stats_json, true}};
-  prepare_outputs(outs, {{"scene", a.scene.scene}, {"--reference", a.reference}, {"--camera-path", l.camera_path}});
-  if (!l.out_pattern.empty()) frame_file(l.out_pattern, 0);  // checked before any work
+  // the first frame's --out-pattern file is checked with the others before any work (an input, the
+  // same as another output, a missing directory)
+  std::vector<OutputTarget> checked = outs;
+  if (!l.out_pattern.empty()) checked.push_back({"--out-pattern", frame_file(l.out_pattern, 0)});
+  prepare_outputs(checked, {{"scene", a.scene.scene}, {"--reference", a.reference}, {"--camera-path", l.camera_path}});
   if (const std::uint64_t pixels = std::uint64_t(a.o.width) * a.o.height; pixels > fits_in_memory(kBytesPerPixel))
     throw Error("--width " + std::to_string(a.o.width) + " --height " + std::to_string(a.o.height) +
                 ": the pixels do not fit in this machine's memory");
