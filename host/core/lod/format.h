@@ -97,7 +97,6 @@ struct Node {
   float hi[2][3];
   std::uint32_t ref[2];
   std::uint32_t aux[2];
-  std::uint32_t pad[2];  // 0
 };
 static_assert(sizeof(Node) == 64);
 
