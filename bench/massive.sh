@@ -12,14 +12,14 @@
 #            path twice in one run: the second lap's frames find their blocks resident).
 #   scaling  the thesis' Fig. 7 analogue: 1024x768 primary rays only (`--mode normals` traces one
 #            closest-hit batch and nothing else; path mode would add shadow rays) from one fixed
-#            camera, on gen:mandelbulb at RES 168, 320, 656, 1304, 1600, chosen with docs/massive.md's
+#            camera, on gen:mandelbulb at RES 170, 323, 660, 1302, 1600, chosen with docs/massive.md's
 #            refit T(RES) = 116.8M (RES/1024)^2.44 for the issue's 1.4M, 7M, 40M, 210M and 300M+
 #            triangles; LOD on (quality 1) at every size, LOD off (full detail) where it ends within
 #            OFF_TIMEOUT; frames with synchronous loading until warm, the last frame timed;
 #            time(T) / time(7M) for both.
 #   incore   on the same rays, in core: `mbvh render gen:mandelbulb:RES` on the cpu backend (its
-#            Mrays/s in traversal) against the model at full detail and with LOD, at RES 168 and 656
-#            (1.4M and 40M), and `mbvh bench --kinds primary` from the same camera for reference.
+#            Mrays/s in traversal) against the model at full detail and with LOD, at RES 170 and 660
+#            (1.4M and 40M: 1,418,836 and 39,958,560 triangles), and `mbvh bench --kinds primary` from the same camera for reference.
 #   summary  OUT/summary.md (tables) and the plots (frames-*.png, scaling.png) from what exists.
 #   clean    deletes the big temporary files (DIR/*.mtri, DIR/*.mlod).
 #
@@ -47,7 +47,7 @@ if [ "$SMALL" = 1 ]; then
   MEMORY=64M OFF_MEMORY=256M NEED_GB=1
 else
   BIG_RES=1600 BIG_MEMORY=8G BUILD_MEMORY=8G FRAMES=60 BIG_SIZE=512 BANDWIDTH=200000000
-  SCALING_RES="168 320 656 1304 1600" SEVEN_M=320 W=1024 H=768 INCORE_RES="168 656" OFF_MAX_RES="${OFF_MAX_RES:-1304}"
+  SCALING_RES="170 323 660 1302 1600" SEVEN_M=323 W=1024 H=768 INCORE_RES="170 660" OFF_MAX_RES="${OFF_MAX_RES:-1302}"
   MEMORY=8G OFF_MEMORY=12G NEED_GB=60
 fi
 STEPS=("$@")
