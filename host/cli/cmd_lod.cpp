@@ -5,6 +5,7 @@
 #include <sys/stat.h>
 
 #include <cctype>
+#include <chrono>
 
 #include "host/cli/commands.h"
 #include "host/core/parallel.h"
@@ -52,8 +53,21 @@ int run_lod_build(const LodBuildArgs& a) {
     struct stat st {};
     if (::stat(a.temp.c_str(), &st) != 0 || !S_ISDIR(st.st_mode)) throw Error("--temp " + a.temp + ": not a directory");
   }
+  // the time of each phase, for the report
+  std::vector<std::pair<std::string, double>> phases;
+  auto t_phase = std::chrono::steady_clock::now();
+  o.progress = [&](const std::string& phase, double) {
+    if (!phases.empty() && phases.back().first == phase) return;
+    const auto now = std::chrono::steady_clock::now();
+    if (!phases.empty()) phases.back().second = std::chrono::duration<double>(now - t_phase).count();
+    t_phase = now;
+    phases.emplace_back(phase, 0.0);
+  };
   const auto src = lod::open_triangles(a.source, a.threads);
   const lod::BuildReport r = lod::build(*src, a.out, o);
+  std::string times;
+  for (const auto& [name, s] : phases)
+    if (name != "done") times += (times.empty() ? "" : ", ") + name + " " + std::to_string(s).substr(0, std::to_string(s).find('.') + 3) + " s";
   say("wrote %s: %llu triangles in %llu bucket%s, %llu nodes, %llu voxels, %llu treelets in %llu blocks, depth %u\n",
       a.out.c_str(), static_cast<unsigned long long>(r.triangles), static_cast<unsigned long long>(r.buckets),
       r.buckets == 1 ? "" : "s", static_cast<unsigned long long>(r.nodes), static_cast<unsigned long long>(r.voxels),
@@ -61,6 +75,7 @@ int run_lod_build(const LodBuildArgs& a) {
   say("raw %s, file %s (compression %.2fx), pinned %s; %.2f s on %u threads\n", format_bytes(r.raw_bytes).c_str(),
       format_bytes(r.file_bytes).c_str(), r.file_bytes ? static_cast<double>(r.raw_bytes) / static_cast<double>(r.file_bytes) : 0.0,
       format_bytes(r.pinned_bytes).c_str(), r.seconds, resolve_threads(a.threads));
+  say("phases: %s\n", times.c_str());
   const std::int64_t peak = status_bytes("VmHWM:");
   say("peak resident memory %s (budget %s)\n", peak < 0 ? "unknown" : format_bytes(static_cast<std::uint64_t>(peak)).c_str(),
       o.memory_budget ? format_bytes(o.memory_budget).c_str() : "the available memory");

@@ -57,8 +57,9 @@ namespace fmt = format;
 
 /// Bytes one bucket build holds per triangle at its peak: the bucket's Scene (3 unshared vertices
 /// and the indices, 48 B) and prim ids (4 B), Accel::build's records and their scratch (64 B), the
-/// arenas, the flattened tree and the leaf-ordered triangles (48 B); measured (docs/massive.md).
-constexpr std::uint64_t kBucketBytesPerTriangle = 300;
+/// arenas, the flattened tree and the leaf-ordered triangles (48 B): the measured peak of a
+/// bucket's build (quality low, the larger) and a margin (docs/massive.md, "The .mlod build").
+constexpr std::uint64_t kBucketBytesPerTriangle = 240;
 /// A pass-2 record: the triangle and its prim id.
 constexpr std::size_t kRecordBytes = sizeof(SourceTri) + 4;
 /// The most triangles a .mlod holds: prim ids are 32 bits and MBVH_MISS_PRIM is none.
