@@ -459,6 +459,49 @@ TEST_CASE("lod build: refusals name the option, leave no file and no temporary",
   CHECK(dir_empty(tmp.path));
 }
 
+// A source the builder knows nothing more of than TriangleSource says: no box without a pass.
+class PlainSource final : public lod::TriangleSource {
+public:
+  explicit PlainSource(const Scene& s) : s_(s) {}
+  std::string name() const override { return "plain"; }
+  std::uint64_t count() const override { return s_.triangle_count(); }
+  std::uint64_t hash() const override { return 42; }
+  void for_each_chunk(const ChunkFn& fn) const override {
+    std::vector<SourceTri> chunk;
+    for (std::size_t i = 0; i < s_.triangle_count(); ++i) {
+      Vec3f a, b, c;
+      s_.triangle(i, a, b, c);
+      chunk.push_back({{a.x, a.y, a.z, b.x, b.y, b.z, c.x, c.y, c.z}});
+      if (chunk.size() == 1000 || i + 1 == s_.triangle_count()) {
+        fn(i + 1 - chunk.size(), chunk);
+        chunk.clear();
+      }
+    }
+  }
+
+private:
+  const Scene& s_;
+};
+
+TEST_CASE("lod build: a source without a known box gets a bounds pass, and the same blocks", "[lod]") {
+  TempDir tmp;
+  const Scene s = load_scene("gen:mandelbulb:32");
+  lod::BuildOptions o;
+  o.memory_budget = 10u << 20;
+  o.block_bytes = 16 << 10;
+  o.threads = 2;
+  o.temp_dir = tmp.path.string();
+  const lod::BuildReport a = lod::build(PlainSource(s), tmp.file("a.mlod"), o);
+  const lod::BuildReport b = lod::build(*lod::triangles_of(s), tmp.file("b.mlod"), o);
+  REQUIRE(a.buckets > 1);
+  CHECK(a.buckets == b.buckets);
+  const Parsed pa = parse(tmp.file("a.mlod")), pb = parse(tmp.file("b.mlod"));
+  CHECK(pa.h.source_hash == 42);
+  REQUIRE(pa.dir.size() == pb.dir.size());
+  for (std::size_t i = 0; i < pa.dir.size(); ++i) CHECK(pa.dir[i].checksum == pb.dir[i].checksum);
+  require_every_triangle_once(pa, s);
+}
+
 TEST_CASE("lod build: the command", "[lod][cli]") {
   TempDir tmp;
   const auto ok = run_cli("lod build gen:mandelbulb:32 -o " + tmp.file("m.mlod") + " --memory 12M --block 32K --threads 2");
@@ -476,5 +519,8 @@ TEST_CASE("lod build: the command", "[lod][cli]") {
   const auto block = run_cli("lod build gen:sphere:8 -o " + tmp.file("s.mlod") + " --block 1K");
   CHECK(block.code == 2);
   CHECK_THAT(block.output, Catch::Contains("--block"));
+  const auto temp = run_cli("lod build gen:sphere:8 -o " + tmp.file("s.mlod") + " --temp " + tmp.file("none"));
+  CHECK(temp.code == 2);
+  CHECK_THAT(temp.output, Catch::Contains("--temp"));
   CHECK_FALSE(std::filesystem::exists(tmp.file("s.mlod")));
 }
