@@ -4,10 +4,12 @@
 // (cmd_lod_check.cpp) checks its full-detail answers against the in-core reference.
 #include <sys/stat.h>
 
+#include <algorithm>
 #include <cctype>
 #include <chrono>
 
 #include "host/cli/commands.h"
+#include "host/cli/progress.h"
 #include "host/core/parallel.h"
 #include "host/core/resources.h"
 #include "host/tools/resident.h"
@@ -56,15 +58,22 @@ int run_lod_build(const LodBuildArgs& a) {
   // the time of each phase, for the report
   std::vector<std::pair<std::string, double>> phases;
   auto t_phase = std::chrono::steady_clock::now();
-  o.progress = [&](const std::string& phase, double) {
-    if (!phases.empty() && phases.back().first == phase) return;
-    const auto now = std::chrono::steady_clock::now();
-    if (!phases.empty()) phases.back().second = std::chrono::duration<double>(now - t_phase).count();
-    t_phase = now;
-    phases.emplace_back(phase, 0.0);
+  std::unique_ptr<Progress> bar;  // on a terminal: one bar a phase
+  o.progress = [&](const std::string& phase, double f) {
+    if (phases.empty() || phases.back().first != phase) {
+      const auto now = std::chrono::steady_clock::now();
+      if (!phases.empty()) phases.back().second = std::chrono::duration<double>(now - t_phase).count();
+      t_phase = now;
+      phases.emplace_back(phase, 0.0);
+      if (bar) bar->finish();
+      bar = phase == "done" ? nullptr : std::make_unique<Progress>("lod build: " + phase, 1000);
+    }
+    if (bar) bar->update(static_cast<std::size_t>(std::clamp(f, 0.0, 1.0) * 1000));
   };
   const auto src = lod::open_triangles(a.source, a.threads);
   const lod::BuildReport r = lod::build(*src, a.out, o);
+  if (bar) bar->finish();
+  bar.reset();
   std::string times;
   for (const auto& [name, s] : phases)
     if (name != "done") times += (times.empty() ? "" : ", ") + name + " " + std::to_string(s).substr(0, std::to_string(s).find('.') + 3) + " s";

@@ -905,8 +905,10 @@ BuildReport build(const TriangleSource& src, const std::string& out_path, const 
   // -- each bucket: read, built, its voxels summed, cut into blocks and written
   std::vector<Sums> bucket_sums(buckets.size());
   unsigned depth = 0;
+  std::uint64_t done_tris = 0;
   for (std::size_t k = 0; k < buckets.size(); ++k) {
-    progress("buckets", static_cast<double>(k) / static_cast<double>(buckets.size()));
+    progress("buckets", static_cast<double>(done_tris) / static_cast<double>(kept));
+    done_tris += buckets[k].count;
     Bucket& bk = buckets[k];
     Scene scene;
     scene.name = bucketed ? name + " (bucket " + std::to_string(k) + " of " + std::to_string(buckets.size()) + ")" : name;
@@ -1052,6 +1054,7 @@ BuildReport build(const TriangleSource& src, const std::string& out_path, const 
 
   // -- the top tree: boxes and voxels bottom-up (its nodes are a preorder), then its blocks
   std::uint32_t root_block = 0;
+  progress("top", 0);
   if (bucketed) {
     std::vector<Sums> ts(top.nodes.size());
     std::vector<std::uint32_t> tdepth(top.nodes.size(), 0);
