@@ -88,7 +88,7 @@ struct Grid {
     const float top = static_cast<float>((1u << bits) - 1);
     for (int a = 0; a < 3; ++a) {
       float f = (c[a] - lo[a]) * scale[a];
-      f = std::clamp(f, 0.0f, top);  // NaN-free: c is finite; a grid box that misses a centroid clamps it
+      f = f >= 0 ? std::min(f, top) : 0.0f;  // a grid box that misses a centroid clamps it
       q[a] = static_cast<std::uint32_t>(f);
     }
     return spread(q[0]) | spread(q[1]) << 1 | spread(q[2]) << 2;
@@ -638,7 +638,8 @@ BuildReport build(const TriangleSource& src, const std::string& out_path, const 
     throw Error(name + ": --memory " + bytes_str(budget) + " (" + mb.source + ") is too small: the build needs " +
                 bytes_str(reserve) + " for compressing blocks and room for a bucket of 1024 triangles; raise --memory to at least " +
                 bytes_str(reserve + 1024 * kBucketBytesPerTriangle));
-  const std::uint64_t cap = (budget - reserve) / kBucketBytesPerTriangle;  // triangles one bucket may hold
+  // triangles one bucket may hold: within the budget, and within one in-core scene
+  const std::uint64_t cap = std::min<std::uint64_t>((budget - reserve) / kBucketBytesPerTriangle, kMaxTriangles);
   // the output is checked (and its temporary made) before any pass
   StreamedOutput out(OutputTarget{"", out_path});
 
@@ -663,7 +664,8 @@ BuildReport build(const TriangleSource& src, const std::string& out_path, const 
       const float lo = gbox.empty() ? 0.0f : gbox.lo[a], hi = gbox.empty() ? 0.0f : gbox.hi[a];
       grid.lo[a] = lo;
       const float ext = hi - lo;
-      grid.scale[a] = ext > 0 && std::isfinite(ext) ? static_cast<float>(1u << grid.bits) / ext : 0.0f;
+      const float scale = ext > 0 ? static_cast<float>(1u << grid.bits) / ext : 0.0f;
+      grid.scale[a] = std::isfinite(scale) ? scale : 0.0f;
     }
   }
 
