@@ -427,6 +427,20 @@ TEST_CASE("lod build: refusals name the option, leave no file and no temporary",
   o.memory_budget = 8u << 20;
   CHECK_THAT(error_of([&] { lod::build(*lod::triangles_of(dup), out, o); }),
              Catch::Contains("dup: 20000 triangles have their centroids in one cell") && Catch::Contains("raise --memory"));
+  // with room, they build; with the depth capped at 2 the leaves hold thousands of triangles:
+  // such a leaf's node gets a block of its own, larger than --block, and the header says so
+  {
+    o.memory_budget = std::uint64_t(1) << 30;
+    o.tree.depth_cap = 2;
+    const std::string big = tmp.file("dup.mlod");
+    lod::build(*lod::triangles_of(dup), big, o);
+    const Parsed p = parse(big);
+    CHECK(p.h.block_bytes > 1000 * sizeof(Tri));
+    CHECK(p.h.block_bytes > o.block_bytes);
+    require_every_triangle_once(p, dup);
+    std::filesystem::remove(big);
+    o.tree.depth_cap = MBVH_BINARY_DEPTH_CAP;
+  }
   // a triangle too small to trace, named by its prim id
   Scene tiny = sphere;
   tiny.name = "tiny";
