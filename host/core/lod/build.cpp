@@ -273,7 +273,7 @@ class Cutter {
 public:
   // limit: the bytes a block's treelets may take (a block less its head and the padding before
   // its triangles)
-  Cutter(const Tree& t, std::uint64_t limit) : t_(t), limit_(limit), full_(t.size()) {
+  Cutter(const Tree& t, std::uint64_t limit) : t_(t), limit_(limit), full_(t.size()), local_(t.size(), kNotHere) {
     for (std::size_t i = t.size(); i-- > 0;) {  // preorder: children after their parent
       const auto n = static_cast<std::uint32_t>(i);
       std::uint64_t s = own(n);
@@ -298,7 +298,6 @@ public:
     rb.packed = full_[root] <= limit_;
     queue.push_back(std::move(rb));
     std::vector<std::uint32_t> order, frontier;
-    std::unordered_map<std::uint32_t, std::uint32_t> local;
     std::unordered_map<std::uint32_t, fmt::Link> links;
     while (!queue.empty()) {
       const PlannedBlock pb = std::move(queue.front());
@@ -310,8 +309,7 @@ public:
         if (pb.packed) whole(r, order);
         else treelet(r, order, frontier);
       }
-      local.clear();
-      for (std::size_t i = 0; i < order.size(); ++i) local[order[i]] = static_cast<std::uint32_t>(i);
+      for (std::size_t i = 0; i < order.size(); ++i) local_[order[i]] = static_cast<std::uint32_t>(i);
       // -- the frontier's blocks: a subtree that fits a block whole is packed with its
       //    neighbours, a larger one gets a block of its own
       links.clear();
@@ -342,7 +340,8 @@ public:
           queue.push_back(std::move(b));  // deque::push_back keeps `open` valid
         }
       }
-      emit(assemble(pb, order, local, links));
+      emit(assemble(pb, order, links));
+      for (const std::uint32_t n : order) local_[n] = kNotHere;
     }
     return next;
   }
@@ -392,7 +391,6 @@ private:
     }
   }
   BlockOut assemble(const PlannedBlock& pb, const std::vector<std::uint32_t>& order,
-                    const std::unordered_map<std::uint32_t, std::uint32_t>& local,
                     const std::unordered_map<std::uint32_t, fmt::Link>& links) const {
     BlockOut out;
     out.index = pb.index;
@@ -416,8 +414,8 @@ private:
           case kInner:
           case kExt: {
             if (c.kind == kInner) {
-              if (const auto it = local.find(c.index); it != local.end()) {
-                d.ref[side] = fmt::kRefInner | it->second;
+              if (const std::uint32_t at = local_[c.index]; at != kNotHere) {
+                d.ref[side] = fmt::kRefInner | at;
               } else {
                 d.ref[side] = fmt::kRefLink | static_cast<std::uint32_t>(lk.size());
                 lk.push_back(links.at(c.index));
@@ -462,9 +460,11 @@ private:
     return out;
   }
 
+  static constexpr std::uint32_t kNotHere = 0xFFFFFFFFu;
   const Tree& t_;
   std::uint64_t limit_;
-  std::vector<std::uint64_t> full_;  // bytes of each subtree as one treelet
+  std::vector<std::uint64_t> full_;   // bytes of each subtree as one treelet
+  std::vector<std::uint32_t> local_;  // a node's index in the block being assembled, else kNotHere
 };
 
 // -- compressing and writing blocks: a batch compressed on the pool, written in index order of
