@@ -16,6 +16,7 @@
 
 #include "host/core/io/mtri.h"
 #include "host/core/layouts.h"
+#include "host/core/lod/cache.h"
 #include "host/core/lod/format.h"
 #include "host/core/lod/voxel.h"
 #include "mbvh/accel.h"
@@ -338,6 +339,34 @@ TEST_CASE("lod build: bucketed within a small budget, every triangle once, the s
   const lod::BuildReport r3 = lod::build(*src, tmp.file("c.mlod"), o);
   CHECK(r3.buckets == 1);
   CHECK(parse(tmp.file("c.mlod")).h.tri_records == p.h.tri_records);
+}
+
+TEST_CASE("lod build: the block cache opens a bucketed model and loads every block, checked", "[lod]") {
+  TempDir tmp;
+  const Scene s = load_scene("gen:mandelbulb:48");
+  lod::BuildOptions o;
+  o.memory_budget = 12u << 20;
+  o.block_bytes = 16 << 10;
+  o.threads = 2;
+  o.temp_dir = tmp.path.string();
+  const lod::BuildReport r = lod::build(*lod::triangles_of(s), tmp.file("m.mlod"), o);
+  REQUIRE(r.buckets > 1);
+  lod::CacheOptions co;
+  co.memory_budget = 0;  // the whole model
+  co.io_threads = 2;
+  lod::BlockCache c(tmp.file("m.mlod"), co);
+  CHECK(c.header().blocks == r.blocks);
+  // breadth-first by directory depth: a block is requested once its parent is resident
+  const auto& dir = c.directory();
+  unsigned max_depth = 0;
+  for (const auto& d : dir) max_depth = std::max<unsigned>(max_depth, d.depth);
+  for (unsigned depth = 1; depth <= max_depth; ++depth) {
+    for (std::uint32_t b = 0; b < dir.size(); ++b)
+      if (dir[b].depth == depth) c.get(b);
+    CHECK(c.fetch_requested(true));  // check_block on every block: throws naming a broken one
+  }
+  for (std::uint32_t b = 0; b < dir.size(); ++b) CHECK(c.get(b) != nullptr);
+  CHECK(c.damaged().empty());
 }
 
 TEST_CASE("lod build: voxel faces on a sphere face out of the sphere, coloured by the materials", "[lod]") {
