@@ -4,7 +4,8 @@
 //
 // 1. Pass 1 streams the source once: the checks Accel::build makes (finite, not too small, in the
 //    traced range), the non-degenerate triangles' bounds (= Accel::bounds()) and a histogram of
-//    their centroids on a Morton grid (Morton 1966; Wald et al.'s bucketing of out-of-core builds).
+//    their centroids on a Morton grid (Morton 1966; the order LBVH builds sort by, Lauterbach et
+//    al. 2009).
 // 2. The Morton range is split by its top bits (halving along x, y, z in turn) until every part
 //    holds no more triangles than one in-core build can take within the budget: the parts are the
 //    buckets, the splits the top tree over them. A model that fits whole is one bucket, read
@@ -27,7 +28,6 @@
 #include <zstd.h>
 
 #include <algorithm>
-#include <bit>
 #include <cerrno>
 #include <chrono>
 #include <cmath>
