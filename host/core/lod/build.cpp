@@ -634,10 +634,14 @@ BuildReport build(const TriangleSource& src, const std::string& out_path, const 
                                                                                  : std::string("."));
   // what the build holds besides its buckets: the compression batch, the directory and the plan
   const std::uint64_t reserve = (std::uint64_t(4) << 20) + BlockWriter::memory(opt.block_bytes, opt.zstd_level);
+  // how messages name the budget, and a size to ask for (whole MiB, rounded up)
+  const std::string budget_name = opt.memory_budget ? "--memory " + bytes_str(budget)
+                                                    : "the memory budget " + bytes_str(budget) + " (" + mb.source + ")";
+  auto at_least = [](std::uint64_t b) { return bytes_str((b + (1u << 20) - 1) / (1u << 20) * (1u << 20)); };
   if (budget <= reserve + 1024 * kBucketBytesPerTriangle)
-    throw Error(name + ": --memory " + bytes_str(budget) + " (" + mb.source + ") is too small: the build needs " +
-                bytes_str(reserve) + " for compressing blocks and room for a bucket of 1024 triangles; raise --memory to at least " +
-                bytes_str(reserve + 1024 * kBucketBytesPerTriangle));
+    throw Error(name + ": " + budget_name + " is too small: the build needs " + bytes_str(reserve) +
+                " to compress blocks (8 at a time) and room for a bucket of 1024 triangles; raise --memory to at least " +
+                at_least(reserve + 1024 * kBucketBytesPerTriangle + 1));
   // triangles one bucket may hold: within the budget, and within one in-core scene
   const std::uint64_t cap = std::min<std::uint64_t>((budget - reserve) / kBucketBytesPerTriangle, kMaxTriangles);
   // the output is checked (and its temporary made) before any pass
@@ -791,8 +795,8 @@ BuildReport build(const TriangleSource& src, const std::string& out_path, const 
       std::snprintf(where, sizeof where, " (around %.6g, %.6g, %.6g)", double(p.x), double(p.y), double(p.z));
       throw Error(name + ": " + std::to_string(n) + " triangles have their centroids in one cell of the " +
                   std::to_string(1u << grid.bits) + "^3 bucketing grid" + where + ", more than the " + std::to_string(cap) +
-                  " one bucket holds within --memory " + bytes_str(budget) + "; raise --memory to at least " +
-                  bytes_str(reserve + n * kBucketBytesPerTriangle));
+                  " one bucket holds within " + budget_name + "; raise --memory to at least " +
+                  at_least(reserve + n * kBucketBytesPerTriangle));
     }
     // a split with an empty side is no node: the other side takes its place
     const std::uint64_t nl = count_of(b, b + size / 2);
@@ -860,7 +864,7 @@ BuildReport build(const TriangleSource& src, const std::string& out_path, const 
     std::uint64_t per = std::min<std::uint64_t>(std::uint64_t(1) << 20, room / 2 / buckets.size());
     per = per / kRecordBytes * kRecordBytes;
     if (per < 64 * kRecordBytes)
-      throw Error(name + ": " + std::to_string(buckets.size()) + " buckets need more buffers than --memory " + bytes_str(budget) +
+      throw Error(name + ": " + std::to_string(buckets.size()) + " buckets need more buffers than " + budget_name +
                   " leaves; raise --memory");
     std::vector<std::uint32_t> starts(buckets.size());
     for (std::size_t k = 0; k < buckets.size(); ++k) starts[k] = buckets[k].begin;
