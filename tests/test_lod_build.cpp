@@ -297,7 +297,8 @@ TEST_CASE("lod build: an in-core model (one bucket), read back with format.h", "
   CHECK(top > p.h.tri_records / 2);
 }
 
-TEST_CASE("lod build: bucketed within a small budget, every triangle once, the same bytes at 1 and 2 threads", "[lod]") {
+TEST_CASE("lod build: bucketed within a small budget, every triangle once, the same bytes at 1 and 2 threads",
+          "[lod]") {
   TempDir tmp;
   const std::string mtri = tmp.file("m.mtri");
   const MtriWritten w = write_mtri("gen:mandelbulb:64", OutputTarget{"", mtri}, 2);
@@ -412,7 +413,7 @@ TEST_CASE("lod build: voxel faces on a sphere face out of the sphere, coloured b
       const Vec3f n = lod::decode_normal(v.v.face[f] & 0xffff);
       const float dot = turn * (n.x * d.x + n.y * d.y + n.z * d.z);
       ++checked;
-      if (dot < 0.9f) ++bad;  // within 26 degrees
+      if (dot < 0.9f) ++bad;        // within 26 degrees
       REQUIRE(n[axis] * sign > 0);  // a face's normal always points out of it
       const Vec3f col = lod::decode_rgb565(v.v.face[f] >> 16);
       const bool upper = v.box.lo.z > c.z, lower = v.box.hi.z < c.z;
@@ -454,8 +455,9 @@ TEST_CASE("lod build: refusals name the option, leave no file and no temporary",
     dup.triangles.push_back({v, v + 1, v + 2});
   }
   o.memory_budget = 8u << 20;
-  CHECK_THAT(error_of([&] { lod::build(*lod::triangles_of(dup), out, o); }),
-             Catch::Contains("dup: 20000 triangles have their centroids in one cell") && Catch::Contains("raise --memory"));
+  CHECK_THAT(
+      error_of([&] { lod::build(*lod::triangles_of(dup), out, o); }),
+      Catch::Contains("dup: 20000 triangles have their centroids in one cell") && Catch::Contains("raise --memory"));
   // with room, they build; with the depth capped at 2 the leaves hold thousands of triangles:
   // such a leaf's node gets a block of its own, larger than --block, and the header says so
   {
@@ -496,7 +498,8 @@ TEST_CASE("lod build: refusals name the option, leave no file and no temporary",
   bytes[200] ^= 1;
   mbvh_test::put(mtri, bytes);
   o.tree.quality = BuildQuality::medium;
-  CHECK_THAT(error_of([&] { lod::build(*lod::open_triangles(mtri), out, o); }), Catch::Contains("block 0") && Catch::Contains("damaged"));
+  CHECK_THAT(error_of([&] { lod::build(*lod::open_triangles(mtri), out, o); }),
+             Catch::Contains("block 0") && Catch::Contains("damaged"));
   CHECK_FALSE(std::filesystem::exists(out));
   std::filesystem::remove(mtri);
   CHECK(dir_empty(tmp.path));
@@ -504,7 +507,7 @@ TEST_CASE("lod build: refusals name the option, leave no file and no temporary",
 
 // A source the builder knows nothing more of than TriangleSource says: no box without a pass.
 class PlainSource final : public lod::TriangleSource {
-public:
+ public:
   explicit PlainSource(const Scene& s) : s_(s) {}
   std::string name() const override { return "plain"; }
   std::uint64_t count() const override { return s_.triangle_count(); }
@@ -522,7 +525,7 @@ public:
     }
   }
 
-private:
+ private:
   const Scene& s_;
 };
 
@@ -547,10 +550,11 @@ TEST_CASE("lod build: a source without a known box gets a bounds pass, and the s
 
 TEST_CASE("lod build: the command", "[lod][cli]") {
   TempDir tmp;
-  const auto ok = run_cli("lod build gen:mandelbulb:32 -o " + tmp.file("m.mlod") + " --memory 12M --block 32K --threads 2");
+  const auto ok =
+      run_cli("lod build gen:mandelbulb:32 -o " + tmp.file("m.mlod") + " --memory 12M --block 32K --threads 2");
   CHECK(ok.code == 0);
-  CHECK_THAT(ok.output, Catch::Contains("triangles in") && Catch::Contains("buckets") && Catch::Contains("peak resident memory") &&
-                            Catch::Contains("compression"));
+  CHECK_THAT(ok.output, Catch::Contains("triangles in") && Catch::Contains("buckets") &&
+                            Catch::Contains("peak resident memory") && Catch::Contains("compression"));
   const Parsed p = parse(tmp.file("m.mlod"));
   CHECK(p.h.blocks > 1);
   const auto named = run_cli("lod build gen:sphere:8 -o " + tmp.file("m.obj"));

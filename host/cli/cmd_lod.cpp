@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <cctype>
 #include <chrono>
+#include <cstdio>
 
 #include <nlohmann/json.hpp>
 
@@ -79,7 +80,11 @@ int run_lod_build(const LodBuildArgs& a) {
   bar.reset();
   std::string times;
   for (const auto& [name, s] : phases)
-    if (name != "done") times += (times.empty() ? "" : ", ") + name + " " + std::to_string(s).substr(0, std::to_string(s).find('.') + 3) + " s";
+    if (name != "done") {
+      char t[64];
+      std::snprintf(t, sizeof t, "%.2f s", s);
+      times += (times.empty() ? "" : ", ") + name + " " + t;
+    }
   say("wrote %s: %llu triangles in %llu bucket%s, %llu nodes, %llu voxels, %llu treelets in %llu blocks, depth %u\n",
       a.out.c_str(), static_cast<unsigned long long>(r.triangles), static_cast<unsigned long long>(r.buckets),
       r.buckets == 1 ? "" : "s", static_cast<unsigned long long>(r.nodes), static_cast<unsigned long long>(r.voxels),
