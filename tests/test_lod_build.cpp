@@ -16,6 +16,7 @@
 
 #include "host/core/io/mtri.h"
 #include "host/core/layouts.h"
+#include "host/core/lod/cache.h"
 #include "host/core/lod/format.h"
 #include "host/core/lod/voxel.h"
 #include "mbvh/accel.h"
@@ -296,7 +297,8 @@ TEST_CASE("lod build: an in-core model (one bucket), read back with format.h", "
   CHECK(top > p.h.tri_records / 2);
 }
 
-TEST_CASE("lod build: bucketed within a small budget, every triangle once, the same bytes at 1 and 2 threads", "[lod]") {
+TEST_CASE("lod build: bucketed within a small budget, every triangle once, the same bytes at 1 and 2 threads",
+          "[lod]") {
   TempDir tmp;
   const std::string mtri = tmp.file("m.mtri");
   const MtriWritten w = write_mtri("gen:mandelbulb:64", OutputTarget{"", mtri}, 2);
@@ -338,6 +340,34 @@ TEST_CASE("lod build: bucketed within a small budget, every triangle once, the s
   const lod::BuildReport r3 = lod::build(*src, tmp.file("c.mlod"), o);
   CHECK(r3.buckets == 1);
   CHECK(parse(tmp.file("c.mlod")).h.tri_records == p.h.tri_records);
+}
+
+TEST_CASE("lod build: the block cache opens a bucketed model and loads every block, checked", "[lod]") {
+  TempDir tmp;
+  const Scene s = load_scene("gen:mandelbulb:48");
+  lod::BuildOptions o;
+  o.memory_budget = 12u << 20;
+  o.block_bytes = 16 << 10;
+  o.threads = 2;
+  o.temp_dir = tmp.path.string();
+  const lod::BuildReport r = lod::build(*lod::triangles_of(s), tmp.file("m.mlod"), o);
+  REQUIRE(r.buckets > 1);
+  lod::CacheOptions co;
+  co.memory_budget = 0;  // the whole model
+  co.io_threads = 2;
+  lod::BlockCache c(tmp.file("m.mlod"), co);
+  CHECK(c.header().blocks == r.blocks);
+  // breadth-first by directory depth: a block is requested once its parent is resident
+  const auto& dir = c.directory();
+  unsigned max_depth = 0;
+  for (const auto& d : dir) max_depth = std::max<unsigned>(max_depth, d.depth);
+  for (unsigned depth = 1; depth <= max_depth; ++depth) {
+    for (std::uint32_t b = 0; b < dir.size(); ++b)
+      if (dir[b].depth == depth) c.get(b);
+    CHECK(c.fetch_requested(true));  // check_block on every block: throws naming a broken one
+  }
+  for (std::uint32_t b = 0; b < dir.size(); ++b) CHECK(c.get(b) != nullptr);
+  CHECK(c.damaged().empty());
 }
 
 TEST_CASE("lod build: voxel faces on a sphere face out of the sphere, coloured by the materials", "[lod]") {
@@ -383,7 +413,7 @@ TEST_CASE("lod build: voxel faces on a sphere face out of the sphere, coloured b
       const Vec3f n = lod::decode_normal(v.v.face[f] & 0xffff);
       const float dot = turn * (n.x * d.x + n.y * d.y + n.z * d.z);
       ++checked;
-      if (dot < 0.9f) ++bad;  // within 26 degrees
+      if (dot < 0.9f) ++bad;        // within 26 degrees
       REQUIRE(n[axis] * sign > 0);  // a face's normal always points out of it
       const Vec3f col = lod::decode_rgb565(v.v.face[f] >> 16);
       const bool upper = v.box.lo.z > c.z, lower = v.box.hi.z < c.z;
@@ -425,8 +455,23 @@ TEST_CASE("lod build: refusals name the option, leave no file and no temporary",
     dup.triangles.push_back({v, v + 1, v + 2});
   }
   o.memory_budget = 8u << 20;
-  CHECK_THAT(error_of([&] { lod::build(*lod::triangles_of(dup), out, o); }),
-             Catch::Contains("dup: 20000 triangles have their centroids in one cell") && Catch::Contains("raise --memory"));
+  CHECK_THAT(
+      error_of([&] { lod::build(*lod::triangles_of(dup), out, o); }),
+      Catch::Contains("dup: 20000 triangles have their centroids in one cell") && Catch::Contains("raise --memory"));
+  // with room, they build; with the depth capped at 2 the leaves hold thousands of triangles:
+  // such a leaf's node gets a block of its own, larger than --block, and the header says so
+  {
+    o.memory_budget = std::uint64_t(1) << 30;
+    o.tree.depth_cap = 2;
+    const std::string big = tmp.file("dup.mlod");
+    lod::build(*lod::triangles_of(dup), big, o);
+    const Parsed p = parse(big);
+    CHECK(p.h.block_bytes > 1000 * sizeof(Tri));
+    CHECK(p.h.block_bytes > o.block_bytes);
+    require_every_triangle_once(p, dup);
+    std::filesystem::remove(big);
+    o.tree.depth_cap = MBVH_BINARY_DEPTH_CAP;
+  }
   // a triangle too small to trace, named by its prim id
   Scene tiny = sphere;
   tiny.name = "tiny";
@@ -453,18 +498,63 @@ TEST_CASE("lod build: refusals name the option, leave no file and no temporary",
   bytes[200] ^= 1;
   mbvh_test::put(mtri, bytes);
   o.tree.quality = BuildQuality::medium;
-  CHECK_THAT(error_of([&] { lod::build(*lod::open_triangles(mtri), out, o); }), Catch::Contains("block 0") && Catch::Contains("damaged"));
+  CHECK_THAT(error_of([&] { lod::build(*lod::open_triangles(mtri), out, o); }),
+             Catch::Contains("block 0") && Catch::Contains("damaged"));
   CHECK_FALSE(std::filesystem::exists(out));
   std::filesystem::remove(mtri);
   CHECK(dir_empty(tmp.path));
 }
 
+// A source the builder knows nothing more of than TriangleSource says: no box without a pass.
+class PlainSource final : public lod::TriangleSource {
+ public:
+  explicit PlainSource(const Scene& s) : s_(s) {}
+  std::string name() const override { return "plain"; }
+  std::uint64_t count() const override { return s_.triangle_count(); }
+  std::uint64_t hash() const override { return 42; }
+  void for_each_chunk(const ChunkFn& fn) const override {
+    std::vector<SourceTri> chunk;
+    for (std::size_t i = 0; i < s_.triangle_count(); ++i) {
+      Vec3f a, b, c;
+      s_.triangle(i, a, b, c);
+      chunk.push_back({{a.x, a.y, a.z, b.x, b.y, b.z, c.x, c.y, c.z}});
+      if (chunk.size() == 1000 || i + 1 == s_.triangle_count()) {
+        fn(i + 1 - chunk.size(), chunk);
+        chunk.clear();
+      }
+    }
+  }
+
+ private:
+  const Scene& s_;
+};
+
+TEST_CASE("lod build: a source without a known box gets a bounds pass, and the same blocks", "[lod]") {
+  TempDir tmp;
+  const Scene s = load_scene("gen:mandelbulb:32");
+  lod::BuildOptions o;
+  o.memory_budget = 10u << 20;
+  o.block_bytes = 16 << 10;
+  o.threads = 2;
+  o.temp_dir = tmp.path.string();
+  const lod::BuildReport a = lod::build(PlainSource(s), tmp.file("a.mlod"), o);
+  const lod::BuildReport b = lod::build(*lod::triangles_of(s), tmp.file("b.mlod"), o);
+  REQUIRE(a.buckets > 1);
+  CHECK(a.buckets == b.buckets);
+  const Parsed pa = parse(tmp.file("a.mlod")), pb = parse(tmp.file("b.mlod"));
+  CHECK(pa.h.source_hash == 42);
+  REQUIRE(pa.dir.size() == pb.dir.size());
+  for (std::size_t i = 0; i < pa.dir.size(); ++i) CHECK(pa.dir[i].checksum == pb.dir[i].checksum);
+  require_every_triangle_once(pa, s);
+}
+
 TEST_CASE("lod build: the command", "[lod][cli]") {
   TempDir tmp;
-  const auto ok = run_cli("lod build gen:mandelbulb:32 -o " + tmp.file("m.mlod") + " --memory 12M --block 32K --threads 2");
+  const auto ok =
+      run_cli("lod build gen:mandelbulb:32 -o " + tmp.file("m.mlod") + " --memory 12M --block 32K --threads 2");
   CHECK(ok.code == 0);
-  CHECK_THAT(ok.output, Catch::Contains("triangles in") && Catch::Contains("buckets") && Catch::Contains("peak resident memory") &&
-                            Catch::Contains("compression"));
+  CHECK_THAT(ok.output, Catch::Contains("triangles in") && Catch::Contains("buckets") &&
+                            Catch::Contains("peak resident memory") && Catch::Contains("compression"));
   const Parsed p = parse(tmp.file("m.mlod"));
   CHECK(p.h.blocks > 1);
   const auto named = run_cli("lod build gen:sphere:8 -o " + tmp.file("m.obj"));
@@ -476,5 +566,8 @@ TEST_CASE("lod build: the command", "[lod][cli]") {
   const auto block = run_cli("lod build gen:sphere:8 -o " + tmp.file("s.mlod") + " --block 1K");
   CHECK(block.code == 2);
   CHECK_THAT(block.output, Catch::Contains("--block"));
+  const auto temp = run_cli("lod build gen:sphere:8 -o " + tmp.file("s.mlod") + " --temp " + tmp.file("none"));
+  CHECK(temp.code == 2);
+  CHECK_THAT(temp.output, Catch::Contains("--temp"));
   CHECK_FALSE(std::filesystem::exists(tmp.file("s.mlod")));
 }

@@ -14,6 +14,7 @@
 #include <thread>
 
 #include "host/core/lod/cache.h"
+#include "mbvh/lod.h"
 #include "mbvh/error.h"
 #include "tests/helpers.h"
 #include "tests/lod_fixture.h"
@@ -529,13 +530,74 @@ TEST_CASE("lod info: the header's counts and sizes, as text and JSON; a damaged 
 }
 
 // Writes the fuzz target's seeds (tests/fuzz/corpus/mlod) when MBVH_LOD_SEED_DIR is set.
-TEST_CASE("lod cache: fuzz seeds", "[.lod-seeds]") {
+TEST_CASE("write the fuzz-mlod seeds", "[.lod-seeds]") {
   const char* out = std::getenv("MBVH_LOD_SEED_DIR");
-  REQUIRE(out);
+  if (!out) return;
   mbvh_test::SynthOptions a = tree(2, 2);
   a.tris_per_leaf = 1;
-  mbvh_test::put(std::string(out) + "/tree-2-2.mlod", mbvh_test::make_mlod(a).bytes);
+  const mbvh_test::SynthModel ma = mbvh_test::make_mlod(a);
+  mbvh_test::put(std::string(out) + "/tree-2-2.mlod", ma.bytes);
+  mbvh_test::put(std::string(out) + "/raw-root-block.bin", ma.raw[0]);  // the fuzz target's check_block input
   mbvh_test::SynthOptions b;
   b.albedos = 0;
   mbvh_test::put(std::string(out) + "/root-only.mlod", mbvh_test::make_mlod(b).bytes);
+}
+
+// -- on a model the builder made (host/core/lod/build.cpp)
+
+TEST_CASE("lod cache: a built model: every block loads and passes check_block; the header's counts are the blocks' sums", "[lod]") {
+  TempDir dir;
+  const auto src = lod::open_triangles("gen:mandelbulb:48", 2);
+  lod::BuildOptions bo;
+  bo.memory_budget = 12u << 20;  // bucketed
+  bo.block_bytes = 16 << 10;
+  bo.threads = 2;
+  bo.temp_dir = dir.path.string();
+  const std::string path = dir.file("m.mlod");
+  const lod::BuildReport rep = lod::build(*src, path, bo);
+  REQUIRE(rep.blocks > 20);
+  const ModelFile f = read_model_file(path);
+  const FileHeader& h = f.header;
+  CHECK(h.blocks == rep.blocks);
+  CHECK(h.pinned_bytes == rep.pinned_bytes);
+  {  // budget 0: everything, coarse first
+    BlockCache c(path, budgeted(0));
+    for (unsigned round = 0; round <= 64; ++round) {
+      bool all = true;
+      for (std::uint32_t b = 0; b < h.blocks; ++b) all = c.get(b) && all;
+      if (all) break;
+      c.fetch_requested(true);
+    }
+    std::uint64_t nodes = 0, voxels = 0, links = 0, treelets = 0, tris = 0;
+    for (std::uint32_t b = 0; b < h.blocks; ++b) {
+      const std::byte* p = c.get(b);
+      REQUIRE(p);
+      BlockHead hd;
+      std::memcpy(&hd, p, sizeof hd);
+      nodes += hd.nodes, voxels += hd.voxels, links += hd.links, treelets += hd.treelets, tris += hd.tris;
+    }
+    CHECK(nodes == h.nodes);
+    CHECK(voxels == h.voxels);
+    CHECK(links == h.links);
+    CHECK(treelets == h.treelets);
+    CHECK(tris == h.tri_records);
+    CHECK(links + 1 == treelets);  // every treelet but the root's is reached by one link
+    CHECK(c.damaged().empty());
+    CHECK(c.stats().resident_bytes == h.raw_bytes);
+    CHECK(c.stats().peak_bytes == h.raw_bytes);
+  }
+  {  // a small budget, random walks in a window that moves over the blocks, as a camera would
+    const std::uint64_t budget = minimum_budget(h) + 4 * h.block_bytes;
+    BlockCache c(path, budgeted(budget));
+    std::mt19937 rng(3);
+    for (int frame = 0; frame < 40; ++frame) {
+      const std::uint64_t centre = std::uint64_t(frame) * h.blocks / 40;
+      for (int i = 0; i < 30; ++i) walk_to(c, static_cast<std::uint32_t>((centre + rng() % 6) % h.blocks));
+      c.end_frame();
+      c.wait_idle();
+      require_rules(c);
+    }
+    CHECK(c.stats().evictions > 0);
+    CHECK(c.stats().peak_bytes <= budget);
+  }
 }

@@ -27,7 +27,7 @@ struct RenderArgs {
   std::string backend = "cpu", layout = "auto", traversal = "auto", mode = "path", out;
   std::string precision = "robust", pfm, reference, curve;
   RenderOptions o;
-  std::vector<float> camera;
+  std::vector<float> camera, light;
   void add(CLI::App* c);
   /// The render options of these arguments, resolved for `backend` (auto: its fastest closest-hit
   /// pair), and --reference read into `reference`.

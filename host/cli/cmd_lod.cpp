@@ -4,11 +4,15 @@
 // (cmd_lod_check.cpp) checks its full-detail answers against the in-core reference.
 #include <sys/stat.h>
 
+#include <algorithm>
 #include <cctype>
+#include <chrono>
+#include <cstdio>
 
 #include <nlohmann/json.hpp>
 
 #include "host/cli/commands.h"
+#include "host/cli/progress.h"
 #include "host/core/lod/cache.h"
 #include "host/core/parallel.h"
 #include "host/core/resources.h"
@@ -55,8 +59,32 @@ int run_lod_build(const LodBuildArgs& a) {
     struct stat st {};
     if (::stat(a.temp.c_str(), &st) != 0 || !S_ISDIR(st.st_mode)) throw Error("--temp " + a.temp + ": not a directory");
   }
+  // the time of each phase, for the report
+  std::vector<std::pair<std::string, double>> phases;
+  auto t_phase = std::chrono::steady_clock::now();
+  std::unique_ptr<Progress> bar;  // on a terminal: one bar a phase
+  o.progress = [&](const std::string& phase, double f) {
+    if (phases.empty() || phases.back().first != phase) {
+      const auto now = std::chrono::steady_clock::now();
+      if (!phases.empty()) phases.back().second = std::chrono::duration<double>(now - t_phase).count();
+      t_phase = now;
+      phases.emplace_back(phase, 0.0);
+      if (bar) bar->finish();
+      bar = phase == "done" ? nullptr : std::make_unique<Progress>("lod build: " + phase, 1000);
+    }
+    if (bar) bar->update(static_cast<std::size_t>(std::clamp(f, 0.0, 1.0) * 1000));
+  };
   const auto src = lod::open_triangles(a.source, a.threads);
   const lod::BuildReport r = lod::build(*src, a.out, o);
+  if (bar) bar->finish();
+  bar.reset();
+  std::string times;
+  for (const auto& [name, s] : phases)
+    if (name != "done") {
+      char t[64];
+      std::snprintf(t, sizeof t, "%.2f s", s);
+      times += (times.empty() ? "" : ", ") + name + " " + t;
+    }
   say("wrote %s: %llu triangles in %llu bucket%s, %llu nodes, %llu voxels, %llu treelets in %llu blocks, depth %u\n",
       a.out.c_str(), static_cast<unsigned long long>(r.triangles), static_cast<unsigned long long>(r.buckets),
       r.buckets == 1 ? "" : "s", static_cast<unsigned long long>(r.nodes), static_cast<unsigned long long>(r.voxels),
@@ -64,6 +92,7 @@ int run_lod_build(const LodBuildArgs& a) {
   say("raw %s, file %s (compression %.2fx), pinned %s; %.2f s on %u threads\n", format_bytes(r.raw_bytes).c_str(),
       format_bytes(r.file_bytes).c_str(), r.file_bytes ? static_cast<double>(r.raw_bytes) / static_cast<double>(r.file_bytes) : 0.0,
       format_bytes(r.pinned_bytes).c_str(), r.seconds, resolve_threads(a.threads));
+  say("phases: %s\n", times.c_str());
   const std::int64_t peak = status_bytes("VmHWM:");
   say("peak resident memory %s (budget %s)\n", peak < 0 ? "unknown" : format_bytes(static_cast<std::uint64_t>(peak)).c_str(),
       o.memory_budget ? format_bytes(o.memory_budget).c_str() : "the available memory");
@@ -123,7 +152,9 @@ int run_lod_info(const LodInfoArgs& a) {
   std::snprintf(hash, sizeof hash, "%016llx", static_cast<unsigned long long>(h.source_hash));
   say("%s: .mlod version %u (mbvh %u.%u.%u)\n", a.model.c_str(), h.version, h.library_version >> 16,
       (h.library_version >> 8) & 0xff, h.library_version & 0xff);
-  say("triangles        %s (%s in leaves; the rest degenerate)\n", count(h.triangles).c_str(), count(h.tri_records).c_str());
+  const std::uint64_t degenerate = h.triangles - h.tri_records;
+  const std::string rest = degenerate ? ", " + count(degenerate) + " degenerate: in none" : "";
+  say("triangles        %s (%s in leaves%s)\n", count(h.triangles).c_str(), count(h.tri_records).c_str(), rest.c_str());
   say("nodes            %s (voxels %s, links %s)\n", count(h.nodes).c_str(), count(h.voxels).c_str(), count(h.links).c_str());
   say("blocks           %s (treelets %s, block depth up to %u)\n", count(h.blocks).c_str(), count(h.treelets).c_str(), max_depth);
   say("depth            %u binary levels\n", h.depth);
@@ -131,9 +162,10 @@ int run_lod_info(const LodInfoArgs& a) {
       double(h.bounds[3]), double(h.bounds[4]), double(h.bounds[5]));
   say("block_bytes      %s\n", bytes(h.block_bytes).c_str());
   say("raw bytes        %s\n", bytes(h.raw_bytes).c_str());
-  say("stored bytes     %s (compression ratio %.2f, zstd)\n", bytes(stored).c_str(), ratio);
+  say("stored bytes     %s (zstd; compression ratio raw / stored %.2f)\n", bytes(stored).c_str(), ratio);
   say("file bytes       %s\n", bytes(h.file_bytes).c_str());
-  say("pinned           %s blocks, %s\n", count(h.pinned_blocks).c_str(), bytes(h.pinned_bytes).c_str());
+  say("pinned           %s block%s, %s\n", count(h.pinned_blocks).c_str(), h.pinned_blocks == 1 ? "" : "s",
+      bytes(h.pinned_bytes).c_str());
   say("minimum budget   %s (pinned + 2 x block_bytes, or the raw bytes if fewer)\n", bytes(minimum).c_str());
   say("albedos          %s\n", count(h.albedos).c_str());
   say("source hash      %s\n", hash);

@@ -11,6 +11,7 @@
 
 #include "mbvh/accel.h"
 #include "mbvh/backend.h"
+#include "mbvh/lod.h"
 #include "host/tools/framing.h"
 #include "host/tools/image.h"
 #include "host/tools/raygen.h"
@@ -30,6 +31,8 @@ struct RenderOptions {
   std::uint64_t seed = 1;
   bool has_camera = false;  ///< `camera` instead of the scene's framing (framing.h frame_scene)
   Camera camera;
+  bool has_light = false;   ///< `light` instead of default_light(bounds)
+  Vec3f light;
   Layout layout = Layout::automatic;        ///< automatic: resolved per query by the backend (resolve_options)
   Traversal traversal = Traversal::automatic;
   unsigned threads = 0;   ///< host shading threads (0 = all)
@@ -74,6 +77,8 @@ struct RenderResult {
   double trace_seconds = 0;        ///< time inside Backend::trace
   double total_seconds = 0;        ///< the whole render, shading and ray generation included
   std::vector<CurvePoint> curve;   ///< with RenderOptions::reference: one point per sample pass
+  std::uint64_t voxel_hits = 0;    ///< lod::Model: closest hits on LOD voxels (all bounces)
+  std::uint64_t forced_voxels = 0; ///< lod::Model: those taken because a finer block was not resident
   Camera camera;                   ///< the camera rendered from: the given one or the scene's framing
   std::string camera_rule;         ///< without a given camera: how frame_scene chose it (Framing::rule)
   double mrays_per_s() const { return trace_seconds > 0 ? static_cast<double>(rays) / trace_seconds * 1e-6 : 0; }
@@ -88,6 +93,30 @@ struct RenderResult {
 /// are bit-identical (all of mbvh's), at any thread count. `progress(done, total)` after each
 /// sample pass. Throws Error for an empty image or a backend that lacks the layout/traversal.
 RenderResult render(const Scene& scene, const Accel& acc, Backend& backend, const RenderOptions& opt,
+                    const std::function<void(unsigned, unsigned)>& progress = {});
+
+/// How a lod::Model is traced (mbvh/lod.h TraceOptions).
+struct ModelRenderOptions {
+  bool lod = true;     ///< false: full detail (every needed block loaded), the exact contract's answers
+  float quality = 1;   ///< a voxel is accepted when its box's largest extent <= quality * the ray's footprint
+};
+
+/// Renders an out-of-core model (mbvh/lod.h) with the same shading, sampling and determinism
+/// rules as the in-core render (RenderOptions' layout, traversal, precision and tracer do not
+/// apply; its tracing threads are the model's CacheOptions::threads). Every ray carries a cone
+/// (lod::RayCone): primary rays a pixel's (width 0 at the eye, spread 2 tan(fov/2) / height);
+/// secondary rays start with their parent's footprint at the hit point, shadow rays keep it
+/// (a cylinder), AO and diffuse rays widen it by 0.2 rad. A triangle hit shades as in core (its
+/// vertices copied by the model, its albedo from the model's table, else grey 0.7), so at quality 0
+/// with synchronous loading (or with `lod` false) the image is the in-core render's, byte for
+/// byte. A voxel hit shades with its face's normal turned to face the ray and its face's colour at
+/// o + t d; its secondary rays start there, pushed off the face by 1e-5 of the point's largest
+/// coordinate, and skip their first quality x the footprint at the hit (tmin: the hierarchy's
+/// boxes overlap, so the point often lies inside a neighbouring voxel). Without a camera, frame_scene's probes are traced at full detail. The default
+/// light and AO radius come from model.bounds() (= Accel::bounds() of the same triangles). Does
+/// not call Model::end_frame (the caller ends each frame). Throws Error for an empty image, a
+/// negative or non-finite quality, or what Model::trace throws.
+RenderResult render(lod::Model& model, const RenderOptions& opt, const ModelRenderOptions& mo,
                     const std::function<void(unsigned, unsigned)>& progress = {});
 
 /// The rays of the path tracer's bounces (closest-hit continuation rays of every bounce, primary

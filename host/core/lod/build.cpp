@@ -4,7 +4,8 @@
 //
 // 1. Pass 1 streams the source once: the checks Accel::build makes (finite, not too small, in the
 //    traced range), the non-degenerate triangles' bounds (= Accel::bounds()) and a histogram of
-//    their centroids on a Morton grid (Morton 1966; Wald et al.'s bucketing of out-of-core builds).
+//    their centroids on a Morton grid (Morton 1966; the order LBVH builds sort by, Lauterbach et
+//    al. 2009).
 // 2. The Morton range is split by its top bits (halving along x, y, z in turn) until every part
 //    holds no more triangles than one in-core build can take within the budget: the parts are the
 //    buckets, the splits the top tree over them. A model that fits whole is one bucket, read
@@ -27,7 +28,6 @@
 #include <zstd.h>
 
 #include <algorithm>
-#include <bit>
 #include <cerrno>
 #include <chrono>
 #include <cmath>
@@ -57,8 +57,9 @@ namespace fmt = format;
 
 /// Bytes one bucket build holds per triangle at its peak: the bucket's Scene (3 unshared vertices
 /// and the indices, 48 B) and prim ids (4 B), Accel::build's records and their scratch (64 B), the
-/// arenas, the flattened tree and the leaf-ordered triangles (48 B); measured (docs/massive.md).
-constexpr std::uint64_t kBucketBytesPerTriangle = 300;
+/// arenas, the flattened tree and the leaf-ordered triangles (48 B): the measured peak of a
+/// bucket's build (quality low, the larger) and a margin (docs/massive.md, "The .mlod build").
+constexpr std::uint64_t kBucketBytesPerTriangle = 240;
 /// A pass-2 record: the triangle and its prim id.
 constexpr std::size_t kRecordBytes = sizeof(SourceTri) + 4;
 /// The most triangles a .mlod holds: prim ids are 32 bits and MBVH_MISS_PRIM is none.
@@ -87,7 +88,7 @@ struct Grid {
     const float top = static_cast<float>((1u << bits) - 1);
     for (int a = 0; a < 3; ++a) {
       float f = (c[a] - lo[a]) * scale[a];
-      f = std::clamp(f, 0.0f, top);  // NaN-free: c is finite; a grid box that misses a centroid clamps it
+      f = f >= 0 ? std::min(f, top) : 0.0f;  // a grid box that misses a centroid clamps it
       q[a] = static_cast<std::uint32_t>(f);
     }
     return spread(q[0]) | spread(q[1]) << 1 | spread(q[2]) << 2;
@@ -112,7 +113,8 @@ inline void centroid_of(const SourceTri& t, float c[3], float lo[3], float hi[3]
 }
 
 inline double area2_of(const SourceTri& t) {
-  return build::twice_area_sq(Vec3f{t.v[0], t.v[1], t.v[2]}, Vec3f{t.v[3], t.v[4], t.v[5]}, Vec3f{t.v[6], t.v[7], t.v[8]});
+  return build::twice_area_sq(Vec3f{t.v[0], t.v[1], t.v[2]}, Vec3f{t.v[3], t.v[4], t.v[5]},
+                              Vec3f{t.v[6], t.v[7], t.v[8]});
 }
 
 // -- the voxel sums of a subtree (format.h Voxel): per axis a, the weight area |n_a| of every
@@ -269,10 +271,10 @@ struct BlockOut {
 
 template <class Tree>
 class Cutter {
-public:
+ public:
   // limit: the bytes a block's treelets may take (a block less its head and the padding before
   // its triangles)
-  Cutter(const Tree& t, std::uint64_t limit) : t_(t), limit_(limit), full_(t.size()) {
+  Cutter(const Tree& t, std::uint64_t limit) : t_(t), limit_(limit), full_(t.size()), local_(t.size(), kNotHere) {
     for (std::size_t i = t.size(); i-- > 0;) {  // preorder: children after their parent
       const auto n = static_cast<std::uint32_t>(i);
       std::uint64_t s = own(n);
@@ -297,7 +299,6 @@ public:
     rb.packed = full_[root] <= limit_;
     queue.push_back(std::move(rb));
     std::vector<std::uint32_t> order, frontier;
-    std::unordered_map<std::uint32_t, std::uint32_t> local;
     std::unordered_map<std::uint32_t, fmt::Link> links;
     while (!queue.empty()) {
       const PlannedBlock pb = std::move(queue.front());
@@ -306,11 +307,12 @@ public:
       order.assign(pb.roots.begin(), pb.roots.end());
       frontier.clear();
       for (const std::uint32_t r : pb.roots) {
-        if (pb.packed) whole(r, order);
-        else treelet(r, order, frontier);
+        if (pb.packed)
+          whole(r, order);
+        else
+          treelet(r, order, frontier);
       }
-      local.clear();
-      for (std::size_t i = 0; i < order.size(); ++i) local[order[i]] = static_cast<std::uint32_t>(i);
+      for (std::size_t i = 0; i < order.size(); ++i) local_[order[i]] = static_cast<std::uint32_t>(i);
       // -- the frontier's blocks: a subtree that fits a block whole is packed with its
       //    neighbours, a larger one gets a block of its own
       links.clear();
@@ -341,19 +343,23 @@ public:
           queue.push_back(std::move(b));  // deque::push_back keeps `open` valid
         }
       }
-      emit(assemble(pb, order, local, links));
+      emit(assemble(pb, order, links));
+      for (const std::uint32_t n : order) local_[n] = kNotHere;
     }
     return next;
   }
 
-private:
+ private:
   std::uint64_t own(std::uint32_t n) const {
     std::uint64_t s = sizeof(fmt::Node);
     for (int side = 0; side < 2; ++side) {
       const ChildRef c = t_.child(n, side);
-      if (c.kind == kInner) s += sizeof(fmt::Voxel);
-      else if (c.kind == kExt) s += sizeof(fmt::Voxel) + sizeof(fmt::Link);
-      else if (c.kind == kLeaf) s += std::uint64_t(c.count) * sizeof(Tri);
+      if (c.kind == kInner)
+        s += sizeof(fmt::Voxel);
+      else if (c.kind == kExt)
+        s += sizeof(fmt::Voxel) + sizeof(fmt::Link);
+      else if (c.kind == kLeaf)
+        s += std::uint64_t(c.count) * sizeof(Tri);
     }
     return s;
   }
@@ -391,7 +397,6 @@ private:
     }
   }
   BlockOut assemble(const PlannedBlock& pb, const std::vector<std::uint32_t>& order,
-                    const std::unordered_map<std::uint32_t, std::uint32_t>& local,
                     const std::unordered_map<std::uint32_t, fmt::Link>& links) const {
     BlockOut out;
     out.index = pb.index;
@@ -415,8 +420,8 @@ private:
           case kInner:
           case kExt: {
             if (c.kind == kInner) {
-              if (const auto it = local.find(c.index); it != local.end()) {
-                d.ref[side] = fmt::kRefInner | it->second;
+              if (const std::uint32_t at = local_[c.index]; at != kNotHere) {
+                d.ref[side] = fmt::kRefInner | at;
               } else {
                 d.ref[side] = fmt::kRefLink | static_cast<std::uint32_t>(lk.size());
                 lk.push_back(links.at(c.index));
@@ -461,21 +466,28 @@ private:
     return out;
   }
 
+  static constexpr std::uint32_t kNotHere = 0xFFFFFFFFu;
   const Tree& t_;
   std::uint64_t limit_;
-  std::vector<std::uint64_t> full_;  // bytes of each subtree as one treelet
+  std::vector<std::uint64_t> full_;   // bytes of each subtree as one treelet
+  std::vector<std::uint32_t> local_;  // a node's index in the block being assembled, else kNotHere
 };
 
 // -- compressing and writing blocks: a batch compressed on the pool, written in index order of
 // arrival (the emitters' fixed order), every block 4 KiB aligned
 
 class BlockWriter {
-public:
+ public:
   /// Blocks a batch holds: compressed side by side on up to this many workers. A constant, so the
   /// memory the build plans for (and with it the buckets and the file) does not depend on threads.
   static constexpr unsigned kSlots = 8;
-  BlockWriter(StreamedOutput& out, const std::string& path, int level, unsigned threads, std::vector<fmt::DirEntry>& dir)
-      : out_(out), path_(path), level_(level), threads_(std::min(resolve_threads(threads), kSlots)), dir_(dir),
+  BlockWriter(StreamedOutput& out, const std::string& path, int level, unsigned threads,
+              std::vector<fmt::DirEntry>& dir)
+      : out_(out),
+        path_(path),
+        level_(level),
+        threads_(std::min(resolve_threads(threads), kSlots)),
+        dir_(dir),
         ctx_(threads_, nullptr) {}
   ~BlockWriter() {
     for (ZSTD_CCtx* c : ctx_) ZSTD_freeCCtx(c);
@@ -496,7 +508,8 @@ public:
         const BlockOut& blk = batch_[i];
         sums[i] = hash_bytes(blk.raw.data(), blk.raw.size(), blk.index);
         packed[i].resize(ZSTD_compressBound(blk.raw.size()));
-        const std::size_t got = ZSTD_compressCCtx(ctx_[w], packed[i].data(), packed[i].size(), blk.raw.data(), blk.raw.size(), level_);
+        const std::size_t got =
+            ZSTD_compressCCtx(ctx_[w], packed[i].data(), packed[i].size(), blk.raw.data(), blk.raw.size(), level_);
         if (ZSTD_isError(got))
           throw Error(path_ + ": zstd failed on block " + std::to_string(blk.index) + ": " + ZSTD_getErrorName(got));
         packed[i].resize(got);
@@ -527,7 +540,7 @@ public:
     return kSlots * (2 * block_bytes + 2 * fmt::kAlign + ctx);
   }
 
-private:
+ private:
   StreamedOutput& out_;
   std::string path_;
   int level_;
@@ -541,7 +554,7 @@ private:
 // -- the unlinked temporary file of pass 2
 
 class TempFile {
-public:
+ public:
   TempFile(const std::string& dir, std::uint64_t need) {
     std::string tmpl = (std::filesystem::path(dir) / ".mbvh-lod-XXXXXX").string();
     if (!::mkdtemp(tmpl.data()))
@@ -557,8 +570,8 @@ public:
       const std::uint64_t free = std::uint64_t(vs.f_bavail) * vs.f_frsize;
       if (free < need) {
         ::close(fd_);
-        throw Error("--temp " + dir + ": the bucket files need " + bytes_str(need) + " of disk, but only " + bytes_str(free) +
-                    " is free there; name another directory with --temp");
+        throw Error("--temp " + dir + ": the bucket files need " + bytes_str(need) + " of disk, but only " +
+                    bytes_str(free) + " is free there; name another directory with --temp");
       }
     }
     dir_ = dir;
@@ -582,12 +595,14 @@ public:
     while (n > 0) {
       const ssize_t r = ::pread(fd_, c, n, static_cast<off_t>(off));
       if (r < 0 && errno == EINTR) continue;
-      if (r <= 0) throw Error("--temp " + dir_ + ": reading the bucket file failed: " + (r < 0 ? std::strerror(errno) : "short read"));
+      if (r <= 0)
+        throw Error("--temp " + dir_ +
+                    ": reading the bucket file failed: " + (r < 0 ? std::strerror(errno) : "short read"));
       c += r, n -= static_cast<std::size_t>(r), off += static_cast<std::uint64_t>(r);
     }
   }
 
-private:
+ private:
   int fd_ = -1;
   std::uint64_t size_ = 0;
   std::string dir_;
@@ -596,9 +611,9 @@ private:
 // -- the plan: buckets as parts of the Morton range, the top tree as its splits
 
 struct Bucket {
-  std::uint32_t begin = 0, end = 0;  // Morton codes [begin, end)
-  std::uint64_t count = 0;           // non-degenerate triangles
-  std::uint32_t depth = 0;           // of its root in the model (the root's children: 1)
+  std::uint32_t begin = 0, end = 0;                             // Morton codes [begin, end)
+  std::uint64_t count = 0;                                      // non-degenerate triangles
+  std::uint32_t depth = 0;                                      // of its root in the model (the root's children: 1)
   std::vector<std::pair<std::uint64_t, std::uint32_t>> chunks;  // its parts of the temporary file
 };
 
@@ -617,9 +632,10 @@ BuildReport build(const TriangleSource& src, const std::string& out_path, const 
   if (opt.zstd_level < 1 || opt.zstd_level > 19)
     throw Error("--zstd-level " + std::to_string(opt.zstd_level) + ": must be 1 to 19");
   if (opt.tree.quality != BuildQuality::low && opt.tree.quality != BuildQuality::medium)
-    throw Error(std::string("--quality ") + to_string(opt.tree.quality) +
-                ": a .mlod is built with quality low or medium (high may reference a triangle from several leaves, none "
-                "builds no tree)");
+    throw Error(
+        std::string("--quality ") + to_string(opt.tree.quality) +
+        ": a .mlod is built with quality low or medium (high may reference a triangle from several leaves, none "
+        "builds no tree)");
   if (!std::isfinite(opt.tree.traversal_cost) || opt.tree.traversal_cost < 0)
     throw Error("BuildOptions::traversal_cost " + std::to_string(opt.tree.traversal_cost) + " must be finite and >= 0");
   const MemoryBudget mb = opt.memory_budget ? MemoryBudget{opt.memory_budget, "--memory"} : memory_budget();
@@ -627,23 +643,30 @@ BuildReport build(const TriangleSource& src, const std::string& out_path, const 
   const unsigned threads = resolve_threads(opt.threads);
   opt.tree.threads = opt.threads;
   opt.tree.progress = nullptr;
-  const std::string temp_dir =
-      !opt.temp_dir.empty() ? opt.temp_dir
-                            : (std::filesystem::path(out_path).has_parent_path() ? std::filesystem::path(out_path).parent_path().string()
-                                                                                 : std::string("."));
+  const std::string temp_dir = !opt.temp_dir.empty() ? opt.temp_dir
+                                                     : (std::filesystem::path(out_path).has_parent_path()
+                                                            ? std::filesystem::path(out_path).parent_path().string()
+                                                            : std::string("."));
   // what the build holds besides its buckets: the compression batch, the directory and the plan
   const std::uint64_t reserve = (std::uint64_t(4) << 20) + BlockWriter::memory(opt.block_bytes, opt.zstd_level);
+  // how messages name the budget, and a size to ask for (whole MiB, rounded up)
+  const std::string budget_name = opt.memory_budget ? "--memory " + bytes_str(budget)
+                                                    : "the memory budget " + bytes_str(budget) + " (" + mb.source + ")";
+  auto at_least = [](std::uint64_t b) { return bytes_str((b + (1u << 20) - 1) / (1u << 20) * (1u << 20)); };
   if (budget <= reserve + 1024 * kBucketBytesPerTriangle)
-    throw Error(name + ": --memory " + bytes_str(budget) + " (" + mb.source + ") is too small: the build needs " +
-                bytes_str(reserve) + " for compressing blocks and room for a bucket of 1024 triangles; raise --memory to at least " +
-                bytes_str(reserve + 1024 * kBucketBytesPerTriangle));
-  const std::uint64_t cap = (budget - reserve) / kBucketBytesPerTriangle;  // triangles one bucket may hold
+    throw Error(
+        name + ": " + budget_name + " is too small: the build needs " + bytes_str(reserve) +
+        " to compress blocks (8 at a time) and room for a bucket of 1024 triangles; raise --memory to at least " +
+        at_least(reserve + 1024 * kBucketBytesPerTriangle + 1));
+  // triangles one bucket may hold: within the budget, and within one in-core scene
+  const std::uint64_t cap = std::min<std::uint64_t>((budget - reserve) / kBucketBytesPerTriangle, kMaxTriangles);
   // the output is checked (and its temporary made) before any pass
   StreamedOutput out(OutputTarget{"", out_path});
 
   // -- pass 0: a box for the Morton grid, when the source does not know one
   Box gbox;
-  if (const auto kb = known_bounds(src)) gbox = *kb;
+  if (const auto kb = known_bounds(src))
+    gbox = *kb;
   else {
     progress("bounds", 0);
     src.for_each_chunk([&](std::uint64_t, std::span<const SourceTri> t) {
@@ -662,7 +685,8 @@ BuildReport build(const TriangleSource& src, const std::string& out_path, const 
       const float lo = gbox.empty() ? 0.0f : gbox.lo[a], hi = gbox.empty() ? 0.0f : gbox.hi[a];
       grid.lo[a] = lo;
       const float ext = hi - lo;
-      grid.scale[a] = ext > 0 && std::isfinite(ext) ? static_cast<float>(1u << grid.bits) / ext : 0.0f;
+      const float scale = ext > 0 ? static_cast<float>(1u << grid.bits) / ext : 0.0f;
+      grid.scale[a] = std::isfinite(scale) ? scale : 0.0f;
     }
   }
 
@@ -670,7 +694,7 @@ BuildReport build(const TriangleSource& src, const std::string& out_path, const 
   std::vector<std::uint32_t> hist(grid.cells(), 0);
   std::uint64_t total = 0, kept = 0;
   build::FastBox bounds;
-  float largest = 0;               // of the non-degenerate triangles, too small ones included
+  float largest = 0;  // of the non-degenerate triangles, too small ones included
   std::optional<std::pair<std::uint64_t, SourceTri>> tiny, beyond;  // the first of each fault
   constexpr std::size_t kGrain = 4096;
   struct Part {
@@ -708,7 +732,8 @@ BuildReport build(const TriangleSource& src, const std::string& out_path, const 
           continue;
         }
         for (int a = 0; a < 3; ++a)
-          if (std::fabs(lo[a]) > kMaxCoordinate || std::fabs(hi[a]) > kMaxCoordinate) p.beyond = std::min<std::uint64_t>(p.beyond, first + i);
+          if (std::fabs(lo[a]) > kMaxCoordinate || std::fabs(hi[a]) > kMaxCoordinate)
+            p.beyond = std::min<std::uint64_t>(p.beyond, first + i);
         p.box.grow_rows(lo, hi);
         ++p.kept;
         codes[i] = grid.code(c);
@@ -717,11 +742,14 @@ BuildReport build(const TriangleSource& src, const std::string& out_path, const 
   };
   progress("pass 1", 0);
   src.for_each_chunk([&](std::uint64_t first, std::span<const SourceTri> t) {
-    if (first != total) throw Error(name + ": the source's chunks are not in order (triangle " + std::to_string(first) + " after " + std::to_string(total) + ")");
+    if (first != total)
+      throw Error(name + ": the source's chunks are not in order (triangle " + std::to_string(first) + " after " +
+                  std::to_string(total) + ")");
     classify(first, t);
     for (const Part& p : parts) {
       if (p.bad != UINT64_MAX)
-        throw Error(name + ": triangle " + std::to_string(p.bad) + " has a non-finite coordinate; vertices must be finite");
+        throw Error(name + ": triangle " + std::to_string(p.bad) +
+                    " has a non-finite coordinate; vertices must be finite");
       if (p.tiny != UINT64_MAX && !tiny) tiny.emplace(p.tiny, t[p.tiny - first]);
       if (p.beyond != UINT64_MAX && !beyond) beyond.emplace(p.beyond, t[p.beyond - first]);
       bounds.grow(p.box);
@@ -737,38 +765,44 @@ BuildReport build(const TriangleSource& src, const std::string& out_path, const 
   if (tiny || kept > 0) {
     if (largest < kMinSceneScale) {
       char buf[256];
-      std::snprintf(buf, sizeof buf,
-                    ": the largest coordinate magnitude is %.9g, below 2^-36 (%.3g), the smallest scene scale mbvh traces "
-                    "exactly (float products of three coordinates would underflow); rescale the scene",
-                    double(largest), double(kMinSceneScale));
+      std::snprintf(
+          buf, sizeof buf,
+          ": the largest coordinate magnitude is %.9g, below 2^-36 (%.3g), the smallest scene scale mbvh traces "
+          "exactly (float products of three coordinates would underflow); rescale the scene",
+          double(largest), double(kMinSceneScale));
       throw Error(name + buf);
     }
   }
   if (tiny) {
     const SourceTri& s = tiny->second;
     char buf[400];
-    std::snprintf(buf, sizeof buf,
-                  ": triangle %llu has area %.3g, below 2^-110 (%.3g, accel.h kMinTriangleArea), the smallest triangle mbvh "
-                  "traces exactly (float products of its edges would underflow and rays pass through it); rescale the scene "
-                  "or remove the triangle",
-                  static_cast<unsigned long long>(tiny->first), 0.5 * std::sqrt(area2_of(s)), double(kMinTriangleArea));
+    std::snprintf(
+        buf, sizeof buf,
+        ": triangle %llu has area %.3g, below 2^-110 (%.3g, accel.h kMinTriangleArea), the smallest triangle mbvh "
+        "traces exactly (float products of its edges would underflow and rays pass through it); rescale the scene "
+        "or remove the triangle",
+        static_cast<unsigned long long>(tiny->first), 0.5 * std::sqrt(area2_of(s)), double(kMinTriangleArea));
     throw Error(name + buf);
   }
   if (beyond) {
     char buf[400];
-    std::snprintf(buf, sizeof buf,
-                  ": triangle %llu has a coordinate beyond +-2^40 (%.3g), the range mbvh traces exactly (float products of "
-                  "three coordinates would overflow); rescale the scene",
-                  static_cast<unsigned long long>(beyond->first), double(kMaxCoordinate));
+    std::snprintf(
+        buf, sizeof buf,
+        ": triangle %llu has a coordinate beyond +-2^40 (%.3g), the range mbvh traces exactly (float products of "
+        "three coordinates would overflow); rescale the scene",
+        static_cast<unsigned long long>(beyond->first), double(kMaxCoordinate));
     throw Error(name + buf);
   }
   if (kept == 0)
-    throw Error(name + ": the scene has no non-degenerate triangle (" + std::to_string(total) + " triangles, all degenerate)");
+    throw Error(name + ": the scene has no non-degenerate triangle (" + std::to_string(total) +
+                " triangles, all degenerate)");
   progress("pass 1", 1);
 
   // -- the plan: the Morton range split by its top bits until every part fits a bucket
   for (std::size_t i = 1; i < hist.size(); ++i) hist[i] += hist[i - 1];  // prefix sums (kept < 2^32)
-  auto count_of = [&](std::uint32_t b, std::uint32_t e) -> std::uint64_t { return hist[e - 1] - (b ? hist[b - 1] : 0); };
+  auto count_of = [&](std::uint32_t b, std::uint32_t e) -> std::uint64_t {
+    return hist[e - 1] - (b ? hist[b - 1] : 0);
+  };
   std::vector<Bucket> buckets;
   TopTree top;
   // returns the child reference of the part [b, b + size)
@@ -787,9 +821,9 @@ BuildReport build(const TriangleSource& src, const std::string& out_path, const 
       char where[160];
       std::snprintf(where, sizeof where, " (around %.6g, %.6g, %.6g)", double(p.x), double(p.y), double(p.z));
       throw Error(name + ": " + std::to_string(n) + " triangles have their centroids in one cell of the " +
-                  std::to_string(1u << grid.bits) + "^3 bucketing grid" + where + ", more than the " + std::to_string(cap) +
-                  " one bucket holds within --memory " + bytes_str(budget) + "; raise --memory to at least " +
-                  bytes_str(reserve + n * kBucketBytesPerTriangle));
+                  std::to_string(1u << grid.bits) + "^3 bucketing grid" + where + ", more than the " +
+                  std::to_string(cap) + " one bucket holds within " + budget_name + "; raise --memory to at least " +
+                  at_least(reserve + n * kBucketBytesPerTriangle));
     }
     // a split with an empty side is no node: the other side takes its place
     const std::uint64_t nl = count_of(b, b + size / 2);
@@ -857,7 +891,7 @@ BuildReport build(const TriangleSource& src, const std::string& out_path, const 
     std::uint64_t per = std::min<std::uint64_t>(std::uint64_t(1) << 20, room / 2 / buckets.size());
     per = per / kRecordBytes * kRecordBytes;
     if (per < 64 * kRecordBytes)
-      throw Error(name + ": " + std::to_string(buckets.size()) + " buckets need more buffers than --memory " + bytes_str(budget) +
+      throw Error(name + ": " + std::to_string(buckets.size()) + " buckets need more buffers than " + budget_name +
                   " leaves; raise --memory");
     std::vector<std::uint32_t> starts(buckets.size());
     for (std::size_t k = 0; k < buckets.size(); ++k) starts[k] = buckets[k].begin;
@@ -896,19 +930,22 @@ BuildReport build(const TriangleSource& src, const std::string& out_path, const 
     buf = {};
     for (std::size_t k = 0; k < buckets.size(); ++k)
       if (seen[k] != buckets[k].count)
-        throw Error(name + ": the source changed between passes (bucket " + std::to_string(k) + " got " + std::to_string(seen[k]) +
-                    " triangles, pass 1 counted " + std::to_string(buckets[k].count) + ")");
+        throw Error(name + ": the source changed between passes (bucket " + std::to_string(k) + " got " +
+                    std::to_string(seen[k]) + " triangles, pass 1 counted " + std::to_string(buckets[k].count) + ")");
     release_free_heap();
   }
 
   // -- each bucket: read, built, its voxels summed, cut into blocks and written
   std::vector<Sums> bucket_sums(buckets.size());
   unsigned depth = 0;
+  std::uint64_t done_tris = 0;
   for (std::size_t k = 0; k < buckets.size(); ++k) {
-    progress("buckets", static_cast<double>(k) / static_cast<double>(buckets.size()));
+    progress("buckets", static_cast<double>(done_tris) / static_cast<double>(kept));
+    done_tris += buckets[k].count;
     Bucket& bk = buckets[k];
     Scene scene;
-    scene.name = bucketed ? name + " (bucket " + std::to_string(k) + " of " + std::to_string(buckets.size()) + ")" : name;
+    scene.name =
+        bucketed ? name + " (bucket " + std::to_string(k) + " of " + std::to_string(buckets.size()) + ")" : name;
     std::vector<std::uint32_t> ids;
     allocating(scene.name, bk.count * 52, [&] {
       scene.vertices.reserve(3 * bk.count);
@@ -944,8 +981,8 @@ BuildReport build(const TriangleSource& src, const std::string& out_path, const 
       bk.chunks = {};
     }
     if (ids.size() != bk.count)
-      throw Error(name + ": the source changed between passes (bucket " + std::to_string(k) + " has " + std::to_string(ids.size()) +
-                  " triangles, pass 1 counted " + std::to_string(bk.count) + ")");
+      throw Error(name + ": the source changed between passes (bucket " + std::to_string(k) + " has " +
+                  std::to_string(ids.size()) + " triangles, pass 1 counted " + std::to_string(bk.count) + ")");
     codes = {};
     std::unique_ptr<Accel> acc = Accel::build(scene, opt.tree);
     scene = Scene();
@@ -986,8 +1023,10 @@ BuildReport build(const TriangleSource& src, const std::string& out_path, const 
       for (int side = 0; side < 2; ++side) {
         const std::int32_t r = bvh.nodes[n].child[side];
         if (r == MBVH_EMPTY) continue;
-        if (r < 0) s.add(leaf_sums(static_cast<std::uint32_t>(~r)));
-        else s.add(node_sums(static_cast<std::uint32_t>(r), d + 1));
+        if (r < 0)
+          s.add(leaf_sums(static_cast<std::uint32_t>(~r)));
+        else
+          s.add(node_sums(static_cast<std::uint32_t>(r), d + 1));
       }
       tree.vox[n] = s.voxel(d);
       return s;
@@ -1002,7 +1041,8 @@ BuildReport build(const TriangleSource& src, const std::string& out_path, const 
         for (const auto& [n, d] : level) {
           upper.push_back({n, d});
           for (int side = 0; side < 2; ++side)
-            if (const std::int32_t r = bvh.nodes[n].child[side]; r >= 0) nextl.push_back({static_cast<std::uint32_t>(r), d + 1});
+            if (const std::int32_t r = bvh.nodes[n].child[side]; r >= 0)
+              nextl.push_back({static_cast<std::uint32_t>(r), d + 1});
         }
         level.swap(nextl);
       }
@@ -1020,8 +1060,10 @@ BuildReport build(const TriangleSource& src, const std::string& out_path, const 
         for (int side = 0; side < 2; ++side) {
           const std::int32_t r = bvh.nodes[n].child[side];
           if (r == MBVH_EMPTY) continue;
-          if (r < 0) s.add(leaf_sums(static_cast<std::uint32_t>(~r)));
-          else s.add(*done.at(static_cast<std::uint32_t>(r)));
+          if (r < 0)
+            s.add(leaf_sums(static_cast<std::uint32_t>(~r)));
+          else
+            s.add(*done.at(static_cast<std::uint32_t>(r)));
         }
         tree.vox[n] = s.voxel(d);
         upper_sums[i] = s;
@@ -1033,11 +1075,12 @@ BuildReport build(const TriangleSource& src, const std::string& out_path, const 
     // -- blocks
     Cutter<BucketTree> cut(tree, limit);
     const std::uint32_t first = next_block;
-    next_block = cut.run(0, first, bucketed ? bucket_parent[k] : 0, bucketed ? bucket_block_depth[k] : 0, [&](BlockOut&& b) {
-      count_block(b);
-      links += b.links;
-      writer.add(std::move(b));
-    });
+    next_block =
+        cut.run(0, first, bucketed ? bucket_parent[k] : 0, bucketed ? bucket_block_depth[k] : 0, [&](BlockOut&& b) {
+          count_block(b);
+          links += b.links;
+          writer.add(std::move(b));
+        });
     if (bucketed) {
       top.bucket_box[k] = acc->bounds();
       top.bucket_link[k] = {first, 0};
@@ -1051,6 +1094,7 @@ BuildReport build(const TriangleSource& src, const std::string& out_path, const 
 
   // -- the top tree: boxes and voxels bottom-up (its nodes are a preorder), then its blocks
   std::uint32_t root_block = 0;
+  progress("top", 0);
   if (bucketed) {
     std::vector<Sums> ts(top.nodes.size());
     std::vector<std::uint32_t> tdepth(top.nodes.size(), 0);
@@ -1091,12 +1135,14 @@ BuildReport build(const TriangleSource& src, const std::string& out_path, const 
   {
     std::vector<std::uint32_t> order(dir.size());
     std::iota(order.begin(), order.end(), 0u);
-    std::stable_sort(order.begin(), order.end(), [&](std::uint32_t a, std::uint32_t b) { return dir[a].depth < dir[b].depth; });
+    std::stable_sort(order.begin(), order.end(),
+                     [&](std::uint32_t a, std::uint32_t b) { return dir[a].depth < dir[b].depth; });
     std::uint64_t pinned = 0;
     std::uint32_t count = 0;
     for (const std::uint32_t b : order) {  // a block is pinned only under a pinned parent
       const bool root = b == root_block;
-      if (!root && (!(dir[dir[b].parent_block].flags & fmt::kDirPinned) || pinned + dir[b].raw_bytes > pin_limit)) continue;
+      if (!root && (!(dir[dir[b].parent_block].flags & fmt::kDirPinned) || pinned + dir[b].raw_bytes > pin_limit))
+        continue;
       dir[b].flags |= fmt::kDirPinned;
       pinned += dir[b].raw_bytes;
       ++count;
@@ -1110,7 +1156,8 @@ BuildReport build(const TriangleSource& src, const std::string& out_path, const 
   std::memcpy(h.magic, fmt::kMagic, 8);
   h.version = fmt::kVersion;
   h.header_bytes = static_cast<std::uint32_t>(fmt::kHeaderBytes);
-  h.node_bytes = sizeof(fmt::Node), h.voxel_bytes = sizeof(fmt::Voxel), h.link_bytes = sizeof(fmt::Link), h.tri_bytes = sizeof(Tri);
+  h.node_bytes = sizeof(fmt::Node), h.voxel_bytes = sizeof(fmt::Voxel), h.link_bytes = sizeof(fmt::Link),
+  h.tri_bytes = sizeof(Tri);
   h.triangles = total;
   h.tri_records = tri_records;
   h.nodes = rep.nodes, h.voxels = rep.voxels, h.links = links, h.blocks = rep.blocks, h.treelets = rep.treelets;
@@ -1125,9 +1172,12 @@ BuildReport build(const TriangleSource& src, const std::string& out_path, const 
   {
     // the options that shape the file: the tree's (after Accel::build's clamping), the block size
     // and the zstd level; not threads, not the budget
-    const std::uint32_t o[7] = {std::max(opt.tree.max_leaf, 1u), std::clamp(opt.tree.bins, 2u, 64u), std::max(opt.tree.leaf_block, 1u),
+    const std::uint32_t o[7] = {std::max(opt.tree.max_leaf, 1u),
+                                std::clamp(opt.tree.bins, 2u, 64u),
+                                std::max(opt.tree.leaf_block, 1u),
                                 std::clamp(opt.tree.depth_cap, 1u, static_cast<unsigned>(MBVH_BINARY_DEPTH_CAP)),
-                                static_cast<std::uint32_t>(opt.tree.quality), opt.block_bytes,
+                                static_cast<std::uint32_t>(opt.tree.quality),
+                                opt.block_bytes,
                                 static_cast<std::uint32_t>(opt.zstd_level)};
     h.options_hash = hash_bytes(&opt.tree.traversal_cost, sizeof(float), hash_bytes(o, sizeof o));
   }

@@ -41,7 +41,7 @@ public:
   const CacheOptions& options() const;
 
   /// The raw bytes of block b if it is resident (marking it used in this frame), else nullptr,
-  /// and b is requested (deduplicated; `rays` adds to its priority). Thread-safe, lock-free on
+  /// and b is requested (deduplicated; coarse blocks load first). Thread-safe, lock-free on
   /// the resident path. A damaged block (its checksum failed when it was loaded) is never
   /// resident: get() returns nullptr for it and it is never requested again.
   const std::byte* get(std::uint32_t b);

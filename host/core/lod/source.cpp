@@ -54,7 +54,7 @@ namespace {
 
 // -- a .mtri file: its header gives the count, hash and bounds; every pass checks the blocks
 class MtriSource final : public TriangleSource {
-public:
+ public:
   explicit MtriSource(const std::string& path) : path_(path), r_(path) {}
   std::string name() const override { return path_; }
   std::uint64_t count() const override { return r_.count(); }
@@ -62,7 +62,7 @@ public:
   void for_each_chunk(const ChunkFn& fn) const override { r_.for_each_chunk(fn); }
   const Box& bounds() const { return r_.bounds(); }
 
-private:
+ private:
   std::string path_;
   MtriReader r_;
 };
@@ -70,7 +70,7 @@ private:
 // -- gen:mandelbulb:RES[:K]: generated on every pass (the same triangles in the same order at any
 //    thread count); its count and hash are known after the first complete pass
 class MandelbulbSource final : public TriangleSource {
-public:
+ public:
   MandelbulbSource(const std::string& spec, const MandelbulbOptions& o) : spec_(spec), o_(o) {}
   std::string name() const override { return spec_; }
   std::uint64_t count() const override {
@@ -99,7 +99,7 @@ public:
     return b;
   }
 
-private:
+ private:
   void ensure_known() const {
     {
       std::lock_guard lock(m_);
@@ -116,7 +116,7 @@ private:
 
 // -- an in-core scene, owned (loaded here) or the caller's (by reference)
 class SceneSource final : public TriangleSource {
-public:
+ public:
   explicit SceneSource(Scene&& s) : owned_(std::move(s)), s_(*owned_) { init(); }
   explicit SceneSource(const Scene& s) : s_(s) { init(); }
   std::string name() const override { return s_.display_name(); }
@@ -140,7 +140,7 @@ public:
   }
   Box bounds() const { return s_.bounds(); }
 
-private:
+ private:
   void init() {
     s_.validate();  // names the scene and the first bad triangle
     // the renderer's albedo (host/tools/render.cpp, surface()): the material's diffuse colour when

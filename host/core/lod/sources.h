@@ -20,14 +20,14 @@ std::optional<Box> known_bounds(const TriangleSource& src);
 /// block of the 36-byte records seeded with the block's index, then of that table seeded with
 /// the count), computed as the triangles stream by; 1 MiB of staging and 8 bytes a MiB.
 class ContentHasher {
-public:
+ public:
   ContentHasher();
   void add(std::span<const SourceTri> tris);
   std::uint64_t count() const { return count_; }
   /// The hash of everything added (call once, at the end).
   std::uint64_t finish();
 
-private:
+ private:
   void flush();
   std::vector<char> block_;
   std::size_t used_ = 0;
