@@ -167,22 +167,22 @@ ModelFile read_checked(int fd, const std::string& path, std::uint64_t size) {
   std::uint64_t raw = 0, pinned = 0, pinned_n = 0;
   for (std::uint64_t b = 0; b < dir.size(); ++b) {
     const DirEntry& e = dir[b];
-    const std::string at = bad + "directory entry " + num(b) + ": ";
+    const auto at = [&] { return bad + "directory entry " + num(b) + ": "; };  // made on a failure only
     if (e.offset % kAlign != 0 || e.offset < blocks_at || e.offset > h.directory_offset || e.stored_bytes == 0 ||
         e.stored_bytes > h.directory_offset - e.offset)
-      throw Error(at + "offset: bytes " + num(e.offset) + ".." + num(e.offset + e.stored_bytes) +
+      throw Error(at() + "offset: bytes " + num(e.offset) + ".." + num(e.offset + e.stored_bytes) +
                   " are not a 4 KiB aligned, non-empty region between the albedo table (ends at " + num(blocks_at) +
                   ") and the directory (at " + num(h.directory_offset) + ")");
     if (e.raw_bytes < sizeof(BlockHead) || e.raw_bytes > h.block_bytes)
-      throw Error(at + "raw_bytes: " + num(e.raw_bytes) + ", expected " + num(sizeof(BlockHead)) + ".." + num(h.block_bytes) +
+      throw Error(at() + "raw_bytes: " + num(e.raw_bytes) + ", expected " + num(sizeof(BlockHead)) + ".." + num(h.block_bytes) +
                   " (block_bytes)");
-    if (e.parent_block >= h.blocks) throw Error(at + "parent_block: " + num(e.parent_block) + ", but the file has " + num(h.blocks) + " blocks");
-    if ((e.flags & ~kDirPinned) != 0) throw Error(at + "flags: " + num(e.flags) + ", unknown bits");
+    if (e.parent_block >= h.blocks) throw Error(at() + "parent_block: " + num(e.parent_block) + ", but the file has " + num(h.blocks) + " blocks");
+    if ((e.flags & ~kDirPinned) != 0) throw Error(at() + "flags: " + num(e.flags) + ", unknown bits");
     if (b == h.root_block) {
       if (e.parent_block != b || e.depth != 0 || !(e.flags & kDirPinned))
-        throw Error(at + "the root block must be its own parent, at depth 0 and pinned");
+        throw Error(at() + "the root block must be its own parent, at depth 0 and pinned");
     } else if (e.depth == 0 || e.parent_block == b) {
-      throw Error(at + "depth: 0 or its own parent, but it is not the root block (" + num(h.root_block) + ")");
+      throw Error(at() + "depth: 0 or its own parent, but it is not the root block (" + num(h.root_block) + ")");
     }
     raw += e.raw_bytes;
     if (e.flags & kDirPinned) pinned += e.raw_bytes, ++pinned_n;
@@ -254,27 +254,27 @@ void check_block(const std::string& path, const FileHeader& h, const std::vector
   const auto voxel_ok = [&](std::uint32_t v) { return v == kNoVoxel || v < hd.voxels; };
   for (std::uint32_t i = 0; i < hd.nodes; ++i) {
     const Node n = load_at<Node>(raw, l.nodes + std::uint64_t(i) * sizeof(Node));
-    const std::string at = bad + "node " + num(i) + ": ";
+    // messages are made only on a failure: this runs on every block the cache loads
     for (int c = 0; c < 2; ++c) {
       const std::uint32_t kind = n.ref[c] & kRefKind, idx = n.ref[c] & kRefIndex, aux = n.aux[c];
-      const std::string ch = at + "child " + num(c) + ": ";
+      const auto ch = [&] { return bad + "node " + num(i) + ": child " + num(c) + ": "; };
       if (kind == kRefEmpty) continue;
       for (int k = 0; k < 3; ++k)
         if (!std::isfinite(n.lo[c][k]) || !std::isfinite(n.hi[c][k]) || n.lo[c][k] > n.hi[c][k])
-          throw Error(ch + "box: not finite or lo > hi");
+          throw Error(ch() + "box: not finite or lo > hi");
       if (kind == kRefInner) {
         if (idx < hd.treelets || idx >= hd.nodes)
-          throw Error(ch + "inner node " + num(idx) + ", expected " + num(hd.treelets) + ".." + num(hd.nodes - 1) +
+          throw Error(ch() + "inner node " + num(idx) + ", expected " + num(hd.treelets) + ".." + num(hd.nodes - 1) +
                       " (not a treelet root)");
-        if (++node_refs[idx] > 1) throw Error(ch + "node " + num(idx) + " is referenced twice");
-        if (!voxel_ok(aux)) throw Error(ch + "voxel " + num(aux) + ", but the block has " + num(hd.voxels));
+        if (++node_refs[idx] > 1) throw Error(ch() + "node " + num(idx) + " is referenced twice");
+        if (!voxel_ok(aux)) throw Error(ch() + "voxel " + num(aux) + ", but the block has " + num(hd.voxels));
       } else if (kind == kRefLeaf) {
         if (aux == 0 || idx > hd.tris || aux > hd.tris - idx)
-          throw Error(ch + "leaf: triangles " + num(idx) + " +" + num(aux) + ", but the block has " + num(hd.tris));
+          throw Error(ch() + "leaf: triangles " + num(idx) + " +" + num(aux) + ", but the block has " + num(hd.tris));
       } else {  // link
-        if (idx >= hd.links) throw Error(ch + "link " + num(idx) + ", but the block has " + num(hd.links));
-        if (++link_refs[idx] > 1) throw Error(ch + "link " + num(idx) + " is referenced twice");
-        if (!voxel_ok(aux)) throw Error(ch + "voxel " + num(aux) + ", but the block has " + num(hd.voxels));
+        if (idx >= hd.links) throw Error(ch() + "link " + num(idx) + ", but the block has " + num(hd.links));
+        if (++link_refs[idx] > 1) throw Error(ch() + "link " + num(idx) + " is referenced twice");
+        if (!voxel_ok(aux)) throw Error(ch() + "voxel " + num(aux) + ", but the block has " + num(hd.voxels));
       }
     }
   }
@@ -283,10 +283,10 @@ void check_block(const std::string& path, const FileHeader& h, const std::vector
   std::vector<std::uint64_t> targets(hd.links);  // block << 32 | node
   for (std::uint32_t i = 0; i < hd.links; ++i) {
     const Link k = load_at<Link>(raw, l.links + std::uint64_t(i) * sizeof(Link));
-    const std::string at = bad + "link " + num(i) + ": ";
-    if (link_refs[i] != 1) throw Error(at + "no child reference names it");
+    const auto at = [&] { return bad + "link " + num(i) + ": "; };
+    if (link_refs[i] != 1) throw Error(at() + "no child reference names it");
     if (k.block >= dir.size() || k.block == b || dir[k.block].parent_block != b)
-      throw Error(at + "block " + num(k.block) + " is not a child block of this block (its directory entry names another parent)");
+      throw Error(at() + "block " + num(k.block) + " is not a child block of this block (its directory entry names another parent)");
     targets[i] = std::uint64_t(k.block) << 32 | k.node;
   }
   std::sort(targets.begin(), targets.end());
@@ -295,15 +295,15 @@ void check_block(const std::string& path, const FileHeader& h, const std::vector
   const std::uint64_t albedos = std::max<std::uint64_t>(h.albedos, 1);
   for (std::uint32_t i = 0; i < hd.tris; ++i) {
     const Tri t = load_at<Tri>(raw, l.tris + std::uint64_t(i) * sizeof(Tri));
-    const std::string at = bad + "triangle " + num(i) + ": ";
+    const auto at = [&] { return bad + "triangle " + num(i) + ": "; };
     const float* r[3] = {t.v0, t.v1, t.v2};
     for (const float* v : r)
       for (int k = 0; k < 3; ++k)
-        if (!std::isfinite(v[k])) throw Error(at + "a vertex is not finite");
-    if (bits(t.v0[3]) >= h.triangles) throw Error(at + "prim id " + num(bits(t.v0[3])) + ", but the model has " + num(h.triangles) + " triangles");
+        if (!std::isfinite(v[k])) throw Error(at() + "a vertex is not finite");
+    if (bits(t.v0[3]) >= h.triangles) throw Error(at() + "prim id " + num(bits(t.v0[3])) + ", but the model has " + num(h.triangles) + " triangles");
     if (bits(t.v1[3]) >= albedos)
-      throw Error(at + "albedo index " + num(bits(t.v1[3])) + ", but the albedo table has " + num(h.albedos) + " entries");
-    if (bits(t.v2[3]) != 0) throw Error(at + "v2[3]: not 0");
+      throw Error(at() + "albedo index " + num(bits(t.v1[3])) + ", but the albedo table has " + num(h.albedos) + " entries");
+    if (bits(t.v2[3]) != 0) throw Error(at() + "v2[3]: not 0");
   }
 }
 
@@ -489,13 +489,14 @@ struct BlockCache::Impl {
     } catch (const std::bad_alloc&) {
       throw Transient{path + ": block " + num(b) + ": out of memory for its " + num(e.raw_bytes) + " bytes"};
     }
-    const std::size_t n = ZSTD_decompressDCtx(s.dctx, out.get(), e.raw_bytes, src, e.stored_bytes);
+    std::byte* const raw = out.get();
+    const std::size_t n = ZSTD_decompressDCtx(s.dctx, raw, e.raw_bytes, src, e.stored_bytes);
     if (ZSTD_isError(n)) throw Error(bad + "zstd: " + ZSTD_getErrorName(n));
     if (n != e.raw_bytes) throw Error(bad + "it decompresses to " + num(n) + " bytes, the directory says " + num(e.raw_bytes));
-    if (hash_bytes(out.get(), e.raw_bytes, b) != e.checksum) throw Error(bad + "its checksum does not match");
-    check_block(path, h, dir, b, out.get(), e.raw_bytes);
+    if (hash_bytes(raw, e.raw_bytes, b) != e.checksum) throw Error(bad + "its checksum does not match");
+    check_block(path, h, dir, b, raw, e.raw_bytes);
     // The links into this block (its parent is resident: held) name its treelet roots.
-    const std::uint32_t treelets = load_at<BlockHead>(out.get(), 0).treelets;
+    const std::uint32_t treelets = load_at<BlockHead>(raw, 0).treelets;
     if (b == h.root_block) {
       if (h.root_node >= treelets)
         throw Error(path + ": not a usable .mlod file: root_node: " + num(h.root_node) + ", but the root block has " + num(treelets) +
