@@ -136,6 +136,23 @@ void LodArgs::add(CLI::App* c) {
 // VmHWM of this process (bytes; -1 where /proc/self cannot be read).
 std::int64_t vmhwm() { return status_bytes("VmHWM:"); }
 
+// The PNG (outs[0]) and, with --pfm, the PFM (outs[1]) of a render, encoded into `keep` (which
+// the writes point into).
+struct ImageBytes {
+  std::vector<std::uint8_t> png;
+  std::vector<char> pfm;
+};
+std::vector<OutputWrite> image_writes(const RenderArgs& a, const std::vector<OutputTarget>& outs, const RenderResult& res,
+                                      ImageBytes& keep) {
+  keep.png = png_bytes(a.out, res.width, res.height, to_srgb8(res.rgb));
+  std::vector<OutputWrite> writes{{outs[0], keep.png.data(), keep.png.size()}};
+  if (!a.pfm.empty()) {
+    keep.pfm = pfm_bytes(a.pfm, res.width, res.height, res.rgb);
+    writes.push_back({outs[1], keep.pfm.data(), keep.pfm.size()});
+  }
+  return writes;
+}
+
 double median(std::vector<double> v) {
   if (v.empty()) return 0;
   std::sort(v.begin(), v.end());
@@ -300,13 +317,8 @@ int run_model_render(const RenderArgs& a, const LodArgs& l, CLI::App* app) {
                          {"open_seconds", open_s}};
   const std::vector<std::uint32_t> damaged = model->damaged_blocks();
   // -- all outputs or none
-  const std::vector<std::uint8_t> png = png_bytes(a.out, res.width, res.height, to_srgb8(res.rgb));
-  std::vector<OutputWrite> writes{{outs[0], png.data(), png.size()}};
-  std::vector<char> pfm;
-  if (!a.pfm.empty()) {
-    pfm = pfm_bytes(a.pfm, res.width, res.height, res.rgb);
-    writes.push_back({outs[1], pfm.data(), pfm.size()});
-  }
+  ImageBytes image;
+  std::vector<OutputWrite> writes = image_writes(a, outs, res, image);
   std::string stats;
   if (!l.stats_json.empty()) {
     nlohmann::json j{{"model", a.scene.scene},
@@ -383,13 +395,8 @@ int run_render(const RenderArgs& a, const LodArgs& lod, CLI::App* app) {
   if (!res.camera_rule.empty())  // the default camera: what it is, so a user can reuse or vary it
     say("camera: %s\n  --camera %s\n", res.camera_rule.c_str(), camera_argument(res.camera).c_str());
   // -- all outputs or none: the PNG is not left behind when the PFM or the curve cannot be written
-  const std::vector<std::uint8_t> png = png_bytes(a.out, res.width, res.height, to_srgb8(res.rgb));
-  std::vector<OutputWrite> writes{{outs[0], png.data(), png.size()}};
-  std::vector<char> pfm;
-  if (!a.pfm.empty()) {
-    pfm = pfm_bytes(a.pfm, res.width, res.height, res.rgb);
-    writes.push_back({outs[1], pfm.data(), pfm.size()});
-  }
+  ImageBytes image;
+  std::vector<OutputWrite> writes = image_writes(a, outs, res, image);
   std::string curve;
   if (!a.curve.empty()) {
     curve = curve_json(a, *backend, l.scene, res);

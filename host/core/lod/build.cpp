@@ -1018,7 +1018,8 @@ BuildReport build(const TriangleSource& src, const std::string& out_path, const 
       }
       return s;
     };
-    std::function<Sums(std::uint32_t, std::uint32_t)> node_sums = [&](std::uint32_t n, std::uint32_t d) {
+    // node n's sums: its leaf children's, and `inner(child)` for its inner children
+    const auto children_sums = [&](std::uint32_t n, auto&& inner) {
       Sums s;
       for (int side = 0; side < 2; ++side) {
         const std::int32_t r = bvh.nodes[n].child[side];
@@ -1026,8 +1027,12 @@ BuildReport build(const TriangleSource& src, const std::string& out_path, const 
         if (r < 0)
           s.add(leaf_sums(static_cast<std::uint32_t>(~r)));
         else
-          s.add(node_sums(static_cast<std::uint32_t>(r), d + 1));
+          s.add(inner(static_cast<std::uint32_t>(r)));
       }
+      return s;
+    };
+    std::function<Sums(std::uint32_t, std::uint32_t)> node_sums = [&](std::uint32_t n, std::uint32_t d) {
+      const Sums s = children_sums(n, [&](std::uint32_t c) { return node_sums(c, d + 1); });
       tree.vox[n] = s.voxel(d);
       return s;
     };
@@ -1056,15 +1061,7 @@ BuildReport build(const TriangleSource& src, const std::string& out_path, const 
       std::vector<Sums> upper_sums(upper.size());
       for (std::size_t i = upper.size(); i-- > 0;) {  // children were appended after their parents
         const auto [n, d] = upper[i];
-        Sums s;
-        for (int side = 0; side < 2; ++side) {
-          const std::int32_t r = bvh.nodes[n].child[side];
-          if (r == MBVH_EMPTY) continue;
-          if (r < 0)
-            s.add(leaf_sums(static_cast<std::uint32_t>(~r)));
-          else
-            s.add(*done.at(static_cast<std::uint32_t>(r)));
-        }
+        const Sums s = children_sums(n, [&](std::uint32_t c) -> const Sums& { return *done.at(c); });
         tree.vox[n] = s.voxel(d);
         upper_sums[i] = s;
         done[n] = &upper_sums[i];

@@ -69,24 +69,8 @@ public:
       throw Error(path + ": the header's root node " + std::to_string(h.root_node) + " is not a treelet root of block " +
                   std::to_string(h.root_block) + " (" + std::to_string(bh.treelets) + " treelets)");
     for (const auto& e : dir) max_block_depth_ = std::max<std::uint32_t>(max_block_depth_, e.depth);
-    bounds_.lo = {h.bounds[0], h.bounds[1], h.bounds[2]};
-    bounds_.hi = {h.bounds[3], h.bounds[4], h.bounds[5]};
-    info_.path = path;
-    info_.version = h.version;
-    info_.triangles = h.triangles;
-    info_.nodes = h.nodes;
-    info_.voxels = h.voxels;
-    info_.blocks = h.blocks;
-    info_.tri_records = h.tri_records;
-    info_.albedos = h.albedos;
-    info_.raw_bytes = h.raw_bytes;
-    info_.file_bytes = h.file_bytes;
-    info_.pinned_bytes = h.pinned_bytes;
-    info_.pinned_blocks = h.pinned_blocks;
-    info_.block_bytes = h.block_bytes;
-    info_.depth = h.depth;
-    info_.source_hash = h.source_hash;
-    info_.bounds = bounds_;
+    info_ = model_info(path, h);
+    bounds_ = info_.bounds;
   }
 
   void trace(std::span<const Ray> rays, std::span<const RayCone> cones, const TraceOptions& opt, std::vector<Hit>& out,
