@@ -641,6 +641,26 @@ struct BlockCache::Impl {
     return all;
   }
 
+  /// Drops the queued loads that no trace wanted in the frame that ended (`ended`): a moving
+  /// view's old requests, which would hold the I/O threads while the blocks the view needs now
+  /// wait; their reservations and parent holds are released, and a trace that reaches one again
+  /// requests it again. Asynchronous frames only (under mu).
+  void drop_stale(std::uint64_t ended) {
+    std::deque<std::uint32_t> keep;
+    for (const std::uint32_t b : queue) {
+      Slot& s = slots[b];
+      if (s.stamp.load(std::memory_order_relaxed) == ended) {
+        keep.push_back(b);
+        continue;
+      }
+      reserved -= dir[b].raw_bytes;
+      --slots[dir[b].parent_block].holds;
+      s.state = State::absent;
+      s.requested.store(false, std::memory_order_relaxed);
+    }
+    queue.swap(keep);
+  }
+
   /// Loads one queued block on this thread; false when the queue is empty. `lk` holds mu.
   bool run_one(std::unique_lock<std::mutex>& lk, Scratch& s) {
     if (queue.empty()) return false;
@@ -795,6 +815,9 @@ const std::byte* BlockCache::get(std::uint32_t b) {
     m.damaged_asked.store(std::uint64_t(b) + 1, std::memory_order_relaxed);
     return nullptr;
   }
+  // a missing block's stamp: the last frame a trace wanted it (end_frame drops queued loads
+  // nobody wanted in the frame that ended)
+  if (s.stamp.load(std::memory_order_relaxed) != f) s.stamp.store(f, std::memory_order_relaxed);
   if (!s.requested.exchange(true, std::memory_order_acq_rel)) {
     const std::lock_guard<std::mutex> lk(m.req_mu);
     m.requests.push_back(b);
@@ -828,6 +851,7 @@ void BlockCache::end_frame() {
     return;
   }
   const std::lock_guard<std::mutex> lk(m.mu);
+  m.drop_stale(ended);
   m.plan(ended);  // blocks used in the frame that ended stay: no churn within a working set
 }
 
