@@ -457,11 +457,15 @@ class Cutter {
     h.treelets = static_cast<std::uint32_t>(pb.roots.size());
     const fmt::BlockLayout l = fmt::block_layout(h);
     out.raw.assign(l.end, std::byte{0});
+    // an empty array's data() may be null, which memcpy may not be given even for 0 bytes
+    const auto put = [&](std::uint64_t at, const auto& v) {
+      if (!v.empty()) std::memcpy(out.raw.data() + at, v.data(), v.size() * sizeof(v[0]));
+    };
     std::memcpy(out.raw.data(), &h, sizeof h);
-    std::memcpy(out.raw.data() + l.nodes, nodes.data(), nodes.size() * sizeof(fmt::Node));
-    std::memcpy(out.raw.data() + l.voxels, vox.data(), vox.size() * sizeof(fmt::Voxel));
-    std::memcpy(out.raw.data() + l.links, lk.data(), lk.size() * sizeof(fmt::Link));
-    std::memcpy(out.raw.data() + l.tris, tris.data(), tris.size() * sizeof(Tri));
+    put(l.nodes, nodes);
+    put(l.voxels, vox);
+    put(l.links, lk);
+    put(l.tris, tris);
     out.nodes = h.nodes, out.voxels = h.voxels, out.links = h.links, out.tris = h.tris;
     return out;
   }
