@@ -18,6 +18,7 @@
 #include "mbvh/error.h"
 #include "mbvh/scene.h"
 #include "mbvh/trace.h"
+#include "tests/helpers.h"
 
 using namespace mbvh;
 
@@ -150,4 +151,19 @@ TEST_CASE("the tinybvh peer refuses the options it cannot honour, naming them", 
   // the automatic layout and traversal: BVH8_CPU, its stack
   CHECK(resolve_options(*tiny, TraceOptions{Layout::automatic, Traversal::automatic, Query::closest, false, Precision::fast}).layout ==
         Layout::mbvh8);
+}
+
+TEST_CASE("mbvh check and bench with the tinybvh peer: fast precision is asked for by name, a witness's mismatches counted", "[peer][cli]") {
+  if (!tinybvh_runs()) return;
+  // robust (the default): nothing to run, and the error says which precision the peer has
+  for (const char* cmd : {"check gen:sphere:8 --backend tinybvh --count 100", "bench gen:sphere:8 --backend tinybvh --count 100"}) {
+    const auto r = mbvh_test::run_cli(cmd);
+    INFO(cmd << "\n" << r.output);
+    CHECK(r.code == 2);
+    CHECK_THAT(r.output, Catch::Contains("backend 'tinybvh' traces none of the precisions asked (it has --precision fast)"));
+  }
+  const auto r = mbvh_test::run_cli("check gen:sphere:8 --backend cpu-scalar,tinybvh --precision robust,fast --count 500 --kinds primary,shadow");
+  INFO(r.output);
+  CHECK(r.code == 0);
+  CHECK_THAT(r.output, Catch::Contains("tinybvh/mbvh8/stack/closest/fast") && Catch::Contains("tinybvh/mbvh4/stack/any/fast"));
 }
