@@ -91,8 +91,10 @@ namespace {
 /// t > 0) and does not want a normalised direction: the ray starts at o + tmin d (an mbvh ray's
 /// t is along its own, unnormalised direction, as tinybvh's is along D) and runs tmax - tmin;
 /// its answer's t gets tmin back (t0). rD is tinybvh's own reciprocal (tinybvh_rcp: +-1e30 for a
-/// component within 1e-12 of 0), as its Ray constructor makes it.
-inline void to_tiny(const Ray& r, tinybvh::Ray& t, float& t0) {
+/// component within 1e-12 of 0), as its Ray constructor makes it. False for a ray whose moved
+/// origin overflows (no finite point to hit there: a miss); tinybvh would stop the process on the
+/// NaN such an origin can make (VALIDATE_RAY).
+inline bool to_tiny(const Ray& r, tinybvh::Ray& t, float& t0) {
   t0 = r.tmin > 0.0f ? r.tmin : 0.0f;
   t.O = t0 > 0.0f ? tinybvh::bvhvec3(r.ox + t0 * r.dx, r.oy + t0 * r.dy, r.oz + t0 * r.dz) : tinybvh::bvhvec3(r.ox, r.oy, r.oz);
   t.D = tinybvh::bvhvec3(r.dx, r.dy, r.dz);
@@ -102,6 +104,7 @@ inline void to_tiny(const Ray& r, tinybvh::Ray& t, float& t0) {
   t.hit.t = r.tmax - t0;
   t.hit.u = t.hit.v = 0.0f;
   t.hit.prim = 0;
+  return t0 == 0.0f || (std::isfinite(t.O.x) && std::isfinite(t.O.y) && std::isfinite(t.O.z));
 }
 
 template <class B>
@@ -125,7 +128,7 @@ public:
       }
       tinybvh::Ray t;
       float t0;
-      to_tiny(r, t, t0);
+      if (!to_tiny(r, t, t0)) continue;
       const float far = t.hit.t;
       bvh_.Intersect(t);
       if (t.hit.t < far)  // tinybvh accepts only t below the ray's current t
@@ -143,7 +146,7 @@ public:
       }
       tinybvh::Ray t;
       float t0;
-      to_tiny(r, t, t0);
+      if (!to_tiny(r, t, t0)) continue;
       occluded[i] = bvh_.IsOccluded(t) ? 1 : 0;
     }
   }
