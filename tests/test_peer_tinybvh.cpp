@@ -78,6 +78,7 @@ TEST_CASE("the tinybvh peer's hits agree with cpu-scalar's up to a tiny share, o
     co.grid.layouts = {Layout::mbvh4, Layout::mbvh8};
     co.grid.traversals = {Traversal::stack};
     co.grid.precisions = {Precision::robust, Precision::fast};  // cpu-scalar robust: the reference
+    if (kind == RayKind::diffuse) co.backend.set("tinybvh.build", "hq");  // its spatial-split builder once
     const CheckReport rep = run_check(*acc, rays, co);
     INFO(to_string(kind) << " rays\n" << rep.table(rays));
     std::size_t compared = 0, tiny = 0;
@@ -146,8 +147,11 @@ TEST_CASE("the tinybvh peer refuses the options it cannot honour, naming them", 
   for (Traversal t : {Traversal::bitstack, Traversal::stack_ordered, Traversal::packet})
     CHECK_THROWS_WITH(tiny->trace(*acc, rays, TraceOptions{Layout::mbvh8, t, Query::closest, false, Precision::fast}, out),
                       Catch::Contains("tinybvh") && Catch::Contains(to_string(t)));
-  // no settings of its own
+  // one setting of its own, checked by name
   CHECK_THROWS(make_backend("tinybvh", BackendOptions{}.set("tinybvh.layout", "bvh8")));
+  CHECK_THROWS_WITH(make_backend("tinybvh", BackendOptions{}.set("tinybvh.build", "best")),
+                    Catch::Contains("tinybvh.build='best'"));
+  CHECK_THAT(make_backend("tinybvh", BackendOptions{}.set("tinybvh.build", "hq"))->describe(), Catch::Contains("BuildHQ"));
   // the automatic layout and traversal: BVH8_CPU, its stack
   CHECK(resolve_options(*tiny, TraceOptions{Layout::automatic, Traversal::automatic, Query::closest, false, Precision::fast}).layout ==
         Layout::mbvh8);

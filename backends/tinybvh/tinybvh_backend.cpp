@@ -37,15 +37,23 @@ namespace {
 /// Whether this CPU runs tinybvh's kernels: AVX2 and FMA.
 bool has_avx2_fma() { return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma"); }
 
+/// The tinybvh.build setting: default (its Build: binned SAH) or hq (its BuildHQ: spatial
+/// splits); anything else refused by name.
+bool tinybvh_hq(const BackendOptions& o) {
+  const std::string v = o.get("tinybvh.build", "default");
+  if (v == "default" || v == "hq") return v == "hq";
+  throw Error("backend setting tinybvh.build='" + v + "': expected default or hq (tinybvh's Build or BuildHQ)");
+}
+
 class TinybvhBackend final : public Backend {
 public:
-  explicit TinybvhBackend(const BackendOptions& o) : threads_(resolve_threads(o.threads)) {}
+  explicit TinybvhBackend(const BackendOptions& o) : threads_(resolve_threads(o.threads)), hq_(tinybvh_hq(o)) {}
 
   std::string name() const override { return "tinybvh"; }
   std::string describe() const override {
-    return "tinybvh: tinybvh 1.6.7 BVH8_CPU (--layout mbvh8) and BVH4_CPU (--layout mbvh4), its default builder, "
-           "Intersect/IsOccluded (Moeller-Trumbore, not watertight: --precision fast), " +
-           std::to_string(threads_) + " thread(s)";
+    return std::string("tinybvh: tinybvh 1.6.7 BVH8_CPU (--layout mbvh8) and BVH4_CPU (--layout mbvh4), "
+                       "Intersect/IsOccluded (Moeller-Trumbore, not watertight: --precision fast), built by ") +
+           (hq_ ? "BuildHQ (spatial splits)" : "Build (binned SAH)") + ", " + std::to_string(threads_) + " thread(s)";
   }
   /// Only `fast`: tinybvh's test is not watertight (robust and exact are mbvh's contracts).
   bool supports_precision(Precision p) const override { return p == Precision::fast; }
@@ -87,7 +95,8 @@ public:
       for (const float* v : {t.v0, t.v1, t.v2}) xyz.insert(xyz.end(), v, v + 3);
       prims.push_back(prim);
     }
-    tree_[w] = tinybvh_peer::build_tree(w == 1 ? tinybvh_peer::Width::bvh8 : tinybvh_peer::Width::bvh4, xyz, std::move(prims));
+    tree_[w] = tinybvh_peer::build_tree(w == 1 ? tinybvh_peer::Width::bvh8 : tinybvh_peer::Width::bvh4, hq_, xyz,
+                                        std::move(prims));
     built_.mark(acc);
   }
 
@@ -111,6 +120,7 @@ private:
   static int width_index(Layout l) { return l == Layout::mbvh8 ? 1 : 0; }
 
   unsigned threads_;
+  bool hq_;  ///< tinybvh.build=hq
   std::unique_ptr<tinybvh_peer::Tree> tree_[2];  // BVH4_CPU, BVH8_CPU
   BuildStamp built_;  // the build the trees are of
 };
@@ -127,6 +137,8 @@ void register_tinybvh_backend() {
     return std::make_unique<TinybvhBackend>(o);
   };
   info.missing_hardware = [] { return has_avx2_fma() ? std::string() : std::string("this CPU has no AVX2 and FMA"); };
+  info.settings = {{"tinybvh.build", "tinybvh's builder: default (Build: binned SAH, the default) or hq (BuildHQ: "
+                                     "spatial splits)"}};
   register_backend(std::move(info));
 }
 

@@ -110,12 +110,13 @@ inline bool to_tiny(const Ray& r, tinybvh::Ray& t, float& t0) {
 template <class B>
 class TreeOf final : public Tree {
 public:
-  TreeOf(const std::vector<float>& xyz, std::vector<std::uint32_t> prims) : prims_(std::move(prims)) {
+  TreeOf(bool hq, const std::vector<float>& xyz, std::vector<std::uint32_t> prims) : prims_(std::move(prims)) {
     const std::size_t n = prims_.size();
     verts_.resize(3 * n);
     for (std::size_t i = 0; i < 3 * n; ++i)
       verts_[i] = tinybvh::bvhvec4(xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2], 0.0f);
-    bvh_.Build(verts_.data(), static_cast<std::uint32_t>(n));
+    if (hq) bvh_.BuildHQ(verts_.data(), static_cast<std::uint32_t>(n));
+    else bvh_.Build(verts_.data(), static_cast<std::uint32_t>(n));
   }
 
   void closest(std::span<const Ray> rays, std::size_t b, std::size_t e, Hit* hits, std::size_t& invalid) const override {
@@ -159,9 +160,9 @@ private:
 
 }  // namespace
 
-std::unique_ptr<Tree> build_tree(Width width, const std::vector<float>& xyz, std::vector<std::uint32_t> prims) {
-  if (width == Width::bvh4) return std::make_unique<TreeOf<tinybvh::BVH4_CPU>>(xyz, std::move(prims));
-  return std::make_unique<TreeOf<tinybvh::BVH8_CPU>>(xyz, std::move(prims));
+std::unique_ptr<Tree> build_tree(Width width, bool hq, const std::vector<float>& xyz, std::vector<std::uint32_t> prims) {
+  if (width == Width::bvh4) return std::make_unique<TreeOf<tinybvh::BVH4_CPU>>(hq, xyz, std::move(prims));
+  return std::make_unique<TreeOf<tinybvh::BVH8_CPU>>(hq, xyz, std::move(prims));
 }
 
 }  // namespace mbvh::tinybvh_peer

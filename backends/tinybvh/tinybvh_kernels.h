@@ -30,9 +30,10 @@ public:
                    std::size_t& invalid) const = 0;
 };
 
-/// Builds tinybvh's `width` layout (its default builder, then the collapse to 4 or 8 wide) over
-/// `xyz`: 9 floats per triangle (v0, v1, v2); triangle i answers as prim `prims[i]`. At least one
-/// triangle. Needs AVX2 and FMA (the caller checks the CPU).
-std::unique_ptr<Tree> build_tree(Width width, const std::vector<float>& xyz, std::vector<std::uint32_t> prims);
+/// Builds tinybvh's `width` layout (its default builder, binned SAH, or with `hq` its BuildHQ,
+/// spatial splits; then the collapse to 4 or 8 wide) over `xyz`: 9 floats per triangle (v0, v1,
+/// v2); triangle i answers as prim `prims[i]`. At least one triangle. Needs AVX2 and FMA (the
+/// caller checks the CPU).
+std::unique_ptr<Tree> build_tree(Width width, bool hq, const std::vector<float>& xyz, std::vector<std::uint32_t> prims);
 
 }  // namespace mbvh::tinybvh_peer
