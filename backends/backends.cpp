@@ -14,6 +14,9 @@
 #ifdef MBVH_HAVE_EMBREE
 #include "backends/embree/embree_backends.h"
 #endif
+#ifdef MBVH_HAVE_TINYBVH
+#include "backends/tinybvh/tinybvh_backends.h"
+#endif
 
 namespace mbvh {
 
@@ -51,6 +54,11 @@ void register_builtin_backends() {
 #else
   not_built("embree", "peer: Embree 3 robust single-ray queries",
             "this build has no Embree peer (install Debian's libembree-dev and reconfigure)");
+#endif
+#ifdef MBVH_HAVE_TINYBVH
+  register_tinybvh_backend();
+#else
+  not_built("tinybvh", "peer: tinybvh 1.6.7 BVH8_CPU / BVH4_CPU single-ray queries, not watertight", MBVH_TINYBVH_WHY);
 #endif
 }
 

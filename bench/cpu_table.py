@@ -5,11 +5,16 @@ bench/cpu_vs_embree.sh: per scene x rays (query) x threads, the cpu backend's va
 Embree's robust mode (Mrays/s, medians), and the ratios its targets are set on:
   best stack-based cpu (robust) / Embree robust  >= 1.0 on every row,
   best stackless cpu (robust)   / Embree robust,
-  best cpu fast                 / Embree default mode (`embree --precision fast`),
+  best cpu fast                 / Embree default mode (`embree --precision fast`) >= 1.0,
+  best cpu fast                 / best tinybvh layout (BVH4_CPU, BVH8_CPU)        >= 1.0,
+  best cpu robust (any variant) / best tinybvh layout                             >= 0.9,
   bitstack time / its stack twin's time (MBVH4, MBVH8) <= 1.05;
-then the thread scaling from 1 to 2 threads. Robust records count only when verified (zero
-mismatches against cpu-scalar); fast records always (the fast modes differ from the robust answer
-by design: their mismatch counts are printed below the table).
+with a summary line per target counting the rows that meet it; then the thread scaling from 1
+to 2 threads. The tinybvh columns are the `tinybvh` peer's records (`--layout mbvh4` is its
+BVH4_CPU, `mbvh8` its BVH8_CPU; it runs in fast precision only: not watertight), "–" where the
+run has none (a build without the peer). Robust records count only when verified (zero
+mismatches against cpu-scalar); fast records always (the fast modes and the peers' default modes
+differ from the robust answer by design: their mismatch counts are printed below the table).
     python3 bench/cpu_table.py bench/out/*.json
 """
 import sys
@@ -21,6 +26,14 @@ ROBUST = [("cpu", "mbvh4", "stack"), ("cpu", "mbvh4", "bitstack"), ("cpu", "mbvh
 STACK_BASED = [0, 2, 3, 5]
 STACKLESS = [1, 4]
 EMBREE = ("embree", "mbvh4", "stack")
+TINYBVH = [("tinybvh", "mbvh4", "stack"), ("tinybvh", "mbvh8", "stack")]  # BVH4_CPU, BVH8_CPU (fast)
+# the targets the summary counts: (name, ratio column, bound, at least (True) or at most)
+TARGETS = [("best stack-based × embree robust >= 1.0", 0, 1.0, True),
+           ("best fast × embree default >= 1.0", 2, 1.0, True),
+           ("best fast × best tinybvh >= 1.0", 3, 1.0, True),
+           ("best robust × best tinybvh >= 0.9", 4, 0.9, True),
+           ("MBVH4 bitstack/stack time <= 1.05", 5, 1.05, False),
+           ("MBVH8 bitstack/stack time <= 1.05", 6, 1.05, False)]
 KINDS = ["primary", "diffuse", "shadow"]
 
 
@@ -51,9 +64,12 @@ def main(paths):
 
     print("| scene | rays | query | threads | MBVH4 stack | MBVH4 bitstack | MBVH4 ordered | MBVH8 stack "
           "| MBVH8 bitstack | MBVH8 ordered | embree robust | best cpu fast | embree default "
+          "| tinybvh BVH4_CPU | tinybvh BVH8_CPU "
           "| best stack-based × embree robust | best stackless × embree robust | best fast × embree default "
+          "| best fast × best tinybvh | best robust × best tinybvh "
           "| MBVH4 bitstack/stack time | MBVH8 bitstack/stack time |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    met = [[0, 0] for _ in TARGETS]  # per target: rows meeting it, rows with the ratio
     for key in order:
         s = [speed.get(key + v + ("robust",)) for v in ROBUST]
         emb = speed.get(key + EMBREE + ("robust",))
@@ -64,19 +80,35 @@ def main(paths):
         ratio = lambda x, e: None if not x or not e else x / e
         slow4 = None if not s[0] or not s[1] else s[0] / s[1]
         slow8 = None if not s[3] or not s[4] else s[3] / s[4]
+        tiny = [speed.get(key + v + ("fast",)) for v in TINYBVH]
+        best_tiny = max((x for x in tiny if x), default=None)
+        best_robust = max((x for x in s if x), default=None)
+        ratios = [ratio(best_stack, emb), ratio(best_less, emb), ratio(fast, emb_fast), ratio(fast, best_tiny),
+                  ratio(best_robust, best_tiny), slow4, slow8]
+        for m, (_, col, bound, at_least) in zip(met, TARGETS):
+            x = ratios[col]
+            if x:
+                m[1] += 1
+                m[0] += 1 if (x >= bound if at_least else x <= bound) else 0
         print(f"| {key[0]} | {key[1]} | {key[2]} | {key[3]} | " + " | ".join(fmt(x) for x in s) +
-              f" | {fmt(emb)} | {fmt(fast)} | {fmt(emb_fast)} | {fmt(ratio(best_stack, emb))} "
-              f"| {fmt(ratio(best_less, emb))} | {fmt(ratio(fast, emb_fast))} | {fmt(slow4, 3)} | {fmt(slow8, 3)} |")
+              f" | {fmt(emb)} | {fmt(fast)} | {fmt(emb_fast)} | {fmt(tiny[0])} | {fmt(tiny[1])} "
+              f"| {fmt(ratios[0])} | {fmt(ratios[1])} | {fmt(ratios[2])} | {fmt(ratios[3])} | {fmt(ratios[4])} "
+              f"| {fmt(slow4, 3)} | {fmt(slow8, 3)} |")
+    print()
+    for (name, *_), (ok, n) in zip(TARGETS, met):
+        print(f"- {name}: {ok} of {n} rows" + ("" if n else " (no row has both figures)"))
 
     print()
-    print("| scene | rays | MBVH4 stack 2/1 threads | MBVH4 bitstack | MBVH8 bitstack | MBVH8 ordered | embree robust |")
-    print("|---|---|---|---|---|---|---|")
+    print("| scene | rays | MBVH4 stack 2/1 threads | MBVH4 bitstack | MBVH8 bitstack | MBVH8 ordered | embree robust "
+          "| tinybvh BVH8_CPU |")
+    print("|---|---|---|---|---|---|---|---|")
     seen = []
     for scene, kind, query, _ in order:
         if (scene, kind, query) not in seen:
             seen.append((scene, kind, query))
             cells = [scaling.get((scene, kind, query) + ROBUST[i] + ("robust",)) for i in (0, 1, 4, 5)]
             cells.append(scaling.get((scene, kind, query) + EMBREE + ("robust",)))
+            cells.append(scaling.get((scene, kind, query) + TINYBVH[1] + ("fast",)))
             print(f"| {scene} | {kind} | " + " | ".join(fmt(c) for c in cells) + " |")
 
     bad = {k: m for k, m in fast_mismatch.items() if m}

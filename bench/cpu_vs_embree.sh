@@ -4,7 +4,9 @@
 # (`embree`, RTC_SCENE_FLAG_ROBUST) and its default mode (`embree --precision fast`, the flag off),
 # with the cpu backend in robust and fast precision: MBVH4 stack / bitstack / ordered stack and
 # MBVH8 stack / bitstack / ordered stack; primary and diffuse rays as closest hit, shadow rays as
-# any hit (occlusion); on 1 and 2 threads (`--scaling` times each variant on one thread too, its
+# any hit (occlusion); beside them, where this build has it, the tinybvh peer's two CPU layouts
+# (`tinybvh`, fast precision only: BVH4_CPU as --layout mbvh4, BVH8_CPU as mbvh8, each its stack
+# traversal) on the same rays and threads; on 1 and 2 threads (`--scaling` times each variant on one thread too, its
 # passes interleaved with the 2-thread ones); on the bunny and the interior views of the
 # conference room, Sibenik and Sponza, and the generated hairball at 100K and 1M triangles (10M
 # with MBVH_BENCH_10M=1: about 2 GB and minutes of build). Every timed result is verified by
@@ -31,8 +33,15 @@ else
   if [ "${MBVH_BENCH_10M:-0}" = 1 ]; then NAMES+=(hairball10m); fi
 fi
 LIST="$(scene_rows "$SCENES" "${NAMES[@]}")"
+# the tinybvh peer where this build has it and this CPU runs it (AVX2 and FMA)
+BACKENDS=cpu,embree
+if "$MBVH" devices --ready 2>/dev/null | grep -qx tinybvh; then
+  BACKENDS=cpu,embree,tinybvh
+else
+  log "no tinybvh peer in this build (or no AVX2 here): its columns stay empty"
+fi
 # shellcheck disable=SC2054  # the commas are mbvh's lists
-COMMON=(--backend cpu,embree --precision robust,fast --layout mbvh4,mbvh8 --traversal stack,bitstack,stack-ordered
+COMMON=(--backend "$BACKENDS" --precision robust,fast --layout mbvh4,mbvh8 --traversal stack,bitstack,stack-ordered
         --count "$RAYS" --threads 2 --scaling --leaf-block "$LEAF_BLOCK")
 while IFS='|' read -r name scene camera; do
   run_queries "$name" "$scene" "$camera" "${COMMON[@]}" "${EXTRA[@]}"

@@ -414,6 +414,9 @@ BenchReport run_bench(const Scene& scene, const Accel& acc, const BenchOptions& 
   // drifts (other guests on the host) slows every variant alike and the ratios of one run hold:
   // timed one variant after another, the MBVH8 bitstack/stack ratios of one run spread over
   // 0.85-1.36 on a loaded host
+  bool any_variant = false;  // a grid none of whose backends traces anything asked: an Error, not an empty table
+  for_each_variant(opt.grid, backends, [&](const std::string&, Backend&, const TraceOptions&) { any_variant = true; });
+  if (!any_variant) throw Error(no_variant_message(opt.grid, backends));
   for (RayKind kind : opt.kinds) {
     KindRays k(scene, acc, tree, opt, kind);
     std::vector<Timing> timings;

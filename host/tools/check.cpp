@@ -200,7 +200,7 @@ CheckReport run_check(const Accel& acc, std::span<const Ray> rays, const CheckOp
     runs.push_back(std::move(run));
   });
 
-  if (runs.empty()) throw Error("no backend supports the requested layout / traversal combinations");
+  if (runs.empty()) throw Error(no_variant_message(opt.grid, backends));
 
   // -- brute force on a spread subset
   const std::vector<std::size_t> sub = spread_indices(rays.size(), opt.brute_rays);

@@ -2,6 +2,8 @@
 // variants.cpp — the variant walk of check and bench (variants.h).
 #include "host/tools/variants.h"
 
+#include <algorithm>
+
 #include "mbvh/error.h"
 
 namespace mbvh {
@@ -46,6 +48,20 @@ void for_each_variant(const VariantGrid& grid, const std::map<std::string, std::
         if (!grid.layouts.empty() && b.supports(grid.layouts.front(), Traversal::dacrt) && b.supports_precision(pr))
           fn(name, b, options(grid.layouts.front(), Traversal::dacrt));
       }
+}
+
+std::string no_variant_message(const VariantGrid& grid, const std::map<std::string, std::unique_ptr<Backend>>& backends) {
+  std::string s = "no backend supports the requested layout / traversal combinations";
+  for (const auto& name : grid.backends) {
+    const Backend& b = *backends.at(name);
+    if (std::any_of(grid.precisions.begin(), grid.precisions.end(), [&](Precision p) { return b.supports_precision(p); }))
+      continue;
+    std::string has;
+    for (Precision p : {Precision::robust, Precision::exact, Precision::fast})
+      if (b.supports_precision(p)) has += std::string(has.empty() ? "" : ",") + to_string(p);
+    s += "; backend '" + name + "' traces none of the precisions asked (it has --precision " + has + ")";
+  }
+  return s;
 }
 
 }  // namespace mbvh

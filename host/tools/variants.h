@@ -41,4 +41,9 @@ std::map<std::string, std::unique_ptr<Backend>> make_backends(const VariantGrid&
 void for_each_variant(const VariantGrid& grid, const std::map<std::string, std::unique_ptr<Backend>>& backends,
                       const std::function<void(const std::string& name, Backend& backend, const TraceOptions& options)>& fn);
 
+/// Why `grid` has no variant at all (for_each_variant calls nothing): "no backend supports the
+/// requested layout / traversal combinations", naming each backend that traces none of the grid's
+/// precisions with the ones it has (a peer of fast precision only: tinybvh).
+std::string no_variant_message(const VariantGrid& grid, const std::map<std::string, std::unique_ptr<Backend>>& backends);
+
 }  // namespace mbvh
