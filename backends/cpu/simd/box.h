@@ -18,10 +18,8 @@ namespace {
 /// A wide node's W slab tests in one pass (W = 4: MBVH4, 8: MBVH8): (plane - o) * inv per axis,
 /// the NaN-discarding max/min chain of box_test (maxps/minps return their second operand on NaN,
 /// exactly like max_nan/min_nan), and an ordered <= compare.
-/// `exit` (where not null): each slot's exit distance too.
 template <class F, bool Chord, class N>
-[[gnu::always_inline]] inline unsigned box_test_wide(const N& n, const SimdRay& r, float tcull, float* d,
-                                                     float* exit = nullptr) {
+[[gnu::always_inline]] inline unsigned box_test_wide(const N& n, const SimdRay& r, float tcull, float* d) {
   constexpr int W = node_width<N>();
   using V = typename F::V;
   const float* p = n.lo_x;
@@ -41,7 +39,6 @@ template <class F, bool Chord, class N>
   const V tx = F::min(tfz, F::min(tfy, F::min(tfx, F::set1(tcull))));
   if constexpr (Chord) F::store(d, F::max(F::sub(tx, te), F::set1(0.0f)));  // max_nan(tx - te, 0), box_test's
   else F::store(d, te);
-  if (exit) F::store(exit, tx);
   return F::le(te, tx);
 }
 

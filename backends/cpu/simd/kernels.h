@@ -34,78 +34,9 @@ struct SimdKernelsT {
   [[gnu::always_inline]] static unsigned test(const Node4& n, const Ray& r, float tcull, float d[4]) {
     return box_test_wide<F4, Chord>(n, r, tcull, d);
   }
-  /// MBVH8, occlusion (Chord): with three or more hit children and the node's binary shape
-  /// (wide_sah.cpp: Node8::pad), d becomes shape_order's ranks instead of the chords.
   template <bool Chord = false>
   [[gnu::always_inline]] static unsigned test(const Node8& n, const Ray& r, float tcull, float d[8]) {
-    if constexpr (Chord) {
-      alignas(32) float entry[8], exit[8];
-      const unsigned m = box_test_wide<F8, false>(n, r, tcull, entry, exit);
-      const auto* shape = reinterpret_cast<const std::uint8_t*>(n.pad);
-      const unsigned rest = m & (m - 1);
-      if ((rest & (rest - 1)) != 0 && shape[0] != 0) {  // three hits or more
-        shape_order(shape, m, entry, exit, d);
-      } else {
-        const __m256 e = _mm256_load_ps(entry), x = _mm256_load_ps(exit);
-        _mm256_storeu_ps(d, _mm256_max_ps(_mm256_sub_ps(x, e), _mm256_setzero_ps()));  // box_test_wide's chords
-      }
-      return m;
-    } else {
-      return box_test_wide<F8, Chord>(n, r, tcull, d);
-    }
-  }
-  /// The hierarchical (binary-shape) order of an occlusion query's hit children: the binary nodes
-  /// the MBVH8 node dissolved, each entered on the side the ray crosses longer — the side's span,
-  /// its hit children's latest exit minus earliest entry, a lower bound of the chord through the
-  /// binary node's own box — left on ties, so a ray finishes the part of the node where it
-  /// likely meets an occluder before it tries the next (the binary BVH's order, which the
-  /// per-child chords of a wide node lose: the occlusion order of the MBVH4 and binary
-  /// traversals is that of bigger boxes). d[slot] becomes its rank, 8 first down to 9 - hits, so
-  /// longest and the ordered stack's sort take this order; with one or two hits it is the chord
-  /// order itself. Any order gives the same answer to an occlusion query.
-  /// shape: up to 7 records {left slots, right slots, left record, right record (0xFF: one slot)},
-  /// the node's own first.
-  [[gnu::always_inline]] static void shape_order(const std::uint8_t* shape, unsigned m, const float* entry,
-                                                 const float* exit, float* d) {
-    const auto span = [&](unsigned h) {
-      float lo = INFINITY, hi = -INFINITY;
-      for (; h != 0; h &= h - 1) {
-        const int s = std::countr_zero(h);
-        lo = std::min(lo, entry[s]);
-        hi = std::max(hi, exit[s]);
-      }
-      return hi - lo;
-    };
-    unsigned pend_hits[8];
-    std::uint8_t pend_rec[8];
-    int top = 0;
-    pend_hits[top] = m;
-    pend_rec[top++] = 0;
-    float rank = 8.0f;
-    while (top > 0) {
-      --top;
-      unsigned h = pend_hits[top];
-      unsigned j = pend_rec[top];
-      while ((h & (h - 1)) != 0) {  // two or more hits below record j: its sides
-        const std::uint8_t* rec = shape + 4 * j;
-        const unsigned l = rec[0] & h, rh = rec[1] & h;
-        if (l == 0) {
-          j = rec[3];
-          continue;
-        }
-        if (rh == 0) {
-          j = rec[2];
-          continue;
-        }
-        const bool left_first = span(l) >= span(rh);
-        pend_hits[top] = left_first ? rh : l;
-        pend_rec[top++] = left_first ? rec[3] : rec[2];
-        h = left_first ? l : rh;
-        j = left_first ? rec[2] : rec[3];
-      }
-      d[std::countr_zero(h)] = rank;
-      rank -= 1.0f;
-    }
+    return box_test_wide<F8, Chord>(n, r, tcull, d);
   }
   /// Closest hit: the record of every child in `mask` (the traversals pass the hit children left
   /// for later: an inner node's lines, a leaf's first pack, or its leaf4 entry where the references

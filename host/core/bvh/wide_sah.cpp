@@ -11,7 +11,6 @@
 // falls back to the greedy collapse.
 #include <algorithm>
 #include <chrono>
-#include <cstdlib>
 #include <cstring>
 
 #include "host/core/bvh/builder.h"
@@ -90,48 +89,32 @@ struct WideDp {
     }
   }
 
-  // The subtree at ref in at most j slots: appends its slot references (binary refs: leaves, or
-  // binary nodes that become wide nodes) — and the binary nodes the wide node dissolves, for the
-  // occlusion order (backends/cpu/simd/kernels.h, shape_order): per binary node whose two sides both give slots a record {slots of its
-  // left side (bit mask), of its right side, the record of its left side, of its right side (0xFF:
-  // a single slot)}, children's records before their parent's (the last: the wide node's own).
-  struct ShapeRec {
-    std::uint8_t left, right, left_rec, right_rec;
-  };
-  std::uint8_t shape(std::int32_t ref, int j, std::vector<std::int32_t>& slots, std::vector<ShapeRec>& recs) const {
-    if (ref == MBVH_EMPTY) return 0xFF;
-    if (ref >= 0 && j > 1) {
-      const Row& r = rows[static_cast<std::size_t>(ref)];
-      while (j > 1 && r.split[j] == 0) --j;
-    }
+  // the subtree at ref in at most j slots: appends its slot references (binary refs: leaves, or
+  // binary nodes that become wide nodes)
+  void expand(std::int32_t ref, int j, std::vector<std::int32_t>& slots) const {
+    if (ref == MBVH_EMPTY) return;
     if (ref < 0 || j == 1) {
       slots.push_back(ref);
-      return 0xFF;
+      return;
+    }
+    const Row& r = rows[static_cast<std::size_t>(ref)];
+    while (j > 1 && r.split[j] == 0) --j;
+    if (j == 1) {
+      slots.push_back(ref);
+      return;
     }
     const Bvh2::Node& n = b.nodes[static_cast<std::size_t>(ref)];
-    const int k = rows[static_cast<std::size_t>(ref)].split[j];
-    return split(n.child[0], k, n.child[1], j - k, slots, recs);
-  }
-  std::uint8_t split(std::int32_t c0, int j0, std::int32_t c1, int j1, std::vector<std::int32_t>& slots,
-                     std::vector<ShapeRec>& recs) const {
-    const std::size_t a = slots.size();
-    const std::uint8_t l = shape(c0, j0, slots, recs);
-    const std::size_t m = slots.size();
-    const std::uint8_t r = shape(c1, j1, slots, recs);
-    const std::size_t e = slots.size();
-    if (m == a) return r;  // one side gave no slot: the other's shape is this subtree's
-    if (e == m) return l;
-    const auto bits = [](std::size_t from, std::size_t to) { return static_cast<std::uint8_t>(((1u << to) - 1u) & ~((1u << from) - 1u)); };
-    recs.push_back({bits(a, m), bits(m, e), l, r});
-    return static_cast<std::uint8_t>(recs.size() - 1);
+    const int k = r.split[j];
+    expand(n.child[0], k, slots);
+    expand(n.child[1], j - k, slots);
   }
 
   std::int32_t emit(std::int32_t bref, std::int32_t parent, unsigned level) {
     const Bvh2::Node& bn = b.nodes[static_cast<std::size_t>(bref)];
     std::vector<std::int32_t> slots;
-    std::vector<ShapeRec> recs;
     const int k = rows[static_cast<std::size_t>(bref)].split[1];
-    split(bn.child[0], k, bn.child[1], W - k, slots, recs);
+    expand(bn.child[0], k, slots);
+    expand(bn.child[1], W - k, slots);
     const std::int32_t self = static_cast<std::int32_t>(out->size());
     out->emplace_back();
     std::int32_t none[W];  // the children's references are set as they are emitted, below
@@ -140,25 +123,6 @@ struct WideDp {
       return s < static_cast<int>(slots.size()) ? b.box(slots[static_cast<std::size_t>(s)]) : Box();
     });
     sah += all.half_area() / root_area;
-    if constexpr (W == 8) {
-      // MBVH8: the shape in the node's spare words (Node8::pad, 28 bytes: up to 7 records of 4),
-      // the wide node's own record first (indices reversed); none (zeros) below three slots
-      static_assert(sizeof(Node8::pad) == 28);
-      static const bool no_shape = std::getenv("MBVH_NO_SHAPE") != nullptr;  // EXPERIMENT
-      if (recs.size() >= 2 && !no_shape) {
-        std::uint8_t bytes[28] = {};
-        const std::size_t n = recs.size();
-        const auto at = [n](std::uint8_t i) { return i == 0xFF ? i : static_cast<std::uint8_t>(n - 1 - i); };
-        for (std::size_t i = 0; i < n; ++i) {
-          const ShapeRec& rc = recs[n - 1 - i];
-          bytes[4 * i] = rc.left;
-          bytes[4 * i + 1] = rc.right;
-          bytes[4 * i + 2] = at(rc.left_rec);
-          bytes[4 * i + 3] = at(rc.right_rec);
-        }
-        std::memcpy((*out)[static_cast<std::size_t>(self)].pad, bytes, sizeof bytes);
-      }
-    }
     for (std::size_t s = 0; s < slots.size(); ++s) {
       std::int32_t ref = slots[s];
       if (ref >= 0) ref = emit(ref, self, level + 1);
