@@ -92,19 +92,6 @@ struct LeafVariant {
   /// ~(first pack << 3 | count - 1) (TraceView::packed_refs), made on first use; nullptr when a
   /// leaf holds more than 8 triangles (a leaf the depth cap forced) or the packs pass 2^28 - 2.
   const void* packed_nodes(Layout l, const AlignedVector<Tri>& tris) const;
-  /// Where the packed references of layout `l` point (call packed_nodes first): the base their
-  /// first-pack indices count Tri4 records from — the packs (tri_packs) in the separate layout,
-  /// the nodes' own block in the locality layout (LeafVariant::locality) — and the node records'
-  /// count in that block (TraceView::nodes).
-  const Tri4* packed_base(Layout l) const;
-  std::size_t packed_node_count(Layout l) const;
-  /// The locality layout of the packed references (MBVH4 and MBVH8): nodes and their leaves'
-  /// packs in one block, depth first — each node followed by the packs of its leaf children, then
-  /// its inner children's subtrees in slot order — so a ray that enters a node finds the leaves it
-  /// tests next on the following lines and pages. Node c lies at byte c * sizeof(node), the pack
-  /// of a reference at byte first * 160, both from the block's start (the kernels' arithmetic is
-  /// unchanged), padding in between where the two strides do not meet.
-  bool locality = true;
   /// The bytes of what has been made on first use so far (Accel::memory): layouts and packed-reference
   /// copies (nodes), packs and their leaf table (packs).
   struct Bytes {
@@ -122,12 +109,6 @@ private:
   mutable AlignedVector<Node2> k2_;
   mutable AlignedVector<Node4> k4_;
   mutable AlignedVector<Node8> k8_;
-  /// The locality layout's blocks (MBVH4, MBVH8): 32-byte units holding nodes and packs.
-  struct alignas(32) Unit {
-    float w[8];
-  };
-  mutable AlignedVector<Unit> block4_, block8_;
-  mutable std::size_t block_nodes_[2] = {0, 0};
 };
 
 /// Regroups `bvh`'s subtrees into leaves where a leaf priced in blocks of `block` triangles (at

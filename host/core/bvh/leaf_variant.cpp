@@ -7,7 +7,6 @@
 // range of triangles and its box the subtree's, so the variant traces the same triangles with
 // exact, conservative boxes — only fewer, fuller leaves. O(nodes), deterministic.
 #include <algorithm>
-#include <cstdlib>
 #include <cstring>
 #include <map>
 #include <memory>
@@ -156,7 +155,6 @@ const LeafVariant& Accel::leaf_variant(unsigned block) const {
   if (!v) {
     v = std::make_unique<LeafVariant>();
     v->block = block;
-    if (const char* e = std::getenv("MBVH_CPU_LAYOUT")) v->locality = std::string(e) != "separate";  // EXPERIMENT
     v->node_cost = impl_->opt_.traversal_cost;
     // max leaf: the build's, but at least one full block (a regrouped leaf of B triangles costs
     // one test)
@@ -221,7 +219,7 @@ const TriPacks& LeafVariant::tri_packs(const AlignedVector<Tri>& tris) const {
 LeafVariant::Bytes LeafVariant::bytes() const {
   auto of = [](const auto& v) { return v.size() * sizeof(v[0]); };
   Bytes b;
-  b.nodes = of(leaves) + of(m2_.nodes) + of(m4_.nodes) + of(m8_.nodes) + of(k2_) + of(k4_) + of(k8_) + of(block4_) + of(block8_);
+  b.nodes = of(leaves) + of(m2_.nodes) + of(m4_.nodes) + of(m8_.nodes) + of(k2_) + of(k4_) + of(k8_);
   b.packs = of(packs_.packs) + of(packs_.leaves);
   return b;
 }
@@ -235,73 +233,6 @@ std::int32_t packed_ref(std::int32_t ref, const std::vector<Leaf>& leaf4) {
   return packed_leaf_ref(leaf4[static_cast<std::size_t>(~ref)]);
 }
 
-// The locality layout (LeafVariant::locality) of a packed-reference copy: one block of 32-byte
-// units in which node c of the copy lies at unit c * NU (NU = sizeof(N) / 32) and a pack of index
-// f at unit 5 * f (sizeof(Tri4) = 160), so the kernels locate both from the block's start as they
-// do in the separate arrays. Depth first: a node, then the packs of its leaf children in slot
-// order, then its inner children's subtrees in slot order (Embree's allocator places a node's
-// leaves beside it the same way; the depth-first order keeps a subtree within few pages).
-template <class N>
-struct LocalityBlock {
-  static constexpr std::size_t NU = sizeof(N) / 32, PU = sizeof(Tri4) / 32;
-  static_assert(sizeof(N) % 32 == 0 && sizeof(Tri4) % 32 == 0);
-  const AlignedVector<N>& in;
-  const TriPacks& packs;
-  std::vector<std::int32_t> node_at;    // per source node: its index in the block
-  std::vector<std::uint32_t> pack_at;   // per leaf: the block index of its first pack
-  std::size_t cursor = 0;               // units used
-
-  static std::size_t up(std::size_t x, std::size_t m) { return (x + m - 1) / m * m; }
-  void place(std::int32_t i) {
-    const std::size_t at = up(cursor, NU);
-    node_at[static_cast<std::size_t>(i)] = static_cast<std::int32_t>(at / NU);
-    cursor = at + NU;
-    const N& n = in[static_cast<std::size_t>(i)];
-    for (std::int32_t c : n.child) {
-      if (c >= 0 || c == MBVH_EMPTY) continue;
-      const Leaf& l = packs.leaves[static_cast<std::size_t>(~c)];
-      const std::size_t p = up(cursor, PU);
-      pack_at[static_cast<std::size_t>(~c)] = static_cast<std::uint32_t>(p / PU);
-      cursor = p + PU * ((l.count + 3) / 4);
-    }
-    for (std::int32_t c : n.child)
-      if (c >= 0) place(c);
-  }
-  std::int32_t ref(std::int32_t r) const {
-    if (r == MBVH_EMPTY) return r;  // (a reference: ~0 = leaf 0, not the root's MBVH_NONE)
-    if (r >= 0) return node_at[static_cast<std::size_t>(r)];
-    return packed_leaf_ref(Leaf{pack_at[static_cast<std::size_t>(~r)], packs.leaves[static_cast<std::size_t>(~r)].count});
-  }
-  // Lays out `in` into `out` (32-byte units); false when a pack index passes the packed
-  // references' range. Returns the node records' count (the block's size in nodes).
-  template <class Unit>
-  bool make(AlignedVector<Unit>& out, std::size_t& nodes) {
-    node_at.assign(in.size(), 0);
-    pack_at.assign(packs.leaves.size(), 0);
-    if (!in.empty()) place(0);
-    const std::size_t units = up(cursor, NU);
-    if (units / PU >= kPackedFirstEnd) return false;
-    out.assign(units, Unit{});
-    char* base = reinterpret_cast<char*>(out.data());
-    for (std::size_t i = 0; i < in.size(); ++i) {
-      N n = in[i];
-      for (std::int32_t& c : n.child) c = ref(c);
-      if (i > 0) n.parent = ref(n.parent);  // the root's is MBVH_NONE
-      if constexpr (requires { n.sib; })
-        if (i > 0)
-          for (std::int32_t& c : n.sib) c = ref(c);
-      std::memcpy(base + static_cast<std::size_t>(node_at[i]) * sizeof(N), &n, sizeof(N));
-    }
-    for (std::size_t f = 0; f < packs.leaves.size(); ++f) {
-      const Leaf& l = packs.leaves[f];
-      std::memcpy(base + static_cast<std::size_t>(pack_at[f]) * sizeof(Tri4), &packs.packs[l.first],
-                  ((l.count + 3) / 4) * sizeof(Tri4));
-    }
-    nodes = units / NU;
-    return true;
-  }
-};
-
 }  // namespace
 
 const void* LeafVariant::packed_nodes(Layout l, const AlignedVector<Tri>& tris) const {
@@ -314,12 +245,6 @@ const void* LeafVariant::packed_nodes(Layout l, const AlignedVector<Tri>& tris) 
       k2_ = mbvh2().nodes;
       for (std::size_t i = 0; i < k2_.size(); ++i)
         for (int f = i == 0 ? 2 : 1; f < 4; ++f) k2_[i].link[f] = packed_ref(k2_[i].link[f], p.leaves);
-    } else if (locality && l == Layout::mbvh4) {
-      LocalityBlock<Node4> b{mbvh4().nodes, p, {}, {}};
-      if (!b.make(block4_, block_nodes_[0])) block4_.clear();
-    } else if (locality) {
-      LocalityBlock<Node8> b{mbvh8().nodes, p, {}, {}};
-      if (!b.make(block8_, block_nodes_[1])) block8_.clear();
     } else if (l == Layout::mbvh4) {
       k4_ = mbvh4().nodes;
       for (std::size_t i = 0; i < k4_.size(); ++i) {
@@ -334,23 +259,8 @@ const void* LeafVariant::packed_nodes(Layout l, const AlignedVector<Tri>& tris) 
     }
   });
   if (k == 0) return k2_.data();
-  if (locality) {
-    const AlignedVector<Unit>& b = k == 1 ? block4_ : block8_;
-    return b.empty() ? nullptr : b.data();
-  }
   if (k == 1) return k4_.data();
   return k8_.data();
-}
-
-const Tri4* LeafVariant::packed_base(Layout l) const {
-  if (locality && l != Layout::mbvh2) return reinterpret_cast<const Tri4*>((l == Layout::mbvh4 ? block4_ : block8_).data());
-  return packs_.packs.data();
-}
-
-std::size_t LeafVariant::packed_node_count(Layout l) const {
-  if (l == Layout::mbvh2) return k2_.size();
-  if (locality) return block_nodes_[l == Layout::mbvh4 ? 0 : 1];
-  return l == Layout::mbvh4 ? k4_.size() : k8_.size();
 }
 
 }  // namespace mbvh

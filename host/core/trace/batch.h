@@ -45,7 +45,6 @@ inline TraceView trace_view(const Accel& acc, Layout layout, bool packs = false,
   TraceView v;
   v.tris = acc.tris().data();
   const TriPacks* p = nullptr;
-  const Tri4* packed_base = nullptr;
   if (leaf_block > 1) {
     const LeafVariant& lv = acc.leaf_variant(leaf_block);
     view_nodes(v, lv, layout);
@@ -58,8 +57,6 @@ inline TraceView trace_view(const Accel& acc, Layout layout, bool packs = false,
         else if (layout == Layout::mbvh4) v.n4 = static_cast<const Node4*>(k);
         else v.n8 = static_cast<const Node8*>(k);
         v.packed_refs = true;
-        v.nodes = lv.packed_node_count(layout);
-        packed_base = lv.packed_base(layout);  // the packs, or the locality layout's block
       }
     }
   } else {
@@ -69,8 +66,8 @@ inline TraceView trace_view(const Accel& acc, Layout layout, bool packs = false,
     if (packs) p = &acc.tri_packs();
   }
   if (p) {
-    v.tri4 = packed_base ? packed_base : p->packs.data();
-    v.leaf4 = p->leaves.data();  // (the separate packs': read only without packed references)
+    v.tri4 = p->packs.data();
+    v.leaf4 = p->leaves.data();
   }
   return v;
 }
