@@ -2,8 +2,8 @@
 # SPDX-License-Identifier: MIT
 # cache_misses.sh — cache behaviour per ray, from valgrind's cache model (cachegrind), so the
 # machine's noise does not move it: instructions, L1 data misses and last-level misses per ray of
-# the cpu backend's best stack traversal (MBVH8 ordered stack, robust precision, cpu-avx2:
-# valgrind runs no AVX-512) and of the embree peer (robust; under valgrind it runs its AVX2
+# the cpu backend's ordered stacks (MBVH8 and MBVH4, robust precision, cpu-avx2: valgrind runs
+# no AVX-512) and of the embree peer (robust; under valgrind it runs its AVX2
 # kernels), 1 thread, on the interior views of bench/cpu_vs_embree.sh: primary and diffuse rays
 # closest hit, shadow rays any hit, RAYS rays per kind (the same ray files for both).
 #
@@ -21,9 +21,9 @@
 # (cachegrind's size,assoc,line).
 #   bench/cache_misses.sh [OUT] [RAYS]     (default bench/out-cache-misses, 20000 rays)
 # Environment: JOBS (parallel valgrind runs, default 2), SCENES_LIST (default
-# "bunny conference sibenik sponza"), CPU_ARGS (the cpu variant's options, default
-# "--backend cpu-avx2 --layout mbvh8 --traversal stack-ordered"; add e.g. "--set cpu.layout=dfs").
-# Writes OUT/cache-misses.md (and prints it); about 4 minutes with JOBS=2 on 2 cores.
+# "bunny conference sibenik sponza"), LAYOUTS (the cpu layouts, default "mbvh8 mbvh4"; each with
+# --traversal stack-ordered).
+# Writes OUT/cache-misses.md (and prints it); about 5 minutes with JOBS=2 on 2 cores.
 set -euo pipefail
 # shellcheck source=bench/lib.sh
 source "$(dirname "${BASH_SOURCE[0]}")/lib.sh"
@@ -32,7 +32,7 @@ RAYS="${2:-20000}"
 JOBS="${JOBS:-2}"
 D1="${D1:-32768,8,64}"
 LL="${LL:-1048576,8,64}"
-CPU_ARGS="${CPU_ARGS:---backend cpu-avx2 --layout mbvh8 --traversal stack-ordered}"
+read -r -a LAYOUTS <<< "${LAYOUTS:-mbvh8 mbvh4}"
 read -r -a NAMES <<< "${SCENES_LIST:-bunny conference sibenik sponza}"
 command -v valgrind > /dev/null || { echo "cache_misses.sh: valgrind is not installed" >&2; exit 2; }
 mkdir -p "$OUT/rays" "$OUT/cg" "$OUT/bvh"
@@ -49,7 +49,7 @@ while IFS='|' read -r name scene camera; do
     cat "$f.rays" "$f.rays" > "$f.x2.rays"
     query=closest
     [ "$kind" = shadow ] && query=any
-    for backend in cpu embree; do
+    for backend in "${LAYOUTS[@]}" embree; do
       for reps in x1 x2; do
         echo "$name|$scene|$kind|$query|$backend|$reps" >> "$JOBLIST"
       done
@@ -62,7 +62,7 @@ run_one() {
   IFS='|' read -r name scene kind query backend reps <<< "$1"
   local rays="$OUT/rays/$name-$kind.rays" args
   [ "$reps" = x2 ] && rays="$OUT/rays/$name-$kind.x2.rays"
-  if [ "$backend" = cpu ]; then args="$CPU_ARGS"; else args="--backend embree"; fi
+  if [ "$backend" = embree ]; then args="--backend embree"; else args="--backend cpu-avx2 --layout $backend --traversal stack-ordered"; fi
   # shellcheck disable=SC2086  # args are words
   valgrind --tool=cachegrind --cache-sim=yes --I1=32768,8,64 --D1="$D1" --LL="$LL" \
     --cachegrind-out-file="$OUT/cg/$name-$kind-$backend-$reps.out" \
@@ -71,12 +71,12 @@ run_one() {
     || { echo "failed: $1 (see $OUT/cg/$name-$kind-$backend-$reps.log)" >&2; return 1; }
 }
 export -f run_one
-export OUT MBVH D1 LL CPU_ARGS
+export OUT MBVH D1 LL
 xargs -P "$JOBS" -I{} bash -c 'run_one "$@"' _ {} < "$JOBLIST"
 
-python3 - "$OUT" "$RAYS" "$D1" "$LL" "$CPU_ARGS" "${NAMES[@]}" << 'EOF' | tee "$OUT/cache-misses.md"
+python3 - "$OUT" "$RAYS" "$D1" "$LL" "${LAYOUTS[*]}" "${NAMES[@]}" << 'EOF' | tee "$OUT/cache-misses.md"
 import re, sys
-out, rays, d1, ll, cpu_args, names = sys.argv[1], int(sys.argv[2]), sys.argv[3], sys.argv[4], sys.argv[5], sys.argv[6:]
+out, rays, d1, ll, layouts, names = sys.argv[1], int(sys.argv[2]), sys.argv[3], sys.argv[4], sys.argv[5].split(), sys.argv[6:]
 # the tool's own work on the ray file, outside the backend's trace call
 # What the figures count, by function name (the whole process's difference also holds the noise
 # of phases that are not per ray, e.g. the build's load): the traversal — the cpu backend's ISA
@@ -111,14 +111,19 @@ def per_ray(name, kind, backend):
     return (b["Ir"] - a["Ir"]) / rays, d["D1mr"] + d["D1mw"], d["DLmr"] + d["DLmw"]
 
 print(f"Per ray, one warm pass over {rays} rays (cachegrind: D1 {d1}, LL {ll}; size,assoc,line), 1 thread; "
-      f"cpu: `{cpu_args}`, embree: robust. Instructions: the trace call; misses: its traversal (the driver's "
-      f"ray stream left out).\n")
-print("| scene | rays | cpu instr | embree instr | cpu D1 misses | embree D1 misses | cpu LL misses | embree LL misses | LL cpu / embree |")
-print("|---|---|---|---|---|---|---|---|---|")
+      f"cpu: cpu-avx2, ordered stack, robust; embree: robust. Instructions: the trace call; misses: its traversal "
+      f"(the driver's ray stream left out). LL / embree: the first cpu layout's LL misses over embree's.\n")
+cols = layouts + ["embree"]
+names_of = {l: l.upper() for l in layouts}
+names_of["embree"] = "embree"
+head = ["scene", "rays"] + [f"{names_of[c]} {what}" for what in ("instr", "D1 misses", "LL misses") for c in cols] + ["LL / embree"]
+print("| " + " | ".join(head) + " |")
+print("|" + "---|" * len(head))
 for name in names:
     for kind in ("primary", "diffuse", "shadow"):
-        ci, cd, cl = per_ray(name, kind, "cpu")
-        ei, ed, el = per_ray(name, kind, "embree")
-        ratio = f"{cl / el:.2f}" if el > 0 else "-"
-        print(f"| {name} | {kind} | {ci:.0f} | {ei:.0f} | {cd:.3f} | {ed:.3f} | {cl:.3f} | {el:.3f} | {ratio} |")
+        r = {c: per_ray(name, kind, c) for c in cols}
+        cells = [f"{r[c][0]:.0f}" for c in cols] + [f"{r[c][1]:.3f}" for c in cols] + [f"{r[c][2]:.3f}" for c in cols]
+        el, cl = r["embree"][2], r[cols[0]][2]
+        cells.append(f"{cl / el:.1f}" if el > 0 else "-")
+        print(f"| {name} | {kind} | " + " | ".join(cells) + " |")
 EOF
