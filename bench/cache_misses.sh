@@ -19,7 +19,8 @@
 # level the shared scenes' trees (1 to 6 MB) leave; cachegrind models two levels only (and on a
 # KVM guest its own L3 detection reads a direct-mapped 320 MB cache). Override with D1=, LL=
 # (cachegrind's size,assoc,line).
-#   bench/cache_misses.sh [OUT] [RAYS]     (default bench/out-cache-misses, 20000 rays)
+#   bench/cache_misses.sh [--quick] [OUT] [RAYS]   (default bench/out-cache-misses, 20000 rays;
+#     --quick: the bunny, 2000 rays, MBVH8 and embree — a smoke test of the script, about 30 s)
 # Environment: JOBS (parallel valgrind runs, default 2), SCENES_LIST (default
 # "bunny conference sibenik sponza"), LAYOUTS (the cpu layouts, default "mbvh8 mbvh4"; each with
 # --traversal stack-ordered).
@@ -27,13 +28,18 @@
 set -euo pipefail
 # shellcheck source=bench/lib.sh
 source "$(dirname "${BASH_SOURCE[0]}")/lib.sh"
-OUT="${1:-$ROOT/bench/out-cache-misses}"
-RAYS="${2:-20000}"
+bench_args "$ROOT/bench/out-cache-misses" "$@"
+RAYS="${ARGS[0]:-20000}"
 JOBS="${JOBS:-2}"
 D1="${D1:-32768,8,64}"
 LL="${LL:-1048576,8,64}"
 read -r -a LAYOUTS <<< "${LAYOUTS:-mbvh8 mbvh4}"
 read -r -a NAMES <<< "${SCENES_LIST:-bunny conference sibenik sponza}"
+if [ "$QUICK" = 1 ]; then
+  RAYS=2000
+  LAYOUTS=(mbvh8)
+  NAMES=(bunny)
+fi
 command -v valgrind > /dev/null || { echo "cache_misses.sh: valgrind is not installed" >&2; exit 2; }
 mkdir -p "$OUT/rays" "$OUT/cg" "$OUT/bvh"
 LIST="$(scene_rows "$SCENES" "${NAMES[@]}")"
