@@ -24,7 +24,7 @@
 # Environment: JOBS (parallel valgrind runs, default 2), SCENES_LIST (default
 # "bunny conference sibenik sponza"), LAYOUTS (the cpu layouts, default "mbvh8 mbvh4"; each with
 # --traversal stack-ordered).
-# Writes OUT/cache-misses.md (and prints it); about 5 minutes with JOBS=2 on 2 cores.
+# Writes OUT/cache-misses.md (and prints it); about 5 minutes with JOBS=1, less with JOBS=2 on an idle machine.
 set -euo pipefail
 # shellcheck source=bench/lib.sh
 source "$(dirname "${BASH_SOURCE[0]}")/lib.sh"
