@@ -1,0 +1,135 @@
+#!/usr/bin/env bash
+# SPDX-License-Identifier: MIT
+# cache_misses.sh — cache behaviour per ray, from valgrind's cache model (cachegrind), so the
+# machine's noise does not move it: instructions, L1 data misses and last-level misses per ray of
+# the cpu backend's ordered stacks (MBVH8 and MBVH4, robust precision, cpu-avx2: valgrind runs
+# no AVX-512) and of the embree peer (robust; under valgrind it runs its AVX2
+# kernels), 1 thread, on the interior views of bench/cpu_vs_embree.sh: primary and diffuse rays
+# closest hit, shadow rays any hit, RAYS rays per kind (the same ray files for both).
+#
+# Per ray, without the fixed cost: each case runs twice, on the ray file and on the same rays
+# twice over (one file); the difference of the two runs is one pass over the rays with warm
+# caches (scene load, build, prepare, the first pass's cold misses and the output file cancel).
+# Only the trace call's functions are counted (by name, below): the instructions are its driver
+# (the loop that reads the 32-byte rays and writes the answers) and the traversal; the misses
+# the traversal's alone (streaming the rays costs half a line per ray on either backend, and
+# whether the first pass left them in the modelled LL depends on the file's size).
+#
+# The modelled caches: D1 32 KiB, 8-way (Zen 4's L1D) and "LL" 1 MiB, 8-way — Zen 4's L2, the
+# level the shared scenes' trees (1 to 6 MB) leave; cachegrind models two levels only (and on a
+# KVM guest its own L3 detection reads a direct-mapped 320 MB cache). Override with D1=, LL=
+# (cachegrind's size,assoc,line).
+#   bench/cache_misses.sh [--quick] [OUT] [RAYS]   (default bench/out-cache-misses, 20000 rays;
+#     --quick: the bunny, 2000 rays, MBVH8 and embree — a smoke test of the script, about 30 s)
+# Environment: JOBS (parallel valgrind runs, default 2), SCENES_LIST (default
+# "bunny conference sibenik sponza"), LAYOUTS (the cpu layouts, default "mbvh8 mbvh4"; each with
+# --traversal stack-ordered).
+# Writes OUT/cache-misses.md (and prints it); about 5 minutes with JOBS=1, less with JOBS=2 on an idle machine.
+set -euo pipefail
+# shellcheck source=bench/lib.sh
+source "$(dirname "${BASH_SOURCE[0]}")/lib.sh"
+bench_args "$ROOT/bench/out-cache-misses" "$@"
+RAYS="${ARGS[0]:-20000}"
+JOBS="${JOBS:-2}"
+D1="${D1:-32768,8,64}"
+LL="${LL:-1048576,8,64}"
+read -r -a LAYOUTS <<< "${LAYOUTS:-mbvh8 mbvh4}"
+read -r -a NAMES <<< "${SCENES_LIST:-bunny conference sibenik sponza}"
+if [ "$QUICK" = 1 ]; then
+  RAYS=2000
+  LAYOUTS=(mbvh8)
+  NAMES=(bunny)
+fi
+command -v valgrind > /dev/null || { echo "cache_misses.sh: valgrind is not installed" >&2; exit 2; }
+mkdir -p "$OUT/rays" "$OUT/cg" "$OUT/bvh"
+LIST="$(scene_rows "$SCENES" "${NAMES[@]}")"
+
+# the ray files (native runs), each also doubled
+JOBLIST="$OUT/jobs.txt"
+: > "$JOBLIST"
+while IFS='|' read -r name scene camera; do
+  for kind in primary diffuse shadow; do
+    f="$OUT/rays/$name-$kind"
+    # shellcheck disable=SC2086  # the camera is words
+    "$MBVH" -q rays "$scene" $camera --kind "$kind" --count "$RAYS" --cache "$OUT/bvh" -o "$f.rays"
+    cat "$f.rays" "$f.rays" > "$f.x2.rays"
+    query=closest
+    [ "$kind" = shadow ] && query=any
+    for backend in "${LAYOUTS[@]}" embree; do
+      for reps in x1 x2; do
+        echo "$name|$scene|$kind|$query|$backend|$reps" >> "$JOBLIST"
+      done
+    done
+  done
+done <<< "$LIST"
+log "$(wc -l < "$JOBLIST") cachegrind runs, $JOBS at a time"
+
+run_one() {
+  IFS='|' read -r name scene kind query backend reps <<< "$1"
+  local rays="$OUT/rays/$name-$kind.rays" args
+  [ "$reps" = x2 ] && rays="$OUT/rays/$name-$kind.x2.rays"
+  if [ "$backend" = embree ]; then args="--backend embree"; else args="--backend cpu-avx2 --layout $backend --traversal stack-ordered"; fi
+  # shellcheck disable=SC2086  # args are words
+  valgrind --tool=cachegrind --cache-sim=yes --I1=32768,8,64 --D1="$D1" --LL="$LL" \
+    --cachegrind-out-file="$OUT/cg/$name-$kind-$backend-$reps.out" \
+    "$MBVH" -q trace "$scene" --cache "$OUT/bvh" --rays "$rays" $args --query "$query" --threads 1 \
+    -o "$OUT/cg/$name-$kind-$backend-$reps.bin" > "$OUT/cg/$name-$kind-$backend-$reps.log" 2>&1 \
+    || { echo "failed: $1 (see $OUT/cg/$name-$kind-$backend-$reps.log)" >&2; return 1; }
+}
+export -f run_one
+export OUT MBVH D1 LL
+xargs -P "$JOBS" -I{} bash -c 'run_one "$@"' _ {} < "$JOBLIST"
+
+python3 - "$OUT" "$RAYS" "$D1" "$LL" "${LAYOUTS[*]}" "${NAMES[@]}" << 'EOF' | tee "$OUT/cache-misses.md"
+import re, sys
+out, rays, d1, ll, layouts, names = sys.argv[1], int(sys.argv[2]), sys.argv[3], sys.argv[4], sys.argv[5].split(), sys.argv[6:]
+# the tool's own work on the ray file, outside the backend's trace call
+# What the figures count, by function name (the whole process's difference also holds the noise
+# of phases that are not per ray, e.g. the build's load): the traversal — the cpu backend's ISA
+# namespace, Embree's library (no symbols: ???) and its entry points — and the drivers: the cpu
+# backend's batch loop (trace_parallel, run_batch; the ray set-up inlined) and the embree peer's
+# trace_batch with what it runs per batch (its ray conversion).
+TRAVERSAL = re.compile(r"mbvh::avx2::|mbvh::avx512::|^\?\?\?$|^rtc|embree::")
+DRIVER = re.compile(r"trace_parallel|run_batch|EmbreeBackend::trace_batch")
+
+def totals(path):
+    """Event totals of a cachegrind file: (traversal and drivers, traversal alone)."""
+    events, fn, kind = None, "", None
+    with open(path) as f:
+        for line in f:
+            if line.startswith("events:"):
+                events = line.split()[1:]
+                call, trav = [0] * len(events), [0] * len(events)
+            elif line.startswith("fn="):
+                fn = line[3:].strip()
+                kind = "driver" if DRIVER.search(fn) else "trav" if TRAVERSAL.search(fn) else None
+            elif line[:1].isdigit() and kind:
+                for k, x in enumerate(line.split()[1:]):
+                    call[k] += int(x)
+                    if kind == "trav":
+                        trav[k] += int(x)
+    return dict(zip(events, call)), dict(zip(events, trav))
+
+def per_ray(name, kind, backend):
+    a, at = totals(f"{out}/cg/{name}-{kind}-{backend}-x1.out")
+    b, bt = totals(f"{out}/cg/{name}-{kind}-{backend}-x2.out")
+    d = {e: (bt[e] - at[e]) / rays for e in a}
+    return (b["Ir"] - a["Ir"]) / rays, d["D1mr"] + d["D1mw"], d["DLmr"] + d["DLmw"]
+
+print(f"Per ray, one warm pass over {rays} rays (cachegrind: D1 {d1}, LL {ll}; size,assoc,line), 1 thread; "
+      f"cpu: cpu-avx2, ordered stack, robust; embree: robust. Instructions: the trace call; misses: its traversal "
+      f"(the driver's ray stream left out). LL / embree: the first cpu layout's LL misses over embree's.\n")
+cols = layouts + ["embree"]
+names_of = {l: l.upper() for l in layouts}
+names_of["embree"] = "embree"
+head = ["scene", "rays"] + [f"{names_of[c]} {what}" for what in ("instr", "D1 misses", "LL misses") for c in cols] + ["LL / embree"]
+print("| " + " | ".join(head) + " |")
+print("|" + "---|" * len(head))
+for name in names:
+    for kind in ("primary", "diffuse", "shadow"):
+        r = {c: per_ray(name, kind, c) for c in cols}
+        cells = [f"{r[c][0]:.0f}" for c in cols] + [f"{r[c][1]:.3f}" for c in cols] + [f"{r[c][2]:.3f}" for c in cols]
+        el, cl = r["embree"][2], r[cols[0]][2]
+        cells.append(f"{cl / el:.1f}" if el > 0 else "-")
+        print(f"| {name} | {kind} | " + " | ".join(cells) + " |")
+EOF
