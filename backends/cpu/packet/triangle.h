@@ -52,7 +52,7 @@ template <bool Any>
   }
   PV t, u, v;
   const PV tmax = F::load(P.t + i);
-  const PV ok = mt_lanes<PL>(e1, e2, d, s, F::load(P.tmin + i), tmax, t, u, v);
+  const auto ok = mt_lanes<PL>(e1, e2, d, s, F::load(P.tmin + i), tmax, t, u, v);
   const PV one = F::set1(1.0f);
   const unsigned hit = m & F::bits(ok);
   if constexpr (!Any) keep_closest(P, i, hit, t, tmax, u, v, one, tri_prim(tri));

@@ -15,9 +15,14 @@ namespace mbvh {
 inline namespace MBVH_ISA_NS {
 namespace {
 
-/// 16 lanes of float. A comparison's result is a vector of all-ones lanes as F4's and F8's are
-/// (the width-generic kernels combine them with and_ / or_); `le` and `bits` give the mask
-/// register's bits. rcp is the 8-lane estimate on each half: the fast mode's Möller–Trumbore then
+/// A comparison's lanes in a mask register (F16::cmp): and_, or_ and bits as F4's and F8's
+/// all-ones vectors, without moving them to a vector register.
+struct M16 {
+  __mmask16 k;
+};
+
+/// 16 lanes of float. A comparison's result is a mask register (M16), which the width-generic
+/// kernels combine with and_ / or_ as they do F4's and F8's all-ones vectors. rcp is the 8-lane estimate on each half: the fast mode's Möller–Trumbore then
 /// computes the bits F8's does (rcp14 would give other estimates than the single-ray leaves').
 struct F16 {
   using V = __m512;
@@ -35,9 +40,11 @@ struct F16 {
   static V or_(V a, V b) { return _mm512_or_ps(a, b); }
   static V andnot(V a, V b) { return _mm512_andnot_ps(a, b); }
   static V zero() { return _mm512_setzero_ps(); }
-  static V from_mask(__mmask16 m) { return _mm512_castsi512_ps(_mm512_movm_epi32(m)); }
   template <int Cmp>
-  static V cmp(V a, V b) { return from_mask(_mm512_cmp_ps_mask(a, b, Cmp)); }
+  static M16 cmp(V a, V b) { return {_mm512_cmp_ps_mask(a, b, Cmp)}; }
+  static M16 and_(M16 a, M16 b) { return {static_cast<__mmask16>(a.k & b.k)}; }
+  static M16 or_(M16 a, M16 b) { return {static_cast<__mmask16>(a.k | b.k)}; }
+  static unsigned bits(M16 m) { return m.k; }
   static unsigned bits(V m) { return static_cast<unsigned>(_mm512_movepi32_mask(_mm512_castps_si512(m))); }
   static V fmsub(V a, V b, V c) { return _mm512_fmsub_ps(a, b, c); }
   static V fmadd(V a, V b, V c) { return _mm512_fmadd_ps(a, b, c); }
