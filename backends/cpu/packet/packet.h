@@ -2,8 +2,9 @@
 // packet.h — the cpu backend's coherent packets of rays (Áfra's thesis, ch. 2): their layout,
 // their loading with the frustum and the hybrid switch.
 //
-// A packet is MBVH_PACKET_RAYS rays in an array-of-structures-of-arrays layout: G SIMD rays of
-// 8 lanes (a 4x2 block of an 8x8 tile each: ray_of). It walks the binary tree (MBVH2) of the one build:
+// A packet is kPacketRays rays in an array-of-structures-of-arrays layout: G SIMD rays of
+// 8 lanes (AVX2: a 4x2 block of an 8x8 tile each, MBVH_PACKET_RAYS = 64 rays) or 16 lanes
+// (AVX-512: a 4x4 block, MBVH_PACKET_RAYS_16 = 128 rays, two tiles; ray_of). It walks the binary tree (MBVH2) of the one build:
 // - ranged traversal (Wald, Boulos & Shirley, "Ray Tracing Deformable Scenes Using Dynamic
 //   Bounding Volume Hierarchies", TOG 2007): the SIMD rays from the first to the last active one;
 // - partition traversal (Overbeck, Ramamoorthi & Mark, "Large Ray Packets for Real-Time Whitted
@@ -60,8 +61,15 @@ namespace packet {
 #endif
 constexpr int kLanes = MBVH_PACKET_LANES;
 static_assert(kLanes == 8 || kLanes == 16, "a SIMD ray is 8 or 16 lanes");
-constexpr int kGroups = MBVH_PACKET_RAYS / kLanes;
-static_assert(kGroups * kLanes == MBVH_PACKET_RAYS && kGroups <= 32, "a packet is whole SIMD rays, at most 32");
+// 16-lane SIMD rays: packets of two 8x8 tiles by default (eight SIMD rays of 4x4, as 64 rays
+// make eight of 8 lanes), which measured faster than one tile (docs/benchmarks.md, AVX-512).
+#ifndef MBVH_PACKET_RAYS_16
+#define MBVH_PACKET_RAYS_16 (2 * MBVH_PACKET_RAYS)
+#endif
+/// The rays of a packet: MBVH_PACKET_RAYS, or MBVH_PACKET_RAYS_16 with 16-lane SIMD rays.
+constexpr int kPacketRays = kLanes == 16 ? MBVH_PACKET_RAYS_16 : MBVH_PACKET_RAYS;
+constexpr int kGroups = kPacketRays / kLanes;
+static_assert(kGroups * kLanes == kPacketRays && kGroups <= 32, "a packet is whole SIMD rays, at most 32");
 /// The lanes of a SIMD ray as bits.
 using LaneBits = std::conditional_t<kLanes == 16, std::uint16_t, std::uint8_t>;
 constexpr unsigned kAllLanes = (1u << kLanes) - 1u;
@@ -123,7 +131,7 @@ using PV = PL::V;
 /// that are no tile (secondary rays in arrival order) are as coherent either way. A permutation:
 /// every ray of the packet has one slot.
 constexpr int ray_of(int slot) {
-  if constexpr (MBVH_PACKET_RAYS % 64 != 0) {
+  if constexpr (kPacketRays % 64 != 0) {
     return slot;
   } else {
     constexpr int rows = kLanes / 4;  // a block's rows
@@ -134,7 +142,7 @@ constexpr int ray_of(int slot) {
 
 /// One packet's rays, SoA per SIMD ray (lane l of SIMD ray g is ray ray_of(g * kLanes + l) of the packet).
 struct Packet {
-  static constexpr int N = MBVH_PACKET_RAYS;
+  static constexpr int N = kPacketRays;
   alignas(64) float o[3][N], d[3][N], inv[3][N], invf[3][N], tmin[N];
   alignas(64) float t[N], u[N], v[N];  ///< the best hit so far; t is the lane's tmax
   alignas(64) std::uint32_t prim[N];
@@ -195,7 +203,7 @@ inline bool load_packet(Packet& P, const mbvh::Ray* rays, int n, std::size_t& in
   __m256i codes = _mm256_setzero_si256();
   bool any_valid = false;
   for (int g = 0; g < kGroups; ++g) P.live[g] = P.valid[g] = 0;
-  for (int c = 0; c < MBVH_PACKET_RAYS / 8; ++c) {  // eight slots at a time, whatever the SIMD ray's width
+  for (int c = 0; c < kPacketRays / 8; ++c) {  // eight slots at a time, whatever the SIMD ray's width
     const int i = c * 8;
     __m256 r[8];
     unsigned in_batch = 0;
