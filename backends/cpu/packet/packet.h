@@ -86,8 +86,10 @@ struct PL : F16 {
   static float hmax(V v) { return _mm512_reduce_max_ps(v); }
   /// The lanes where the rows of all ones at p are set.
   static unsigned ones(const std::int32_t* p) { return _mm512_movepi32_mask(_mm512_load_si512(p)); }
-  /// c where neither is1 nor is2, a where is1, b where is2 (the lanes' k masks).
-  static V select3m(V c0, V c1, V c2, unsigned is1, unsigned is2) { return sel(is2, sel(is1, c0, c1), c2); }
+  /// Per lane: c0, c1 or c2 as the lane's k is 0, 1 or 2 (the rows k1, k2: all ones where k == 1, 2).
+  static V pick_k(V c0, V c1, V c2, const std::int32_t* k1, const std::int32_t* k2) {
+    return sel(ones(k2), sel(ones(k1), c0, c1), c2);
+  }
   /// The lanes where the unsigned row at a exceeds b.
   static unsigned ugt(const std::uint32_t* a, std::uint32_t b) {
     return _mm512_cmpgt_epu32_mask(_mm512_load_si512(a), _mm512_set1_epi32(static_cast<int>(b)));
@@ -103,10 +105,10 @@ struct PL : F8 {
   static V sel_sign(V a, V b, V s) { return _mm256_blendv_ps(a, b, s); }
   static float hmin(V v) { return hmin8(v); }
   static float hmax(V v) { return hmax8(v); }
-  static unsigned ones(const std::int32_t* p) {
-    return static_cast<unsigned>(_mm256_movemask_ps(_mm256_castsi256_ps(_mm256_load_si256(reinterpret_cast<const __m256i*>(p)))));
+  static V pick_k(V c0, V c1, V c2, const std::int32_t* k1, const std::int32_t* k2) {
+    return select3(c0, c1, c2, _mm256_castsi256_ps(_mm256_load_si256(reinterpret_cast<const __m256i*>(k1))),
+                   _mm256_castsi256_ps(_mm256_load_si256(reinterpret_cast<const __m256i*>(k2))));
   }
-  static V select3m(V c0, V c1, V c2, unsigned is1, unsigned is2) { return sel(is2, sel(is1, c0, c1), c2); }
   static unsigned ugt(const std::uint32_t* a, std::uint32_t b) {
     const __m256i bias = _mm256_set1_epi32(INT32_MIN);
     const __m256i x = _mm256_load_si256(reinterpret_cast<const __m256i*>(a));

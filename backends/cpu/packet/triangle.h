@@ -61,7 +61,7 @@ template <bool Any>
 
 /// The SIMD ray's lanes at i: their coordinate of `role` (their kx, ky or kz) of the vertex rows v.
 [[gnu::always_inline]] inline PV select_role(const Packet& P, int i, int role, const PV (&v)[3]) {
-  return PL::select3m(v[0], v[1], v[2], PL::ones(P.k1[role] + i), PL::ones(P.k2[role] + i));
+  return PL::pick_k(v[0], v[1], v[2], P.k1[role] + i, P.k2[role] + i);
 }
 
 /// The [tmin, tmax] of the SIMD ray's lanes at i (watertight_lanes' range).
