@@ -8,7 +8,10 @@ hybrid's single rays: the faster of the two is shown), Embree's single-ray and p
   best packet / best single-ray cpu  (primary >= 2, shadow >= 1.3, diffuse >= 0.95),
   best packet / Embree's faster query (primary >= 1.0);
 with the packets' SIMD utilisation and nodes per ray (MBVH2 nodes the ray was active in). Only
-verified records count (zero mismatches against cpu-scalar).
+verified records count (zero mismatches against cpu-scalar). Where the run has cpu-avx2 beside
+`cpu` (an AVX-512 machine: packets.sh adds it), a second table: `cpu` (its AVX-512 kernels,
+kIsaTable's choice) against cpu-avx2, best packet and best single-ray traversal each, with the
+targets of issue 40 (packets >= 1.25x AVX2 and >= 2.5x Embree's faster query on primary rays).
     python3 bench/packet_table.py bench/out-packets/*.json
 """
 import sys
@@ -74,6 +77,32 @@ def main(paths):
               f"| {util_s} | {nodes_s} |")
     print(f"\npacket / best single-ray at its target on {met} of {total} rows; "
           f"packet >= Embree's faster query on primary rays on {met_e} of {total_e} rows")
+    isa_table(speed, order)
+
+
+def best(speed, key, backend):
+    """The best packet and the best single-ray Mrays/s of `backend` at key (0 where none ran)."""
+    packet = max(speed.get(key + (backend, l, t), 0) for l in ("mbvh4", "mbvh8") for t in PACKET)
+    single = max(speed.get(key + (backend,) + s, 0) for s in SINGLE)
+    return packet, single
+
+
+def isa_table(speed, order):
+    """`cpu` (AVX-512 here) against cpu-avx2, where the run has both."""
+    rows = [k for k in order if any(speed.get(k + ("cpu-avx2",) + s, 0) for s in SINGLE)]
+    if not rows:
+        return
+    print("\n| scene | rays | threads | packet avx2 | packet cpu | **packet cpu / avx2** | single avx2 | single cpu "
+          "| single cpu / avx2 | packet cpu / embree's faster |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for key in rows:
+        scene, kind, threads = key
+        p2, s2 = best(speed, key, "cpu-avx2")
+        p5, s5 = best(speed, key, "cpu")
+        embree = max(speed.get(key + ("embree", "mbvh4", "stack"), 0), speed.get(key + ("embree", "mbvh4", "packet"), 0))
+        r = lambda a, b: f"{a / b:.2f}×" if a and b else "–"
+        print(f"| {scene} | {kind} | {threads} | {p2:.2f} | {p5:.2f} | **{r(p5, p2)}** | {s2:.2f} | {s5:.2f} "
+              f"| {r(s5, s2)} | {r(p5, embree)} |")
 
 
 if __name__ == "__main__":

@@ -651,3 +651,38 @@ TEST_CASE("packets of mixed rays - invalid, axis-aligned, clipped and incoherent
     CHECK(invalid > 0);  // the batch holds invalid rays (each packet does)
   }
 }
+
+TEST_CASE("cpu-avx512 traces 16-lane packets of 128 rays, partial packets too, with the reference's answers; cpu picks "
+          "its ISA per query kind and gives the same bytes",
+          "[traversal][packet][isa]") {
+  std::string why = "not registered";
+  for (const BackendInfo& b : list_backends())
+    if (b.name == "cpu-avx512") why = b.missing_hardware ? b.missing_hardware() : std::string();
+  if (!why.empty()) {  // an AVX2-only machine (or MBVH_CPU_ISA=avx2): skipped, saying why
+    std::printf("skipped: cpu-avx512 cannot run here (%s): its 16-lane packets are not tested on this machine\n", why.c_str());
+    return;
+  }
+  auto avx512 = make_backend("cpu-avx512");
+  CHECK_THAT(avx512->describe(), Catch::Contains("packets of 128 rays (SIMD rays of 16)"));
+  const Scene scene = load_scene(mbvh_test::scene_path("cornell_box.obj.zst"));
+  const auto acc = Accel::build(scene);
+  RayGenOptions ro;
+  ro.count = 64 * 5 + 13;  // two whole 128-ray packets, a 64-ray and a 13-ray partial one
+  const std::vector<Ray> rays = generate_rays(scene, *acc, ro);
+  RefOutputs refs;
+  VariantGrid grid;
+  grid.backends = {"cpu-avx512"};
+  check_packets(*acc, rays, grid, refs);
+  // `cpu` (kIsaTable: AVX-512 or AVX2 kernels per kind) gives cpu-avx512's bytes on every kind
+  auto cpu = make_backend("cpu");
+  for (Traversal t : {Traversal::packet, Traversal::stack_ordered})
+    for (Query q : {Query::closest, Query::any}) {
+      INFO(to_string(t) << "/" << to_string(q));
+      TraceOutput a, b;
+      const TraceOptions o{Layout::mbvh8, t, q, false};
+      cpu->trace(*acc, rays, o, a);
+      avx512->trace(*acc, rays, o, b);
+      if (q == Query::closest) CHECK(std::memcmp(a.hits.data(), b.hits.data(), rays.size() * sizeof(Hit)) == 0);
+      else CHECK(a.occluded == b.occluded);
+    }
+}

@@ -39,6 +39,8 @@ constexpr std::size_t kDacrtSimdSideBytes = 40;
 /// MBVH_HAVE_CPU_SIMD). Only call `trace` after CPUID says the ISA is there.
 struct CpuKernels {
   const char* isa;
+  int packet_rays;  ///< rays per packet of the packet traversals (packet/packet.h: kPacketRays)
+  int packet_lanes;  ///< lanes per SIMD ray of a packet (8 or 16)
   /// hybrid: the packet traversals trace an incoherent packet ray by ray (the `cpu.packet-hybrid`
   /// setting; off: every packet as a packet, for tests and measurements).
   void (*trace)(const Accel&, std::span<const Ray>, const TraceOptions&, TraceOutput&, unsigned threads, bool hybrid);

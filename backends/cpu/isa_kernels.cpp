@@ -160,7 +160,8 @@ MBVH_ISA_END
 
 namespace mbvh {
 extern const CpuKernels MBVH_CPU_KERNELS_NAME;
-const CpuKernels MBVH_CPU_KERNELS_NAME{MBVH_STR(MBVH_CPU_ISA), &MBVH_ISA_NS::trace, &MBVH_ISA_NS::dacrt::trace_dacrt,
+const CpuKernels MBVH_CPU_KERNELS_NAME{MBVH_STR(MBVH_CPU_ISA), MBVH_ISA_NS::packet::kPacketRays, MBVH_ISA_NS::packet::kLanes,
+                                         &MBVH_ISA_NS::trace, &MBVH_ISA_NS::dacrt::trace_dacrt,
                                          &MBVH_ISA_NS::ray_query};
 
 }  // namespace mbvh

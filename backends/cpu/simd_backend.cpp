@@ -54,15 +54,39 @@ bool has_avx512() {
   return isa_cap() == IsaCap::best && __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl");
 }
 
+/// `cpu` on a machine with AVX-512 and AVX2: the ISA each query and traversal kind runs, the
+/// faster one as measured on the AMD Zen 4 (512-bit operations as two 256-bit halves; the table
+/// and its method in docs/benchmarks.md, "AVX-512"). A kind where the two measured alike within
+/// noise keeps AVX-512, the build the CPU's best ISA names. cpu-avx2 and cpu-avx512 always run
+/// their own.
+struct IsaChoice {
+  Query query;
+  bool packets;  ///< the packet traversals (packet-ranged, packet-partition, packet), else single rays
+  bool avx512;   ///< the AVX-512 kernels, else AVX2's
+};
+constexpr IsaChoice kIsaTable[] = {
+    {Query::closest, true, true},  // 16-lane packets
+    {Query::any, true, true},
+    {Query::closest, false, true},  // single rays: the same 8-lane kernels either way
+    {Query::any, false, true},
+};
+bool choose_avx512(Query q, Traversal t) {
+  for (const IsaChoice& c : kIsaTable)
+    if (c.query == q && c.packets == is_packet(t)) return c.avx512;
+  return true;
+}
+
 class SimdBackend final : public Backend {
 public:
-  SimdBackend(std::string name, const CpuKernels& k, const BackendOptions& o)
-      : name_(std::move(name)), kernels_(k), threads_(resolve_threads(o.threads)),
+  /// `avx2`: for `cpu` where `k` is the AVX-512 kernels, AVX2's, which kIsaTable's rows may pick.
+  SimdBackend(std::string name, const CpuKernels& k, const BackendOptions& o, const CpuKernels* avx2 = nullptr)
+      : name_(std::move(name)), kernels_(k), avx2_(avx2), threads_(resolve_threads(o.threads)),
         own_block_(cpu_leaf_block(o, kOwnLeafBlock)), hybrid_(o.get_flag("cpu.packet-hybrid", true)) {}
   std::string name() const override { return name_; }
   std::string describe() const override {
     return name_ + ": " + kernels_.isa + " node tests (MBVH4: 4 boxes, MBVH8: 8 at once), SIMD leaves 8 triangles per pass (leaf block " +
-           std::to_string(own_block_) + "), packets of " + std::to_string(MBVH_PACKET_RAYS) + " rays" +
+           std::to_string(own_block_) + "), packets of " + std::to_string(kernels_.packet_rays) + " rays (SIMD rays of " +
+           std::to_string(kernels_.packet_lanes) + ")" +
            (hybrid_ ? "" : " (no hybrid switch)") + ", " + std::to_string(threads_) + " thread(s)";
   }
   std::string isa() const override { return kernels_.isa; }
@@ -89,17 +113,22 @@ public:
     }
   }
   void trace_batch(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
-    kernels_.trace(acc, rays, opt, out, threads_, hybrid_);
+    kernels_for(opt.query, opt.traversal).trace(acc, rays, opt, out, threads_, hybrid_);
   }
   /// The single-ray query: this ISA's kernels, the views resolved now (Backend::ray_query has
   /// prepared the build for both queries).
   RayQueryKernels ray_query_kernels(const Accel& acc, const TraceOptions& closest, const TraceOptions& any) override {
-    return kernels_.ray_query(acc, closest, any);
+    return kernels_for(Query::closest, closest.traversal).ray_query(acc, closest, any);
   }
 
 private:
+  /// The kernels query q with traversal t runs: kIsaTable's choice for `cpu`, else this backend's.
+  const CpuKernels& kernels_for(Query q, Traversal t) const {
+    return avx2_ && !choose_avx512(q, t) ? *avx2_ : kernels_;
+  }
   std::string name_;
   const CpuKernels& kernels_;
+  const CpuKernels* avx2_;
   unsigned threads_;
   unsigned own_block_;  ///< cpu.leaf-block (default kOwnLeafBlock)
   bool hybrid_;         ///< cpu.packet-hybrid (default on)
@@ -108,14 +137,14 @@ private:
 // Registers `name` running kernels `k` where `available()`; elsewhere it refuses to start, saying
 // `missing`, and tests skip it (missing hardware, not a failure).
 void add(const char* name, const char* summary, const CpuKernels& k, bool (*available)(), std::string missing,
-         const char* alias_of = "") {
+         const char* alias_of = "", const CpuKernels* avx2 = nullptr) {
   BackendInfo info;
   info.name = name;
   info.alias_of = alias_of;
   info.summary = summary;
-  info.make = [name, &k, available, missing](const BackendOptions& o) -> std::unique_ptr<Backend> {
+  info.make = [name, &k, available, missing, avx2](const BackendOptions& o) -> std::unique_ptr<Backend> {
     if (!available()) throw Error(std::string("backend '") + name + "' cannot start: " + missing);
-    return std::make_unique<SimdBackend>(name, k, o);
+    return std::make_unique<SimdBackend>(name, k, o, avx2);
   };
   info.missing_hardware = [available, missing] { return available() ? std::string() : std::string(missing); };
   info.settings = {cpu_leaf_block_setting("4"), cpu_packet_hybrid_setting()};
@@ -154,9 +183,10 @@ void register_cpu_simd_backends() {
     return;
   }
   const bool avx512 = best.kernels == &cpu_kernels_avx512;
+  // with AVX-512, per query and traversal kind the ISA that measured faster (kIsaTable)
   add("cpu", "SIMD MBVH4/MBVH8 node tests and leaves, the best ISA of this CPU (AVX-512, else AVX2, else cpu-scalar)",
       avx512 ? cpu_kernels_avx512 : cpu_kernels_avx2, avx512 ? &has_avx512 : &has_avx2, why(""),
-      avx512 ? "cpu-avx512" : "cpu-avx2");
+      avx512 ? "cpu-avx512" : "cpu-avx2", avx512 && has_avx2() ? &cpu_kernels_avx2 : nullptr);
 }
 
 #else  // the portable build: no SIMD kernels; `cpu` is cpu-scalar

@@ -152,7 +152,7 @@ struct SimdPolicy {
       }
       for (int g = 0; g < groups; ++g) {
         const int left = cnt - g * kLanes;
-        P.live[g] = P.valid[g] = static_cast<std::uint8_t>(left >= kLanes ? 0xFFu : (1u << left) - 1u);
+        P.live[g] = P.valid[g] = static_cast<packet::LaneBits>(left >= kLanes ? packet::kAllLanes : (1u << left) - 1u);
       }
       P.src_of = w.id + p0;
       P.uniform_k = uniform;
@@ -162,10 +162,10 @@ struct SimdPolicy {
       P.tcull_lo = INFINITY;
       for (std::uint32_t j = tb; j < te; ++j) {
         const Tri& tri = w.tris[w.tri[j].id];
-        __m256 vb[3][3];
+        packet::PV vb[3][3];
         const float* rows[3] = {tri.v0, tri.v1, tri.v2};
         for (int q = 0; q < 3; ++q)
-          for (int a = 0; a < 3; ++a) vb[q][a] = _mm256_set1_ps(rows[q][a]);
+          for (int a = 0; a < 3; ++a) vb[q][a] = packet::PL::set1(rows[q][a]);
         bool any_left = false;
         for (int g = 0; g < groups; ++g) {
           const unsigned lanes = P.live[g];
@@ -181,7 +181,7 @@ struct SimdPolicy {
               w.occluded[w.id[at]] = 1;
               w.rec[at].tmax = -1.0f;  // below every tmin: every later filter drops the ray
             }
-            P.live[g] = static_cast<std::uint8_t>(lanes & ~hit);
+            P.live[g] = static_cast<packet::LaneBits>(lanes & ~hit);
             any_left = any_left || P.live[g] != 0;
           }
         }

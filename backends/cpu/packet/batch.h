@@ -48,7 +48,7 @@ void trace_packets(const Accel& acc, std::span<const Ray> rays, const TraceOptio
   const bool partition = opt.traversal != Traversal::packet_ranged;  // packet: partition, the faster (docs/benchmarks.md)
   out.resize_for(rays.size(), opt);
   std::atomic<std::size_t> invalid{0};
-  constexpr std::size_t kN = MBVH_PACKET_RAYS;
+  constexpr std::size_t kN = packet::kPacketRays;
   parallel_for(rays.size(), kTraceChunk, threads, [&](std::size_t b, std::size_t e, unsigned) {
     static_assert(kTraceChunk % kN == 0, "chunks hold whole packets");
     auto P = std::make_unique<packet::Packet>();

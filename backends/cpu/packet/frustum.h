@@ -15,10 +15,10 @@ inline namespace MBVH_ISA_NS {
 namespace {
 namespace packet {
 
-/// A child box of a Node2, as broadcast rows (lo, hi per axis) and its scalar planes.
+/// A child box of a Node2, as broadcast rows of the SIMD ray's width (lo, hi per axis) and its scalar planes.
 struct Box8 {
-  __m256 lo[3], hi[3];
-  __m256 nearv[3], farv[3];  ///< the near and far planes broadcast, where the packet's signs agree
+  PV lo[3], hi[3];
+  PV nearv[3], farv[3];  ///< the near and far planes broadcast, where the packet's signs agree
   alignas(16) float near[4], far[4];  ///< the frustum's planes (the packet's common signs)
 };
 
@@ -26,8 +26,8 @@ inline void load_box(Box8& b, const float lox, const float hix, const float loy,
                      const float hiz, const Packet& P) {
   const float lo[3] = {lox, loy, loz}, hi[3] = {hix, hiy, hiz};
   for (int a = 0; a < 3; ++a) {
-    b.lo[a] = _mm256_set1_ps(lo[a]);
-    b.hi[a] = _mm256_set1_ps(hi[a]);
+    b.lo[a] = PL::set1(lo[a]);
+    b.hi[a] = PL::set1(hi[a]);
     b.near[a] = P.neg[a] ? hi[a] : lo[a];
     b.far[a] = P.neg[a] ? lo[a] : hi[a];
     b.nearv[a] = P.neg[a] ? b.hi[a] : b.lo[a];

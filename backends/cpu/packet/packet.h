@@ -2,8 +2,9 @@
 // packet.h — the cpu backend's coherent packets of rays (Áfra's thesis, ch. 2): their layout,
 // their loading with the frustum and the hybrid switch.
 //
-// A packet is MBVH_PACKET_RAYS rays in an array-of-structures-of-arrays layout: G SIMD rays of
-// 8 lanes (a 4x2 block of an 8x8 tile each: ray_of). It walks the binary tree (MBVH2) of the one build:
+// A packet is kPacketRays rays in an array-of-structures-of-arrays layout: G SIMD rays of
+// 8 lanes (AVX2: a 4x2 block of an 8x8 tile each, MBVH_PACKET_RAYS = 64 rays) or 16 lanes
+// (AVX-512: a 4x4 block, MBVH_PACKET_RAYS_16 = 128 rays, two tiles; ray_of). It walks the binary tree (MBVH2) of the one build:
 // - ranged traversal (Wald, Boulos & Shirley, "Ray Tracing Deformable Scenes Using Dynamic
 //   Bounding Volume Hierarchies", TOG 2007): the SIMD rays from the first to the last active one;
 // - partition traversal (Overbeck, Ramamoorthi & Mark, "Large Ray Packets for Real-Time Whitted
@@ -38,6 +39,7 @@
 #endif
 
 #include "backends/cpu/simd/lanes.h"
+#include "backends/cpu/simd/lanes16.h"
 #include "backends/cpu/simd/ray.h"
 
 namespace mbvh {
@@ -45,40 +47,115 @@ inline namespace MBVH_ISA_NS {
 namespace {
 namespace packet {
 
-constexpr int kLanes = 8;
-constexpr int kGroups = MBVH_PACKET_RAYS / kLanes;
-static_assert(kGroups * kLanes == MBVH_PACKET_RAYS && kGroups <= 32, "a packet is whole SIMD rays, at most 32");
+// The SIMD ray's width: 16 lanes (F16, mask registers) in the AVX-512 build, 8 (F8) in the AVX2
+// one; MBVH_PACKET_LANES=8 compiles the AVX-512 build with 8 lanes too (a comparison).
+#ifndef MBVH_PACKET_LANES
+#if MBVH_CPU_ISA_ID == 2
+#define MBVH_PACKET_LANES 16
+#else
+#define MBVH_PACKET_LANES 8
+#endif
+#endif
+#if MBVH_PACKET_LANES == 16 && MBVH_CPU_ISA_ID != 2
+#error "16-lane packets need the AVX-512 build"
+#endif
+constexpr int kLanes = MBVH_PACKET_LANES;
+static_assert(kLanes == 8 || kLanes == 16, "a SIMD ray is 8 or 16 lanes");
+// 16-lane SIMD rays: packets of two 8x8 tiles by default (eight SIMD rays of 4x4, as 64 rays
+// make eight of 8 lanes), which measured faster than one tile (docs/benchmarks.md, AVX-512).
+#ifndef MBVH_PACKET_RAYS_16
+#define MBVH_PACKET_RAYS_16 (2 * MBVH_PACKET_RAYS)
+#endif
+/// The rays of a packet: MBVH_PACKET_RAYS, or MBVH_PACKET_RAYS_16 with 16-lane SIMD rays.
+constexpr int kPacketRays = kLanes == 16 ? MBVH_PACKET_RAYS_16 : MBVH_PACKET_RAYS;
+constexpr int kGroups = kPacketRays / kLanes;
+static_assert(kGroups * kLanes == kPacketRays && kGroups <= 32, "a packet is whole SIMD rays, at most 32");
+/// The lanes of a SIMD ray as bits.
+using LaneBits = std::conditional_t<kLanes == 16, std::uint16_t, std::uint8_t>;
+constexpr unsigned kAllLanes = (1u << kLanes) - 1u;
 
-/// The packet's ray in slot g * 8 + l (lane l of SIMD ray g). Rays arrive in 8x8 image tiles,
-/// row by row (raygen, render); a SIMD ray is a 4x2 block of a tile, as in the thesis (ch. 2: 4x2
-/// SIMD rays), not a row of 8: its lanes lie closer together, so more of them take the same
-/// branch (a higher SIMD utilisation, docs/benchmarks.md). Slot -> ray within
-/// each 64 rays: block (g & 1, g >> 1) of 4x2, lane (l & 3, l >> 2) within it. Rays that are no
-/// tile (secondary rays in arrival order) are as coherent either way. A permutation: every ray
-/// of the packet has one slot.
+/// The packet traversal's lane operations: F8 or F16's, and the few a packet needs beside them
+/// (a lane set's blend, reductions, the integer rows). 16 lanes keep lane sets in mask registers.
+#if MBVH_PACKET_LANES == 16
+struct PL : F16 {
+  /// a where m's bit is clear, b where it is set.
+  static V sel(unsigned m, V a, V b) { return _mm512_mask_blend_ps(static_cast<__mmask16>(m), a, b); }
+  /// a where s's sign bit is clear, b where it is set.
+  static V sel_sign(V a, V b, V s) { return _mm512_mask_blend_ps(_mm512_movepi32_mask(_mm512_castps_si512(s)), a, b); }
+  static float hmin(V v) { return _mm512_reduce_min_ps(v); }
+  static float hmax(V v) { return _mm512_reduce_max_ps(v); }
+  /// The lanes where the rows of all ones at p are set.
+  static unsigned ones(const std::int32_t* p) { return _mm512_movepi32_mask(_mm512_load_si512(p)); }
+  /// Per lane: c0, c1 or c2 as the lane's k is 0, 1 or 2 (the rows k1, k2: all ones where k == 1, 2).
+  static V pick_k(V c0, V c1, V c2, const std::int32_t* k1, const std::int32_t* k2) {
+    return sel(ones(k2), sel(ones(k1), c0, c1), c2);
+  }
+  /// The lanes where the unsigned row at a exceeds b.
+  static unsigned ugt(const std::uint32_t* a, std::uint32_t b) {
+    return _mm512_cmpgt_epu32_mask(_mm512_load_si512(a), _mm512_set1_epi32(static_cast<int>(b)));
+  }
+  static void store_a(float* d, V v) { _mm512_store_ps(d, v); }
+  static void store_prim(std::uint32_t* d, unsigned m, std::uint32_t prim) {
+    _mm512_mask_storeu_epi32(d, static_cast<__mmask16>(m), _mm512_set1_epi32(static_cast<int>(prim)));
+  }
+};
+#else
+struct PL : F8 {
+  static V sel(unsigned m, V a, V b) { return _mm256_blendv_ps(a, b, lane_mask(m)); }
+  static V sel_sign(V a, V b, V s) { return _mm256_blendv_ps(a, b, s); }
+  static float hmin(V v) { return hmin8(v); }
+  static float hmax(V v) { return hmax8(v); }
+  static V pick_k(V c0, V c1, V c2, const std::int32_t* k1, const std::int32_t* k2) {
+    return select3(c0, c1, c2, _mm256_castsi256_ps(_mm256_load_si256(reinterpret_cast<const __m256i*>(k1))),
+                   _mm256_castsi256_ps(_mm256_load_si256(reinterpret_cast<const __m256i*>(k2))));
+  }
+  static unsigned ugt(const std::uint32_t* a, std::uint32_t b) {
+    const __m256i bias = _mm256_set1_epi32(INT32_MIN);
+    const __m256i x = _mm256_load_si256(reinterpret_cast<const __m256i*>(a));
+    return static_cast<unsigned>(_mm256_movemask_ps(_mm256_castsi256_ps(
+        _mm256_cmpgt_epi32(_mm256_xor_si256(x, bias), _mm256_xor_si256(_mm256_set1_epi32(static_cast<int>(b)), bias)))));
+  }
+  static void store_a(float* d, V v) { _mm256_store_ps(d, v); }
+  static void store_prim(std::uint32_t* d, unsigned m, std::uint32_t prim) {
+    const __m256i x = _mm256_load_si256(reinterpret_cast<const __m256i*>(d));
+    _mm256_store_si256(reinterpret_cast<__m256i*>(d), _mm256_castps_si256(_mm256_blendv_ps(
+        _mm256_castsi256_ps(x), _mm256_castsi256_ps(_mm256_set1_epi32(static_cast<int>(prim))), lane_mask(m))));
+  }
+};
+#endif
+using PV = PL::V;
+
+/// The packet's ray in slot g * kLanes + l (lane l of SIMD ray g). Rays arrive in 8x8 image tiles,
+/// row by row (raygen, render); a SIMD ray is a block of a tile, as in the thesis (ch. 2: 4x2
+/// SIMD rays of 8 lanes, 4x4 of 16), not a row: its lanes lie closer together, so more of them
+/// take the same branch (a higher SIMD utilisation, docs/benchmarks.md). Slot -> ray within
+/// each 64 rays: block (g & 1, g >> 1) of 4 x (kLanes / 4), lane (l & 3, l >> 2) within it. Rays
+/// that are no tile (secondary rays in arrival order) are as coherent either way. A permutation:
+/// every ray of the packet has one slot.
 constexpr int ray_of(int slot) {
-  if constexpr (MBVH_PACKET_RAYS % 64 != 0) {
+  if constexpr (kPacketRays % 64 != 0) {
     return slot;
   } else {
-    const int g = (slot & 63) >> 3, l = slot & 7;
-    return (slot & ~63) | (((g >> 1) * 2 + (l >> 2)) * 8 + (g & 1) * 4 + (l & 3));
+    constexpr int rows = kLanes / 4;  // a block's rows
+    const int g = (slot & 63) / kLanes, l = slot & (kLanes - 1);
+    return (slot & ~63) | (((g >> 1) * rows + (l >> 2)) * 8 + (g & 1) * 4 + (l & 3));
   }
 }
 
-/// One packet's rays, SoA per SIMD ray (lane l of SIMD ray g is ray ray_of(g * 8 + l) of the packet).
+/// One packet's rays, SoA per SIMD ray (lane l of SIMD ray g is ray ray_of(g * kLanes + l) of the packet).
 struct Packet {
-  static constexpr int N = MBVH_PACKET_RAYS;
-  alignas(32) float o[3][N], d[3][N], inv[3][N], invf[3][N], tmin[N];
-  alignas(32) float t[N], u[N], v[N];  ///< the best hit so far; t is the lane's tmax
-  alignas(32) std::uint32_t prim[N];
-  alignas(32) float to[3][N], ts[3][N];            ///< the triangle test's permuted origin and shear
-  alignas(32) std::int32_t k1[3][N], k2[3][N];     ///< role x, y, z reads coordinate 1 / 2 (all ones)
+  static constexpr int N = kPacketRays;
+  alignas(64) float o[3][N], d[3][N], inv[3][N], invf[3][N], tmin[N];
+  alignas(64) float t[N], u[N], v[N];  ///< the best hit so far; t is the lane's tmax
+  alignas(64) std::uint32_t prim[N];
+  alignas(64) float to[3][N], ts[3][N];            ///< the triangle test's permuted origin and shear
+  alignas(64) std::int32_t k1[3][N], k2[3][N];     ///< role x, y, z reads coordinate 1 / 2 (all ones)
   const mbvh::Ray* src = nullptr;  ///< the packet's rays (the scalar test of an undecided lane prepares its own)
   /// Where slot s's ray is in src: src_of[s] when set (dacrt's leaves, whose rays are ids into
   /// their batch), else ray_of(s).
   const std::uint32_t* src_of = nullptr;
-  std::uint8_t live[kGroups];   ///< valid lanes; any hit: not yet occluded
-  std::uint8_t valid[kGroups];  ///< valid lanes (the counters of the others stay 0)
+  LaneBits live[kGroups];   ///< valid lanes; any hit: not yet occluded
+  LaneBits valid[kGroups];  ///< valid lanes (the counters of the others stay 0)
   bool uniform_k = false;      ///< every valid lane has the same kx, ky, kz
   int k[3] = {0, 1, 2};
   // the frustum: interval bounds of the valid lanes, per axis (lane 3 unused)
@@ -127,11 +204,12 @@ inline bool load_packet(Packet& P, const mbvh::Ray* rays, int n, std::size_t& in
   unsigned neg_any[3] = {0, 0, 0}, pos_any[3] = {0, 0, 0};
   __m256i codes = _mm256_setzero_si256();
   bool any_valid = false;
-  for (int g = 0; g < kGroups; ++g) {
-    const int i = g * kLanes;
+  for (int g = 0; g < kGroups; ++g) P.live[g] = P.valid[g] = 0;
+  for (int c = 0; c < kPacketRays / 8; ++c) {  // eight slots at a time, whatever the SIMD ray's width
+    const int i = c * 8;
     __m256 r[8];
     unsigned in_batch = 0;
-    for (int l = 0; l < kLanes; ++l) {
+    for (int l = 0; l < 8; ++l) {
       const int at = ray_of(i + l);
       in_batch |= (at < n ? 1u : 0u) << l;
       r[l] = at < n ? _mm256_loadu_ps(&rays[at].ox) : zero;  // a missing ray: d = 0, invalid
@@ -152,7 +230,7 @@ inline bool load_packet(Packet& P, const mbvh::Ray* rays, int n, std::size_t& in
     ok = _mm256_and_ps(ok, _mm256_cmp_ps(amax, _mm256_set1_ps(std::numeric_limits<float>::min()), _CMP_GE_OQ));
     const unsigned valid = static_cast<unsigned>(_mm256_movemask_ps(ok)) & in_batch;
     invalid += static_cast<std::size_t>(std::popcount(in_batch & ~valid));
-    P.live[g] = P.valid[g] = static_cast<std::uint8_t>(valid);
+    P.live[i / kLanes] = P.valid[i / kLanes] = static_cast<LaneBits>(P.valid[i / kLanes] | valid << (i % kLanes));
     const __m256 vm = lane_mask(valid);
     // kz = the largest |d| (ties to the lower axis), kx, ky the next two, swapped when d[kz] < 0
     const __m256i one = _mm256_set1_epi32(1), two = _mm256_set1_epi32(2);
@@ -201,7 +279,7 @@ inline bool load_packet(Packet& P, const mbvh::Ray* rays, int n, std::size_t& in
         uhi[a] = _mm256_max_ps(uhi[a], _mm256_blendv_ps(ninf, u, lm));
       }
       // incoherent rays usually show it in the first SIMD rays: stop loading then
-      if ((g == 0 || g == 2) && spread_exceeds(ulo, uhi)) return false;
+      if ((c == 0 || c == 2) && spread_exceeds(ulo, uhi)) return false;
     }
     const __m256 tmin0 = _mm256_add_ps(tmin, zero);  // -0 becomes +0
     _mm256_store_ps(P.tmin + i, _mm256_and_ps(tmin0, vm));
@@ -218,7 +296,7 @@ inline bool load_packet(Packet& P, const mbvh::Ray* rays, int n, std::size_t& in
   }
   if (hybrid && spread_exceeds(ulo, uhi)) return false;
   // uniform kx, ky, kz: one code among the valid lanes
-  alignas(32) std::uint32_t c[8];
+  alignas(64) std::uint32_t c[8];
   _mm256_store_si256(reinterpret_cast<__m256i*>(c), codes);
   const std::uint32_t all = c[0] | c[1] | c[2] | c[3] | c[4] | c[5] | c[6] | c[7];
   P.uniform_k = std::popcount(all) <= 1;

@@ -19,36 +19,37 @@ inline namespace MBVH_ISA_NS {
 namespace {
 namespace packet {
 
-/// box_test (intersect.h) on the 8 lanes of SIMD ray g against two boxes at once: each lane's
+/// box_test (intersect.h) on the lanes of SIMD ray g against two boxes at once: each lane's
 /// near and far planes by the sign of its direction, the same operations in the same order.
 /// Returns the hit lanes of each box and their entry distances. SameSign: every lane has the
 /// packet's signs, so the planes are the box's broadcast ones.
 template <bool SameSign>
 [[gnu::always_inline]] inline void box2_group(const Packet& P, int g, const Box8& b0, const Box8& b1, unsigned& h0,
-                                              unsigned& h1, __m256& te0, __m256& te1) {
+                                              unsigned& h1, PV& te0, PV& te1) {
+  using F = PL;
   const int i = g * kLanes;
-  const __m256 tcull = _mm256_mul_ps(_mm256_load_ps(P.t + i), _mm256_set1_ps(kCullSlack));
-  const __m256 tmin = _mm256_load_ps(P.tmin + i);
-  __m256 e0 = tmin, e1 = tmin, x0 = tcull, x1 = tcull;
+  const PV tcull = F::mul(F::load(P.t + i), F::set1(kCullSlack));
+  const PV tmin = F::load(P.tmin + i);
+  PV e0 = tmin, e1 = tmin, x0 = tcull, x1 = tcull;
   for (int a = 0; a < 3; ++a) {
-    const __m256 o = _mm256_load_ps(P.o[a] + i);
-    const __m256 inv = _mm256_load_ps(P.inv[a] + i), invf = _mm256_load_ps(P.invf[a] + i);
-    __m256 n0, f0, n1, f1;
+    const PV o = F::load(P.o[a] + i);
+    const PV inv = F::load(P.inv[a] + i), invf = F::load(P.invf[a] + i);
+    PV n0, f0, n1, f1;
     if constexpr (SameSign) {
       n0 = b0.nearv[a], f0 = b0.farv[a], n1 = b1.nearv[a], f1 = b1.farv[a];
     } else {
-      const __m256 s = _mm256_load_ps(P.d[a] + i);  // the sign bit selects the planes
-      n0 = _mm256_blendv_ps(b0.lo[a], b0.hi[a], s), f0 = _mm256_blendv_ps(b0.hi[a], b0.lo[a], s);
-      n1 = _mm256_blendv_ps(b1.lo[a], b1.hi[a], s), f1 = _mm256_blendv_ps(b1.hi[a], b1.lo[a], s);
+      const PV s = F::load(P.d[a] + i);  // the sign bit selects the planes
+      n0 = F::sel_sign(b0.lo[a], b0.hi[a], s), f0 = F::sel_sign(b0.hi[a], b0.lo[a], s);
+      n1 = F::sel_sign(b1.lo[a], b1.hi[a], s), f1 = F::sel_sign(b1.hi[a], b1.lo[a], s);
     }
     // box_test's order: te = max(tnz, max(tny, max(tnx, tmin))), tx likewise from tcull
-    e0 = _mm256_max_ps(_mm256_mul_ps(_mm256_sub_ps(n0, o), inv), e0);
-    x0 = _mm256_min_ps(_mm256_mul_ps(_mm256_sub_ps(f0, o), invf), x0);
-    e1 = _mm256_max_ps(_mm256_mul_ps(_mm256_sub_ps(n1, o), inv), e1);
-    x1 = _mm256_min_ps(_mm256_mul_ps(_mm256_sub_ps(f1, o), invf), x1);
+    e0 = F::max(F::mul(F::sub(n0, o), inv), e0);
+    x0 = F::min(F::mul(F::sub(f0, o), invf), x0);
+    e1 = F::max(F::mul(F::sub(n1, o), inv), e1);
+    x1 = F::min(F::mul(F::sub(f1, o), invf), x1);
   }
-  h0 = static_cast<unsigned>(_mm256_movemask_ps(_mm256_cmp_ps(e0, x0, _CMP_LE_OQ)));
-  h1 = static_cast<unsigned>(_mm256_movemask_ps(_mm256_cmp_ps(e1, x1, _CMP_LE_OQ)));
+  h0 = F::le(e0, x0);
+  h1 = F::le(e1, x1);
   te0 = e0;
   te1 = e1;
 }
@@ -60,7 +61,7 @@ struct Active {
   std::uint8_t n = 0;            ///< partition: SIMD rays listed; ranged: last + 1
   std::uint8_t first = 0;        ///< ranged
   std::uint8_t ids[kGroups]{};   ///< partition
-  std::uint8_t mask[kGroups]{};  ///< lanes per SIMD ray
+  LaneBits mask[kGroups]{};  ///< lanes per SIMD ray
   // the SIMD rays to visit: g = at(k) for k in [begin(), end()), skipping mask[g] == 0
   int begin() const { return Partition ? 0 : first; }
   int end() const { return n; }
@@ -71,7 +72,7 @@ struct Active {
   }
   /// Records SIMD ray g's lanes `m` (g rising between clears).
   [[gnu::always_inline]] void add(int g, unsigned m) {
-    mask[g] = static_cast<std::uint8_t>(m);
+    mask[g] = static_cast<LaneBits>(m);
     if constexpr (Partition) {  // without a branch: the list grows by one only when m != 0
       ids[n] = static_cast<std::uint8_t>(g);  // n <= g < kGroups: one add per g between clears
       n = static_cast<std::uint8_t>(n + (m != 0 ? 1 : 0));
@@ -152,7 +153,7 @@ inline void trace_packet(const TraceView& v, Packet& P, RayStats* st) {
         if (c1 == Cover::all) a1 = act;
         if (c0 == Cover::some || c1 == Cover::some) {
           // the lanes' own tests, for the boxes the frustum leaves open
-          __m256 near0 = _mm256_set1_ps(INFINITY), near1 = near0;
+          PV near0 = PL::set1(INFINITY), near1 = near0;
           for (int k = act.begin(); k < act.end(); ++k) {
             const int g = act.at(k);
             unsigned lanes = act.mask[g];
@@ -160,18 +161,18 @@ inline void trace_packet(const TraceView& v, Packet& P, RayStats* st) {
             if (lanes == 0) continue;
             if constexpr (Stats) count_op(st, g, lanes);
             unsigned h0, h1;
-            __m256 te0, te1;
+            PV te0, te1;
             box2_group<SameSign>(P, g, b0, b1, h0, h1, te0, te1);
             if (c0 == Cover::some) a0.add(g, h0 & lanes);
             if (c1 == Cover::some) a1.add(g, h1 & lanes);
             if (!P.frustum) {  // the order of children from the lanes' entries
-              near0 = _mm256_min_ps(near0, _mm256_blendv_ps(_mm256_set1_ps(INFINITY), te0, lane_mask(h0 & lanes)));
-              near1 = _mm256_min_ps(near1, _mm256_blendv_ps(_mm256_set1_ps(INFINITY), te1, lane_mask(h1 & lanes)));
+              near0 = PL::min(near0, PL::sel(h0 & lanes, PL::set1(INFINITY), te0));
+              near1 = PL::min(near1, PL::sel(h1 & lanes, PL::set1(INFINITY), te1));
             }
           }
           if (!P.frustum) {
-            ent0 = hmin8(near0);
-            ent1 = hmin8(near1);
+            ent0 = PL::hmin(near0);
+            ent1 = PL::hmin(near1);
           }
         }
         const bool e0 = a0.empty(), e1 = a1.empty();
@@ -200,10 +201,10 @@ inline void trace_packet(const TraceView& v, Packet& P, RayStats* st) {
       const Leaf l = v.leaves[~cur];
       for (std::uint32_t j = l.first; j < l.first + l.count; ++j) {
         const Tri& tri = v.tris[j];
-        __m256 vb[3][3];
+        PV vb[3][3];
         const float* rows[3] = {tri.v0, tri.v1, tri.v2};
         for (int q = 0; q < 3; ++q)
-          for (int a = 0; a < 3; ++a) vb[q][a] = _mm256_set1_ps(rows[q][a]);
+          for (int a = 0; a < 3; ++a) vb[q][a] = PL::set1(rows[q][a]);
         bool any_left = false;
         for (int k = act.begin(); k < act.end(); ++k) {
           const int g = act.at(k);
@@ -219,7 +220,7 @@ inline void trace_packet(const TraceView& v, Packet& P, RayStats* st) {
           else hit = tri_group<Any, UniformK>(P, g, tri, vb, lanes);
           if constexpr (Any) {
             for (unsigned h = hit; h != 0; h &= h - 1) P.prim[g * kLanes + std::countr_zero(h)] = tri_prim(tri);
-            P.live[g] = static_cast<std::uint8_t>(P.live[g] & ~hit);
+            P.live[g] = static_cast<LaneBits>(P.live[g] & ~hit);
             any_left = any_left || (lanes & ~hit) != 0;
           }
         }

@@ -21,22 +21,17 @@ namespace packet {
 /// Closest hit, SIMD ray at lane i: the lanes of `sure` hit at t (u = un / det, v = vn / det);
 /// each keeps the smaller (t, prim) as visit_leaf does (t <= its best t holds: replaced on t below
 /// it or a smaller prim), its tmax shrinking to t.
-[[gnu::always_inline]] inline void keep_closest(Packet& P, int i, unsigned sure, __m256 t, __m256 tmax, __m256 un, __m256 vn,
-                                                __m256 det, std::uint32_t prim) {
+[[gnu::always_inline]] inline void keep_closest(Packet& P, int i, unsigned sure, PV t, PV tmax, PV un, PV vn, PV det,
+                                                std::uint32_t prim) {
   if (sure == 0) return;
-  const __m256i bias = _mm256_set1_epi32(INT32_MIN);
-  const __m256i pr = _mm256_set1_epi32(static_cast<int>(prim));
-  const __m256i bp = _mm256_load_si256(reinterpret_cast<const __m256i*>(P.prim + i));
-  const __m256 smaller = _mm256_castsi256_ps(_mm256_cmpgt_epi32(_mm256_xor_si256(bp, bias), _mm256_xor_si256(pr, bias)));  // prim < best
-  const unsigned upd = sure & static_cast<unsigned>(_mm256_movemask_ps(_mm256_or_ps(_mm256_cmp_ps(t, tmax, _CMP_LT_OQ), smaller)));
+  const unsigned smaller = PL::ugt(P.prim + i, prim);  // prim < best
+  const unsigned upd = sure & (PL::bits(PL::cmp<_CMP_LT_OQ>(t, tmax)) | smaller);
   if (upd == 0) return;
-  const __m256 lanes = lane_mask(upd);
-  _mm256_store_ps(P.t + i, _mm256_blendv_ps(tmax, t, lanes));
-  P.tcull_lo = std::min(P.tcull_lo, hmin8(_mm256_blendv_ps(_mm256_set1_ps(INFINITY), t, lanes)) * kCullSlack);
-  _mm256_store_ps(P.u + i, _mm256_blendv_ps(_mm256_load_ps(P.u + i), _mm256_div_ps(un, det), lanes));
-  _mm256_store_ps(P.v + i, _mm256_blendv_ps(_mm256_load_ps(P.v + i), _mm256_div_ps(vn, det), lanes));
-  _mm256_store_si256(reinterpret_cast<__m256i*>(P.prim + i),
-                     _mm256_castps_si256(_mm256_blendv_ps(_mm256_castsi256_ps(bp), _mm256_castsi256_ps(pr), lanes)));
+  PL::store_a(P.t + i, PL::sel(upd, tmax, t));
+  P.tcull_lo = std::min(P.tcull_lo, PL::hmin(PL::sel(upd, PL::set1(INFINITY), t)) * kCullSlack);
+  PL::store_a(P.u + i, PL::sel(upd, PL::load(P.u + i), PL::div(un, det)));
+  PL::store_a(P.v + i, PL::sel(upd, PL::load(P.v + i), PL::div(vn, det)));
+  PL::store_prim(P.prim + i, upd, prim);
 }
 
 /// The `fast` precision's triangle test against the lanes `m` of SIMD ray g: mt_lanes, the
@@ -44,10 +39,10 @@ namespace packet {
 /// ray's answer is the one the cpu backend's single-ray fast traversals give it (the hybrid's
 /// too). Closest hit keeps each lane's smallest (t, prim); any hit returns the lanes that hit.
 template <bool Any>
-[[gnu::always_inline]] inline unsigned tri_group_mt(Packet& P, int g, const Tri& tri, const __m256 (&vb)[3][3], unsigned m) {
-  using F = F8;
+[[gnu::always_inline]] inline unsigned tri_group_mt(Packet& P, int g, const Tri& tri, const PV (&vb)[3][3], unsigned m) {
+  using F = PL;
   const int i = g * kLanes;
-  __m256 v0[3], e1[3], e2[3], d[3], s[3];
+  PV v0[3], e1[3], e2[3], d[3], s[3];
   for (int a = 0; a < 3; ++a) {
     v0[a] = vb[0][a];
     e1[a] = F::sub(vb[1][a], v0[a]);
@@ -55,27 +50,26 @@ template <bool Any>
     d[a] = F::load(P.d[a] + i);
     s[a] = F::sub(F::load(P.o[a] + i), v0[a]);
   }
-  __m256 t, u, v;
-  const __m256 tmax = F::load(P.t + i);
-  const __m256 ok = mt_lanes<F>(e1, e2, d, s, F::load(P.tmin + i), tmax, t, u, v);
-  const __m256 one = F::set1(1.0f);
+  PV t, u, v;
+  const PV tmax = F::load(P.t + i);
+  const auto ok = mt_lanes<PL>(e1, e2, d, s, F::load(P.tmin + i), tmax, t, u, v);
+  const PV one = F::set1(1.0f);
   const unsigned hit = m & F::bits(ok);
   if constexpr (!Any) keep_closest(P, i, hit, t, tmax, u, v, one, tri_prim(tri));
   return hit;
 }
 
-/// Lanes i..i+7's coordinate of `role` (their kx, ky or kz) of the vertex rows v.
-[[gnu::always_inline]] inline __m256 select_role(const Packet& P, int i, int role, const __m256 (&v)[3]) {
-  return select3(v[0], v[1], v[2], _mm256_castsi256_ps(_mm256_load_si256(reinterpret_cast<const __m256i*>(P.k1[role] + i))),
-                 _mm256_castsi256_ps(_mm256_load_si256(reinterpret_cast<const __m256i*>(P.k2[role] + i))));
+/// The SIMD ray's lanes at i: their coordinate of `role` (their kx, ky or kz) of the vertex rows v.
+[[gnu::always_inline]] inline PV select_role(const Packet& P, int i, int role, const PV (&v)[3]) {
+  return PL::pick_k(v[0], v[1], v[2], P.k1[role] + i, P.k2[role] + i);
 }
 
-/// The [tmin, tmax] of SIMD ray lanes i..i+7 (watertight_lanes' range).
+/// The [tmin, tmax] of the SIMD ray's lanes at i (watertight_lanes' range).
 struct LaneRange {
   const float* tmin;
   const float* tmax;
-  [[gnu::always_inline]] __m256 lo() const { return F8::load(tmin); }
-  [[gnu::always_inline]] __m256 hi() const { return F8::load(tmax); }
+  [[gnu::always_inline]] PV lo() const { return PL::load(tmin); }
+  [[gnu::always_inline]] PV hi() const { return PL::load(tmax); }
 };
 
 /// One triangle against the lanes `m` of SIMD ray g: tri_test (intersect.h) lane by lane — the
@@ -83,12 +77,12 @@ struct LaneRange {
 /// tri_test itself. Closest hit: keeps each lane's smallest (t, prim) as visit_leaf does. Any
 /// hit: returns the lanes that hit.
 template <bool Any, bool UniformK>
-[[gnu::always_inline]] inline unsigned tri_group(Packet& P, int g, const Tri& tri, const __m256 (&vb)[3][3], unsigned m) {
-  using F = F8;
+[[gnu::always_inline]] inline unsigned tri_group(Packet& P, int g, const Tri& tri, const PV (&vb)[3][3], unsigned m) {
+  using F = PL;
   const int i = g * kLanes;
-  const __m256 o[3] = {F::load(P.to[0] + i), F::load(P.to[1] + i), F::load(P.to[2] + i)};
-  const __m256 s[3] = {F::load(P.ts[0] + i), F::load(P.ts[1] + i), F::load(P.ts[2] + i)};
-  __m256 X[3], Y[3], Z[3];
+  const PV o[3] = {F::load(P.to[0] + i), F::load(P.to[1] + i), F::load(P.to[2] + i)};
+  const PV s[3] = {F::load(P.ts[0] + i), F::load(P.ts[1] + i), F::load(P.ts[2] + i)};
+  PV X[3], Y[3], Z[3];
   for (int q = 0; q < 3; ++q) {
     if constexpr (UniformK)
       shear_lanes<F>(vb[q][P.k[0]], vb[q][P.k[1]], vb[q][P.k[2]], o, s, X[q], Y[q], Z[q]);

@@ -100,9 +100,9 @@ template <class F, class Range>
   const V4 zero = F::zero();
   const unsigned exact0 = F::bits(F::or_(F::template cmp<_CMP_EQ_OQ>(U, zero),
                                          F::or_(F::template cmp<_CMP_EQ_OQ>(V, zero), F::template cmp<_CMP_EQ_OQ>(W, zero))));
-  const V4 neg = F::or_(F::template cmp<_CMP_LT_OQ>(U, zero),
+  const auto neg = F::or_(F::template cmp<_CMP_LT_OQ>(U, zero),
                         F::or_(F::template cmp<_CMP_LT_OQ>(V, zero), F::template cmp<_CMP_LT_OQ>(W, zero)));
-  const V4 pos = F::or_(F::template cmp<_CMP_GT_OQ>(U, zero),
+  const auto pos = F::or_(F::template cmp<_CMP_GT_OQ>(U, zero),
                         F::or_(F::template cmp<_CMP_GT_OQ>(V, zero), F::template cmp<_CMP_GT_OQ>(W, zero)));
   w.exact0 = valid & exact0;
   const unsigned inside = valid & ~exact0 & ~F::bits(F::and_(neg, pos));
@@ -110,7 +110,7 @@ template <class F, class Range>
   const V4 det = F::add(F::add(U, V), W);
   const V4 T = F::add(F::add(F::mul(U, Z[0]), F::mul(V, Z[1])), F::mul(W, Z[2]));
   const V4 t = F::div(T, det);
-  const V4 in = F::and_(F::template cmp<_CMP_GE_OQ>(t, range.lo()), F::template cmp<_CMP_LE_OQ>(t, range.hi()));
+  const auto in = F::and_(F::template cmp<_CMP_GE_OQ>(t, range.lo()), F::template cmp<_CMP_LE_OQ>(t, range.hi()));
   w.cand = inside & F::bits(F::and_(in, F::template cmp<_CMP_NEQ_UQ>(det, zero)));
   if (w.cand == 0) return;
   w.sure = w.cand & F::bits(F::template cmp<_CMP_GT_OQ>(t, t_error_bound<F>(X, Y, Z, U, V, W, det)));
@@ -154,11 +154,11 @@ template <class F, bool Any = false>
 
 /// Möller–Trumbore lane by lane from the edges e1, e2, the direction d and
 /// s = o - v0, with FMA and the reciprocal estimate refined by one Newton step: returns the lanes
-/// that hit within [tmin, tmax] (all ones) with t and the weights u, v. The one sequence of
+/// that hit within [tmin, tmax] (F's comparison result: all ones, or F16's mask register) with t and the weights u, v. The one sequence of
 /// operations of the fast mode's SIMD leaves (a pack's triangles against one ray) and of its
 /// packets (one triangle against a SIMD ray, packet/triangle.h), so both give a ray the same bits.
 template <class F>
-[[gnu::always_inline]] inline typename F::V mt_lanes(const typename F::V (&e1)[3],
+[[gnu::always_inline]] inline auto mt_lanes(const typename F::V (&e1)[3],
                                                      const typename F::V (&e2)[3], const typename F::V (&d)[3],
                                                      const typename F::V (&s)[3], typename F::V tmin, typename F::V tmax,
                                                      typename F::V& t, typename F::V& u, typename F::V& v) {
@@ -173,7 +173,7 @@ template <class F>
   v = F::mul(dot_fma<F>(d, q), inv);
   t = F::mul(dot_fma<F>(e2, q), inv);
   const V4 zero = F::zero(), one = F::set1(1.0f);
-  V4 ok = F::template cmp<_CMP_NEQ_OQ>(det, zero);
+  auto ok = F::template cmp<_CMP_NEQ_OQ>(det, zero);
   ok = F::and_(ok, F::and_(F::template cmp<_CMP_GE_OQ>(u, zero), F::template cmp<_CMP_GE_OQ>(v, zero)));
   ok = F::and_(ok, F::template cmp<_CMP_LE_OQ>(F::add(u, v), one));
   return F::and_(ok, F::and_(F::template cmp<_CMP_GE_OQ>(t, tmin), F::template cmp<_CMP_LE_OQ>(t, tmax)));
@@ -196,7 +196,7 @@ template <class F, bool Any = false>
     s[a] = F::sub(F::bcast(&r.o[a]), v0[a]);
   }
   V4 t, u, v;
-  const V4 ok = mt_lanes<F>(e1, e2, d, s, F::bcast(&r.tmin), F::set1(tmax), t, u, v);
+  const auto ok = mt_lanes<F>(e1, e2, d, s, F::bcast(&r.tmin), F::set1(tmax), t, u, v);
   const V4 one = F::set1(1.0f);
   const unsigned hit = valid & F::bits(ok);
   if (Any || hit == 0) return hit;
