@@ -42,7 +42,7 @@ def main(paths):
     if not speed:
         sys.exit("packet_table.py: no usable records in " + " ".join(paths))
     order.sort(key=lambda k: (k[0], KINDS.index(k[1]) if k[1] in KINDS else 9, k[2]))
-    print("| scene | rays | threads | best single-ray cpu | packet-ranged | packet-partition | embree 1 | embree 8 "
+    print("| scene | rays | threads | best single-ray cpu | packet-ranged | packet-partition | embree 1 | embree 16 "
           "| packet / single | target | packet / embree's faster | SIMD utilisation | nodes/ray packet (single) |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     met = total = met_e = total_e = 0

@@ -142,6 +142,7 @@ static nlohmann::json report_json(const BenchReport& rep) {
                             {"simd_utilisation", r.simd_utilisation >= 0 ? nlohmann::json(r.simd_utilisation) : nlohmann::json(nullptr)},
                             {"verify_mismatches", r.verify_mismatches},
                             {"verified", r.verified()},
+                            {"peer", r.peer},
                             {"error_rays", r.error_rays},
                             {"error_mismatches", r.error_mismatches},
                             {"error_rate", r.error_rays ? double(r.error_mismatches) / double(r.error_rays) : 0.0},
@@ -430,6 +431,7 @@ BenchReport run_bench(const Scene& scene, const Accel& acc, const BenchOptions& 
       BenchRecord r;
       r.scene = scene.name;
       r.backend = bn;
+      r.peer = b.peer();
       r.device = b.describe();
       r.isa = b.isa();
       r.layout = layout_label(to);  // "-" for dacrt
