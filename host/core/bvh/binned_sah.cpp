@@ -82,7 +82,13 @@ struct Bins {
 class SahBuilder {
 public:
   SahBuilder(const BuildOptions& opt, RawVector<PrimRef>& prims)
-      : opt_(opt), prims_(prims), scratch_(prims.size()), bins_(std::clamp(opt.bins, 2u, kMaxBins)) {}
+      : opt_(opt), prims_(prims), scratch_(take_from(opt, &BuildContext_Store::scratch)),
+        bins_(std::clamp(opt.bins, 2u, kMaxBins)) {
+    scratch_.resize(prims.size());
+  }
+  ~SahBuilder() { give_back(opt_, &BuildContext_Store::scratch, scratch_); }
+  SahBuilder(const SahBuilder&) = delete;
+  SahBuilder& operator=(const SahBuilder&) = delete;
 
   // Splits node n (in `arena`) into two children appended to `arena`, or marks it a leaf.
   // `threads`: workers for a large node's chunks (1 inside a subtree task).
