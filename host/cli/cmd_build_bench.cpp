@@ -25,7 +25,8 @@ void print(const BuildBenchReport& r) {
   say("%s, %zu triangles, quality %s, %u threads: ours %.1f ms (build + MBVH4, median of %u), SAH %.2f, %zu references\n",
       r.scene.c_str(), r.triangles, q, r.threads, median(r.build_ms), r.repeats, r.sah_binary, r.references);
   const double tris = double(std::max<std::size_t>(r.triangles, 1));
-  say("  ours: %.0f minor page faults (%.4f per triangle, median)\n", median(r.faults), median(r.faults) / tris);
+  say("  ours: %.0f minor page faults (%.4f per triangle, median; the first build %.4f)\n", median(r.faults),
+      median(r.faults) / tris, r.faults[0] / tris);
   say("  ours by phase (medians): records %.1f, tree %.1f, flatten %.1f, stats %.1f, MBVH4 %.1f ms\n",
       median(r.phase_ms[0]), median(r.phase_ms[1]), median(r.phase_ms[2]), median(r.phase_ms[3]), median(r.phase_ms[4]));
   if (r.embree_build_ms)
@@ -34,13 +35,17 @@ void print(const BuildBenchReport& r) {
   else
     say("  embree: not built in\n");
   if (!r.embree_faults.empty())
-    say("  embree: %.0f minor page faults (%.4f per triangle, median)\n", median(r.embree_faults),
-        median(r.embree_faults) / tris);
+    say("  embree: %.0f minor page faults (%.4f per triangle, median; the first build %.4f)\n", median(r.embree_faults),
+        median(r.embree_faults) / tris, r.embree_faults[0] / tris);
   if (!r.rebuild_ms.empty())
     say("  rebuild in a kept BuildContext: %.1f ms (median of %u), %.0f minor page faults (%.4f per triangle); "
         "cold build / rebuild %.2fx\n",
         median(r.rebuild_ms), r.repeats, median(r.rebuild_faults), median(r.rebuild_faults) / tris,
         median(r.build_ms) / median(r.rebuild_ms));
+  if (!r.rebuild_ms.empty())
+    say("  rebuild by phase (medians): records %.1f, tree %.1f, flatten %.1f, stats %.1f, MBVH4 %.1f ms\n",
+        median(r.rebuild_phase_ms[0]), median(r.rebuild_phase_ms[1]), median(r.rebuild_phase_ms[2]),
+        median(r.rebuild_phase_ms[3]), median(r.rebuild_phase_ms[4]));
   if (const auto& v = r.versus)
     say("  %s, %zu diffuse rays, %u interleaved passes: %s %.3f Mrays/s, %s %.3f Mrays/s, speed %s/%s %.3fx (median of "
         "per-pair ratios; min %.3f, max %.3f)\n",

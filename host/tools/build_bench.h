@@ -58,6 +58,7 @@ struct BuildBenchReport {
   /// (build + MBVH4) and Embree's (rtcCommitScene with the triangle copy).
   std::vector<double> faults, embree_faults;
   std::vector<double> rebuild_ms, rebuild_faults;  ///< the rebuilds in a kept context (rebuild)
+  std::vector<double> rebuild_phase_ms[5];          ///< the rebuilds by phase, as phase_ms
   std::optional<std::vector<double>> embree_build_ms;  ///< every repeat; none where embree is not built in
   std::optional<VersusResult> versus;
 };
