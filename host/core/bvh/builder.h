@@ -101,15 +101,17 @@ struct FastBox {
   }
 };
 
-/// A node of a builder's arena: a range of the record array, children in the same arena.
+/// A node of a builder's arena: a range of the record array, children in the same arena. The
+/// bounds of its centroids, which only splitting it needs, are kept by the builder beside it.
 struct TmpNode {
-  FastBox box, cbox;          // bounds of the triangles and of their centroids
+  FastBox box;                // bounds of the triangles
   std::uint32_t begin, end;   // range of the record array
   std::uint32_t depth;
   std::int32_t child[2] = {-1, -1};  // indices into the same arena; -1: none
   bool leaf = false;
   bool forced = false;        // leaf made by the depth cap or unsplittable centroids
 };
+static_assert(sizeof(TmpNode) == 48);
 
 /// A builder's result before flattening: the top of the tree in `upper`; an upper node whose
 /// subtree was built by its own task names that task's arena in subtree_of (else -1), whose
@@ -180,7 +182,7 @@ void give_back(const BuildOptions& opt, V BuildContext_Store::*slot, V& v) {
 
 /// The step both builders (binned SAH, LBVH) take after splitting the top levels into `out.upper`:
 /// the root made an inner node (a one-leaf scene gets a root with one leaf child), then every
-/// subtree job (jobs[j]: the top node it starts from) built by `build_one(subtree)` on the pool,
+/// subtree job (jobs[j]: the top node it starts from) built by `build_one(subtree, jobs[j])` on the pool,
 /// largest first; subtree j starts as a copy of its top node. The bytes do not depend on which
 /// worker ran a job. Progress goes from 0.25 to 0.95.
 template <class BuildOne>
@@ -208,7 +210,7 @@ void build_subtrees(Arenas& out, const std::vector<std::size_t>& jobs, const Bui
     for (std::size_t o = b; o < e; ++o) {
       const std::size_t j = order[o];
       out.subtrees[j].push_back(upper[jobs[j]]);
-      build_one(out.subtrees[j]);
+      build_one(out.subtrees[j], jobs[j]);
       if (opt.progress) opt.progress(0.25 + 0.7 * static_cast<double>(++built) / static_cast<double>(jobs.size()));
     }
   });
