@@ -12,6 +12,7 @@
 #include "host/core/layouts.h"
 #include "mbvh/accel.h"
 #include "mbvh/scene.h"
+#include "tests/helpers.h"
 #include "tests/invariants.h"
 
 using namespace mbvh;
@@ -87,4 +88,11 @@ TEST_CASE("builds on several threads may share one BuildContext", "[build][conte
     });
   for (auto& t : ts) t.join();
   for (int t = 0; t < 4; ++t) CHECK(got[t] == 3);
+}
+
+TEST_CASE("mbvh build-bench --rebuild reports rebuilds in a kept context and page faults", "[cli][context]") {
+  const auto r = mbvh_test::run_cli("build-bench gen:soup:3000 --repeats 2 --threads 2 --rebuild --json -");
+  REQUIRE(r.code == 0);
+  CHECK_THAT(r.output, Catch::Contains("rebuild in a kept BuildContext") && Catch::Contains("minor page faults"));
+  CHECK_THAT(r.output, Catch::Contains("\"rebuild_speedup\"") && Catch::Contains("\"faults_per_triangle\""));
 }

@@ -112,8 +112,15 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
   } else {
     // -- the binary tree
     build::Arenas arenas = opt.context ? opt.context->impl().take_arenas() : build::Arenas();
+    // the triangle records' array, written only after the tree, is the binned SAH's partition
+    // array meanwhile (48 bytes a record there, 32 needed): no array of its own to fault in
+    acc->impl_->tris_ = build::take_from(opt, &S::tris);
+    acc->impl_->tris_.resize(prims.size());
+    static_assert(sizeof(Tri) >= sizeof(PrimRef) && alignof(Tri) % alignof(PrimRef) == 0);
     if (opt.quality == BuildQuality::low) build::build_lbvh(prims, refs.root, refs.croot, opt, arenas);
-    else build::build_binned_sah(prims, refs.root, refs.croot, opt, arenas);
+    else
+      build::build_binned_sah(prims, refs.root, refs.croot, opt, arenas,
+                              reinterpret_cast<PrimRef*>(static_cast<void*>(acc->impl_->tris_.data())));
     t_tree = Clock::now();
 
     // -- flatten depth-first; leaves come out in record order
@@ -124,8 +131,6 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
 
     if (opt.context) opt.context->impl().give_arenas(std::move(arenas));
     arenas = build::Arenas();
-    acc->impl_->tris_ = build::take_from(opt, &S::tris);
-    acc->impl_->tris_.resize(prims.size());
     build::fill_tris(scene, prims, acc->impl_->tris_, opt.threads);
     build::give_back(opt, &S::prims, prims);
   }

@@ -81,10 +81,16 @@ struct Bins {
 
 class SahBuilder {
 public:
-  SahBuilder(const BuildOptions& opt, RawVector<PrimRef>& prims)
-      : opt_(opt), prims_(prims), scratch_(take_from(opt, &BuildContext_Store::scratch)),
-        bins_(std::clamp(opt.bins, 2u, kMaxBins)) {
-    scratch_.resize(prims.size());
+  // `scratch`: room for prims.size() records the partitions may use, or null (then an array of
+  // its own, or the context's).
+  SahBuilder(const BuildOptions& opt, RawVector<PrimRef>& prims, PrimRef* scratch)
+      : opt_(opt), prims_(prims), bins_(std::clamp(opt.bins, 2u, kMaxBins)) {
+    if (!scratch) {
+      scratch_ = take_from(opt, &BuildContext_Store::scratch);
+      scratch_.resize(prims.size());
+      scratch = scratch_.data();
+    }
+    odd_ = scratch;
   }
   ~SahBuilder() { give_back(opt_, &BuildContext_Store::scratch, scratch_); }
   SahBuilder(const SahBuilder&) = delete;
@@ -205,14 +211,14 @@ public:
 private:
   // The records of a node at `depth`: partitions move them from one array to the other, so a
   // node at an even depth finds its records in prims_, one at an odd depth in scratch_.
-  PrimRef* records(std::uint32_t depth) { return depth & 1 ? scratch_.data() : prims_.data(); }
-  const PrimRef* records(std::uint32_t depth) const { return depth & 1 ? scratch_.data() : prims_.data(); }
+  PrimRef* records(std::uint32_t depth) { return depth & 1 ? odd_ : prims_.data(); }
+  const PrimRef* records(std::uint32_t depth) const { return depth & 1 ? odd_ : prims_.data(); }
 
   // Makes `t` a leaf, its records moved to prims_ (the leaf order the caller reads).
   void make_leaf(TmpNode& t, bool forced) {
     t.leaf = true;
     t.forced = forced;
-    if (t.depth & 1) std::copy(scratch_.begin() + t.begin, scratch_.begin() + t.end, prims_.begin() + t.begin);
+    if (t.depth & 1) std::copy(odd_ + t.begin, odd_ + t.end, prims_.begin() + t.begin);
   }
 
   struct Geometry {
@@ -502,7 +508,8 @@ private:
 
   const BuildOptions& opt_;
   RawVector<PrimRef>& prims_;
-  RawVector<PrimRef> scratch_;  // the records of odd depths (disjoint ranges: safe across tasks)
+  RawVector<PrimRef> scratch_;  // odd_'s array when the caller gave none
+  PrimRef* odd_ = nullptr;      // the records of odd depths (disjoint ranges: safe across tasks)
   unsigned bins_;
 };
 
@@ -616,9 +623,9 @@ void flatten(const Arenas& a, Bvh2& out, std::vector<Leaf>& leaves, unsigned thr
 }
 
 void build_binned_sah(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& croot, const BuildOptions& opt,
-                      Arenas& out) {
+                      Arenas& out, PrimRef* scratch) {
   // -- top of the tree, breadth-first, large nodes binned and partitioned in parallel chunks
-  SahBuilder builder(opt, prims);
+  SahBuilder builder(opt, prims, scratch);
   std::vector<TmpNode>& upper = out.upper;
   upper.assign(1, TmpNode());
   upper[0].box = root;

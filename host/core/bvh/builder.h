@@ -325,8 +325,11 @@ Mbvh4 make_mbvh4(const Bvh2& b, const std::vector<Leaf>& leaves, unsigned thread
 
 /// The builders: reorder `prims` into leaf order and fill the arenas. `root` bounds every record,
 /// `croot` their centroids. Deterministic: the same arenas at any opt.threads.
+/// build_binned_sah's `scratch`: room for prims.size() records its partitions may overwrite (the
+/// caller's array that is written after the build, e.g. the triangle records), or null: an
+/// array of its own (or the context's).
 void build_binned_sah(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& croot, const BuildOptions& opt,
-                      Arenas& out);
+                      Arenas& out, PrimRef* scratch = nullptr);
 void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& croot, const BuildOptions& opt,
                 Arenas& out);
 

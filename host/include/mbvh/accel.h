@@ -114,15 +114,15 @@ BuildQuality parse_quality(const std::string& s);  ///< throws Error on an unkno
 
 /// Memory kept between builds, for a caller that rebuilds (an animation rebuilding each frame):
 /// set BuildOptions::context to one and Accel::build takes its working arrays (the primitive
-/// records, the partition's second array, the builder's node arenas) from it and gives them back
+/// records, the builder's node arenas) from it and gives them back
 /// when it returns, and the build's output arrays (binary nodes, leaf boxes, leaf table,
 /// triangle records, MBVH4 nodes) come from it too and go back to it when that Accel is
 /// destroyed. A rebuild then writes memory that is already mapped instead of faulting in fresh
 /// pages (on a virtual machine the first touch of a 4 KiB page costs microseconds). The tree is
 /// the same bytes with or without a context, at any thread count, whatever was built in it before.
 /// Retained memory: at most one build's working arrays and one build's output arrays, each the
-/// largest built with it since the last release(): about 64 bytes per triangle plus the node
-/// arenas (72 bytes per node), and the outputs' size (Accel::memory(), without layouts other than
+/// largest built with it since the last release(): 32 bytes per triangle plus the node arenas
+/// (48 bytes per node), and the outputs' size (Accel::memory(), without layouts other than
 /// MBVH4). Without a context, or after release(), a build returns its memory to the system as
 /// before. Thread-safe: concurrent builds may share one context (each takes what it holds at its
 /// start; the others allocate). Keep it in a std::shared_ptr (BuildOptions::context): every Accel
