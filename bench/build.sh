@@ -6,7 +6,9 @@
 # gen:hairball 100K and 1M (10M with BUILD_BENCH_10M=1: about 6 GB and several minutes). Per
 # scene and quality:
 #   `mbvh build-bench` — build time, median of REPEATS (ours: Accel::build + MBVH4 collapse;
-#                        Embree: rtcCommitScene), 2 threads, and our SAH cost;
+#                        Embree: rtcCommitScene), 2 threads, our SAH cost, minor page faults per
+#                        triangle of each build (ours, Embree), and --rebuild: our rebuild in a
+#                        kept BuildContext and the cold build / rebuild ratio;
 #   `mbvh bench`       — diffuse rays on `cpu` (MBVH4 stack) and `embree`, verified, with nodes,
 #                        leaves and triangles per ray for ours (Embree has no counters).
 # Writes OUT/*.json, OUT/build.json (merged), OUT/build.md (Markdown table) and OUT/build.png
@@ -31,7 +33,8 @@ ready="$("$MBVH" devices --ready 2>/dev/null || true)"  # captured: `| grep -q` 
 if grep -qx embree <<< "$ready"; then BACKENDS=cpu,embree; fi
 while IFS='|' read -r name scene camera; do
   for q in low medium high; do
-    "$MBVH" build-bench "$scene" --quality "$q" --threads 2 --repeats "$REPEATS" --json "$OUT/build-$name-$q.json" >&2
+    "$MBVH" build-bench "$scene" --quality "$q" --threads 2 --repeats "$REPEATS" --rebuild \
+      --json "$OUT/build-$name-$q.json" >&2
     # shellcheck disable=SC2086
     "$MBVH" bench "$scene" --quality "$q" --threads 2 --backend "$BACKENDS" --layout mbvh4 --traversal stack \
       --query closest --kinds diffuse --count "$RAYS" --passes "$PASSES" --warmup "$WARMUP" $camera \

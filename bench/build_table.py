@@ -30,6 +30,11 @@ def main(d, plot):
             "scene": name, "quality": q, "triangles": b["triangles"], "references": b["references"],
             "build_ms": b["build_ms"], "embree_build_ms": b.get("embree_build_ms"),
             "sah_binary": b["sah_binary"], "sah_mbvh4": b["sah_mbvh4"],
+            "faults_per_tri": b.get("faults_per_triangle"), "embree_faults_per_tri": b.get("embree_faults_per_triangle"),
+            "rebuild_ms": b.get("rebuild_ms"), "rebuild_speedup": b.get("rebuild_speedup"),
+            "rebuild_faults_per_tri": b.get("rebuild_faults_per_triangle"),
+            "faults_first_per_tri": b.get("faults_first_per_triangle"),
+            "embree_faults_first_per_tri": b.get("embree_faults_first_per_triangle"),
             "nodes_per_ray": cpu and cpu["nodes_per_ray"], "leaves_per_ray": cpu and cpu["leaves_per_ray"],
             "triangles_per_ray": cpu and cpu["triangles_per_ray"],
             "cpu_mrays": cpu and cpu["mrays_per_s"], "embree_mrays": emb and emb["mrays_per_s"], "verified": ok})
@@ -39,12 +44,20 @@ def main(d, plot):
     rows.sort(key=lambda r: (order.get(r["scene"], 99), r["scene"], QUALITIES.index(r["quality"])))
     with open(os.path.join(d, "build.json"), "w") as f:
         json.dump(rows, f, indent=2)
-    lines = ["| scene | quality | triangles | refs | ours build ms | Embree build ms | SAH (binary / MBVH4) | "
+    def faults(x):  # a count per triangle: 0 is a value here, not a missing one
+        return "–" if x is None else f"{x:.4f}"
+
+    lines = ["| scene | quality | triangles | refs | ours build ms | Embree build ms | page faults per tri (ours / Embree) | "
+             "first build's (ours / Embree) | "
+             "rebuild ms (kept context) | cold / rebuild | SAH (binary / MBVH4) | "
              "nodes / tris per diffuse ray | cpu diffuse Mrays/s | Embree diffuse Mrays/s |",
-             "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+             "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
         lines.append(f'| {r["scene"]} | {r["quality"]} | {r["triangles"]} | {r["references"]} | {fmt(r["build_ms"], 1)} | '
-                     f'{fmt(r["embree_build_ms"], 1)} | {fmt(r["sah_binary"])} / {fmt(r["sah_mbvh4"])} | '
+                     f'{fmt(r["embree_build_ms"], 1)} | {faults(r["faults_per_tri"])} / {faults(r["embree_faults_per_tri"])} | '
+                     f'{faults(r["faults_first_per_tri"])} / {faults(r["embree_faults_first_per_tri"])} | '
+                     f'{fmt(r["rebuild_ms"], 1)} | {fmt(r["rebuild_speedup"], 2)}x | '
+                     f'{fmt(r["sah_binary"])} / {fmt(r["sah_mbvh4"])} | '
                      f'{fmt(r["nodes_per_ray"], 1)} / {fmt(r["triangles_per_ray"], 1)} | {fmt(r["cpu_mrays"])} | '
                      f'{fmt(r["embree_mrays"])} |' + ("" if r["verified"] else " (unverified)"))
     text = "\n".join(lines) + "\n"

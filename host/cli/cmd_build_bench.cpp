@@ -14,6 +14,7 @@ namespace {
 struct BuildBenchArgs {
   SceneArgs scene;
   unsigned repeats = 5;
+  bool rebuild = false;
   std::string json;
   VersusOptions versus;
   std::vector<float> camera;  // --camera of --versus
@@ -23,6 +24,9 @@ void print(const BuildBenchReport& r) {
   const char* q = to_string(r.quality);
   say("%s, %zu triangles, quality %s, %u threads: ours %.1f ms (build + MBVH4, median of %u), SAH %.2f, %zu references\n",
       r.scene.c_str(), r.triangles, q, r.threads, median(r.build_ms), r.repeats, r.sah_binary, r.references);
+  const double tris = double(std::max<std::size_t>(r.triangles, 1));
+  say("  ours: %.0f minor page faults (%.4f per triangle, median; the first build %.4f)\n", median(r.faults),
+      median(r.faults) / tris, r.faults[0] / tris);
   say("  ours by phase (medians): records %.1f, tree %.1f, flatten %.1f, stats %.1f, MBVH4 %.1f ms\n",
       median(r.phase_ms[0]), median(r.phase_ms[1]), median(r.phase_ms[2]), median(r.phase_ms[3]), median(r.phase_ms[4]));
   if (r.embree_build_ms)
@@ -30,6 +34,18 @@ void print(const BuildBenchReport& r) {
         r.repeats);
   else
     say("  embree: not built in\n");
+  if (!r.embree_faults.empty())
+    say("  embree: %.0f minor page faults (%.4f per triangle, median; the first build %.4f)\n", median(r.embree_faults),
+        median(r.embree_faults) / tris, r.embree_faults[0] / tris);
+  if (!r.rebuild_ms.empty())
+    say("  rebuild in a kept BuildContext: %.1f ms (median of %u), %.0f minor page faults (%.4f per triangle); "
+        "cold build / rebuild %.2fx\n",
+        median(r.rebuild_ms), r.repeats, median(r.rebuild_faults), median(r.rebuild_faults) / tris,
+        median(r.build_ms) / median(r.rebuild_ms));
+  if (!r.rebuild_ms.empty())
+    say("  rebuild by phase (medians): records %.1f, tree %.1f, flatten %.1f, stats %.1f, MBVH4 %.1f ms\n",
+        median(r.rebuild_phase_ms[0]), median(r.rebuild_phase_ms[1]), median(r.rebuild_phase_ms[2]),
+        median(r.rebuild_phase_ms[3]), median(r.rebuild_phase_ms[4]));
   if (const auto& v = r.versus)
     say("  %s, %zu diffuse rays, %u interleaved passes: %s %.3f Mrays/s, %s %.3f Mrays/s, speed %s/%s %.3fx (median of "
         "per-pair ratios; min %.3f, max %.3f)\n",
@@ -52,6 +68,7 @@ int run(BuildBenchArgs a) {
   BuildBenchOptions o;
   o.build = a.scene.build_options();
   o.repeats = a.repeats;
+  o.rebuild = a.rebuild;
   o.versus = a.versus;
   // -- run, print, write
   const BuildBenchReport r = run_build_bench(scene, o);
@@ -71,6 +88,9 @@ Command add_build_bench(CLI::App& app) {
   auto* c = app.add_subcommand("build-bench", "build time (median of --repeats) of ours and of the embree peer, and our tree's SAH");
   a->scene.add(c);
   c->add_option("--repeats", a->repeats, "builds timed per builder (median reported)")->check(integer_in(1, 1000));
+  c->add_flag("--rebuild", a->rebuild,
+              "also time --repeats rebuilds in one kept BuildContext (after two untimed ones), each made while the "
+              "previous build is alive, and report cold build / rebuild");
   c->add_option("--json", a->json, "also write the results as JSON ('-': standard output)");
   c->add_option("--versus", vs.quality,
                 "also trace diffuse rays on this tree and on one of quality VERSUS, passes interleaved, and "

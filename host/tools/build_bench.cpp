@@ -3,6 +3,8 @@
 // and the side-by-side trace on two qualities' trees.
 #include "host/tools/build_bench.h"
 
+#include <sys/resource.h>
+
 #include <cstring>
 #include <nlohmann/json.hpp>
 
@@ -15,9 +17,16 @@
 namespace mbvh {
 namespace {
 
+// Minor page faults of the process so far (every thread's).
+double minor_faults() {
+  struct rusage u {};
+  getrusage(RUSAGE_SELF, &u);
+  return static_cast<double>(u.ru_minflt);
+}
+
 // Embree's build of `acc`'s triangles, `repeats` times, a fresh device and scene each time
 // (device start not timed): the times in ms.
-std::vector<double> time_embree(const Accel& acc, const BuildOptions& bo, unsigned repeats) {
+std::vector<double> time_embree(const Accel& acc, const BuildOptions& bo, unsigned repeats, std::vector<double>& faults) {
   BackendOptions eo;
   eo.threads = bo.threads;
   eo.set("embree.quality", to_string(bo.quality));
@@ -28,9 +37,11 @@ std::vector<double> time_embree(const Accel& acc, const BuildOptions& bo, unsign
   (void)acc.hash();  // the peer's prepare reads it (staleness): made here, outside its timing
   for (unsigned r = 0; r < repeats; ++r) {
     auto be = make_backend("embree", eo);
+    const double f0 = minor_faults();
     const auto t0 = Clock::now();
     be->prepare(acc, to);
     ms.push_back(ms_since(t0));
+    faults.push_back(minor_faults() - f0);
   }
   return ms;
 }
@@ -90,10 +101,12 @@ BuildBenchReport run_build_bench(const Scene& scene, const BuildBenchOptions& o)
   std::unique_ptr<Accel> acc;
   for (unsigned k = 0; k < o.repeats; ++k) {
     acc.reset();
+    const double f0 = minor_faults();
     const auto t0 = Clock::now();
     acc = Accel::build(scene, bo);
     acc->mbvh4();
     r.build_ms.push_back(ms_since(t0));
+    r.faults.push_back(minor_faults() - f0);
     for (int p = 0; p < 4; ++p) r.phase_ms[p].push_back(acc->binary_stats().phase_ms[p]);
     r.phase_ms[4].push_back(acc->mbvh4().stats.build_ms);
   }
@@ -109,7 +122,26 @@ BuildBenchReport run_build_bench(const Scene& scene, const BuildBenchOptions& o)
   // -- embree's, where it is built in
   bool have_embree = false;
   for (const BackendInfo& b : list_backends()) have_embree |= b.name == "embree" && b.make != nullptr;
-  if (have_embree) r.embree_build_ms = time_embree(*acc, bo, o.repeats);
+  if (have_embree) r.embree_build_ms = time_embree(*acc, bo, o.repeats, r.embree_faults);
+  // -- rebuilds in a kept context: two untimed builds fill it, then each timed one reuses it
+  if (o.rebuild) {
+    BuildOptions ro = bo;
+    ro.context = std::make_shared<BuildContext>();
+    std::unique_ptr<Accel> kept;
+    for (unsigned k = 0; k < 2 + o.repeats; ++k) {
+      const double f0 = minor_faults();
+      const auto t0 = Clock::now();
+      kept = Accel::build(scene, ro);  // the previous build is destroyed after: its arrays go back then
+      kept->mbvh4();
+      const double ms = ms_since(t0), f = minor_faults() - f0;
+      if (kept->hash() != r.hash) throw Error("build-bench: a rebuild in a kept context differs from the build");
+      if (k < 2) continue;
+      r.rebuild_ms.push_back(ms);
+      r.rebuild_faults.push_back(f);
+      for (int p = 0; p < 4; ++p) r.rebuild_phase_ms[p].push_back(kept->binary_stats().phase_ms[p]);
+      r.rebuild_phase_ms[4].push_back(kept->mbvh4().stats.build_ms);
+    }
+  }
   // -- side by side with another quality
   if (!o.versus.quality.empty()) r.versus = versus(scene, *acc, bo, o.versus);
   return r;
@@ -128,6 +160,26 @@ std::string build_bench_json(const BuildBenchReport& r) {
   j["sah_mbvh4"] = r.sah_mbvh4;
   j["build_ms"] = median(r.build_ms);
   j["build_ms_all"] = r.build_ms;
+  const double tris = double(std::max<std::size_t>(r.triangles, 1));
+  j["faults"] = median(r.faults);
+  j["faults_per_triangle"] = median(r.faults) / tris;
+  // the first build of each in this process: a process that builds once pays these
+  if (!r.faults.empty()) j["faults_first_per_triangle"] = r.faults[0] / tris;
+  if (!r.embree_faults.empty()) j["embree_faults_first_per_triangle"] = r.embree_faults[0] / tris;
+  if (!r.embree_faults.empty()) {
+    j["embree_faults"] = median(r.embree_faults);
+    j["embree_faults_per_triangle"] = median(r.embree_faults) / tris;
+  }
+  if (!r.rebuild_ms.empty()) {
+    j["rebuild_ms"] = median(r.rebuild_ms);
+    j["rebuild_ms_all"] = r.rebuild_ms;
+    j["rebuild_faults"] = median(r.rebuild_faults);
+    j["rebuild_faults_per_triangle"] = median(r.rebuild_faults) / tris;
+    j["rebuild_speedup"] = median(r.build_ms) / median(r.rebuild_ms);
+    j["rebuild_phases_ms"] = {{"records", median(r.rebuild_phase_ms[0])}, {"tree", median(r.rebuild_phase_ms[1])},
+                              {"flatten", median(r.rebuild_phase_ms[2])}, {"stats", median(r.rebuild_phase_ms[3])},
+                              {"mbvh4", median(r.rebuild_phase_ms[4])}};
+  }
   j["phases_ms"] = {{"records", median(r.phase_ms[0])}, {"tree", median(r.phase_ms[1])},
                     {"flatten", median(r.phase_ms[2])}, {"stats", median(r.phase_ms[3])},
                     {"mbvh4", median(r.phase_ms[4])}};

@@ -28,6 +28,9 @@ struct VersusOptions {
 struct BuildBenchOptions {
   BuildOptions build;
   unsigned repeats = 5;  ///< fresh builds timed per builder
+  /// Also time `repeats` rebuilds in one kept BuildContext (after two untimed builds in it), each
+  /// made while the previous Accel is alive (`acc = Accel::build(...)`, as a frame loop does).
+  bool rebuild = false;
   VersusOptions versus;
 };
 
@@ -51,6 +54,11 @@ struct BuildBenchReport {
   double sah_binary = 0, sah_mbvh4 = 0;
   std::vector<double> build_ms;               ///< ours, build + MBVH4, every repeat
   std::vector<double> phase_ms[5];            ///< ours by phase, every repeat: records, tree, flatten, stats, MBVH4
+  /// Minor page faults of the process (getrusage ru_minflt, every thread) during each build: ours
+  /// (build + MBVH4) and Embree's (rtcCommitScene with the triangle copy).
+  std::vector<double> faults, embree_faults;
+  std::vector<double> rebuild_ms, rebuild_faults;  ///< the rebuilds in a kept context (rebuild)
+  std::vector<double> rebuild_phase_ms[5];          ///< the rebuilds by phase, as phase_ms
   std::optional<std::vector<double>> embree_build_ms;  ///< every repeat; none where embree is not built in
   std::optional<VersusResult> versus;
 };

@@ -41,9 +41,14 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
   if (!std::isfinite(opt_in.traversal_cost) || opt_in.traversal_cost < 0)
     throw Error("BuildOptions::traversal_cost " + std::to_string(opt_in.traversal_cost) + " must be finite and >= 0");
   // the free heap returned once the build's temporaries below are gone (destroyed before this)
+  // (not with a context: the caller keeps memory for the next build)
   struct ReleaseOnReturn {
-    ~ReleaseOnReturn() { release_free_heap(); }
-  } release_on_return;
+    bool release;
+    ~ReleaseOnReturn() {
+      if (release) release_free_heap();
+    }
+  } release_on_return{!opt_in.context};
+  using S = build::BuildContext_Store;
   std::unique_ptr<Accel> acc(new Accel());
   acc->impl_->opt_ = opt_in;
   BuildOptions& opt = acc->impl_->opt_;
@@ -58,7 +63,7 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
 
   // -- one record per non-degenerate (non-zero area) triangle, in scene order, the scene checked
   //    on the way (prim_refs.cpp)
-  build::PrimRefs refs = build::make_prim_refs(scene, opt.threads);
+  build::PrimRefs refs = build::make_prim_refs(scene, opt.threads, build::take_from(opt, &S::prims));
   build::RawVector<PrimRef>& prims = refs.prims;
   acc->impl_->bvh2_.degenerate = refs.degenerate;
   const auto t_prep = Clock::now();
@@ -69,8 +74,10 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
   if (opt.quality == BuildQuality::none) {
     // -- no hierarchy: the records' triangles in scene order, their bounds the records' (the same
     //    box a tree's root gets); no tree, no statistics of one
+    acc->impl_->tris_ = build::take_from(opt, &S::tris);
     acc->impl_->tris_.resize(prims.size());
     build::fill_tris(scene, prims, acc->impl_->tris_, opt.threads);
+    build::give_back(opt, &S::prims, prims);
     acc->impl_->bounds_ = refs.root.box();
     const auto t_flat = Clock::now();
     LayoutStats& st = acc->impl_->binary_stats_;
@@ -98,21 +105,34 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
     r.bvh.degenerate = out.degenerate;
     out = std::move(r.bvh);
     acc->impl_->leaves_ = std::move(r.leaves);
+    build::give_back(opt, &S::prims, prims);
+    acc->impl_->tris_ = build::take_from(opt, &S::tris);
     acc->impl_->tris_.resize(r.prims.size());
     build::fill_tris(scene, r.prims, acc->impl_->tris_, opt.threads);
   } else {
     // -- the binary tree
-    build::Arenas arenas;
+    build::Arenas arenas = opt.context ? opt.context->impl().take_arenas() : build::Arenas();
+    // the triangle records' array, written only after the tree, is the binned SAH's partition
+    // array meanwhile (48 bytes a record there, 32 needed): no array of its own to fault in
+    acc->impl_->tris_ = build::take_from(opt, &S::tris);
+    acc->impl_->tris_.resize(prims.size());
+    static_assert(sizeof(Tri) >= sizeof(PrimRef) && alignof(Tri) % alignof(PrimRef) == 0);
     if (opt.quality == BuildQuality::low) build::build_lbvh(prims, refs.root, refs.croot, opt, arenas);
-    else build::build_binned_sah(prims, refs.root, refs.croot, opt, arenas);
+    else
+      build::build_binned_sah(prims, refs.root, refs.croot, opt, arenas,
+                              reinterpret_cast<PrimRef*>(static_cast<void*>(acc->impl_->tris_.data())));
     t_tree = Clock::now();
 
     // -- flatten depth-first; leaves come out in record order
+    out.nodes = build::take_from(opt, &S::nodes);
+    out.leaf_boxes = build::take_from(opt, &S::leaf_boxes);
+    acc->impl_->leaves_ = build::take_from(opt, &S::leaves);
     build::flatten(arenas, out, acc->impl_->leaves_, opt.threads);
 
+    if (opt.context) opt.context->impl().give_arenas(std::move(arenas));
     arenas = build::Arenas();
-    acc->impl_->tris_.resize(prims.size());
     build::fill_tris(scene, prims, acc->impl_->tris_, opt.threads);
+    build::give_back(opt, &S::prims, prims);
   }
   acc->impl_->bounds_ = out.nodes[0].box;
   const auto t_flat = Clock::now();
@@ -144,7 +164,53 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
 }
 
 Accel::Accel() : impl_(std::make_unique<Impl>()) {}
-Accel::~Accel() = default;
+
+Accel::~Accel() {
+  // a build's output arrays go back to its context (BuildContext), for the next build to reuse
+  if (!impl_ || !impl_->opt_.context) return;
+  using S = build::BuildContext_Store;
+  const BuildOptions& o = impl_->opt_;
+  build::give_back(o, &S::nodes, impl_->bvh2_.nodes);
+  build::give_back(o, &S::leaf_boxes, impl_->bvh2_.leaf_boxes);
+  build::give_back(o, &S::leaves, impl_->leaves_);
+  build::give_back(o, &S::tris, impl_->tris_);
+  build::give_back(o, &S::node4, impl_->mbvh4_.nodes);
+}
+
+BuildContext::BuildContext() : impl_(std::make_unique<Impl>()) {}
+BuildContext::~BuildContext() = default;
+
+std::size_t BuildContext::retained_bytes() const { return impl_->bytes(); }
+
+void BuildContext::release() {
+  std::lock_guard<std::mutex> lock(impl_->m);
+  impl_->s = build::BuildContext_Store();
+}
+
+build::Arenas BuildContext::Impl::take_arenas() {
+  std::lock_guard<std::mutex> lock(m);
+  build::Arenas a = std::move(s.arenas);
+  s.arenas = build::Arenas();
+  a.upper.clear();
+  a.subtree_of.clear();
+  for (auto& t : a.subtrees) t.clear();
+  return a;
+}
+
+void BuildContext::Impl::give_arenas(build::Arenas&& a) {
+  std::lock_guard<std::mutex> lock(m);
+  s.arenas = std::move(a);  // the latest build's (its subtrees' capacities fit its scene)
+  a = build::Arenas();
+}
+
+std::size_t BuildContext::Impl::bytes() const {
+  std::lock_guard<std::mutex> lock(m);
+  auto cap = [](const auto& v) { return v.capacity() * sizeof(typename std::decay_t<decltype(v)>::value_type); };
+  std::size_t b = cap(s.prims) + cap(s.scratch) + cap(s.nodes) + cap(s.leaf_boxes) + cap(s.leaves) + cap(s.tris) +
+                  cap(s.node4) + cap(s.arenas.upper) + cap(s.arenas.subtree_of) + cap(s.arenas.subtrees);
+  for (const auto& t : s.arenas.subtrees) b += cap(t);
+  return b;
+}
 
 bool Accel::has_hierarchy() const { return impl_->opt_.quality != BuildQuality::none; }
 
@@ -247,8 +313,13 @@ const Mbvh8& Accel::mbvh8() const {
 const Mbvh4& Accel::mbvh4() const {
   require_hierarchy("mbvh4");
   std::call_once(impl_->once4_, [this] {
-    impl_->mbvh4_ = make_mbvh4(impl_->bvh2_, impl_->leaves_, impl_->opt_.threads);
-    release_free_heap();
+    if (impl_->opt_.context) {
+      impl_->mbvh4_ = build::make_mbvh4(impl_->bvh2_, impl_->leaves_, impl_->opt_.threads,
+                                        build::take_from(impl_->opt_, &build::BuildContext_Store::node4));
+    } else {
+      impl_->mbvh4_ = make_mbvh4(impl_->bvh2_, impl_->leaves_, impl_->opt_.threads);
+      release_free_heap();
+    }
   });
   return impl_->mbvh4_;
 }

@@ -81,25 +81,41 @@ struct Bins {
 
 class SahBuilder {
 public:
-  SahBuilder(const BuildOptions& opt, RawVector<PrimRef>& prims)
-      : opt_(opt), prims_(prims), scratch_(prims.size()), bins_(std::clamp(opt.bins, 2u, kMaxBins)) {}
+  // `scratch`: room for prims.size() records the partitions may use, or null (then an array of
+  // its own, or the context's).
+  SahBuilder(const BuildOptions& opt, RawVector<PrimRef>& prims, PrimRef* scratch)
+      : opt_(opt), prims_(prims), bins_(std::clamp(opt.bins, 2u, kMaxBins)) {
+    if (!scratch) {
+      scratch_ = take_from(opt, &BuildContext_Store::scratch);
+      scratch_.resize(prims.size());
+      scratch = scratch_.data();
+    }
+    odd_ = scratch;
+  }
+  ~SahBuilder() { give_back(opt_, &BuildContext_Store::scratch, scratch_); }
+  SahBuilder(const SahBuilder&) = delete;
+  SahBuilder& operator=(const SahBuilder&) = delete;
 
   // Splits node n (in `arena`) into two children appended to `arena`, or marks it a leaf.
   // `threads`: workers for a large node's chunks (1 inside a subtree task).
   // `work`: the task's sparse bins.
-  void split(std::vector<TmpNode>& arena, std::size_t n, unsigned threads, Bins& work) {
+  // `cbox`: the centroid bounds of node n; the children's into `cc` (when split).
+  bool split(std::vector<TmpNode>& arena, std::size_t n, const FastBox& cbox, FastBox (&cc)[2], unsigned threads,
+             Bins& work) {
     TmpNode c[2];
-    if (!split_node(arena[n], c, threads, work)) return;
+    if (!split_node(arena[n], cbox, c, cc, threads, work)) return false;
     for (int side = 0; side < 2; ++side) {
       arena[n].child[side] = static_cast<std::int32_t>(arena.size());
       arena.push_back(c[side]);
     }
+    return true;
   }
 
   // Splits `t` into the children c (their ranges, depths, boxes) and returns true, or marks `t`
   // a leaf and returns false. Touches only t's records: nodes of disjoint ranges may be split
   // at the same time.
-  bool split_node(TmpNode& t, TmpNode (&c)[2], unsigned threads, Bins& work) {
+  // `cbox`: the bounds of t's centroids; the children's into `cc`.
+  bool split_node(TmpNode& t, const FastBox& cbox, TmpNode (&c)[2], FastBox (&cc)[2], unsigned threads, Bins& work) {
     const TmpNode node = t;
     const std::uint32_t count = node.end - node.begin;
     const bool at_cap = node.depth >= opt_.depth_cap;
@@ -113,8 +129,8 @@ public:
     // -- bin centroids along the three axes: bin = floor((c - lo) * bins / extent), as floats
     Geometry g;
     for (int a = 0; a < 3; ++a) {
-      const float ext = node.cbox.hi[a] - node.cbox.lo[a];
-      g.origin[a] = node.cbox.lo[a];
+      const float ext = cbox.hi[a] - cbox.lo[a];
+      g.origin[a] = cbox.lo[a];
       g.scale[a] = ext > 0 ? static_cast<float>(bins_) / ext : 0.0f;
     }
     g.last = bins_ - 1;
@@ -146,7 +162,7 @@ public:
       const PrimRef* src = records(node.depth);
       PrimRef* dst = records(node.depth + 1);
       for (std::uint32_t i = node.begin; i < node.end; ++i) {
-        c[i < mid ? 0 : 1].cbox.grow_centroid(src[i]);
+        cc[i < mid ? 0 : 1].grow_centroid(src[i]);
         dst[i] = src[i];
       }
     } else {
@@ -154,8 +170,8 @@ public:
         make_leaf(t, false);
         return false;
       }
-      mid = count >= kParallelMin ? partition_chunked(g, best_axis, best_split, node, c, threads)
-                                  : partition(g, best_axis, best_split, node, c);
+      mid = count >= kParallelMin ? partition_chunked(g, best_axis, best_split, node, cc, threads)
+                                  : partition(g, best_axis, best_split, node, cc);
     }
     // -- children
     for (int side = 0; side < 2; ++side) {
@@ -170,22 +186,39 @@ public:
     return opt_.leaf_block <= 1 ? static_cast<float>(n) : build::blocks(n, opt_.leaf_block);
   }
 
-  void build_subtree(std::vector<TmpNode>& arena) {
+  // Builds the subtree of arena node 0 (centroid bounds `cbox`) depth first: the centroid bounds
+  // of the nodes still to split are kept on the stack, not in the arena (its nodes are smaller
+  // so). The arena's order is not the tree's: flatten follows the child links.
+  void build_subtree(std::vector<TmpNode>& arena, const FastBox& cbox) {
     Bins work;
-    for (std::size_t n = 0; n < arena.size(); ++n) split(arena, n, 1, work);
+    struct Pending {
+      std::size_t n;
+      FastBox cbox;
+    };
+    std::vector<Pending> stack;
+    stack.reserve(2 * std::size_t(opt_.depth_cap) + 2);
+    stack.push_back({0, cbox});
+    while (!stack.empty()) {
+      const Pending p = stack.back();
+      stack.pop_back();
+      FastBox cc[2];
+      if (!split(arena, p.n, p.cbox, cc, 1, work)) continue;
+      for (int side = 1; side >= 0; --side)
+        stack.push_back({static_cast<std::size_t>(arena[p.n].child[side]), cc[side]});
+    }
   }
 
 private:
   // The records of a node at `depth`: partitions move them from one array to the other, so a
   // node at an even depth finds its records in prims_, one at an odd depth in scratch_.
-  PrimRef* records(std::uint32_t depth) { return depth & 1 ? scratch_.data() : prims_.data(); }
-  const PrimRef* records(std::uint32_t depth) const { return depth & 1 ? scratch_.data() : prims_.data(); }
+  PrimRef* records(std::uint32_t depth) { return depth & 1 ? odd_ : prims_.data(); }
+  const PrimRef* records(std::uint32_t depth) const { return depth & 1 ? odd_ : prims_.data(); }
 
   // Makes `t` a leaf, its records moved to prims_ (the leaf order the caller reads).
   void make_leaf(TmpNode& t, bool forced) {
     t.leaf = true;
     t.forced = forced;
-    if (t.depth & 1) std::copy(scratch_.begin() + t.begin, scratch_.begin() + t.end, prims_.begin() + t.begin);
+    if (t.depth & 1) std::copy(odd_ + t.begin, odd_ + t.end, prims_.begin() + t.begin);
   }
 
   struct Geometry {
@@ -381,7 +414,7 @@ private:
   // (records()), left ones from the front, right ones from the back, without a branch per
   // record; also bounds each side's boxes and centroids. Returns the first right record.
   [[gnu::noinline]] std::uint32_t partition(const Geometry& g, int axis, unsigned split, const TmpNode& node,
-                                            TmpNode (&c)[2]) {
+                                            FastBox (&c)[2]) {
     const PrimRef* src = records(node.depth);
     PrimRef* dst = records(node.depth + 1);
     std::uint32_t l = node.begin, r = node.end;
@@ -416,8 +449,8 @@ private:
       alignas(16) float v[2][4];
       for (int q = 0; q < 2; ++q) _mm_store_ps(v[q], acc[s][q]);
       for (int a = 0; a < 3; ++a) {
-        c[s].cbox.lo[a] = v[0][a];
-        c[s].cbox.hi[a] = v[1][a];
+        c[s].lo[a] = v[0][a];
+        c[s].hi[a] = v[1][a];
       }
     }
 #else
@@ -425,7 +458,7 @@ private:
       const PrimRef& p = src[i];
       const int s = g.left(p, axis, split) ? 0 : 1;
       dst[s ? --r : l++] = p;
-      c[s].cbox.grow_centroid(p);
+      c[s].grow_centroid(p);
     }
 #endif
     return l;
@@ -433,13 +466,13 @@ private:
 
   // Stable partition in chunks of kGrain: count and bound each chunk's sides, scatter into the
   // other array (records()) by the chunks' prefix sums; side boxes reduced in chunk order.
-  std::uint32_t partition_chunked(const Geometry& g, int axis, unsigned split, const TmpNode& node, TmpNode (&c)[2],
+  std::uint32_t partition_chunked(const Geometry& g, int axis, unsigned split, const TmpNode& node, FastBox (&c)[2],
                                   unsigned threads) {
     const std::uint32_t count = node.end - node.begin;
     const std::size_t chunks = (count + kGrain - 1) / kGrain;
     const PrimRef* src = records(node.depth);
     PrimRef* dst = records(node.depth + 1);
-    std::vector<TmpNode> side(2 * chunks);
+    std::vector<FastBox> side(2 * chunks);
     std::vector<std::uint32_t> left(chunks);
     parallel_for(count, kGrain, threads, [&](std::size_t b, std::size_t e, unsigned) {
       const std::size_t k = b / kGrain;
@@ -447,7 +480,7 @@ private:
       for (std::size_t i = node.begin + b; i < node.begin + e; ++i) {
         const PrimRef& r = src[i];
         const int s = g.left(r, axis, split) ? 0 : 1;
-        side[2 * k + s].cbox.grow_centroid(r);
+        side[2 * k + s].grow_centroid(r);
         l += s == 0 ? 1 : 0;
       }
       left[k] = l;
@@ -460,7 +493,7 @@ private:
     }
     for (std::size_t k = 0; k < chunks; ++k) {
       roff[k] = total_left + static_cast<std::uint32_t>(k * kGrain) - loff[k];
-      for (int s = 0; s < 2; ++s) c[s].cbox.grow(side[2 * k + static_cast<std::size_t>(s)].cbox);
+      for (int s = 0; s < 2; ++s) c[s].grow(side[2 * k + static_cast<std::size_t>(s)]);
     }
     parallel_for(count, kGrain, threads, [&](std::size_t b, std::size_t e, unsigned) {
       const std::size_t k = b / kGrain;
@@ -475,7 +508,8 @@ private:
 
   const BuildOptions& opt_;
   RawVector<PrimRef>& prims_;
-  RawVector<PrimRef> scratch_;  // the records of odd depths (disjoint ranges: safe across tasks)
+  RawVector<PrimRef> scratch_;  // odd_'s array when the caller gave none
+  PrimRef* odd_ = nullptr;      // the records of odd depths (disjoint ranges: safe across tasks)
   unsigned bins_;
 };
 
@@ -589,13 +623,13 @@ void flatten(const Arenas& a, Bvh2& out, std::vector<Leaf>& leaves, unsigned thr
 }
 
 void build_binned_sah(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& croot, const BuildOptions& opt,
-                      Arenas& out) {
+                      Arenas& out, PrimRef* scratch) {
   // -- top of the tree, breadth-first, large nodes binned and partitioned in parallel chunks
-  SahBuilder builder(opt, prims);
+  SahBuilder builder(opt, prims, scratch);
   std::vector<TmpNode>& upper = out.upper;
   upper.assign(1, TmpNode());
   upper[0].box = root;
-  upper[0].cbox = croot;
+  std::vector<FastBox> ucbox(1, croot);  // centroid bounds of the upper nodes
   upper[0].begin = 0;
   upper[0].end = static_cast<std::uint32_t>(prims.size());
   upper[0].depth = 0;
@@ -606,6 +640,7 @@ void build_binned_sah(RawVector<PrimRef>& prims, const FastBox& root, const Fast
   std::vector<std::unique_ptr<Bins>> worker_bins(threads);  // made by their worker on first use
   std::vector<std::size_t> batch;
   std::vector<TmpNode> kids;
+  std::vector<FastBox> kids_cbox;
   std::vector<std::uint8_t> split_done;
   for (std::size_t k = 0; k < upper.size();) {
     // one level at a time: small nodes become subtree jobs, large ones are split with their
@@ -616,18 +651,25 @@ void build_binned_sah(RawVector<PrimRef>& prims, const FastBox& root, const Fast
     for (; k < level_end; ++k) {
       const std::size_t count = upper[k].end - upper[k].begin;
       if (k > 0 && count <= small) jobs.push_back(k);
-      else if (k == 0 || count >= kParallelMin) builder.split(upper, k, threads, work);
+      else if (k == 0 || count >= kParallelMin) {
+        FastBox cc[2];
+        if (builder.split(upper, k, ucbox[k], cc, threads, work)) ucbox.insert(ucbox.end(), {cc[0], cc[1]});
+      }
       else batch.push_back(k);
     }
     kids.assign(2 * batch.size(), TmpNode());
+    kids_cbox.assign(2 * batch.size(), FastBox());
     split_done.assign(batch.size(), 0);
     parallel_for(batch.size(), 1, threads, [&](std::size_t b, std::size_t e, unsigned worker) {
       for (std::size_t i = b; i < e; ++i) {
         TmpNode c[2];
+        FastBox cc[2];
         if (!worker_bins[worker]) worker_bins[worker] = std::make_unique<Bins>();
-        split_done[i] = builder.split_node(upper[batch[i]], c, 1, *worker_bins[worker]);
+        split_done[i] = builder.split_node(upper[batch[i]], ucbox[batch[i]], c, cc, 1, *worker_bins[worker]);
         kids[2 * i] = c[0];
         kids[2 * i + 1] = c[1];
+        kids_cbox[2 * i] = cc[0];
+        kids_cbox[2 * i + 1] = cc[1];
       }
     });
     for (std::size_t i = 0; i < batch.size(); ++i)
@@ -635,14 +677,15 @@ void build_binned_sah(RawVector<PrimRef>& prims, const FastBox& root, const Fast
         for (int side = 0; side < 2; ++side) {
           upper[batch[i]].child[side] = static_cast<std::int32_t>(upper.size());
           upper.push_back(kids[2 * i + static_cast<std::size_t>(side)]);
+          ucbox.push_back(kids_cbox[2 * i + static_cast<std::size_t>(side)]);
         }
   }
   // -- remaining subtrees, one per task, largest first
-  build_subtrees(out, jobs, opt, [&](std::vector<TmpNode>& subtree) {
+  build_subtrees(out, jobs, opt, [&](std::vector<TmpNode>& subtree, std::size_t top) {
     // a binary tree over n records has at most 2n - 1 nodes (leaves of one record are common
     // here): reserved address space, never a reallocation
     subtree.reserve(2 * std::size_t(subtree[0].end - subtree[0].begin));
-    builder.build_subtree(subtree);
+    builder.build_subtree(subtree, ucbox[top]);
   });
 }
 

@@ -11,6 +11,7 @@
 #include <cstdint>
 #include <cstring>
 #include <memory>
+#include <mutex>
 #include <utility>
 #include <vector>
 
@@ -100,15 +101,17 @@ struct FastBox {
   }
 };
 
-/// A node of a builder's arena: a range of the record array, children in the same arena.
+/// A node of a builder's arena: a range of the record array, children in the same arena. The
+/// bounds of its centroids, which only splitting it needs, are kept by the builder beside it.
 struct TmpNode {
-  FastBox box, cbox;          // bounds of the triangles and of their centroids
+  FastBox box;                // bounds of the triangles
   std::uint32_t begin, end;   // range of the record array
   std::uint32_t depth;
   std::int32_t child[2] = {-1, -1};  // indices into the same arena; -1: none
   bool leaf = false;
   bool forced = false;        // leaf made by the depth cap or unsplittable centroids
 };
+static_assert(sizeof(TmpNode) == 48);
 
 /// A builder's result before flattening: the top of the tree in `upper`; an upper node whose
 /// subtree was built by its own task names that task's arena in subtree_of (else -1), whose
@@ -119,9 +122,67 @@ struct Arenas {
   std::vector<std::int32_t> subtree_of;
 };
 
+/// What a BuildContext (accel.h) holds between builds: a build's working arrays (taken at its
+/// start, given back when it returns) and a build's output arrays (given back when its Accel is
+/// destroyed). Of two arrays for one place the one of larger capacity is kept, so it holds at
+/// most one build's worth of each, the largest. take() hands an array out empty, its capacity
+/// kept; a build sizes it without value-initialising (RawVector, AlignedVector of Tri and Node4)
+/// or overwrites every element, so the bytes built do not depend on what it held.
+struct BuildContext_Store {
+  RawVector<PrimRef> prims, scratch;
+  Arenas arenas;
+  std::vector<Bvh2::Node> nodes;
+  std::vector<Box> leaf_boxes;
+  std::vector<Leaf> leaves;
+  AlignedVector<Tri> tris;
+  AlignedVector<Node4> node4;
+};
+
+}  // namespace mbvh::build
+
+namespace mbvh {
+
+struct BuildContext::Impl {
+  mutable std::mutex m;
+  build::BuildContext_Store s;
+  template <class V>
+  V take(V build::BuildContext_Store::*slot) {
+    std::lock_guard<std::mutex> lock(m);
+    V v = std::move(s.*slot);
+    s.*slot = V();
+    v.clear();
+    return v;
+  }
+  template <class V>
+  void give(V build::BuildContext_Store::*slot, V&& v) {
+    std::lock_guard<std::mutex> lock(m);
+    if (v.capacity() > (s.*slot).capacity()) s.*slot = std::move(v);
+    V().swap(v);
+  }
+  build::Arenas take_arenas();
+  void give_arenas(build::Arenas&& a);
+  std::size_t bytes() const;
+};
+
+}  // namespace mbvh
+
+namespace mbvh::build {
+
+/// The array a build uses for `slot`: the context's (empty, capacity kept), or a new one.
+template <class V>
+V take_from(const BuildOptions& opt, V BuildContext_Store::*slot) {
+  return opt.context ? opt.context->impl().take(slot) : V();
+}
+/// Gives a build's array back to its context (kept if larger than what it holds), or frees it.
+template <class V>
+void give_back(const BuildOptions& opt, V BuildContext_Store::*slot, V& v) {
+  if (opt.context) opt.context->impl().give(slot, std::move(v));
+  else V().swap(v);
+}
+
 /// The step both builders (binned SAH, LBVH) take after splitting the top levels into `out.upper`:
 /// the root made an inner node (a one-leaf scene gets a root with one leaf child), then every
-/// subtree job (jobs[j]: the top node it starts from) built by `build_one(subtree)` on the pool,
+/// subtree job (jobs[j]: the top node it starts from) built by `build_one(subtree, jobs[j])` on the pool,
 /// largest first; subtree j starts as a copy of its top node. The bytes do not depend on which
 /// worker ran a job. Progress goes from 0.25 to 0.95.
 template <class BuildOne>
@@ -136,7 +197,8 @@ void build_subtrees(Arenas& out, const std::vector<std::size_t>& jobs, const Bui
     upper.push_back(leaf);
   }
   out.subtree_of.assign(upper.size(), -1);
-  out.subtrees.assign(jobs.size(), {});
+  out.subtrees.resize(jobs.size());  // a context's arenas keep their capacity (BuildContext_Store)
+  for (std::vector<TmpNode>& s : out.subtrees) s.clear();
   for (std::size_t j = 0; j < jobs.size(); ++j) out.subtree_of[jobs[j]] = static_cast<std::int32_t>(j);
   std::vector<std::size_t> order(jobs.size());
   for (std::size_t j = 0; j < jobs.size(); ++j) order[j] = j;
@@ -148,7 +210,7 @@ void build_subtrees(Arenas& out, const std::vector<std::size_t>& jobs, const Bui
     for (std::size_t o = b; o < e; ++o) {
       const std::size_t j = order[o];
       out.subtrees[j].push_back(upper[jobs[j]]);
-      build_one(out.subtrees[j]);
+      build_one(out.subtrees[j], jobs[j]);
       if (opt.progress) opt.progress(0.25 + 0.7 * static_cast<double>(++built) / static_cast<double>(jobs.size()));
     }
   });
@@ -193,7 +255,8 @@ struct PrimRefs {
 /// The record pass of Accel::build on up to `threads` workers (prim_refs.cpp), with the checks a
 /// build makes of its scene: Scene::validate's, no triangle too small to trace, every coordinate
 /// in the exactly traced range (accel.h), a triangle with area. Throws Error naming the first fault.
-PrimRefs make_prim_refs(const Scene& scene, unsigned threads);
+/// `storage`: the records' array to reuse (emptied; BuildContext), or none.
+PrimRefs make_prim_refs(const Scene& scene, unsigned threads, RawVector<PrimRef>&& storage = {});
 
 /// The leaf-ordered triangle records: tris[i] (sized by the caller) is the scene's triangle that
 /// order[i] names, a prim id (SBVH) or a record (binned SAH, LBVH).
@@ -257,10 +320,16 @@ std::uint64_t hash_build(const Bvh2& b, const std::vector<Leaf>& leaves, const A
 /// LayoutStats::sah_cost of a binary tree: nodes priced at `ct`, triangles at 1.
 double sah_of_binary(const Bvh2& b, const std::vector<Leaf>& leaves, float ct);
 
+/// make_mbvh4 (layouts.h) into `storage` (emptied; its capacity reused: BuildContext).
+Mbvh4 make_mbvh4(const Bvh2& b, const std::vector<Leaf>& leaves, unsigned threads, AlignedVector<Node4>&& storage);
+
 /// The builders: reorder `prims` into leaf order and fill the arenas. `root` bounds every record,
 /// `croot` their centroids. Deterministic: the same arenas at any opt.threads.
+/// build_binned_sah's `scratch`: room for prims.size() records its partitions may overwrite (the
+/// caller's array that is written after the build, e.g. the triangle records), or null: an
+/// array of its own (or the context's).
 void build_binned_sah(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& croot, const BuildOptions& opt,
-                      Arenas& out);
+                      Arenas& out, PrimRef* scratch = nullptr);
 void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& croot, const BuildOptions& opt,
                 Arenas& out);
 

@@ -9,6 +9,7 @@
 #include <string>
 #include <vector>
 
+#include "host/core/bvh/builder.h"
 #include "host/core/bvh/wide_node.h"
 #include "host/core/layouts.h"
 #include "host/core/parallel.h"
@@ -299,8 +300,14 @@ void finish_mbvh4(Mbvh4& out, std::size_t leaf_count) {
 }
 
 Mbvh4 make_mbvh4(const Bvh2& b, const std::vector<Leaf>& leaves, unsigned threads) {
+  return build::make_mbvh4(b, leaves, threads, {});
+}
+
+Mbvh4 build::make_mbvh4(const Bvh2& b, const std::vector<Leaf>& leaves, unsigned threads, AlignedVector<Node4>&& storage) {
   const auto t0 = Clock::now();
   Mbvh4 out;
+  out.nodes = std::move(storage);  // empty; every node the collapse keeps is written
+  out.nodes.clear();
   collapse<MBVH_MBVH4_LEVEL_CAP>(b, leaves, "mbvh4", out, threads);  // with the sibling links
   out.stats.bitstack_bits = 3 * out.stats.depth;
   validate_layout(out, leaves.size());

@@ -227,7 +227,7 @@ void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& c
     if (mid == 0) builder.make_leaf(upper[k]);
     else LbvhBuilder::push_children(upper, k, mid);
   }
-  build_subtrees(out, jobs, opt, [&](std::vector<TmpNode>& subtree) {
+  build_subtrees(out, jobs, opt, [&](std::vector<TmpNode>& subtree, std::size_t) {
     subtree.reserve(2 * (subtree[0].end - subtree[0].begin) + 1);
     builder.build(subtree, 0);
   });

@@ -107,7 +107,7 @@ void throw_too_small(const Scene& scene, std::uint32_t prim, const char* who) {
   throw Error(scene.display_name() + buf);
 }
 
-PrimRefs make_prim_refs(const Scene& scene, unsigned threads) {
+PrimRefs make_prim_refs(const Scene& scene, unsigned threads, RawVector<PrimRef>&& storage) {
   // chunks count their kept triangles, then write them at their prefix offsets with the chunk's
   // bounds; compiled once for the owned arrays and once for mesh views (triangles.h)
   const std::size_t n = scene.triangle_count();
@@ -117,6 +117,8 @@ PrimRefs make_prim_refs(const Scene& scene, unsigned threads) {
   std::vector<std::size_t> kept_in(chunks, 0);
   PrimRefs out;
   RawVector<PrimRef>& prims = out.prims;
+  prims = std::move(storage);
+  prims.clear();
   prims.resize(n);
   std::vector<FastBox> cb(chunks), ccb(chunks);
   std::vector<float> mag(chunks, 0.0f);

@@ -112,6 +112,38 @@ enum class BuildQuality {
 const char* to_string(BuildQuality q);
 BuildQuality parse_quality(const std::string& s);  ///< throws Error on an unknown name
 
+/// Memory kept between builds, for a caller that rebuilds (an animation rebuilding each frame):
+/// set BuildOptions::context to one and Accel::build takes its working arrays (the primitive
+/// records, the builder's node arenas) from it and gives them back
+/// when it returns, and the build's output arrays (binary nodes, leaf boxes, leaf table,
+/// triangle records, MBVH4 nodes) come from it too and go back to it when that Accel is
+/// destroyed. A rebuild then writes memory that is already mapped instead of faulting in fresh
+/// pages (on a virtual machine the first touch of a 4 KiB page costs microseconds). The tree is
+/// the same bytes with or without a context, at any thread count, whatever was built in it before.
+/// Retained memory: at most one build's working arrays and one build's output arrays, each the
+/// largest built with it since the last release(): 32 bytes per triangle plus the node arenas
+/// (48 bytes per node), and the outputs' size (Accel::memory(), without layouts other than
+/// MBVH4). Without a context, or after release(), a build returns its memory to the system as
+/// before. Thread-safe: concurrent builds may share one context (each takes what it holds at its
+/// start; the others allocate). Keep it in a std::shared_ptr (BuildOptions::context): every Accel
+/// built with it holds a reference, so it lives as long as they do.
+class BuildContext {
+public:
+  BuildContext();
+  ~BuildContext();
+  BuildContext(const BuildContext&) = delete;
+  BuildContext& operator=(const BuildContext&) = delete;
+  /// Bytes of the arrays it holds now (their capacity), not counting those lent to a live build
+  /// or Accel.
+  std::size_t retained_bytes() const;
+  /// Frees what it holds now (arrays lent out come back later, unless released again then).
+  void release();
+  struct Impl;  ///< host/core/bvh/builder.h
+  Impl& impl() const { return *impl_; }  ///< internal (the builders)
+private:
+  std::unique_ptr<Impl> impl_;
+};
+
 struct BuildOptions {
   unsigned threads = 0;         ///< 0: every hardware thread; the result does not depend on it
   unsigned max_leaf = 8;        ///< largest leaf the SAH may choose (the depth cap may force bigger)
@@ -127,6 +159,8 @@ struct BuildOptions {
   float traversal_cost = 1.0f;  ///< SAH cost of one node visit, relative to one triangle test
   BuildQuality quality = BuildQuality::medium;  ///< the builder (BuildQuality)
   std::function<void(double)> progress;  ///< if set, called with the fraction done (any thread)
+  /// If set, memory kept between builds (BuildContext above); it never changes the tree.
+  std::shared_ptr<BuildContext> context;
 };
 
 /// Statistics of one layout (binary tree, MBVH2 or MBVH4).
