@@ -32,6 +32,9 @@ else
   NAMES=(bunny conference sibenik sponza hairball100k hairball1m)
   if [ "${MBVH_BENCH_10M:-0}" = 1 ]; then NAMES+=(hairball10m); fi
 fi
+# MBVH_BENCH_SCENES=a,b: only these rows of bench/scenes.sh (e.g. hairball10m added to an earlier
+# run's OUT: the table is made from every JSON in OUT)
+if [ -n "${MBVH_BENCH_SCENES:-}" ]; then read -ra NAMES <<< "${MBVH_BENCH_SCENES//,/ }"; fi
 LIST="$(scene_rows "$SCENES" "${NAMES[@]}")"
 # the tinybvh peer where this build has it and this CPU runs it (AVX2 and FMA)
 BACKENDS=cpu,embree

@@ -59,9 +59,15 @@ def test_every_backend_equals_the_program_byte_for_byte(cornell, tmp_path, query
     ray_file.write_bytes(rays.tobytes())
     for backend in mbvh.backends(runnable=True):
         out = tmp_path / f"{backend}.{query}"
-        subprocess.run([CLI, "--quiet", "trace", CORNELL, "--backend", backend, "--query", query, "--rays",
-                        str(ray_file), "-o", str(out)], check=True, capture_output=True)
-        answers = accel.trace(rays, backend=backend, query=query, threads=2)
+        precision = "robust"
+        try:
+            accel.trace(rays[:1], backend=backend, query=query)
+        except mbvh.Error as e:  # a peer without robust precision (tinybvh: not watertight) says so
+            assert "precision" in str(e), e
+            precision = "fast"
+        subprocess.run([CLI, "--quiet", "trace", CORNELL, "--backend", backend, "--query", query, "--precision",
+                        precision, "--rays", str(ray_file), "-o", str(out)], check=True, capture_output=True)
+        answers = accel.trace(rays, backend=backend, query=query, threads=2, precision=precision)
         assert answers.dtype == (mbvh.HIT_DTYPE if query == "closest" else np.uint8)
         assert answers.tobytes() == out.read_bytes(), f"{backend} {query}: the module and `mbvh trace` differ"
 
