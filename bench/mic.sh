@@ -15,7 +15,7 @@ source "$(dirname "${BASH_SOURCE[0]}")/lib.sh"
 bench_args "$ROOT/bench/out-mic" "$@"
 RAYS="${ARGS[0]:-100000}"
 PASSES="${ARGS[1]:-2}"
-NAMES=(bunny conference sibenik sponza)
+read -r -a NAMES <<< "${MIC_SCENES:-bunny conference sibenik sponza}"  # MIC_SCENES: a subset, space-separated
 EXTRA=()
 if [ "$QUICK" = 1 ]; then
   RAYS=2000

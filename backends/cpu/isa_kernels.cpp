@@ -71,7 +71,7 @@ bool runs_mic(const TraceOptions& opt, bool mic) {
 }
 
 void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out, unsigned threads,
-           bool hybrid, bool mic) {
+           bool hybrid, [[maybe_unused]] bool mic) {
   if (is_packet(opt.traversal)) {
     if (opt.precision == Precision::fast) trace_packets<SimdKernelsT<true>>(acc, rays, opt, out, threads, hybrid);
     else trace_packets<SimdKernelsT<false>>(acc, rays, opt, out, threads, hybrid);
