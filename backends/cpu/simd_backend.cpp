@@ -70,6 +70,21 @@ constexpr IsaChoice kIsaTable[] = {
     {Query::closest, false, true},  // single rays: the same 8-lane kernels either way
     {Query::any, false, true},
 };
+/// `cpu` on AVX-512 with cpu.mic unset: the MBVH4 traversals that run the MIC path (mic.h), those
+/// it measured faster on (the AMD Zen 4; benchmarks.md, "AVX-512", the MIC path): the any-hit
+/// MBVH4 stack (1.04-1.08x the 4-lane test on the interiors' shadow rays in two runs, 0.97-0.98x
+/// on the bunny's). Everywhere else the 4-lane test measured faster.
+struct MicChoice {
+  Query query;
+  Traversal traversal;
+};
+constexpr MicChoice kMicTable[] = {{Query::any, Traversal::stack}};
+bool choose_mic(const TraceOptions& o) {
+  if (o.layout != Layout::mbvh4) return false;
+  for (const MicChoice& c : kMicTable)
+    if (c.query == o.query && c.traversal == o.traversal) return true;
+  return false;
+}
 bool choose_avx512(Query q, Traversal t) {
   for (const IsaChoice& c : kIsaTable)
     if (c.query == q && c.packets == is_packet(t)) return c.avx512;
@@ -82,7 +97,7 @@ public:
   SimdBackend(std::string name, const CpuKernels& k, const BackendOptions& o, const CpuKernels* avx2 = nullptr)
       : name_(std::move(name)), kernels_(k), avx2_(avx2), threads_(resolve_threads(o.threads)),
         own_block_(cpu_leaf_block(o, kOwnLeafBlock)), hybrid_(o.get_flag("cpu.packet-hybrid", true)),
-        mic_(o.get_flag("cpu.mic", false)) {
+        mic_(o.get_flag("cpu.mic", false)), mic_auto_(avx2 && o.get("cpu.mic").empty()) {
     if (mic_ && std::strcmp(kernels_.isa, "avx512") != 0)
       throw Error("backend setting cpu.mic=" + o.get("cpu.mic") + ": the MIC path (MBVH4 nodes tested in 16 lanes) needs the "
                   "AVX-512 kernels, and backend '" + name_ + "' runs cpu-" + kernels_.isa + "'s");
@@ -113,15 +128,17 @@ public:
       const LeafVariant& v = acc.leaf_variant(block);
       v.make_layout(opt.layout);
       v.packed_nodes(opt.layout, acc.tris());  // also the packs
-      if (mic_ && opt.layout == Layout::mbvh4) v.mbvh4_wide();
+      if ((mic_ || mic_auto_) && opt.layout == Layout::mbvh4) v.mbvh4_wide();
     } else {
       acc.make_layout(opt.layout);
       acc.tri_packs();
-      if (mic_ && opt.layout == Layout::mbvh4) acc.mbvh4_wide();
+      if ((mic_ || mic_auto_) && opt.layout == Layout::mbvh4) acc.mbvh4_wide();
     }
   }
   void trace_batch(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
-    kernels_for(opt.query, opt.traversal).trace(acc, rays, opt, out, threads_, hybrid_, mic_);
+    const CpuKernels& k = kernels_for(opt.query, opt.traversal);
+    const bool mic = mic_ || (mic_auto_ && &k == &kernels_ && choose_mic(opt));  // kMicTable's choice for `cpu`
+    k.trace(acc, rays, opt, out, threads_, hybrid_, mic);
   }
   /// The single-ray query: this ISA's kernels, the views resolved now (Backend::ray_query has
   /// prepared the build for both queries).
@@ -141,6 +158,8 @@ private:
   unsigned own_block_;  ///< cpu.leaf-block (default kOwnLeafBlock)
   bool hybrid_;         ///< cpu.packet-hybrid (default on)
   bool mic_;            ///< cpu.mic (default off): the MIC path for MBVH4 (backends/cpu/simd/mic.h)
+  /// `cpu` on AVX-512 with cpu.mic unset: the MIC path where kMicTable says it measured faster
+  bool mic_auto_;
 };
 
 // Registers `name` running kernels `k` where `available()`; elsewhere it refuses to start, saying
