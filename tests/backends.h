@@ -60,6 +60,21 @@ inline std::vector<std::string> simd_cpu_backends() {
   return names;
 }
 
+/// The backends of this run that have the MIC path (`cpu.mic`: the AVX-512 kernels, cpu-avx512):
+/// none on a machine without AVX-512, or where MBVH_CPU_ISA or MBVH_TEST_BACKENDS leaves it out —
+/// each time with the reason printed (missing hardware is a skip, not a failure).
+inline std::vector<std::string> mic_backends() {
+  std::vector<std::string> names;
+  for (const mbvh::BackendInfo& b : mbvh::list_backends()) {
+    if (b.name != "cpu-avx512") continue;
+    const std::string why = !b.make ? b.unavailable : b.missing_hardware ? b.missing_hardware() : std::string();
+    if (!why.empty()) std::printf("MIC path (cpu.mic) skipped: cpu-avx512: %s\n", why.c_str());
+    else if (!backend_selected(b.name)) std::printf("MIC path (cpu.mic) skipped: cpu-avx512 is not in MBVH_TEST_BACKENDS\n");
+    else names.push_back(b.name);
+  }
+  return names;
+}
+
 /// `o` with the backend's own traversal where it has none of the hierarchy's (dacrt, which traces
 /// the triangles without one): a test written for the hierarchy's traversals runs such a backend on
 /// its own, which gives the reference's answers (up to the classified ties of another visit order).

@@ -5,6 +5,7 @@
 // line up, and rays the embree peer cannot take.
 #include <catch2/catch.hpp>
 
+#include <algorithm>
 #include <atomic>
 #include <cmath>
 #include <cstring>
@@ -344,6 +345,29 @@ TEST_CASE("cpu.leaf-block chooses the leaves a cpu backend traces - the referenc
   CHECK_THROWS_WITH(trace_reference(*acc, rays, wrong, out, 0), Catch::Contains("leaf block 65 is out of range"));
 }
 
+TEST_CASE("cpu.mic: the MIC path needs the AVX-512 kernels - cpu-avx2 refuses it by name, cpu-scalar accepts it", "[api][isa]") {
+  CHECK(make_backend("cpu-scalar", BackendOptions{}.set("cpu.mic", "1")) != nullptr);
+  for (const std::string& name : mbvh_test::simd_cpu_backends()) {
+    INFO(name);
+    CHECK_THROWS_WITH(make_backend(name, BackendOptions{}.set("cpu.mic", "maybe")), Catch::Contains("cpu.mic='maybe'"));
+    if (name == "cpu-avx2")
+      CHECK_THROWS_WITH(make_backend(name, BackendOptions{}.set("cpu.mic", "1")),
+                        Catch::Contains("cpu.mic=1") && Catch::Contains("AVX-512") && Catch::Contains("'cpu-avx2'"));
+    else
+      CHECK_THAT(make_backend(name, BackendOptions{}.set("cpu.mic", "1"))->describe(), Catch::Contains("the MIC path"));
+  }
+  // `cpu` where it runs AVX2's kernels (as on a machine without AVX-512): a usage error naming the setting
+  mbvh_test::TempDir dir;
+  const auto r = mbvh_test::run_cli("trace gen:sphere:8 --count 10 --backend cpu --set cpu.mic=1 -o " + dir.file("x.hits"),
+                                    "MBVH_CPU_ISA=avx2");
+  INFO(r.output);
+  const auto simd = mbvh_test::simd_cpu_backends();
+  if (std::find(simd.begin(), simd.end(), "cpu-avx2") != simd.end()) {  // else `cpu` is cpu-scalar, which accepts it
+    CHECK(r.code == 2);
+    CHECK_THAT(r.output, Catch::Contains("cpu.mic=1") && Catch::Contains("AVX-512"));
+  }
+}
+
 TEST_CASE("backend settings belong to their backend - unknown names are refused by name", "[api]") {
   // another family's setting is not this backend's concern: one options object serves several
   BackendOptions o;
@@ -369,7 +393,7 @@ TEST_CASE("backend settings belong to their backend - unknown names are refused 
                       Catch::Contains("vulkan.max-binding-bytes='-1'"));
   }
   CHECK_THROWS_WITH(make_backend("cpu-scalar", BackendOptions{}.set("cpu.threads", "2")),
-                    Catch::Contains("backend 'cpu-scalar' has no setting 'cpu.threads' (its settings: cpu.leaf-block, cpu.packet-hybrid)"));
+                    Catch::Contains("backend 'cpu-scalar' has no setting 'cpu.threads' (its settings: cpu.leaf-block, cpu.packet-hybrid, cpu.mic)"));
   // the CLI: --set FAMILY.NAME=VALUE reaches the backend; a malformed one is a usage error
   auto r = mbvh_test::run_cli("devices --set vulkan.validation=1");
   CHECK(r.code == 0);

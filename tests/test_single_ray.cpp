@@ -114,6 +114,17 @@ TEST_CASE("single-ray query: every ray equals the batch trace and the reference,
       others.push_back(own);
       for (const TraceOptions& o : others) check_query(*backend, *acc, backend->ray_query(*acc, o), rays);
     }
+    // the MIC path (cpu.mic=1) where there is one: its MBVH4 queries, robust and fast
+    for (const std::string& name : mbvh_test::mic_backends()) {
+      INFO(file << " on " << name << " with cpu.mic=1");
+      auto backend = make_backend(name, BackendOptions{}.set("cpu.mic", "1"));
+      for (Traversal t : {Traversal::stack, Traversal::bitstack, Traversal::stack_ordered, Traversal::bitstack_retest})
+        for (Precision p : {Precision::robust, Precision::fast}) {
+          TraceOptions o{Layout::mbvh4, t};
+          o.precision = p;
+          check_query(*backend, *acc, backend->ray_query(*acc, o), rays);
+        }
+    }
   }
 }
 

@@ -42,15 +42,18 @@ struct CpuKernels {
   int packet_rays;  ///< rays per packet of the packet traversals (packet/packet.h: kPacketRays)
   int packet_lanes;  ///< lanes per SIMD ray of a packet (8 or 16)
   /// hybrid: the packet traversals trace an incoherent packet ray by ray (the `cpu.packet-hybrid`
-  /// setting; off: every packet as a packet, for tests and measurements).
-  void (*trace)(const Accel&, std::span<const Ray>, const TraceOptions&, TraceOutput&, unsigned threads, bool hybrid);
+  /// setting; off: every packet as a packet, for tests and measurements). mic: the MBVH4 single-ray
+  /// traversals test a node in 16 lanes on its Node4W view (`cpu.mic`; the AVX-512 kernels only,
+  /// ignored by AVX2's: the backend refuses it there).
+  void (*trace)(const Accel&, std::span<const Ray>, const TraceOptions&, TraceOutput&, unsigned threads, bool hybrid,
+                bool mic);
   /// Divide-and-conquer ray tracing over acc.tris() (backends/cpu/dacrt/): no hierarchy read.
   void (*dacrt)(const Accel&, std::span<const Ray>, const TraceOptions&, TraceOutput&, unsigned threads,
                 const DacrtSettings&, DacrtBuffers&);
   /// The single-ray query (Backend::ray_query) of `closest` and `any` (checked, a single-ray
   /// traversal each, leaf blocks resolved, the build prepared): the views of both resolved now,
   /// the kernels a function each (the traversal fixed for the defaults, default_ray_query_options).
-  RayQueryKernels (*ray_query)(const Accel&, const TraceOptions& closest, const TraceOptions& any);
+  RayQueryKernels (*ray_query)(const Accel&, const TraceOptions& closest, const TraceOptions& any, bool mic);
 };
 
 /// What `cpu` and `dacrt` run on this machine (backends/cpu/simd_backend.cpp), from the build
@@ -88,6 +91,11 @@ void dacrt_scalar(const Accel&, std::span<const Ray>, const TraceOptions&, Trace
 unsigned cpu_leaf_block(const BackendOptions& o, unsigned fallback);
 /// Its declaration (BackendInfo::settings), with the backend's default in the help text.
 BackendSetting cpu_leaf_block_setting(const char* fallback);
+
+/// The cpu family's `cpu.mic` setting (the MIC path: MBVH4 nodes tested in 16 lanes, AVX-512 only;
+/// read by the SIMD backends, accepted by cpu-scalar, which traces the reference's test), `note`
+/// appended to its help.
+BackendSetting cpu_mic_setting(const char* note = "");
 
 /// The cpu family's `cpu.packet-hybrid` setting (the packet traversals' hybrid switch; read by the
 /// SIMD backends, accepted by cpu-scalar, which traces every ray alone), `note` appended to its help.

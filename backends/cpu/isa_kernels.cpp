@@ -52,6 +52,7 @@ MBVH_ISA_BEGIN
 #include "backends/cpu/simd/box.h"
 #include "backends/cpu/simd/triangle.h"
 #include "backends/cpu/simd/kernels.h"
+#include "backends/cpu/simd/mic.h"
 #include "backends/cpu/packet/packet.h"
 #include "backends/cpu/packet/frustum.h"
 #include "backends/cpu/packet/triangle.h"
@@ -63,13 +64,26 @@ namespace mbvh {
 inline namespace MBVH_ISA_NS {
 namespace {
 
+/// Whether the MIC path (mic.h) traces `opt`: asked for (cpu.mic), an AVX-512 build, an MBVH4
+/// single-ray traversal.
+bool runs_mic(const TraceOptions& opt, bool mic) {
+  return MBVH_CPU_ISA_ID == 2 && mic && opt.layout == Layout::mbvh4 && !is_packet(opt.traversal) && !is_dacrt(opt.traversal);
+}
+
 void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out, unsigned threads,
-           bool hybrid) {
+           bool hybrid, [[maybe_unused]] bool mic) {
   if (is_packet(opt.traversal)) {
     if (opt.precision == Precision::fast) trace_packets<SimdKernelsT<true>>(acc, rays, opt, out, threads, hybrid);
     else trace_packets<SimdKernelsT<false>>(acc, rays, opt, out, threads, hybrid);
     return;
   }
+#if MBVH_CPU_ISA_ID == 2
+  if (runs_mic(opt, mic)) {
+    if (opt.precision == Precision::fast) trace_parallel<MicKernelsT<true>>(acc, rays, opt, out, threads);
+    else trace_parallel<MicKernelsT<false>>(acc, rays, opt, out, threads);
+    return;
+  }
+#endif
   if (opt.precision == Precision::fast) trace_parallel<SimdKernelsT<true>>(acc, rays, opt, out, threads);
   else trace_parallel<SimdKernelsT<false>>(acc, rays, opt, out, threads);
 }
@@ -136,17 +150,23 @@ RayQueryKernels query_kernels(const TraceOptions& c, const TraceOptions& a) {
   return k;
 }
 
-RayQueryKernels ray_query(const Accel& acc, const TraceOptions& c, const TraceOptions& a) {
+RayQueryKernels ray_query(const Accel& acc, const TraceOptions& c, const TraceOptions& a, bool mic) {
   auto s = std::make_shared<OneRayState>();
   const TraceOptions* o[2] = {&c, &a};
   for (int q = 0; q < 2; ++q) {  // the batch's view: packs, packed references (trace_parallel)
-    s->view[q] = trace_view(acc, o[q]->layout, true, o[q]->leaf_block, true);
+    s->view[q] = trace_view(acc, o[q]->layout, true, o[q]->leaf_block, true, runs_mic(*o[q], mic));
     s->layout[q] = o[q]->layout;
     s->traversal[q] = o[q]->traversal;
   }
   // one precision for both: the query's options share it (Backend::ray_query)
-  RayQueryKernels k = c.precision == Precision::fast ? query_kernels<SimdKernelsT<true>>(c, a)
-                                                     : query_kernels<SimdKernelsT<false>>(c, a);
+  const bool fast = c.precision == Precision::fast;
+  RayQueryKernels k = fast ? query_kernels<SimdKernelsT<true>>(c, a) : query_kernels<SimdKernelsT<false>>(c, a);
+#if MBVH_CPU_ISA_ID == 2
+  // the MIC path's query where it traces (an MBVH4 query; the other keeps the 8-lane kernels)
+  if (runs_mic(c, mic)) k.closest = fast ? &one_ray_any_pair<false, MicKernelsT<true>> : &one_ray_any_pair<false, MicKernelsT<false>>;
+  if (runs_mic(a, mic))
+    k.any = fast ? &occluded_by<&one_ray_any_pair<true, MicKernelsT<true>>> : &occluded_by<&one_ray_any_pair<true, MicKernelsT<false>>>;
+#endif
   k.state = std::move(s);
   return k;
 }

@@ -1,6 +1,6 @@
 // SPDX-License-Identifier: MIT
 // register.cpp — mbvh::cpu's registration entry point (mbvh/backends.h), the cpu family's
-// shared settings (cpu.leaf-block, cpu.packet-hybrid) and the portable fallback's second names.
+// shared settings (cpu.leaf-block, cpu.packet-hybrid, cpu.mic) and the portable fallback's second names.
 #include <string>
 #include <utility>
 
@@ -26,6 +26,12 @@ BackendSetting cpu_leaf_block_setting(const char* fallback) {
 BackendSetting cpu_packet_hybrid_setting(const char* note) {
   return {"cpu.packet-hybrid", std::string("packet traversals: a packet of incoherent rays is traced ray by ray (1, the default) "
                                            "or every packet as a packet (0)") + note};
+}
+
+BackendSetting cpu_mic_setting(const char* note) {
+  return {"cpu.mic", std::string("the MIC path: MBVH4 traversals test a node's four children in 16 lanes on the 16-wide "
+                                 "view, one 512-bit operation per row (1; AVX-512 only) or four boxes in 4 lanes (0, the default)") +
+                         note};
 }
 
 void register_portable_alias(BackendInfo info, const std::string& portable, const std::string& because) {

@@ -70,6 +70,21 @@ constexpr IsaChoice kIsaTable[] = {
     {Query::closest, false, true},  // single rays: the same 8-lane kernels either way
     {Query::any, false, true},
 };
+/// `cpu` on AVX-512 with cpu.mic unset: the MBVH4 traversals that run the MIC path (mic.h), those
+/// it measured faster on (the AMD Zen 4; benchmarks.md, "AVX-512", the MIC path): the any-hit
+/// MBVH4 stack (1.04-1.08x the 4-lane test on the interiors' shadow rays in two runs, 0.97-0.98x
+/// on the bunny's). Everywhere else the 4-lane test measured faster.
+struct MicChoice {
+  Query query;
+  Traversal traversal;
+};
+constexpr MicChoice kMicTable[] = {{Query::any, Traversal::stack}};
+bool choose_mic(const TraceOptions& o) {
+  if (o.layout != Layout::mbvh4) return false;
+  for (const MicChoice& c : kMicTable)
+    if (c.query == o.query && c.traversal == o.traversal) return true;
+  return false;
+}
 bool choose_avx512(Query q, Traversal t) {
   for (const IsaChoice& c : kIsaTable)
     if (c.query == q && c.packets == is_packet(t)) return c.avx512;
@@ -81,13 +96,19 @@ public:
   /// `avx2`: for `cpu` where `k` is the AVX-512 kernels, AVX2's, which kIsaTable's rows may pick.
   SimdBackend(std::string name, const CpuKernels& k, const BackendOptions& o, const CpuKernels* avx2 = nullptr)
       : name_(std::move(name)), kernels_(k), avx2_(avx2), threads_(resolve_threads(o.threads)),
-        own_block_(cpu_leaf_block(o, kOwnLeafBlock)), hybrid_(o.get_flag("cpu.packet-hybrid", true)) {}
+        own_block_(cpu_leaf_block(o, kOwnLeafBlock)), hybrid_(o.get_flag("cpu.packet-hybrid", true)),
+        mic_(o.get_flag("cpu.mic", false)), mic_auto_(avx2 && o.get("cpu.mic").empty()) {
+    if (mic_ && std::strcmp(kernels_.isa, "avx512") != 0)
+      throw Error("backend setting cpu.mic=" + o.get("cpu.mic") + ": the MIC path (MBVH4 nodes tested in 16 lanes) needs the "
+                  "AVX-512 kernels, and backend '" + name_ + "' runs cpu-" + kernels_.isa + "'s");
+  }
   std::string name() const override { return name_; }
   std::string describe() const override {
     return name_ + ": " + kernels_.isa + " node tests (MBVH4: 4 boxes, MBVH8: 8 at once), SIMD leaves 8 triangles per pass (leaf block " +
            std::to_string(own_block_) + "), packets of " + std::to_string(kernels_.packet_rays) + " rays (SIMD rays of " +
            std::to_string(kernels_.packet_lanes) + ")" +
-           (hybrid_ ? "" : " (no hybrid switch)") + ", " + std::to_string(threads_) + " thread(s)";
+           (hybrid_ ? "" : " (no hybrid switch)") + (mic_ ? ", the MIC path for MBVH4 (a node in 16 lanes)" : "") + ", " +
+           std::to_string(threads_) + " thread(s)";
   }
   std::string isa() const override { return kernels_.isa; }
   std::string runs_as() const override { return std::string("cpu-") + kernels_.isa; }
@@ -107,18 +128,22 @@ public:
       const LeafVariant& v = acc.leaf_variant(block);
       v.make_layout(opt.layout);
       v.packed_nodes(opt.layout, acc.tris());  // also the packs
+      if ((mic_ || mic_auto_) && opt.layout == Layout::mbvh4) v.mbvh4_wide();
     } else {
       acc.make_layout(opt.layout);
       acc.tri_packs();
+      if ((mic_ || mic_auto_) && opt.layout == Layout::mbvh4) acc.mbvh4_wide();
     }
   }
   void trace_batch(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
-    kernels_for(opt.query, opt.traversal).trace(acc, rays, opt, out, threads_, hybrid_);
+    const CpuKernels& k = kernels_for(opt.query, opt.traversal);
+    const bool mic = mic_ || (mic_auto_ && &k == &kernels_ && choose_mic(opt));  // kMicTable's choice for `cpu`
+    k.trace(acc, rays, opt, out, threads_, hybrid_, mic);
   }
   /// The single-ray query: this ISA's kernels, the views resolved now (Backend::ray_query has
   /// prepared the build for both queries).
   RayQueryKernels ray_query_kernels(const Accel& acc, const TraceOptions& closest, const TraceOptions& any) override {
-    return kernels_for(Query::closest, closest.traversal).ray_query(acc, closest, any);
+    return kernels_for(Query::closest, closest.traversal).ray_query(acc, closest, any, mic_);
   }
 
 private:
@@ -132,6 +157,9 @@ private:
   unsigned threads_;
   unsigned own_block_;  ///< cpu.leaf-block (default kOwnLeafBlock)
   bool hybrid_;         ///< cpu.packet-hybrid (default on)
+  bool mic_;            ///< cpu.mic (default off): the MIC path for MBVH4 (backends/cpu/simd/mic.h)
+  /// `cpu` on AVX-512 with cpu.mic unset: the MIC path where kMicTable says it measured faster
+  bool mic_auto_;
 };
 
 // Registers `name` running kernels `k` where `available()`; elsewhere it refuses to start, saying
@@ -147,7 +175,7 @@ void add(const char* name, const char* summary, const CpuKernels& k, bool (*avai
     return std::make_unique<SimdBackend>(name, k, o, avx2);
   };
   info.missing_hardware = [available, missing] { return available() ? std::string() : std::string(missing); };
-  info.settings = {cpu_leaf_block_setting("4"), cpu_packet_hybrid_setting()};
+  info.settings = {cpu_leaf_block_setting("4"), cpu_packet_hybrid_setting(), cpu_mic_setting()};
   register_backend(std::move(info));
 }
 

@@ -86,6 +86,8 @@ struct LeafVariant {
   const Mbvh2& mbvh2() const;
   const Mbvh4& mbvh4() const;
   const Mbvh8& mbvh8() const;
+  /// Its MBVH4's 16-wide view (the cpu backend's MIC path reads it beside the MBVH4 nodes).
+  const Mbvh4Wide& mbvh4_wide() const;
   const TriPacks& tri_packs(const AlignedVector<Tri>& tris) const;
   void make_layout(Layout l) const;  ///< makes layout `l` now (as Accel::make_layout)
   /// Layout `l`'s nodes (Node2, Node4 or Node8) with every leaf reference replaced by
@@ -100,9 +102,10 @@ struct LeafVariant {
   Bytes bytes() const;
 
 private:
-  mutable std::once_flag once2_, once4_, once8_, oncep_, oncek_[3];
+  mutable std::once_flag once2_, once4_, once8_, once4w_, oncep_, oncek_[3];
   mutable Mbvh2 m2_;
   mutable Mbvh4 m4_;
+  mutable Mbvh4Wide m4w_;
   mutable Mbvh8 m8_;
   mutable TriPacks packs_;
   mutable bool packable_ = false;  ///< every leaf fits a packed reference (set with packs_)

@@ -195,6 +195,10 @@ const Mbvh4& LeafVariant::mbvh4() const {
   });
   return m4_;
 }
+const Mbvh4Wide& LeafVariant::mbvh4_wide() const {
+  std::call_once(once4w_, [this] { m4w_ = make_mbvh4_wide(mbvh4()); });
+  return m4w_;
+}
 const Mbvh8& LeafVariant::mbvh8() const {
   std::call_once(once8_, [this] {
     m8_ = make_mbvh8_sah(tree(), leaves, block, node_cost);
@@ -219,7 +223,7 @@ const TriPacks& LeafVariant::tri_packs(const AlignedVector<Tri>& tris) const {
 LeafVariant::Bytes LeafVariant::bytes() const {
   auto of = [](const auto& v) { return v.size() * sizeof(v[0]); };
   Bytes b;
-  b.nodes = of(leaves) + of(m2_.nodes) + of(m4_.nodes) + of(m8_.nodes) + of(k2_) + of(k4_) + of(k8_);
+  b.nodes = of(leaves) + of(m2_.nodes) + of(m4_.nodes) + of(m8_.nodes) + of(m4w_.nodes) + of(k2_) + of(k4_) + of(k8_);
   b.packs = of(packs_.packs) + of(packs_.leaves);
   return b;
 }

@@ -40,8 +40,9 @@ inline void view_nodes(TraceView& v, const Src& src, Layout layout) {
 /// the same triangles.
 /// `packed_refs`: nodes whose leaf references locate the packs (TraceView::packed_refs) where the
 /// variant's leaves allow them.
+/// `node4w`: for MBVH4 also the nodes' 16-wide view (TraceView::n4w; a kernel policy's uses_node4w).
 inline TraceView trace_view(const Accel& acc, Layout layout, bool packs = false, unsigned leaf_block = 1,
-                            bool packed_refs = false) {
+                            bool packed_refs = false, bool node4w = false) {
   TraceView v;
   v.tris = acc.tris().data();
   const TriPacks* p = nullptr;
@@ -51,6 +52,7 @@ inline TraceView trace_view(const Accel& acc, Layout layout, bool packs = false,
     v.leaf_count = lv.leaves.size();
     v.leaves = lv.leaves.data();
     if (packs) p = &lv.tri_packs(acc.tris());
+    if (node4w && layout == Layout::mbvh4) v.n4w = lv.mbvh4_wide().nodes.data();
     if (packs && packed_refs) {
       if (const void* k = lv.packed_nodes(layout, acc.tris())) {
         if (layout == Layout::mbvh2) v.n2 = static_cast<const Node2*>(k);
@@ -64,12 +66,21 @@ inline TraceView trace_view(const Accel& acc, Layout layout, bool packs = false,
     v.leaf_count = acc.leaves().size();
     v.leaves = acc.leaves().data();
     if (packs) p = &acc.tri_packs();
+    if (node4w && layout == Layout::mbvh4) v.n4w = acc.mbvh4_wide().nodes.data();
   }
   if (p) {
     v.tri4 = p->packs.data();
     v.leaf4 = p->leaves.data();
   }
   return v;
+}
+
+/// Whether kernel policy K reads the MBVH4 nodes' 16-wide view (its `uses_node4w`; none of the
+/// reference's).
+template <class K>
+constexpr bool uses_node4w() {
+  if constexpr (requires { K::uses_node4w; }) return K::uses_node4w;
+  else return false;
 }
 
 template <bool Any, bool Stats, class K>
@@ -104,7 +115,8 @@ template <class K>
 inline void trace_parallel(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out,
                            unsigned threads, const std::function<void(std::size_t)>& progress = {}) {
   // counted traversals visit leaves through the reference's visit_leaf (the leaf table)
-  const TraceView v = trace_view(acc, opt.layout, K::uses_packs, opt.leaf_block, K::uses_packs && !opt.stats);
+  const TraceView v = trace_view(acc, opt.layout, K::uses_packs, opt.leaf_block, K::uses_packs && !opt.stats,
+                                    uses_node4w<K>());
   const bool any = opt.query == Query::any;
   out.resize_for(rays.size(), opt);  // every ray's entries are written below
   std::atomic<std::size_t> invalid{0}, done{0};

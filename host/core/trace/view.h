@@ -33,6 +33,10 @@ struct TraceView {
   const Node2* n2 = nullptr;
   const Node4* n4 = nullptr;
   const Node8* n8 = nullptr;
+  /// The MBVH4 nodes' 16-wide view (Node4W; n4w[i] is n4[i]'s boxes), where a kernel tests an
+  /// MBVH4 node in 16 lanes (the cpu backend's MIC path, cpu.mic): the walk reads n4, the box
+  /// test n4w.
+  const Node4W* n4w = nullptr;
   const Leaf* leaves = nullptr;
   const Tri* tris = nullptr;
   const Tri4* tri4 = nullptr;   ///< SIMD leaf packs (Accel::tri_packs), where a kernel uses them
