@@ -96,12 +96,19 @@ TEST_CASE("stress: rays from inside closed meshes aimed at shared vertices and e
     }
 }
 
-TEST_CASE("stress: special rays agree with the brute force on every backend", "[stress][sanitizer-cpu][isa]") {
-  const VariantGrid grid = with_packets(all_backends());
+/// The scenes of the special-ray stress tests: every open scene at every scale and offset, and the
+/// closed ones.
+static std::vector<std::string> special_specs() {
   std::vector<std::string> specs;
   for (const char* base : kOpen)
     for (const char* tf : kTransforms) specs.push_back(std::string(base) + tf);
   for (const char* base : kClosed) specs.push_back(base);
+  return specs;
+}
+
+TEST_CASE("stress: special rays agree with the brute force on every backend", "[stress][sanitizer-cpu][isa]") {
+  const VariantGrid grid = with_packets(all_backends());
+  const std::vector<std::string> specs = special_specs();
   for (const std::string& spec : specs) {
     const Scene s = load_scene(spec);
     const auto acc = Accel::build(s);
@@ -129,10 +136,7 @@ TEST_CASE("stress: the MIC path agrees with the brute force on special rays - no
   grid.backends.insert(grid.backends.end(), mic.begin(), mic.end());
   grid.layouts = {Layout::mbvh4};
   const BackendOptions on = BackendOptions{}.set("cpu.mic", "1");
-  std::vector<std::string> specs;
-  for (const char* base : kOpen)
-    for (const char* tf : kTransforms) specs.push_back(std::string(base) + tf);
-  for (const char* base : kClosed) specs.push_back(base);
+  const std::vector<std::string> specs = special_specs();
   for (const std::string& spec : specs) {
     const Scene s = load_scene(spec);
     const auto acc = Accel::build(s);
