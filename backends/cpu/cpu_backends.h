@@ -12,8 +12,6 @@
 
 namespace mbvh {
 
-struct Node8Q;  // backends/cpu/quant8.h
-
 /// The dacrt backends' settings (BackendOptions `dacrt.*`, backends/cpu/dacrt_backend.cpp): how
 /// the recursion of divide-and-conquer ray tracing (Áfra, EG 2012; backends/cpu/dacrt/) splits
 /// the triangles and when it stops. Every value gives exact answers; they trade speed only.
@@ -46,11 +44,9 @@ struct CpuKernels {
   /// hybrid: the packet traversals trace an incoherent packet ray by ray (the `cpu.packet-hybrid`
   /// setting; off: every packet as a packet, for tests and measurements). mic: the MBVH4 single-ray
   /// traversals test a node in 16 lanes on its Node4W view (`cpu.mic`; the AVX-512 kernels only,
-  /// ignored by AVX2's: the backend refuses it there). q8: the quantized records of the traced
-  /// MBVH8 view (`cpu.quant8`; quant8.h), which its uncounted single-ray traversals then test;
-  /// null: the float nodes.
+  /// ignored by AVX2's: the backend refuses it there).
   void (*trace)(const Accel&, std::span<const Ray>, const TraceOptions&, TraceOutput&, unsigned threads, bool hybrid,
-                bool mic, const Node8Q* q8);
+                bool mic);
   /// Divide-and-conquer ray tracing over acc.tris() (backends/cpu/dacrt/): no hierarchy read.
   void (*dacrt)(const Accel&, std::span<const Ray>, const TraceOptions&, TraceOutput&, unsigned threads,
                 const DacrtSettings&, DacrtBuffers&);
@@ -100,11 +96,6 @@ BackendSetting cpu_leaf_block_setting(const char* fallback);
 /// read by the SIMD backends, accepted by cpu-scalar, which traces the reference's test), `note`
 /// appended to its help.
 BackendSetting cpu_mic_setting(const char* note = "");
-
-/// The cpu family's `cpu.quant8` setting (the MBVH8 single-ray traversals test the quantized
-/// nodes of backends/cpu/quant8.h; read by the SIMD backends, accepted by cpu-scalar, which traces
-/// the float nodes), `note` appended to its help.
-BackendSetting cpu_quant8_setting(const char* note = "");
 
 /// The cpu family's `cpu.packet-hybrid` setting (the packet traversals' hybrid switch; read by the
 /// SIMD backends, accepted by cpu-scalar, which traces every ray alone), `note` appended to its help.

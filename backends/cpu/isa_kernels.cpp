@@ -53,7 +53,6 @@ MBVH_ISA_BEGIN
 #include "backends/cpu/simd/triangle.h"
 #include "backends/cpu/simd/kernels.h"
 #include "backends/cpu/simd/mic.h"
-#include "backends/cpu/simd/quant8.h"
 #include "backends/cpu/packet/packet.h"
 #include "backends/cpu/packet/frustum.h"
 #include "backends/cpu/packet/triangle.h"
@@ -72,16 +71,10 @@ bool runs_mic(const TraceOptions& opt, bool mic) {
 }
 
 void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out, unsigned threads,
-           bool hybrid, [[maybe_unused]] bool mic, const Node8Q* q8) {
+           bool hybrid, [[maybe_unused]] bool mic) {
   if (is_packet(opt.traversal)) {
     if (opt.precision == Precision::fast) trace_packets<SimdKernelsT<true>>(acc, rays, opt, out, threads, hybrid);
     else trace_packets<SimdKernelsT<false>>(acc, rays, opt, out, threads, hybrid);
-    return;
-  }
-  // the quantized MBVH8 nodes (cpu.quant8), uncounted: a counted trace runs the reference's visit
-  if (q8 && opt.layout == Layout::mbvh8 && !is_dacrt(opt.traversal) && !opt.stats) {
-    if (opt.precision == Precision::fast) trace_quant<QuantKernelsT<true>>(acc, rays, opt, out, threads, q8);
-    else trace_quant<QuantKernelsT<false>>(acc, rays, opt, out, threads, q8);
     return;
   }
 #if MBVH_CPU_ISA_ID == 2

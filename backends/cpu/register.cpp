@@ -1,6 +1,6 @@
 // SPDX-License-Identifier: MIT
 // register.cpp — mbvh::cpu's registration entry point (mbvh/backends.h), the cpu family's
-// shared settings (cpu.leaf-block, cpu.packet-hybrid, cpu.mic, cpu.quant8) and the portable fallback's second names.
+// shared settings (cpu.leaf-block, cpu.packet-hybrid, cpu.mic) and the portable fallback's second names.
 #include <string>
 #include <utility>
 
@@ -21,12 +21,6 @@ unsigned cpu_leaf_block(const BackendOptions& o, unsigned fallback) {
 BackendSetting cpu_leaf_block_setting(const char* fallback) {
   return {"cpu.leaf-block", std::string("the leaves traced: the build's regrouped for leaf tests of N triangles "
                                         "(1: the build's own; default ") + fallback + ")"};
-}
-
-BackendSetting cpu_quant8_setting(const char* note) {
-  return {"cpu.quant8", std::string("MBVH8 single-ray traversals test quantized nodes: each node's eight boxes in 8 bits per "
-                                    "plane, one cache line, decoded conservatively (1) or the float nodes (0, the default)") +
-                            note};
 }
 
 BackendSetting cpu_packet_hybrid_setting(const char* note) {

@@ -52,8 +52,7 @@ BackendInfo cpu_scalar_info(const std::string& name) {
   info.summary = "scalar reference traversals (MBVH2/MBVH4, stack/bitstack), multi-threaded";
   info.make = [name](const BackendOptions& o) { return std::unique_ptr<Backend>(new ScalarBackend(name, o)); };
   info.settings = {cpu_leaf_block_setting("1"), cpu_packet_hybrid_setting("; cpu-scalar traces every ray alone"),
-                   cpu_mic_setting("; cpu-scalar traces the reference's box test"),
-                   cpu_quant8_setting("; cpu-scalar traces the float nodes")};
+                   cpu_mic_setting("; cpu-scalar traces the reference's box test")};
   return info;
 }
 

@@ -9,11 +9,8 @@
 #include <cstdlib>
 #include <cstring>
 #include <string>
-#include <utility>
-#include <vector>
 
 #include "backends/cpu/cpu_backends.h"
-#include "backends/cpu/quant8.h"
 #include "host/core/layouts.h"
 #include "mbvh/backend.h"
 #include "mbvh/config.h"
@@ -100,7 +97,7 @@ public:
   SimdBackend(std::string name, const CpuKernels& k, const BackendOptions& o, const CpuKernels* avx2 = nullptr)
       : name_(std::move(name)), kernels_(k), avx2_(avx2), threads_(resolve_threads(o.threads)),
         own_block_(cpu_leaf_block(o, kOwnLeafBlock)), hybrid_(o.get_flag("cpu.packet-hybrid", true)),
-        mic_(o.get_flag("cpu.mic", false)), mic_auto_(avx2 && o.get("cpu.mic").empty()), quant8_(o.get_flag("cpu.quant8", false)) {
+        mic_(o.get_flag("cpu.mic", false)), mic_auto_(avx2 && o.get("cpu.mic").empty()) {
     if (mic_ && std::strcmp(kernels_.isa, "avx512") != 0)
       throw Error("backend setting cpu.mic=" + o.get("cpu.mic") + ": the MIC path (MBVH4 nodes tested in 16 lanes) needs the "
                   "AVX-512 kernels, and backend '" + name_ + "' runs cpu-" + kernels_.isa + "'s");
@@ -110,8 +107,7 @@ public:
     return name_ + ": " + kernels_.isa + " node tests (MBVH4: 4 boxes, MBVH8: 8 at once), SIMD leaves 8 triangles per pass (leaf block " +
            std::to_string(own_block_) + "), packets of " + std::to_string(kernels_.packet_rays) + " rays (SIMD rays of " +
            std::to_string(kernels_.packet_lanes) + ")" +
-           (hybrid_ ? "" : " (no hybrid switch)") + (mic_ ? ", the MIC path for MBVH4 (a node in 16 lanes)" : "") +
-           (quant8_ ? ", quantized MBVH8 nodes (one line each)" : "") + ", " +
+           (hybrid_ ? "" : " (no hybrid switch)") + (mic_ ? ", the MIC path for MBVH4 (a node in 16 lanes)" : "") + ", " +
            std::to_string(threads_) + " thread(s)";
   }
   std::string isa() const override { return kernels_.isa; }
@@ -138,13 +134,11 @@ public:
       acc.tri_packs();
       if ((mic_ || mic_auto_) && opt.layout == Layout::mbvh4) acc.mbvh4_wide();
     }
-    if (quant8_ && opt.layout == Layout::mbvh8) quantized(acc, block);
   }
   void trace_batch(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out) override {
     const CpuKernels& k = kernels_for(opt.query, opt.traversal);
     const bool mic = mic_ || (mic_auto_ && &k == &kernels_ && choose_mic(opt));  // kMicTable's choice for `cpu`
-    const Node8Q* q8 = quant8_ && opt.layout == Layout::mbvh8 ? quantized(acc, leaf_block(opt)) : nullptr;
-    k.trace(acc, rays, opt, out, threads_, hybrid_, mic, q8);
+    k.trace(acc, rays, opt, out, threads_, hybrid_, mic);
   }
   /// The single-ray query: this ISA's kernels, the views resolved now (Backend::ray_query has
   /// prepared the build for both queries).
@@ -153,27 +147,6 @@ public:
   }
 
 private:
-  /// The quantized records of `acc`'s MBVH8 nodes at leaf block `block` (quant8.h), made on first
-  /// use and kept for the last few builds, keyed by what identifies the nodes (the build's
-  /// address, hash and refit generation, the block and the nodes' array); null where a box is not
-  /// finite (the float nodes are traced). Called with the object's lock held.
-  const Node8Q* quantized(const Accel& acc, unsigned block) {
-    const Mbvh8& m = block > 1 ? acc.leaf_variant(block).mbvh8() : acc.mbvh8();
-    const QuantKey key{&acc, acc.hash(), acc.generation(), block, m.nodes.data(), m.nodes.size()};
-    for (const auto& [k, q] : quant_)
-      if (k == key) return q.empty() ? nullptr : q.data();
-    if (quant_.size() >= 4) quant_.erase(quant_.begin());
-    quant_.emplace_back(key, quantize_mbvh8(m.nodes.data(), m.nodes.size()));
-    return quant_.back().second.empty() ? nullptr : quant_.back().second.data();
-  }
-  struct QuantKey {
-    const Accel* acc;
-    std::uint64_t hash, generation;
-    unsigned block;
-    const Node8* nodes;
-    std::size_t count;
-    bool operator==(const QuantKey&) const = default;
-  };
   /// The kernels query q with traversal t runs: kIsaTable's choice for `cpu`, else this backend's.
   const CpuKernels& kernels_for(Query q, Traversal t) const {
     return avx2_ && !choose_avx512(q, t) ? *avx2_ : kernels_;
@@ -187,8 +160,6 @@ private:
   bool mic_;            ///< cpu.mic (default off): the MIC path for MBVH4 (backends/cpu/simd/mic.h)
   /// `cpu` on AVX-512 with cpu.mic unset: the MIC path where kMicTable says it measured faster
   bool mic_auto_;
-  bool quant8_;  ///< cpu.quant8 (default off): the quantized MBVH8 nodes (backends/cpu/quant8.h)
-  std::vector<std::pair<QuantKey, std::vector<Node8Q>>> quant_;
 };
 
 // Registers `name` running kernels `k` where `available()`; elsewhere it refuses to start, saying
@@ -204,7 +175,7 @@ void add(const char* name, const char* summary, const CpuKernels& k, bool (*avai
     return std::make_unique<SimdBackend>(name, k, o, avx2);
   };
   info.missing_hardware = [available, missing] { return available() ? std::string() : std::string(missing); };
-  info.settings = {cpu_leaf_block_setting("4"), cpu_packet_hybrid_setting(), cpu_mic_setting(), cpu_quant8_setting()};
+  info.settings = {cpu_leaf_block_setting("4"), cpu_packet_hybrid_setting(), cpu_mic_setting()};
   register_backend(std::move(info));
 }
 
