@@ -197,6 +197,7 @@ CheckReport run_check(const Accel& acc, std::span<const Ray> rays, const CheckOp
     run.v.opt = o;
     if (log) log("tracing " + run.v.label());
     b.trace(acc, rays, run.v.opt, run.out);
+    if (opt.on_trace) opt.on_trace(run.v, run.out);
     runs.push_back(std::move(run));
   });
 

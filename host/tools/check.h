@@ -16,17 +16,21 @@
 
 namespace mbvh {
 
+struct CheckVariant {
+  std::string backend;
+  TraceOptions opt;
+  std::string label() const;  ///< "cpu-scalar/mbvh4/bitstack/closest"
+};
+
 struct CheckOptions {
   VariantGrid grid;
   std::size_t brute_rays = 2000;  ///< rays spread over the batch checked by brute force (SIZE_MAX: all)
   unsigned threads = 0;
   BackendOptions backend;  ///< device choices (threads come from `threads`)
-};
-
-struct CheckVariant {
-  std::string backend;
-  TraceOptions opt;
-  std::string label() const;  ///< "cpu-scalar/mbvh4/bitstack/closest"
+  /// Called with each variant's output as soon as it is traced (before any comparison): a caller
+  /// that checks more of the same outputs (the tests' bit-for-bit comparisons) reads them here
+  /// instead of tracing every variant again.
+  std::function<void(const CheckVariant&, const TraceOutput&)> on_trace;
 };
 
 struct CheckReport {
