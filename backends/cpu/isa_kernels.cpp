@@ -1,11 +1,6 @@
 // SPDX-License-Identifier: MIT
-// isa_kernels.cpp — the cpu backend's kernels, compiled once per ISA from this one source
-// (CMake: mbvh_cpu_avx2*, mbvh_cpu_avx512*), each in its own inline namespace (MBVH_ISA_NS): one
-// object per ISA (MBVH_ISA_PART=0, the least CPU time in all), or, in sanitizer builds, three
-// (MBVH_ISA_PART 1: the single-ray traversals, the single-ray query and the kernels' table; 2: the
-// packet traversals; 3: divide-and-conquer ray tracing) that compile side by side, not one that
-// takes minutes alone there. The parts call each other through the entry points declared below,
-// in the ISA's namespace.
+// isa_kernels.cpp — the cpu backend's kernels, compiled once per ISA from this one translation
+// unit (CMake: mbvh_cpu_avx2, mbvh_cpu_avx512), each in its own inline namespace (MBVH_ISA_NS).
 // The std and host headers come first, at the baseline ISA: TU-wide -mavx512f would also compile
 // the std and host inline functions this unit instantiates, and the linker may keep those AVX-512
 // copies for the portable code too (a crash on a CPU without it). Then, between MBVH_ISA_BEGIN and
@@ -58,45 +53,15 @@ MBVH_ISA_BEGIN
 #include "backends/cpu/simd/triangle.h"
 #include "backends/cpu/simd/kernels.h"
 #include "backends/cpu/simd/mic.h"
-#include "backends/cpu/packet/packet.h"  // the packet geometry (CpuKernels), in every part
-#if MBVH_ISA_PART == 0 || MBVH_ISA_PART == 2
+#include "backends/cpu/packet/packet.h"
 #include "backends/cpu/packet/frustum.h"
 #include "backends/cpu/packet/triangle.h"
 #include "backends/cpu/packet/traverse.h"
 #include "backends/cpu/packet/batch.h"
-#endif
-#if MBVH_ISA_PART == 0 || MBVH_ISA_PART == 3
 #include "backends/cpu/dacrt/simd.h"
-#endif
-#if MBVH_ISA_PART < 0 || MBVH_ISA_PART > 3
-#error "compile with -DMBVH_ISA_PART=0|1|2|3"
-#endif
 
 namespace mbvh {
 inline namespace MBVH_ISA_NS {
-
-// -- the parts' entry points (this ISA's, external: one part calls another's)
-/// The packet traversals (part 2).
-void trace_packets_part(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out,
-                        unsigned threads, bool hybrid);
-/// Divide-and-conquer ray tracing (part 3; CpuKernels::dacrt).
-void trace_dacrt_part(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out,
-                      unsigned threads, const DacrtSettings& s, DacrtBuffers& buffers);
-
-#if MBVH_ISA_PART == 0 || MBVH_ISA_PART == 2
-void trace_packets_part(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out,
-                        unsigned threads, bool hybrid) {
-  if (opt.precision == Precision::fast) trace_packets<SimdKernelsT<true>>(acc, rays, opt, out, threads, hybrid);
-  else trace_packets<SimdKernelsT<false>>(acc, rays, opt, out, threads, hybrid);
-}
-#endif
-#if MBVH_ISA_PART == 0 || MBVH_ISA_PART == 3
-void trace_dacrt_part(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out,
-                      unsigned threads, const DacrtSettings& s, DacrtBuffers& buffers) {
-  dacrt::trace_dacrt(acc, rays, opt, out, threads, s, buffers);
-}
-#endif
-#if MBVH_ISA_PART == 0 || MBVH_ISA_PART == 1
 namespace {
 
 /// Whether the MIC path (mic.h) traces `opt`: asked for (cpu.mic), an AVX-512 build, an MBVH4
@@ -108,7 +73,8 @@ bool runs_mic(const TraceOptions& opt, bool mic) {
 void trace(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out, unsigned threads,
            bool hybrid, [[maybe_unused]] bool mic) {
   if (is_packet(opt.traversal)) {
-    trace_packets_part(acc, rays, opt, out, threads, hybrid);
+    if (opt.precision == Precision::fast) trace_packets<SimdKernelsT<true>>(acc, rays, opt, out, threads, hybrid);
+    else trace_packets<SimdKernelsT<false>>(acc, rays, opt, out, threads, hybrid);
     return;
   }
 #if MBVH_CPU_ISA_ID == 2
@@ -206,19 +172,16 @@ RayQueryKernels ray_query(const Accel& acc, const TraceOptions& c, const TraceOp
 }
 
 }  // namespace
-#endif  // MBVH_ISA_PART
 }  // namespace MBVH_ISA_NS
 }  // namespace mbvh
 
 #undef MBVH_IN_ISA_REGION
 MBVH_ISA_END
 
-#if MBVH_ISA_PART == 0 || MBVH_ISA_PART == 1
 namespace mbvh {
 extern const CpuKernels MBVH_CPU_KERNELS_NAME;
 const CpuKernels MBVH_CPU_KERNELS_NAME{MBVH_STR(MBVH_CPU_ISA), MBVH_ISA_NS::packet::kPacketRays, MBVH_ISA_NS::packet::kLanes,
-                                         &MBVH_ISA_NS::trace, &MBVH_ISA_NS::trace_dacrt_part,
+                                         &MBVH_ISA_NS::trace, &MBVH_ISA_NS::dacrt::trace_dacrt,
                                          &MBVH_ISA_NS::ray_query};
 
 }  // namespace mbvh
-#endif
