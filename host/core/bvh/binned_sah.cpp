@@ -38,6 +38,9 @@ constexpr std::size_t kGrain = 16384;
 // min(+0, -0) keeps the operand order, which differs, so a tree's bytes may change with the
 // threshold while its splits do not). Below 64 records sparse bins take fewer instructions.
 constexpr std::uint32_t kDenseMin = 64;
+// Dense nodes of at least kHalvesMin records are binned as two halves into two sets of bins
+// (DenseBins::bin_halves: the same bits, two chains of bin updates instead of one).
+constexpr std::uint32_t kHalvesMin = 256;
 #if defined(__SSE2__)  // dense bins are SSE rows: elsewhere (aarch64) every node takes sparse bins
 static_assert(DenseBins::kMax == kMaxBins);
 #endif
@@ -356,9 +359,17 @@ private:
       parallel_for(count, kGrain, threads, [&](std::size_t b, std::size_t e, unsigned) {
         DenseBins& p = partial[b / kGrain];
         p.clear(bins_);
-        p.bin(records(node.depth), node.begin + b, node.begin + e, g.origin, g.scale, g.last);
+        DenseBins upper;
+        upper.clear(bins_);
+        DenseBins::bin_halves(p, upper, records(node.depth), node.begin + b, node.begin + e, g.origin, g.scale, g.last);
+        p.merge(upper, bins_);
       });
       for (std::size_t c = 0; c < chunks; ++c) bins.merge(partial[c], bins_);
+    } else if (count >= kHalvesMin) {
+      DenseBins upper;
+      upper.clear(bins_);
+      DenseBins::bin_halves(bins, upper, records(node.depth), node.begin, node.end, g.origin, g.scale, g.last);
+      bins.merge(upper, bins_);
     } else {
       bins.bin(records(node.depth), node.begin, node.end, g.origin, g.scale, g.last);
     }
