@@ -12,6 +12,7 @@
 #include <bit>
 #include <cmath>
 #include <memory>
+#include <type_traits>
 #include <vector>
 #if defined(__SSE2__)
 #include <emmintrin.h>
@@ -438,29 +439,40 @@ private:
     const __m128 xyz = _mm_castsi128_ps(_mm_setr_epi32(-1, -1, -1, 0));
     const __m128 sp = _mm_set1_ps(static_cast<float>(split));
     const __m128 inf = _mm_set1_ps(INFINITY), ninf = _mm_set1_ps(-INFINITY);
-    // The side bounds stay in registers: the centroid is blended with the empty bound (+inf for
-    // a min, -inf for a max) on the side it does not join, which leaves that side's bits as they
-    // were (min(x, +inf) is x, and so on), so each side sees the same operations as a branch
-    // would give it.
+    // The side bounds stay in registers. `side` is -inf on every lane for a record that goes
+    // left, +inf for one that goes right, `other` its negation: max(ce, side) is ce on the left
+    // and +inf on the right, whose min with the left's lower bound leaves its bits as they
+    // were (min(x, +inf) is x), and so on for the other three bounds, so each side sees the
+    // operations a branch would give it.
     __m128 acc[2][2] = {{inf, ninf}, {inf, ninf}};  // centroid lo, hi
-    for (std::uint32_t i = node.begin; i < node.end; ++i) {
-      const __m128 raw = _mm_loadu_ps(src[i].lo), hi = _mm_loadu_ps(src[i].hi);
-      const __m128 lo = _mm_and_ps(raw, xyz);
-      const __m128 ce = _mm_mul_ps(_mm_add_ps(lo, hi), half);
-      const __m128 f = _mm_mul_ps(_mm_sub_ps(ce, origin), scale);
-      const __m128 lt = _mm_cmplt_ps(f, sp);
-      const unsigned right = ~static_cast<unsigned>(_mm_movemask_ps(lt)) >> axis & 1u;
-      const std::uint32_t at = right ? r - 1 : l;
-      _mm_storeu_ps(dst[at].lo, raw);
-      _mm_storeu_ps(dst[at].hi, hi);
-      l += 1 - right;
-      r -= right;
-      const __m128 left = _mm_castsi128_ps(_mm_set1_epi32(static_cast<int>(right) - 1));  // all set: left
-      acc[0][0] = _mm_min_ps(acc[0][0], _mm_or_ps(_mm_and_ps(left, ce), _mm_andnot_ps(left, inf)));
-      acc[0][1] = _mm_max_ps(acc[0][1], _mm_or_ps(_mm_and_ps(left, ce), _mm_andnot_ps(left, ninf)));
-      acc[1][0] = _mm_min_ps(acc[1][0], _mm_or_ps(_mm_andnot_ps(left, ce), _mm_and_ps(left, inf)));
-      acc[1][1] = _mm_max_ps(acc[1][1], _mm_or_ps(_mm_andnot_ps(left, ce), _mm_and_ps(left, ninf)));
-    }
+    const __m128 sign = _mm_set1_ps(-0.0f);
+    auto loop = [&](auto axis_c) {
+      constexpr int A = decltype(axis_c)::value;
+      const std::uint32_t end = node.end;
+      for (std::uint32_t i = node.begin; i < end; ++i) {
+        const __m128 raw = _mm_loadu_ps(src[i].lo), hi = _mm_loadu_ps(src[i].hi);
+        const __m128 lo = _mm_and_ps(raw, xyz);
+        const __m128 ce = _mm_mul_ps(_mm_add_ps(lo, hi), half);
+        const __m128 f = _mm_mul_ps(_mm_sub_ps(ce, origin), scale);
+        const __m128 lt = _mm_cmplt_ps(f, sp);
+        const unsigned right = ~static_cast<unsigned>(_mm_movemask_ps(lt)) >> A & 1u;
+        const std::uint32_t at = right ? r - 1 : l;
+        _mm_storeu_ps(dst[at].lo, raw);
+        _mm_storeu_ps(dst[at].hi, hi);
+        l += 1 - right;
+        r -= right;
+        const __m128 left = _mm_shuffle_ps(lt, lt, _MM_SHUFFLE(A, A, A, A));  // all set: left
+        const __m128 side = _mm_xor_ps(inf, _mm_and_ps(left, sign));
+        const __m128 other = _mm_xor_ps(side, sign);
+        acc[0][0] = _mm_min_ps(acc[0][0], _mm_max_ps(ce, side));
+        acc[0][1] = _mm_max_ps(acc[0][1], _mm_min_ps(ce, other));
+        acc[1][0] = _mm_min_ps(acc[1][0], _mm_max_ps(ce, other));
+        acc[1][1] = _mm_max_ps(acc[1][1], _mm_min_ps(ce, side));
+      }
+    };
+    if (axis == 0) loop(std::integral_constant<int, 0>());
+    else if (axis == 1) loop(std::integral_constant<int, 1>());
+    else loop(std::integral_constant<int, 2>());
     for (int s = 0; s < 2; ++s) {
       alignas(16) float v[2][4];
       for (int q = 0; q < 2; ++q) _mm_store_ps(v[q], acc[s][q]);
