@@ -606,6 +606,24 @@ struct Flattener {
   }
 };
 
+// v.resize(n) with the new storage's pages first touched on up to `threads` workers: resize
+// value-initialises the elements on one thread, and the first touch of a page (a fault) is the
+// costly part of that, so the pages are faulted in parallel beforehand (bytes written into
+// storage the vector has allocated and not yet constructed; resize then writes every element).
+template <class V>
+void resize_touched(V& v, std::size_t n, unsigned threads) {
+  if (n > v.capacity()) {
+    v.reserve(n);
+    constexpr std::size_t kPage = 4096;
+    unsigned char* from = reinterpret_cast<unsigned char*>(v.data() + v.size());
+    const std::size_t bytes = (n - v.size()) * sizeof(typename V::value_type);
+    parallel_for((bytes + kPage - 1) / kPage, 64, threads, [&](std::size_t b, std::size_t e, unsigned) {
+      for (std::size_t p = b; p < e; ++p) from[p * kPage] = 0;
+    });
+  }
+  v.resize(n);
+}
+
 }  // namespace
 
 void flatten(const Arenas& a, Bvh2& out, std::vector<Leaf>& leaves, unsigned threads) {
@@ -624,9 +642,9 @@ void flatten(const Arenas& a, Bvh2& out, std::vector<Leaf>& leaves, unsigned thr
   Flattener top{a, out, leaves};
   top.sub_size = &size;
   top.place(0, MBVH_NONE, at, parent_of);
-  out.nodes.resize(top.node);
-  out.leaf_boxes.resize(top.leaf);
-  leaves.resize(top.leaf);
+  resize_touched(out.nodes, top.node, threads);
+  resize_touched(out.leaf_boxes, top.leaf, threads);
+  resize_touched(leaves, top.leaf, threads);
   // -- the subtrees side by side, then the upper nodes around them
   std::vector<std::size_t> largest(subs, 0), forced(subs, 0);
   parallel_for(subs, 1, threads, [&](std::size_t b, std::size_t e, unsigned) {
