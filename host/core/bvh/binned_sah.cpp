@@ -368,7 +368,7 @@ private:
   }
 
   // Bins records [b, e) into `out` (cleared) in two contiguous parts (DenseBins::bin_parts: the
-  // bits of binning them in order; four parts measured no faster).
+  // bits of binning them in order).
   void bin_parts(DenseBins& out, const PrimRef* src, std::size_t b, std::size_t e, const Geometry& g) const {
     DenseBins more;
     more.clear(bins_);
