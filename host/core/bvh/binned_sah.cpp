@@ -12,6 +12,7 @@
 #include <bit>
 #include <cmath>
 #include <memory>
+#include <type_traits>
 #include <vector>
 #if defined(__SSE2__)
 #include <emmintrin.h>
@@ -356,14 +357,23 @@ private:
       parallel_for(count, kGrain, threads, [&](std::size_t b, std::size_t e, unsigned) {
         DenseBins& p = partial[b / kGrain];
         p.clear(bins_);
-        p.bin(records(node.depth), node.begin + b, node.begin + e, g.origin, g.scale, g.last);
+        bin_parts(p, records(node.depth), node.begin + b, node.begin + e, g);
       });
       for (std::size_t c = 0; c < chunks; ++c) bins.merge(partial[c], bins_);
     } else {
-      bins.bin(records(node.depth), node.begin, node.end, g.origin, g.scale, g.last);
+      bin_parts(bins, records(node.depth), node.begin, node.end, g);
     }
     bins.bounds(bins_, box);
     bins.best_split(bins_, best_cost, best_axis, best_split);
+  }
+
+  // Bins records [b, e) into `out` (cleared) in two contiguous parts (DenseBins::bin_parts: the
+  // bits of binning them in order).
+  void bin_parts(DenseBins& out, const PrimRef* src, std::size_t b, std::size_t e, const Geometry& g) const {
+    DenseBins more;
+    more.clear(bins_);
+    DenseBins* const set[2] = {&out, &more};
+    DenseBins::bin_parts<2>(set, src, b, e, g.origin, g.scale, g.last, bins_);
   }
 #endif
 
@@ -429,22 +439,40 @@ private:
     const __m128 xyz = _mm_castsi128_ps(_mm_setr_epi32(-1, -1, -1, 0));
     const __m128 sp = _mm_set1_ps(static_cast<float>(split));
     const __m128 inf = _mm_set1_ps(INFINITY), ninf = _mm_set1_ps(-INFINITY);
+    // The side bounds stay in registers. `side` is -inf on every lane for a record that goes
+    // left, +inf for one that goes right, `other` its negation: max(ce, side) is ce on the left
+    // and +inf on the right, whose min with the left's lower bound leaves its bits as they
+    // were (min(x, +inf) is x), and so on for the other three bounds, so each side sees the
+    // operations a branch would give it.
     __m128 acc[2][2] = {{inf, ninf}, {inf, ninf}};  // centroid lo, hi
-    for (std::uint32_t i = node.begin; i < node.end; ++i) {
-      const __m128 raw = _mm_loadu_ps(src[i].lo), hi = _mm_loadu_ps(src[i].hi);
-      const __m128 lo = _mm_and_ps(raw, xyz);
-      const __m128 ce = _mm_mul_ps(_mm_add_ps(lo, hi), half);
-      const __m128 f = _mm_mul_ps(_mm_sub_ps(ce, origin), scale);
-      const unsigned right = ~static_cast<unsigned>(_mm_movemask_ps(_mm_cmplt_ps(f, sp))) >> axis & 1u;
-      const std::uint32_t at = right ? r - 1 : l;
-      _mm_storeu_ps(dst[at].lo, raw);
-      _mm_storeu_ps(dst[at].hi, hi);
-      l += 1 - right;
-      r -= right;
-      __m128* a = acc[right];
-      a[0] = _mm_min_ps(a[0], ce);
-      a[1] = _mm_max_ps(a[1], ce);
-    }
+    const __m128 sign = _mm_set1_ps(-0.0f);
+    auto loop = [&](auto axis_c) {
+      constexpr int A = decltype(axis_c)::value;
+      const std::uint32_t end = node.end;
+      for (std::uint32_t i = node.begin; i < end; ++i) {
+        const __m128 raw = _mm_loadu_ps(src[i].lo), hi = _mm_loadu_ps(src[i].hi);
+        const __m128 lo = _mm_and_ps(raw, xyz);
+        const __m128 ce = _mm_mul_ps(_mm_add_ps(lo, hi), half);
+        const __m128 f = _mm_mul_ps(_mm_sub_ps(ce, origin), scale);
+        const __m128 lt = _mm_cmplt_ps(f, sp);
+        const unsigned right = ~static_cast<unsigned>(_mm_movemask_ps(lt)) >> A & 1u;
+        const std::uint32_t at = right ? r - 1 : l;
+        _mm_storeu_ps(dst[at].lo, raw);
+        _mm_storeu_ps(dst[at].hi, hi);
+        l += 1 - right;
+        r -= right;
+        const __m128 left = _mm_shuffle_ps(lt, lt, _MM_SHUFFLE(A, A, A, A));  // all set: left
+        const __m128 side = _mm_xor_ps(inf, _mm_and_ps(left, sign));
+        const __m128 other = _mm_xor_ps(side, sign);
+        acc[0][0] = _mm_min_ps(acc[0][0], _mm_max_ps(ce, side));
+        acc[0][1] = _mm_max_ps(acc[0][1], _mm_min_ps(ce, other));
+        acc[1][0] = _mm_min_ps(acc[1][0], _mm_max_ps(ce, other));
+        acc[1][1] = _mm_max_ps(acc[1][1], _mm_min_ps(ce, side));
+      }
+    };
+    if (axis == 0) loop(std::integral_constant<int, 0>());
+    else if (axis == 1) loop(std::integral_constant<int, 1>());
+    else loop(std::integral_constant<int, 2>());
     for (int s = 0; s < 2; ++s) {
       alignas(16) float v[2][4];
       for (int q = 0; q < 2; ++q) _mm_store_ps(v[q], acc[s][q]);
@@ -578,6 +606,24 @@ struct Flattener {
   }
 };
 
+// v.resize(n) with the new storage's pages first touched on up to `threads` workers: resize
+// value-initialises the elements on one thread, and the first touch of a page (a fault) is the
+// costly part of that, so the pages are faulted in parallel beforehand (bytes written into
+// storage the vector has allocated and not yet constructed; resize then writes every element).
+template <class V>
+void resize_touched(V& v, std::size_t n, unsigned threads) {
+  if (n > v.capacity()) {
+    v.reserve(n);
+    constexpr std::size_t kPage = 4096;
+    unsigned char* from = reinterpret_cast<unsigned char*>(v.data() + v.size());
+    const std::size_t bytes = (n - v.size()) * sizeof(typename V::value_type);
+    parallel_for((bytes + kPage - 1) / kPage, 64, threads, [&](std::size_t b, std::size_t e, unsigned) {
+      for (std::size_t p = b; p < e; ++p) from[p * kPage] = 0;
+    });
+  }
+  v.resize(n);
+}
+
 }  // namespace
 
 void flatten(const Arenas& a, Bvh2& out, std::vector<Leaf>& leaves, unsigned threads) {
@@ -596,9 +642,9 @@ void flatten(const Arenas& a, Bvh2& out, std::vector<Leaf>& leaves, unsigned thr
   Flattener top{a, out, leaves};
   top.sub_size = &size;
   top.place(0, MBVH_NONE, at, parent_of);
-  out.nodes.resize(top.node);
-  out.leaf_boxes.resize(top.leaf);
-  leaves.resize(top.leaf);
+  resize_touched(out.nodes, top.node, threads);
+  resize_touched(out.leaf_boxes, top.leaf, threads);
+  resize_touched(leaves, top.leaf, threads);
   // -- the subtrees side by side, then the upper nodes around them
   std::vector<std::size_t> largest(subs, 0), forced(subs, 0);
   parallel_for(subs, 1, threads, [&](std::size_t b, std::size_t e, unsigned) {

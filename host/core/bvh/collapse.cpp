@@ -257,7 +257,7 @@ void collapse(const Bvh2& b, const std::vector<Leaf>& leaves, const char* name, 
     for (std::size_t k = lo; k < hi; ++k) c.count(tasks[k].bref, tasks[k].level, tasks[k].tally);
   });
   out.nodes.resize(std::max<std::size_t>(b.nodes.size(), 1));
-  std::vector<float> area(out.nodes.size());
+  build::RawVector<float> area(out.nodes.size());  // written for every node kept (not zeroed: only those pages touched)
   c.out = out.nodes.data();
   c.area = area.data();
   typename C::Tally top_tally;

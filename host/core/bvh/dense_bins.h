@@ -73,6 +73,46 @@ struct DenseBins {
     }
   }
 
+  /// Bins records [b, e) into P sets at once: part q of P contiguous parts into set[q], one
+  /// record of each part per step, so that runs of records falling in the same bin (neighbours
+  /// in a partitioned array often do) make P independent chains of bin updates, not one. The
+  /// parts are contiguous and in order, so merging set[1..P) into set[0] in order gives the
+  /// bits of binning [b, e) in order into one set: a bin's min (max) keeps the last of its
+  /// records equal to the minimum (maximum), as _mm_min_ps(bin, record) does on ties (signed
+  /// zeros), and a later part's records are the later ones. set[1..P) must be cleared.
+  template <int P>
+  static void bin_parts(DenseBins* const (&set)[P], const PrimRef* p, std::size_t b, std::size_t e,
+                        const float origin[3], const float scale[3], unsigned last, unsigned bins) {
+    const __m128 half = _mm_set1_ps(0.5f), zero = _mm_setzero_ps();
+    const __m128 o = _mm_setr_ps(origin[0], origin[1], origin[2], 0.0f);
+    const __m128 s = _mm_setr_ps(scale[0], scale[1], scale[2], 0.0f);
+    const __m128 xyz = _mm_castsi128_ps(_mm_setr_epi32(-1, -1, -1, 0));
+    const __m128i lst = _mm_set1_epi32(static_cast<int>(last));
+    const std::size_t n = (e - b) / P;
+    for (std::size_t i = 0; i < n; ++i) {
+      __m128 l[P], h[P];
+      alignas(16) std::uint32_t k[P][4];
+      for (int q = 0; q < P; ++q) {
+        const PrimRef& r = p[b + std::size_t(q) * n + i];
+        l[q] = _mm_and_ps(_mm_loadu_ps(r.lo), xyz);
+        h[q] = _mm_loadu_ps(r.hi);
+        // as bin()'s index
+        const __m128 f = _mm_max_ps(_mm_mul_ps(_mm_sub_ps(_mm_mul_ps(_mm_add_ps(l[q], h[q]), half), o), s), zero);
+        _mm_store_si128(reinterpret_cast<__m128i*>(k[q]), _mm_min_epi16(_mm_cvttps_epi32(f), lst));
+      }
+      for (int a = 0; a < 3; ++a)
+        for (int q = 0; q < P; ++q) {
+          Row& r = set[q]->row[a][k[q][a]];
+          r.lo = _mm_min_ps(r.lo, l[q]);
+          r.hi = _mm_max_ps(r.hi, h[q]);
+          ++set[q]->count[a][k[q][a]];
+        }
+    }
+    const std::size_t tail = b + std::size_t(P) * n;
+    if (tail < e) set[P - 1]->bin(p, tail, e, origin, scale, last);  // the remainder: the last part's end
+    for (int q = 1; q < P; ++q) set[0]->merge(*set[q], bins);
+  }
+
   /// Adds another node's bins (the same geometry) into these.
   void merge(const DenseBins& o, unsigned bins) {
     for (int a = 0; a < 3; ++a)
