@@ -9,6 +9,7 @@
 #include <string>
 
 #include "host/core/bvh/builder.h"
+#include "host/core/bvh/reinsert.h"
 #include "host/core/bvh/sbvh.h"
 #include "host/core/enum_check.h"
 #include "host/core/layouts.h"
@@ -101,6 +102,7 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
       boxes[r.prim].hi = {r.hi[0], r.hi[1], r.hi[2]};
     }
     SbvhResult r = build_sbvh(scene, opt, boxes, idx);
+    build::reinsert(r.bvh, r.leaves, r.prims, opt);  // subtrees moved where the SAH falls (reinsert.cpp)
     t_tree = Clock::now();
     r.bvh.degenerate = out.degenerate;
     out = std::move(r.bvh);

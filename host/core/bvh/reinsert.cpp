@@ -31,19 +31,19 @@
 namespace mbvh::build {
 namespace {
 
-// A node of the optimised tree: inner nodes keep their Bvh2 index, leaf l is node ninner + l.
+// A node of the optimised tree, what the search reads (32 bytes, two to a cache line): inner
+// nodes keep their Bvh2 index, leaf l is node ninner + l. Parents and heights are kept aside.
 struct RNode {
   float lo[3], hi[3];
-  double area;              // half area of the box (in double: the cost sums take differences)
-  std::int32_t parent;      // -1: the root
-  std::int32_t child[2];    // -1 for a leaf
-  std::uint32_t height;     // levels below to the deepest leaf (a leaf: 0)
+  std::int32_t child[2];  // -1 for a leaf
 };
 
+// Half the box's area, in double: the costs are sums of differences of areas.
 inline double area_of(const float* lo, const float* hi) {
   const double e0 = double(hi[0]) - lo[0], e1 = double(hi[1]) - lo[1], e2 = double(hi[2]) - lo[2];
   return e0 * e1 + e1 * e2 + e2 * e0;
 }
+inline double area_of(const RNode& a) { return area_of(a.lo, a.hi); }
 
 inline double union_area(const RNode& a, const RNode& b) {
   float lo[3], hi[3];
@@ -57,30 +57,30 @@ inline double union_area(const RNode& a, const RNode& b) {
 class Reinserter {
 public:
   Reinserter(const Bvh2& bvh, unsigned depth_cap) : ninner_(bvh.nodes.size()), cap_(depth_cap) {
-    nodes_.resize(ninner_ + bvh.leaf_boxes.size());
+    const std::size_t n = ninner_ + bvh.leaf_boxes.size();
+    nodes_.resize(n);
+    parent_.assign(n, -1);
+    height_.assign(n, 0);
     for (std::size_t i = 0; i < ninner_; ++i) {
       const Bvh2::Node& s = bvh.nodes[i];
       RNode& t = nodes_[i];
       set_box(t, s.box);
-      t.parent = s.parent;
       for (int k = 0; k < 2; ++k) {
         t.child[k] = s.child[k] >= 0 ? s.child[k] : static_cast<std::int32_t>(ninner_ + std::size_t(~s.child[k]));
-        nodes_[static_cast<std::size_t>(t.child[k])].parent = static_cast<std::int32_t>(i);
+        parent_[static_cast<std::size_t>(t.child[k])] = static_cast<std::int32_t>(i);
       }
-      t.height = s.height;
+      height_[i] = s.height;
     }
     for (std::size_t l = 0; l < bvh.leaf_boxes.size(); ++l) {
       RNode& t = nodes_[ninner_ + l];
       set_box(t, bvh.leaf_boxes[l]);
       t.child[0] = t.child[1] = -1;
-      t.height = 0;
     }
-    nodes_[0].parent = -1;
   }
 
   double inner_area() const {
     double s = 0;
-    for (std::size_t i = 0; i < ninner_; ++i) s += nodes_[i].area;
+    for (std::size_t i = 0; i < ninner_; ++i) s += area_of(nodes_[i]);
     return s;
   }
 
@@ -89,14 +89,14 @@ public:
   std::size_t round() {
     order_.clear();
     for (std::size_t i = 0; i < nodes_.size(); ++i) {
-      const std::int32_t p = nodes_[i].parent;
-      if (p >= 0 && p != root_) order_.push_back(static_cast<std::int32_t>(i));
+      const std::int32_t p = parent_[i];
+      if (p >= 0 && p != root_) order_.push_back({area_of(nodes_[i]), static_cast<std::int32_t>(i)});
     }
-    std::stable_sort(order_.begin(), order_.end(), [&](std::int32_t a, std::int32_t b) {
-      return nodes_[static_cast<std::size_t>(a)].area > nodes_[static_cast<std::size_t>(b)].area;
+    std::sort(order_.begin(), order_.end(), [](const Ranked& a, const Ranked& b) {
+      return a.area > b.area || (a.area == b.area && a.id < b.id);
     });
     std::size_t moved = 0;
-    for (std::int32_t n : order_) moved += reinsert(n) ? 1 : 0;
+    for (const Ranked& r : order_) moved += reinsert(r.id) ? 1 : 0;
     return moved;
   }
 
@@ -121,7 +121,7 @@ public:
     while (!stack.empty()) {
       const Item it = stack.back();
       stack.pop_back();
-      const RNode& t = nodes_[static_cast<std::size_t>(it.id)];
+      const RNode& t = at(it.id);
       std::int32_t ref;
       if (static_cast<std::size_t>(it.id) >= ninner_) {
         const std::size_t l = static_cast<std::size_t>(it.id) - ninner_;
@@ -137,7 +137,7 @@ public:
         b.box.hi = {t.hi[0], t.hi[1], t.hi[2]};
         b.child[0] = b.child[1] = MBVH_EMPTY;
         b.parent = it.parent;
-        b.height = t.height;
+        b.height = height_[static_cast<std::size_t>(it.id)];
         out.nodes.push_back(b);
         stack.push_back({t.child[1], ref, 1});
         stack.push_back({t.child[0], ref, 0});
@@ -146,7 +146,7 @@ public:
     }
   }
 
-  std::uint32_t height() const { return nodes_[static_cast<std::size_t>(root_)].height; }
+  std::uint32_t height() const { return height_[static_cast<std::size_t>(root_)]; }
 
 private:
   static void set_box(RNode& t, const Box& b) {
@@ -156,17 +156,18 @@ private:
     t.hi[0] = b.hi.x;
     t.hi[1] = b.hi.y;
     t.hi[2] = b.hi.z;
-    t.area = area_of(t.lo, t.hi);
   }
 
   RNode& at(std::int32_t i) { return nodes_[static_cast<std::size_t>(i)]; }
   const RNode& at(std::int32_t i) const { return nodes_[static_cast<std::size_t>(i)]; }
+  std::int32_t& parent(std::int32_t i) { return parent_[static_cast<std::size_t>(i)]; }
+  std::uint32_t& height(std::int32_t i) { return height_[static_cast<std::size_t>(i)]; }
 
-  // Recomputes the boxes, areas and heights from inner node y up to the root (stopping where
-  // nothing changes); returns the sum of the areas' decrease.
+  // Recomputes the boxes and heights from inner node y up to the root (stopping where nothing
+  // changes); returns the sum of the areas' decrease.
   double refit_up(std::int32_t y) {
     double saved = 0;
-    for (; y >= 0; y = at(y).parent) {
+    for (; y >= 0; y = parent(y)) {
       RNode& t = at(y);
       const RNode& a = at(t.child[0]);
       const RNode& b = at(t.child[1]);
@@ -177,15 +178,13 @@ private:
         hi[k] = std::max(a.hi[k], b.hi[k]);
         same = same && lo[k] == t.lo[k] && hi[k] == t.hi[k];
       }
-      const std::uint32_t h = 1 + std::max(a.height, b.height);
-      same = same && h == t.height;
+      const std::uint32_t h = 1 + std::max(height(t.child[0]), height(t.child[1]));
+      same = same && h == height(y);
       if (same) break;
+      saved += area_of(t) - area_of(lo, hi);
       std::copy(lo, lo + 3, t.lo);
       std::copy(hi, hi + 3, t.hi);
-      const double area = area_of(lo, hi);
-      saved += t.area - area;
-      t.area = area;
-      t.height = h;
+      height(y) = h;
     }
     return saved;
   }
@@ -194,45 +193,55 @@ private:
 
   // Puts n back as X's sibling under inner node p (n on `side`), in X's place.
   void insert(std::int32_t n, std::int32_t x, std::int32_t p, int side) {
-    const std::int32_t g = at(x).parent;
+    const std::int32_t g = parent(x);
     if (g < 0) root_ = p;
     else at(g).child[side_of(at(g), x)] = p;
     RNode& pn = at(p);
-    pn.parent = g;
+    parent(p) = g;
     pn.child[side] = n;
     pn.child[1 - side] = x;
-    at(x).parent = p;
-    at(n).parent = p;
-    pn.height = ~0u;  // forces refit_up to recompute it
+    parent(x) = p;
+    parent(n) = p;
+    height(p) = ~0u;  // forces refit_up to recompute it
     refit_up(p);
   }
 
-  // The cheapest X to put n beside (its cost: A(X ∪ n) plus the induced cost), by branch and bound.
+  // The cheapest X to put n beside (its cost: A(X ∪ n) plus the induced cost), by branch and
+  // bound, depth first: a node's children are priced when it is taken from the stack, the one
+  // with the smaller cost explored first. Only positions costing less than `best_cost` on entry
+  // are considered (-1: none).
   std::int32_t best_position(std::int32_t n, double& best_cost) {
     const RNode& nn = at(n);
-    const double an = nn.area;
-    best_cost = INFINITY;
+    const double an = area_of(nn);
+    const std::uint32_t hn = height(n);
     std::int32_t best = -1;
-    heap_.clear();
-    heap_.push_back({0.0, root_, 0});
-    auto later = [](const Candidate& a, const Candidate& b) { return a.induced > b.induced || (a.induced == b.induced && a.id > b.id); };
-    while (!heap_.empty()) {
-      std::pop_heap(heap_.begin(), heap_.end(), later);
-      const Candidate c = heap_.back();
-      heap_.pop_back();
-      if (c.induced + an >= best_cost) break;  // no candidate left can beat the best
-      const RNode& x = at(c.id);
-      const double cost = c.induced + union_area(x, nn);
-      if (cost < best_cost && c.depth + 1 + std::max(x.height, nn.height) <= cap_) {
+    auto consider = [&](std::int32_t x, double cost, std::uint32_t depth) {
+      if (cost < best_cost && depth + 1 + std::max(height(x), hn) <= cap_) {
         best_cost = cost;
-        best = c.id;
+        best = x;
       }
-      if (x.child[0] < 0) continue;
-      const double below = cost - x.area;  // the induced cost of X's children
-      if (below + an >= best_cost) continue;
+    };
+    const RNode& r = at(root_);
+    const double root_cost = union_area(r, nn);
+    consider(root_, root_cost, 0);
+    stack_.clear();
+    if (r.child[0] >= 0) stack_.push_back({root_cost - area_of(r), root_, 0});
+    while (!stack_.empty()) {
+      const Candidate c = stack_.back();
+      stack_.pop_back();
+      if (c.induced + an >= best_cost) continue;  // nothing below can beat the best
+      const RNode& x = at(c.id);
+      const RNode* ch[2] = {&at(x.child[0]), &at(x.child[1])};
+      double cost[2];
       for (int k = 0; k < 2; ++k) {
-        heap_.push_back({below, x.child[k], c.depth + 1});
-        std::push_heap(heap_.begin(), heap_.end(), later);
+        cost[k] = c.induced + union_area(*ch[k], nn);
+        consider(x.child[k], cost[k], c.depth + 1);
+      }
+      const int first = cost[1] < cost[0] ? 1 : 0;  // pushed last, explored first
+      for (int k : {1 - first, first}) {
+        if (ch[k]->child[0] < 0) continue;
+        const double below = cost[k] - area_of(*ch[k]);
+        if (below + an < best_cost) stack_.push_back({below, x.child[k], c.depth + 1});
       }
     }
     return best;
@@ -241,41 +250,48 @@ private:
   // Takes n out (its parent P freed, its sibling in P's place) and puts it back where it costs
   // least; true if that is somewhere else.
   bool reinsert(std::int32_t n) {
-    const std::int32_t p = at(n).parent;
+    const std::int32_t p = parent(n);
     if (p < 0 || p == root_) return false;
     const int side = side_of(at(p), n);
     const std::int32_t s = at(p).child[1 - side];
-    const std::int32_t g = at(p).parent;
+    const std::int32_t g = parent(p);
     // -- out: the sibling takes P's place
     at(g).child[side_of(at(g), p)] = s;
-    at(s).parent = g;
-    const double saved = at(p).area + refit_up(g);
+    parent(s) = g;
+    const double saved = area_of(at(p)) + refit_up(g);
     // -- back, where it costs least (its old place, beside s, if nowhere costs less)
-    double cost;
+    double cost = saved - 1e-9 * saved;  // what a move must beat: the cost of n's old place
     std::int32_t x = best_position(n, cost);
-    const bool move = x >= 0 && x != s && cost < saved - 1e-9 * saved;
+    const bool move = x >= 0 && x != s;
     if (!move) x = s;
     insert(n, x, p, side);
     return move;
   }
 
   struct Candidate {
-    double induced;
+    double induced;  // what the ancestors grow by, put beside this node's children
     std::int32_t id;
     std::uint32_t depth;
+  };
+  struct Ranked {
+    double area;
+    std::int32_t id;
   };
 
   std::size_t ninner_;
   unsigned cap_;
   std::int32_t root_ = 0;
   std::vector<RNode> nodes_;
-  std::vector<std::int32_t> order_;
-  std::vector<Candidate> heap_;
+  std::vector<std::int32_t> parent_;
+  std::vector<std::uint32_t> height_;
+  std::vector<Ranked> order_;
+  std::vector<Candidate> stack_;
 };
 
 constexpr unsigned kMaxRounds = 8;
-// Rounds stop once one moves fewer than this share of the nodes.
-constexpr double kMinMovedShare = 0.01;
+// Rounds repeat while the last one lowered the inner nodes' area by at least this share (later
+// rounds move few nodes: each costs about as much as the first).
+constexpr double kMinRoundGain = 0.01;
 
 }  // namespace
 
@@ -285,12 +301,13 @@ ReinsertStats reinsert(Bvh2& bvh, std::vector<Leaf>& leaves, std::vector<std::ui
   if (bvh.nodes.size() < 3 || bvh.nodes[0].child[1] == MBVH_EMPTY || !(opt.traversal_cost > 0)) return st;
   Reinserter r(bvh, opt.depth_cap);
   st.inner_area_before = r.inner_area();
-  const std::size_t total = bvh.nodes.size() + leaves.size();
-  for (unsigned k = 0; k < kMaxRounds; ++k) {
-    const std::size_t moved = r.round();
+  double area = st.inner_area_before;
+  while (st.rounds < kMaxRounds) {
+    st.moved += r.round();
     ++st.rounds;
-    st.moved += moved;
-    if (double(moved) < kMinMovedShare * double(total)) break;
+    const double now = r.inner_area();
+    if (area - now < kMinRoundGain * area) break;
+    area = now;
   }
   st.inner_area_after = r.inner_area();
   if (r.height() > opt.depth_cap)

@@ -25,16 +25,11 @@
 // split in order, then subtrees are built one per task, as in binned_sah.cpp).
 #include "host/core/bvh/sbvh.h"
 
-#include <chrono>
-#include <cstdio>
-#include <cstdlib>
-
 #include <algorithm>
 #include <atomic>
 #include <cmath>
 
 #include "mbvh/error.h"
-#include "host/core/bvh/reinsert.h"
 #include "host/core/parallel.h"
 
 namespace mbvh {
@@ -493,14 +488,6 @@ SbvhResult build_sbvh(const Scene& scene, const BuildOptions& opt, const std::ve
     if (r.child[side] >= 0) res.bvh.nodes[0].child[side] = fl.emit(upper, static_cast<std::size_t>(r.child[side]), 0, h[side]);
   res.bvh.nodes[0].height = 1 + std::max(h[0], h[1]);
   res.references = res.prims.size();
-  if (!std::getenv("MBVH_NO_REINSERT")) {
-  const auto t0 = std::chrono::steady_clock::now();
-  const build::ReinsertStats rs = build::reinsert(res.bvh, res.leaves, res.prims, opt);
-  if (std::getenv("MBVH_REINSERT_DEBUG"))
-    std::fprintf(stderr, "reinsert: %u rounds, %zu moved, inner area %.6g -> %.6g, %.1f ms\n", rs.rounds, rs.moved,
-                 rs.inner_area_before, rs.inner_area_after,
-                 std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
-  }
   return res;
 }
 
