@@ -119,10 +119,9 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
     acc->impl_->tris_ = build::take_from(opt, &S::tris);
     acc->impl_->tris_.resize(prims.size());
     static_assert(sizeof(Tri) >= sizeof(PrimRef) && alignof(Tri) % alignof(PrimRef) == 0);
-    if (opt.quality == BuildQuality::low) build::build_lbvh(prims, refs.root, refs.croot, opt, arenas);
-    else
-      build::build_binned_sah(prims, refs.root, refs.croot, opt, arenas,
-                              reinterpret_cast<PrimRef*>(static_cast<void*>(acc->impl_->tris_.data())));
+    PrimRef* scratch = reinterpret_cast<PrimRef*>(static_cast<void*>(acc->impl_->tris_.data()));
+    if (opt.quality == BuildQuality::low) build::build_lbvh(prims, refs.root, refs.croot, opt, arenas, scratch);
+    else build::build_binned_sah(prims, refs.root, refs.croot, opt, arenas, scratch);
     t_tree = Clock::now();
 
     // -- flatten depth-first; leaves come out in record order
