@@ -115,8 +115,9 @@ public:
   // Morton split is made first, then undone (the children popped from the arena) where one leaf
   // prices no higher; every node below is priced once.
   float build_small(std::vector<TmpNode>& arena, std::size_t n, FastBox& box) const {
-    const std::uint32_t mid = split_of(arena[n]);
     const std::uint32_t count = arena[n].end - arena[n].begin;
+    if (count == 2 && arena[n].depth < opt_.depth_cap && opt_.max_leaf >= 2) return pair(arena, n, box);
+    const std::uint32_t mid = split_of(arena[n]);
     if (mid == 0) {
       make_leaf(arena[n]);
       box = arena[n].box;
@@ -142,6 +143,43 @@ public:
     return cost;
   }
 
+  // build_small of a node of two records (depth below the cap, max_leaf >= 2), its two
+  // one-record leaves priced without being made unless they are kept: the same nodes, boxes and
+  // cost. Equal codes make one leaf.
+  float pair(std::vector<TmpNode>& arena, std::size_t n, FastBox& box) const {
+    TmpNode& t = arena[n];
+    const std::uint32_t b = t.begin;
+    FastBox c[2];
+    c[0].grow(prims_[b]);
+    c[1].grow(prims_[b + 1]);
+    box = c[0];
+    box.grow(c[1]);
+    const float area = box.half_area();
+    const float leaf = price(2) * area;
+    if (code_of(items_[b]) != code_of(items_[b + 1])) {
+      const float one = price(1);
+      const float cost = one * c[0].half_area() + one * c[1].half_area() + opt_.traversal_cost * area;
+      if (leaf > cost) {
+        const std::size_t first = arena.size();
+        push_children(arena, n, b + 1);
+        for (int k = 0; k < 2; ++k) {
+          TmpNode& ch = arena[first + std::size_t(k)];
+          ch.leaf = true;
+          ch.forced = false;
+          ch.child[0] = ch.child[1] = -1;
+          ch.box = c[k];
+        }
+        arena[n].box = box;
+        return cost;
+      }
+    }
+    t.leaf = true;
+    t.forced = false;
+    t.child[0] = t.child[1] = -1;
+    t.box = box;
+    return leaf;
+  }
+
   static void push_children(std::vector<TmpNode>& arena, std::size_t n, std::uint32_t mid) {
     TmpNode c[2];
     c[0].begin = arena[n].begin;
@@ -165,7 +203,9 @@ private:
 void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& croot, const BuildOptions& opt,
                 Arenas& out, PrimRef* scratch) {
   const std::size_t n = prims.size();
-  constexpr std::size_t grain = 65536;
+  // chunks of the passes below: about four per worker (a stable sort has one result whatever
+  // the chunks, so they may follow the thread count)
+  const std::size_t grain = std::max<std::size_t>(8192, (n + 4 * resolve_threads(opt.threads) - 1) / (4 * resolve_threads(opt.threads)));
   // -- working memory, 48 bytes a record: two arrays of sort items and the sorted records; the
   //    caller's (the triangle records' array, written after the build: no pages of its own to
   //    fault in), else an array of our own
