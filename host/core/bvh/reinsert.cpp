@@ -15,8 +15,9 @@
 // candidates, so a move never raises the SAH; N is moved only where the cost falls.
 //
 // Each round takes the nodes (inner nodes and leaves) in order of decreasing area — the ones whose
-// cost is largest (Meister & Bittner 2018 §3 reinsert every node; the largest are where the top-down
-// build errs most) — and reinserts them one after another; rounds repeat while they pay. Leaves are
+// cost is largest (Meister & Bittner 2018 reinsert every node; the largest are where the top-down
+// build errs most) — and reinserts them one after another; rounds repeat while they pay, each
+// after the first taking only the nodes where the last one changed the tree. Leaves are
 // moved whole: their triangles and boxes do not change. The depth cap holds: X qualifies only
 // where X's and N's deepest leaves stay within opt.depth_cap levels after the insertion.
 // Sequential, every choice a function of the tree alone: the same tree at any thread count.
@@ -60,6 +61,7 @@ public:
     const std::size_t n = ninner_ + bvh.leaf_boxes.size();
     nodes_.resize(n);
     parent_.assign(n, -1);
+    changed_.assign(n, 0);
     height_.assign(n, 0);
     for (std::size_t i = 0; i < ninner_; ++i) {
       const Bvh2::Node& s = bvh.nodes[i];
@@ -84,14 +86,21 @@ public:
     return s;
   }
 
-  // One round: every node below the root's children, largest area first, taken out and put back
+  // One round: every node below the root's children (after the first round only those that moved
+  // or were refit in the last one, or whose parent or sibling was: where the tree changed; the
+  // others keep the place their last search found), largest area first, taken out and put back
   // where it costs least. Returns the number moved.
   std::size_t round() {
     order_.clear();
     for (std::size_t i = 0; i < nodes_.size(); ++i) {
       const std::int32_t p = parent_[i];
-      if (p >= 0 && p != root_) order_.push_back({area_of(nodes_[i]), static_cast<std::int32_t>(i)});
+      if (p < 0 || p == root_) continue;
+      const std::int32_t sib = at(p).child[0] == static_cast<std::int32_t>(i) ? at(p).child[1] : at(p).child[0];
+      if (!first_round_ && !changed_[i] && !changed_[static_cast<std::size_t>(p)] && !changed_[static_cast<std::size_t>(sib)]) continue;
+      order_.push_back({area_of(nodes_[i]), static_cast<std::int32_t>(i)});
     }
+    first_round_ = false;
+    std::fill(changed_.begin(), changed_.end(), 0);
     std::sort(order_.begin(), order_.end(), [](const Ranked& a, const Ranked& b) {
       return a.area > b.area || (a.area == b.area && a.id < b.id);
     });
@@ -181,6 +190,7 @@ private:
       const std::uint32_t h = 1 + std::max(height(t.child[0]), height(t.child[1]));
       same = same && h == height(y);
       if (same) break;
+      touched_.push_back(y);
       saved += area_of(t) - area_of(lo, hi);
       std::copy(lo, lo + 3, t.lo);
       std::copy(hi, hi + 3, t.hi);
@@ -265,6 +275,11 @@ private:
     const bool move = x >= 0 && x != s;
     if (!move) x = s;
     insert(n, x, p, side);
+    if (move) {  // what the next round looks at: the nodes moved, their old and new places, the boxes refit
+      for (std::int32_t t : touched_) changed_[static_cast<std::size_t>(t)] = 1;
+      for (std::int32_t t : {n, x, s, p}) changed_[static_cast<std::size_t>(t)] = 1;
+    }
+    touched_.clear();
     return move;
   }
 
@@ -284,6 +299,9 @@ private:
   std::vector<RNode> nodes_;
   std::vector<std::int32_t> parent_;
   std::vector<std::uint32_t> height_;
+  std::vector<std::uint8_t> changed_;  // moved or refit this round: where the next round looks
+  bool first_round_ = true;
+  std::vector<std::int32_t> touched_;  // the nodes refit by one reinsert
   std::vector<Ranked> order_;
   std::vector<Candidate> stack_;
 };
