@@ -9,6 +9,7 @@
 #include <string>
 
 #include "host/core/bvh/builder.h"
+#include "host/core/bvh/reinsert.h"
 #include "host/core/bvh/sbvh.h"
 #include "host/core/enum_check.h"
 #include "host/core/layouts.h"
@@ -101,6 +102,7 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
       boxes[r.prim].hi = {r.hi[0], r.hi[1], r.hi[2]};
     }
     SbvhResult r = build_sbvh(scene, opt, boxes, idx);
+    build::reinsert(r.bvh, r.leaves, r.prims, opt);  // subtrees moved where the SAH falls (reinsert.cpp)
     t_tree = Clock::now();
     r.bvh.degenerate = out.degenerate;
     out = std::move(r.bvh);
@@ -117,10 +119,9 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
     acc->impl_->tris_ = build::take_from(opt, &S::tris);
     acc->impl_->tris_.resize(prims.size());
     static_assert(sizeof(Tri) >= sizeof(PrimRef) && alignof(Tri) % alignof(PrimRef) == 0);
-    if (opt.quality == BuildQuality::low) build::build_lbvh(prims, refs.root, refs.croot, opt, arenas);
-    else
-      build::build_binned_sah(prims, refs.root, refs.croot, opt, arenas,
-                              reinterpret_cast<PrimRef*>(static_cast<void*>(acc->impl_->tris_.data())));
+    PrimRef* scratch = reinterpret_cast<PrimRef*>(static_cast<void*>(acc->impl_->tris_.data()));
+    if (opt.quality == BuildQuality::low) build::build_lbvh(prims, refs.root, refs.croot, opt, arenas, scratch);
+    else build::build_binned_sah(prims, refs.root, refs.croot, opt, arenas, scratch);
     t_tree = Clock::now();
 
     // -- flatten depth-first; leaves come out in record order

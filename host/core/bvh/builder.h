@@ -330,7 +330,9 @@ Mbvh4 make_mbvh4(const Bvh2& b, const std::vector<Leaf>& leaves, unsigned thread
 /// array of its own (or the context's).
 void build_binned_sah(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& croot, const BuildOptions& opt,
                       Arenas& out, PrimRef* scratch = nullptr);
+/// build_lbvh's `scratch`: room for 48 bytes a record (e.g. the triangle records' array, written
+/// after the build) for its sort, or null: an array of its own.
 void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& croot, const BuildOptions& opt,
-                Arenas& out);
+                Arenas& out, PrimRef* scratch = nullptr);
 
 }  // namespace mbvh::build

@@ -24,7 +24,7 @@ namespace mbvh::build {
 namespace {
 
 // Spreads the low 10 bits of v to every third bit (bit i to bit 3i).
-std::uint32_t spread3(std::uint32_t v) {
+constexpr std::uint32_t spread3(std::uint32_t v) {
   v &= 0x3FFu;
   v = (v | (v << 16)) & 0x030000FFu;
   v = (v | (v << 8)) & 0x0300F00Fu;
@@ -33,10 +33,26 @@ std::uint32_t spread3(std::uint32_t v) {
   return v;
 }
 
+// spread3 of every 10-bit value: a Morton code is three lookups.
+constexpr std::array<std::uint32_t, 1024> kSpread = [] {
+  std::array<std::uint32_t, 1024> t{};
+  for (std::uint32_t v = 0; v < 1024; ++v) t[v] = spread3(v);
+  return t;
+}();
+
+// A sort item: the Morton code in the high half, the record's index in the low half.
+inline std::uint32_t code_of(std::uint64_t item) { return static_cast<std::uint32_t>(item >> 32); }
+
+static_assert(sizeof(Tri) == 48, "build_lbvh's scratch: 48 bytes a record, the triangle records' array");
+
 class LbvhBuilder {
 public:
-  LbvhBuilder(const BuildOptions& opt, const RawVector<PrimRef>& prims, const RawVector<std::uint32_t>& codes)
-      : opt_(opt), prims_(prims), codes_(codes) {}
+  // `items`: the records' sort items (code_of: their Morton codes), in record order.
+  LbvhBuilder(const BuildOptions& opt, const RawVector<PrimRef>& prims, const std::uint64_t* items)
+      : opt_(opt), prims_(prims), items_(items) {}
+
+  // blocks(): triangles priced in blocks of leaf_block; the division only where that is not 1.
+  float price(std::uint32_t n) const { return opt_.leaf_block <= 1 ? static_cast<float>(n) : blocks(n, opt_.leaf_block); }
 
   // Binary levels below a node of `c` records down to leaves of at most max_leaf.
   unsigned needed(std::uint32_t c) const {
@@ -46,20 +62,21 @@ public:
   }
 
   // Where node t splits (a record index strictly inside its range), or 0: t is a leaf.
-  std::uint32_t split_of(const TmpNode& t) const {
-    const std::uint32_t b = t.begin, e = t.end, count = e - b;
-    if (count <= 1 || t.depth >= opt_.depth_cap) return 0;
+  std::uint32_t split_of(const TmpNode& t) const { return split_of(t.begin, t.end, t.depth); }
+  std::uint32_t split_of(std::uint32_t b, std::uint32_t e, std::uint32_t depth) const {
+    const std::uint32_t count = e - b;
+    if (count <= 1 || depth >= opt_.depth_cap) return 0;
     std::uint32_t mid;
-    if (codes_[b] == codes_[e - 1]) {
+    const std::uint32_t cb = code_of(items_[b]), ce = code_of(items_[e - 1]);
+    if (cb == ce) {
       if (count <= opt_.max_leaf) return 0;
       mid = b + count / 2;
     } else {
-      const std::uint32_t bit = 1u << (31 - std::countl_zero(codes_[b] ^ codes_[e - 1]));
+      const std::uint64_t bit = std::uint64_t(1) << (63 - std::countl_zero(cb ^ ce));
       mid = static_cast<std::uint32_t>(
-          std::partition_point(codes_.begin() + b, codes_.begin() + e, [bit](std::uint32_t c) { return (c & bit) == 0; }) -
-          codes_.begin());
+          std::partition_point(items_ + b, items_ + e, [bit](std::uint64_t c) { return (c & bit) == 0; }) - items_);
     }
-    const unsigned below = opt_.depth_cap - t.depth - 1;  // levels left under a child
+    const unsigned below = opt_.depth_cap - depth - 1;  // levels left under a child
     if (needed(mid - b) > below || needed(e - mid) > below) mid = b + count / 2;
     return mid;
   }
@@ -98,12 +115,13 @@ public:
   // Morton split is made first, then undone (the children popped from the arena) where one leaf
   // prices no higher; every node below is priced once.
   float build_small(std::vector<TmpNode>& arena, std::size_t n, FastBox& box) const {
-    const std::uint32_t mid = split_of(arena[n]);
     const std::uint32_t count = arena[n].end - arena[n].begin;
+    if (count == 2 && arena[n].depth < opt_.depth_cap && opt_.max_leaf >= 2) return pair(arena, n, box);
+    const std::uint32_t mid = split_of(arena[n]);
     if (mid == 0) {
       make_leaf(arena[n]);
       box = arena[n].box;
-      return blocks(count, opt_.leaf_block) * box.half_area();
+      return price(count) * box.half_area();
     }
     const std::size_t first = arena.size();
     push_children(arena, n, mid);
@@ -113,7 +131,7 @@ public:
     box.grow(rb);
     const float area = box.half_area();
     const float cost = split + opt_.traversal_cost * area;
-    const float leaf = blocks(count, opt_.leaf_block) * area;
+    const float leaf = price(count) * area;
     TmpNode& t = arena[n];
     t.box = box;
     if (leaf <= cost) {
@@ -123,6 +141,43 @@ public:
       return leaf;
     }
     return cost;
+  }
+
+  // build_small of a node of two records (depth below the cap, max_leaf >= 2), its two
+  // one-record leaves priced without being made unless they are kept: the same nodes, boxes and
+  // cost. Equal codes make one leaf.
+  float pair(std::vector<TmpNode>& arena, std::size_t n, FastBox& box) const {
+    TmpNode& t = arena[n];
+    const std::uint32_t b = t.begin;
+    FastBox c[2];
+    c[0].grow(prims_[b]);
+    c[1].grow(prims_[b + 1]);
+    box = c[0];
+    box.grow(c[1]);
+    const float area = box.half_area();
+    const float leaf = price(2) * area;
+    if (code_of(items_[b]) != code_of(items_[b + 1])) {
+      const float one = price(1);
+      const float cost = one * c[0].half_area() + one * c[1].half_area() + opt_.traversal_cost * area;
+      if (leaf > cost) {
+        const std::size_t first = arena.size();
+        push_children(arena, n, b + 1);
+        for (int k = 0; k < 2; ++k) {
+          TmpNode& ch = arena[first + std::size_t(k)];
+          ch.leaf = true;
+          ch.forced = false;
+          ch.child[0] = ch.child[1] = -1;
+          ch.box = c[k];
+        }
+        arena[n].box = box;
+        return cost;
+      }
+    }
+    t.leaf = true;
+    t.forced = false;
+    t.child[0] = t.child[1] = -1;
+    t.box = box;
+    return leaf;
   }
 
   static void push_children(std::vector<TmpNode>& arena, std::size_t n, std::uint32_t mid) {
@@ -140,76 +195,83 @@ public:
 private:
   const BuildOptions& opt_;
   const RawVector<PrimRef>& prims_;
-  const RawVector<std::uint32_t>& codes_;
+  const std::uint64_t* items_;
 };
 
 }  // namespace
 
 void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& croot, const BuildOptions& opt,
-                Arenas& out) {
+                Arenas& out, PrimRef* scratch) {
   const std::size_t n = prims.size();
-  constexpr std::size_t grain = 65536;
+  // chunks of the passes below: about four per worker (a stable sort has one result whatever
+  // the chunks, so they may follow the thread count)
+  const std::size_t grain = std::max<std::size_t>(8192, (n + 4 * resolve_threads(opt.threads) - 1) / (4 * resolve_threads(opt.threads)));
+  // -- working memory, 48 bytes a record: two arrays of sort items and the sorted records; the
+  //    caller's (the triangle records' array, written after the build: no pages of its own to
+  //    fault in), else an array of our own
+  RawVector<std::uint64_t> own;
+  if (!scratch) {
+    own.resize(6 * n);
+    scratch = reinterpret_cast<PrimRef*>(static_cast<void*>(own.data()));
+  }
+  std::uint64_t* item = reinterpret_cast<std::uint64_t*>(static_cast<void*>(scratch));
+  std::uint64_t* item2 = item + n;
+  PrimRef* sorted = reinterpret_cast<PrimRef*>(static_cast<void*>(item + 2 * n));
   // -- Morton codes of the centroids, quantised to 1024 cells per axis of the centroid bounds
   float scale[3];
   for (int a = 0; a < 3; ++a) {
     const float ext = croot.hi[a] - croot.lo[a];
     scale[a] = ext > 0 ? 1024.0f / ext : 0.0f;
   }
-  RawVector<std::uint32_t> key(n), val(n), key2(n), val2(n);
   parallel_for(n, grain, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
     for (std::size_t i = b; i < e; ++i) {
       std::uint32_t code = 0;
       for (int a = 0; a < 3; ++a) {
         const float f = (prims[i].centroid(a) - croot.lo[a]) * scale[a];
-        code |= spread3(std::min(1023u, static_cast<std::uint32_t>(f > 0 ? f : 0))) << (2 - a);
+        code |= kSpread[std::min(1023u, static_cast<std::uint32_t>(f > 0 ? f : 0))] << (2 - a);
       }
-      key[i] = code;
-      val[i] = static_cast<std::uint32_t>(i);
+      item[i] = std::uint64_t(code) << 32 | i;
     }
   });
-  // -- stable LSD radix sort of (code, record) by code, 8, 8, 8 and 6 bits a pass, each pass in
-  //    chunks on the pool: the chunks' digit counts, their offsets in (digit, chunk) order, then
-  //    every chunk scatters its records in order; a stable sort has one result at any thread count
+  // -- stable LSD radix sort of the items by code, 10 bits a pass, each pass in chunks on the
+  //    pool: the chunks' digit counts, their offsets in (digit, chunk) order, then every chunk
+  //    scatters its items in order; a stable sort has one result at any thread count
+  constexpr unsigned kDigits = 1024;
   const std::size_t chunks = (n + grain - 1) / grain;
-  std::vector<std::array<std::uint32_t, 256>> offset(chunks);
-  for (unsigned shift = 0; shift < 30; shift += 8) {
+  std::vector<std::array<std::uint32_t, kDigits>> offset(chunks);
+  for (unsigned shift = 32; shift < 62; shift += 10) {
     parallel_for(n, grain, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
-      std::array<std::uint32_t, 256>& h = offset[b / grain];
+      std::array<std::uint32_t, kDigits>& h = offset[b / grain];
       h.fill(0);
-      for (std::size_t i = b; i < e; ++i) ++h[(key[i] >> shift) & 255u];
+      for (std::size_t i = b; i < e; ++i) ++h[(item[i] >> shift) & (kDigits - 1)];
     });
     std::uint32_t sum = 0;
-    for (unsigned d = 0; d < 256; ++d)
+    for (unsigned d = 0; d < kDigits; ++d)
       for (std::size_t c = 0; c < chunks; ++c) {
         const std::uint32_t k = offset[c][d];
         offset[c][d] = sum;
         sum += k;
       }
     parallel_for(n, grain, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
-      std::array<std::uint32_t, 256>& h = offset[b / grain];
-      for (std::size_t i = b; i < e; ++i) {
-        const std::uint32_t d = h[(key[i] >> shift) & 255u]++;
-        key2[d] = key[i];
-        val2[d] = val[i];
-      }
+      std::array<std::uint32_t, kDigits>& h = offset[b / grain];
+      for (std::size_t i = b; i < e; ++i) item2[h[(item[i] >> shift) & (kDigits - 1)]++] = item[i];
     });
-    key.swap(key2);
-    val.swap(val2);
+    std::swap(item, item2);
   }
-  {
-    RawVector<PrimRef> sorted(n);
-    parallel_for(n, grain, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
-      for (std::size_t i = b; i < e; ++i) {
-        if (i + 16 < e) __builtin_prefetch(&prims[val[i + 16]]);
-        sorted[i] = prims[val[i]];
-      }
-    });
-    prims.swap(sorted);
-  }
+  // -- the records in code order (gathered, then copied back over the originals)
+  parallel_for(n, grain, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
+    for (std::size_t i = b; i < e; ++i) {
+      if (i + 16 < e) __builtin_prefetch(&prims[static_cast<std::uint32_t>(item[i + 16])]);
+      sorted[i] = prims[static_cast<std::uint32_t>(item[i])];
+    }
+  });
+  parallel_for(n, grain, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
+    std::copy(sorted + b, sorted + e, prims.begin() + static_cast<std::ptrdiff_t>(b));
+  });
   if (opt.progress) opt.progress(0.2);
 
   // -- top of the tree breadth-first (splits only: a binary search each), then subtrees per task
-  LbvhBuilder builder(opt, prims, key);
+  LbvhBuilder builder(opt, prims, item);
   std::vector<TmpNode>& upper = out.upper;
   upper.assign(1, TmpNode());
   upper[0].begin = 0;
