@@ -51,8 +51,9 @@ constexpr char kMagic[8] = {'M', 'B', 'V', 'H', 'B', 'V', 'H', '\0'};
 constexpr std::uint32_t kFormatVersion = 4;  // 2: the build quality in the key and header; 3: hash_bytes; 4: blocks
 // Bumped when a builder makes other bytes from the same scene and options (the key changes, so
 // a file of the older builder is not taken for this one's tree). 1: the medium build's
-// partition into a second record array (same splits, another leaf order).
-constexpr std::uint32_t kTreeRevision = 1;
+// partition into a second record array (same splits, another leaf order); 2: the high build's
+// reinsertion (reinsert.cpp).
+constexpr std::uint32_t kTreeRevision = 2;
 
 struct Header {
   char magic[8];
