@@ -74,17 +74,8 @@ struct SimdKernelsT {
   /// chords), ties to the lower slot, without a branch per slot: two hits by one compare, more by
   /// a horizontal min (max) over the row with the misses set to +inf (-inf) and the lowest slot
   /// equal to it (d is never NaN: entries start at tmin, chords are clamped at 0).
-  /// An MBVH8 occlusion query's longest chord takes the horizontal max whatever the number of
-  /// hits: no branch on it (one, two or more hits mispredict often on incoherent shadow rays). A
-  /// missed slot's chord is 0 (box_test's max_nan(tx - te, 0)), never above a hit slot's, so the
-  /// max over the row is the hit slots' and no blend is needed.
   template <int W, bool Largest>
   [[gnu::always_inline]] static int extreme(unsigned mask, const float* d) {
-    if constexpr (W == 8 && Largest) {
-      const __m256 v = _mm256_loadu_ps(d);
-      const unsigned eq = static_cast<unsigned>(_mm256_movemask_ps(_mm256_cmp_ps(v, hmax8_splat(v), _CMP_EQ_OQ))) & mask;
-      return std::countr_zero(eq);
-    }
     const unsigned rest = mask & (mask - 1);
     if (rest == 0) return std::countr_zero(mask);
     if ((rest & (rest - 1)) == 0) {  // two hits, the commonest case: one compare
