@@ -136,11 +136,8 @@ inline Hit trace_wide_stack_ordered(const TraceView& v, const typename K::Ray& r
           } else {
             const unsigned base = sp;
             stack[sp++] = Entry{n.child[a], d[a]};
-            for (unsigned k = others; k != 0;) {  // reverse slot order (the set bits, highest first), then a stable sort by d
-              const int s = 31 - std::countl_zero(k);
-              k &= ~(1u << s);
-              stack[sp++] = Entry{n.child[s], d[s]};
-            }
+            for (int s = a - 1; s >= 0; --s)  // reverse slot order, then a stable sort by d
+              if ((others >> s) & 1u) stack[sp++] = Entry{n.child[s], d[s]};
             for (unsigned i = base + 1; i < sp; ++i)
               for (unsigned j = i; j > base && (Any ? stack[j - 1].d > stack[j].d : stack[j - 1].d < stack[j].d); --j)
                 std::swap(stack[j - 1], stack[j]);
