@@ -184,9 +184,14 @@ struct SimdKernelsT {
     if constexpr (St::on) {
       return detail::visit_leaf<Any, St, Fast>(v, ref, r, tmax, best, st);
     } else {
-      Leaf l;
-      if (v.packed_refs) l = packed_leaf(ref);  // TraceView::packed_refs: the reference locates the packs
-      else l = v.leaf4[~ref];
+      if (v.packed_refs) {  // TraceView::packed_refs: the reference locates the packs, 1 to 8 triangles
+        const Leaf l = packed_leaf(ref);
+        const Tri4* p = v.tri4 + l.first;
+        const unsigned valid = (1u << l.count) - 1u;  // the loop below's one pass, without its loop
+        if (l.count > 4) return leaf_pass<F8, Any>(p, valid, r, tmax, best);
+        return leaf_pass<F4, Any>(p, valid, r, tmax, best);
+      }
+      const Leaf l = v.leaf4[~ref];
       const Tri4* p = v.tri4 + l.first;
       std::uint32_t k = 0;
       for (; k + 4 < l.count; k += 8, p += 2) {

@@ -126,13 +126,13 @@ inline Hit trace_wide_stack_ordered(const TraceView& v, const typename K::Ray& r
             stack[sp++] = Entry{n.child[a], d[a]};
           } else if ((others & (others - 1)) == 0) {
             const int b = std::countr_zero(others);  // b < a: pop b first unless d[a] < d[b]
-            if (Any ? d[a] > d[b] : d[a] < d[b]) {
-              stack[sp++] = Entry{n.child[b], d[b]};
-              stack[sp++] = Entry{n.child[a], d[a]};
-            } else {
-              stack[sp++] = Entry{n.child[a], d[a]};
-              stack[sp++] = Entry{n.child[b], d[b]};
-            }
+            // the order without a branch (it is not on the way to the child entered now, and
+            // mispredicts often on incoherent rays): `under` is pushed first, popped last
+            const int swap = -static_cast<int>(Any ? d[a] > d[b] : d[a] < d[b]);
+            const int under = a ^ ((a ^ b) & swap), over = a ^ b ^ under;
+            stack[sp] = Entry{n.child[under], d[under]};
+            stack[sp + 1] = Entry{n.child[over], d[over]};
+            sp += 2;
           } else {
             const unsigned base = sp;
             stack[sp++] = Entry{n.child[a], d[a]};
