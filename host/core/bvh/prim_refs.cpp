@@ -128,8 +128,8 @@ PrimRefs make_prim_refs(const Scene& scene, unsigned threads, RawVector<PrimRef>
   std::atomic<bool> invalid{false};
   // a chunk that starts once every chunk before it has written its records in place (always, on
   // one worker: chunks run in order) writes its own at their final place, after the previous
-  // chunk's; others write at their chunk's start and are moved down below. end_of[c]: 1 + the end
-  // of chunk c's records once they are in place, else 0
+  // chunk's; others write at their chunk's start and are moved down when they end or below.
+  // end_of[c]: 1 + the end of chunk c's records once they are in place, else 0
   std::vector<std::atomic<std::size_t>> end_of(chunks);
   std::vector<std::uint8_t> in_place(chunks, 0);
   with_triangles(scene, [&](const auto& src) {
@@ -162,9 +162,13 @@ PrimRefs make_prim_refs(const Scene& scene, unsigned threads, RawVector<PrimRef>
       if (o > start)
         for (int a = 0; a < 3; ++a) m = std::max({m, std::fabs(box.lo[a]), std::fabs(box.hi[a])});
       kept_in[c] = o - start;
-      if (after) {
+      // a chunk that started early moves its records down itself if the chunks before it are in
+      // place by now (the move then runs beside the other chunks' work, not in the serial step)
+      const std::size_t now = after ? after : end_of[c - 1].load(std::memory_order_acquire);
+      if (now) {
+        if (!after && kept_in[c]) std::memmove(&prims[now - 1], &prims[b], kept_in[c] * sizeof(PrimRef));
         in_place[c] = 1;
-        end_of[c].store(o + 1, std::memory_order_release);
+        end_of[c].store(now + kept_in[c], std::memory_order_release);
       }
       cb[c] = box;
       ccb[c] = cbox;
