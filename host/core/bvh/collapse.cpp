@@ -149,13 +149,14 @@ struct Collapser {
           if (kids[k] >= 0 && (pick < 0 || area_k[k] > area_k[pick])) pick = k;
       if (pick < 0) break;
       const Bvh2::Node& open = b.nodes[static_cast<std::size_t>(kids[pick])];
-      // slots pick+1 .. count-1 move up one (a fixed-length loop: unrolled, no memmove call)
-      for (int k = W - 1; k > pick + 1; --k)
-        if (k <= count) {
-          kids[k] = kids[k - 1];
-          area_k[k] = area_k[k - 1];
-          viol[k] = viol[k - 1];
-        }
+      // slots pick+1 .. count-1 move up one: every slot above pick+1 rewritten by a select, highest
+      // first (a loop over just the moved slots is compiled into a memmove call each)
+      for (int k = W - 1; k > 0; --k) {
+        const bool move = k > pick + 1 && k <= count;
+        kids[k] = move ? kids[k - 1] : kids[k];
+        area_k[k] = move ? area_k[k - 1] : area_k[k];
+        viol[k] = move ? viol[k - 1] : viol[k];
+      }
       kids[pick] = open.child[0];
       kids[pick + 1] = open.child[1];
       enter(pick);
