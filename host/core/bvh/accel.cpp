@@ -124,6 +124,11 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
     else build::build_binned_sah(prims, refs.root, refs.croot, opt, arenas, scratch);
     t_tree = Clock::now();
 
+    // -- the triangle records (the records are in leaf order once the tree is built), then the
+    //    records' array freed: the flatten's arrays below can take its memory
+    build::fill_tris(scene, prims, acc->impl_->tris_, opt.threads);
+    build::give_back(opt, &S::prims, prims);
+
     // -- flatten depth-first; leaves come out in record order
     out.nodes = build::take_from(opt, &S::nodes);
     out.leaf_boxes = build::take_from(opt, &S::leaf_boxes);
@@ -132,8 +137,6 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
 
     if (opt.context) opt.context->impl().give_arenas(std::move(arenas));
     arenas = build::Arenas();
-    build::fill_tris(scene, prims, acc->impl_->tris_, opt.threads);
-    build::give_back(opt, &S::prims, prims);
   }
   acc->impl_->bounds_ = out.nodes[0].box;
   const auto t_flat = Clock::now();

@@ -149,10 +149,13 @@ struct Collapser {
           if (kids[k] >= 0 && (pick < 0 || area_k[k] > area_k[pick])) pick = k;
       if (pick < 0) break;
       const Bvh2::Node& open = b.nodes[static_cast<std::size_t>(kids[pick])];
-      for (int k = count; k > pick + 1; --k) {
-        kids[k] = kids[k - 1];
-        area_k[k] = area_k[k - 1];
-        viol[k] = viol[k - 1];
+      // slots pick+1 .. count-1 move up one: every slot above pick+1 rewritten by a select, highest
+      // first (a loop over just the moved slots is compiled into a memmove call each)
+      for (int k = W - 1; k > 0; --k) {
+        const bool move = k > pick + 1 && k <= count;
+        kids[k] = move ? kids[k - 1] : kids[k];
+        area_k[k] = move ? area_k[k - 1] : area_k[k];
+        viol[k] = move ? viol[k - 1] : viol[k];
       }
       kids[pick] = open.child[0];
       kids[pick + 1] = open.child[1];
@@ -221,24 +224,28 @@ struct Collapser {
     const std::size_t self = next++;
     std::int32_t kids[W], child[W];
     choose(bref, level, kids);
+    bool task_child = false;  // a child written later on the pool: this node's links wait for it
+    Top* walk = top;          // past the last task the walk goes on as a plain subtree's (links inline)
     for (int s = 0; s < W; ++s) {
       child[s] = kids[s];
       if (kids[s] >= 0) {
-        if (top && top->cursor < top->tasks.size() && top->tasks[top->cursor].bref == kids[s]) {
-          Task& k = top->tasks[top->cursor++];
+        if (walk && walk->cursor == walk->tasks.size()) walk = nullptr;
+        if (walk && walk->tasks[walk->cursor].bref == kids[s]) {
+          Task& k = walk->tasks[walk->cursor++];
           k.first = next;
           k.parent = static_cast<std::int32_t>(self);
           next += k.tally.nodes;
           child[s] = static_cast<std::int32_t>(k.first);
+          task_child = true;
         } else {
-          child[s] = emit(kids[s], static_cast<std::int32_t>(self), level + 1, next, t, top);
+          child[s] = emit(kids[s], static_cast<std::int32_t>(self), level + 1, next, t, walk);
         }
       } else if (kids[s] != MBVH_EMPTY) {
         t.max_level = std::max(t.max_level, level + 1);
       }
     }
     write(self, kids, child, parent);
-    if (top) top->nodes.push_back(self);
+    if (task_child) top->nodes.push_back(self);
     else links(self);
     return static_cast<std::int32_t>(self);
   }

@@ -10,6 +10,7 @@
 #include <cstdio>
 #include <cstring>
 #include <string>
+#include <vector>
 
 #include "host/core/bvh/builder.h"
 #include "host/core/bvh/triangles.h"
@@ -125,10 +126,18 @@ PrimRefs make_prim_refs(const Scene& scene, unsigned threads, RawVector<PrimRef>
   std::vector<float> tiny_mag(chunks, 0.0f);  // per chunk: the largest magnitude of its too-small triangles
   std::vector<std::size_t> tiny(chunks, SIZE_MAX);  // per chunk: its first triangle too small to trace
   std::atomic<bool> invalid{false};
+  // a chunk that starts once every chunk before it has written its records in place (always, on
+  // one worker: chunks run in order) writes its own at their final place, after the previous
+  // chunk's; others write at their chunk's start and are moved down when they end or below.
+  // end_of[c]: 1 + the end of chunk c's records once they are in place, else 0
+  std::vector<std::atomic<std::size_t>> end_of(chunks);
+  std::vector<std::uint8_t> in_place(chunks, 0);
   with_triangles(scene, [&](const auto& src) {
     parallel_for(n, grain, threads, [&](std::size_t b, std::size_t e, unsigned) {
       const std::size_t c = b / grain;
-      std::size_t o = b;
+      const std::size_t after = c == 0 ? 1 : end_of[c - 1].load(std::memory_order_acquire);
+      const std::size_t start = after ? after - 1 : b;  // at or below b: only this chunk's triangles are read below
+      std::size_t o = start;
       FastBox box, cbox;
       for (std::size_t i = b; i < e; ++i) {
         Vec3f v0, v1, v2;
@@ -150,9 +159,17 @@ PrimRefs make_prim_refs(const Scene& scene, unsigned threads, RawVector<PrimRef>
         prims[o++] = r;
       }
       float m = 0;  // the largest magnitude of the records: on each axis, their least lo or greatest hi
-      if (o > b)
+      if (o > start)
         for (int a = 0; a < 3; ++a) m = std::max({m, std::fabs(box.lo[a]), std::fabs(box.hi[a])});
-      kept_in[c] = o - b;
+      kept_in[c] = o - start;
+      // a chunk that started early moves its records down itself if the chunks before it are in
+      // place by now (the move then runs beside the other chunks' work, not in the serial step)
+      const std::size_t now = after ? after : end_of[c - 1].load(std::memory_order_acquire);
+      if (now) {
+        if (!after && kept_in[c]) std::memmove(&prims[now - 1], &prims[b], kept_in[c] * sizeof(PrimRef));
+        in_place[c] = 1;
+        end_of[c].store(now + kept_in[c], std::memory_order_release);
+      }
       cb[c] = box;
       ccb[c] = cbox;
       mag[c] = m;
@@ -169,9 +186,9 @@ PrimRefs make_prim_refs(const Scene& scene, unsigned threads, RawVector<PrimRef>
     if (all < kMinSceneScale) throw_below_scene_scale(scene, all);
     throw_too_small(scene, static_cast<std::uint32_t>(first), "");
   }
-  std::size_t kept = 0;  // close the chunks' gaps (in place: a record only moves down)
+  std::size_t kept = 0;  // close the other chunks' gaps (in place: a record only moves down)
   for (std::size_t c = 0; c < chunks; ++c) {
-    if (kept != c * grain) std::memmove(&prims[kept], &prims[c * grain], kept_in[c] * sizeof(PrimRef));
+    if (!in_place[c] && kept != c * grain) std::memmove(&prims[kept], &prims[c * grain], kept_in[c] * sizeof(PrimRef));
     kept += kept_in[c];
   }
   prims.resize(kept);
