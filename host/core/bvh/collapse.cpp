@@ -131,9 +131,10 @@ struct Collapser {
     kids[1] = bn.child[1];
     int count = bn.child[1] == MBVH_EMPTY ? 1 : 2;
     // each kid's half area and whether it breaks the level cap, computed once as it enters
-    // (only inner kids are ever compared)
-    float area_k[W];
-    bool viol[W];
+    // (only inner kids are ever compared; the slots past `count` start defined: the shift below
+    // reads every slot)
+    float area_k[W] = {};
+    bool viol[W] = {};
     auto enter = [&](int k) {
       const std::int32_t ref = kids[k];
       area_k[k] = ref >= 0 ? b.nodes[static_cast<std::size_t>(ref)].box.half_area() : 0.0f;
