@@ -381,22 +381,15 @@ private:
   [[gnu::noinline]] void bin_range(const Geometry& g, const PrimRef* src, std::size_t b, std::size_t e,
                                    Bins& out) const {
 #if defined(__SSE2__)
-    // Four lanes at once: the centroid, its bin on each axis (the same float operations as
-    // Geometry::bin, so the same bins; f <= bins (1 + 2 ulp), so a 16-bit min is the clamp) and
-    // the bin's box as one min and one max.
-    const __m128 half = _mm_set1_ps(0.5f), zero = _mm_setzero_ps();
-    const __m128 origin = _mm_setr_ps(g.origin[0], g.origin[1], g.origin[2], 0.0f);
-    const __m128 scale = _mm_setr_ps(g.scale[0], g.scale[1], g.scale[2], 0.0f);
-    const __m128 xyz = _mm_castsi128_ps(_mm_setr_epi32(-1, -1, -1, 0));  // drops the prim id's lane
-    const __m128i last = _mm_set1_epi32(static_cast<int>(g.last));
+    // Four lanes at once: the centroid, its bin on each axis (the dense bins' index, the same
+    // float operations as Geometry::bin, so the same bins) and the bin's box as one min and one max.
+    const DenseBins::Binning bg(g.origin, g.scale, g.last);
     std::uint64_t mask[3] = {out.mask[0], out.mask[1], out.mask[2]};
     for (std::size_t i = b; i < e; ++i) {
-      const PrimRef& r = src[i];
-      const __m128 lo = _mm_and_ps(_mm_loadu_ps(r.lo), xyz);
-      const __m128 hi = _mm_loadu_ps(r.hi);  // lane 3: pad = 0
-      const __m128 f = _mm_max_ps(_mm_mul_ps(_mm_sub_ps(_mm_mul_ps(_mm_add_ps(lo, hi), half), origin), scale), zero);
+      __m128 lo, hi;  // hi's lane 3: pad = 0
+      bg.load(src[i], lo, hi);
       alignas(16) std::uint32_t ks[4];
-      _mm_store_si128(reinterpret_cast<__m128i*>(ks), _mm_min_epi16(_mm_cvttps_epi32(f), last));
+      _mm_store_si128(reinterpret_cast<__m128i*>(ks), bg.index(lo, hi));
       for (int a = 0; a < 3; ++a) {
         const unsigned kb = ks[a];
         Bin& bn = out.bin[a][kb];

@@ -37,38 +37,54 @@ struct DenseBins {
       }
   }
 
-  /// Bins records [b, e): bin = min(last, floor(max(0, (centroid - origin) * scale))) per axis.
-  void bin(const PrimRef* p, std::size_t b, std::size_t e, const float origin[3], const float scale[3], unsigned last) {
-    const __m128 half = _mm_set1_ps(0.5f), zero = _mm_setzero_ps();
-    const __m128 o = _mm_setr_ps(origin[0], origin[1], origin[2], 0.0f);
-    const __m128 s = _mm_setr_ps(scale[0], scale[1], scale[2], 0.0f);
-    const __m128 xyz = _mm_castsi128_ps(_mm_setr_epi32(-1, -1, -1, 0));  // drops the prim id's lane
-    const __m128i lst = _mm_set1_epi32(static_cast<int>(last));
-    auto index = [&](__m128 l, __m128 h) {
+  /// A node's binning: bin = min(last, floor(max(0, (centroid - origin) * scale))) per axis.
+  struct Binning {
+    __m128 half = _mm_set1_ps(0.5f), zero = _mm_setzero_ps(), o, s;
+    __m128 xyz = _mm_castsi128_ps(_mm_setr_epi32(-1, -1, -1, 0));  // drops the prim id's lane
+    __m128i lst;
+    Binning(const float origin[3], const float scale[3], unsigned last)
+        : o(_mm_setr_ps(origin[0], origin[1], origin[2], 0.0f)), s(_mm_setr_ps(scale[0], scale[1], scale[2], 0.0f)),
+          lst(_mm_set1_epi32(static_cast<int>(last))) {}
+    /// A record's rows: lo without the prim id, hi.
+    void load(const PrimRef& r, __m128& l, __m128& h) const {
+      l = _mm_and_ps(_mm_loadu_ps(r.lo), xyz);
+      h = _mm_loadu_ps(r.hi);
+    }
+    /// The record's bin on each axis (lanes 0-2).
+    __m128i index(__m128 l, __m128 h) const {
       // f <= bins (1 + 2 ulp): the truncated bin fits 16 bits, so a 16-bit min is the clamp
       const __m128 f = _mm_max_ps(_mm_mul_ps(_mm_sub_ps(_mm_mul_ps(_mm_add_ps(l, h), half), o), s), zero);
       return _mm_min_epi16(_mm_cvttps_epi32(f), lst);
-    };
-    auto add = [&](int a, unsigned k, __m128 l, __m128 h) {
-      Row& r = row[a][k];
-      r.lo = _mm_min_ps(r.lo, l);
-      r.hi = _mm_max_ps(r.hi, h);
-      ++count[a][k];
-    };
+    }
+  };
+
+  /// Grows bin k of axis a by a record's rows.
+  void add(int a, unsigned k, __m128 l, __m128 h) {
+    Row& r = row[a][k];
+    r.lo = _mm_min_ps(r.lo, l);
+    r.hi = _mm_max_ps(r.hi, h);
+    ++count[a][k];
+  }
+
+  /// Bins records [b, e) (Binning's bins).
+  void bin(const PrimRef* p, std::size_t b, std::size_t e, const float origin[3], const float scale[3], unsigned last) {
+    const Binning g(origin, scale, last);
     std::size_t i = b;
     for (; i + 2 <= e; i += 2) {  // two records per step: their index math overlaps
-      const __m128 l0 = _mm_and_ps(_mm_loadu_ps(p[i].lo), xyz), h0 = _mm_loadu_ps(p[i].hi);
-      const __m128 l1 = _mm_and_ps(_mm_loadu_ps(p[i + 1].lo), xyz), h1 = _mm_loadu_ps(p[i + 1].hi);
+      __m128 l0, h0, l1, h1;
+      g.load(p[i], l0, h0);
+      g.load(p[i + 1], l1, h1);
       alignas(16) std::uint32_t k0[4], k1[4];
-      _mm_store_si128(reinterpret_cast<__m128i*>(k0), index(l0, h0));
-      _mm_store_si128(reinterpret_cast<__m128i*>(k1), index(l1, h1));
+      _mm_store_si128(reinterpret_cast<__m128i*>(k0), g.index(l0, h0));
+      _mm_store_si128(reinterpret_cast<__m128i*>(k1), g.index(l1, h1));
       for (int a = 0; a < 3; ++a) add(a, k0[a], l0, h0);
       for (int a = 0; a < 3; ++a) add(a, k1[a], l1, h1);
     }
     for (; i < e; ++i) {
-      const __m128 l0 = _mm_and_ps(_mm_loadu_ps(p[i].lo), xyz), h0 = _mm_loadu_ps(p[i].hi);
+      __m128 l0, h0;
+      g.load(p[i], l0, h0);
       alignas(16) std::uint32_t k0[4];
-      _mm_store_si128(reinterpret_cast<__m128i*>(k0), index(l0, h0));
+      _mm_store_si128(reinterpret_cast<__m128i*>(k0), g.index(l0, h0));
       for (int a = 0; a < 3; ++a) add(a, k0[a], l0, h0);
     }
   }
@@ -83,30 +99,17 @@ struct DenseBins {
   template <int P>
   static void bin_parts(DenseBins* const (&set)[P], const PrimRef* p, std::size_t b, std::size_t e,
                         const float origin[3], const float scale[3], unsigned last, unsigned bins) {
-    const __m128 half = _mm_set1_ps(0.5f), zero = _mm_setzero_ps();
-    const __m128 o = _mm_setr_ps(origin[0], origin[1], origin[2], 0.0f);
-    const __m128 s = _mm_setr_ps(scale[0], scale[1], scale[2], 0.0f);
-    const __m128 xyz = _mm_castsi128_ps(_mm_setr_epi32(-1, -1, -1, 0));
-    const __m128i lst = _mm_set1_epi32(static_cast<int>(last));
+    const Binning g(origin, scale, last);
     const std::size_t n = (e - b) / P;
     for (std::size_t i = 0; i < n; ++i) {
       __m128 l[P], h[P];
       alignas(16) std::uint32_t k[P][4];
       for (int q = 0; q < P; ++q) {
-        const PrimRef& r = p[b + std::size_t(q) * n + i];
-        l[q] = _mm_and_ps(_mm_loadu_ps(r.lo), xyz);
-        h[q] = _mm_loadu_ps(r.hi);
-        // as bin()'s index
-        const __m128 f = _mm_max_ps(_mm_mul_ps(_mm_sub_ps(_mm_mul_ps(_mm_add_ps(l[q], h[q]), half), o), s), zero);
-        _mm_store_si128(reinterpret_cast<__m128i*>(k[q]), _mm_min_epi16(_mm_cvttps_epi32(f), lst));
+        g.load(p[b + std::size_t(q) * n + i], l[q], h[q]);
+        _mm_store_si128(reinterpret_cast<__m128i*>(k[q]), g.index(l[q], h[q]));
       }
       for (int a = 0; a < 3; ++a)
-        for (int q = 0; q < P; ++q) {
-          Row& r = set[q]->row[a][k[q][a]];
-          r.lo = _mm_min_ps(r.lo, l[q]);
-          r.hi = _mm_max_ps(r.hi, h[q]);
-          ++set[q]->count[a][k[q][a]];
-        }
+        for (int q = 0; q < P; ++q) set[q]->add(a, k[q][a], l[q], h[q]);
     }
     const std::size_t tail = b + std::size_t(P) * n;
     if (tail < e) set[P - 1]->bin(p, tail, e, origin, scale, last);  // the remainder: the last part's end

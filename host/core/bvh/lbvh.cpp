@@ -82,11 +82,16 @@ public:
   }
 
   void make_leaf(TmpNode& t) const {
+    FastBox box;
+    for (std::uint32_t i = t.begin; i < t.end; ++i) box.grow(prims_[i]);
+    make_leaf(t, box);
+  }
+  // make_leaf with the records' box known.
+  void make_leaf(TmpNode& t, const FastBox& box) const {
     t.leaf = true;
     t.forced = t.end - t.begin > opt_.max_leaf;
     t.child[0] = t.child[1] = -1;
-    t.box = FastBox();
-    for (std::uint32_t i = t.begin; i < t.end; ++i) t.box.grow(prims_[i]);
+    t.box = box;
   }
 
   // Builds the subtree of arena node n (its range and depth set).
@@ -162,21 +167,12 @@ public:
       if (leaf > cost) {
         const std::size_t first = arena.size();
         push_children(arena, n, b + 1);
-        for (int k = 0; k < 2; ++k) {
-          TmpNode& ch = arena[first + std::size_t(k)];
-          ch.leaf = true;
-          ch.forced = false;
-          ch.child[0] = ch.child[1] = -1;
-          ch.box = c[k];
-        }
+        for (int k = 0; k < 2; ++k) make_leaf(arena[first + std::size_t(k)], c[k]);
         arena[n].box = box;
         return cost;
       }
     }
-    t.leaf = true;
-    t.forced = false;
-    t.child[0] = t.child[1] = -1;
-    t.box = box;
+    make_leaf(t, box);
     return leaf;
   }
 
