@@ -51,6 +51,24 @@ inline mbvh::VariantGrid all_backends() {
   return g;
 }
 
+/// all_backends() for the [sanitizer-cpu] tier (the two largest stress tests): under the sanitizers
+/// (MBVH_TEST_SANITIZED) the instrumented cpu backends only (cpu-scalar and the cpu backend of this
+/// machine's ISA, those MBVH_TEST_BACKENDS selects): the device backends' traversals run in PoCL's
+/// and lavapipe's own code, which the sanitizers do not see, and their host code runs in every other
+/// test; elsewhere every backend.
+inline mbvh::VariantGrid sanitizer_cpu_backends() {
+  mbvh::VariantGrid g = all_backends();
+#ifdef MBVH_TEST_SANITIZED
+  std::vector<std::string> cpu;
+  for (const std::string& name : g.backends)
+    if (name.rfind("cpu-", 0) == 0) cpu.push_back(name);
+    else std::printf("backend %s left out: a [sanitizer-cpu] test under the sanitizers\n", name.c_str());
+  REQUIRE(!cpu.empty());
+  g.backends = cpu;
+#endif
+  return g;
+}
+
 /// The SIMD cpu backends this machine runs (cpu-avx2, cpu-avx512; MBVH_TEST_BACKENDS narrows them):
 /// the backends with a single-ray query (RayQuery), so the ones instancing traces on too.
 inline std::vector<std::string> simd_cpu_backends() {

@@ -2,6 +2,7 @@
 // helpers.h — shared test utilities: scene paths, temporary files, running the mbvh program.
 #pragma once
 #include <array>
+#include <cstddef>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
@@ -12,6 +13,16 @@
 #include <type_traits>
 
 namespace mbvh_test {
+
+/// A ray count for a test that traces many: under the sanitizers (MBVH_TEST_SANITIZED) a quarter of
+/// `n` (at least 1,000): more rays take no other code path there, only minutes.
+constexpr std::size_t sanitized_rays(std::size_t n) {
+#ifdef MBVH_TEST_SANITIZED
+  return n / 4 > 1000 ? n / 4 : (n < 1000 ? n : 1000);
+#else
+  return n;
+#endif
+}
 
 /// What `f()` throws as an Error (any type with what(): mbvh::Error), or "(no error)".
 template <class F>

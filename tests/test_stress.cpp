@@ -30,6 +30,7 @@ using namespace mbvh;
 namespace {
 
 using mbvh_test::all_backends;
+using mbvh_test::sanitizer_cpu_backends;
 using mbvh_test::own_traversal;
 using mbvh_test::packets_always;
 using mbvh_test::with_packets;
@@ -69,7 +70,7 @@ void require_clean(const Accel& acc, const std::vector<Ray>& rays, const Variant
 }  // namespace
 
 TEST_CASE("stress: rays from inside closed meshes aimed at shared vertices and edges never leak", "[stress][sanitizer-cpu][isa]") {
-  const VariantGrid grid = with_packets(all_backends());
+  const VariantGrid grid = with_packets(sanitizer_cpu_backends());
   std::set<std::string> peers;  // the peer libraries among the backends
   for (const auto& name : grid.backends)
     if (make_backend(name, packets_always())->peer()) peers.insert(name);
@@ -114,7 +115,7 @@ static std::vector<std::string> special_specs() {
 }
 
 TEST_CASE("stress: special rays agree with the brute force on every backend", "[stress][sanitizer-cpu][isa]") {
-  const VariantGrid grid = with_packets(all_backends());
+  const VariantGrid grid = with_packets(sanitizer_cpu_backends());
   const std::vector<std::string> specs = special_specs();
   for (const std::string& spec : specs) {
     const Scene s = load_scene(spec);
@@ -147,7 +148,8 @@ TEST_CASE("stress: the MIC path agrees with the brute force on special rays - no
   for (const std::string& spec : specs) {
     const Scene s = load_scene(spec);
     const auto acc = Accel::build(s);
-    require_clean(*acc, special_rays(s, *acc, 4000, 3), grid, spec + ": special rays, cpu.mic=1", on);
+    require_clean(*acc, special_rays(s, *acc, mbvh_test::sanitized_rays(4000), 3), grid, spec + ": special rays, cpu.mic=1",
+                  on);
   }
   for (const char* spec : kClosed) {
     const Scene s = load_scene(spec);
@@ -181,7 +183,7 @@ TEST_CASE("stress: secondary rays spawned from surfaces never re-hit their sourc
       const auto acc = Accel::build(s);
       // random points on random triangles, leaving in uniformly random directions (both sides)
       Rng rng(11);
-      const std::size_t n = 20000;
+      const std::size_t n = mbvh_test::sanitized_rays(20000);
       std::vector<Ray> spawned, naive;
       std::vector<std::uint32_t> source;
       for (std::size_t i = 0; i < n; ++i) {
