@@ -107,7 +107,7 @@ void print_info(const SceneArgs& a, const Loaded& l, MemoryReport& mem) {
   }
   say("build      %s, %u bins, max leaf %u, leaf block %u, depth cap %u, %u threads; hash %016llx\n",
       acc.options().quality == BuildQuality::low    ? "Morton LBVH (quality low)"
-      : acc.options().quality == BuildQuality::high ? "SBVH, spatial splits and reinsertion (quality high)"
+      : acc.options().quality == BuildQuality::high ? "SBVH, spatial splits kept where the SAH after reinsertion is lower (quality high)"
                                                     : "binned SAH (quality medium)",
       acc.options().bins, acc.options().max_leaf, acc.options().leaf_block, acc.options().depth_cap,
       static_cast<unsigned>(resolve_threads(a.threads)), static_cast<unsigned long long>(acc.hash()));

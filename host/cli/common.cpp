@@ -145,7 +145,7 @@ void SceneArgs::add(CLI::App* c) {
           "SIZE"));
   quality_opt_ = c->add_option("--quality", quality,
                                "builder: low (Morton-code LBVH, fastest build), medium (binned SAH, the default), high "
-                               "(SBVH, then reinsertion) or none (no hierarchy, the triangles alone: only dacrt traces it; the default "
+                               "(SBVH with and without spatial splits, each then reinserted, the lower SAH kept) or none (no hierarchy, the triangles alone: only dacrt traces it; the default "
                                "when every backend is dacrt)")
                      ->check(CLI::IsMember({"low", "medium", "high", "none"}));
 }

@@ -101,8 +101,7 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
       boxes[r.prim].lo = {r.lo[0], r.lo[1], r.lo[2]};
       boxes[r.prim].hi = {r.hi[0], r.hi[1], r.hi[2]};
     }
-    SbvhResult r = build_sbvh(scene, opt, boxes, idx);
-    build::reinsert(r.bvh, r.leaves, r.prims, opt);  // subtrees moved where the SAH falls (reinsert.cpp)
+    SbvhResult r = build_high(scene, opt, boxes, idx);  // with and without spatial splits, reinserted: the lower SAH
     t_tree = Clock::now();
     r.bvh.degenerate = out.degenerate;
     out = std::move(r.bvh);

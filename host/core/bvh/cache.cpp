@@ -52,8 +52,9 @@ constexpr std::uint32_t kFormatVersion = 4;  // 2: the build quality in the key 
 // Bumped when a builder makes other bytes from the same scene and options (the key changes, so
 // a file of the older builder is not taken for this one's tree). 1: the medium build's
 // partition into a second record array (same splits, another leaf order); 2: the high build's
-// reinsertion (reinsert.cpp).
-constexpr std::uint32_t kTreeRevision = 2;
+// reinsertion (reinsert.cpp); 3: the high build's choice of the tree without spatial splits
+// where its SAH is lower (sbvh.cpp build_high).
+constexpr std::uint32_t kTreeRevision = 3;
 
 struct Header {
   char magic[8];

@@ -29,8 +29,10 @@
 #include <atomic>
 #include <cmath>
 
-#include "mbvh/error.h"
+#include "host/core/bvh/builder.h"
+#include "host/core/bvh/reinsert.h"
 #include "host/core/parallel.h"
+#include "mbvh/error.h"
 
 namespace mbvh {
 namespace {
@@ -433,7 +435,7 @@ struct Flattener {
 }  // namespace
 
 SbvhResult build_sbvh(const Scene& scene, const BuildOptions& opt, const std::vector<Box>& boxes,
-                      const std::vector<std::uint32_t>& idx) {
+                      const std::vector<std::uint32_t>& idx, bool spatial) {
   std::vector<Node> upper(1);
   Node& root = upper[0];
   root.refs.reserve(idx.size());
@@ -441,7 +443,8 @@ SbvhResult build_sbvh(const Scene& scene, const BuildOptions& opt, const std::ve
     root.refs.push_back({boxes[p], p});
     grow_box(root.box, boxes[p]);
   }
-  root.cap = static_cast<std::size_t>(static_cast<double>(idx.size()) * (1.0 + kGrowth));
+  // no budget beyond one reference per triangle: no spatial split is tried (Sbvh::split)
+  root.cap = spatial ? static_cast<std::size_t>(static_cast<double>(idx.size()) * (1.0 + kGrowth)) : idx.size();
   Sbvh builder(scene, opt, root.box.half_area());
 
   // -- top of the tree in order, then subtrees one per task (the split points do not depend on
@@ -488,7 +491,31 @@ SbvhResult build_sbvh(const Scene& scene, const BuildOptions& opt, const std::ve
     if (r.child[side] >= 0) res.bvh.nodes[0].child[side] = fl.emit(upper, static_cast<std::size_t>(r.child[side]), 0, h[side]);
   res.bvh.nodes[0].height = 1 + std::max(h[0], h[1]);
   res.references = res.prims.size();
+  res.spatial = spatial;
   return res;
+}
+
+SbvhResult build_high(const Scene& scene, const BuildOptions& opt, const std::vector<Box>& boxes,
+                      const std::vector<std::uint32_t>& idx) {
+  // Spatial splits are chosen top-down, each against the object split of its node alone; the
+  // references they duplicate are fixed before reinsertion, which then moves only whole subtrees.
+  // On some scenes (large triangles beside small ones: the conference room) the tree without them
+  // reaches the lower SAH once both are reinserted, so both are built and the SAH decides.
+  SbvhResult cand[2];
+  for (int k = 0; k < 2; ++k) {
+    BuildOptions o = opt;  // each candidate's progress in its share of [0.05, 0.5]
+    if (opt.progress) o.progress = [&opt, k](double f) { opt.progress(0.05 + 0.225 * (k + f)); };
+    cand[k] = build_sbvh(scene, o, boxes, idx, k == 0);
+  }
+  // each reinsertion is sequential and a function of its tree alone: the two side by side
+  parallel_for(2, 1, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
+    for (std::size_t k = b; k < e; ++k) {
+      build::reinsert(cand[k].bvh, cand[k].leaves, cand[k].prims, opt);
+      cand[k].sah = build::sah_of_binary(cand[k].bvh, cand[k].leaves, opt.traversal_cost);
+    }
+  });
+  if (opt.progress) opt.progress(0.95);
+  return std::move(cand[cand[1].sah < cand[0].sah ? 1 : 0]);
 }
 
 }  // namespace mbvh

@@ -106,7 +106,8 @@ constexpr double kMaxRayRatio = 0x1p100;
 enum class BuildQuality {
   low,     ///< Morton-code LBVH (Karras 2012): several times faster to build, slower to trace
   medium,  ///< binned SAH (Wald 2007): the default
-  high,    ///< spatial splits (SBVH, Stich et al. 2009; sbvh.cpp), then reinsertion (Meister & Bittner 2018; reinsert.cpp)
+  high,    ///< spatial splits (SBVH, Stich et al. 2009; sbvh.cpp), then reinsertion (Meister & Bittner 2018; reinsert.cpp);
+           ///< the same without spatial splits where that reaches the lower SAH (sbvh.cpp build_high)
   none,    ///< no hierarchy: the triangles alone, for the dacrt backends (see above)
 };
 const char* to_string(BuildQuality q);
