@@ -312,19 +312,17 @@ private:
       if (g.scale[a] == 0.0f) continue;
       const std::uint64_t mask = bins.mask[a];
       float right_area[kMaxBins];
-      std::uint32_t right_count[kMaxBins];
       Acc acc;
-      std::uint32_t cnt = 0;
-      for (std::uint64_t m = mask; m;) {  // occupied bins from the top: bounds of bins >= k
+      // occupied bins from the top, all but the lowest (never the first bin right of a split):
+      // bounds of bins >= k; the records right of a split are the node's less those left of it
+      for (std::uint64_t m = mask; m & (m - 1);) {
         const unsigned k = 63u - static_cast<unsigned>(std::countl_zero(m));
         m &= ~(std::uint64_t(1) << k);
         acc.grow(bins.bin[a][k]);
-        cnt += bins.count[a][k];
         right_area[k] = acc.half_area();
-        right_count[k] = cnt;
       }
       acc = Acc();
-      cnt = 0;
+      std::uint32_t cnt = 0;
       for (std::uint64_t m = mask; m;) {
         const unsigned k = static_cast<unsigned>(std::countr_zero(m));
         m &= m - 1;
@@ -332,7 +330,7 @@ private:
         acc.grow(bins.bin[a][k]);
         cnt += bins.count[a][k];
         const unsigned next = static_cast<unsigned>(std::countr_zero(m));
-        const float cost = acc.half_area() * blocks(cnt) + right_area[next] * blocks(right_count[next]);
+        const float cost = acc.half_area() * blocks(cnt) + right_area[next] * blocks(count - cnt);
         if (cost < best_cost) {
           best_cost = cost;
           best_axis = a;
