@@ -258,7 +258,8 @@ TEST_CASE("traversal equivalence: closed cube", "[traversal][heavy][isa]") { che
 TEST_CASE("traversal equivalence: triangle soup", "[traversal][heavy]") { check_scene("gen:soup:100000", {}, kHeavyRays); }
 TEST_CASE("traversal equivalence: hairball", "[traversal][heavy]") { check_scene("gen:hairball:300000", {}, kHeavyRays); }
 // Every SIMD cpu backend on `rays`, on the build's own leaves (cpu.leaf-block=1), every layout,
-// stack and bitstack, closest and any hit: cpu-scalar's bytes (and its count of invalid rays).
+// stack, bitstack and the ordered stack (which the SIMD backends walk two rays at a time, batch.h),
+// closest and any hit: cpu-scalar's bytes (and its count of invalid rays).
 // Returns how many backends ran: none where this run's backends hold no SIMD cpu backend.
 // `leaf_block`: the backends' cpu.leaf-block (1: the build's leaves; above 1: a regrouped variant,
 // whose nodes' leaf references locate the packs where every leaf holds at most eight).
@@ -270,8 +271,9 @@ std::size_t check_simd_cpu_bytes(const Accel& acc, const std::vector<Ray>& rays,
     ++tested;
     auto b = make_backend(name, BackendOptions{}.set("cpu.leaf-block", leaf_block));
     for (Layout l : {Layout::mbvh2, Layout::mbvh4, Layout::mbvh8})
-      for (Traversal t : {Traversal::stack, Traversal::bitstack})
+      for (Traversal t : {Traversal::stack, Traversal::bitstack, Traversal::stack_ordered})
         for (Query q : {Query::closest, Query::any}) {
+          if (!reference_supports(l, t)) continue;
           INFO(what << ": " << name << "/" << to_string(l) << "/" << to_string(t) << "/" << to_string(q));
           const TraceOptions o{l, t, q, false};
           TraceOutput got, want;

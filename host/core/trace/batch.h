@@ -83,6 +83,71 @@ constexpr bool uses_node4w() {
   else return false;
 }
 
+/// Whether kernel policy K walks two rays in turn on the MBVH4 ordered stack (its `interleave`;
+/// none of the reference's).
+template <class K>
+constexpr bool interleaves() {
+  if constexpr (requires { K::interleave; }) return K::interleave;
+  else return false;
+}
+
+/// The ordered stack (stack.h's OrderedWalk) with two rays walked in turn, a node or leaf of one,
+/// then of the other: a ray's walk is one chain of dependent loads and tests (the node, its box
+/// test, the child picked, the child's node), and the other ray's step fills the core while it
+/// waits. Each ray's answer is the single-ray walk's (the same steps in the same order); a
+/// finished ray's slot takes the next ray of [b, e).
+template <bool Any, class K, class N>
+inline void run_interleaved(const TraceView& v, std::span<const Ray> rays, std::size_t b, std::size_t e, TraceOutput& out,
+                            std::size_t& invalid) {
+  using Walk = OrderedWalk<Any, NoStats, K, N>;
+  typename K::Ray r0, r1;
+  Walk w0(v, r0), w1(v, r1);
+  std::size_t id0 = 0, id1 = 0, next = b;
+  NoStats st;
+  const auto store = [&](const Walk& w, std::size_t id) {
+    if constexpr (Any) out.occluded[id] = w.best.prim != MBVH_MISS_PRIM ? 1 : 0;
+    else out.hits[id] = w.best;
+  };
+  const auto load = [&](typename K::Ray& r, Walk& w, std::size_t& id) {  // the next valid ray; false when none is left
+    while (next < e) {
+      const std::size_t i = next++;
+      if (!K::prepare(rays[i], r)) {
+        ++invalid;
+        if constexpr (Any) out.occluded[i] = 0;
+        else out.hits[i] = miss_hit();
+        continue;
+      }
+      if constexpr (K::fast) relax_ray(r);
+      K::finish(r, v);
+      w.start();
+      id = i;
+      return true;
+    }
+    return false;
+  };
+  bool live0 = load(r0, w0, id0), live1 = live0 && load(r1, w1, id1);
+  while (live0 && live1) {
+    if (!w0.step(st)) {
+      store(w0, id0);
+      live0 = load(r0, w0, id0);
+    }
+    if (!w1.step(st)) {
+      store(w1, id1);
+      live1 = load(r1, w1, id1);
+    }
+  }
+  if (live0) {  // the ray left, alone
+    while (w0.step(st)) {
+    }
+    store(w0, id0);
+  }
+  if (live1) {
+    while (w1.step(st)) {
+    }
+    store(w1, id1);
+  }
+}
+
 template <bool Any, bool Stats, class K>
 inline void run_batch(const TraceView& v, std::span<const Ray> rays, std::size_t b, std::size_t e,
                       const TraceOptions& opt, TraceOutput& out, std::size_t& invalid) {
@@ -122,6 +187,18 @@ inline void trace_parallel(const Accel& acc, std::span<const Ray> rays, const Tr
   std::atomic<std::size_t> invalid{0}, done{0};
   parallel_for(rays.size(), kTraceChunk, threads, [&](std::size_t b, std::size_t e, unsigned worker) {
     std::size_t inv = 0;
+    if constexpr (interleaves<K>()) {
+      // MBVH4 only: on MBVH8 two rays in turn gained on some scenes and lost on others
+      // (docs/backends.md), and MBVH8's ordered stack is the default closest-hit traversal
+      if (!opt.stats && opt.traversal == Traversal::stack_ordered && opt.layout == Layout::mbvh4) {
+        if (any) run_interleaved<true, K, Node4>(v, rays, b, e, out, inv);
+        else run_interleaved<false, K, Node4>(v, rays, b, e, out, inv);
+        invalid += inv;
+        const std::size_t d = done += e - b;
+        if (progress && worker == 0) progress(d);
+        return;
+      }
+    }
     if (any) {
       if (opt.stats) run_batch<true, true, K>(v, rays, b, e, opt, out, inv);
       else run_batch<true, false, K>(v, rays, b, e, opt, out, inv);

@@ -93,30 +93,47 @@ inline Hit trace_mbvh4_stack(const TraceView& v, const typename K::Ray& r, St& s
 /// Any hit: d is the chord (as the stack's longest_slot), the longest entered and popped first,
 /// nothing culled (the query ends at its first hit, so tmax never shrinks): nearest-first makes
 /// a shadow ray test the boxes it only grazes leaving its surface.
-template <bool Any, class St, class K = ScalarKernels, class N = Node4>
-inline Hit trace_wide_stack_ordered(const TraceView& v, const typename K::Ray& r, St& st) {
+/// The walk's state and one step of it, so that a driver may advance two rays in turn
+/// (batch.h's interleaved occlusion queries) with the single-ray traversal's code.
+template <bool Any, class St, class K, class N>
+struct OrderedWalk {
   struct Entry {  // 8 bytes, as Embree's (node, distance) entries
     std::int32_t node;
     float d;
   };
-  constexpr int W = node_width<N>();
-  constexpr unsigned kEntries = W == 4 ? MBVH_STACK4_ENTRIES : MBVH_STACK8_ENTRIES;
-  const N* nodes = detail::nodes_of<N>(v);
-  Hit best = miss_hit();
-  float tmax = r.tmax;
-  StepGuard guard(v);
+  static constexpr int W = node_width<N>();
+  static constexpr unsigned kEntries = W == 4 ? MBVH_STACK4_ENTRIES : MBVH_STACK8_ENTRIES;
+  const TraceView& v;
+  const N* nodes;
+  const typename K::Ray* r;
+  Hit best;
+  float tmax;
+  StepGuard guard;
+  unsigned sp;
+  std::int32_t cur;
   Entry stack[kEntries];
-  unsigned sp = 0;
-  std::int32_t cur = 0;
-  for (;;) {
+
+  OrderedWalk(const TraceView& view, const typename K::Ray& ray) : v(view), nodes(detail::nodes_of<N>(view)), r(&ray), guard(view) {
+    start();
+  }
+  /// Starts the walk of the ray given at construction (its values as they are now).
+  [[gnu::always_inline]] void start() {
+    best = miss_hit();
+    tmax = r->tmax;
+    guard = StepGuard(v);
+    sp = 0;
+    cur = 0;
+  }
+  /// One node or leaf visit and the pop after it; false once the ray is done (its answer in best).
+  [[gnu::always_inline]] bool step(St& st) {
     guard.step();
     if (cur >= 0) {
       const N& n = nodes[cur];
       float d[W];
-      const unsigned m = detail::test_node<K, Any, Any>(n, r, tmax * kCullSlack, d, st);
+      const unsigned m = detail::test_node<K, Any, Any>(n, *r, tmax * kCullSlack, d, st);
       if (m) {
         const int q = Any ? K::template longest<W>(m, d) : K::template nearest<W>(m, d);
-        detail::prefetch_pending<K, Any>(n, r, m, q);
+        detail::prefetch_pending<K, Any>(n, *r, m, q);
         unsigned others = m & ~(1u << q);
         guard.room(sp, W - 1, kEntries);
         if (others != 0) {
@@ -145,20 +162,28 @@ inline Hit trace_wide_stack_ordered(const TraceView& v, const typename K::Ray& r
         }
         st.depth(sp);
         cur = n.child[q];
-        continue;
+        return true;
       }
-    } else if (K::template leaf<Any>(v, cur, r, tmax, best, st)) {
-      return best;
+    } else if (K::template leaf<Any>(v, cur, *r, tmax, best, st)) {
+      return false;
     }
     // -- pop, culling entries beyond the best hit
     for (;;) {
-      if (sp == 0) return best;
+      if (sp == 0) return false;
       const Entry e = stack[--sp];
       if (!Any && e.d > tmax * kCullSlack) continue;
       cur = e.node;
-      break;
+      return true;
     }
   }
+};
+
+template <bool Any, class St, class K = ScalarKernels, class N = Node4>
+inline Hit trace_wide_stack_ordered(const TraceView& v, const typename K::Ray& r, St& st) {
+  OrderedWalk<Any, St, K, N> w(v, r);
+  while (w.step(st)) {
+  }
+  return w.best;
 }
 
 /// MBVH8, stack-based twin of the MBVH8 bitstack below: enter the first child (closest hit: the
