@@ -15,6 +15,7 @@
 #include <tbb/parallel_for.h>
 #endif
 
+#include "host/core/layouts.h"
 #include "host/core/parallel.h"
 #include "host/tools/raygen.h"
 #include "mbvh/error.h"
@@ -219,6 +220,27 @@ TEST_CASE("task hook: the caller's runner runs the build and the trace, with the
     CHECK(answers(*b, *acc, rays) == expected);
   }
 #endif
+}
+
+TEST_CASE("task hook: a build at BuildOptions::threads = 1 asks no loop for more than one task, its layouts' checks included",
+          "[tasks]") {
+  const Scene scene = load_scene("gen:hairball:100000");
+  std::atomic<std::size_t> most{0}, calls{0};
+  {
+    RunnerScope scope([&](std::size_t count, const std::function<void(std::size_t)>& task) {
+      ++calls;
+      for (std::size_t seen = most; count > seen && !most.compare_exchange_weak(seen, count);) {
+      }
+      for (std::size_t i = 0; i < count; ++i) task(i);
+    });
+    BuildOptions bo;
+    bo.threads = 1;
+    const auto acc = Accel::build(scene, bo);
+    REQUIRE(acc->mbvh4().nodes.size() > 8192);  // more nodes than one chunk of the layout check
+    REQUIRE(acc->mbvh8().nodes.size() > 0);
+  }
+  INFO(calls << " runner calls");
+  CHECK(most <= 1);
 }
 
 TEST_CASE("task hook: work that throws is rethrown on the caller; a nested loop runs inline", "[tasks]") {

@@ -175,10 +175,11 @@ TriPacks make_tri_packs(const AlignedVector<Tri>& tris, const std::vector<Leaf>&
 /// Structural checks of a layout (host/core/bvh/validate.cpp): every reference in range, every
 /// inner node referenced once by a node of smaller index (so descent always terminates), every
 /// leaf once, parent and sibling links consistent. Throws Error naming the first broken node.
-/// O(nodes).
+/// O(nodes). The wide layouts are checked on up to `threads` workers (0: every hardware thread;
+/// a build passes its own count).
 void validate_layout(const Mbvh2& m, std::size_t leaf_count);
-void validate_layout(const Mbvh4& m, std::size_t leaf_count);
-void validate_layout(const Mbvh8& m, std::size_t leaf_count);
+void validate_layout(const Mbvh4& m, std::size_t leaf_count, unsigned threads = 0);
+void validate_layout(const Mbvh8& m, std::size_t leaf_count, unsigned threads = 0);
 
 /// A 64-bit hash of n bytes (FNV-1a's step over 64-bit words, then the tail bytes), continuing from
 /// h (host/core/bvh/hash.cpp).

@@ -318,7 +318,7 @@ Mbvh4 build::make_mbvh4(const Bvh2& b, const std::vector<Leaf>& leaves, unsigned
   out.nodes.clear();
   collapse<MBVH_MBVH4_LEVEL_CAP>(b, leaves, "mbvh4", out, threads);  // with the sibling links
   out.stats.bitstack_bits = 3 * out.stats.depth;
-  validate_layout(out, leaves.size());
+  validate_layout(out, leaves.size(), threads);
   out.stats.build_ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
   return out;
 }
@@ -328,7 +328,7 @@ Mbvh8 make_mbvh8(const Bvh2& b, const std::vector<Leaf>& leaves, unsigned thread
   Mbvh8 out;
   collapse<MBVH_MBVH8_LEVEL_CAP>(b, leaves, "mbvh8", out, threads);
   out.stats.bitstack_bits = 8 * out.stats.depth;  // 8 pending-slot bits per level, in a 128-bit word
-  validate_layout(out, leaves.size());
+  validate_layout(out, leaves.size(), threads);
   out.stats.build_ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
   return out;
 }

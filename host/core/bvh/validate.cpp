@@ -40,13 +40,13 @@ void check_ref(const char* layout, std::size_t i, std::int32_t c, std::size_t no
 // it; by induction on the index every node is then reachable from the root, once. Leaves are
 // counted atomically. validate_wide runs only where this fails, for its first fault's message.
 template <class N, class LinksOk>
-bool wide_ok(const AlignedVector<N>& nodes, std::size_t leaf_count, LinksOk links_ok) {
+bool wide_ok(const AlignedVector<N>& nodes, std::size_t leaf_count, unsigned threads, LinksOk links_ok) {
   constexpr int W = node_width<N>();
   const std::size_t n = nodes.size();
   if (n == 0 || nodes[0].parent != MBVH_NONE) return false;
   const auto leaf_seen = std::make_unique<std::atomic<std::uint8_t>[]>(leaf_count);  // value-initialised: 0
   std::atomic<bool> ok{true};
-  parallel_for(n, 8192, 0, [&](std::size_t b, std::size_t e, unsigned) {
+  parallel_for(n, 8192, threads, [&](std::size_t b, std::size_t e, unsigned) {
     bool good = true;
     for (std::size_t i = b; i < e && good; ++i) {
       const N& p = nodes[i];
@@ -75,10 +75,12 @@ bool wide_ok(const AlignedVector<N>& nodes, std::size_t leaf_count, LinksOk link
   return ok;
 }
 
-// The checks of a W-wide layout; `links_ok(child, parent node, slot)` checks a child's own links.
+// The checks of a W-wide layout on up to `threads` workers; `links_ok(child, parent node, slot)`
+// checks a child's own links.
 template <class N, class LinksOk>
-void validate_wide(const AlignedVector<N>& nodes, const char* name, std::size_t leaf_count, LinksOk links_ok) {
-  if (wide_ok(nodes, leaf_count, links_ok)) return;
+void validate_wide(const AlignedVector<N>& nodes, const char* name, std::size_t leaf_count, unsigned threads,
+                   LinksOk links_ok) {
+  if (wide_ok(nodes, leaf_count, threads, links_ok)) return;
   const std::size_t n = nodes.size();
   if (n == 0) corrupt(name, 0, "no root");
   if (nodes[0].parent != MBVH_NONE) corrupt(name, 0, "the root has a parent");
@@ -119,16 +121,16 @@ void validate_layout(const Mbvh2& m, std::size_t leaf_count) {
     if (!seen[i]) corrupt("MBVH2", i, "unreachable");
 }
 
-void validate_layout(const Mbvh4& m, std::size_t leaf_count) {
-  validate_wide(m.nodes, "MBVH4", leaf_count, [](const Node4& ch, const Node4& p, int s) {
+void validate_layout(const Mbvh4& m, std::size_t leaf_count, unsigned threads) {
+  validate_wide(m.nodes, "MBVH4", leaf_count, threads, [](const Node4& ch, const Node4& p, int s) {
     for (int k = 0; k < 3; ++k)
       if (ch.sib[k] != p.child[(s + 1 + k) & 3]) return false;
     return true;
   });
 }
 
-void validate_layout(const Mbvh8& m, std::size_t leaf_count) {
-  validate_wide(m.nodes, "MBVH8", leaf_count, [](const Node8&, const Node8&, int) { return true; });
+void validate_layout(const Mbvh8& m, std::size_t leaf_count, unsigned threads) {
+  validate_wide(m.nodes, "MBVH8", leaf_count, threads, [](const Node8&, const Node8&, int) { return true; });
 }
 
 }  // namespace mbvh

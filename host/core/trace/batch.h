@@ -100,7 +100,7 @@ template <bool Any, class K, class N>
 inline void run_interleaved(const TraceView& v, std::span<const Ray> rays, std::size_t b, std::size_t e, TraceOutput& out,
                             std::size_t& invalid) {
   using Walk = OrderedWalk<Any, NoStats, K, N>;
-  typename K::Ray r0, r1;
+  typename K::Ray r0{}, r1{};  // defined before a walk is made on them (its start() reads tmax); load() sets them
   Walk w0(v, r0), w1(v, r1);
   std::size_t id0 = 0, id1 = 0, next = b;
   NoStats st;
