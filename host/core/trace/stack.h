@@ -94,7 +94,7 @@ inline Hit trace_mbvh4_stack(const TraceView& v, const typename K::Ray& r, St& s
 /// nothing culled (the query ends at its first hit, so tmax never shrinks): nearest-first makes
 /// a shadow ray test the boxes it only grazes leaving its surface.
 /// The walk's state and one step of it, so that a driver may advance two rays in turn
-/// (batch.h's interleaved occlusion queries) with the single-ray traversal's code.
+/// (batch.h's run_interleaved, closest and any hit) with the single-ray traversal's code.
 template <bool Any, class St, class K, class N>
 struct OrderedWalk {
   struct Entry {  // 8 bytes, as Embree's (node, distance) entries
