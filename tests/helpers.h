@@ -18,7 +18,7 @@ namespace mbvh_test {
 /// `n` (at least 1,000): more rays take no other code path there, only minutes.
 constexpr std::size_t sanitized_rays(std::size_t n) {
 #ifdef MBVH_TEST_SANITIZED
-  return n / 4 > 1000 ? n / 4 : (n < 1000 ? n : 1000);
+  return std::max<std::size_t>(n / 4, std::min<std::size_t>(n, 1000));
 #else
   return n;
 #endif

@@ -238,6 +238,10 @@ TEST_CASE("task hook: a build at BuildOptions::threads = 1 asks no loop for more
     const auto acc = Accel::build(scene, bo);
     REQUIRE(acc->mbvh4().nodes.size() > 8192);  // more nodes than one chunk of the layout check
     REQUIRE(acc->mbvh8().nodes.size() > 0);
+    // a leaf variant's layouts (the cpu backend's leaves) are checked at the build's count too
+    const auto big = Accel::build(load_scene("gen:hairball:300000"), bo);
+    REQUIRE(big->leaf_variant(4).mbvh4().nodes.size() > 8192);
+    REQUIRE(big->leaf_variant(4).mbvh8().nodes.size() > 0);
   }
   INFO(calls << " runner calls");
   CHECK(most <= 1);

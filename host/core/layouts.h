@@ -72,6 +72,7 @@ struct TriPacks {
 struct LeafVariant {
   unsigned block = 1;
   float node_cost = 1;  ///< the build's BuildOptions::traversal_cost
+  unsigned threads = 0;  ///< the build's BuildOptions::threads (the layouts' collapses and checks)
   unsigned max_leaf = 1;  ///< the largest regrouped leaf (regroup_leaves)
   /// The build's tree, leaves and triangles this variant regroups: the Accel's own (refit drops the
   /// variants before it changes them).
@@ -158,14 +159,16 @@ Mbvh2 make_mbvh2(const Bvh2& bvh, const std::vector<Leaf>& leaves);
 Mbvh4 make_mbvh4(const Bvh2& bvh, const std::vector<Leaf>& leaves, unsigned threads = 0);
 Mbvh8 make_mbvh8(const Bvh2& bvh, const std::vector<Leaf>& leaves, unsigned threads = 0);
 /// Completes a collapsed MBVH4: the cyclic sibling links (sib[k] = parent.child[(slot + 1 + k) &
-/// 3]), the bitstack bits of its depth, and validate_layout.
-void finish_mbvh4(Mbvh4& m, std::size_t leaf_count);
+/// 3]), the bitstack bits of its depth, and validate_layout on up to `threads` workers.
+void finish_mbvh4(Mbvh4& m, std::size_t leaf_count, unsigned threads = 0);
 /// The SAH-optimal MBVH8 collapse (wide_sah.cpp; Ylitie et al. 2017): leaves priced in blocks of
 /// `block` triangles, node visits at `node_cost`; the greedy make_mbvh8 where it would exceed the
-/// MBVH8 level cap.
-Mbvh8 make_mbvh8_sah(const Bvh2& bvh, const std::vector<Leaf>& leaves, unsigned block, float node_cost);
+/// MBVH8 level cap; checked (validate_layout) on up to `threads` workers.
+Mbvh8 make_mbvh8_sah(const Bvh2& bvh, const std::vector<Leaf>& leaves, unsigned block, float node_cost,
+                     unsigned threads = 0);
 /// The same for MBVH4 (with its cyclic sibling links), the greedy make_mbvh4 beyond its level cap.
-Mbvh4 make_mbvh4_sah(const Bvh2& bvh, const std::vector<Leaf>& leaves, unsigned block, float node_cost);
+Mbvh4 make_mbvh4_sah(const Bvh2& bvh, const std::vector<Leaf>& leaves, unsigned block, float node_cost,
+                     unsigned threads = 0);
 /// Rewrites the MBVH4 SoA records as the 16-wide view (a permutation of each record's words;
 /// host/core/bvh/views.cpp).
 Mbvh4Wide make_mbvh4_wide(const Mbvh4& m);

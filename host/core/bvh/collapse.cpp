@@ -299,12 +299,12 @@ void collapse(const Bvh2& b, const std::vector<Leaf>& leaves, const char* name, 
 
 }  // namespace
 
-void finish_mbvh4(Mbvh4& out, std::size_t leaf_count) {
+void finish_mbvh4(Mbvh4& out, std::size_t leaf_count, unsigned threads) {
   // cyclic sibling links: sib[k] = parent.child[(slot + 1 + k) & 3]
   out.nodes[0].sib[0] = out.nodes[0].sib[1] = out.nodes[0].sib[2] = MBVH_NONE;
   for (std::size_t p = 0; p < out.nodes.size(); ++p) link_children(out.nodes.data(), p);
   out.stats.bitstack_bits = 3 * out.stats.depth;
-  validate_layout(out, leaf_count);
+  validate_layout(out, leaf_count, threads);
 }
 
 Mbvh4 make_mbvh4(const Bvh2& b, const std::vector<Leaf>& leaves, unsigned threads) {

@@ -156,6 +156,7 @@ const LeafVariant& Accel::leaf_variant(unsigned block) const {
     v = std::make_unique<LeafVariant>();
     v->block = block;
     v->node_cost = impl_->opt_.traversal_cost;
+    v->threads = impl_->opt_.threads;
     // max leaf: the build's, but at least one full block (a regrouped leaf of B triangles costs
     // one test)
     v->max_leaf = std::max(impl_->opt_.max_leaf, block);
@@ -190,7 +191,7 @@ const Mbvh2& LeafVariant::mbvh2() const {
 }
 const Mbvh4& LeafVariant::mbvh4() const {
   std::call_once(once4_, [this] {
-    m4_ = make_mbvh4_sah(tree(), leaves, block, node_cost);
+    m4_ = make_mbvh4_sah(tree(), leaves, block, node_cost, threads);
     release_free_heap();
   });
   return m4_;
@@ -201,7 +202,7 @@ const Mbvh4Wide& LeafVariant::mbvh4_wide() const {
 }
 const Mbvh8& LeafVariant::mbvh8() const {
   std::call_once(once8_, [this] {
-    m8_ = make_mbvh8_sah(tree(), leaves, block, node_cost);
+    m8_ = make_mbvh8_sah(tree(), leaves, block, node_cost, threads);
     release_free_heap();
   });
   return m8_;

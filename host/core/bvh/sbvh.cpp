@@ -491,7 +491,6 @@ SbvhResult build_sbvh(const Scene& scene, const BuildOptions& opt, const std::ve
     if (r.child[side] >= 0) res.bvh.nodes[0].child[side] = fl.emit(upper, static_cast<std::size_t>(r.child[side]), 0, h[side]);
   res.bvh.nodes[0].height = 1 + std::max(h[0], h[1]);
   res.references = res.prims.size();
-  res.spatial = spatial;
   return res;
 }
 

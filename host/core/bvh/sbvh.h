@@ -14,7 +14,6 @@ struct SbvhResult {
   std::vector<Leaf> leaves;          ///< ranges of `prims`, in depth-first order
   std::vector<std::uint32_t> prims;  ///< per leaf slot, the original triangle (a prim may repeat across leaves, never in one)
   std::size_t references = 0;        ///< prims.size()
-  bool spatial = true;               ///< built with spatial splits (build_high: the candidate kept)
   double sah = 0;                    ///< build_high: the kept tree's binary SAH (build::sah_of_binary)
 };
 

@@ -166,23 +166,25 @@ double ms_since(Clock::time_point t0) { return std::chrono::duration<double, std
 
 }  // namespace
 
-Mbvh8 make_mbvh8_sah(const Bvh2& b, const std::vector<Leaf>& leaves, unsigned block, float node_cost) {
+Mbvh8 make_mbvh8_sah(const Bvh2& b, const std::vector<Leaf>& leaves, unsigned block, float node_cost,
+                     unsigned threads) {
   const auto t0 = Clock::now();
   Mbvh8 out;
   if (b.nodes.empty() || !collapse_sah(b, leaves, block, node_cost, MBVH_MBVH8_LEVEL_CAP, "mbvh8", out))
-    return make_mbvh8(b, leaves);  // the bitstack's cap wins
+    return make_mbvh8(b, leaves, threads);  // the bitstack's cap wins
   out.stats.bitstack_bits = 8 * out.stats.depth;  // 8 pending-slot bits per level (128-bit word)
-  validate_layout(out, leaves.size());
+  validate_layout(out, leaves.size(), threads);
   out.stats.build_ms = ms_since(t0);
   return out;
 }
 
-Mbvh4 make_mbvh4_sah(const Bvh2& b, const std::vector<Leaf>& leaves, unsigned block, float node_cost) {
+Mbvh4 make_mbvh4_sah(const Bvh2& b, const std::vector<Leaf>& leaves, unsigned block, float node_cost,
+                     unsigned threads) {
   const auto t0 = Clock::now();
   Mbvh4 out;
   if (b.nodes.empty() || !collapse_sah(b, leaves, block, node_cost, MBVH_MBVH4_LEVEL_CAP, "mbvh4", out))
-    return make_mbvh4(b, leaves);
-  finish_mbvh4(out, leaves.size());
+    return make_mbvh4(b, leaves, threads);
+  finish_mbvh4(out, leaves.size(), threads);
   out.stats.build_ms = ms_since(t0);
   return out;
 }

@@ -91,6 +91,23 @@ constexpr bool interleaves() {
   else return false;
 }
 
+/// Readies `ray` for a walk in r (K's prepare; the fast mode's relaxed box test; finish): false for
+/// an invalid ray, whose answer is a miss.
+template <class K>
+[[gnu::always_inline]] inline bool ready_ray(const TraceView& v, const Ray& ray, typename K::Ray& r) {
+  if (!K::prepare(ray, r)) return false;
+  if constexpr (K::fast) relax_ray(r);
+  K::finish(r, v);
+  return true;
+}
+
+/// Stores ray i's answer: any hit whether it is occluded, closest hit the hit.
+template <bool Any>
+[[gnu::always_inline]] inline void store_answer(TraceOutput& out, std::size_t i, const Hit& h) {
+  if constexpr (Any) out.occluded[i] = h.prim != MBVH_MISS_PRIM ? 1 : 0;
+  else out.hits[i] = h;
+}
+
 /// The ordered stack (stack.h's OrderedWalk) with two rays walked in turn, a node or leaf of one,
 /// then of the other: a ray's walk is one chain of dependent loads and tests (the node, its box
 /// test, the child picked, the child's node), and the other ray's step fills the core while it
@@ -104,21 +121,15 @@ inline void run_interleaved(const TraceView& v, std::span<const Ray> rays, std::
   Walk w0(v, r0), w1(v, r1);
   std::size_t id0 = 0, id1 = 0, next = b;
   NoStats st;
-  const auto store = [&](const Walk& w, std::size_t id) {
-    if constexpr (Any) out.occluded[id] = w.best.prim != MBVH_MISS_PRIM ? 1 : 0;
-    else out.hits[id] = w.best;
-  };
+  const auto store = [&](const Walk& w, std::size_t id) { store_answer<Any>(out, id, w.best); };
   const auto load = [&](typename K::Ray& r, Walk& w, std::size_t& id) {  // the next valid ray; false when none is left
     while (next < e) {
       const std::size_t i = next++;
-      if (!K::prepare(rays[i], r)) {
+      if (!ready_ray<K>(v, rays[i], r)) {
         ++invalid;
-        if constexpr (Any) out.occluded[i] = 0;
-        else out.hits[i] = miss_hit();
+        store_answer<Any>(out, i, miss_hit());
         continue;
       }
-      if constexpr (K::fast) relax_ray(r);
-      K::finish(r, v);
       w.start();
       id = i;
       return true;
@@ -148,29 +159,41 @@ inline void run_interleaved(const TraceView& v, std::span<const Ray> rays, std::
   }
 }
 
+/// Walks rays [b, e) two in turn (run_interleaved) where K and `opt` take it: the MBVH4 ordered
+/// stack without statistics. Not MBVH8: there two rays in turn gained on some scenes and lost on
+/// others (docs/backends.md), and its ordered stack is the default closest-hit traversal. False
+/// where the rays are left to run_batch.
+template <class K>
+inline bool walked_in_turn(const TraceView& v, std::span<const Ray> rays, std::size_t b, std::size_t e,
+                           const TraceOptions& opt, TraceOutput& out, std::size_t& invalid) {
+  if constexpr (interleaves<K>()) {
+    if (!opt.stats && opt.traversal == Traversal::stack_ordered && opt.layout == Layout::mbvh4) {
+      if (opt.query == Query::any) run_interleaved<true, K, Node4>(v, rays, b, e, out, invalid);
+      else run_interleaved<false, K, Node4>(v, rays, b, e, out, invalid);
+      return true;
+    }
+  }
+  return false;
+}
+
 template <bool Any, bool Stats, class K>
 inline void run_batch(const TraceView& v, std::span<const Ray> rays, std::size_t b, std::size_t e,
                       const TraceOptions& opt, TraceOutput& out, std::size_t& invalid) {
   for (std::size_t i = b; i < e; ++i) {
     typename K::Ray r;
     Hit h = miss_hit();
-    if (!K::prepare(rays[i], r)) {
+    if (!ready_ray<K>(v, rays[i], r)) {
       ++invalid;
       if constexpr (Stats) out.stats[i] = RayStats{};
     } else if constexpr (Stats) {
-      if constexpr (K::fast) relax_ray(r);
-      K::finish(r, v);
       CountStats st;
       h = dispatch<Any, K>(v, r, opt.layout, opt.traversal, st);
       out.stats[i] = st.s;
     } else {
-      if constexpr (K::fast) relax_ray(r);
-      K::finish(r, v);
       NoStats st;
       h = dispatch<Any, K>(v, r, opt.layout, opt.traversal, st);
     }
-    if constexpr (Any) out.occluded[i] = h.prim != MBVH_MISS_PRIM ? 1 : 0;
-    else out.hits[i] = h;
+    store_answer<Any>(out, i, h);
   }
 }
 
@@ -187,23 +210,10 @@ inline void trace_parallel(const Accel& acc, std::span<const Ray> rays, const Tr
   std::atomic<std::size_t> invalid{0}, done{0};
   parallel_for(rays.size(), kTraceChunk, threads, [&](std::size_t b, std::size_t e, unsigned worker) {
     std::size_t inv = 0;
-    if constexpr (interleaves<K>()) {
-      // MBVH4 only: on MBVH8 two rays in turn gained on some scenes and lost on others
-      // (docs/backends.md), and MBVH8's ordered stack is the default closest-hit traversal
-      if (!opt.stats && opt.traversal == Traversal::stack_ordered && opt.layout == Layout::mbvh4) {
-        if (any) run_interleaved<true, K, Node4>(v, rays, b, e, out, inv);
-        else run_interleaved<false, K, Node4>(v, rays, b, e, out, inv);
-        invalid += inv;
-        const std::size_t d = done += e - b;
-        if (progress && worker == 0) progress(d);
-        return;
-      }
-    }
-    if (any) {
-      if (opt.stats) run_batch<true, true, K>(v, rays, b, e, opt, out, inv);
-      else run_batch<true, false, K>(v, rays, b, e, opt, out, inv);
-    } else {
-      if (opt.stats) run_batch<false, true, K>(v, rays, b, e, opt, out, inv);
+    if (!walked_in_turn<K>(v, rays, b, e, opt, out, inv)) {
+      if (any && opt.stats) run_batch<true, true, K>(v, rays, b, e, opt, out, inv);
+      else if (any) run_batch<true, false, K>(v, rays, b, e, opt, out, inv);
+      else if (opt.stats) run_batch<false, true, K>(v, rays, b, e, opt, out, inv);
       else run_batch<false, false, K>(v, rays, b, e, opt, out, inv);
     }
     invalid += inv;
