@@ -316,13 +316,10 @@ const Mbvh8& Accel::mbvh8() const {
 const Mbvh4& Accel::mbvh4() const {
   require_hierarchy("mbvh4");
   std::call_once(impl_->once4_, [this] {
-    if (impl_->opt_.context) {
-      impl_->mbvh4_ = build::make_mbvh4(impl_->bvh2_, impl_->leaves_, impl_->opt_.threads,
-                                        build::take_from(impl_->opt_, &build::BuildContext_Store::node4));
-    } else {
-      impl_->mbvh4_ = make_mbvh4(impl_->bvh2_, impl_->leaves_, impl_->opt_.threads);
-      release_free_heap();
-    }
+    // the nodes in the context's array where there is one (taken empty, every node written)
+    impl_->mbvh4_ = build::make_mbvh4(impl_->bvh2_, impl_->leaves_, impl_->opt_.threads,
+                                      build::take_from(impl_->opt_, &build::BuildContext_Store::node4));
+    if (!impl_->opt_.context) release_free_heap();
   });
   return impl_->mbvh4_;
 }
