@@ -48,7 +48,8 @@ static_assert(DenseBins::kMax == kMaxBins);
 #endif
 
 // Calls fn(b, e) for the kGrain chunks of [0, count), on up to `threads` workers that each take
-// a contiguous run of chunks, in order (the caller, which starts first, the first run): the
+// a contiguous run of chunks, in order (the caller, which starts first, the first run, the
+// longer one where the chunks do not divide evenly: the others wake later): the
 // passes over one node (binning, the partition's count and scatter) and over its children then
 // find most of their records in the cache of the core that last touched them, where chunks
 // claimed one at a time alternate between cores and every pass moves the lines across. fn sees
@@ -59,7 +60,7 @@ void for_chunks(std::size_t count, unsigned threads, Fn&& fn) {
   const std::size_t runs = std::min<std::size_t>(threads, chunks);
   parallel_for(runs, 1, threads, [&](std::size_t rb, std::size_t re, unsigned) {
     for (std::size_t run = rb; run < re; ++run)
-      for (std::size_t c = run * chunks / runs; c < (run + 1) * chunks / runs; ++c)
+      for (std::size_t c = (run * chunks + runs - 1) / runs; c < ((run + 1) * chunks + runs - 1) / runs; ++c)
         fn(c * kGrain, std::min(count, (c + 1) * kGrain));
   });
 }
