@@ -47,21 +47,47 @@ constexpr std::uint32_t kDenseMin = 64;
 static_assert(DenseBins::kMax == kMaxBins);
 #endif
 
-// Calls fn(b, e) for the kGrain chunks of [0, count), on up to `threads` workers that each take
-// a contiguous run of chunks, in order (the caller, which starts first, the first run, the
-// longer one where the chunks do not divide evenly: the others wake later): the
-// passes over one node (binning, the partition's count and scatter) and over its children then
-// find most of their records in the cache of the core that last touched them, where chunks
-// claimed one at a time alternate between cores and every pass moves the lines across. fn sees
-// the same chunks at any grouping, so the results do not depend on it.
+// Calls fn(b, e) for the kGrain chunks of [0, count) on up to `threads` workers, each of which
+// first takes a contiguous run of chunks, in order, and then, its run done, takes chunks from
+// the ends of the others' runs: the passes over one node (binning, the partition's count and
+// scatter) and over its children then find most of their records in the cache of the core that
+// last touched them, where chunks claimed one at a time alternate between cores and every pass
+// moves the lines across; the taking from the ends keeps the workers busy to the end (a run is
+// a whole number of chunks, and a woken worker starts later than the caller). fn sees the same
+// chunks whoever runs them, so the results do not depend on it.
 template <class Fn>
 void for_chunks(std::size_t count, unsigned threads, Fn&& fn) {
   const std::size_t chunks = (count + kGrain - 1) / kGrain;
-  const std::size_t runs = std::min<std::size_t>(threads, chunks);
+  const std::size_t runs = std::min<std::size_t>(resolve_threads(threads), chunks);
+  auto chunk = [&](std::size_t c) { fn(c * kGrain, std::min(count, (c + 1) * kGrain)); };
+  if (runs <= 1) {
+    for (std::size_t c = 0; c < chunks; ++c) chunk(c);
+    return;
+  }
+  // run r's chunks not yet taken: [next, end) packed as next << 32 | end, taken from the front by
+  // its worker and from the back by the others
+  std::vector<std::atomic<std::uint64_t>> left(runs);
+  for (std::size_t r = 0; r < runs; ++r)
+    left[r] = std::uint64_t(r * chunks / runs) << 32 | std::uint64_t((r + 1) * chunks / runs);
+  auto take = [&](std::size_t r, bool front, std::size_t& c) {
+    std::uint64_t v = left[r].load(std::memory_order_relaxed);
+    for (;;) {
+      const std::uint64_t next = v >> 32, end = v & 0xffffffffu;
+      if (next >= end) return false;
+      const std::uint64_t to = front ? (next + 1) << 32 | end : next << 32 | (end - 1);
+      if (left[r].compare_exchange_weak(v, to, std::memory_order_relaxed)) {
+        c = static_cast<std::size_t>(front ? next : end - 1);
+        return true;
+      }
+    }
+  };
   parallel_for(runs, 1, threads, [&](std::size_t rb, std::size_t re, unsigned) {
-    for (std::size_t run = rb; run < re; ++run)
-      for (std::size_t c = (run * chunks + runs - 1) / runs; c < ((run + 1) * chunks + runs - 1) / runs; ++c)
-        fn(c * kGrain, std::min(count, (c + 1) * kGrain));
+    for (std::size_t run = rb; run < re; ++run) {
+      std::size_t c;
+      while (take(run, true, c)) chunk(c);
+      for (std::size_t o = 1; o < runs; ++o)
+        while (take((run + o) % runs, false, c)) chunk(c);
+    }
   });
 }
 
