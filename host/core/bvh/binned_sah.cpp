@@ -672,13 +672,10 @@ void flatten(const Arenas& a, Bvh2& out, std::vector<Leaf>& leaves, unsigned thr
   // -- each subtree's inner nodes and leaves, then their places in the depth-first order
   const std::size_t subs = a.subtrees.size();
   std::vector<std::pair<std::size_t, std::size_t>> size(subs), at(subs);
-  parallel_for(subs, 1, threads, [&](std::size_t b, std::size_t e, unsigned) {
-    for (std::size_t j = b; j < e; ++j) {
-      std::size_t inner = 0;
-      for (const TmpNode& t : a.subtrees[j]) inner += t.leaf ? 0 : 1;
-      size[j] = {inner, a.subtrees[j].size() - inner};
-    }
-  });
+  for (std::size_t j = 0; j < subs; ++j) {  // two children to every inner node (Arenas)
+    const std::size_t n = a.subtrees[j].size();
+    size[j] = {(n - 1) / 2, (n + 1) / 2};
+  }
   std::vector<std::int32_t> parent_of(subs, MBVH_NONE), ref(subs, 0);
   std::vector<std::uint32_t> height(subs, 0);
   Flattener top{a, out, leaves};

@@ -115,7 +115,9 @@ static_assert(sizeof(TmpNode) == 48);
 
 /// A builder's result before flattening: the top of the tree in `upper`; an upper node whose
 /// subtree was built by its own task names that task's arena in subtree_of (else -1), whose
-/// node 0 stands for it.
+/// node 0 stands for it. Every inner node of a subtree's arena has two children (the builders
+/// split a node into two or make it a leaf), so an arena of n nodes holds (n - 1) / 2 inner
+/// nodes and (n + 1) / 2 leaves (flatten counts so); only the upper root may have one child.
 struct Arenas {
   std::vector<TmpNode> upper;
   std::vector<std::vector<TmpNode>> subtrees;
