@@ -4,10 +4,13 @@
 // binary depth capped so that every path fits the 64-bit bitstack (TRAVERSAL.md §3.5); and
 // flatten, which turns its arenas and the LBVH's into the Bvh2.
 //
-// Parallel and deterministic: the top of the tree is split breadth-first with binning spread
-// over threads (box unions and counts are exact, so the reduction order does not matter), then
-// the remaining subtrees are built one per task. Every split decision is the same function of
-// the same inputs, so the bytes do not depend on the thread count.
+// Parallel and deterministic: the root (and the largest nodes, while there are fewer open nodes
+// than workers) is split with its binning and partition in chunks spread over the workers (box
+// unions and counts are exact, and chunks are reduced in order); then every worker takes the
+// largest open node from a shared heap, splits it (its children go back in the heap) or, at
+// most `small` records, builds its whole subtree, with no barrier between levels. Every split
+// decision is the same function of the same inputs whoever makes it, and flatten follows the
+// child links, so the bytes do not depend on the thread count or on the timing.
 #include <algorithm>
 #include <atomic>
 #include <bit>
