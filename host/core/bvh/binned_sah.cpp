@@ -4,14 +4,21 @@
 // binary depth capped so that every path fits the 64-bit bitstack (TRAVERSAL.md §3.5); and
 // flatten, which turns its arenas and the LBVH's into the Bvh2.
 //
-// Parallel and deterministic: the top of the tree is split breadth-first with binning spread
-// over threads (box unions and counts are exact, so the reduction order does not matter), then
-// the remaining subtrees are built one per task. Every split decision is the same function of
-// the same inputs, so the bytes do not depend on the thread count.
+// Parallel and deterministic: the root (and the largest nodes, while there are fewer open nodes
+// than workers) is split with its binning and partition in chunks spread over the workers (box
+// unions and counts are exact, and chunks are reduced in order); then every worker takes the
+// largest open node from a shared heap, splits it (its children go back in the heap) or, at
+// most `small` records, builds its whole subtree, with no barrier between levels. Every split
+// decision is the same function of the same inputs whoever makes it, and flatten follows the
+// child links, so the bytes do not depend on the thread count or on the timing.
 #include <algorithm>
+#include <atomic>
 #include <bit>
 #include <cmath>
+#include <condition_variable>
+#include <deque>
 #include <memory>
+#include <mutex>
 #include <type_traits>
 #include <vector>
 #if defined(__SSE2__)
@@ -42,6 +49,50 @@ constexpr std::uint32_t kDenseMin = 64;
 #if defined(__SSE2__)  // dense bins are SSE rows: elsewhere (aarch64) every node takes sparse bins
 static_assert(DenseBins::kMax == kMaxBins);
 #endif
+
+// Calls fn(b, e) for the kGrain chunks of [0, count) on up to `threads` workers, each of which
+// first takes a contiguous run of chunks, in order, and then, its run done, takes chunks from
+// the ends of the others' runs: the passes over one node (binning, the partition's count and
+// scatter) and over its children then find most of their records in the cache of the core that
+// last touched them, where chunks claimed one at a time alternate between cores and every pass
+// moves the lines across; the taking from the ends keeps the workers busy to the end (a run is
+// a whole number of chunks, and a woken worker starts later than the caller). fn sees the same
+// chunks whoever runs them, so the results do not depend on it.
+template <class Fn>
+void for_chunks(std::size_t count, unsigned threads, Fn&& fn) {
+  const std::size_t chunks = (count + kGrain - 1) / kGrain;
+  const std::size_t runs = std::min<std::size_t>(resolve_threads(threads), chunks);
+  auto chunk = [&](std::size_t c) { fn(c * kGrain, std::min(count, (c + 1) * kGrain)); };
+  if (runs <= 1) {
+    for (std::size_t c = 0; c < chunks; ++c) chunk(c);
+    return;
+  }
+  // run r's chunks not yet taken: [next, end) packed as next << 32 | end, taken from the front by
+  // its worker and from the back by the others
+  std::vector<std::atomic<std::uint64_t>> left(runs);
+  for (std::size_t r = 0; r < runs; ++r)
+    left[r] = std::uint64_t(r * chunks / runs) << 32 | std::uint64_t((r + 1) * chunks / runs);
+  auto take = [&](std::size_t r, bool front, std::size_t& c) {
+    std::uint64_t v = left[r].load(std::memory_order_relaxed);
+    for (;;) {
+      const std::uint64_t next = v >> 32, end = v & 0xffffffffu;
+      if (next >= end) return false;
+      const std::uint64_t to = front ? (next + 1) << 32 | end : next << 32 | (end - 1);
+      if (left[r].compare_exchange_weak(v, to, std::memory_order_relaxed)) {
+        c = static_cast<std::size_t>(front ? next : end - 1);
+        return true;
+      }
+    }
+  };
+  parallel_for(runs, 1, threads, [&](std::size_t rb, std::size_t re, unsigned) {
+    for (std::size_t run = rb; run < re; ++run) {
+      std::size_t c;
+      while (take(run, true, c)) chunk(c);
+      for (std::size_t o = 1; o < runs; ++o)
+        while (take((run + o) % runs, false, c)) chunk(c);
+    }
+  });
+}
 
 struct Bin {  // lane 3 unused
   alignas(16) float lo[4];
@@ -266,7 +317,7 @@ private:
     if (count >= kParallelMin) {
       const std::size_t chunks = (count + kGrain - 1) / kGrain;
       std::vector<Bins> partial(chunks);
-      parallel_for(count, kGrain, threads, [&](std::size_t b, std::size_t e, unsigned) {
+      for_chunks(count, threads, [&](std::size_t b, std::size_t e) {
         bin_range(g, records(node.depth), node.begin + b, node.begin + e, partial[b / kGrain]);
       });
       for (std::size_t c = 0; c < chunks; ++c)
@@ -352,7 +403,7 @@ private:
     if (count >= kParallelMin) {
       const std::size_t chunks = (count + kGrain - 1) / kGrain;
       std::vector<DenseBins> partial(chunks);
-      parallel_for(count, kGrain, threads, [&](std::size_t b, std::size_t e, unsigned) {
+      for_chunks(count, threads, [&](std::size_t b, std::size_t e) {
         DenseBins& p = partial[b / kGrain];
         p.clear(bins_);
         bin_parts(p, records(node.depth), node.begin + b, node.begin + e, g);
@@ -493,15 +544,18 @@ private:
     PrimRef* dst = records(node.depth + 1);
     std::vector<FastBox> side(2 * chunks);
     std::vector<std::uint32_t> left(chunks);
-    parallel_for(count, kGrain, threads, [&](std::size_t b, std::size_t e, unsigned) {
+    for_chunks(count, threads, [&](std::size_t b, std::size_t e) {
       const std::size_t k = b / kGrain;
       std::uint32_t l = 0;
+      FastBox box[2];  // bounded here, stored once: neighbouring chunks' boxes share cache lines
       for (std::size_t i = node.begin + b; i < node.begin + e; ++i) {
         const PrimRef& r = src[i];
         const int s = g.left(r, axis, split) ? 0 : 1;
-        side[2 * k + s].grow_centroid(r);
+        box[s].grow_centroid(r);
         l += s == 0 ? 1 : 0;
       }
+      side[2 * k] = box[0];
+      side[2 * k + 1] = box[1];
       left[k] = l;
     });
     std::vector<std::uint32_t> loff(chunks), roff(chunks);
@@ -514,7 +568,7 @@ private:
       roff[k] = total_left + static_cast<std::uint32_t>(k * kGrain) - loff[k];
       for (int s = 0; s < 2; ++s) c[s].grow(side[2 * k + static_cast<std::size_t>(s)]);
     }
-    parallel_for(count, kGrain, threads, [&](std::size_t b, std::size_t e, unsigned) {
+    for_chunks(count, threads, [&](std::size_t b, std::size_t e) {
       const std::size_t k = b / kGrain;
       std::uint32_t l = node.begin + loff[k], r = node.begin + roff[k];
       for (std::size_t i = node.begin + b; i < node.begin + e; ++i) {
@@ -621,13 +675,10 @@ void flatten(const Arenas& a, Bvh2& out, std::vector<Leaf>& leaves, unsigned thr
   // -- each subtree's inner nodes and leaves, then their places in the depth-first order
   const std::size_t subs = a.subtrees.size();
   std::vector<std::pair<std::size_t, std::size_t>> size(subs), at(subs);
-  parallel_for(subs, 1, threads, [&](std::size_t b, std::size_t e, unsigned) {
-    for (std::size_t j = b; j < e; ++j) {
-      std::size_t inner = 0;
-      for (const TmpNode& t : a.subtrees[j]) inner += t.leaf ? 0 : 1;
-      size[j] = {inner, a.subtrees[j].size() - inner};
-    }
-  });
+  for (std::size_t j = 0; j < subs; ++j) {  // two children to every inner node (Arenas)
+    const std::size_t n = a.subtrees[j].size();
+    size[j] = {(n - 1) / 2, (n + 1) / 2};
+  }
   std::vector<std::int32_t> parent_of(subs, MBVH_NONE), ref(subs, 0);
   std::vector<std::uint32_t> height(subs, 0);
   Flattener top{a, out, leaves};
@@ -661,7 +712,6 @@ void flatten(const Arenas& a, Bvh2& out, std::vector<Leaf>& leaves, unsigned thr
 
 void build_binned_sah(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& croot, const BuildOptions& opt,
                       Arenas& out, PrimRef* scratch) {
-  // -- top of the tree, breadth-first, large nodes binned and partitioned in parallel chunks
   SahBuilder builder(opt, prims, scratch);
   std::vector<TmpNode>& upper = out.upper;
   upper.assign(1, TmpNode());
@@ -672,58 +722,118 @@ void build_binned_sah(RawVector<PrimRef>& prims, const FastBox& root, const Fast
   upper[0].depth = 0;
   const unsigned threads = resolve_threads(opt.threads);
   const std::size_t small = std::max<std::size_t>(4096, prims.size() / (8 * std::size_t(threads)));
-  std::vector<std::size_t> jobs;
-  Bins work;
-  std::vector<std::unique_ptr<Bins>> worker_bins(threads);  // made by their worker on first use
-  std::vector<std::size_t> batch;
-  std::vector<TmpNode> kids;
-  std::vector<FastBox> kids_cbox;
-  std::vector<std::uint8_t> split_done;
-  for (std::size_t k = 0; k < upper.size();) {
-    // one level at a time: small nodes become subtree jobs, large ones are split with their
-    // chunks in parallel, the others are split side by side, one per worker; children are
-    // appended in node order, so the arena does not depend on which worker split what
-    const std::size_t level_end = upper.size();
-    batch.clear();
-    for (; k < level_end; ++k) {
-      const std::size_t count = upper[k].end - upper[k].begin;
-      if (k > 0 && count <= small) jobs.push_back(k);
-      else if (k == 0 || count >= kParallelMin) {
-        FastBox cc[2];
-        if (builder.split(upper, k, ucbox[k], cc, threads, work)) ucbox.insert(ucbox.end(), {cc[0], cc[1]});
+  auto size = [&](std::size_t k) { return std::size_t(upper[k].end - upper[k].begin); };
+  // the nodes not yet split, a heap with the most records on top (then the lowest index)
+  std::vector<std::size_t> open;
+  auto fewer = [&](std::size_t x, std::size_t y) { return size(x) != size(y) ? size(x) < size(y) : x > y; };
+  auto push = [&](std::size_t k) {
+    open.push_back(k);
+    std::push_heap(open.begin(), open.end(), fewer);
+  };
+  auto pop = [&] {
+    std::pop_heap(open.begin(), open.end(), fewer);
+    const std::size_t k = open.back();
+    open.pop_back();
+    return k;
+  };
+  // -- the root, then the largest open node while there are fewer than workers, split with their
+  //    chunks on every worker (the other workers would have nothing to do)
+  {
+    Bins work;
+    std::size_t k = 0;
+    for (;;) {
+      FastBox cc[2];
+      if (builder.split(upper, k, ucbox[k], cc, threads, work)) {
+        ucbox.insert(ucbox.end(), {cc[0], cc[1]});
+        push(static_cast<std::size_t>(upper[k].child[0]));
+        push(static_cast<std::size_t>(upper[k].child[1]));
       }
-      else batch.push_back(k);
+      if (open.empty() || open.size() >= threads || size(open.front()) < kParallelMin || size(open.front()) <= small) break;
+      k = pop();
     }
-    kids.assign(2 * batch.size(), TmpNode());
-    kids_cbox.assign(2 * batch.size(), FastBox());
-    split_done.assign(batch.size(), 0);
-    parallel_for(batch.size(), 1, threads, [&](std::size_t b, std::size_t e, unsigned worker) {
-      for (std::size_t i = b; i < e; ++i) {
+  }
+  // -- then one node at a time per worker from `open`, the largest first: a node of at most
+  //    `small` records becomes a subtree built depth first by the worker that took it (a job),
+  //    a larger one is split and its children go back into `open`. A worker takes the next node
+  //    as soon as it is done, so no worker waits for the others to finish a level, and it most
+  //    often takes a child it has just partitioned, whose records are still in its cache. The
+  //    upper arena's and the jobs' order depend on the timing; the tree does not: flatten follows
+  //    the child links, and every node is split the same way by whichever worker (split_node
+  //    with its chunks on one worker makes the same choice and order as on many).
+  std::vector<std::vector<TmpNode>> spare = std::move(out.subtrees);  // a context's arenas, capacity kept
+  out.subtrees.clear();
+  std::deque<std::vector<TmpNode>> subs;  // job j's arena (a deque: a reference stays valid as it grows)
+  std::vector<std::size_t> jobs;          // job j's top node
+  std::mutex m;
+  std::condition_variable wake;
+  unsigned busy = 0;  // workers splitting a node or building a job
+  std::atomic<std::size_t> built{0};
+  const double total = static_cast<double>(std::max<std::size_t>(1, prims.size()));
+  bool failed = false;  // a worker threw: the others stop (parallel_for rethrows its exception)
+  parallel_for(threads, 1, threads, [&](std::size_t, std::size_t, unsigned) {
+    Bins work;
+    std::unique_lock<std::mutex> lock(m);
+    for (;;) {
+      wake.wait(lock, [&] { return !open.empty() || busy == 0 || failed; });
+      if (open.empty() || failed) return;  // nothing open and no worker that could open more: done
+      const std::size_t k = pop();
+      TmpNode t = upper[k];  // copies: `upper` grows under the lock meanwhile
+      const FastBox cbox = ucbox[k];
+      ++busy;
+      struct Busy {  // a worker that throws leaves the others a way out
+        std::unique_lock<std::mutex>& lock;
+        std::condition_variable& wake;
+        bool& failed;
+        bool done = false;
+        ~Busy() {
+          if (done) return;
+          if (!lock.owns_lock()) lock.lock();
+          failed = true;
+          wake.notify_all();
+        }
+      } guard{lock, wake, failed};
+      if (size(k) <= small) {
+        jobs.push_back(k);
+        subs.push_back(spare.empty() ? std::vector<TmpNode>() : std::move(spare.back()));
+        if (!spare.empty()) spare.pop_back();
+        std::vector<TmpNode>& subtree = subs.back();
+        lock.unlock();
+        subtree.clear();
+        // a binary tree over n records has at most 2n - 1 nodes (leaves of one record are
+        // common here): reserved address space, never a reallocation
+        subtree.reserve(2 * std::size_t(t.end - t.begin));
+        subtree.push_back(t);
+        builder.build_subtree(subtree, cbox);
+        const std::size_t done = built += t.end - t.begin;
+        if (opt.progress) opt.progress(0.25 + 0.7 * static_cast<double>(done) / total);
+        lock.lock();
+      } else {
+        lock.unlock();
         TmpNode c[2];
         FastBox cc[2];
-        if (!worker_bins[worker]) worker_bins[worker] = std::make_unique<Bins>();
-        split_done[i] = builder.split_node(upper[batch[i]], ucbox[batch[i]], c, cc, 1, *worker_bins[worker]);
-        kids[2 * i] = c[0];
-        kids[2 * i + 1] = c[1];
-        kids_cbox[2 * i] = cc[0];
-        kids_cbox[2 * i + 1] = cc[1];
+        const bool split = builder.split_node(t, cbox, c, cc, 1, work);
+        lock.lock();
+        upper[k] = t;
+        if (split)
+          for (int side = 0; side < 2; ++side) {
+            upper[k].child[side] = static_cast<std::int32_t>(upper.size());
+            upper.push_back(c[side]);
+            ucbox.push_back(cc[side]);
+            push(upper.size() - 1);
+          }
       }
-    });
-    for (std::size_t i = 0; i < batch.size(); ++i)
-      if (split_done[i])
-        for (int side = 0; side < 2; ++side) {
-          upper[batch[i]].child[side] = static_cast<std::int32_t>(upper.size());
-          upper.push_back(kids[2 * i + static_cast<std::size_t>(side)]);
-          ucbox.push_back(kids_cbox[2 * i + static_cast<std::size_t>(side)]);
-        }
-  }
-  // -- remaining subtrees, one per task, largest first
-  build_subtrees(out, jobs, opt, [&](std::vector<TmpNode>& subtree, std::size_t top) {
-    // a binary tree over n records has at most 2n - 1 nodes (leaves of one record are common
-    // here): reserved address space, never a reallocation
-    subtree.reserve(2 * std::size_t(subtree[0].end - subtree[0].begin));
-    builder.build_subtree(subtree, ucbox[top]);
+      guard.done = true;
+      if (--busy == 0 || !open.empty()) wake.notify_all();
+    }
   });
+  // -- the subtrees in the arenas, each named by its top node
+  make_root_inner(upper);
+  out.subtree_of.assign(upper.size(), -1);
+  out.subtrees.reserve(subs.size());
+  for (std::size_t j = 0; j < subs.size(); ++j) {
+    out.subtree_of[jobs[j]] = static_cast<std::int32_t>(j);
+    out.subtrees.push_back(std::move(subs[j]));
+  }
 }
 
 }  // namespace build

@@ -115,7 +115,9 @@ static_assert(sizeof(TmpNode) == 48);
 
 /// A builder's result before flattening: the top of the tree in `upper`; an upper node whose
 /// subtree was built by its own task names that task's arena in subtree_of (else -1), whose
-/// node 0 stands for it.
+/// node 0 stands for it. Every inner node of a subtree's arena has two children (the builders
+/// split a node into two or make it a leaf), so an arena of n nodes holds (n - 1) / 2 inner
+/// nodes and (n + 1) / 2 leaves (flatten counts so); only the upper root may have one child.
 struct Arenas {
   std::vector<TmpNode> upper;
   std::vector<std::vector<TmpNode>> subtrees;
@@ -185,17 +187,21 @@ void give_back(const BuildOptions& opt, V BuildContext_Store::*slot, V& v) {
 /// subtree job (jobs[j]: the top node it starts from) built by `build_one(subtree, jobs[j])` on the pool,
 /// largest first; subtree j starts as a copy of its top node. The bytes do not depend on which
 /// worker ran a job. Progress goes from 0.25 to 0.95.
+/// The root of `upper` made an inner node: a one-leaf tree gets a root with one leaf child.
+inline void make_root_inner(std::vector<TmpNode>& upper) {
+  if (!upper[0].leaf) return;
+  TmpNode leaf = upper[0];
+  leaf.depth = 1;
+  upper[0].leaf = false;
+  upper[0].forced = false;
+  upper[0].child[0] = static_cast<std::int32_t>(upper.size());
+  upper.push_back(leaf);
+}
+
 template <class BuildOne>
 void build_subtrees(Arenas& out, const std::vector<std::size_t>& jobs, const BuildOptions& opt, BuildOne&& build_one) {
   std::vector<TmpNode>& upper = out.upper;
-  if (upper[0].leaf) {
-    TmpNode leaf = upper[0];
-    leaf.depth = 1;
-    upper[0].leaf = false;
-    upper[0].forced = false;
-    upper[0].child[0] = 1;
-    upper.push_back(leaf);
-  }
+  make_root_inner(upper);
   out.subtree_of.assign(upper.size(), -1);
   out.subtrees.resize(jobs.size());  // a context's arenas keep their capacity (BuildContext_Store)
   for (std::vector<TmpNode>& s : out.subtrees) s.clear();

@@ -65,7 +65,10 @@ std::uint32_t prim_of(const PrimRef& r) { return r.prim; }
 
 template <class Order>
 void fill_tris_of(const Scene& scene, const Order& order, AlignedVector<Tri>& tris, unsigned threads) {
-  constexpr std::size_t grain = 65536;
+  // four chunks a worker at least, of 4096 to 65536 triangles: chunks of 65536 left a 70K-triangle
+  // scene (the bunny, Sponza) a chunk of 65536 and one of a few thousand, the whole pass on one
+  // worker; each triangle is written on its own, so the bytes do not depend on the chunks
+  const std::size_t grain = std::clamp<std::size_t>(order.size() / (4 * std::size_t(resolve_threads(threads))), 4096, 65536);
   with_triangles(scene, [&](const auto& src) {
     parallel_for(order.size(), grain, threads, [&](std::size_t b, std::size_t e, unsigned) {
       constexpr std::size_t ahead = 16;  // triangles: vertices fetched this far ahead, indices twice as far
