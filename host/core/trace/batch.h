@@ -83,7 +83,7 @@ constexpr bool uses_node4w() {
   else return false;
 }
 
-/// Whether kernel policy K walks two rays in turn on the MBVH4 ordered stack (its `interleave`;
+/// Whether kernel policy K walks two rays in turn on the ordered stack (MBVH4, and MBVH8 any hit; its `interleave`;
 /// none of the reference's).
 template <class K>
 constexpr bool interleaves() {
@@ -188,10 +188,13 @@ inline void trace_parallel(const Accel& acc, std::span<const Ray> rays, const Tr
   parallel_for(rays.size(), kTraceChunk, threads, [&](std::size_t b, std::size_t e, unsigned worker) {
     std::size_t inv = 0;
     if constexpr (interleaves<K>()) {
-      // MBVH4 only: on MBVH8 two rays in turn gained on some scenes and lost on others
-      // (docs/backends.md), and MBVH8's ordered stack is the default closest-hit traversal
-      if (!opt.stats && opt.traversal == Traversal::stack_ordered && opt.layout == Layout::mbvh4) {
-        if (any) run_interleaved<true, K, Node4>(v, rays, b, e, out, inv);
+      // MBVH4 both queries, MBVH8 any hit only: MBVH8 closest hit (its ordered stack the default
+      // closest-hit traversal) gained on some scenes and lost on others, its any hit gained most
+      // where it gains and lost a little elsewhere (docs/backends.md)
+      if (!opt.stats && opt.traversal == Traversal::stack_ordered &&
+          (opt.layout == Layout::mbvh4 || (any && opt.layout == Layout::mbvh8))) {
+        if (any && opt.layout == Layout::mbvh8) run_interleaved<true, K, Node8>(v, rays, b, e, out, inv);
+        else if (any) run_interleaved<true, K, Node4>(v, rays, b, e, out, inv);
         else run_interleaved<false, K, Node4>(v, rays, b, e, out, inv);
         invalid += inv;
         const std::size_t d = done += e - b;
