@@ -87,7 +87,7 @@ void dacrt_scalar(const Accel&, std::span<const Ray>, const TraceOptions&, Trace
 
 /// The cpu family's `cpu.leaf-block` setting: the leaf block (TraceOptions::leaf_block) a cpu
 /// backend traces when a call leaves it 0 — `fallback` (4 on the SIMD backends, 1 on cpu-scalar)
-/// when not set (the SIMD backends then trace 3 for any hit: SimdBackend::leaf_block). Throws Error naming the setting and value outside 1 to 64.
+/// when not set. Throws Error naming the setting and value outside 1 to 64.
 unsigned cpu_leaf_block(const BackendOptions& o, unsigned fallback);
 /// Its declaration (BackendInfo::settings), with the backend's default in the help text.
 BackendSetting cpu_leaf_block_setting(const char* fallback);

@@ -99,7 +99,7 @@ public:
   /// `avx2`: for `cpu` where `k` is the AVX-512 kernels, AVX2's, which kIsaTable's rows may pick.
   SimdBackend(std::string name, const CpuKernels& k, const BackendOptions& o, const CpuKernels* avx2 = nullptr)
       : name_(std::move(name)), kernels_(k), avx2_(avx2), threads_(resolve_threads(o.threads)),
-        own_block_(cpu_leaf_block(o, kOwnLeafBlock)), own_block_set_(!o.get("cpu.leaf-block").empty()), hybrid_(o.get_flag("cpu.packet-hybrid", true)),
+        own_block_(cpu_leaf_block(o, kOwnLeafBlock)), hybrid_(o.get_flag("cpu.packet-hybrid", true)),
         mic_(o.get_flag("cpu.mic", false)), mic_auto_(avx2 && o.get("cpu.mic").empty()) {
     if (mic_ && std::strcmp(kernels_.isa, "avx512") != 0)
       throw Error("backend setting cpu.mic=" + o.get("cpu.mic") + ": the MIC path (MBVH4 nodes tested in 16 lanes) needs the "
@@ -108,7 +108,7 @@ public:
   std::string name() const override { return name_; }
   std::string describe() const override {
     return name_ + ": " + kernels_.isa + " node tests (MBVH4: 4 boxes, MBVH8: 8 at once), SIMD leaves 8 triangles per pass (leaf block " +
-           std::to_string(own_block_) + (own_block_set_ ? "" : ", any hit " + std::to_string(kAnyLeafBlock)) + "), packets of " + std::to_string(kernels_.packet_rays) + " rays (SIMD rays of " +
+           std::to_string(own_block_) + "), packets of " + std::to_string(kernels_.packet_rays) + " rays (SIMD rays of " +
            std::to_string(kernels_.packet_lanes) + ")" +
            (hybrid_ ? "" : " (no hybrid switch)") + (mic_ ? ", the MIC path for MBVH4 (a node in 16 lanes)" : "") + ", " +
            std::to_string(threads_) + " thread(s)";
@@ -120,16 +120,7 @@ public:
   /// Leaves regrouped for the four-triangle SIMD leaf packs unless asked otherwise: fewer, fuller
   /// leaves and packs, so fewer cache lines and nodes per ray.
   static constexpr unsigned kOwnLeafBlock = 4;
-  /// Any hit (occlusion) traces the variant regrouped in blocks of three unless cpu.leaf-block says
-  /// otherwise: a shadow ray stops at its first hit, so a leaf's triangles are priced nearer their
-  /// cost, and the SAH then keeps somewhat smaller leaves (fewer triangles and instructions per
-  /// occlusion ray; docs/backends.md has the measurements). Closest hit keeps four.
-  static constexpr unsigned kAnyLeafBlock = 3;
-  unsigned leaf_block(const TraceOptions& opt) const override {
-    if (opt.leaf_block) return opt.leaf_block;
-    if (own_block_set_ || opt.query != Query::any) return own_block_;
-    return kAnyLeafBlock;
-  }
+  unsigned leaf_block(const TraceOptions& opt) const override { return opt.leaf_block ? opt.leaf_block : own_block_; }
   /// Everything made once per build happens here, outside the timed trace: the layout and the
   /// leaves' SIMD packs of the leaf variant traced, and the copy of its nodes whose leaf
   /// references locate the packs (TraceView::packed_refs; all kept by the Accel; later calls
@@ -168,7 +159,6 @@ private:
   const CpuKernels* avx2_;
   unsigned threads_;
   unsigned own_block_;  ///< cpu.leaf-block (default kOwnLeafBlock)
-  bool own_block_set_;  ///< cpu.leaf-block given: every query traces own_block_ (else any hit kAnyLeafBlock)
   bool hybrid_;         ///< cpu.packet-hybrid (default on)
   bool mic_;            ///< cpu.mic (default off): the MIC path for MBVH4 (backends/cpu/simd/mic.h)
   /// `cpu` on AVX-512 with cpu.mic unset: the MIC path where kMicTable says it measured faster
@@ -188,7 +178,7 @@ void add(const char* name, const char* summary, const CpuKernels& k, bool (*avai
     return std::make_unique<SimdBackend>(name, k, o, avx2);
   };
   info.missing_hardware = [available, missing] { return available() ? std::string() : std::string(missing); };
-  info.settings = {cpu_leaf_block_setting("4; any hit 3"), cpu_packet_hybrid_setting(), cpu_mic_setting()};
+  info.settings = {cpu_leaf_block_setting("4"), cpu_packet_hybrid_setting(), cpu_mic_setting()};
   register_backend(std::move(info));
 }
 

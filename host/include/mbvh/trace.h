@@ -105,7 +105,7 @@ struct TraceOptions {
   /// Leaf policy: the build's leaves regrouped for leaf tests of this many triangles at once
   /// (Accel::leaf_variant; the same triangles and boxes, fewer and fuller leaves). 0: the
   /// backend's own choice (Backend::leaf_block: 4 on the SIMD cpu backends, whose leaf packs
-  /// hold four triangles, tested eight per pass, and 3 there for any hit; 1, the build's own leaves, elsewhere); 1: the build's own.
+  /// hold four triangles, tested eight per pass; 1, the build's own leaves, elsewhere); 1: the build's own.
   /// Answers agree across leaf blocks up to classified ties (DESIGN.md), bit for bit within one.
   unsigned leaf_block = 0;
 };
