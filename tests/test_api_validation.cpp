@@ -325,6 +325,9 @@ TEST_CASE("cpu.leaf-block chooses the leaves a cpu backend traces - the referenc
     INFO(name);
     const unsigned own = name == "cpu-scalar" ? 1u : 4u;
     CHECK(make_backend(name)->leaf_block(o) == own);
+    TraceOptions any = o;
+    any.query = Query::any;
+    CHECK(make_backend(name)->leaf_block(any) == own);  // one variant for both queries (memory: docs/backends.md)
     for (unsigned block : {1u, 2u, 8u}) {
       auto b = make_backend(name, BackendOptions{}.set("cpu.leaf-block", std::to_string(block)));
       CHECK(b->leaf_block(o) == block);

@@ -100,6 +100,9 @@ TEST_CASE("single-ray query: every ray equals the batch trace and the reference,
       CHECK(def.options(Query::any).layout == Layout::mbvh8);
       CHECK(def.options(Query::any).traversal == Traversal::bitstack);
       CHECK(def.options(Query::closest).leaf_block == backend->leaf_block(TraceOptions{}));
+      TraceOptions any_default;
+      any_default.query = Query::any;  // the any-hit query traces the backend's own leaves for any hit
+      CHECK(def.options(Query::any).leaf_block == backend->leaf_block(any_default));
       check_query(*backend, *acc, def, rays);
       // every other single-ray pair, a precision and a leaf block (the kernels chosen per call)
       std::vector<TraceOptions> others;

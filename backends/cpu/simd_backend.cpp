@@ -73,7 +73,10 @@ constexpr IsaChoice kIsaTable[] = {
 /// `cpu` on AVX-512 with cpu.mic unset: the MBVH4 traversals that run the MIC path (mic.h), those
 /// it measured faster on (the AMD Zen 4; benchmarks.md, "AVX-512", the MIC path): the any-hit
 /// MBVH4 stack (1.04-1.08x the 4-lane test on the interiors' shadow rays in two runs, 0.97-0.98x
-/// on the bunny's). Everywhere else the 4-lane test measured faster.
+/// on the bunny's). Everywhere else the 4-lane test measured faster. The MIC path reads two records
+/// per node (Node4 and Node4W), so where the nodes leave the caches (the hairballs) it is slower
+/// than the 4-lane test (docs/backends.md, issue 36's fourth round); no scene statistic tried
+/// separates those scenes from the ones it gains on.
 struct MicChoice {
   Query query;
   Traversal traversal;

@@ -192,10 +192,10 @@ void Backend::check_ray_query_options(const Accel& acc, const TraceOptions& opt)
 RayQuery Backend::make_ray_query(const Accel& acc, TraceOptions c, TraceOptions a) {
   check_ray_query_options(acc, c);
   check_ray_query_options(acc, a);
+  c.query = Query::closest;  // first: a backend's own leaf block may depend on the query
+  a.query = Query::any;
   c = with_leaves_of(*this, c);
   a = with_leaves_of(*this, a);
-  c.query = Query::closest;
-  a.query = Query::any;
   prepare(acc, c);
   prepare(acc, a);
   RayQueryKernels k = ray_query_kernels(acc, c, a);

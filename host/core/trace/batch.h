@@ -83,8 +83,8 @@ constexpr bool uses_node4w() {
   else return false;
 }
 
-/// Whether kernel policy K walks two rays in turn on the MBVH4 ordered stack (its `interleave`;
-/// none of the reference's).
+/// Whether kernel policy K walks two rays in turn on the ordered stack (walked_in_turn says where;
+/// its `interleave`; none of the reference's).
 template <class K>
 constexpr bool interleaves() {
   if constexpr (requires { K::interleave; }) return K::interleave;
@@ -159,17 +159,24 @@ inline void run_interleaved(const TraceView& v, std::span<const Ray> rays, std::
   }
 }
 
-/// Walks rays [b, e) two in turn (run_interleaved) where K and `opt` take it: the MBVH4 ordered
-/// stack without statistics. Not MBVH8: there two rays in turn gained on some scenes and lost on
-/// others (docs/backends.md), and its ordered stack is the default closest-hit traversal. False
-/// where the rays are left to run_batch.
+/// Walks rays [b, e) two in turn (run_interleaved) where K and `opt` take it, on the ordered stack
+/// without statistics: MBVH4 both queries, MBVH8 any hit only. MBVH8 closest hit (its ordered
+/// stack the default closest-hit traversal) gained on some scenes and lost on others; its any hit
+/// gained most where it gains and lost a little elsewhere (docs/backends.md). False where the
+/// rays are left to run_batch.
 template <class K>
 inline bool walked_in_turn(const TraceView& v, std::span<const Ray> rays, std::size_t b, std::size_t e,
                            const TraceOptions& opt, TraceOutput& out, std::size_t& invalid) {
   if constexpr (interleaves<K>()) {
-    if (!opt.stats && opt.traversal == Traversal::stack_ordered && opt.layout == Layout::mbvh4) {
-      if (opt.query == Query::any) run_interleaved<true, K, Node4>(v, rays, b, e, out, invalid);
+    if (opt.stats || opt.traversal != Traversal::stack_ordered) return false;
+    const bool any = opt.query == Query::any;
+    if (opt.layout == Layout::mbvh4) {
+      if (any) run_interleaved<true, K, Node4>(v, rays, b, e, out, invalid);
       else run_interleaved<false, K, Node4>(v, rays, b, e, out, invalid);
+      return true;
+    }
+    if (opt.layout == Layout::mbvh8 && any) {
+      run_interleaved<true, K, Node8>(v, rays, b, e, out, invalid);
       return true;
     }
   }
