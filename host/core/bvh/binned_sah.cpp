@@ -106,7 +106,7 @@ struct Bin {  // lane 3 unused
 };
 
 // Sparse bins of the three axes, one set per task, reused from node to node: every bin is empty
-// between nodes (reset() empties only the bins `mask` marks occupied), so binning a record
+// between nodes (the sweep, or reset(), empties only the bins `mask` marks occupied), so binning a record
 // needs no test whether its bin was set up.
 struct Bins {
   std::uint64_t mask[3] = {0, 0, 0};
@@ -336,6 +336,25 @@ private:
       const Bin& b = bins.bin[0][std::countr_zero(m)];
       box.grow_rows(b.lo, b.hi);
     }
+    // the plain count or blocks of records, chosen once (not per bin: best_* may alias opt_ as
+    // far as the compiler knows, so a call in the loop reloads and tests opt_.leaf_block)
+    if (opt_.leaf_block <= 1)
+      sweep_axes(g, count, bins, best_cost, best_axis, best_split,
+                 [](std::uint32_t n) { return static_cast<float>(n); });
+    else
+      sweep_axes(g, count, bins, best_cost, best_axis, best_split,
+                 [b = opt_.leaf_block](std::uint32_t n) { return build::blocks(n, b); });
+  }
+
+  // sparse_sweep's sweep over the occupied bins of each axis, `cost_of(n)` the cost of n
+  // records (blocks()); empties every bin it reads (Bins::reset's work, without a pass of its own).
+  template <class CostOf>
+  static void sweep_axes(const Geometry& g, std::uint32_t count, Bins& bins, float& best_cost_out, int& best_axis_out,
+                         unsigned& best_split_out, CostOf cost_of) {
+    // the best so far in locals: a store through a float& could alias the bins' floats
+    float best_cost = best_cost_out;
+    int best_axis = best_axis_out;
+    unsigned best_split = best_split_out;
 #if defined(__SSE2__)
     // a running box as two rows; its half area with FastBox::half_area's operations in order:
     // (e0 e1 + e1 e2) + e2 e0
@@ -360,8 +379,12 @@ private:
     };
 #endif
     for (int a = 0; a < 3; ++a) {
-      if (g.scale[a] == 0.0f) continue;
       const std::uint64_t mask = bins.mask[a];
+      bins.mask[a] = 0;
+      if (g.scale[a] == 0.0f) {
+        for (std::uint64_t m = mask; m; m &= m - 1) bins.empty(a, static_cast<unsigned>(std::countr_zero(m)));
+        continue;
+      }
       float right_area[kMaxBins];
       Acc acc;
       // occupied bins from the top, all but the lowest (never the first bin right of a split):
@@ -377,11 +400,15 @@ private:
       for (std::uint64_t m = mask; m;) {
         const unsigned k = static_cast<unsigned>(std::countr_zero(m));
         m &= m - 1;
-        if (m == 0) break;  // the last occupied bin: nothing to its right
+        if (m == 0) {  // the last occupied bin: nothing to its right
+          bins.empty(a, k);
+          break;
+        }
         acc.grow(bins.bin[a][k]);
         cnt += bins.count[a][k];
+        bins.empty(a, k);
         const unsigned next = static_cast<unsigned>(std::countr_zero(m));
-        const float cost = acc.half_area() * blocks(cnt) + right_area[next] * blocks(count - cnt);
+        const float cost = acc.half_area() * cost_of(cnt) + right_area[next] * cost_of(count - cnt);
         if (cost < best_cost) {
           best_cost = cost;
           best_axis = a;
@@ -389,7 +416,9 @@ private:
         }
       }
     }
-    bins.reset();
+    best_cost_out = best_cost;
+    best_axis_out = best_axis;
+    best_split_out = best_split;
   }
 
 #if defined(__SSE2__)

@@ -108,12 +108,16 @@ struct Collapser {
     std::size_t nodes = 0;
     unsigned max_level = 0;
   };
+  struct Kids {
+    std::int32_t k[W];
+  };
   struct Task {
     std::int32_t bref;
     std::int32_t parent;
     unsigned level;
     std::size_t first = 0;  // its root's index
     Tally tally;
+    std::vector<Kids> kids;  // choose()'s answer for each of its wide nodes, in the write's order
   };
 
   bool violates(std::int32_t ref, unsigned level) const {
@@ -177,12 +181,16 @@ struct Collapser {
     }
   }
 
-  void count(std::int32_t bref, unsigned level, Tally& t) const {
-    std::int32_t kids[W];
-    choose(bref, level, kids);
+  // Counts the wide nodes of the subtree of bref and keeps each one's children in `memo` (the
+  // depth-first order in which emit meets them), so that the write does not choose again.
+  void count(std::int32_t bref, unsigned level, Tally& t, std::vector<Kids>& memo) const {
+    Kids c;
+    choose(bref, level, c.k);
+    memo.push_back(c);
+    const std::int32_t (&kids)[W] = c.k;
     ++t.nodes;
     for (int s = 0; s < W; ++s) {
-      if (kids[s] >= 0) count(kids[s], level + 1, t);
+      if (kids[s] >= 0) count(kids[s], level + 1, t, memo);
       else if (kids[s] != MBVH_EMPTY) t.max_level = std::max(t.max_level, level + 1);
     }
   }
@@ -205,7 +213,7 @@ struct Collapser {
     choose(bref, level, kids);
     for (int s = 0; s < W; ++s)
       if (kids[s] >= 0) {
-        if (span(kids[s]) <= kTaskSpan) tasks.push_back(Task{kids[s], -1, level + 1, 0, {}});
+        if (span(kids[s]) <= kTaskSpan) tasks.push_back(Task{kids[s], -1, level + 1, 0, {}, {}});
         else plan(kids[s], level + 1, tasks);
       }
   }
@@ -220,11 +228,17 @@ struct Collapser {
 
   // Writes the subtree of bref depth-first from index `next` and returns its root's index. With
   // `top` (the top walk), a child that is the next task gets that task's range and parent
-  // instead of being written.
-  std::int32_t emit(std::int32_t bref, std::int32_t parent, unsigned level, std::size_t& next, Tally& t, Top* top) {
+  // instead of being written. With `memo` (a task's write), the children count() chose, in order.
+  std::int32_t emit(std::int32_t bref, std::int32_t parent, unsigned level, std::size_t& next, Tally& t, Top* top,
+                    const Kids** memo = nullptr) {
     const std::size_t self = next++;
     std::int32_t kids[W], child[W];
-    choose(bref, level, kids);
+    if (memo) {
+      for (int s = 0; s < W; ++s) kids[s] = (*memo)->k[s];
+      ++*memo;
+    } else {
+      choose(bref, level, kids);
+    }
     bool task_child = false;  // a child written later on the pool: this node's links wait for it
     Top* walk = top;          // past the last task the walk goes on as a plain subtree's (links inline)
     for (int s = 0; s < W; ++s) {
@@ -239,7 +253,7 @@ struct Collapser {
           child[s] = static_cast<std::int32_t>(k.first);
           task_child = true;
         } else {
-          child[s] = emit(kids[s], static_cast<std::int32_t>(self), level + 1, next, t, walk);
+          child[s] = emit(kids[s], static_cast<std::int32_t>(self), level + 1, next, t, walk, memo);
         }
       } else if (kids[s] != MBVH_EMPTY) {
         t.max_level = std::max(t.max_level, level + 1);
@@ -262,7 +276,7 @@ void collapse(const Bvh2& b, const std::vector<Leaf>& leaves, const char* name, 
   std::vector<typename C::Task> tasks;
   if (resolve_threads(threads) > 1 && b.nodes.size() > 2 * C::kTaskSpan) c.plan(0, 0, tasks);
   parallel_for(tasks.size(), 1, threads, [&](std::size_t lo, std::size_t hi, unsigned) {
-    for (std::size_t k = lo; k < hi; ++k) c.count(tasks[k].bref, tasks[k].level, tasks[k].tally);
+    for (std::size_t k = lo; k < hi; ++k) c.count(tasks[k].bref, tasks[k].level, tasks[k].tally, tasks[k].kids);
   });
   out.nodes.resize(std::max<std::size_t>(b.nodes.size(), 1));
   build::RawVector<float> area(out.nodes.size());  // written for every node kept (not zeroed: only those pages touched)
@@ -277,7 +291,9 @@ void collapse(const Bvh2& b, const std::vector<Leaf>& leaves, const char* name, 
       auto& t = tasks[k];
       std::size_t at = t.first;
       typename C::Tally tally;
-      c.emit(t.bref, t.parent, t.level, at, tally, nullptr);
+      const typename C::Kids* memo = t.kids.data();
+      c.emit(t.bref, t.parent, t.level, at, tally, nullptr, &memo);
+      std::vector<typename C::Kids>().swap(t.kids);
     }
   });
   for (const std::size_t n : top.nodes) c.links(n);
