@@ -146,6 +146,8 @@ constexpr int ray_of(int slot) {
 struct Packet {
   static constexpr int N = kPacketRays;
   alignas(64) float o[3][N], d[3][N], inv[3][N], invf[3][N], tmin[N];
+  alignas(64) float oi[3][N];  ///< `fast` only: o * inv, the box test's FMA form (finish_fast_ray's)
+  alignas(64) float tol[N];    ///< `fast` only: finish_fast_ray's tol, added to the cull bound
   alignas(64) float t[N], u[N], v[N];  ///< the best hit so far; t is the lane's tmax
   alignas(64) std::uint32_t prim[N];
   alignas(64) float to[3][N], ts[3][N];            ///< the triangle test's permuted origin and shear
@@ -245,6 +247,7 @@ inline bool load_packet(Packet& P, const mbvh::Ray* rays, int n, std::size_t& in
                                                     _mm256_castps_si256(vm)));
     const __m256 sh[3] = {_mm256_div_ps(pick3(d, kx), dkz), _mm256_div_ps(pick3(d, ky), dkz),
                           _mm256_div_ps(_mm256_set1_ps(1.0f), dkz)};
+    __m256 tolm = zero;
     for (int a = 0; a < 3; ++a) {
       const __m256 inv = _mm256_div_ps(_mm256_set1_ps(1.0f), d[a]);
       const __m256 invf = Fast ? inv : _mm256_mul_ps(inv, _mm256_set1_ps(kFarFactor));
@@ -252,6 +255,13 @@ inline bool load_packet(Packet& P, const mbvh::Ray* rays, int n, std::size_t& in
       _mm256_store_ps(P.d[a] + i, _mm256_and_ps(d[a], vm));
       _mm256_store_ps(P.inv[a] + i, _mm256_and_ps(inv, vm));
       _mm256_store_ps(P.invf[a] + i, _mm256_and_ps(invf, vm));
+      if constexpr (Fast) {
+        const __m256 oi = _mm256_mul_ps(o[a], inv);
+        _mm256_store_ps(P.oi[a] + i, _mm256_and_ps(oi, vm));
+        // finish_fast_ray's max over the axes, NaN left out (an ordered compare)
+        const __m256 x = _mm256_andnot_ps(sign, oi);
+        tolm = _mm256_blendv_ps(tolm, x, _mm256_cmp_ps(x, tolm, _CMP_GT_OQ));
+      }
       _mm256_store_ps(P.to[a] + i, _mm256_and_ps(pick3(o, k[a]), vm));
       _mm256_store_ps(P.ts[a] + i, _mm256_and_ps(sh[a], vm));
       _mm256_store_si256(reinterpret_cast<__m256i*>(P.k1[a] + i), _mm256_cmpeq_epi32(k[a], one));
@@ -290,6 +300,12 @@ inline bool load_packet(Packet& P, const mbvh::Ray* rays, int n, std::size_t& in
     tmin_lo = _mm256_min_ps(tmin_lo, _mm256_blendv_ps(inf, tmin0, vm));
     tmin_hi = _mm256_max_ps(tmin_hi, _mm256_blendv_ps(ninf, tmin0, vm));
     const __m256 tcull = _mm256_mul_ps(tmax, _mm256_set1_ps(kCullSlack));
+    if constexpr (Fast) {
+      const __m256 tol = _mm256_mul_ps(tolm, _mm256_set1_ps(0x1p-21f));
+      _mm256_store_ps(P.tol + i, _mm256_and_ps(tol, vm));
+      // the frustum's highest exit bounds every lane's raised cull bound
+      tcull_hi = _mm256_max_ps(tcull_hi, _mm256_blendv_ps(ninf, _mm256_add_ps(tcull, tol), vm));
+    }
     tcull_hi = _mm256_max_ps(tcull_hi, _mm256_blendv_ps(ninf, tcull, vm));
     tcull_lo = _mm256_min_ps(tcull_lo, _mm256_blendv_ps(inf, tcull, vm));
     any_valid = any_valid || valid != 0;

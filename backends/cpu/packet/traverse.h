@@ -22,18 +22,19 @@ namespace packet {
 /// box_test (intersect.h) on the lanes of SIMD ray g against two boxes at once: each lane's
 /// near and far planes by the sign of its direction, the same operations in the same order.
 /// Returns the hit lanes of each box and their entry distances. SameSign: every lane has the
-/// packet's signs, so the planes are the box's broadcast ones.
-template <bool SameSign>
+/// packet's signs, so the planes are the box's broadcast ones. Fast: box_test_wide's FMA form,
+/// p * inv - o * inv per plane (the relaxed ray: invf = inv), the single rays' fast bits.
+template <bool SameSign, bool Fast = false>
 [[gnu::always_inline]] inline void box2_group(const Packet& P, int g, const Box8& b0, const Box8& b1, unsigned& h0,
                                               unsigned& h1, PV& te0, PV& te1) {
   using F = PL;
   const int i = g * kLanes;
-  const PV tcull = F::mul(F::load(P.t + i), F::set1(kCullSlack));
+  PV tcull = F::mul(F::load(P.t + i), F::set1(kCullSlack));
+  if constexpr (Fast) tcull = F::add(tcull, F::load(P.tol + i));  // finish_fast_ray's raised bound
   const PV tmin = F::load(P.tmin + i);
   PV e0 = tmin, e1 = tmin, x0 = tcull, x1 = tcull;
   for (int a = 0; a < 3; ++a) {
-    const PV o = F::load(P.o[a] + i);
-    const PV inv = F::load(P.inv[a] + i), invf = F::load(P.invf[a] + i);
+    const PV inv = F::load(P.inv[a] + i);
     PV n0, f0, n1, f1;
     if constexpr (SameSign) {
       n0 = b0.nearv[a], f0 = b0.farv[a], n1 = b1.nearv[a], f1 = b1.farv[a];
@@ -43,10 +44,19 @@ template <bool SameSign>
       n1 = F::sel_sign(b1.lo[a], b1.hi[a], s), f1 = F::sel_sign(b1.hi[a], b1.lo[a], s);
     }
     // box_test's order: te = max(tnz, max(tny, max(tnx, tmin))), tx likewise from tcull
-    e0 = F::max(F::mul(F::sub(n0, o), inv), e0);
-    x0 = F::min(F::mul(F::sub(f0, o), invf), x0);
-    e1 = F::max(F::mul(F::sub(n1, o), inv), e1);
-    x1 = F::min(F::mul(F::sub(f1, o), invf), x1);
+    if constexpr (Fast) {
+      const PV oi = F::load(P.oi[a] + i);
+      e0 = F::max(F::fmsub(n0, inv, oi), e0);
+      x0 = F::min(F::fmsub(f0, inv, oi), x0);
+      e1 = F::max(F::fmsub(n1, inv, oi), e1);
+      x1 = F::min(F::fmsub(f1, inv, oi), x1);
+    } else {
+      const PV o = F::load(P.o[a] + i), invf = F::load(P.invf[a] + i);
+      e0 = F::max(F::mul(F::sub(n0, o), inv), e0);
+      x0 = F::min(F::mul(F::sub(f0, o), invf), x0);
+      e1 = F::max(F::mul(F::sub(n1, o), inv), e1);
+      x1 = F::min(F::mul(F::sub(f1, o), invf), x1);
+    }
   }
   h0 = F::le(e0, x0);
   h1 = F::le(e1, x1);
@@ -142,8 +152,8 @@ inline void trace_packet(const TraceView& v, Packet& P, RayStats* st) {
       Cover c0 = Cover::some, c1 = Cover::some;
       float ent0 = 0, ent1 = 0, ex0 = 0, ex1 = 0;
       if (P.frustum) {
-        c0 = frustum_cover(P, b0, ent0, ex0);
-        c1 = frustum_cover(P, b1, ent1, ex1);
+        c0 = frustum_cover<Fast>(P, b0, ent0, ex0);
+        c1 = frustum_cover<Fast>(P, b1, ent1, ex1);
       }
       if (c0 != Cover::none || c1 != Cover::none) {
         A a0, a1;
@@ -162,7 +172,7 @@ inline void trace_packet(const TraceView& v, Packet& P, RayStats* st) {
             if constexpr (Stats) count_op(st, g, lanes);
             unsigned h0, h1;
             PV te0, te1;
-            box2_group<SameSign>(P, g, b0, b1, h0, h1, te0, te1);
+            box2_group<SameSign, Fast>(P, g, b0, b1, h0, h1, te0, te1);
             if (c0 == Cover::some) a0.add(g, h0 & lanes);
             if (c1 == Cover::some) a1.add(g, h1 & lanes);
             if (!P.frustum) {  // the order of children from the lanes' entries

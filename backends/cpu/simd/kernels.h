@@ -22,7 +22,7 @@ namespace {
 /// A leaf's answer is the reference's: any hit takes the first hit triangle in leaf order,
 /// closest hit the smallest (t, prim) — what the sequential loop of visit_leaf keeps, as tmax
 /// only shrinks to the best hit's t. With statistics on, the scalar leaf counts the work. Fast: the
-/// `fast` accuracy mode (relax_ray's box test, tri_test_simd_mt).
+/// `fast` accuracy mode (relax_ray's box test in box_test_wide's FMA form, tri_test_simd_mt).
 template <bool Fast>
 struct SimdKernelsT {
   static constexpr bool uses_packs = true;
@@ -30,14 +30,17 @@ struct SimdKernelsT {
   static constexpr bool interleave = true;  // batch.h: the ordered stack walks two rays in turn (MBVH4; MBVH8 any hit)
   using Ray = SimdRay;
   [[gnu::always_inline]] static bool prepare(const mbvh::Ray& ray, Ray& r) { return prepare_ray_simd(ray, r); }
-  static void finish(Ray& r, const TraceView& v) { finish_ray(r, v); }
+  static void finish(Ray& r, const TraceView& v) {
+    finish_ray(r, v);
+    if constexpr (Fast) finish_fast_ray(r);
+  }
   template <bool Chord = false>
   [[gnu::always_inline]] static unsigned test(const Node4& n, const Ray& r, float tcull, float d[4]) {
-    return box_test_wide<F4, Chord>(n, r, tcull, d);
+    return box_test_wide<F4, Chord, Node4, Fast>(n, r, tcull, d);
   }
   template <bool Chord = false>
   [[gnu::always_inline]] static unsigned test(const Node8& n, const Ray& r, float tcull, float d[8]) {
-    return box_test_wide<F8, Chord>(n, r, tcull, d);
+    return box_test_wide<F8, Chord, Node8, Fast>(n, r, tcull, d);
   }
   /// Closest hit: the record of every child in `mask` (the traversals pass the hit children left
   /// for later: an inner node's lines, a leaf's first pack, or its leaf4 entry where the references

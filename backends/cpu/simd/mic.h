@@ -42,6 +42,7 @@ struct MicKernelsT : SimdKernelsT<Fast> {
   [[gnu::always_inline]] static bool prepare(const mbvh::Ray& ray, Ray& r) { return prepare_ray_simd(ray, r); }
   static void finish(Ray& r, const TraceView& v) {
     finish_ray(r, v);
+    if constexpr (Fast) finish_fast_ray(r);
     r.wide_at = reinterpret_cast<const char*>(v.n4w) - reinterpret_cast<const char*>(v.n4);
     unsigned k = 0;
     for (int a = 0; a < 3; ++a)
@@ -56,19 +57,27 @@ struct MicKernelsT : SimdKernelsT<Fast> {
     const __m512 lo = _mm512_load_ps(&w->lo[0][0]), hi = _mm512_load_ps(&w->hi[0][0]);
     const __m512 nearp = _mm512_mask_blend_ps(r.negk, lo, hi), farp = _mm512_mask_blend_ps(r.negk, hi, lo);
     // RayPre's o, inv, inv_far rows: (x, y, z, next word) broadcast to the four children
-    const __m512 o = _mm512_broadcast_f32x4(_mm_loadu_ps(r.o));
     const __m512 inv = _mm512_broadcast_f32x4(_mm_loadu_ps(r.inv));
-    const __m512 invf = _mm512_broadcast_f32x4(_mm_loadu_ps(r.inv_far));
-    const __m512 tn = _mm512_maskz_mul_ps(xyz, _mm512_maskz_sub_ps(xyz, nearp, o), inv);
-    const __m512 tf = _mm512_maskz_mul_ps(xyz, _mm512_maskz_sub_ps(xyz, farp, o), invf);
+    __m512 tn, tf;
+    if constexpr (Fast) {  // box_test_wide's FMA form: p * inv - o * inv (inv_far = inv)
+      const __m512 oinv = _mm512_broadcast_f32x4(_mm_loadu_ps(r.oinv));
+      tn = _mm512_maskz_fmsub_ps(xyz, nearp, inv, oinv);
+      tf = _mm512_maskz_fmsub_ps(xyz, farp, inv, oinv);
+    } else {
+      const __m512 o = _mm512_broadcast_f32x4(_mm_loadu_ps(r.o));
+      const __m512 invf = _mm512_broadcast_f32x4(_mm_loadu_ps(r.inv_far));
+      tn = _mm512_maskz_mul_ps(xyz, _mm512_maskz_sub_ps(xyz, nearp, o), inv);
+      tf = _mm512_maskz_mul_ps(xyz, _mm512_maskz_sub_ps(xyz, farp, o), invf);
+    }
     // lane 4s: x as computed, y and z shuffled down within the child's 128-bit row
     const __m512 tny = _mm512_permute_ps(tn, _MM_SHUFFLE(3, 3, 3, 1)), tnz = _mm512_permute_ps(tn, _MM_SHUFFLE(3, 3, 3, 2));
     const __m512 tfy = _mm512_permute_ps(tf, _MM_SHUFFLE(3, 3, 3, 1)), tfz = _mm512_permute_ps(tf, _MM_SHUFFLE(3, 3, 3, 2));
     const __m512 te = _mm512_max_ps(tnz, _mm512_max_ps(tny, _mm512_max_ps(tn, _mm512_set1_ps(r.tmin))));
-    const __m512 tx = _mm512_min_ps(tfz, _mm512_min_ps(tfy, _mm512_min_ps(tf, _mm512_set1_ps(tcull))));
+    const __m512 tx = _mm512_min_ps(tfz, _mm512_min_ps(tfy, _mm512_min_ps(tf, _mm512_set1_ps(Fast ? tcull + r.tol : tcull))));
     const __m512i pick = _mm512_setr_epi32(0, 4, 8, 12, 0, 4, 8, 12, 0, 4, 8, 12, 0, 4, 8, 12);
     __m512 out;
     if constexpr (Chord) out = _mm512_max_ps(_mm512_sub_ps(tx, te), _mm512_setzero_ps());  // max_nan(tx - te, 0)
+    else if constexpr (Fast) out = _mm512_sub_ps(te, _mm512_set1_ps(r.tol));  // box_test_wide's fast entries
     else out = te;
     _mm_storeu_ps(d, _mm512_castps512_ps128(_mm512_permutexvar_ps(pick, out)));
     // lanes 0, 4, 8, 12 -> bits 0-3

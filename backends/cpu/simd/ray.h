@@ -23,6 +23,8 @@ namespace {
 struct SimdRay : RayPre {
   float tri_o[3];  ///< the triangle test's permuted origin (o[kx], o[ky], o[kz])
   int near4[4], far4[4], near8[4], far8[4];  ///< three axes (the fourth entry unused)
+  float oinv[3];  ///< o * inv per axis: the `fast` box test's FMA form (finish_fast_ray; unset in robust)
+  float tol;      ///< `fast`: what the FMA form's distances may exceed the subtraction's by (finish_fast_ray)
   const TraceView* view;  ///< what the ray traverses (for prefetches)
 };
 
@@ -87,6 +89,24 @@ inline void finish_ray(SimdRay& r, const TraceView& v) {
   r.tri_o[0] = r.o[r.kx];
   r.tri_o[1] = r.o[r.ky];
   r.tri_o[2] = r.o[r.kz];
+}
+
+/// The `fast` precision's extra constant: o * inv per axis, so the box test's plane distance
+/// (p - o) * inv becomes one FMA, p * inv - o * inv (Embree's non-robust and tinybvh's form; it
+/// rounds o * inv once more, which is why robust keeps the subtraction first). An axis with
+/// inv = +-inf gives NaN distances, which the min/max chain discards: the slab is then not
+/// tested (more boxes visited, never fewer). The rounding of o * inv can put a box's entry past
+/// a hit on its face by more than kCullSlack allows for, which would make a closest hit depend on
+/// the order the boxes are visited in (packets and single rays would differ): the cull bound is
+/// raised by tol = 2^-21 max|o * inv| (twice that rounding and the result's), NaN axes left out.
+[[gnu::always_inline]] inline void finish_fast_ray(SimdRay& r) {
+  float m = 0.0f;
+  for (int a = 0; a < 3; ++a) {
+    r.oinv[a] = r.o[a] * r.inv[a];
+    const float x = std::fabs(r.oinv[a]);
+    m = x > m ? x : m;  // NaN (0 * inf) left out
+  }
+  r.tol = m * 0x1p-21f;
 }
 
 }  // namespace
