@@ -63,7 +63,6 @@ inline Cover frustum_cover(const Packet& P, const Box8& b, float& entry, float& 
   const __m128 q0 = _mm_mul_ps(blo, jlo), q1 = _mm_mul_ps(blo, jhi), q2 = _mm_mul_ps(bhi, jlo), q3 = _mm_mul_ps(bhi, jhi);
   __m128 off = _mm_castsi128_ps(_mm_load_si128(reinterpret_cast<const __m128i*>(P.axis_off)));
   const __m128 pinf = _mm_set1_ps(INFINITY), ninf = _mm_set1_ps(-INFINITY);
-  __m128 off_fast = _mm_setzero_ps();
   __m128 tn_lo = _mm_min_ps(_mm_min_ps(p0, p1), _mm_min_ps(p2, p3)), tn_hi = _mm_max_ps(_mm_max_ps(p0, p1), _mm_max_ps(p2, p3));
   __m128 tf_lo = _mm_min_ps(_mm_min_ps(q0, q1), _mm_min_ps(q2, q3)), tf_hi = _mm_max_ps(_mm_max_ps(q0, q1), _mm_max_ps(q2, q3));
   if constexpr (Fast) {
@@ -74,11 +73,11 @@ inline Cover frustum_cover(const Packet& P, const Box8& b, float& entry, float& 
     __m128 eps = _mm_mul_ps(_mm_mul_ps(_mm_add_ps(_mm_add_ps(ao, ao), ap), ai), _mm_set1_ps(0x1p-20f));
     // no bound on an axis where o * inv may overflow (a lane's distances are then -inf or NaN) or
     // eps is not finite (NaN from 0 * inf included): it is left off like axis_off's
-    off_fast = _mm_or_ps(_mm_cmp_ps(_mm_mul_ps(ao, ai), _mm_set1_ps(0x1p100f), _CMP_NLT_UQ), _mm_cmp_ps(eps, pinf, _CMP_NLT_UQ));
+    off = _mm_or_ps(off, _mm_or_ps(_mm_cmp_ps(_mm_mul_ps(ao, ai), _mm_set1_ps(0x1p100f), _CMP_NLT_UQ),
+                                   _mm_cmp_ps(eps, pinf, _CMP_NLT_UQ)));
     tn_lo = _mm_sub_ps(tn_lo, eps), tn_hi = _mm_add_ps(tn_hi, eps);
     tf_lo = _mm_sub_ps(tf_lo, eps), tf_hi = _mm_add_ps(tf_hi, eps);
   }
-  if constexpr (Fast) off = _mm_or_ps(off, off_fast);
   tn_lo = _mm_blendv_ps(tn_lo, ninf, off), tn_hi = _mm_blendv_ps(tn_hi, pinf, off);
   tf_lo = _mm_blendv_ps(tf_lo, ninf, off), tf_hi = _mm_blendv_ps(tf_hi, pinf, off);
   alignas(16) float nl[4], nh[4], fl[4], fh[4];
