@@ -196,13 +196,13 @@ build::Arenas BuildContext::Impl::take_arenas() {
   s.arenas = build::Arenas();
   a.upper.clear();
   a.subtree_of.clear();
-  for (auto& t : a.subtrees) t.clear();
+  a.subtrees.clear();
   return a;
 }
 
 void BuildContext::Impl::give_arenas(build::Arenas&& a) {
   std::lock_guard<std::mutex> lock(m);
-  s.arenas = std::move(a);  // the latest build's (its subtrees' capacities fit its scene)
+  s.arenas = std::move(a);  // the latest build's (its node block fits its scene)
   a = build::Arenas();
 }
 
@@ -210,8 +210,8 @@ std::size_t BuildContext::Impl::bytes() const {
   std::lock_guard<std::mutex> lock(m);
   auto cap = [](const auto& v) { return v.capacity() * sizeof(typename std::decay_t<decltype(v)>::value_type); };
   std::size_t b = cap(s.prims) + cap(s.scratch) + cap(s.nodes) + cap(s.leaf_boxes) + cap(s.leaves) + cap(s.tris) +
-                  cap(s.node4) + cap(s.arenas.upper) + cap(s.arenas.subtree_of) + cap(s.arenas.subtrees);
-  for (const auto& t : s.arenas.subtrees) b += cap(t);
+                  cap(s.node4) + cap(s.arenas.upper) + cap(s.arenas.subtree_of) + cap(s.arenas.subtrees) +
+                  s.arenas.block.capacity() * sizeof(build::TmpNode);
   return b;
 }
 
