@@ -123,6 +123,13 @@ static_assert(sizeof(TmpNode) == 48);
 /// block from the calling thread's heap returns there, for the next build and the layouts.
 class NodeBlock {
 public:
+  NodeBlock() = default;
+  NodeBlock(NodeBlock&& o) noexcept : p_(std::move(o.p_)), cap_(std::exchange(o.cap_, 0)) {}
+  NodeBlock& operator=(NodeBlock&& o) noexcept {
+    p_ = std::move(o.p_);
+    cap_ = std::exchange(o.cap_, 0);
+    return *this;
+  }
   /// Room for `n` nodes (the contents not kept when it grows).
   TmpNode* ensure(std::size_t n) {
     if (n > cap_) {
