@@ -214,7 +214,8 @@ struct Collapser {
     choose(bref, level, kids);
     for (int s = 0; s < W; ++s)
       if (kids[s] >= 0) {
-        if (const std::size_t n = span(kids[s]); n <= kTaskSpan) tasks.push_back(Task{kids[s], -1, level + 1, 0, {}, n, nullptr});
+        if (const std::size_t n = span(kids[s]); n <= kTaskSpan)
+          tasks.push_back(Task{kids[s], -1, level + 1, 0, {}, n, nullptr});
         else plan(kids[s], level + 1, tasks);
       }
   }

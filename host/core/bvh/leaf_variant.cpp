@@ -104,7 +104,8 @@ struct Regrouper {
       return;
     }
     ++nodes;
-    for (int side = 0; side < 2; ++side) count_kept(in.nodes[static_cast<std::size_t>(ref)].child[side], nodes, leaf_count);
+    for (int side = 0; side < 2; ++side)
+      count_kept(in.nodes[static_cast<std::size_t>(ref)].child[side], nodes, leaf_count);
   }
 
   // -- top-down: the kept inner nodes depth-first, as the build's flatten emits them

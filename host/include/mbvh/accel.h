@@ -126,9 +126,10 @@ BuildQuality parse_quality(const std::string& s);  ///< throws Error on an unkno
 /// bytes per triangle: room for two 48-byte nodes a record, of which only the nodes made are
 /// touched), and the outputs' size (Accel::memory(), without layouts other than MBVH4). Without a
 /// context, or after release(), a build frees its memory to the allocator, which returns it to
-/// the system once the freed heap has grown by about two builds. Thread-safe: concurrent builds may share one context (each takes what it holds at its
-/// start; the others allocate). Keep it in a std::shared_ptr (BuildOptions::context): every Accel
-/// built with it holds a reference, so it lives as long as they do.
+/// the system once the freed heap has grown by about two builds. Thread-safe: concurrent builds
+/// may share one context (each takes what it holds at its start; the others allocate). Keep it in
+/// a std::shared_ptr (BuildOptions::context): every Accel built with it holds a reference, so it
+/// lives as long as they do.
 class BuildContext {
 public:
   BuildContext();
