@@ -66,6 +66,16 @@ TEST_CASE("a kept BuildContext gives the same nodes as no context, across scenes
     }
     kept.reset();
     CHECK(c.context->retained_bytes() > 0);
+    if (q == BuildQuality::medium || q == BuildQuality::low) {
+      // the retained bound accel.h documents, the big scene's: its records (32 B each), the node
+      // block (room for two 48-byte nodes a record, kept whole) and its outputs (the binary tree,
+      // the triangles, the MBVH4 array: its capacity), beside the upper arena's few nodes
+      const std::size_t refs = ref_big->tris().size();
+      const Accel::MemoryStats m = ref_big->memory();
+      const std::size_t outputs = m.tree + m.triangles + ref_big->mbvh4().nodes.capacity() * sizeof(Node4);
+      CHECK(c.context->retained_bytes() >= 96 * refs);
+      CHECK(c.context->retained_bytes() <= (32 + 96) * refs + outputs + (std::size_t(1) << 16));
+    }
     c.context->release();
     CHECK(c.context->retained_bytes() == 0);
     // after release it still builds the same bytes

@@ -183,4 +183,24 @@ void release_free_heap() {
 #endif
 }
 
+void release_free_heap_above(std::uint64_t bytes) {
+#if defined(__GLIBC__) && (__GLIBC__ > 2 || (__GLIBC__ == 2 && __GLIBC_MINOR__ >= 33))
+  // the lowest free heap seen since the last release (the first call's is its own): a heuristic
+  // shared by every thread, so a race between two builds costs at most one release
+  static std::atomic<std::uint64_t> low{UINT64_MAX};
+  const std::uint64_t now = mallinfo2().fordblks;
+  std::uint64_t was = low.load(std::memory_order_relaxed);
+  if (was == UINT64_MAX || now <= was) {
+    low.store(now, std::memory_order_relaxed);
+    return;
+  }
+  if (now - was <= bytes) return;
+  malloc_trim(0);
+  low.store(mallinfo2().fordblks, std::memory_order_relaxed);
+#else
+  (void)bytes;
+  release_free_heap();
+#endif
+}
+
 }  // namespace mbvh

@@ -54,6 +54,15 @@ decltype(auto) allocating(const std::string& what, std::uint64_t bytes, F&& fn) 
 /// build, a load or a structure made on first use has freed its temporaries. O(free heap).
 void release_free_heap();
 
+/// release_free_heap() once the allocator's freed memory has grown by more than `bytes` since its
+/// lowest point after the last release (glibc 2.33 and later: mallinfo2's free bytes, process-wide;
+/// elsewhere it always releases). Called after a build with about one build's worth
+/// (build_memory_estimate): the next build of that size reuses the pages the last one freed
+/// instead of faulting fresh ones in, and what the process keeps beyond its live arrays grows by
+/// at most about one build between releases (glibc's heap does grow over repeated builds: blocks
+/// freed in one order are not always taken back in the next, so new pages are touched).
+void release_free_heap_above(std::uint64_t bytes);
+
 /// Bytes one build of a scene costs beyond the scene (the builder's references, the BVH2 and the
 /// MBVH2, MBVH4 and MBVH8 layouts): 128 a triangle and 56 a vertex, fitted to the peak RSS of
 /// `mbvh info` on gen:hairball (0.53 vertices a triangle, 155 B a triangle in all) and gen:soup

@@ -41,14 +41,18 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
   if (!scene.meshes().empty() && !scene.triangles.empty()) scene.validate();
   if (!std::isfinite(opt_in.traversal_cost) || opt_in.traversal_cost < 0)
     throw Error("BuildOptions::traversal_cost " + std::to_string(opt_in.traversal_cost) + " must be finite and >= 0");
-  // the free heap returned once the build's temporaries below are gone (destroyed before this)
-  // (not with a context: the caller keeps memory for the next build)
+  // the free heap returned once the build's temporaries below are gone (destroyed before this),
+  // when it has grown by more than about two builds since the last release (release_free_heap_above):
+  // a repeated build mostly reuses the pages the last one freed, and the heap's drift over many
+  // (about one build's layouts a build on conference) is returned every few builds. Not with a
+  // context: the caller keeps memory for the next build.
   struct ReleaseOnReturn {
     bool release;
+    std::uint64_t build_bytes;
     ~ReleaseOnReturn() {
-      if (release) release_free_heap();
+      if (release) release_free_heap_above(2 * build_bytes);
     }
-  } release_on_return{!opt_in.context};
+  } release_on_return{!opt_in.context, build_memory_estimate(scene.triangle_count(), scene.vertices.size())};
   using S = build::BuildContext_Store;
   std::unique_ptr<Accel> acc(new Accel());
   acc->impl_->opt_ = opt_in;
@@ -196,13 +200,13 @@ build::Arenas BuildContext::Impl::take_arenas() {
   s.arenas = build::Arenas();
   a.upper.clear();
   a.subtree_of.clear();
-  for (auto& t : a.subtrees) t.clear();
+  a.subtrees.clear();
   return a;
 }
 
 void BuildContext::Impl::give_arenas(build::Arenas&& a) {
   std::lock_guard<std::mutex> lock(m);
-  s.arenas = std::move(a);  // the latest build's (its subtrees' capacities fit its scene)
+  s.arenas = std::move(a);  // the latest build's (its node block fits its scene)
   a = build::Arenas();
 }
 
@@ -210,8 +214,8 @@ std::size_t BuildContext::Impl::bytes() const {
   std::lock_guard<std::mutex> lock(m);
   auto cap = [](const auto& v) { return v.capacity() * sizeof(typename std::decay_t<decltype(v)>::value_type); };
   std::size_t b = cap(s.prims) + cap(s.scratch) + cap(s.nodes) + cap(s.leaf_boxes) + cap(s.leaves) + cap(s.tris) +
-                  cap(s.node4) + cap(s.arenas.upper) + cap(s.arenas.subtree_of) + cap(s.arenas.subtrees);
-  for (const auto& t : s.arenas.subtrees) b += cap(t);
+                  cap(s.node4) + cap(s.arenas.upper) + cap(s.arenas.subtree_of) + cap(s.arenas.subtrees) +
+                  s.arenas.block.capacity() * sizeof(build::TmpNode);
   return b;
 }
 
@@ -291,7 +295,6 @@ const Mbvh2& Accel::mbvh2() const {
   require_hierarchy("mbvh2");
   std::call_once(impl_->once2_, [this] {
     impl_->mbvh2_ = make_mbvh2(impl_->bvh2_, impl_->leaves_);
-    release_free_heap();
   });
   return impl_->mbvh2_;
 }
@@ -308,7 +311,6 @@ const Mbvh8& Accel::mbvh8() const {
   require_hierarchy("mbvh8");
   std::call_once(impl_->once8_, [this] {
     impl_->mbvh8_ = make_mbvh8(impl_->bvh2_, impl_->leaves_, impl_->opt_.threads);
-    release_free_heap();
   });
   return impl_->mbvh8_;
 }
@@ -319,7 +321,6 @@ const Mbvh4& Accel::mbvh4() const {
     // the nodes in the context's array where there is one (taken empty, every node written)
     impl_->mbvh4_ = build::make_mbvh4(impl_->bvh2_, impl_->leaves_, impl_->opt_.threads,
                                       build::take_from(impl_->opt_, &build::BuildContext_Store::node4));
-    if (!impl_->opt_.context) release_free_heap();
   });
   return impl_->mbvh4_;
 }
@@ -328,7 +329,6 @@ const TriPacks& Accel::tri_packs() const {
   require_hierarchy("tri_packs");
   std::call_once(impl_->oncep_, [this] {
     impl_->packs_ = make_tri_packs(impl_->tris_, impl_->leaves_);
-    release_free_heap();
   });
   return impl_->packs_;
 }

@@ -16,7 +16,6 @@
 #include <bit>
 #include <cmath>
 #include <condition_variable>
-#include <deque>
 #include <memory>
 #include <mutex>
 #include <type_traits>
@@ -152,8 +151,8 @@ public:
   // `threads`: workers for a large node's chunks (1 inside a subtree task).
   // `work`: the task's sparse bins.
   // `cbox`: the centroid bounds of node n; the children's into `cc` (when split).
-  bool split(std::vector<TmpNode>& arena, std::size_t n, const FastBox& cbox, FastBox (&cc)[2], unsigned threads,
-             Bins& work) {
+  template <class Arena>  // the upper arena (a vector) or a subtree's (SubArena)
+  bool split(Arena& arena, std::size_t n, const FastBox& cbox, FastBox (&cc)[2], unsigned threads, Bins& work) {
     TmpNode c[2];
     if (!split_node(arena[n], cbox, c, cc, threads, work)) return false;
     for (int side = 0; side < 2; ++side) {
@@ -241,7 +240,7 @@ public:
   // Builds the subtree of arena node 0 (centroid bounds `cbox`) depth first: the centroid bounds
   // of the nodes still to split are kept on the stack, not in the arena (its nodes are smaller
   // so). The arena's order is not the tree's: flatten follows the child links.
-  void build_subtree(std::vector<TmpNode>& arena, const FastBox& cbox) {
+  void build_subtree(SubArena& arena, const FastBox& cbox) {
     Bins work;
     struct Pending {
       std::size_t n;
@@ -629,9 +628,10 @@ struct Flattener {
   const std::vector<std::pair<std::size_t, std::size_t>>* sub_size = nullptr;  // inner nodes, leaves
 
   // Returns the child reference of arena node n.
-  std::int32_t emit(const std::vector<TmpNode>& arena, std::size_t n, std::int32_t parent, std::uint32_t& height) {
+  template <class Arena>  // the upper arena (a vector) or a subtree's (SubArena)
+  std::int32_t emit(const Arena& arena, std::size_t n, std::int32_t parent, std::uint32_t& height) {
     const TmpNode& t = arena[n];
-    if (&arena == &a.upper && a.subtree_of[n] >= 0) {
+    if (std::is_same_v<Arena, std::vector<TmpNode>> && a.subtree_of[n] >= 0) {
       const std::size_t j = static_cast<std::size_t>(a.subtree_of[n]);
       node += (*sub_size)[j].first;
       leaf += (*sub_size)[j].second;
@@ -789,10 +789,9 @@ void build_binned_sah(RawVector<PrimRef>& prims, const FastBox& root, const Fast
   //    upper arena's and the jobs' order depend on the timing; the tree does not: flatten follows
   //    the child links, and every node is split the same way by whichever worker (split_node
   //    with its chunks on one worker makes the same choice and order as on many).
-  std::vector<std::vector<TmpNode>> spare = std::move(out.subtrees);  // a context's arenas, capacity kept
-  out.subtrees.clear();
-  std::deque<std::vector<TmpNode>> subs;  // job j's arena (a deque: a reference stays valid as it grows)
-  std::vector<std::size_t> jobs;          // job j's top node
+  out.block.ensure(2 * prims.size());  // here, on the calling thread (NodeBlock)
+  std::vector<SubArena> subs;     // job j's arena
+  std::vector<std::size_t> jobs;  // job j's top node
   std::mutex m;
   std::condition_variable wake;
   unsigned busy = 0;  // workers splitting a node or building a job
@@ -822,20 +821,17 @@ void build_binned_sah(RawVector<PrimRef>& prims, const FastBox& root, const Fast
         }
       } guard{lock, wake, failed};
       if (size(k) <= small) {
+        const std::size_t j = jobs.size();
         jobs.push_back(k);
-        subs.push_back(spare.empty() ? std::vector<TmpNode>() : std::move(spare.back()));
-        if (!spare.empty()) spare.pop_back();
-        std::vector<TmpNode>& subtree = subs.back();
+        subs.emplace_back();
         lock.unlock();
-        subtree.clear();
-        // a binary tree over n records has at most 2n - 1 nodes (leaves of one record are
-        // common here): reserved address space, never a reallocation
-        subtree.reserve(2 * std::size_t(t.end - t.begin));
+        SubArena subtree = out.arena_for(t);
         subtree.push_back(t);
         builder.build_subtree(subtree, cbox);
         const std::size_t done = built += t.end - t.begin;
         if (opt.progress) opt.progress(0.25 + 0.7 * static_cast<double>(done) / total);
         lock.lock();
+        subs[j] = subtree;
       } else {
         lock.unlock();
         TmpNode c[2];
@@ -858,11 +854,8 @@ void build_binned_sah(RawVector<PrimRef>& prims, const FastBox& root, const Fast
   // -- the subtrees in the arenas, each named by its top node
   make_root_inner(upper);
   out.subtree_of.assign(upper.size(), -1);
-  out.subtrees.reserve(subs.size());
-  for (std::size_t j = 0; j < subs.size(); ++j) {
-    out.subtree_of[jobs[j]] = static_cast<std::int32_t>(j);
-    out.subtrees.push_back(std::move(subs[j]));
-  }
+  for (std::size_t j = 0; j < subs.size(); ++j) out.subtree_of[jobs[j]] = static_cast<std::int32_t>(j);
+  out.subtrees = std::move(subs);
 }
 
 }  // namespace build

@@ -12,12 +12,14 @@
 #include <cstring>
 #include <memory>
 #include <mutex>
+#include <type_traits>
 #include <utility>
 #include <vector>
 
 #include "host/core/layouts.h"
 #include "host/core/parallel.h"
 #include "mbvh/accel.h"
+#include "mbvh/error.h"
 #include "mbvh/scene.h"
 
 namespace mbvh::build {
@@ -113,15 +115,84 @@ struct TmpNode {
 };
 static_assert(sizeof(TmpNode) == 48);
 
+/// The build's storage for its subtrees' nodes: raw memory (no node written until a subtree
+/// task writes it, so its pages are first touched there), allocated by the thread that calls the
+/// builder. The subtree tasks run on the pool's workers; arenas of their own would come from the
+/// workers' heaps (glibc: one arena per thread), where the memory they free stays and the calling
+/// thread's later arrays (the flatten's, the layouts', a leaf variant's) cannot reuse it. One
+/// block from the calling thread's heap returns there, for the next build and the layouts.
+class NodeBlock {
+public:
+  NodeBlock() = default;
+  NodeBlock(NodeBlock&& o) noexcept : p_(std::move(o.p_)), cap_(std::exchange(o.cap_, 0)) {}
+  NodeBlock& operator=(NodeBlock&& o) noexcept {
+    p_ = std::move(o.p_);
+    cap_ = std::exchange(o.cap_, 0);
+    return *this;
+  }
+  /// Room for `n` nodes (the contents not kept when it grows).
+  TmpNode* ensure(std::size_t n) {
+    if (n > cap_) {
+      p_.reset();
+      p_.reset(static_cast<TmpNode*>(::operator new(n * sizeof(TmpNode))));
+      cap_ = n;
+    }
+    return p_.get();
+  }
+  TmpNode* data() const { return p_.get(); }
+  std::size_t capacity() const { return cap_; }
+
+private:
+  struct Free {
+    void operator()(TmpNode* p) const { ::operator delete(static_cast<void*>(p)); }
+  };
+  std::unique_ptr<TmpNode, Free> p_;
+  std::size_t cap_ = 0;
+};
+static_assert(std::is_trivially_copyable_v<TmpNode> && std::is_trivially_destructible_v<TmpNode>);
+
+/// A subtree task's arena: up to `cap` nodes of the build's NodeBlock, grown by push_back and
+/// never moved. A binary tree over n records has at most 2n - 1 nodes, so the subtree of records
+/// [b, e) takes the block's nodes [2b, 2e) (Arenas::arena_for): the subtrees' ranges are
+/// disjoint, and where a subtree's nodes lie does not depend on which task built it or when.
+class SubArena {
+public:
+  SubArena() = default;
+  SubArena(TmpNode* p, std::size_t cap) : p_(p), cap_(cap) {}
+  std::size_t size() const { return n_; }
+  bool empty() const { return n_ == 0; }
+  TmpNode& operator[](std::size_t i) { return p_[i]; }
+  const TmpNode& operator[](std::size_t i) const { return p_[i]; }
+  TmpNode& back() { return p_[n_ - 1]; }
+  void push_back(const TmpNode& t) {
+    if (n_ == cap_) throw Error("internal: a subtree's arena holds more than 2n - 1 nodes");
+    ::new (static_cast<void*>(p_ + n_++)) TmpNode(t);
+  }
+  /// Drops the nodes from `n` on (never grows).
+  void resize(std::size_t n) { n_ = std::min(n, n_); }
+  void clear() { n_ = 0; }
+
+private:
+  TmpNode* p_ = nullptr;
+  std::size_t n_ = 0, cap_ = 0;
+};
+
 /// A builder's result before flattening: the top of the tree in `upper`; an upper node whose
 /// subtree was built by its own task names that task's arena in subtree_of (else -1), whose
 /// node 0 stands for it. Every inner node of a subtree's arena has two children (the builders
 /// split a node into two or make it a leaf), so an arena of n nodes holds (n - 1) / 2 inner
 /// nodes and (n + 1) / 2 leaves (flatten counts so); only the upper root may have one child.
+/// The subtrees' arenas are runs of `block` (2 nodes a record, 96 bytes: BuildContext keeps it).
 struct Arenas {
   std::vector<TmpNode> upper;
-  std::vector<std::vector<TmpNode>> subtrees;
+  NodeBlock block;
+  std::vector<SubArena> subtrees;
   std::vector<std::int32_t> subtree_of;
+  /// The arena of the subtree below upper node `top` (its records' run of `block`, which must
+  /// have room for 2 nodes a record of the build), empty.
+  SubArena arena_for(const TmpNode& top) const {
+    return SubArena(block.data() + 2 * std::size_t(top.begin), 2 * std::size_t(top.end - top.begin));
+  }
 };
 
 /// What a BuildContext (accel.h) holds between builds: a build's working arrays (taken at its
@@ -202,9 +273,9 @@ template <class BuildOne>
 void build_subtrees(Arenas& out, const std::vector<std::size_t>& jobs, const BuildOptions& opt, BuildOne&& build_one) {
   std::vector<TmpNode>& upper = out.upper;
   make_root_inner(upper);
+  out.block.ensure(2 * std::size_t(upper[0].end - upper[0].begin));  // here, on the calling thread (NodeBlock)
   out.subtree_of.assign(upper.size(), -1);
-  out.subtrees.resize(jobs.size());  // a context's arenas keep their capacity (BuildContext_Store)
-  for (std::vector<TmpNode>& s : out.subtrees) s.clear();
+  out.subtrees.assign(jobs.size(), SubArena());
   for (std::size_t j = 0; j < jobs.size(); ++j) out.subtree_of[jobs[j]] = static_cast<std::int32_t>(j);
   std::vector<std::size_t> order(jobs.size());
   for (std::size_t j = 0; j < jobs.size(); ++j) order[j] = j;
@@ -215,8 +286,10 @@ void build_subtrees(Arenas& out, const std::vector<std::size_t>& jobs, const Bui
   parallel_for(jobs.size(), 1, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
     for (std::size_t o = b; o < e; ++o) {
       const std::size_t j = order[o];
-      out.subtrees[j].push_back(upper[jobs[j]]);
-      build_one(out.subtrees[j], jobs[j]);
+      SubArena& arena = out.subtrees[j];
+      arena = out.arena_for(upper[jobs[j]]);
+      arena.push_back(upper[jobs[j]]);
+      build_one(arena, jobs[j]);
       if (opt.progress) opt.progress(0.25 + 0.7 * static_cast<double>(++built) / static_cast<double>(jobs.size()));
     }
   });

@@ -117,7 +117,8 @@ struct Collapser {
     unsigned level;
     std::size_t first = 0;  // its root's index
     Tally tally;
-    std::vector<Kids> kids;  // choose()'s answer for each of its wide nodes, in the write's order
+    std::size_t span = 0;   // its binary inner nodes: a bound on its wide nodes
+    Kids* kids = nullptr;   // choose()'s answer for each of its wide nodes, in the write's order
   };
 
   bool violates(std::int32_t ref, unsigned level) const {
@@ -181,12 +182,12 @@ struct Collapser {
     }
   }
 
-  // Counts the wide nodes of the subtree of bref and keeps each one's children in `memo` (the
-  // depth-first order in which emit meets them), so that the write does not choose again.
-  void count(std::int32_t bref, unsigned level, Tally& t, std::vector<Kids>& memo) const {
-    Kids c;
+  // Counts the wide nodes of the subtree of bref and keeps each one's children at `memo` (the
+  // depth-first order in which emit meets them; one entry a wide node, so at most one a binary
+  // inner node), so that the write does not choose again.
+  void count(std::int32_t bref, unsigned level, Tally& t, Kids*& memo) const {
+    Kids& c = *memo++;
     choose(bref, level, c.k);
-    memo.push_back(c);
     const std::int32_t (&kids)[W] = c.k;
     ++t.nodes;
     for (int s = 0; s < W; ++s) {
@@ -213,7 +214,8 @@ struct Collapser {
     choose(bref, level, kids);
     for (int s = 0; s < W; ++s)
       if (kids[s] >= 0) {
-        if (span(kids[s]) <= kTaskSpan) tasks.push_back(Task{kids[s], -1, level + 1, 0, {}, {}});
+        if (const std::size_t n = span(kids[s]); n <= kTaskSpan)
+          tasks.push_back(Task{kids[s], -1, level + 1, 0, {}, n, nullptr});
         else plan(kids[s], level + 1, tasks);
       }
   }
@@ -275,8 +277,18 @@ void collapse(const Bvh2& b, const std::vector<Leaf>& leaves, const char* name, 
   C c{b};
   std::vector<typename C::Task> tasks;
   if (resolve_threads(threads) > 1 && b.nodes.size() > 2 * C::kTaskSpan) c.plan(0, 0, tasks);
+  // the tasks' memos: runs of one array the calling thread allocates (growing a vector per task,
+  // on the workers, would leave small blocks between the build's large arrays that glibc's
+  // per-thread caches keep, and the next build's arrays would not fit back in their places)
+  std::size_t memo_size = 0;
+  for (const auto& t : tasks) memo_size += t.span;
+  build::RawVector<typename C::Kids> memo(memo_size);  // written only where a task has a wide node
+  for (std::size_t k = 0, at = 0; k < tasks.size(); at += tasks[k++].span) tasks[k].kids = memo.data() + at;
   parallel_for(tasks.size(), 1, threads, [&](std::size_t lo, std::size_t hi, unsigned) {
-    for (std::size_t k = lo; k < hi; ++k) c.count(tasks[k].bref, tasks[k].level, tasks[k].tally, tasks[k].kids);
+    for (std::size_t k = lo; k < hi; ++k) {
+      typename C::Kids* m = tasks[k].kids;
+      c.count(tasks[k].bref, tasks[k].level, tasks[k].tally, m);
+    }
   });
   out.nodes.resize(std::max<std::size_t>(b.nodes.size(), 1));
   build::RawVector<float> area(out.nodes.size());  // written for every node kept (not zeroed: only those pages touched)
@@ -291,9 +303,8 @@ void collapse(const Bvh2& b, const std::vector<Leaf>& leaves, const char* name, 
       auto& t = tasks[k];
       std::size_t at = t.first;
       typename C::Tally tally;
-      const typename C::Kids* memo = t.kids.data();
-      c.emit(t.bref, t.parent, t.level, at, tally, nullptr, &memo);
-      std::vector<typename C::Kids>().swap(t.kids);
+      const typename C::Kids* m = t.kids;
+      c.emit(t.bref, t.parent, t.level, at, tally, nullptr, &m);
     }
   });
   for (const std::size_t n : top.nodes) c.links(n);

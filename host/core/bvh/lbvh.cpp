@@ -95,7 +95,7 @@ public:
   }
 
   // Builds the subtree of arena node n (its range and depth set).
-  void build(std::vector<TmpNode>& arena, std::size_t n) const {
+  void build(SubArena& arena, std::size_t n) const {
     if (arena[n].end - arena[n].begin <= opt_.max_leaf) {
       FastBox box;
       build_small(arena, n, box);
@@ -119,7 +119,7 @@ public:
   // cost (area units: node visits traversal_cost, triangles priced by blocks()) with its box: its
   // Morton split is made first, then undone (the children popped from the arena) where one leaf
   // prices no higher; every node below is priced once.
-  float build_small(std::vector<TmpNode>& arena, std::size_t n, FastBox& box) const {
+  float build_small(SubArena& arena, std::size_t n, FastBox& box) const {
     const std::uint32_t count = arena[n].end - arena[n].begin;
     if (count == 2 && arena[n].depth < opt_.depth_cap && opt_.max_leaf >= 2) return pair(arena, n, box);
     const std::uint32_t mid = split_of(arena[n]);
@@ -151,7 +151,7 @@ public:
   // build_small of a node of two records (depth below the cap, max_leaf >= 2), its two
   // one-record leaves priced without being made unless they are kept: the same nodes, boxes and
   // cost. Equal codes make one leaf.
-  float pair(std::vector<TmpNode>& arena, std::size_t n, FastBox& box) const {
+  float pair(SubArena& arena, std::size_t n, FastBox& box) const {
     TmpNode& t = arena[n];
     const std::uint32_t b = t.begin;
     FastBox c[2];
@@ -176,7 +176,8 @@ public:
     return leaf;
   }
 
-  static void push_children(std::vector<TmpNode>& arena, std::size_t n, std::uint32_t mid) {
+  template <class Arena>  // the upper arena (a vector) or a subtree's (SubArena)
+  static void push_children(Arena& arena, std::size_t n, std::uint32_t mid) {
     TmpNode c[2];
     c[0].begin = arena[n].begin;
     c[0].end = c[1].begin = mid;
@@ -285,10 +286,7 @@ void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& c
     if (mid == 0) builder.make_leaf(upper[k]);
     else LbvhBuilder::push_children(upper, k, mid);
   }
-  build_subtrees(out, jobs, opt, [&](std::vector<TmpNode>& subtree, std::size_t) {
-    subtree.reserve(2 * (subtree[0].end - subtree[0].begin) + 1);
-    builder.build(subtree, 0);
-  });
+  build_subtrees(out, jobs, opt, [&](SubArena& subtree, std::size_t) { builder.build(subtree, 0); });
   // -- the top's boxes bottom-up (children follow their parent in the breadth-first arena)
   for (std::size_t k = upper.size(); k-- > 0;) {
     TmpNode& t = upper[k];

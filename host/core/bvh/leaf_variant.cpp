@@ -94,6 +94,20 @@ struct Regrouper {
     }
   }
 
+  // -- the kept inner nodes and the leaves below `ref` (emit's counts), so that emit's arrays are
+  //    allocated once at their size: grown by doubling, they would leave their outgrown copies as
+  //    holes in the heap that the layouts made next cannot use
+  void count_kept(std::int32_t ref, std::size_t& nodes, std::size_t& leaf_count) const {
+    if (ref == MBVH_EMPTY) return;
+    if (ref < 0 || as_leaf[static_cast<std::size_t>(ref)]) {
+      ++leaf_count;
+      return;
+    }
+    ++nodes;
+    for (int side = 0; side < 2; ++side)
+      count_kept(in.nodes[static_cast<std::size_t>(ref)].child[side], nodes, leaf_count);
+  }
+
   // -- top-down: the kept inner nodes depth-first, as the build's flatten emits them
   std::int32_t emit(std::int32_t ref, std::int32_t parent, std::uint32_t& height) {
     if (ref == MBVH_EMPTY) {
@@ -137,6 +151,11 @@ void regroup_leaves(const Bvh2& bvh, const std::vector<Leaf>& leaves, const Alig
   Regrouper g{bvh, leaves, tris, std::max(block, 1u), std::min(std::max(max_leaf, 1u), 64u), node_cost, {}, {}, {}, {}, {}};
   if (!bvh.nodes.empty()) {
     g.decide();
+    std::size_t nodes = 0, leaf_count = 0;
+    g.count_kept(0, nodes, leaf_count);
+    g.out.nodes.reserve(nodes);
+    g.out.leaf_boxes.reserve(leaf_count);
+    g.out_leaves.reserve(leaf_count);
     std::uint32_t h = 0;
     g.emit(0, MBVH_NONE, h);
   }

@@ -122,12 +122,14 @@ BuildQuality parse_quality(const std::string& s);  ///< throws Error on an unkno
 /// pages (on a virtual machine the first touch of a 4 KiB page costs microseconds). The tree is
 /// the same bytes with or without a context, at any thread count, whatever was built in it before.
 /// Retained memory: at most one build's working arrays and one build's output arrays, each the
-/// largest built with it since the last release(): 32 bytes per triangle plus the node arenas
-/// (48 bytes per node), and the outputs' size (Accel::memory(), without layouts other than
-/// MBVH4). Without a context, or after release(), a build returns its memory to the system as
-/// before. Thread-safe: concurrent builds may share one context (each takes what it holds at its
-/// start; the others allocate). Keep it in a std::shared_ptr (BuildOptions::context): every Accel
-/// built with it holds a reference, so it lives as long as they do.
+/// largest built with it since the last release(): 32 bytes per triangle plus the node block (96
+/// bytes per triangle: room for two 48-byte nodes a record, of which only the nodes made are
+/// touched), and the outputs' size (Accel::memory(), without layouts other than MBVH4). Without a
+/// context, or after release(), a build frees its memory to the allocator, which returns it to
+/// the system once the freed heap has grown by about two builds. Thread-safe: concurrent builds
+/// may share one context (each takes what it holds at its start; the others allocate). Keep it in
+/// a std::shared_ptr (BuildOptions::context): every Accel built with it holds a reference, so it
+/// lives as long as they do.
 class BuildContext {
 public:
   BuildContext();
