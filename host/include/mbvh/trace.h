@@ -52,7 +52,7 @@ enum class Query { closest, any };
 /// packet_single_ray's traversal's up to the same classified ties; the reference traces it as that
 /// traversal, ray by ray, on a build with a hierarchy (reference_supports is still false for it:
 /// cpu-scalar and the SIMD cpu backends do not list it).
-/// stack_octant (MBVH8 only; not in the C API): the stack walk of Fuetterling, Lojewski, Pfreundt
+/// stack_octant (MBVH8 only; the C API's MBVH_TRAVERSAL_STACK_OCTANT): the stack walk of Fuetterling, Lojewski, Pfreundt
 /// & Ebert (HPG 2017) — every node holds its children's order for each of the eight ray
 /// direction octants (made once with the layout), and the walk pushes a node's hit children in
 /// its ray's octant order, nearest on top, without sorting them; closest hit keeps each entry's
