@@ -23,8 +23,9 @@ import sys
 from benchlib import fmt, records, scene_name, verified
 
 ROBUST = [("cpu", "mbvh4", "stack"), ("cpu", "mbvh4", "bitstack"), ("cpu", "mbvh4", "stack-ordered"),
-          ("cpu", "mbvh8", "stack"), ("cpu", "mbvh8", "bitstack"), ("cpu", "mbvh8", "stack-ordered")]
-STACK_BASED = [0, 2, 3, 5]
+          ("cpu", "mbvh8", "stack"), ("cpu", "mbvh8", "bitstack"), ("cpu", "mbvh8", "stack-ordered"),
+          ("cpu", "mbvh8", "stack-octant")]
+STACK_BASED = [0, 2, 3, 5, 6]
 STACKLESS = [1, 4]
 EMBREE = ("embree", "mbvh4", "stack")
 TINYBVH = [("tinybvh", "mbvh4", "stack"), ("tinybvh", "mbvh8", "stack")]  # BVH4_CPU, BVH8_CPU (fast)
@@ -68,12 +69,12 @@ def main(paths):
     order.sort(key=lambda k: (k[0], KINDS.index(k[1]) if k[1] in KINDS else 9, k[2], k[3]))
 
     print("| scene | rays | query | threads | MBVH4 stack | MBVH4 bitstack | MBVH4 ordered | MBVH8 stack "
-          "| MBVH8 bitstack | MBVH8 ordered | embree robust | best cpu fast | embree default "
+          "| MBVH8 bitstack | MBVH8 ordered | MBVH8 octant | embree robust | best cpu fast | embree default "
           "| tinybvh BVH4_CPU | tinybvh BVH8_CPU "
           "| best stack-based × embree robust | best stackless × embree robust | best fast × embree default "
           "| best fast × best tinybvh | best robust × best tinybvh "
           "| MBVH4 bitstack/stack time | MBVH8 bitstack/stack time |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     met = [[0, 0] for _ in TARGETS]  # per target: rows meeting it, rows with the ratio
     for key in order:
         s = [speed.get(key + v + ("robust",)) for v in ROBUST]

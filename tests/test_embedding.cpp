@@ -86,7 +86,7 @@ TEST_CASE("defaults: TraceOptions{} traces each backend's fastest exact traversa
         CHECK(r.traversal == Traversal::dacrt);  // its only traversal
       } else if (isa == "avx2" || isa == "avx512") {
         CHECK(r.layout == Layout::mbvh8);
-        CHECK(r.traversal == (q == Query::any ? Traversal::bitstack : Traversal::stack_ordered));
+        CHECK(r.traversal == (q == Query::any ? Traversal::stack_octant : Traversal::stack_ordered));
       } else if (name == "cpu-scalar") {
         CHECK(r.layout == Layout::mbvh4);
         CHECK(r.traversal == Traversal::stack_ordered);

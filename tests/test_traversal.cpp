@@ -271,7 +271,7 @@ std::size_t check_simd_cpu_bytes(const Accel& acc, const std::vector<Ray>& rays,
     ++tested;
     auto b = make_backend(name, BackendOptions{}.set("cpu.leaf-block", leaf_block));
     for (Layout l : {Layout::mbvh2, Layout::mbvh4, Layout::mbvh8})
-      for (Traversal t : {Traversal::stack, Traversal::bitstack, Traversal::stack_ordered})
+      for (Traversal t : {Traversal::stack, Traversal::bitstack, Traversal::stack_ordered, Traversal::stack_octant})
         for (Query q : {Query::closest, Query::any}) {
           if (!reference_supports(l, t)) continue;
           INFO(what << ": " << name << "/" << to_string(l) << "/" << to_string(t) << "/" << to_string(q));
@@ -636,6 +636,10 @@ TEST_CASE("statistics count work and stay out of the answers", "[traversal][isa]
   CHECK(reference_supports(Layout::mbvh8, Traversal::bitstack));  // 8 pending bits per level, 128-bit word
   CHECK(reference_supports(Layout::mbvh8, Traversal::stack));      // its twin
   CHECK_FALSE(reference_supports(Layout::mbvh8, Traversal::bitstack_retest));
+  CHECK(reference_supports(Layout::mbvh8, Traversal::stack_octant));  // its nodes hold the octant orders
+  CHECK_FALSE(reference_supports(Layout::mbvh4, Traversal::stack_octant));
+  CHECK_FALSE(reference_supports(Layout::mbvh2, Traversal::stack_octant));
+  CHECK(state_bytes_per_ray(Layout::mbvh8, Traversal::stack_octant) == 1032);  // 128 entries and distances
   CHECK(state_bytes_per_ray(Layout::mbvh8, Traversal::bitstack) == 20);  // node + 128-bit word
   CHECK(state_bytes_per_ray(Layout::mbvh8, Traversal::stack) == 520);    // 128 int32 entries
   CHECK(state_bytes_per_ray(Layout::mbvh8, Traversal::stack) / state_bytes_per_ray(Layout::mbvh8, Traversal::bitstack) >= 22);
@@ -736,4 +740,39 @@ TEST_CASE("cpu-avx512 traces 16-lane packets of 128 rays, partial packets too, w
       if (q == Query::closest) CHECK(std::memcmp(a.hits.data(), b.hits.data(), rays.size() * sizeof(Hit)) == 0);
       else CHECK(a.occluded == b.occluded);
     }
+}
+
+TEST_CASE("MBVH8 nodes hold each ray octant's child order, farthest first", "[traversal][layout]") {
+  // the stack-octant traversal's per-node orders (mbvh_layout.h, Node8::pad): for every node and
+  // octant a permutation of the eight slots, empty boxes first, then the boxes by their near corner
+  // on the octant's diagonal, farthest first; the pad's last four bytes zero
+  const Scene s = load_scene(mbvh_test::scene_path("bun_zipper.ply.zst"));
+  const auto acc = Accel::build(s);
+  const Mbvh8& m = acc->mbvh8();
+  REQUIRE(m.nodes.size() > 100);
+  std::size_t ordered_pairs = 0;
+  for (const Node8& n : m.nodes) {
+    unsigned char bytes[sizeof(n.pad)];
+    std::memcpy(bytes, n.pad, sizeof(bytes));
+    CHECK((bytes[24] | bytes[25] | bytes[26] | bytes[27]) == 0);
+    for (unsigned o = 0; o < 8; ++o) {
+      const std::uint32_t bits = bytes[3 * o] | bytes[3 * o + 1] << 8 | static_cast<std::uint32_t>(bytes[3 * o + 2]) << 16;
+      unsigned seen = 0;
+      double prev = INFINITY;
+      for (int k = 0; k < 8; ++k) {
+        const int slot = static_cast<int>((bits >> (3 * k)) & 7u);
+        seen |= 1u << slot;
+        const bool empty = n.child[slot] == MBVH_EMPTY;
+        const double key = empty ? INFINITY
+                                 : ((o & 1u) ? -double(n.hi_x[slot]) : double(n.lo_x[slot])) +
+                                       ((o & 2u) ? -double(n.hi_y[slot]) : double(n.lo_y[slot])) +
+                                       ((o & 4u) ? -double(n.hi_z[slot]) : double(n.lo_z[slot]));
+        CHECK(key <= prev);  // farthest first, empty slots (infinitely far) before every box
+        if (!empty && k > 0 && key < prev) ++ordered_pairs;
+        prev = key;
+      }
+      CHECK(seen == 0xFFu);
+    }
+  }
+  CHECK(ordered_pairs > m.nodes.size());  // the orders are not the slot order
 }

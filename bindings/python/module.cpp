@@ -403,7 +403,7 @@ a .hits file's bytes; a miss has prim = MISS and t = inf); query="any" returns a
 (1: occluded), an occlusion file's bytes. With stats=True, a tuple (answers, per-ray counters).
 backend: a name of backends(); threads: CPU workers (0: every core); layout and traversal default
 as `mbvh trace` does: the backend's fastest exact traversal for the query ("auto"; e.g. cpu: MBVH8
-ordered stack for closest hit, MBVH8 bitstack for any hit). The GIL is released while tracing.)";
+ordered stack for closest hit, MBVH8 octant stack for any hit). The GIL is released while tracing.)";
 
 }  // namespace
 

@@ -72,6 +72,7 @@ const char* to_string(Traversal t) {
     case Traversal::packet_partition: return "packet-partition";
     case Traversal::packet: return "packet";
     case Traversal::dacrt: return "dacrt";
+    case Traversal::stack_octant: return "stack-octant";
     case Traversal::automatic: return "auto";
   }
   return "?";
@@ -94,10 +95,11 @@ Traversal parse_traversal(const std::string& s) {
   if (s == "packet-partition") return Traversal::packet_partition;
   if (s == "packet") return Traversal::packet;
   if (s == "dacrt") return Traversal::dacrt;
+  if (s == "stack-octant") return Traversal::stack_octant;
   if (s == "auto") return Traversal::automatic;
   throw Error("unknown traversal '" + s +
               "' (known: stack, bitstack, stack-ordered, bitstack-retest, packet-ranged, packet-partition, packet, dacrt, "
-              "auto)");
+              "stack-octant, auto)");
 }
 
 }  // namespace mbvh

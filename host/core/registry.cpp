@@ -67,10 +67,12 @@ void refuse_flat_build(const Backend& b, const Accel& acc) {
 
 std::vector<std::pair<Layout, Traversal>> Backend::fastest(Query q) const {
   // measured on the SIMD cpu backends (docs/library.md, "Defaults"): MBVH8 first, closest hit with
-  // the ordered stack, any hit with the bitstack (as Backend::ray_query's defaults); then the rest,
+  // the ordered stack (as Backend::ray_query's default), any hit with the octant stack (two rays
+  // in turn: a batch's walk; Backend::ray_query's single rays keep the bitstack); then the rest,
   // MBVH4 before MBVH2, the stacks before the bitstacks (the device backends' order), dacrt last
   if (q == Query::any)
-    return {{Layout::mbvh8, Traversal::bitstack},      {Layout::mbvh8, Traversal::stack},
+    return {{Layout::mbvh8, Traversal::stack_octant},  {Layout::mbvh8, Traversal::bitstack},
+            {Layout::mbvh8, Traversal::stack},
             {Layout::mbvh4, Traversal::stack},         {Layout::mbvh4, Traversal::bitstack},
             {Layout::mbvh8, Traversal::stack_ordered}, {Layout::mbvh4, Traversal::stack_ordered},
             {Layout::mbvh2, Traversal::stack},         {Layout::mbvh2, Traversal::bitstack},
@@ -79,7 +81,8 @@ std::vector<std::pair<Layout, Traversal>> Backend::fastest(Query q) const {
           {Layout::mbvh4, Traversal::stack_ordered}, {Layout::mbvh4, Traversal::stack},
           {Layout::mbvh8, Traversal::bitstack},      {Layout::mbvh4, Traversal::bitstack},
           {Layout::mbvh2, Traversal::stack},         {Layout::mbvh2, Traversal::bitstack},
-          {Layout::mbvh4, Traversal::bitstack_retest}, {Layout::mbvh4, Traversal::dacrt}};
+          {Layout::mbvh8, Traversal::stack_octant}, {Layout::mbvh4, Traversal::bitstack_retest},
+          {Layout::mbvh4, Traversal::dacrt}};
 }
 
 TraceOptions resolve_options(const Backend& b, TraceOptions opt) {
@@ -100,7 +103,7 @@ namespace {
 constexpr Layout kLayouts[] = {Layout::mbvh2, Layout::mbvh4, Layout::mbvh8};
 constexpr Traversal kTraversals[] = {Traversal::stack,         Traversal::bitstack,         Traversal::stack_ordered,
                                      Traversal::bitstack_retest, Traversal::packet_ranged, Traversal::packet_partition,
-                                     Traversal::packet,        Traversal::dacrt};
+                                     Traversal::packet,        Traversal::dacrt,            Traversal::stack_octant};
 constexpr Precision kPrecisions[] = {Precision::robust, Precision::exact, Precision::fast};
 
 // The names of `all` that `keep` holds for, comma-separated.

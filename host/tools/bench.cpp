@@ -356,7 +356,7 @@ void count_work(const Accel& acc, const std::vector<Ray>& rays, Backend& b, cons
     peak += is_dacrt(to.traversal)    ? double(b.state_bytes(to))  // the backend's ray records and side arrays
             : is_packet(to.traversal) ? double(state_bytes_per_ray(to.layout, to.traversal))  // a packet's stack, shared
             : to.traversal == Traversal::stack ? 8.0 + 4.0 * s.max_depth
-            : to.traversal == Traversal::stack_ordered ? 8.0 + 8.0 * s.max_depth
+            : to.traversal == Traversal::stack_ordered || to.traversal == Traversal::stack_octant ? 8.0 + 8.0 * s.max_depth
                                                         : double(state_bytes_per_ray(to.layout, to.traversal));  // bitstacks: fixed
   }
   const double k = rays.empty() ? 1.0 : static_cast<double>(rays.size());

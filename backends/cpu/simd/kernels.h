@@ -27,7 +27,7 @@ template <bool Fast>
 struct SimdKernelsT {
   static constexpr bool uses_packs = true;
   static constexpr bool fast = Fast;
-  static constexpr bool interleave = true;  // batch.h: the ordered stack walks two rays in turn (MBVH4; MBVH8 any hit)
+  static constexpr bool interleave = true;  // batch.h: two rays in turn (ordered stack: MBVH4, MBVH8 any hit; octant stack: any hit)
   using Ray = SimdRay;
   [[gnu::always_inline]] static bool prepare(const mbvh::Ray& ray, Ray& r) { return prepare_ray_simd(ray, r); }
   static void finish(Ray& r, const TraceView& v) {
@@ -120,6 +120,34 @@ struct SimdKernelsT {
     _mm256_storeu_si256(reinterpret_cast<__m256i*>(stack + sp), _mm256_permutevar8x32_epi32(links, idx));
     return sp + static_cast<unsigned>(std::popcount(mask));
 #endif
+  }
+
+  /// The octant-ordered push (stack.h, trace_mbvh8_octant): the order's lanes unpacked (one
+  /// variable shift), the hit mask permuted into that order (one shift puts slot s's bit in lane
+  /// k's sign), the permuted hit lanes compressed into the list of their slots (AVX-512:
+  /// vpcompressd in a register; AVX2: a table of each mask's set lanes and one permute), then
+  /// the child links (and the distances) gathered by that list with one permute each and stored
+  /// as whole rows.
+  template <bool Dist>
+  [[gnu::always_inline]] static unsigned push_octant(std::int32_t* stack, float* dist, unsigned sp, unsigned mask,
+                                                     std::uint32_t order, const std::int32_t* child, const float* d,
+                                                     int& top) {
+    const __m256i slots = _mm256_and_si256(_mm256_srlv_epi32(_mm256_set1_epi32(static_cast<int>(order)),
+                                                             _mm256_setr_epi32(0, 3, 6, 9, 12, 15, 18, 21)),
+                                           _mm256_set1_epi32(7));
+    const __m256i bits = _mm256_sllv_epi32(_mm256_set1_epi32(static_cast<int>(mask)), _mm256_sub_epi32(_mm256_set1_epi32(31), slots));
+    const unsigned pm = static_cast<unsigned>(_mm256_movemask_ps(_mm256_castsi256_ps(bits)));
+#if MBVH_CPU_ISA_ID == 2
+    const __m256i sel = _mm256_maskz_compress_epi32(static_cast<__mmask8>(pm), slots);
+#else
+    const __m256i sel = _mm256_permutevar8x32_epi32(
+        slots, _mm256_cvtepu8_epi32(_mm_cvtsi64_si128(static_cast<long long>(kAscending8[pm]))));
+#endif
+    const __m256i links = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(child));
+    _mm256_storeu_si256(reinterpret_cast<__m256i*>(stack + sp), _mm256_permutevar8x32_epi32(links, sel));
+    if constexpr (Dist) _mm256_storeu_ps(dist + sp, _mm256_permutevar8x32_ps(_mm256_loadu_ps(d), sel));
+    top = static_cast<int>((order >> (3 * (31 - std::countl_zero(pm)))) & 7u);
+    return sp + static_cast<unsigned>(std::popcount(mask));
   }
 
   /// One pass of a leaf's test over the pack at p (F4: lanes k..k+3 of the leaf) or the two packs

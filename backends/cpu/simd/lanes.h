@@ -43,6 +43,21 @@ constexpr std::array<std::uint64_t, 256> kDescending8 = [] {
 }();
 #endif
 
+#if MBVH_CPU_ISA_ID != 2
+/// For each 8-bit mask, its set lanes lowest first, one byte each (the AVX2 octant-ordered push).
+constexpr std::array<std::uint64_t, 256> kAscending8 = [] {
+  std::array<std::uint64_t, 256> t{};
+  for (unsigned m = 0; m < 256; ++m) {
+    std::uint64_t packed = 0;
+    int n = 0;
+    for (int s = 0; s < 8; ++s)
+      if ((m >> s) & 1u) packed |= std::uint64_t(s) << (8 * n++);
+    t[m] = packed;
+  }
+  return t;
+}();
+#endif
+
 /// 4 and 8 lanes of float: the operations the box test needs.
 struct F4 {
   using V = __m128;

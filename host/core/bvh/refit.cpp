@@ -125,6 +125,7 @@ void refit_wide(M& m, const Bvh2& b, double leaves, double root, unsigned thread
       build::set_slot(n, s, bx);
       all.grow(bx);
     }
+    if constexpr (W == 8) build::set_octant_order(n);  // the order follows the new boxes
     sum += all.half_area();
     return inside;
   });

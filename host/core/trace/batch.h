@@ -108,15 +108,14 @@ template <bool Any>
   else out.hits[i] = h;
 }
 
-/// The ordered stack (stack.h's OrderedWalk) with two rays walked in turn, a node or leaf of one,
+/// A walk (stack.h's OrderedWalk or OctantWalk) with two rays walked in turn, a node or leaf of one,
 /// then of the other: a ray's walk is one chain of dependent loads and tests (the node, its box
 /// test, the child picked, the child's node), and the other ray's step fills the core while it
 /// waits. Each ray's answer is the single-ray walk's (the same steps in the same order); a
 /// finished ray's slot takes the next ray of [b, e).
-template <bool Any, class K, class N>
+template <bool Any, class K, class Walk>
 inline void run_interleaved(const TraceView& v, std::span<const Ray> rays, std::size_t b, std::size_t e, TraceOutput& out,
                             std::size_t& invalid) {
-  using Walk = OrderedWalk<Any, NoStats, K, N>;
   typename K::Ray r0{}, r1{};  // defined before a walk is made on them (its start() reads tmax); load() sets them
   Walk w0(v, r0), w1(v, r1);
   std::size_t id0 = 0, id1 = 0, next = b;
@@ -159,24 +158,31 @@ inline void run_interleaved(const TraceView& v, std::span<const Ray> rays, std::
   }
 }
 
-/// Walks rays [b, e) two in turn (run_interleaved) where K and `opt` take it, on the ordered stack
-/// without statistics: MBVH4 both queries, MBVH8 any hit only. MBVH8 closest hit (its ordered
-/// stack the default closest-hit traversal) gained on some scenes and lost on others; its any hit
-/// gained most where it gains and lost a little elsewhere (docs/backends.md). False where the
-/// rays are left to run_batch.
+/// Walks rays [b, e) two in turn (run_interleaved) where K and `opt` take it, without statistics:
+/// the ordered stack on MBVH4 both queries, MBVH8 any hit only; the MBVH8 octant stack any hit
+/// only. MBVH8 closest hit (its ordered stack the default closest-hit traversal; the octant
+/// stack alike) gained on some scenes and lost on others; its any hit gained most where it gains
+/// and lost a little elsewhere (the octant stack's gained on every scene measured;
+/// docs/backends.md). False where the rays are left to run_batch.
 template <class K>
 inline bool walked_in_turn(const TraceView& v, std::span<const Ray> rays, std::size_t b, std::size_t e,
                            const TraceOptions& opt, TraceOutput& out, std::size_t& invalid) {
   if constexpr (interleaves<K>()) {
-    if (opt.stats || opt.traversal != Traversal::stack_ordered) return false;
+    if (opt.stats) return false;
     const bool any = opt.query == Query::any;
+    if (opt.traversal == Traversal::stack_octant) {  // MBVH8 only; any hit only, as the ordered stack's MBVH8
+      if (!any || opt.layout != Layout::mbvh8) return false;
+      run_interleaved<true, K, OctantWalk<true, NoStats, K>>(v, rays, b, e, out, invalid);
+      return true;
+    }
+    if (opt.traversal != Traversal::stack_ordered) return false;
     if (opt.layout == Layout::mbvh4) {
-      if (any) run_interleaved<true, K, Node4>(v, rays, b, e, out, invalid);
-      else run_interleaved<false, K, Node4>(v, rays, b, e, out, invalid);
+      if (any) run_interleaved<true, K, OrderedWalk<true, NoStats, K, Node4>>(v, rays, b, e, out, invalid);
+      else run_interleaved<false, K, OrderedWalk<false, NoStats, K, Node4>>(v, rays, b, e, out, invalid);
       return true;
     }
     if (opt.layout == Layout::mbvh8 && any) {
-      run_interleaved<true, K, Node8>(v, rays, b, e, out, invalid);
+      run_interleaved<true, K, OrderedWalk<true, NoStats, K, Node8>>(v, rays, b, e, out, invalid);
       return true;
     }
   }

@@ -30,6 +30,7 @@ bool reference_supports(Layout layout, Traversal traversal) {
   // is) do not list it, though trace_reference traces it as packet_single_ray's traversal
   if (is_dacrt(traversal)) return false;
   if (layout == Layout::mbvh8) return traversal != Traversal::bitstack_retest;  // no bitstack-retest on MBVH8
+  if (traversal == Traversal::stack_octant) return false;  // MBVH8 only (its nodes hold the octant orders)
   return layout == Layout::mbvh4 || traversal == Traversal::stack || traversal == Traversal::bitstack;
 }
 
@@ -51,7 +52,8 @@ std::size_t state_bytes_per_ray(Layout layout, Traversal traversal) {
   const std::size_t entries = layout == Layout::mbvh2   ? MBVH_STACK2_ENTRIES
                               : layout == Layout::mbvh4 ? MBVH_STACK4_ENTRIES
                                                         : MBVH_STACK8_ENTRIES;
-  const std::size_t entry = traversal == Traversal::stack_ordered ? 8 : 4;  // (node, distance) or node
+  // (node, distance) or node; stack-octant keeps the distances in a second array
+  const std::size_t entry = traversal == Traversal::stack_ordered || traversal == Traversal::stack_octant ? 8 : 4;
   return entries * entry + 4 + 4;
 }
 

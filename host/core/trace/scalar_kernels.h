@@ -104,6 +104,24 @@ struct ScalarKernelsT {
     }
     return sp;
   }
+  /// Pushes the MBVH8 children of `mask` (two or more) in `order` (a node's octant order: lane k's
+  /// slot in bits 3k..3k+2, farthest first), so the last pushed, `top`'s slot, is the nearest;
+  /// Dist: each entry's d beside it in `dist`. Returns the new stack pointer; the stack (and dist)
+  /// have room for 8 entries past sp.
+  template <bool Dist>
+  static unsigned push_octant(std::int32_t* stack, float* dist, unsigned sp, unsigned mask, std::uint32_t order,
+                              const std::int32_t* child, const float* d, int& top) {
+    for (int k = 0; k < 8; ++k) {
+      const int s = static_cast<int>((order >> (3 * k)) & 7u);
+      if ((mask >> s) & 1u) {
+        stack[sp] = child[s];
+        if constexpr (Dist) dist[sp] = d[s];
+        ++sp;
+        top = s;
+      }
+    }
+    return sp;
+  }
 };
 using ScalarKernels = ScalarKernelsT<false>;
 

@@ -4,6 +4,7 @@
 #pragma once
 #include <bit>
 #include <cstdint>
+#include <cstring>
 #include <utility>
 
 #include "host/core/trace/intersect.h"
@@ -219,6 +220,85 @@ inline Hit trace_mbvh8_stack(const TraceView& v, const typename K::Ray& r, St& s
     if (sp == 0) return best;
     cur = stack[--sp];
   }
+}
+
+/// MBVH8, the octant-ordered stack (Fuetterling, Lojewski, Pfreundt & Ebert, "Accelerated Single
+/// Ray Tracing for Wide Vector Units", HPG 2017): each node holds, per ray direction octant, its
+/// children's order along that octant's diagonal (mbvh_layout.h, Node8::pad; set_octant_order),
+/// so a node's hit children are pushed in that order with no sort and no branch on their number
+/// (K::push_octant: a permute and a compress), and the last pushed entered at once (read from
+/// the node, not the stack). One hit child is entered without a push.
+/// Closest hit walks the ray's own octant's order, nearest first, keeps each entry's distance
+/// beside it and culls a popped entry beyond tmax * S, as the ordered stack does. Any hit walks
+/// the opposite octant's order: the child reaching farthest along the ray first (its far corner
+/// on the ray's diagonal), so a shadow ray leaves the boxes around its own origin — its surface,
+/// which cannot occlude it — for last; nothing is culled (the query ends at its first hit).
+/// The walk's state and one step of it (as OrderedWalk), so that a driver may advance two rays in
+/// turn (batch.h's run_interleaved) with the single-ray traversal's code.
+template <bool Any, class St, class K>
+struct OctantWalk {
+  const TraceView& v;
+  const typename K::Ray* r;
+  Hit best;
+  float tmax;
+  StepGuard guard;
+  unsigned sp;
+  unsigned oct;  ///< the order's byte in Node8::pad: the ray's octant (closest hit) or the opposite one (any hit)
+  std::int32_t cur;
+  std::int32_t stack[MBVH_STACK8_ENTRIES];
+  float dist[Any ? 1 : MBVH_STACK8_ENTRIES];
+
+  OctantWalk(const TraceView& view, const typename K::Ray& ray) : v(view), r(&ray), guard(view) { start(); }
+  /// Starts the walk of the ray given at construction (its values as they are now).
+  [[gnu::always_inline]] void start() {
+    best = miss_hit();
+    tmax = r->tmax;
+    guard = StepGuard(v);
+    sp = 0;
+    cur = 0;
+    oct = 3u * (static_cast<unsigned>(r->neg[0] | r->neg[1] << 1 | r->neg[2] << 2) ^ (Any ? 7u : 0u));
+  }
+  /// One node or leaf visit and the pop after it; false once the ray is done (its answer in best).
+  [[gnu::always_inline]] bool step(St& st) {
+    guard.step();
+    if (cur >= 0) {
+      const Node8& n = v.n8[cur];
+      float d[8];
+      const unsigned m = detail::test_node<K, Any, false>(n, *r, tmax * kCullSlack, d, st);
+      if (m) {
+        if ((m & (m - 1)) == 0) {  // one hit child: entered, nothing pushed
+          cur = n.child[std::countr_zero(m)];
+          return true;
+        }
+        std::uint32_t order;
+        std::memcpy(&order, reinterpret_cast<const unsigned char*>(n.pad) + oct, sizeof(order));
+        guard.room(sp, 8, MBVH_STACK8_ENTRIES);
+        int top;
+        sp = K::template push_octant<!Any>(stack, dist, sp, m, order, n.child, d, top) - 1;
+        detail::prefetch_pending<K, Any>(n, *r, m, top);
+        cur = n.child[top];
+        st.depth(sp);
+        return true;
+      }
+    } else if (K::template leaf<Any>(v, cur, *r, tmax, best, st)) {
+      return false;
+    }
+    for (;;) {  // pop, culling (closest hit) entries beyond the best hit
+      if (sp == 0) return false;
+      --sp;
+      if (!Any && dist[Any ? 0 : sp] > tmax * kCullSlack) continue;
+      cur = stack[sp];
+      return true;
+    }
+  }
+};
+
+template <bool Any, class St, class K = ScalarKernels>
+inline Hit trace_mbvh8_octant(const TraceView& v, const typename K::Ray& r, St& st) {
+  OctantWalk<Any, St, K> w(v, r);
+  while (w.step(st)) {
+  }
+  return w.best;
 }
 
 }  // namespace MBVH_ISA_NS

@@ -103,7 +103,8 @@ typedef enum mbvh_traversal {
   MBVH_TRAVERSAL_PACKET_RANGED = 5,   /* the cpu backends' coherent packets */
   MBVH_TRAVERSAL_PACKET_PARTITION = 6,
   MBVH_TRAVERSAL_PACKET = 7,
-  MBVH_TRAVERSAL_DACRT = 8            /* divide-and-conquer, no hierarchy (the dacrt backends) */
+  MBVH_TRAVERSAL_DACRT = 8,           /* divide-and-conquer, no hierarchy (the dacrt backends) */
+  MBVH_TRAVERSAL_STACK_OCTANT = 9     /* MBVH8 only: the children pushed in the ray octant's order */
 } mbvh_traversal;
 
 typedef enum mbvh_query {

@@ -52,11 +52,17 @@ enum class Query { closest, any };
 /// packet_single_ray's traversal's up to the same classified ties; the reference traces it as that
 /// traversal, ray by ray, on a build with a hierarchy (reference_supports is still false for it:
 /// cpu-scalar and the SIMD cpu backends do not list it).
+/// stack_octant (MBVH8 only; the C API's MBVH_TRAVERSAL_STACK_OCTANT): the stack walk of Fuetterling, Lojewski, Pfreundt
+/// & Ebert (HPG 2017) — every node holds its children's order for each of the eight ray
+/// direction octants (made once with the layout), and the walk pushes a node's hit children in
+/// its ray's octant order, nearest on top, without sorting them; closest hit keeps each entry's
+/// distance and culls it when popped beyond the best hit. The answers are every stack
+/// traversal's.
 /// automatic ("auto"): the backend's fastest exact traversal for the query (on the layout asked, or
 /// with the layout it traces fastest when that is automatic too): Backend::fastest's ranking,
 /// measured per backend and ISA (docs/library.md, "Defaults"), resolved by resolve_options before
 /// anything is prepared or traced. The default of TraceOptions.
-enum class Traversal { stack, bitstack, stack_ordered, bitstack_retest, packet_ranged, packet_partition, packet, dacrt, automatic };
+enum class Traversal { stack, bitstack, stack_ordered, bitstack_retest, packet_ranged, packet_partition, packet, dacrt, stack_octant, automatic };
 /// Whether `t` traces packets of rays (the cpu backend's packet traversals).
 inline bool is_packet(Traversal t) {
   return t == Traversal::packet_ranged || t == Traversal::packet_partition || t == Traversal::packet;
