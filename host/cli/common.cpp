@@ -266,7 +266,7 @@ std::vector<std::string> all_backends() {
 void GridArgs::add(CLI::App* c) {
   c->add_option("--backend", backends,
                 "comma-separated backends (see `mbvh devices`), or 'all': every backend this machine runs, once each");
-  c->add_option("--layout", layouts, "comma-separated layouts: mbvh2, mbvh4, mbvh8 (stack, bitstack, stack-ordered)");
+  c->add_option("--layout", layouts, "comma-separated layouts: mbvh2, mbvh4, mbvh8");
   c->add_option("--traversal", traversals,
                 "comma-separated traversals: stack, bitstack, stack-ordered, bitstack-retest (the last two MBVH4/8), stack-octant (MBVH8: the children pushed in the ray octant's order), packet-ranged, packet-partition, packet (cpu packets: 64 rays on AVX2, 128 on AVX-512), dacrt (no hierarchy; a dacrt backend runs it whatever this list says)");
   c->add_option("--query", queries, "comma-separated queries: closest, any");
