@@ -29,33 +29,25 @@ constexpr std::array<std::uint8_t, 256> kReverse8 = [] {
 #endif
 
 #if MBVH_CPU_ISA_ID != 2
-/// For each 8-bit mask, its set slots highest first, one byte each (the AVX2 MBVH8 push).
-constexpr std::array<std::uint64_t, 256> kDescending8 = [] {
+/// For each 8-bit mask, its set slots one byte each, highest first if `descending` else lowest
+/// first (the AVX2 compress of the MBVH8 pushes).
+constexpr std::array<std::uint64_t, 256> set_lanes8(bool descending) {
   std::array<std::uint64_t, 256> t{};
   for (unsigned m = 0; m < 256; ++m) {
     std::uint64_t packed = 0;
     int n = 0;
-    for (int s = 7; s >= 0; --s)
+    for (int k = 0; k < 8; ++k) {
+      const int s = descending ? 7 - k : k;
       if ((m >> s) & 1u) packed |= std::uint64_t(s) << (8 * n++);
+    }
     t[m] = packed;
   }
   return t;
-}();
-#endif
-
-#if MBVH_CPU_ISA_ID != 2
-/// For each 8-bit mask, its set lanes lowest first, one byte each (the AVX2 octant-ordered push).
-constexpr std::array<std::uint64_t, 256> kAscending8 = [] {
-  std::array<std::uint64_t, 256> t{};
-  for (unsigned m = 0; m < 256; ++m) {
-    std::uint64_t packed = 0;
-    int n = 0;
-    for (int s = 0; s < 8; ++s)
-      if ((m >> s) & 1u) packed |= std::uint64_t(s) << (8 * n++);
-    t[m] = packed;
-  }
-  return t;
-}();
+}
+/// The MBVH8 stack's push (highest slot first, so the lowest pops first).
+constexpr std::array<std::uint64_t, 256> kDescending8 = set_lanes8(true);
+/// The octant-ordered push (lowest lane of the order first).
+constexpr std::array<std::uint64_t, 256> kAscending8 = set_lanes8(false);
 #endif
 
 /// 4 and 8 lanes of float: the operations the box test needs.
