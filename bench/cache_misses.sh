@@ -2,8 +2,8 @@
 # SPDX-License-Identifier: MIT
 # cache_misses.sh — cache behaviour per ray, from valgrind's cache model (cachegrind), so the
 # machine's noise does not move it: instructions, L1 data misses and last-level misses per ray of
-# the cpu backend's ordered stacks (MBVH8 and MBVH4, robust precision, cpu-avx2: valgrind runs
-# no AVX-512) and of the embree peer (robust; under valgrind it runs its AVX2
+# the cpu backend's stacks (robust precision, cpu-avx2: valgrind runs no AVX-512; MBVH8 and MBVH4
+# ordered, MBVH8 octant-ordered) and of the embree peer (robust; under valgrind it runs its AVX2
 # kernels), 1 thread, on the interior views of bench/cpu_vs_embree.sh: primary and diffuse rays
 # closest hit, shadow rays any hit, RAYS rays per kind (the same ray files for both).
 #
@@ -22,8 +22,10 @@
 #   bench/cache_misses.sh [--quick] [OUT] [RAYS]   (default bench/out-cache-misses, 20000 rays;
 #     --quick: the bunny, 2000 rays, MBVH8 and embree — a smoke test of the script, about 30 s)
 # Environment: JOBS (parallel valgrind runs, default 2), SCENES_LIST (default
-# "bunny conference sibenik sponza"), LAYOUTS (the cpu layouts, default "mbvh8 mbvh4"; each with
-# --traversal stack-ordered).
+# "bunny conference sibenik sponza"), LAYOUTS (the cpu variants, LAYOUT or LAYOUT:TRAVERSAL, default
+# "mbvh8 mbvh8:stack-octant mbvh4"; a bare layout runs --traversal stack-ordered). "LL / embree" is
+# the backend's default variant for the query over embree's: MBVH8 ordered for closest hit, MBVH8
+# octant for any hit (where LAYOUTS has them; else the first variant).
 # Writes OUT/cache-misses.md (and prints it); about 5 minutes with JOBS=1, less with JOBS=2 on an idle machine.
 set -euo pipefail
 # shellcheck source=bench/lib.sh
@@ -33,11 +35,11 @@ RAYS="${ARGS[0]:-20000}"
 JOBS="${JOBS:-2}"
 D1="${D1:-32768,8,64}"
 LL="${LL:-1048576,8,64}"
-read -r -a LAYOUTS <<< "${LAYOUTS:-mbvh8 mbvh4}"
+read -r -a LAYOUTS <<< "${LAYOUTS:-mbvh8 mbvh8:stack-octant mbvh4}"
 read -r -a NAMES <<< "${SCENES_LIST:-bunny conference sibenik sponza}"
 if [ "$QUICK" = 1 ]; then
   RAYS=2000
-  LAYOUTS=(mbvh8)
+  LAYOUTS=(mbvh8 mbvh8:stack-octant)
   NAMES=(bunny)
 fi
 command -v valgrind > /dev/null || { echo "cache_misses.sh: valgrind is not installed" >&2; exit 2; }
@@ -68,7 +70,9 @@ run_one() {
   IFS='|' read -r name scene kind query backend reps <<< "$1"
   local rays="$OUT/rays/$name-$kind.rays" args
   [ "$reps" = x2 ] && rays="$OUT/rays/$name-$kind.x2.rays"
-  if [ "$backend" = embree ]; then args="--backend embree"; else args="--backend cpu-avx2 --layout $backend --traversal stack-ordered"; fi
+  local layout="${backend%%:*}" traversal=stack-ordered
+  [ "$layout" = "$backend" ] || traversal="${backend#*:}"
+  if [ "$backend" = embree ]; then args="--backend embree"; else args="--backend cpu-avx2 --layout $layout --traversal $traversal"; fi
   # shellcheck disable=SC2086  # args are words
   valgrind --tool=cachegrind --cache-sim=yes --I1=32768,8,64 --D1="$D1" --LL="$LL" \
     --cachegrind-out-file="$OUT/cg/$name-$kind-$backend-$reps.out" \
@@ -117,10 +121,14 @@ def per_ray(name, kind, backend):
     return (b["Ir"] - a["Ir"]) / rays, d["D1mr"] + d["D1mw"], d["DLmr"] + d["DLmw"]
 
 print(f"Per ray, one warm pass over {rays} rays (cachegrind: D1 {d1}, LL {ll}; size,assoc,line), 1 thread; "
-      f"cpu: cpu-avx2, ordered stack, robust; embree: robust. Instructions: the trace call; misses: its traversal "
-      f"(the driver's ray stream left out). LL / embree: the first cpu layout's LL misses over embree's.\n")
+      f"cpu: cpu-avx2, robust, ordered stack (octant: the octant-ordered stack); embree: robust. Instructions: the "
+      f"trace call; misses: its traversal (the driver's ray stream left out). LL / embree: the default variant's LL "
+      f"misses over embree's (MBVH8 ordered for closest hit, MBVH8 octant for any hit).\n")
 cols = layouts + ["embree"]
-names_of = {l: l.upper() for l in layouts}
+def label(v):
+    layout, _, trav = v.partition(":")
+    return layout.upper() + (" " + trav.replace("stack-", "") if trav else "")
+names_of = {l: label(l) for l in layouts}
 names_of["embree"] = "embree"
 head = ["scene", "rays"] + [f"{names_of[c]} {what}" for what in ("instr", "D1 misses", "LL misses") for c in cols] + ["LL / embree"]
 print("| " + " | ".join(head) + " |")
@@ -129,7 +137,8 @@ for name in names:
     for kind in ("primary", "diffuse", "shadow"):
         r = {c: per_ray(name, kind, c) for c in cols}
         cells = [f"{r[c][0]:.0f}" for c in cols] + [f"{r[c][1]:.3f}" for c in cols] + [f"{r[c][2]:.3f}" for c in cols]
-        el, cl = r["embree"][2], r[cols[0]][2]
+        default = "mbvh8:stack-octant" if kind == "shadow" else "mbvh8"
+        el, cl = r["embree"][2], r[default if default in r else cols[0]][2]
         cells.append(f"{cl / el:.1f}" if el > 0 else "-")
         print(f"| {name} | {kind} | " + " | ".join(cells) + " |")
 EOF
