@@ -10,10 +10,12 @@
 # Per ray, without the fixed cost: each case runs twice, on the ray file and on the same rays
 # twice over (one file); the difference of the two runs is one pass over the rays with warm
 # caches (scene load, build, prepare, the first pass's cold misses and the output file cancel).
-# Only the trace call's functions are counted (by name, below): the instructions are its driver
-# (the loop that reads the 32-byte rays and writes the answers) and the traversal; the misses
-# the traversal's alone (streaming the rays costs half a line per ray on either backend, and
-# whether the first pass left them in the modelled LL depends on the file's size).
+# Only the trace call's functions are counted (by name, below): its driver (the loop that reads
+# the 32-byte rays and writes the answers) and the traversal. The cpu backend's walks are inlined
+# into its batch driver, so names cannot part the two: instructions and misses are the whole
+# call's on both backends. The ray stream (the doubled file's second half is memory the first pass
+# never touched: about one LL miss a ray for the rays and the answers) is the same on both, so
+# "LL − embree", the difference per ray, is the traversals' difference.
 #
 # The modelled caches: D1 32 KiB, 8-way (Zen 4's L1D) and "LL" 1 MiB, 8-way — Zen 4's L2, the
 # level the shared scenes' trees (1 to 6 MB) leave; cachegrind models two levels only (and on a
@@ -26,6 +28,7 @@
 # "mbvh8 mbvh8:stack-octant mbvh4"; a bare layout runs --traversal stack-ordered). "LL / embree" is
 # the backend's default variant for the query over embree's: MBVH8 ordered for closest hit, MBVH8
 # octant for any hit (where LAYOUTS has them; else the first variant).
+# TABLE_ONLY=1 makes the table from an earlier run's OUT/cg without running anything.
 # Writes OUT/cache-misses.md (and prints it); about 5 minutes with JOBS=1, less with JOBS=2 on an idle machine.
 set -euo pipefail
 # shellcheck source=bench/lib.sh
@@ -46,6 +49,7 @@ command -v valgrind > /dev/null || { echo "cache_misses.sh: valgrind is not inst
 mkdir -p "$OUT/rays" "$OUT/cg" "$OUT/bvh"
 LIST="$(scene_rows "$SCENES" "${NAMES[@]}")"
 
+if [ "${TABLE_ONLY:-0}" != 1 ]; then
 # the ray files (native runs), each also doubled
 JOBLIST="$OUT/jobs.txt"
 : > "$JOBLIST"
@@ -83,6 +87,7 @@ run_one() {
 export -f run_one
 export OUT MBVH D1 LL
 xargs -P "$JOBS" -I{} bash -c 'run_one "$@"' _ {} < "$JOBLIST"
+fi
 
 python3 - "$OUT" "$RAYS" "$D1" "$LL" "${LAYOUTS[*]}" "${NAMES[@]}" << 'EOF' | tee "$OUT/cache-misses.md"
 import re, sys
@@ -94,43 +99,42 @@ out, rays, d1, ll, layouts, names = sys.argv[1], int(sys.argv[2]), sys.argv[3], 
 # backend's batch loop (trace_parallel, run_batch; the ray set-up inlined) and the embree peer's
 # trace_batch with what it runs per batch (its ray conversion).
 TRAVERSAL = re.compile(r"mbvh::avx2::|mbvh::avx512::|^\?\?\?$|^rtc|embree::")
-DRIVER = re.compile(r"trace_parallel|run_batch|EmbreeBackend::trace_batch")
+DRIVER = re.compile(r"trace_parallel|run_batch|run_interleaved|EmbreeBackend::trace_batch")
 
 def totals(path):
-    """Event totals of a cachegrind file: (traversal and drivers, traversal alone)."""
-    events, fn, kind = None, "", None
+    """Event totals of a cachegrind file over the trace call's functions (traversal and drivers)."""
+    events, counted = None, False
     with open(path) as f:
         for line in f:
             if line.startswith("events:"):
                 events = line.split()[1:]
-                call, trav = [0] * len(events), [0] * len(events)
+                call = [0] * len(events)
             elif line.startswith("fn="):
                 fn = line[3:].strip()
-                kind = "driver" if DRIVER.search(fn) else "trav" if TRAVERSAL.search(fn) else None
-            elif line[:1].isdigit() and kind:
+                counted = bool(DRIVER.search(fn) or TRAVERSAL.search(fn))
+            elif line[:1].isdigit() and counted:
                 for k, x in enumerate(line.split()[1:]):
                     call[k] += int(x)
-                    if kind == "trav":
-                        trav[k] += int(x)
-    return dict(zip(events, call)), dict(zip(events, trav))
+    return dict(zip(events, call))
 
 def per_ray(name, kind, backend):
-    a, at = totals(f"{out}/cg/{name}-{kind}-{backend}-x1.out")
-    b, bt = totals(f"{out}/cg/{name}-{kind}-{backend}-x2.out")
-    d = {e: (bt[e] - at[e]) / rays for e in a}
-    return (b["Ir"] - a["Ir"]) / rays, d["D1mr"] + d["D1mw"], d["DLmr"] + d["DLmw"]
+    a = totals(f"{out}/cg/{name}-{kind}-{backend}-x1.out")
+    b = totals(f"{out}/cg/{name}-{kind}-{backend}-x2.out")
+    d = {e: (b[e] - a[e]) / rays for e in a}
+    return d["Ir"], d["D1mr"] + d["D1mw"], d["DLmr"] + d["DLmw"]
 
 print(f"Per ray, one warm pass over {rays} rays (cachegrind: D1 {d1}, LL {ll}; size,assoc,line), 1 thread; "
       f"cpu: cpu-avx2, robust, ordered stack (octant: the octant-ordered stack); embree: robust. Instructions: the "
-      f"trace call; misses: its traversal (the driver's ray stream left out). LL / embree: the default variant's LL "
-      f"misses over embree's (MBVH8 ordered for closest hit, MBVH8 octant for any hit).\n")
+      f"trace call, instructions and misses alike (its driver's ray stream, about one LL miss a ray, included on "
+      f"both backends). LL / embree and LL − embree: the default variant's LL misses (MBVH8 ordered for closest "
+      f"hit, MBVH8 octant for any hit) over and minus embree's.\n")
 cols = layouts + ["embree"]
 def label(v):
     layout, _, trav = v.partition(":")
     return layout.upper() + (" " + trav.replace("stack-", "") if trav else "")
 names_of = {l: label(l) for l in layouts}
 names_of["embree"] = "embree"
-head = ["scene", "rays"] + [f"{names_of[c]} {what}" for what in ("instr", "D1 misses", "LL misses") for c in cols] + ["LL / embree"]
+head = ["scene", "rays"] + [f"{names_of[c]} {what}" for what in ("instr", "D1 misses", "LL misses") for c in cols] + ["LL / embree", "LL − embree"]
 print("| " + " | ".join(head) + " |")
 print("|" + "---|" * len(head))
 for name in names:
@@ -139,6 +143,7 @@ for name in names:
         cells = [f"{r[c][0]:.0f}" for c in cols] + [f"{r[c][1]:.3f}" for c in cols] + [f"{r[c][2]:.3f}" for c in cols]
         default = "mbvh8:stack-octant" if kind == "shadow" else "mbvh8"
         el, cl = r["embree"][2], r[default if default in r else cols[0]][2]
-        cells.append(f"{cl / el:.1f}" if el > 0 else "-")
+        cells.append(f"{cl / el:.2f}" if el > 0 else "-")
+        cells.append(f"{cl - el:+.3f}")
         print(f"| {name} | {kind} | " + " | ".join(cells) + " |")
 EOF
