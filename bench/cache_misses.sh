@@ -74,15 +74,15 @@ run_one() {
   IFS='|' read -r name scene kind query backend reps <<< "$1"
   local rays="$OUT/rays/$name-$kind.rays" args
   [ "$reps" = x2 ] && rays="$OUT/rays/$name-$kind.x2.rays"
-  local layout="${backend%%:*}" traversal=stack-ordered
+  local layout="${backend%%:*}" traversal=stack-ordered tag="${backend//:/-}"  # tag: no ':' in file names
   [ "$layout" = "$backend" ] || traversal="${backend#*:}"
   if [ "$backend" = embree ]; then args="--backend embree"; else args="--backend cpu-avx2 --layout $layout --traversal $traversal"; fi
   # shellcheck disable=SC2086  # args are words
   valgrind --tool=cachegrind --cache-sim=yes --I1=32768,8,64 --D1="$D1" --LL="$LL" \
-    --cachegrind-out-file="$OUT/cg/$name-$kind-$backend-$reps.out" \
+    --cachegrind-out-file="$OUT/cg/$name-$kind-$tag-$reps.out" \
     "$MBVH" -q trace "$scene" --cache "$OUT/bvh" --rays "$rays" $args --query "$query" --threads 1 \
-    -o "$OUT/cg/$name-$kind-$backend-$reps.bin" > "$OUT/cg/$name-$kind-$backend-$reps.log" 2>&1 \
-    || { echo "failed: $1 (see $OUT/cg/$name-$kind-$backend-$reps.log)" >&2; return 1; }
+    -o "$OUT/cg/$name-$kind-$tag-$reps.bin" > "$OUT/cg/$name-$kind-$tag-$reps.log" 2>&1 \
+    || { echo "failed: $1 (see $OUT/cg/$name-$kind-$tag-$reps.log)" >&2; return 1; }
 }
 export -f run_one
 export OUT MBVH D1 LL
@@ -118,8 +118,9 @@ def totals(path):
     return dict(zip(events, call))
 
 def per_ray(name, kind, backend):
-    a = totals(f"{out}/cg/{name}-{kind}-{backend}-x1.out")
-    b = totals(f"{out}/cg/{name}-{kind}-{backend}-x2.out")
+    tag = backend.replace(":", "-")
+    a = totals(f"{out}/cg/{name}-{kind}-{tag}-x1.out")
+    b = totals(f"{out}/cg/{name}-{kind}-{tag}-x2.out")
     d = {e: (b[e] - a[e]) / rays for e in a}
     return d["Ir"], d["D1mr"] + d["D1mw"], d["DLmr"] + d["DLmw"]
 
