@@ -2,7 +2,8 @@
 // lbvh.cpp — the fast builder (`--quality low`): a linear BVH over Morton codes of the triangles'
 // centroids (Lauterbach et al., "Fast BVH Construction on GPUs", 2009; Karras, "Maximizing
 // Parallelism in the Construction of BVHs, Octrees, and k-d Trees", HPG 2012). The records are
-// sorted by a 30-bit code (10 bits per axis, ties kept in scene order by a stable radix sort),
+// sorted by a 30-bit code (10 bits per axis, ties kept in scene order: a radix sort, one pass on
+// the top digit over the whole array, then each digit's bucket on its own while it is in cache),
 // every node splits its range where the highest differing code bit flips (a binary search), and
 // boxes are unions of the children's, bottom-up. Two additions keep it usable by every layout:
 //  - the depth cap: a node whose Morton halves would need more levels than remain to reach leaves
@@ -72,12 +73,21 @@ public:
       if (count <= opt_.max_leaf) return 0;
       mid = b + count / 2;
     } else {
+      // the first item with the bit set (the range shares the code bits above it, so the clear
+      // ones come first): a binary search without branches on the items, which mispredict half
+      // the time
       const std::uint64_t bit = std::uint64_t(1) << (63 - std::countl_zero(cb ^ ce));
-      mid = static_cast<std::uint32_t>(
-          std::partition_point(items_ + b, items_ + e, [bit](std::uint64_t c) { return (c & bit) == 0; }) - items_);
+      const std::uint64_t* first = items_ + b;
+      for (std::uint32_t len = count; len > 1;) {
+        const std::uint32_t half = len / 2;
+        first += (first[half - 1] & bit) == 0 ? half : 0;
+        len -= half;
+      }
+      mid = static_cast<std::uint32_t>(first - items_) + ((*first & bit) == 0 ? 1 : 0);
     }
     const unsigned below = opt_.depth_cap - depth - 1;  // levels left under a child
-    if (needed(mid - b) > below || needed(e - mid) > below) mid = b + count / 2;
+    // (a child never needs more levels than its parent's records would)
+    if (needed(count) > below && (needed(mid - b) > below || needed(e - mid) > below)) mid = b + count / 2;
     return mid;
   }
 
@@ -203,7 +213,7 @@ void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& c
   // chunks of the passes below: about four per worker (a stable sort has one result whatever
   // the chunks, so they may follow the thread count)
   const std::size_t grain = std::max<std::size_t>(8192, (n + 4 * resolve_threads(opt.threads) - 1) / (4 * resolve_threads(opt.threads)));
-  // -- working memory, 48 bytes a record: two arrays of sort items and the sorted records; the
+  // -- working memory, 48 bytes a record: two arrays of sort items and a copy of the records; the
   //    caller's (the triangle records' array, written after the build: no pages of its own to
   //    fault in), else an array of our own
   RawVector<std::uint64_t> own;
@@ -213,58 +223,87 @@ void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& c
   }
   std::uint64_t* item = reinterpret_cast<std::uint64_t*>(static_cast<void*>(scratch));
   std::uint64_t* item2 = item + n;
-  PrimRef* sorted = reinterpret_cast<PrimRef*>(static_cast<void*>(item + 2 * n));
-  // -- Morton codes of the centroids, quantised to 1024 cells per axis of the centroid bounds
+  PrimRef* copy = reinterpret_cast<PrimRef*>(static_cast<void*>(item + 2 * n));
+  // -- Morton codes of the centroids, quantised to 1024 cells per axis of the centroid bounds;
+  //    the same pass copies the records aside (the gather below reads them there and writes the
+  //    records' array in code order: no copy back) and counts each chunk's top digits
   float scale[3];
   for (int a = 0; a < 3; ++a) {
     const float ext = croot.hi[a] - croot.lo[a];
     scale[a] = ext > 0 ? 1024.0f / ext : 0.0f;
   }
+  constexpr unsigned kDigits = 1024;
+  constexpr unsigned kTop = 52;  // the top 10 of the code's 30 bits, in a sort item
+  const std::size_t chunks = (n + grain - 1) / grain;
+  std::vector<std::array<std::uint32_t, kDigits>> offset(chunks);
   parallel_for(n, grain, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
+    std::array<std::uint32_t, kDigits>& h = offset[b / grain];
+    h.fill(0);
     for (std::size_t i = b; i < e; ++i) {
+      const PrimRef r = prims[i];
+      copy[i] = r;
       std::uint32_t code = 0;
       for (int a = 0; a < 3; ++a) {
-        const float f = (prims[i].centroid(a) - croot.lo[a]) * scale[a];
+        const float f = (r.centroid(a) - croot.lo[a]) * scale[a];
         code |= kSpread[std::min(1023u, static_cast<std::uint32_t>(f > 0 ? f : 0))] << (2 - a);
       }
       item[i] = std::uint64_t(code) << 32 | i;
+      ++h[code >> 20];
     }
   });
-  // -- stable LSD radix sort of the items by code, 10 bits a pass, each pass in chunks on the
-  //    pool: the chunks' digit counts, their offsets in (digit, chunk) order, then every chunk
-  //    scatters its items in order; a stable sort has one result at any thread count
-  constexpr unsigned kDigits = 1024;
-  const std::size_t chunks = (n + grain - 1) / grain;
-  std::vector<std::array<std::uint32_t, kDigits>> offset(chunks);
-  for (unsigned shift = 32; shift < 62; shift += 10) {
-    parallel_for(n, grain, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
-      std::array<std::uint32_t, kDigits>& h = offset[b / grain];
-      h.fill(0);
-      for (std::size_t i = b; i < e; ++i) ++h[(item[i] >> shift) & (kDigits - 1)];
-    });
-    std::uint32_t sum = 0;
-    for (unsigned d = 0; d < kDigits; ++d)
-      for (std::size_t c = 0; c < chunks; ++c) {
-        const std::uint32_t k = offset[c][d];
-        offset[c][d] = sum;
-        sum += k;
-      }
-    parallel_for(n, grain, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
-      std::array<std::uint32_t, kDigits>& h = offset[b / grain];
-      for (std::size_t i = b; i < e; ++i) item2[h[(item[i] >> shift) & (kDigits - 1)]++] = item[i];
-    });
-    std::swap(item, item2);
+  // -- the items sorted by code, ties in record order (so by the whole item: codes above the
+  //    unique record indices): one stable most-significant-digit pass on the top 10 bits in chunks
+  //    on the pool (the chunks' digit counts, their offsets in (digit, chunk) order, every chunk
+  //    scattering its items in order), then each digit's bucket, mostly small enough to stay in
+  //    cache, sorted on its own (two least-significant-digit passes of 10 bits, or std::sort of
+  //    the items where it is short) and its records gathered in code order. One result at any
+  //    thread count.
+  std::uint32_t sum = 0;
+  std::array<std::uint32_t, kDigits + 1> bucket{};
+  for (unsigned d = 0; d < kDigits; ++d) {
+    bucket[d] = sum;
+    for (std::size_t c = 0; c < chunks; ++c) {
+      const std::uint32_t k = offset[c][d];
+      offset[c][d] = sum;
+      sum += k;
+    }
   }
-  // -- the records in code order (gathered, then copied back over the originals)
+  bucket[kDigits] = sum;
   parallel_for(n, grain, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
-    for (std::size_t i = b; i < e; ++i) {
-      if (i + 16 < e) __builtin_prefetch(&prims[static_cast<std::uint32_t>(item[i + 16])]);
-      sorted[i] = prims[static_cast<std::uint32_t>(item[i])];
+    std::array<std::uint32_t, kDigits>& h = offset[b / grain];
+    for (std::size_t i = b; i < e; ++i) item2[h[item[i] >> kTop]++] = item[i];
+  });
+  parallel_for(kDigits, 16, opt.threads, [&](std::size_t d0, std::size_t d1, unsigned) {
+    std::array<std::uint32_t, kDigits> h;
+    for (std::size_t d = d0; d < d1; ++d) {
+      const std::uint32_t b = bucket[d], e = bucket[d + 1];
+      std::uint64_t* const s = item2 + b;
+      const std::uint32_t m = e - b;
+      if (m <= 64) {
+        std::sort(s, s + m);
+      } else {
+        std::uint64_t* src = s;
+        std::uint64_t* dst = item + b;
+        for (unsigned shift = 32; shift < 52; shift += 10) {
+          h.fill(0);
+          for (std::uint32_t i = 0; i < m; ++i) ++h[(src[i] >> shift) & (kDigits - 1)];
+          std::uint32_t at = 0;
+          for (unsigned k = 0; k < kDigits; ++k) {
+            const std::uint32_t c = h[k];
+            h[k] = at;
+            at += c;
+          }
+          for (std::uint32_t i = 0; i < m; ++i) dst[h[(src[i] >> shift) & (kDigits - 1)]++] = src[i];
+          std::swap(src, dst);
+        }
+      }
+      for (std::uint32_t i = 0; i < m; ++i) {
+        if (i + 16 < m) __builtin_prefetch(&copy[static_cast<std::uint32_t>(s[i + 16])]);
+        prims[b + i] = copy[static_cast<std::uint32_t>(s[i])];
+      }
     }
   });
-  parallel_for(n, grain, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
-    std::copy(sorted + b, sorted + e, prims.begin() + static_cast<std::ptrdiff_t>(b));
-  });
+  item = item2;
   if (opt.progress) opt.progress(0.2);
 
   // -- top of the tree breadth-first (splits only: a binary search each), then subtrees per task
