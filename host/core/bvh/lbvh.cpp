@@ -255,8 +255,8 @@ void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& c
   //    unique record indices): one stable most-significant-digit pass on the top 10 bits in chunks
   //    on the pool (the chunks' digit counts, their offsets in (digit, chunk) order, every chunk
   //    scattering its items in order), then each digit's bucket, mostly small enough to stay in
-  //    cache, sorted on its own (two least-significant-digit passes of 10 bits, or std::sort of
-  //    the items where it is short) and its records gathered in code order. One result at any
+  //    cache, sorted on its own (least-significant-digit passes over the code's low 20 bits, or
+  //    std::sort of the items where it is short) and its records gathered in code order. One result at any
   //    thread count.
   std::uint32_t sum = 0;
   std::array<std::uint32_t, kDigits + 1> bucket{};
@@ -279,28 +279,38 @@ void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& c
       const std::uint32_t b = bucket[d], e = bucket[d + 1];
       std::uint64_t* const s = item2 + b;
       const std::uint32_t m = e - b;
+      std::uint64_t* src = s;
       if (m <= 64) {
         std::sort(s, s + m);
       } else {
-        std::uint64_t* src = s;
+        // the code's low 20 bits: three passes of 7, 7 and 6 bits where the bucket is short (the
+        // counts' prefix sums cost about as much as the items), else two of 10
+        const bool short_bucket = m <= 2048;
+        const unsigned passes = short_bucket ? 3 : 2;
         std::uint64_t* dst = item + b;
-        for (unsigned shift = 32; shift < 52; shift += 10) {
-          h.fill(0);
-          for (std::uint32_t i = 0; i < m; ++i) ++h[(src[i] >> shift) & (kDigits - 1)];
+        for (unsigned p = 0; p < passes; ++p) {
+          const unsigned shift = short_bucket ? 32 + 7 * p : 32 + 10 * p;
+          const unsigned bits = short_bucket ? (p == 2 ? 6 : 7) : 10;
+          const std::uint64_t mask = (std::uint64_t(1) << bits) - 1;
+          std::fill_n(h.begin(), std::size_t(1) << bits, 0u);
+          for (std::uint32_t i = 0; i < m; ++i) ++h[(src[i] >> shift) & mask];
           std::uint32_t at = 0;
-          for (unsigned k = 0; k < kDigits; ++k) {
+          for (unsigned k = 0; k < (1u << bits); ++k) {
             const std::uint32_t c = h[k];
             h[k] = at;
             at += c;
           }
-          for (std::uint32_t i = 0; i < m; ++i) dst[h[(src[i] >> shift) & (kDigits - 1)]++] = src[i];
+          for (std::uint32_t i = 0; i < m; ++i) dst[h[(src[i] >> shift) & mask]++] = src[i];
           std::swap(src, dst);
         }
       }
+      // the records gathered in code order (and the items back in place after an odd number of
+      // passes)
       for (std::uint32_t i = 0; i < m; ++i) {
-        if (i + 16 < m) __builtin_prefetch(&copy[static_cast<std::uint32_t>(s[i + 16])]);
-        prims[b + i] = copy[static_cast<std::uint32_t>(s[i])];
+        if (i + 16 < m) __builtin_prefetch(&copy[static_cast<std::uint32_t>(src[i + 16])]);
+        prims[b + i] = copy[static_cast<std::uint32_t>(src[i])];
       }
+      if (src != s) std::copy(src, src + m, s);
     }
   });
   item = item2;
