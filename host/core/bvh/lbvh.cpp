@@ -17,6 +17,8 @@
 #include <array>
 #include <atomic>
 #include <bit>
+#include <type_traits>
+#include <vector>
 
 #include "host/core/bvh/builder.h"
 #include "host/core/parallel.h"
@@ -104,11 +106,41 @@ public:
     t.box = box;
   }
 
-  // Builds the subtree of arena node n (its range and depth set).
-  void build(SubArena& arena, std::size_t n) const {
+  // A node of build_small's tree while it is priced (outside the arena): its record range, its
+  // box and its first child's index in the same array (the second follows it), -1 for a leaf.
+  // (Plain rows, no initialisers: the array is not filled before it is used.)
+  struct Small {
+    float lo[3], hi[3];
+    std::uint32_t begin, end;
+    std::int32_t child;
+    FastBox box() const {
+      FastBox f;
+      for (int a = 0; a < 3; ++a) f.lo[a] = lo[a], f.hi[a] = hi[a];
+      return f;
+    }
+    void set_box(const FastBox& f) {
+      for (int a = 0; a < 3; ++a) lo[a] = f.lo[a], hi[a] = f.hi[a];
+    }
+  };
+  static_assert(std::is_trivially_default_constructible_v<Small>);
+
+  // Builds a subtree task's tree from its arena's node 0 (its range and depth set).
+  void build(SubArena& arena) const {
+    constexpr std::size_t kStack = 64;  // build_small's nodes on the stack: max_leaf up to 32
+    Small stack[kStack];
+    std::vector<Small> heap;
+    Small* nodes = stack;
+    if (2 * std::size_t(opt_.max_leaf) > kStack) {
+      heap.resize(2 * std::size_t(opt_.max_leaf));
+      nodes = heap.data();
+    }
+    build(arena, 0, nodes);
+  }
+
+  // Builds the subtree of arena node n (its range and depth set); `nodes`: build_small's room.
+  void build(SubArena& arena, std::size_t n, Small* nodes) const {
     if (arena[n].end - arena[n].begin <= opt_.max_leaf) {
-      FastBox box;
-      build_small(arena, n, box);
+      build_small(arena, n, nodes);
       return;
     }
     const std::uint32_t mid = split_of(arena[n]);
@@ -118,72 +150,105 @@ public:
     }
     const std::size_t first = arena.size();
     push_children(arena, n, mid);
-    build(arena, first);
-    build(arena, first + 1);
+    build(arena, first, nodes);
+    build(arena, first + 1, nodes);
     TmpNode& t = arena[n];
     t.box = arena[first].box;
     t.box.grow(arena[first + 1].box);
   }
 
-  // Builds the subtree of arena node n of at most max_leaf records bottom-up and returns its SAH
-  // cost (area units: node visits traversal_cost, triangles priced by blocks()) with its box: its
-  // Morton split is made first, then undone (the children popped from the arena) where one leaf
-  // prices no higher; every node below is priced once.
-  float build_small(SubArena& arena, std::size_t n, FastBox& box) const {
-    const std::uint32_t count = arena[n].end - arena[n].begin;
-    if (count == 2 && arena[n].depth < opt_.depth_cap && opt_.max_leaf >= 2) return pair(arena, n, box);
-    const std::uint32_t mid = split_of(arena[n]);
+  // Builds the subtree of arena node n of at most max_leaf records bottom-up: its Morton split is
+  // made first, then undone where one leaf prices no higher, every node below priced once (price()).
+  // The pricing runs on `nodes`, room for 2 max_leaf (a range of c records has at most 2c - 1
+  // nodes); only the nodes kept are written to the arena, in the order a depth-first build
+  // pushes them.
+  void build_small(SubArena& arena, std::size_t n, Small* nodes) const {
+    nodes[0].begin = arena[n].begin;
+    nodes[0].end = arena[n].end;
+    std::uint32_t size = 1;
+    price_small(nodes, size, 0, arena[n].depth);
+    emit_small(arena, n, nodes, 0);
+  }
+
+  // Prices node `self` of `nodes` (its range set) at `depth` and returns its SAH cost (area units:
+  // node visits traversal_cost, triangles priced by blocks()); its box set, the children it keeps
+  // appended from `size`. A node of two records prices its two one-record leaves without
+  // splitting (equal codes make one leaf).
+  float price_small(Small* nodes, std::uint32_t& size, std::uint32_t self, std::uint32_t depth) const {
+    Small& t = nodes[self];
+    const std::uint32_t b = t.begin, count = t.end - t.begin;
+    if (count == 2 && depth < opt_.depth_cap && opt_.max_leaf >= 2) {
+      FastBox c[2];
+      c[0].grow(prims_[b]);
+      c[1].grow(prims_[b + 1]);
+      FastBox box = c[0];
+      box.grow(c[1]);
+      t.set_box(box);
+      t.child = -1;
+      const float area = box.half_area();
+      const float leaf = price(2) * area;
+      if (code_of(items_[b]) != code_of(items_[b + 1])) {
+        const float one = price(1);
+        const float cost = one * c[0].half_area() + one * c[1].half_area() + opt_.traversal_cost * area;
+        if (leaf > cost) {
+          t.child = static_cast<std::int32_t>(size);
+          for (std::uint32_t k = 0; k < 2; ++k) {
+            Small& l = nodes[size + k];
+            l.set_box(c[k]);
+            l.begin = b + k;
+            l.end = b + k + 1;
+            l.child = -1;
+          }
+          size += 2;
+          return cost;
+        }
+      }
+      return leaf;
+    }
+    const std::uint32_t mid = split_of(b, t.end, depth);
     if (mid == 0) {
-      make_leaf(arena[n]);
-      box = arena[n].box;
+      FastBox box;
+      for (std::uint32_t i = b; i < t.end; ++i) box.grow(prims_[i]);
+      t.set_box(box);
+      t.child = -1;
       return price(count) * box.half_area();
     }
-    const std::size_t first = arena.size();
-    push_children(arena, n, mid);
-    FastBox rb;
-    float split = build_small(arena, first, box);
-    split += build_small(arena, first + 1, rb);
-    box.grow(rb);
+    const std::uint32_t first = size;
+    nodes[first].begin = b;
+    nodes[first].end = nodes[first + 1].begin = mid;
+    nodes[first + 1].end = t.end;
+    size += 2;
+    float split = price_small(nodes, size, first, depth + 1);
+    split += price_small(nodes, size, first + 1, depth + 1);
+    FastBox box = nodes[first].box();
+    box.grow(nodes[first + 1].box());
     const float area = box.half_area();
     const float cost = split + opt_.traversal_cost * area;
     const float leaf = price(count) * area;
-    TmpNode& t = arena[n];
-    t.box = box;
+    t.set_box(box);
     if (leaf <= cost) {
-      arena.resize(first);
-      t.leaf = true;
-      t.child[0] = t.child[1] = -1;
+      size = first;  // its descendants were appended after its children
+      t.child = -1;
       return leaf;
     }
+    t.child = static_cast<std::int32_t>(first);
     return cost;
   }
 
-  // build_small of a node of two records (depth below the cap, max_leaf >= 2), its two
-  // one-record leaves priced without being made unless they are kept: the same nodes, boxes and
-  // cost. Equal codes make one leaf.
-  float pair(SubArena& arena, std::size_t n, FastBox& box) const {
-    TmpNode& t = arena[n];
-    const std::uint32_t b = t.begin;
-    FastBox c[2];
-    c[0].grow(prims_[b]);
-    c[1].grow(prims_[b + 1]);
-    box = c[0];
-    box.grow(c[1]);
-    const float area = box.half_area();
-    const float leaf = price(2) * area;
-    if (code_of(items_[b]) != code_of(items_[b + 1])) {
-      const float one = price(1);
-      const float cost = one * c[0].half_area() + one * c[1].half_area() + opt_.traversal_cost * area;
-      if (leaf > cost) {
-        const std::size_t first = arena.size();
-        push_children(arena, n, b + 1);
-        for (int k = 0; k < 2; ++k) make_leaf(arena[first + std::size_t(k)], c[k]);
-        arena[n].box = box;
-        return cost;
-      }
+  // Writes priced node `self` into arena node n (its range and depth set), its kept children
+  // pushed after it and written depth-first.
+  void emit_small(SubArena& arena, std::size_t n, const Small* nodes, std::uint32_t self) const {
+    const Small& s = nodes[self];
+    if (s.child < 0) {
+      make_leaf(arena[n], s.box());
+      return;
     }
-    make_leaf(t, box);
-    return leaf;
+    const std::size_t first = arena.size();
+    const std::uint32_t c = static_cast<std::uint32_t>(s.child);
+    push_children(arena, n, nodes[c].end);
+    arena[n].box = s.box();
+    emit_small(arena, first, nodes, c);
+    emit_small(arena, first + 1, nodes, c + 1);
   }
 
   template <class Arena>  // the upper arena (a vector) or a subtree's (SubArena)
@@ -335,7 +400,7 @@ void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& c
     if (mid == 0) builder.make_leaf(upper[k]);
     else LbvhBuilder::push_children(upper, k, mid);
   }
-  build_subtrees(out, jobs, opt, [&](SubArena& subtree, std::size_t) { builder.build(subtree, 0); });
+  build_subtrees(out, jobs, opt, [&](SubArena& subtree, std::size_t) { builder.build(subtree); });
   // -- the top's boxes bottom-up (children follow their parent in the breadth-first arena)
   for (std::size_t k = upper.size(); k-- > 0;) {
     TmpNode& t = upper[k];
