@@ -274,6 +274,24 @@ TEST_CASE("quality low builds a valid tree within the depth cap and max leaf", "
   CHECK(forced->binary_stats().depth <= 6);
   CHECK(forced->bvh2().forced_leaves >= 1);
   check_invariants(bunny, *forced);
+  // max_leaf of 1 (no leaf SAH collapse), the default 8, and beyond the leaf pricing's room on
+  // the stack (32): valid, within max_leaf, none forced, the same bytes at 1 and 2 threads
+  for (unsigned ml : {1u, 8u, 33u, 48u}) {
+    INFO("max_leaf " << ml);
+    BuildOptions o;
+    o.quality = BuildQuality::low;
+    o.max_leaf = ml;
+    std::uint64_t hash[2];
+    for (unsigned t = 1; t <= 2; ++t) {
+      o.threads = t;
+      const auto acc = Accel::build(bunny, o);
+      check_invariants(bunny, *acc);
+      CHECK(acc->bvh2().largest_leaf <= ml);
+      CHECK(acc->bvh2().forced_leaves == 0);
+      hash[t - 1] = acc->hash();
+    }
+    CHECK(hash[0] == hash[1]);
+  }
   CHECK(parse_quality("low") == BuildQuality::low);
   CHECK_THROWS_AS(parse_quality("best"), Error);
 }

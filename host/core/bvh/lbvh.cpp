@@ -2,7 +2,8 @@
 // lbvh.cpp — the fast builder (`--quality low`): a linear BVH over Morton codes of the triangles'
 // centroids (Lauterbach et al., "Fast BVH Construction on GPUs", 2009; Karras, "Maximizing
 // Parallelism in the Construction of BVHs, Octrees, and k-d Trees", HPG 2012). The records are
-// sorted by a 30-bit code (10 bits per axis, ties kept in scene order by a stable radix sort),
+// sorted by a 30-bit code (10 bits per axis, ties kept in scene order: a radix sort, one pass on
+// the top digit over the whole array, then each digit's bucket on its own while it is in cache),
 // every node splits its range where the highest differing code bit flips (a binary search), and
 // boxes are unions of the children's, bottom-up. Two additions keep it usable by every layout:
 //  - the depth cap: a node whose Morton halves would need more levels than remain to reach leaves
@@ -16,6 +17,8 @@
 #include <array>
 #include <atomic>
 #include <bit>
+#include <type_traits>
+#include <vector>
 
 #include "host/core/bvh/builder.h"
 #include "host/core/parallel.h"
@@ -72,12 +75,21 @@ public:
       if (count <= opt_.max_leaf) return 0;
       mid = b + count / 2;
     } else {
+      // the first item with the bit set (the range shares the code bits above it, so the clear
+      // ones come first): a binary search without branches on the items, which mispredict half
+      // the time
       const std::uint64_t bit = std::uint64_t(1) << (63 - std::countl_zero(cb ^ ce));
-      mid = static_cast<std::uint32_t>(
-          std::partition_point(items_ + b, items_ + e, [bit](std::uint64_t c) { return (c & bit) == 0; }) - items_);
+      const std::uint64_t* first = items_ + b;
+      for (std::uint32_t len = count; len > 1;) {
+        const std::uint32_t half = len / 2;
+        first += (first[half - 1] & bit) == 0 ? half : 0;
+        len -= half;
+      }
+      mid = static_cast<std::uint32_t>(first - items_) + ((*first & bit) == 0 ? 1 : 0);
     }
     const unsigned below = opt_.depth_cap - depth - 1;  // levels left under a child
-    if (needed(mid - b) > below || needed(e - mid) > below) mid = b + count / 2;
+    // (a child never needs more levels than its parent's records would)
+    if (needed(count) > below && (needed(mid - b) > below || needed(e - mid) > below)) mid = b + count / 2;
     return mid;
   }
 
@@ -94,11 +106,41 @@ public:
     t.box = box;
   }
 
-  // Builds the subtree of arena node n (its range and depth set).
-  void build(SubArena& arena, std::size_t n) const {
+  // A node of build_small's tree while it is priced (outside the arena): its record range, its
+  // box and its first child's index in the same array (the second follows it), -1 for a leaf.
+  // (Plain rows, no initialisers: the array is not filled before it is used.)
+  struct Small {
+    float lo[3], hi[3];
+    std::uint32_t begin, end;
+    std::int32_t child;
+    FastBox box() const {
+      FastBox f;
+      for (int a = 0; a < 3; ++a) f.lo[a] = lo[a], f.hi[a] = hi[a];
+      return f;
+    }
+    void set_box(const FastBox& f) {
+      for (int a = 0; a < 3; ++a) lo[a] = f.lo[a], hi[a] = f.hi[a];
+    }
+  };
+  static_assert(std::is_trivially_default_constructible_v<Small>);
+
+  // Builds a subtree task's tree from its arena's node 0 (its range and depth set).
+  void build(SubArena& arena) const {
+    constexpr std::size_t kStack = 64;  // build_small's nodes on the stack: max_leaf up to 32
+    Small stack[kStack];
+    std::vector<Small> heap;
+    Small* nodes = stack;
+    if (2 * std::size_t(opt_.max_leaf) > kStack) {
+      heap.resize(2 * std::size_t(opt_.max_leaf));
+      nodes = heap.data();
+    }
+    build(arena, 0, nodes);
+  }
+
+  // Builds the subtree of arena node n (its range and depth set); `nodes`: build_small's room.
+  void build(SubArena& arena, std::size_t n, Small* nodes) const {
     if (arena[n].end - arena[n].begin <= opt_.max_leaf) {
-      FastBox box;
-      build_small(arena, n, box);
+      build_small(arena, n, nodes);
       return;
     }
     const std::uint32_t mid = split_of(arena[n]);
@@ -108,72 +150,105 @@ public:
     }
     const std::size_t first = arena.size();
     push_children(arena, n, mid);
-    build(arena, first);
-    build(arena, first + 1);
+    build(arena, first, nodes);
+    build(arena, first + 1, nodes);
     TmpNode& t = arena[n];
     t.box = arena[first].box;
     t.box.grow(arena[first + 1].box);
   }
 
-  // Builds the subtree of arena node n of at most max_leaf records bottom-up and returns its SAH
-  // cost (area units: node visits traversal_cost, triangles priced by blocks()) with its box: its
-  // Morton split is made first, then undone (the children popped from the arena) where one leaf
-  // prices no higher; every node below is priced once.
-  float build_small(SubArena& arena, std::size_t n, FastBox& box) const {
-    const std::uint32_t count = arena[n].end - arena[n].begin;
-    if (count == 2 && arena[n].depth < opt_.depth_cap && opt_.max_leaf >= 2) return pair(arena, n, box);
-    const std::uint32_t mid = split_of(arena[n]);
+  // Builds the subtree of arena node n of at most max_leaf records bottom-up: its Morton split is
+  // made first, then undone where one leaf prices no higher, every node below priced once (price()).
+  // The pricing runs on `nodes`, room for 2 max_leaf (a range of c records has at most 2c - 1
+  // nodes); only the nodes kept are written to the arena, in the order a depth-first build
+  // pushes them.
+  void build_small(SubArena& arena, std::size_t n, Small* nodes) const {
+    nodes[0].begin = arena[n].begin;
+    nodes[0].end = arena[n].end;
+    std::uint32_t size = 1;
+    price_small(nodes, size, 0, arena[n].depth);
+    emit_small(arena, n, nodes, 0);
+  }
+
+  // Prices node `self` of `nodes` (its range set) at `depth` and returns its SAH cost (area units:
+  // node visits traversal_cost, triangles priced by blocks()); its box set, the children it keeps
+  // appended from `size`. A node of two records prices its two one-record leaves without
+  // splitting (equal codes make one leaf).
+  float price_small(Small* nodes, std::uint32_t& size, std::uint32_t self, std::uint32_t depth) const {
+    Small& t = nodes[self];
+    const std::uint32_t b = t.begin, count = t.end - t.begin;
+    if (count == 2 && depth < opt_.depth_cap && opt_.max_leaf >= 2) {
+      FastBox c[2];
+      c[0].grow(prims_[b]);
+      c[1].grow(prims_[b + 1]);
+      FastBox box = c[0];
+      box.grow(c[1]);
+      t.set_box(box);
+      t.child = -1;
+      const float area = box.half_area();
+      const float leaf = price(2) * area;
+      if (code_of(items_[b]) != code_of(items_[b + 1])) {
+        const float one = price(1);
+        const float cost = one * c[0].half_area() + one * c[1].half_area() + opt_.traversal_cost * area;
+        if (leaf > cost) {
+          t.child = static_cast<std::int32_t>(size);
+          for (std::uint32_t k = 0; k < 2; ++k) {
+            Small& l = nodes[size + k];
+            l.set_box(c[k]);
+            l.begin = b + k;
+            l.end = b + k + 1;
+            l.child = -1;
+          }
+          size += 2;
+          return cost;
+        }
+      }
+      return leaf;
+    }
+    const std::uint32_t mid = split_of(b, t.end, depth);
     if (mid == 0) {
-      make_leaf(arena[n]);
-      box = arena[n].box;
+      FastBox box;
+      for (std::uint32_t i = b; i < t.end; ++i) box.grow(prims_[i]);
+      t.set_box(box);
+      t.child = -1;
       return price(count) * box.half_area();
     }
-    const std::size_t first = arena.size();
-    push_children(arena, n, mid);
-    FastBox rb;
-    float split = build_small(arena, first, box);
-    split += build_small(arena, first + 1, rb);
-    box.grow(rb);
+    const std::uint32_t first = size;
+    nodes[first].begin = b;
+    nodes[first].end = nodes[first + 1].begin = mid;
+    nodes[first + 1].end = t.end;
+    size += 2;
+    float split = price_small(nodes, size, first, depth + 1);
+    split += price_small(nodes, size, first + 1, depth + 1);
+    FastBox box = nodes[first].box();
+    box.grow(nodes[first + 1].box());
     const float area = box.half_area();
     const float cost = split + opt_.traversal_cost * area;
     const float leaf = price(count) * area;
-    TmpNode& t = arena[n];
-    t.box = box;
+    t.set_box(box);
     if (leaf <= cost) {
-      arena.resize(first);
-      t.leaf = true;
-      t.child[0] = t.child[1] = -1;
+      size = first;  // its descendants were appended after its children
+      t.child = -1;
       return leaf;
     }
+    t.child = static_cast<std::int32_t>(first);
     return cost;
   }
 
-  // build_small of a node of two records (depth below the cap, max_leaf >= 2), its two
-  // one-record leaves priced without being made unless they are kept: the same nodes, boxes and
-  // cost. Equal codes make one leaf.
-  float pair(SubArena& arena, std::size_t n, FastBox& box) const {
-    TmpNode& t = arena[n];
-    const std::uint32_t b = t.begin;
-    FastBox c[2];
-    c[0].grow(prims_[b]);
-    c[1].grow(prims_[b + 1]);
-    box = c[0];
-    box.grow(c[1]);
-    const float area = box.half_area();
-    const float leaf = price(2) * area;
-    if (code_of(items_[b]) != code_of(items_[b + 1])) {
-      const float one = price(1);
-      const float cost = one * c[0].half_area() + one * c[1].half_area() + opt_.traversal_cost * area;
-      if (leaf > cost) {
-        const std::size_t first = arena.size();
-        push_children(arena, n, b + 1);
-        for (int k = 0; k < 2; ++k) make_leaf(arena[first + std::size_t(k)], c[k]);
-        arena[n].box = box;
-        return cost;
-      }
+  // Writes priced node `self` into arena node n (its range and depth set), its kept children
+  // pushed after it and written depth-first.
+  void emit_small(SubArena& arena, std::size_t n, const Small* nodes, std::uint32_t self) const {
+    const Small& s = nodes[self];
+    if (s.child < 0) {
+      make_leaf(arena[n], s.box());
+      return;
     }
-    make_leaf(t, box);
-    return leaf;
+    const std::size_t first = arena.size();
+    const std::uint32_t c = static_cast<std::uint32_t>(s.child);
+    push_children(arena, n, nodes[c].end);
+    arena[n].box = s.box();
+    emit_small(arena, first, nodes, c);
+    emit_small(arena, first + 1, nodes, c + 1);
   }
 
   template <class Arena>  // the upper arena (a vector) or a subtree's (SubArena)
@@ -203,7 +278,7 @@ void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& c
   // chunks of the passes below: about four per worker (a stable sort has one result whatever
   // the chunks, so they may follow the thread count)
   const std::size_t grain = std::max<std::size_t>(8192, (n + 4 * resolve_threads(opt.threads) - 1) / (4 * resolve_threads(opt.threads)));
-  // -- working memory, 48 bytes a record: two arrays of sort items and the sorted records; the
+  // -- working memory, 48 bytes a record: two arrays of sort items and a copy of the records; the
   //    caller's (the triangle records' array, written after the build: no pages of its own to
   //    fault in), else an array of our own
   RawVector<std::uint64_t> own;
@@ -213,58 +288,97 @@ void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& c
   }
   std::uint64_t* item = reinterpret_cast<std::uint64_t*>(static_cast<void*>(scratch));
   std::uint64_t* item2 = item + n;
-  PrimRef* sorted = reinterpret_cast<PrimRef*>(static_cast<void*>(item + 2 * n));
-  // -- Morton codes of the centroids, quantised to 1024 cells per axis of the centroid bounds
+  PrimRef* copy = reinterpret_cast<PrimRef*>(static_cast<void*>(item + 2 * n));
+  // -- Morton codes of the centroids, quantised to 1024 cells per axis of the centroid bounds;
+  //    the same pass copies the records aside (the gather below reads them there and writes the
+  //    records' array in code order: no copy back) and counts each chunk's top digits
   float scale[3];
   for (int a = 0; a < 3; ++a) {
     const float ext = croot.hi[a] - croot.lo[a];
     scale[a] = ext > 0 ? 1024.0f / ext : 0.0f;
   }
+  constexpr unsigned kDigits = 1024;
+  constexpr unsigned kTop = 52;  // the top 10 of the code's 30 bits, in a sort item
+  const std::size_t chunks = (n + grain - 1) / grain;
+  std::vector<std::array<std::uint32_t, kDigits>> offset(chunks);
   parallel_for(n, grain, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
+    std::array<std::uint32_t, kDigits>& h = offset[b / grain];
+    h.fill(0);
     for (std::size_t i = b; i < e; ++i) {
+      const PrimRef r = prims[i];
+      copy[i] = r;
       std::uint32_t code = 0;
       for (int a = 0; a < 3; ++a) {
-        const float f = (prims[i].centroid(a) - croot.lo[a]) * scale[a];
+        const float f = (r.centroid(a) - croot.lo[a]) * scale[a];
         code |= kSpread[std::min(1023u, static_cast<std::uint32_t>(f > 0 ? f : 0))] << (2 - a);
       }
       item[i] = std::uint64_t(code) << 32 | i;
+      ++h[code >> 20];
     }
   });
-  // -- stable LSD radix sort of the items by code, 10 bits a pass, each pass in chunks on the
-  //    pool: the chunks' digit counts, their offsets in (digit, chunk) order, then every chunk
-  //    scatters its items in order; a stable sort has one result at any thread count
-  constexpr unsigned kDigits = 1024;
-  const std::size_t chunks = (n + grain - 1) / grain;
-  std::vector<std::array<std::uint32_t, kDigits>> offset(chunks);
-  for (unsigned shift = 32; shift < 62; shift += 10) {
-    parallel_for(n, grain, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
-      std::array<std::uint32_t, kDigits>& h = offset[b / grain];
-      h.fill(0);
-      for (std::size_t i = b; i < e; ++i) ++h[(item[i] >> shift) & (kDigits - 1)];
-    });
-    std::uint32_t sum = 0;
-    for (unsigned d = 0; d < kDigits; ++d)
-      for (std::size_t c = 0; c < chunks; ++c) {
-        const std::uint32_t k = offset[c][d];
-        offset[c][d] = sum;
-        sum += k;
-      }
-    parallel_for(n, grain, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
-      std::array<std::uint32_t, kDigits>& h = offset[b / grain];
-      for (std::size_t i = b; i < e; ++i) item2[h[(item[i] >> shift) & (kDigits - 1)]++] = item[i];
-    });
-    std::swap(item, item2);
+  // -- the items sorted by code, ties in record order (so by the whole item: codes above the
+  //    unique record indices): one stable most-significant-digit pass on the top 10 bits in chunks
+  //    on the pool (the chunks' digit counts, their offsets in (digit, chunk) order, every chunk
+  //    scattering its items in order), then each digit's bucket, mostly small enough to stay in
+  //    cache, sorted on its own (least-significant-digit passes over the code's low 20 bits, or
+  //    std::sort of the items where it is short) and its records gathered in code order. One result at any
+  //    thread count.
+  std::uint32_t sum = 0;
+  std::array<std::uint32_t, kDigits + 1> bucket{};
+  for (unsigned d = 0; d < kDigits; ++d) {
+    bucket[d] = sum;
+    for (std::size_t c = 0; c < chunks; ++c) {
+      const std::uint32_t k = offset[c][d];
+      offset[c][d] = sum;
+      sum += k;
+    }
   }
-  // -- the records in code order (gathered, then copied back over the originals)
+  bucket[kDigits] = sum;
   parallel_for(n, grain, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
-    for (std::size_t i = b; i < e; ++i) {
-      if (i + 16 < e) __builtin_prefetch(&prims[static_cast<std::uint32_t>(item[i + 16])]);
-      sorted[i] = prims[static_cast<std::uint32_t>(item[i])];
+    std::array<std::uint32_t, kDigits>& h = offset[b / grain];
+    for (std::size_t i = b; i < e; ++i) item2[h[item[i] >> kTop]++] = item[i];
+  });
+  parallel_for(kDigits, 16, opt.threads, [&](std::size_t d0, std::size_t d1, unsigned) {
+    std::array<std::uint32_t, kDigits> h;
+    for (std::size_t d = d0; d < d1; ++d) {
+      const std::uint32_t b = bucket[d], e = bucket[d + 1];
+      std::uint64_t* const s = item2 + b;
+      const std::uint32_t m = e - b;
+      std::uint64_t* src = s;
+      if (m <= 64) {
+        std::sort(s, s + m);
+      } else {
+        // the code's low 20 bits: three passes of 7, 7 and 6 bits where the bucket is short (the
+        // counts' prefix sums cost about as much as the items), else two of 10
+        const bool short_bucket = m <= 2048;
+        const unsigned passes = short_bucket ? 3 : 2;
+        std::uint64_t* dst = item + b;
+        for (unsigned p = 0; p < passes; ++p) {
+          const unsigned shift = short_bucket ? 32 + 7 * p : 32 + 10 * p;
+          const unsigned bits = short_bucket ? (p == 2 ? 6 : 7) : 10;
+          const std::uint64_t mask = (std::uint64_t(1) << bits) - 1;
+          std::fill_n(h.begin(), std::size_t(1) << bits, 0u);
+          for (std::uint32_t i = 0; i < m; ++i) ++h[(src[i] >> shift) & mask];
+          std::uint32_t at = 0;
+          for (unsigned k = 0; k < (1u << bits); ++k) {
+            const std::uint32_t c = h[k];
+            h[k] = at;
+            at += c;
+          }
+          for (std::uint32_t i = 0; i < m; ++i) dst[h[(src[i] >> shift) & mask]++] = src[i];
+          std::swap(src, dst);
+        }
+      }
+      // the records gathered in code order (and the items back in place after an odd number of
+      // passes)
+      for (std::uint32_t i = 0; i < m; ++i) {
+        if (i + 16 < m) __builtin_prefetch(&copy[static_cast<std::uint32_t>(src[i + 16])]);
+        prims[b + i] = copy[static_cast<std::uint32_t>(src[i])];
+      }
+      if (src != s) std::copy(src, src + m, s);
     }
   });
-  parallel_for(n, grain, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
-    std::copy(sorted + b, sorted + e, prims.begin() + static_cast<std::ptrdiff_t>(b));
-  });
+  item = item2;
   if (opt.progress) opt.progress(0.2);
 
   // -- top of the tree breadth-first (splits only: a binary search each), then subtrees per task
@@ -286,7 +400,7 @@ void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& c
     if (mid == 0) builder.make_leaf(upper[k]);
     else LbvhBuilder::push_children(upper, k, mid);
   }
-  build_subtrees(out, jobs, opt, [&](SubArena& subtree, std::size_t) { builder.build(subtree, 0); });
+  build_subtrees(out, jobs, opt, [&](SubArena& subtree, std::size_t) { builder.build(subtree); });
   // -- the top's boxes bottom-up (children follow their parent in the breadth-first arena)
   for (std::size_t k = upper.size(); k-- > 0;) {
     TmpNode& t = upper[k];

@@ -11,6 +11,9 @@
 #include <cstring>
 #include <string>
 #include <vector>
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
 
 #include "host/core/bvh/builder.h"
 #include "host/core/bvh/triangles.h"
@@ -57,6 +60,47 @@ void check_traceable_range(const Scene& scene, const RawVector<PrimRef>& prims, 
   }
   if (largest < kMinSceneScale) throw_below_scene_scale(scene, largest);
 }
+
+#if defined(__SSE2__)
+// A chunk's running bounds of its records' boxes and centroids, as SSE rows (x, y, z, unused):
+// record() writes a triangle's PrimRef and grows them with the operations, and the operand
+// order, of prim_ref, FastBox::grow and FastBox::grow_centroid (std::min(x, y) is y < x ? y : x,
+// _mm_min_ps(y, x); std::max(x, y) is x < y ? y : x, _mm_max_ps(y, x)), so the records and
+// bounds have the same bits as theirs, -0.0 and +0.0 included. Its three vertices' finiteness
+// is finite()'s (x - x is +0 or NaN, summed; any order gives the same test).
+struct RecordRows {
+  __m128 lo = _mm_set1_ps(INFINITY), hi = _mm_set1_ps(-INFINITY);
+  __m128 clo = _mm_set1_ps(INFINITY), chi = _mm_set1_ps(-INFINITY);
+
+  static __m128 row(const Vec3f& v) { return _mm_setr_ps(v.x, v.y, v.z, 0.0f); }
+  static bool finite(__m128 a, __m128 b, __m128 c) {
+    const __m128 s = _mm_add_ps(_mm_add_ps(_mm_sub_ps(a, a), _mm_sub_ps(b, b)), _mm_sub_ps(c, c));
+    return (_mm_movemask_ps(_mm_cmpeq_ps(s, _mm_setzero_ps())) & 7) == 7;
+  }
+  // The record of the triangle (a, b, c) (finite rows; lane 3 zero) into r, its bounds grown.
+  void record(__m128 a, __m128 b, __m128 c, std::uint32_t prim, PrimRef& r) {
+    const __m128 l = _mm_min_ps(c, _mm_min_ps(b, a));
+    const __m128 h = _mm_max_ps(c, _mm_max_ps(b, a));  // lane 3: 0, the record's pad
+    lo = _mm_min_ps(l, lo);
+    hi = _mm_max_ps(h, hi);
+    const __m128 m = _mm_mul_ps(_mm_set1_ps(0.5f), _mm_add_ps(l, h));
+    clo = _mm_min_ps(m, clo);
+    chi = _mm_max_ps(m, chi);
+    _mm_storeu_ps(r.lo, l);  // lane 3 lands on prim, written next
+    r.prim = prim;
+    _mm_storeu_ps(r.hi, h);
+  }
+  static void store(__m128 l, __m128 h, FastBox& box) {
+    alignas(16) float lr[4], hr[4];
+    _mm_store_ps(lr, l);
+    _mm_store_ps(hr, h);
+    for (int a = 0; a < 3; ++a) {
+      box.lo[a] = lr[a];
+      box.hi[a] = hr[a];
+    }
+  }
+};
+#endif
 
 // The leaf-ordered triangle records: tris[i] is the triangle `prim(order[i])` of the scene.
 // `order` holds prim ids (SBVH) or the leaf-ordered records (binned SAH, LBVH).
@@ -146,9 +190,21 @@ PrimRefs make_prim_refs(const Scene& scene, unsigned threads, RawVector<PrimRef>
       const std::size_t start = after ? after - 1 : b;  // at or below b: only this chunk's triangles are read below
       std::size_t o = start;
       FastBox box, cbox;
+#if defined(__SSE2__)
+      RecordRows rows;
+#endif
       for (std::size_t i = b; i < e; ++i) {
         Vec3f v0, v1, v2;
-        if (!src.get_checked(i, v0, v1, v2) || !finite(v0, v1, v2)) {
+        if (!src.get_checked(i, v0, v1, v2)) {
+          invalid = true;
+          continue;
+        }
+#if defined(__SSE2__)
+        const __m128 r0 = RecordRows::row(v0), r1 = RecordRows::row(v1), r2 = RecordRows::row(v2);
+        if (!RecordRows::finite(r0, r1, r2)) {
+#else
+        if (!finite(v0, v1, v2)) {
+#endif
           invalid = true;
           continue;
         }
@@ -160,11 +216,19 @@ PrimRefs make_prim_refs(const Scene& scene, unsigned threads, RawVector<PrimRef>
             tiny_mag[c] = std::max({tiny_mag[c], std::fabs(v.x), std::fabs(v.y), std::fabs(v.z)});
           continue;
         }
+#if defined(__SSE2__)
+        rows.record(r0, r1, r2, static_cast<std::uint32_t>(i), prims[o++]);
+#else
         const PrimRef r = prim_ref(v0, v1, v2, static_cast<std::uint32_t>(i));
         box.grow(r);
         cbox.grow_centroid(r);
         prims[o++] = r;
+#endif
       }
+#if defined(__SSE2__)
+      RecordRows::store(rows.lo, rows.hi, box);
+      RecordRows::store(rows.clo, rows.chi, cbox);
+#endif
       float m = 0;  // the largest magnitude of the records: on each axis, their least lo or greatest hi
       if (o > start)
         for (int a = 0; a < 3; ++a) m = std::max({m, std::fabs(box.lo[a]), std::fabs(box.hi[a])});
