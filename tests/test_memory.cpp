@@ -2,12 +2,14 @@
 // test_memory.cpp — memory checked before it is spent: sparse files, decompression bombs, ray counts, allocation failures.
 #include <catch2/catch.hpp>
 
+#include <algorithm>
 #include <cstdint>
 #include <cstdlib>
 #include <cstring>
 #include <string>
 #include <vector>
 
+#include "host/core/huge_pages.h"
 #include "host/core/io/obj.h"
 #include "host/core/resources.h"
 #include "mbvh/error.h"
@@ -208,4 +210,20 @@ TEST_CASE("ray counts, ray files and image sizes are checked against MBVH_MEMORY
   CHECK(r.code == 2);
   CHECK_THAT(r.output, Catch::Contains("--width 600 --height 600: needs about 88 MiB") && Catch::Contains("360000 pixels") &&
                            Catch::Contains("MBVH_MEMORY_LIMIT"));
+}
+
+TEST_CASE("advise_huge_pages is a hint: any range, before or after its bytes are written, keeps them", "[memory][build]") {
+  advise_huge_pages(nullptr, std::size_t(1) << 30);  // nothing to advise
+  std::vector<unsigned char> small(4096, 7);
+  advise_huge_pages(small.data(), small.size());  // no whole 2 MiB page inside
+  CHECK(std::count(small.begin(), small.end(), 7) == 4096);
+  // 9 MiB and a bit, advised at an odd start before it is written (the whole 2 MiB pages inside
+  // it), then again once written: every word as written
+  std::vector<std::uint32_t> big((std::size_t(9) << 20) / 4 + 3);
+  advise_huge_pages(reinterpret_cast<unsigned char*>(big.data()) + 1, big.size() * 4 - 1);
+  for (std::size_t i = 0; i < big.size(); ++i) big[i] = static_cast<std::uint32_t>(i * 2654435761u);
+  advise_huge_pages(big.data(), big.size() * 4);
+  std::size_t same = 0;
+  for (std::size_t i = 0; i < big.size(); ++i) same += big[i] == static_cast<std::uint32_t>(i * 2654435761u);
+  CHECK(same == big.size());
 }

@@ -1,8 +1,9 @@
 // SPDX-License-Identifier: MIT
-// resources.cpp — the memory budget (MBVH_MEMORY_LIMIT, /proc/meminfo, sysconf), memory estimates
-// and the regular-file check for inputs.
+// resources.cpp — the memory budget (MBVH_MEMORY_LIMIT, /proc/meminfo, sysconf), memory estimates,
+// the regular-file check for inputs, the allocator's release and the huge-page advice (huge_pages.h).
 #include "host/core/resources.h"
 
+#include <sys/mman.h>
 #include <sys/resource.h>
 #include <sys/stat.h>
 #include <unistd.h>
@@ -14,11 +15,13 @@
 #include <atomic>
 #include <cerrno>
 #include <charconv>
+#include <cstdint>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <fstream>
 
+#include "host/core/huge_pages.h"
 #include "mbvh/error.h"
 
 namespace mbvh {
@@ -180,6 +183,19 @@ std::string format_bytes(std::uint64_t bytes) {
 void release_free_heap() {
 #if defined(__GLIBC__)
   malloc_trim(0);
+#endif
+}
+
+void advise_huge_pages(const void* p, std::size_t bytes) {
+#if defined(__linux__) && defined(MADV_HUGEPAGE)
+  constexpr std::uintptr_t kHuge = std::uintptr_t(2) << 20;
+  if (!p || bytes < kHuge) return;
+  const auto a = reinterpret_cast<std::uintptr_t>(p);
+  const std::uintptr_t lo = (a + kHuge - 1) & ~(kHuge - 1), hi = (a + bytes) & ~(kHuge - 1);
+  if (hi > lo) (void)madvise(reinterpret_cast<void*>(lo), hi - lo, MADV_HUGEPAGE);
+#else
+  (void)p;
+  (void)bytes;
 #endif
 }
 

@@ -12,6 +12,7 @@
 #include "host/core/bvh/reinsert.h"
 #include "host/core/bvh/sbvh.h"
 #include "host/core/enum_check.h"
+#include "host/core/huge_pages.h"
 #include "host/core/layouts.h"
 #include "host/core/resources.h"
 #include "mbvh/error.h"
@@ -81,6 +82,7 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
     //    box a tree's root gets); no tree, no statistics of one
     acc->impl_->tris_ = build::take_from(opt, &S::tris);
     acc->impl_->tris_.resize(prims.size());
+    advise_huge_pages(acc->impl_->tris_.data(), prims.size() * sizeof(Tri));  // written in full
     build::fill_tris(scene, prims, acc->impl_->tris_, opt.threads);
     build::give_back(opt, &S::prims, prims);
     acc->impl_->bounds_ = refs.root.box();
@@ -113,6 +115,7 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
     build::give_back(opt, &S::prims, prims);
     acc->impl_->tris_ = build::take_from(opt, &S::tris);
     acc->impl_->tris_.resize(r.prims.size());
+    advise_huge_pages(acc->impl_->tris_.data(), r.prims.size() * sizeof(Tri));  // written in full
     build::fill_tris(scene, r.prims, acc->impl_->tris_, opt.threads);
   } else {
     // -- the binary tree
@@ -121,6 +124,7 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
     // array meanwhile (48 bytes a record there, 32 needed): no array of its own to fault in
     acc->impl_->tris_ = build::take_from(opt, &S::tris);
     acc->impl_->tris_.resize(prims.size());
+    advise_huge_pages(acc->impl_->tris_.data(), prims.size() * sizeof(Tri));  // written in full
     static_assert(sizeof(Tri) >= sizeof(PrimRef) && alignof(Tri) % alignof(PrimRef) == 0);
     PrimRef* scratch = reinterpret_cast<PrimRef*>(static_cast<void*>(acc->impl_->tris_.data()));
     if (opt.quality == BuildQuality::low) build::build_lbvh(prims, refs.root, refs.croot, opt, arenas, scratch);

@@ -26,6 +26,7 @@
 
 #include "host/core/bvh/builder.h"
 #include "host/core/bvh/dense_bins.h"
+#include "host/core/huge_pages.h"
 #include "host/core/layouts.h"
 #include "host/core/parallel.h"
 
@@ -691,6 +692,7 @@ void resize_touched(V& v, std::size_t n, unsigned threads) {
     constexpr std::size_t kPage = 4096;
     unsigned char* from = reinterpret_cast<unsigned char*>(v.data() + v.size());
     const std::size_t bytes = (n - v.size()) * sizeof(typename V::value_type);
+    advise_huge_pages(from, bytes);
     parallel_for((bytes + kPage - 1) / kPage, 64, threads, [&](std::size_t b, std::size_t e, unsigned) {
       for (std::size_t p = b; p < e; ++p) from[p * kPage] = 0;
     });

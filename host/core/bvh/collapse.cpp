@@ -11,6 +11,7 @@
 
 #include "host/core/bvh/builder.h"
 #include "host/core/bvh/wide_node.h"
+#include "host/core/huge_pages.h"
 #include "host/core/layouts.h"
 #include "host/core/parallel.h"
 #include "host/core/trace/view.h"
@@ -292,6 +293,9 @@ void collapse(const Bvh2& b, const std::vector<Leaf>& leaves, const char* name, 
   });
   out.nodes.resize(std::max<std::size_t>(b.nodes.size(), 1));
   build::RawVector<float> area(out.nodes.size());  // written for every node kept (not zeroed: only those pages touched)
+  // both written from their start, up to the nodes kept (emit numbers the nodes in order)
+  advise_huge_pages(out.nodes.data(), out.nodes.size() * sizeof(N));
+  advise_huge_pages(area.data(), area.size() * sizeof(float));
   c.out = out.nodes.data();
   c.area = area.data();
   typename C::Tally top_tally;

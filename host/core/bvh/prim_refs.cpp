@@ -17,6 +17,7 @@
 
 #include "host/core/bvh/builder.h"
 #include "host/core/bvh/triangles.h"
+#include "host/core/huge_pages.h"
 #include "host/core/layouts.h"
 #include "host/core/parallel.h"
 #include "mbvh/error.h"
@@ -172,6 +173,7 @@ PrimRefs make_prim_refs(const Scene& scene, unsigned threads, RawVector<PrimRef>
   prims = std::move(storage);
   prims.clear();
   prims.resize(n);
+  advise_huge_pages(prims.data(), n * sizeof(PrimRef));  // written in full by the pass below
   std::vector<FastBox> cb(chunks), ccb(chunks);
   std::vector<float> mag(chunks, 0.0f);
   std::vector<float> tiny_mag(chunks, 0.0f);  // per chunk: the largest magnitude of its too-small triangles
