@@ -220,6 +220,24 @@ TEST_CASE("the build is deterministic: the same bytes at any thread count", "[bu
   }
 }
 
+TEST_CASE("the binned SAH bins a node of n records in min(bins, 4 + n / 20) bins", "[build]") {
+  // every node of a scene of n triangles has at most n records, so with bins = 4 + n / 20 the
+  // option never lowers a node's bins and the tree is the default's; with fewer it must differ
+  for (unsigned n : {19u, 100u, 400u}) {
+    INFO("triangles " << n);
+    const Scene s = load_scene("gen:soup:" + std::to_string(n));
+    BuildOptions o;
+    o.threads = 1;
+    const std::uint64_t want = Accel::build(s, o)->hash();
+    o.bins = 4 + n / 20;
+    CHECK(Accel::build(s, o)->hash() == want);
+    if (n >= 100) {
+      o.bins = 4;
+      CHECK(Accel::build(s, o)->hash() != want);
+    }
+  }
+}
+
 TEST_CASE("a progress callback that throws inside the build is rethrown at any thread count; the next build is whole",
           "[build]") {
   // the binned SAH's workers take nodes from a shared heap and wait while others may still add
