@@ -53,8 +53,9 @@ constexpr std::uint32_t kFormatVersion = 4;  // 2: the build quality in the key 
 // a file of the older builder is not taken for this one's tree). 1: the medium build's
 // partition into a second record array (same splits, another leaf order); 2: the high build's
 // reinsertion (reinsert.cpp); 3: the high build's choice of the tree without spatial splits
-// where its SAH is lower (sbvh.cpp build_high).
-constexpr std::uint32_t kTreeRevision = 3;
+// where its SAH is lower (sbvh.cpp build_high); 4: the binned SAH's bins per node, min(bins,
+// 4 + count / 20) (binned_sah.cpp).
+constexpr std::uint32_t kTreeRevision = 4;
 
 struct Header {
   char magic[8];
