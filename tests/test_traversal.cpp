@@ -331,6 +331,46 @@ TEST_CASE("SIMD leaves of 1 to 24 triangles: eight-wide passes and their tails g
   check_simd_cpu_bytes(*plain, features, "sphere feature rays, default build, leaf block 4", "4");
 }
 
+// The SIMD cpu backends walk MBVH8 closest-hit rays two in turn on a chunk whose directions are
+// coherent (batch.h's coherent_directions): a camera's chunks are, diffuse ones are not, invalid
+// directions are left out of the mean; on a batch whose chunks alternate between both (some
+// walked in turn, some one ray at a time) every backend gives the reference's bytes.
+TEST_CASE("MBVH8 closest hit walks two rays in turn on coherent chunks: camera rays, not diffuse ones", "[traversal]") {
+  const Scene bunny = load_scene(mbvh_test::scene_path("bun_zipper.ply.zst"));
+  const auto acc = Accel::build(bunny);
+  std::vector<Ray> by_kind[2];
+  for (int k = 0; k < 2; ++k) {
+    RayGenOptions ro;
+    ro.kind = k ? RayKind::diffuse : RayKind::primary;
+    ro.count = 4 * kTraceChunk;
+    by_kind[k] = generate_rays(bunny, *acc, ro);
+    REQUIRE(by_kind[k].size() >= 4 * kTraceChunk);
+    const std::span<const Ray> rays(by_kind[k]);
+    for (std::size_t b = 0; b < 4 * kTraceChunk; b += kTraceChunk) {
+      INFO(to_string(ro.kind) << " rays, chunk at " << b);
+      CHECK(coherent_directions(rays, b, b + kTraceChunk) == (k == 0));
+    }
+  }
+  // invalid directions (zero, NaN, infinite) are skipped; a chunk of nothing else is not coherent
+  std::vector<Ray> camera(by_kind[0].begin(), by_kind[0].begin() + kTraceChunk), invalid(kTraceChunk);
+  for (std::size_t i = 0; i < kTraceChunk; i += 2 * kCoherenceStride) {
+    camera[i].dx = std::numeric_limits<float>::quiet_NaN();
+    invalid[i].dx = (i / kCoherenceStride) % 4 == 0 ? std::numeric_limits<float>::infinity() : 0.0f;
+  }
+  CHECK(coherent_directions(camera, 0, camera.size()));
+  CHECK_FALSE(coherent_directions(invalid, 0, invalid.size()));
+  CHECK_FALSE(coherent_directions(camera, 0, 0));
+  // chunks of camera rays, invalid rays among them, and of diffuse rays in turn
+  std::vector<Ray> mixed;
+  for (std::size_t b = 0; b < 4 * kTraceChunk; b += kTraceChunk) {
+    // the first chunk: `camera` (its own rays 0..kTraceChunk); the others from their kind's rays at b
+    const std::vector<Ray>& from = b / kTraceChunk % 2 ? by_kind[1] : (b ? by_kind[0] : camera);
+    const auto first = from.begin() + static_cast<std::ptrdiff_t>(b);
+    mixed.insert(mixed.end(), first, first + static_cast<std::ptrdiff_t>(kTraceChunk));
+  }
+  check_simd_cpu_bytes(*acc, mixed, "bunny, camera and diffuse chunks");
+}
+
 // The cpu backend's uncounted traversals read nodes whose leaf references locate the SIMD packs
 // (TraceView::packed_refs): each decodes to its leaf's (first pack, count) in every layout, the
 // references to inner nodes and the empty slots are unchanged, and a variant with a leaf of more

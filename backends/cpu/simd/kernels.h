@@ -27,7 +27,7 @@ template <bool Fast>
 struct SimdKernelsT {
   static constexpr bool uses_packs = true;
   static constexpr bool fast = Fast;
-  static constexpr bool interleave = true;  // batch.h: two rays in turn (ordered stack: MBVH4, MBVH8 any hit; octant stack: any hit)
+  static constexpr bool interleave = true;  // batch.h: two rays in turn (walked_in_turn says where)
   using Ray = SimdRay;
   [[gnu::always_inline]] static bool prepare(const mbvh::Ray& ray, Ray& r) { return prepare_ray_simd(ray, r); }
   static void finish(Ray& r, const TraceView& v) {

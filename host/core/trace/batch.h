@@ -5,6 +5,7 @@
 // scalar_kernels.h); lives in the ISA namespace like the kernels it calls.
 #pragma once
 #include <atomic>
+#include <cmath>
 #include <cstddef>
 #include <functional>
 #include <span>
@@ -158,21 +159,45 @@ inline void run_interleaved(const TraceView& v, std::span<const Ray> rays, std::
   }
 }
 
+/// Whether the rays [b, e) point much the same way: the mean of their unit directions (every
+/// kCoherenceStride-th ray, the valid ones) at least kCoherentMean (0.8) long. A chunk of a camera's
+/// primary rays (neighbouring pixels) is; a chunk of diffuse rays (a cosine lobe about each
+/// ray's surface normal: a mean at most 2/3 long) is not.
+inline constexpr std::size_t kCoherenceStride = 8;
+inline constexpr float kCoherentMean = 0.8f;
+inline bool coherent_directions(std::span<const Ray> rays, std::size_t b, std::size_t e) {
+  float sx = 0.0f, sy = 0.0f, sz = 0.0f, n = 0.0f;
+  for (std::size_t i = b; i < e; i += kCoherenceStride) {
+    const Ray& r = rays[i];
+    const float l2 = r.dx * r.dx + r.dy * r.dy + r.dz * r.dz;
+    if (!(l2 > 0.0f && l2 < INFINITY)) continue;  // a zero, infinite or NaN direction (an invalid ray)
+    const float s = 1.0f / std::sqrt(l2);
+    sx += r.dx * s;
+    sy += r.dy * s;
+    sz += r.dz * s;
+    n += 1.0f;
+  }
+  return n > 0.0f && sx * sx + sy * sy + sz * sz >= kCoherentMean * kCoherentMean * n * n;
+}
+
 /// Walks rays [b, e) two in turn (run_interleaved) where K and `opt` take it, without statistics:
-/// the ordered stack on MBVH4 both queries, MBVH8 any hit only; the MBVH8 octant stack any hit
-/// only. MBVH8 closest hit (its ordered stack the default closest-hit traversal; the octant
-/// stack alike) gained on some scenes and lost on others; its any hit gained most where it gains
-/// and lost a little elsewhere (the octant stack's gained on every scene measured;
-/// docs/backends.md). False where the rays are left to run_batch.
+/// the MBVH4 ordered stack and the MBVH8 octant stack, both queries; the MBVH8 ordered stack any
+/// hit, and closest hit where the rays are coherent (coherent_directions). Two closest-hit rays in
+/// turn on the MBVH8 ordered stack gained on coherent primary rays and on the hairballs' diffuse
+/// rays but lost on Sponza's and the conference room's diffuse rays, where its sort's branches on
+/// two incoherent rays mispredict; the octant stack, whose push has no branch on the order,
+/// gained on the diffuse rays of every scene but Sponza (docs/backends.md). False where the rays are left to
+/// run_batch.
 template <class K>
 inline bool walked_in_turn(const TraceView& v, std::span<const Ray> rays, std::size_t b, std::size_t e,
                            const TraceOptions& opt, TraceOutput& out, std::size_t& invalid) {
   if constexpr (interleaves<K>()) {
     if (opt.stats) return false;
     const bool any = opt.query == Query::any;
-    if (opt.traversal == Traversal::stack_octant) {  // MBVH8 only; any hit only, as the ordered stack's MBVH8
-      if (!any || opt.layout != Layout::mbvh8) return false;
-      run_interleaved<true, K, OctantWalk<true, NoStats, K>>(v, rays, b, e, out, invalid);
+    if (opt.traversal == Traversal::stack_octant) {  // MBVH8 only
+      if (opt.layout != Layout::mbvh8) return false;
+      if (any) run_interleaved<true, K, OctantWalk<true, NoStats, K>>(v, rays, b, e, out, invalid);
+      else run_interleaved<false, K, OctantWalk<false, NoStats, K>>(v, rays, b, e, out, invalid);
       return true;
     }
     if (opt.traversal != Traversal::stack_ordered) return false;
@@ -181,10 +206,11 @@ inline bool walked_in_turn(const TraceView& v, std::span<const Ray> rays, std::s
       else run_interleaved<false, K, OrderedWalk<false, NoStats, K, Node4>>(v, rays, b, e, out, invalid);
       return true;
     }
-    if (opt.layout == Layout::mbvh8 && any) {
-      run_interleaved<true, K, OrderedWalk<true, NoStats, K, Node8>>(v, rays, b, e, out, invalid);
-      return true;
-    }
+    if (opt.layout != Layout::mbvh8) return false;
+    if (any) run_interleaved<true, K, OrderedWalk<true, NoStats, K, Node8>>(v, rays, b, e, out, invalid);
+    else if (coherent_directions(rays, b, e)) run_interleaved<false, K, OrderedWalk<false, NoStats, K, Node8>>(v, rays, b, e, out, invalid);
+    else return false;
+    return true;
   }
   return false;
 }
