@@ -22,14 +22,14 @@
 # KVM guest its own L3 detection reads a direct-mapped 320 MB cache). Override with D1=, LL=
 # (cachegrind's size,assoc,line).
 #   bench/cache_misses.sh [--quick] [OUT] [RAYS]   (default bench/out-cache-misses, 20000 rays;
-#     --quick: the bunny, 2000 rays, MBVH8 and embree — a smoke test of the script, about 30 s)
+#     --quick: the bunny, 2000 rays, MBVH8 ordered and octant and embree — a smoke test, 2–3 minutes)
 # Environment: JOBS (parallel valgrind runs, default 2), SCENES_LIST (default
 # "bunny conference sibenik sponza"), LAYOUTS (the cpu variants, LAYOUT or LAYOUT:TRAVERSAL, default
 # "mbvh8 mbvh8:stack-octant mbvh4"; a bare layout runs --traversal stack-ordered). "LL / embree" is
 # the backend's default variant for the query over embree's: MBVH8 ordered for closest hit, MBVH8
 # octant for any hit (where LAYOUTS has them; else the first variant).
 # TABLE_ONLY=1 makes the table from an earlier run's OUT/cg without running anything.
-# Writes OUT/cache-misses.md (and prints it); about 5 minutes with JOBS=1, less with JOBS=2 on an idle machine.
+# Writes OUT/cache-misses.md (and prints it); 96 valgrind runs, about 20 minutes with JOBS=1.
 set -euo pipefail
 # shellcheck source=bench/lib.sh
 source "$(dirname "${BASH_SOURCE[0]}")/lib.sh"

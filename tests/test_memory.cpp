@@ -9,6 +9,7 @@
 #include <string>
 #include <vector>
 
+#include "host/core/bvh/builder.h"
 #include "host/core/huge_pages.h"
 #include "host/core/io/obj.h"
 #include "host/core/resources.h"
@@ -219,7 +220,7 @@ TEST_CASE("advise_huge_pages is a hint: any range, before or after its bytes are
   CHECK(std::count(small.begin(), small.end(), 7) == 4096);
   // 9 MiB and a bit, advised at an odd start before it is written (the whole 2 MiB pages inside
   // it), then again once written: every word as written
-  std::vector<std::uint32_t> big((std::size_t(9) << 20) / 4 + 3);
+  std::vector<std::uint32_t, build::NoInit<std::uint32_t>> big((std::size_t(9) << 20) / 4 + 3);  // not zero-filled
   advise_huge_pages(reinterpret_cast<unsigned char*>(big.data()) + 1, big.size() * 4 - 1);
   for (std::size_t i = 0; i < big.size(); ++i) big[i] = static_cast<std::uint32_t>(i * 2654435761u);
   advise_huge_pages(big.data(), big.size() * 4);

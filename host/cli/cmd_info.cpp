@@ -105,7 +105,7 @@ void print_info(const SceneArgs& a, const Loaded& l, MemoryReport& mem) {
     mem.all = acc.memory();
     return print_memory(mem);
   }
-  say("build      %s, %u bins, max leaf %u, leaf block %u, depth cap %u, %u threads; hash %016llx\n",
+  say("build      %s, up to %u bins a node, max leaf %u, leaf block %u, depth cap %u, %u threads; hash %016llx\n",
       acc.options().quality == BuildQuality::low    ? "Morton LBVH (quality low)"
       : acc.options().quality == BuildQuality::high ? "SBVH, spatial splits kept where the SAH after reinsertion is lower (quality high)"
                                                     : "binned SAH (quality medium)",

@@ -20,6 +20,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <fstream>
+#include <string>
 
 #include "host/core/huge_pages.h"
 #include "mbvh/error.h"
@@ -186,12 +187,33 @@ void release_free_heap() {
 #endif
 }
 
+#if defined(__linux__) && defined(MADV_HUGEPAGE)
+namespace {
+// The transparent huge page's size where advice can take effect, else 0: THP not "never", the
+// kernel's PMD page size (2 MiB on x86-64; 512 MiB on aarch64 with 64 KiB pages, where arrays
+// rarely hold a whole one), and MBVH_HUGE_PAGES not 0 (the user's opt-out). Read once.
+std::uintptr_t huge_page_size() {
+  static const std::uintptr_t size = [] {
+    if (const char* env = std::getenv("MBVH_HUGE_PAGES"); env && std::strcmp(env, "0") == 0) return std::uintptr_t(0);
+    std::ifstream mode("/sys/kernel/mm/transparent_hugepage/enabled");
+    std::string line;
+    if (!std::getline(mode, line) || line.find("[never]") != std::string::npos) return std::uintptr_t(0);
+    std::ifstream pmd("/sys/kernel/mm/transparent_hugepage/hpage_pmd_size");
+    unsigned long long v = 0;
+    if (!(pmd >> v) || v < 4096 || (v & (v - 1)) != 0) return std::uintptr_t(0);
+    return static_cast<std::uintptr_t>(v);
+  }();
+  return size;
+}
+}  // namespace
+#endif
+
 void advise_huge_pages(const void* p, std::size_t bytes) {
 #if defined(__linux__) && defined(MADV_HUGEPAGE)
-  constexpr std::uintptr_t kHuge = std::uintptr_t(2) << 20;
-  if (!p || bytes < kHuge) return;
+  const std::uintptr_t huge = huge_page_size();
+  if (!p || huge == 0 || bytes < huge) return;
   const auto a = reinterpret_cast<std::uintptr_t>(p);
-  const std::uintptr_t lo = (a + kHuge - 1) & ~(kHuge - 1), hi = (a + bytes) & ~(kHuge - 1);
+  const std::uintptr_t lo = (a + huge - 1) & ~(huge - 1), hi = (a + bytes) & ~(huge - 1);
   if (hi > lo) (void)madvise(reinterpret_cast<void*>(lo), hi - lo, MADV_HUGEPAGE);
 #else
   (void)p;

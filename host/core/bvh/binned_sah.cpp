@@ -502,6 +502,52 @@ private:
 #endif
   }
 
+#if defined(__SSE2__)
+  // The partitions' test on four lanes: f = (centroid - origin) * scale, Geometry::bin's
+  // operations, and bin(f) < split exactly when f < split (split is an integer in [1, last], so
+  // the clamps to 0 and to the last bin and the truncation do not change the side).
+  struct SideTest {
+    __m128 half = _mm_set1_ps(0.5f), xyz = _mm_castsi128_ps(_mm_setr_epi32(-1, -1, -1, 0)), origin, scale, sp;
+    SideTest(const Geometry& g, unsigned split)
+        : origin(_mm_setr_ps(g.origin[0], g.origin[1], g.origin[2], 0.0f)),
+          scale(_mm_setr_ps(g.scale[0], g.scale[1], g.scale[2], 0.0f)), sp(_mm_set1_ps(static_cast<float>(split))) {}
+    __m128 centroid(__m128 lo, __m128 hi) const { return _mm_mul_ps(_mm_add_ps(_mm_and_ps(lo, xyz), hi), half); }
+    __m128 centroid(const PrimRef& r) const { return centroid(_mm_loadu_ps(r.lo), _mm_loadu_ps(r.hi)); }
+    // lanes set where the centroid is left of the split, on each axis
+    __m128 left(__m128 ce) const { return _mm_cmplt_ps(_mm_mul_ps(_mm_sub_ps(ce, origin), scale), sp); }
+  };
+
+  // Each side's centroid bounds in registers (lane 3 unused), grown without a branch per record:
+  // `side` is -inf on every lane for a record that goes left, +inf for one that goes right, `other`
+  // its negation, so max(ce, side) is ce on the left and +inf on the right, whose min with the
+  // left's lower bound leaves it as it was, and so on for the other three bounds. The operations
+  // are FastBox::grow_centroid's (std::min(lo, c) is _mm_min_ps(c, lo), bit for bit, signed zeros
+  // included).
+  struct SideBounds {
+    __m128 inf = _mm_set1_ps(INFINITY), ninf = _mm_set1_ps(-INFINITY), sign = _mm_set1_ps(-0.0f);
+    __m128 acc[2][2] = {{inf, ninf}, {inf, ninf}};  // side, lo / hi
+    // ce's record goes left where lt's lane A is set
+    template <int A>
+    void grow(__m128 ce, __m128 lt) {
+      const __m128 left = _mm_shuffle_ps(lt, lt, _MM_SHUFFLE(A, A, A, A));  // all set: left
+      const __m128 side = _mm_xor_ps(inf, _mm_and_ps(left, sign));
+      const __m128 other = _mm_xor_ps(side, sign);
+      acc[0][0] = _mm_min_ps(_mm_max_ps(ce, side), acc[0][0]);
+      acc[0][1] = _mm_max_ps(_mm_min_ps(ce, other), acc[0][1]);
+      acc[1][0] = _mm_min_ps(_mm_max_ps(ce, other), acc[1][0]);
+      acc[1][1] = _mm_max_ps(_mm_min_ps(ce, side), acc[1][1]);
+    }
+    void store(FastBox (&box)[2]) const {
+      for (int s = 0; s < 2; ++s) {
+        alignas(16) float v[2][4];
+        for (int q = 0; q < 2; ++q) _mm_store_ps(v[q], acc[s][q]);
+        box[s] = FastBox();
+        box[s].grow_rows(v[0], v[1]);
+      }
+    }
+  };
+#endif
+
   // Partition of the node's records (bin < split on `axis` to the left) into the other array
   // (records()), left ones from the front, right ones from the back, without a branch per
   // record; also bounds each side's boxes and centroids. Returns the first right record.
@@ -511,58 +557,28 @@ private:
     PrimRef* dst = records(node.depth + 1);
     std::uint32_t l = node.begin, r = node.end;
 #if defined(__SSE2__)
-    // f = (centroid - origin) * scale, Geometry::bin's operations on four lanes, and bin(f) <
-    // split exactly when f < split: split is an integer in [1, last], so the clamps to 0 and to
-    // the last bin and the truncation do not change the side. The four bounds of each side as
-    // four-lane min/max (lane 3 unused).
-    const __m128 half = _mm_set1_ps(0.5f);
-    const __m128 origin = _mm_setr_ps(g.origin[0], g.origin[1], g.origin[2], 0.0f);
-    const __m128 scale = _mm_setr_ps(g.scale[0], g.scale[1], g.scale[2], 0.0f);
-    const __m128 xyz = _mm_castsi128_ps(_mm_setr_epi32(-1, -1, -1, 0));
-    const __m128 sp = _mm_set1_ps(static_cast<float>(split));
-    const __m128 inf = _mm_set1_ps(INFINITY), ninf = _mm_set1_ps(-INFINITY);
-    // The side bounds stay in registers. `side` is -inf on every lane for a record that goes
-    // left, +inf for one that goes right, `other` its negation: max(ce, side) is ce on the left
-    // and +inf on the right, whose min with the left's lower bound leaves its bits as they
-    // were (min(x, +inf) is x), and so on for the other three bounds, so each side sees the
-    // operations a branch would give it.
-    __m128 acc[2][2] = {{inf, ninf}, {inf, ninf}};  // centroid lo, hi
-    const __m128 sign = _mm_set1_ps(-0.0f);
+    const SideTest st(g, split);
+    SideBounds sides;
     auto loop = [&](auto axis_c) {
       constexpr int A = decltype(axis_c)::value;
       const std::uint32_t end = node.end;
       for (std::uint32_t i = node.begin; i < end; ++i) {
-        const __m128 raw = _mm_loadu_ps(src[i].lo), hi = _mm_loadu_ps(src[i].hi);
-        const __m128 lo = _mm_and_ps(raw, xyz);
-        const __m128 ce = _mm_mul_ps(_mm_add_ps(lo, hi), half);
-        const __m128 f = _mm_mul_ps(_mm_sub_ps(ce, origin), scale);
-        const __m128 lt = _mm_cmplt_ps(f, sp);
+        const __m128 lo = _mm_loadu_ps(src[i].lo), hi = _mm_loadu_ps(src[i].hi);
+        const __m128 ce = st.centroid(lo, hi);
+        const __m128 lt = st.left(ce);
         const unsigned right = ~static_cast<unsigned>(_mm_movemask_ps(lt)) >> A & 1u;
         const std::uint32_t at = right ? r - 1 : l;
-        _mm_storeu_ps(dst[at].lo, raw);
+        _mm_storeu_ps(dst[at].lo, lo);
         _mm_storeu_ps(dst[at].hi, hi);
         l += 1 - right;
         r -= right;
-        const __m128 left = _mm_shuffle_ps(lt, lt, _MM_SHUFFLE(A, A, A, A));  // all set: left
-        const __m128 side = _mm_xor_ps(inf, _mm_and_ps(left, sign));
-        const __m128 other = _mm_xor_ps(side, sign);
-        acc[0][0] = _mm_min_ps(acc[0][0], _mm_max_ps(ce, side));
-        acc[0][1] = _mm_max_ps(acc[0][1], _mm_min_ps(ce, other));
-        acc[1][0] = _mm_min_ps(acc[1][0], _mm_max_ps(ce, other));
-        acc[1][1] = _mm_max_ps(acc[1][1], _mm_min_ps(ce, side));
+        sides.grow<A>(ce, lt);
       }
     };
     if (axis == 0) loop(std::integral_constant<int, 0>());
     else if (axis == 1) loop(std::integral_constant<int, 1>());
     else loop(std::integral_constant<int, 2>());
-    for (int s = 0; s < 2; ++s) {
-      alignas(16) float v[2][4];
-      for (int q = 0; q < 2; ++q) _mm_store_ps(v[q], acc[s][q]);
-      for (int a = 0; a < 3; ++a) {
-        c[s].lo[a] = v[0][a];
-        c[s].hi[a] = v[1][a];
-      }
-    }
+    sides.store(c);
 #else
     for (std::uint32_t i = node.begin; i < node.end; ++i) {
       const PrimRef& p = src[i];
@@ -575,29 +591,12 @@ private:
   }
 
 #if defined(__SSE2__)
-  // partition_chunked's passes on four lanes: f = (centroid - origin) * scale as in partition()
-  // (Geometry::left's operations), the record left where f < split on `axis`.
-  struct SideTest {
-    __m128 half = _mm_set1_ps(0.5f), xyz = _mm_castsi128_ps(_mm_setr_epi32(-1, -1, -1, 0)), origin, scale, sp;
-    SideTest(const Geometry& g, unsigned split)
-        : origin(_mm_setr_ps(g.origin[0], g.origin[1], g.origin[2], 0.0f)),
-          scale(_mm_setr_ps(g.scale[0], g.scale[1], g.scale[2], 0.0f)), sp(_mm_set1_ps(static_cast<float>(split))) {}
-    __m128 centroid(const PrimRef& r) const {
-      return _mm_mul_ps(_mm_add_ps(_mm_and_ps(_mm_loadu_ps(r.lo), xyz), _mm_loadu_ps(r.hi)), half);
-    }
-    // lanes set where the centroid is left of the split, on each axis
-    __m128 left(__m128 ce) const { return _mm_cmplt_ps(_mm_mul_ps(_mm_sub_ps(ce, origin), scale), sp); }
-  };
-
   // The count pass of partition_chunked over records [b, e): bounds each side's centroids into
-  // box[0] (left) and box[1] (right), with FastBox::grow_centroid's operations (std::min(lo, c)
-  // is _mm_min_ps(c, lo), bit for bit, signed zeros included), and returns the left records.
-  // `side` makes the other side's bound +-inf, which leaves the bound as it was (partition()).
+  // box[0] (left) and box[1] (right) (SideBounds) and returns the left records.
   [[gnu::noinline]] static std::uint32_t side_boxes(const Geometry& g, int axis, unsigned split, const PrimRef* src,
                                                     std::size_t b, std::size_t e, FastBox (&box)[2]) {
     const SideTest st(g, split);
-    const __m128 inf = _mm_set1_ps(INFINITY), ninf = _mm_set1_ps(-INFINITY), sign = _mm_set1_ps(-0.0f);
-    __m128 acc[2][2] = {{inf, ninf}, {inf, ninf}};  // side, lo / hi
+    SideBounds sides;
     std::uint32_t l = 0;
     auto loop = [&](auto axis_c) {
       constexpr int A = decltype(axis_c)::value;
@@ -605,24 +604,13 @@ private:
         const __m128 ce = st.centroid(src[i]);
         const __m128 lt = st.left(ce);
         l += static_cast<unsigned>(_mm_movemask_ps(lt)) >> A & 1u;
-        const __m128 left = _mm_shuffle_ps(lt, lt, _MM_SHUFFLE(A, A, A, A));
-        const __m128 side = _mm_xor_ps(inf, _mm_and_ps(left, sign));  // -inf: left, +inf: right
-        const __m128 other = _mm_xor_ps(side, sign);
-        acc[0][0] = _mm_min_ps(_mm_max_ps(ce, side), acc[0][0]);
-        acc[0][1] = _mm_max_ps(_mm_min_ps(ce, other), acc[0][1]);
-        acc[1][0] = _mm_min_ps(_mm_max_ps(ce, other), acc[1][0]);
-        acc[1][1] = _mm_max_ps(_mm_min_ps(ce, side), acc[1][1]);
+        sides.grow<A>(ce, lt);
       }
     };
     if (axis == 0) loop(std::integral_constant<int, 0>());
     else if (axis == 1) loop(std::integral_constant<int, 1>());
     else loop(std::integral_constant<int, 2>());
-    for (int s = 0; s < 2; ++s) {
-      alignas(16) float v[2][4];
-      for (int q = 0; q < 2; ++q) _mm_store_ps(v[q], acc[s][q]);
-      box[s] = FastBox();
-      box[s].grow_rows(v[0], v[1]);
-    }
+    sides.store(box);
     return l;
   }
 
@@ -634,8 +622,7 @@ private:
     std::uint32_t l = l_out, r = r_out;
     for (std::size_t i = b; i < e; ++i) {
       const __m128 lo = _mm_loadu_ps(src[i].lo), hi = _mm_loadu_ps(src[i].hi);
-      const __m128 ce = _mm_mul_ps(_mm_add_ps(_mm_and_ps(lo, st.xyz), hi), st.half);
-      const unsigned left = static_cast<unsigned>(_mm_movemask_ps(st.left(ce))) >> axis & 1u;
+      const unsigned left = static_cast<unsigned>(_mm_movemask_ps(st.left(st.centroid(lo, hi)))) >> axis & 1u;
       const std::uint32_t at = left ? l : r;
       _mm_storeu_ps(dst[at].lo, lo);
       _mm_storeu_ps(dst[at].hi, hi);

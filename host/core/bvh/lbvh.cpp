@@ -17,6 +17,7 @@
 #include <array>
 #include <atomic>
 #include <bit>
+#include <memory>
 #include <type_traits>
 #include <vector>
 
@@ -128,11 +129,14 @@ public:
   void build(SubArena& arena) const {
     constexpr std::size_t kStack = 64;  // build_small's nodes on the stack: max_leaf up to 32
     Small stack[kStack];
-    std::vector<Small> heap;
+    // room for 2 c nodes, c the largest range build_small sees: max_leaf, or the task's whole range
+    // where that is smaller (a caller's max_leaf may be huge); not filled (Small has no initialisers)
+    const std::size_t room = 2 * std::min<std::size_t>(opt_.max_leaf, arena[0].end - arena[0].begin);
+    std::unique_ptr<Small[]> heap;
     Small* nodes = stack;
-    if (2 * std::size_t(opt_.max_leaf) > kStack) {
-      heap.resize(2 * std::size_t(opt_.max_leaf));
-      nodes = heap.data();
+    if (room > kStack) {
+      heap.reset(new Small[room]);
+      nodes = heap.get();
     }
     build(arena, 0, nodes);
   }

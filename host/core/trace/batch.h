@@ -4,6 +4,7 @@
 // outputs in ray order. Templated on the kernel policy (box test and leaf visit,
 // scalar_kernels.h); lives in the ISA namespace like the kernels it calls.
 #pragma once
+#include <algorithm>
 #include <atomic>
 #include <cmath>
 #include <cstddef>
@@ -84,8 +85,8 @@ constexpr bool uses_node4w() {
   else return false;
 }
 
-/// Whether kernel policy K walks two rays in turn on the ordered stack (walked_in_turn says where;
-/// its `interleave`; none of the reference's).
+/// Whether kernel policy K walks two rays in turn on the ordered and octant stacks
+/// (walked_in_turn says where; its `interleave`; none of the reference's).
 template <class K>
 constexpr bool interleaves() {
   if constexpr (requires { K::interleave; }) return K::interleave;
@@ -169,12 +170,15 @@ inline bool coherent_directions(std::span<const Ray> rays, std::size_t b, std::s
   float sx = 0.0f, sy = 0.0f, sz = 0.0f, n = 0.0f;
   for (std::size_t i = b; i < e; i += kCoherenceStride) {
     const Ray& r = rays[i];
-    const float l2 = r.dx * r.dx + r.dy * r.dy + r.dz * r.dz;
-    if (!(l2 > 0.0f && l2 < INFINITY)) continue;  // a zero, infinite or NaN direction (an invalid ray)
-    const float s = 1.0f / std::sqrt(l2);
-    sx += r.dx * s;
-    sy += r.dy * s;
-    sz += r.dz * s;
+    // scaled by its largest component first, so that no valid direction's square overflows or
+    // underflows
+    const float m = std::max({std::fabs(r.dx), std::fabs(r.dy), std::fabs(r.dz)});
+    if (!(m > 0.0f && m < INFINITY)) continue;  // a zero, infinite or NaN direction (an invalid ray)
+    const float x = r.dx / m, y = r.dy / m, z = r.dz / m;
+    const float s = 1.0f / std::sqrt(x * x + y * y + z * z);
+    sx += x * s;
+    sy += y * s;
+    sz += z * s;
     n += 1.0f;
   }
   return n > 0.0f && sx * sx + sy * sy + sz * sz >= kCoherentMean * kCoherentMean * n * n;
@@ -182,12 +186,9 @@ inline bool coherent_directions(std::span<const Ray> rays, std::size_t b, std::s
 
 /// Walks rays [b, e) two in turn (run_interleaved) where K and `opt` take it, without statistics:
 /// the MBVH4 ordered stack and the MBVH8 octant stack, both queries; the MBVH8 ordered stack any
-/// hit, and closest hit where the rays are coherent (coherent_directions). Two closest-hit rays in
-/// turn on the MBVH8 ordered stack gained on coherent primary rays and on the hairballs' diffuse
-/// rays but lost on Sponza's and the conference room's diffuse rays, where its sort's branches on
-/// two incoherent rays mispredict; the octant stack, whose push has no branch on the order,
-/// gained on the diffuse rays of every scene but Sponza (docs/backends.md). False where the rays are left to
-/// run_batch.
+/// hit, and closest hit where the rays are coherent (coherent_directions): on two incoherent rays
+/// the ordered stack's sort branches mispredict, where the octant stack's push has no branch on
+/// the order (measurements: docs/backends.md). False where the rays are left to run_batch.
 template <class K>
 inline bool walked_in_turn(const TraceView& v, std::span<const Ray> rays, std::size_t b, std::size_t e,
                            const TraceOptions& opt, TraceOutput& out, std::size_t& invalid) {

@@ -150,7 +150,7 @@ private:
 struct BuildOptions {
   unsigned threads = 0;         ///< 0: every hardware thread; the result does not depend on it
   unsigned max_leaf = 8;        ///< largest leaf the SAH may choose (the depth cap may force bigger)
-  unsigned bins = 32;           ///< SAH bins per axis
+  unsigned bins = 32;           ///< SAH bins per axis, the most a node gets (one of n records: min(bins, 4 + n / 20))
   /// Triangles one leaf test costs as one in the SAH: a leaf of n triangles costs ceil(n / B)
   /// (Embree's SAH "blocks"). 1, the default, prices every triangle: the build all backends share.
   /// 4 prices four-wide SIMD leaves for every backend: fewer, fuller leaves, 10-20 % slower on the
