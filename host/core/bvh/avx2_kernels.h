@@ -2,14 +2,14 @@
 // avx2_kernels.h — the binned SAH's per-record loops compiled for AVX2 (internal to
 // host/core/bvh/, included by binned_sah.cpp only): the core is built for the baseline ISA, and
 // these functions alone carry a target attribute; binned_sah.cpp calls them where the CPU has
-// AVX2 (avx2_usable) and its SSE2 loops elsewhere. A 256-bit register holds a whole record (lo
+// AVX2 (use_avx2) and its SSE2 loops elsewhere. A 256-bit register holds a whole record (lo
 // row and prim id, hi row and pad), so two records take one step: their centroids, bins and
 // sides in one register each, the lane-by-lane float operations those of the SSE2 loops (the
 // same bins, sides and stores; VEX encodings, no FMA: the build sets -ffp-contract=off).
 //   - partition: records to the front (left) and the back (right) of the other array, with each
 //     side's centroid bounds (the SSE2 loop's SideBounds on two records at once);
 //   - side_count / scatter: partition_chunked's count pass and its stable scatter;
-//   - bin: the dense bins' update (DenseBins::bin_parts) with each bin kept as one register,
+//   - bin_pairs: the dense bins' update (DenseBins::bin_parts) with each bin kept as one register,
 //     [lo | -hi], so one min grows both rows (min(-a, -b) = -max(a, b), ties and signed zeros
 //     included: both take the second operand).
 // The children's centroid bounds are reduced from two halves at the end, an order the SSE2 loop
