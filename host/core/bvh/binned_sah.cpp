@@ -40,11 +40,11 @@ std::atomic<SahKernels> g_kernels{SahKernels::best};
 
 #if defined(MBVH_BUILD_AVX2)
 // Whether the per-record loops run avx2_kernels.h's: the CPU has AVX2, and no test asked for SSE2.
-bool use_avx2() {
+bool use_vec256() {
   static const bool has = __builtin_cpu_supports("avx2");
   return has && g_kernels.load(std::memory_order_relaxed) == SahKernels::best;
 }
-avx2::Split avx2_split(const float origin[3], const float scale[3], unsigned split) {
+vec256::Split vec256_split(const float origin[3], const float scale[3], unsigned split) {
   return {{origin[0], origin[1], origin[2]}, {scale[0], scale[1], scale[2]}, split};
 }
 #endif
@@ -476,9 +476,9 @@ private:
     DenseBins more;
     more.clear(g.last + 1);
 #if defined(MBVH_BUILD_AVX2)
-    if (use_avx2()) {  // DenseBins::bin_parts<2>'s steps on AVX2, then its remainder and merge
+    if (use_vec256()) {  // DenseBins::bin_parts<2>'s steps on AVX2, then its remainder and merge
       const std::size_t n = (e - b) / 2;
-      avx2::bin_pairs(out, more, src, b, n, g.origin, g.scale, g.last);
+      vec256::bin_pairs(out, more, src, b, n, g.origin, g.scale, g.last);
       if (b + 2 * n < e) more.bin(src, b + 2 * n, e, g.origin, g.scale, g.last);
       out.merge(more, g.last + 1);
       return;
@@ -575,7 +575,7 @@ private:
     PrimRef* dst = records(node.depth + 1);
     std::uint32_t l = node.begin, r = node.end;
 #if defined(MBVH_BUILD_AVX2)
-    if (use_avx2()) return avx2::partition(avx2_split(g.origin, g.scale, split), axis, src, l, r, dst, c);
+    if (use_vec256()) return vec256::partition(vec256_split(g.origin, g.scale, split), axis, src, l, r, dst, c);
 #endif
 #if defined(__SSE2__)
     const SideTest st(g, split);
@@ -617,7 +617,7 @@ private:
   [[gnu::noinline]] static std::uint32_t side_boxes(const Geometry& g, int axis, unsigned split, const PrimRef* src,
                                                     std::size_t b, std::size_t e, FastBox (&box)[2]) {
 #if defined(MBVH_BUILD_AVX2)
-    if (use_avx2()) return avx2::side_count(avx2_split(g.origin, g.scale, split), axis, src, b, e, box);
+    if (use_vec256()) return vec256::side_count(vec256_split(g.origin, g.scale, split), axis, src, b, e, box);
 #endif
     const SideTest st(g, split);
     SideBounds sides;
@@ -643,7 +643,7 @@ private:
   [[gnu::noinline]] static void scatter(const Geometry& g, int axis, unsigned split, const PrimRef* src, std::size_t b,
                                         std::size_t e, PrimRef* dst, std::uint32_t& l_out, std::uint32_t& r_out) {
 #if defined(MBVH_BUILD_AVX2)
-    if (use_avx2()) return avx2::scatter(avx2_split(g.origin, g.scale, split), axis, src, b, e, dst, l_out, r_out);
+    if (use_vec256()) return vec256::scatter(vec256_split(g.origin, g.scale, split), axis, src, b, e, dst, l_out, r_out);
 #endif
     const SideTest st(g, split);
     std::uint32_t l = l_out, r = r_out;
