@@ -24,6 +24,7 @@
 #include <emmintrin.h>
 #endif
 
+#include "host/core/bvh/avx2_kernels.h"
 #include "host/core/bvh/builder.h"
 #include "host/core/bvh/dense_bins.h"
 #include "host/core/huge_pages.h"
@@ -34,6 +35,19 @@ namespace mbvh {
 
 namespace build {
 namespace {
+
+std::atomic<SahKernels> g_kernels{SahKernels::best};
+
+#if defined(MBVH_BUILD_AVX2)
+// Whether the per-record loops run avx2_kernels.h's: the CPU has AVX2, and no test asked for SSE2.
+bool use_vec256() {
+  static const bool has = __builtin_cpu_supports("avx2");
+  return has && g_kernels.load(std::memory_order_relaxed) == SahKernels::best;
+}
+vec256::Split vec256_split(const float origin[3], const float scale[3], unsigned split) {
+  return {{origin[0], origin[1], origin[2]}, {scale[0], scale[1], scale[2]}, split};
+}
+#endif
 
 constexpr unsigned kMaxBins = 64;
 // Nodes of at least kParallelMin records are binned and partitioned in chunks of kGrain records
@@ -461,6 +475,15 @@ private:
   void bin_parts(DenseBins& out, const PrimRef* src, std::size_t b, std::size_t e, const Geometry& g) const {
     DenseBins more;
     more.clear(g.last + 1);
+#if defined(MBVH_BUILD_AVX2)
+    if (use_vec256()) {  // DenseBins::bin_parts<2>'s steps on AVX2, then its remainder and merge
+      const std::size_t n = (e - b) / 2;
+      vec256::bin_pairs(out, more, src, b, n, g.origin, g.scale, g.last);
+      if (b + 2 * n < e) more.bin(src, b + 2 * n, e, g.origin, g.scale, g.last);
+      out.merge(more, g.last + 1);
+      return;
+    }
+#endif
     DenseBins* const set[2] = {&out, &more};
     DenseBins::bin_parts<2>(set, src, b, e, g.origin, g.scale, g.last, g.last + 1);
   }
@@ -538,12 +561,7 @@ private:
       acc[1][1] = _mm_max_ps(_mm_min_ps(ce, side), acc[1][1]);
     }
     void store(FastBox (&box)[2]) const {
-      for (int s = 0; s < 2; ++s) {
-        alignas(16) float v[2][4];
-        for (int q = 0; q < 2; ++q) _mm_store_ps(v[q], acc[s][q]);
-        box[s] = FastBox();
-        box[s].grow_rows(v[0], v[1]);
-      }
+      for (int s = 0; s < 2; ++s) set_rows(box[s], acc[s][0], acc[s][1]);
     }
   };
 #endif
@@ -556,6 +574,9 @@ private:
     const PrimRef* src = records(node.depth);
     PrimRef* dst = records(node.depth + 1);
     std::uint32_t l = node.begin, r = node.end;
+#if defined(MBVH_BUILD_AVX2)
+    if (use_vec256()) return vec256::partition(vec256_split(g.origin, g.scale, split), axis, src, l, r, dst, c);
+#endif
 #if defined(__SSE2__)
     const SideTest st(g, split);
     SideBounds sides;
@@ -595,6 +616,9 @@ private:
   // box[0] (left) and box[1] (right) (SideBounds) and returns the left records.
   [[gnu::noinline]] static std::uint32_t side_boxes(const Geometry& g, int axis, unsigned split, const PrimRef* src,
                                                     std::size_t b, std::size_t e, FastBox (&box)[2]) {
+#if defined(MBVH_BUILD_AVX2)
+    if (use_vec256()) return vec256::side_count(vec256_split(g.origin, g.scale, split), axis, src, b, e, box);
+#endif
     const SideTest st(g, split);
     SideBounds sides;
     std::uint32_t l = 0;
@@ -618,6 +642,9 @@ private:
   // the right ones to dst[r++].
   [[gnu::noinline]] static void scatter(const Geometry& g, int axis, unsigned split, const PrimRef* src, std::size_t b,
                                         std::size_t e, PrimRef* dst, std::uint32_t& l_out, std::uint32_t& r_out) {
+#if defined(MBVH_BUILD_AVX2)
+    if (use_vec256()) return vec256::scatter(vec256_split(g.origin, g.scale, split), axis, src, b, e, dst, l_out, r_out);
+#endif
     const SideTest st(g, split);
     std::uint32_t l = l_out, r = r_out;
     for (std::size_t i = b; i < e; ++i) {
@@ -780,6 +807,8 @@ void resize_touched(V& v, std::size_t n, unsigned threads) {
 }
 
 }  // namespace
+
+void set_sah_kernels(SahKernels k) { g_kernels.store(k, std::memory_order_relaxed); }
 
 void flatten(const Arenas& a, Bvh2& out, std::vector<Leaf>& leaves, unsigned threads) {
   // -- each subtree's inner nodes and leaves, then their places in the depth-first order

@@ -15,6 +15,9 @@
 #include <type_traits>
 #include <utility>
 #include <vector>
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
 
 #include "host/core/layouts.h"
 #include "host/core/parallel.h"
@@ -102,6 +105,19 @@ struct FastBox {
     return b;
   }
 };
+
+#if defined(__SSE2__)
+/// `box` made the box of two SSE rows (lanes 0-2; lane 3 ignored).
+inline void set_rows(FastBox& box, __m128 lo, __m128 hi) {
+  alignas(16) float l[4], h[4];
+  _mm_store_ps(l, lo);
+  _mm_store_ps(h, hi);
+  for (int a = 0; a < 3; ++a) {
+    box.lo[a] = l[a];
+    box.hi[a] = h[a];
+  }
+}
+#endif
 
 /// A node of a builder's arena: a range of the record array, children in the same arena. The
 /// bounds of its centroids, which only splitting it needs, are kept by the builder beside it.
@@ -401,6 +417,12 @@ double sah_of_binary(const Bvh2& b, const std::vector<Leaf>& leaves, float ct);
 
 /// make_mbvh4 (layouts.h) into `storage` (emptied; its capacity reused: BuildContext).
 Mbvh4 make_mbvh4(const Bvh2& b, const std::vector<Leaf>& leaves, unsigned threads, AlignedVector<Node4>&& storage);
+
+/// The loops of the binned SAH's binning and partitions: `best` runs the AVX2 ones where the CPU
+/// has AVX2 (x86-64: avx2_kernels.h), `baseline` always the SSE2 ones (the portable ones where
+/// there is no SSE2). The same bytes either way. Process-wide: for the tests that compare the two.
+enum class SahKernels { best, baseline };
+void set_sah_kernels(SahKernels k);
 
 /// The builders: reorder `prims` into leaf order and fill the arenas. `root` bounds every record,
 /// `croot` their centroids. Deterministic: the same arenas at any opt.threads.

@@ -17,22 +17,25 @@
 namespace mbvh::build {
 
 /// The centroid bins of one node on three axes: a box row pair and a count per axis and bin
-/// (one address per update). 64 bins at most.
+/// (one address per update). 64 bins at most. A bin's box is kept as lo and -hi, so that both
+/// rows grow by a min (min(-a, -b) = -max(a, b), ties and signed zeros included: both give the
+/// second operand), and the pair, 32 bytes, is one 256-bit row for the AVX2 binning
+/// (avx2_kernels.h).
 struct DenseBins {
   static constexpr unsigned kMax = 64;
   struct Row {
-    __m128 lo, hi;
+    __m128 lo, nhi;  // nhi: -hi
   };
-  Row row[3][kMax];
+  alignas(32) Row row[3][kMax];
   std::uint32_t count[3][kMax];
 
   /// Empties the first `bins` bins of every axis.
   void clear(unsigned bins) {
-    const __m128 inf = _mm_set1_ps(INFINITY), ninf = _mm_set1_ps(-INFINITY);
+    const __m128 inf = _mm_set1_ps(INFINITY);
     for (int a = 0; a < 3; ++a)
       for (unsigned k = 0; k < bins; ++k) {
         row[a][k].lo = inf;
-        row[a][k].hi = ninf;
+        row[a][k].nhi = inf;
         count[a][k] = 0;
       }
   }
@@ -41,6 +44,7 @@ struct DenseBins {
   struct Binning {
     __m128 half = _mm_set1_ps(0.5f), zero = _mm_setzero_ps(), o, s;
     __m128 xyz = _mm_castsi128_ps(_mm_setr_epi32(-1, -1, -1, 0));  // drops the prim id's lane
+    __m128 sign = _mm_set1_ps(-0.0f);
     __m128i lst;
     Binning(const float origin[3], const float scale[3], unsigned last)
         : o(_mm_setr_ps(origin[0], origin[1], origin[2], 0.0f)), s(_mm_setr_ps(scale[0], scale[1], scale[2], 0.0f)),
@@ -58,11 +62,11 @@ struct DenseBins {
     }
   };
 
-  /// Grows bin k of axis a by a record's rows.
-  void add(int a, unsigned k, __m128 l, __m128 h) {
+  /// Grows bin k of axis a by a record's rows l and -h (`nh`).
+  void add(int a, unsigned k, __m128 l, __m128 nh) {
     Row& r = row[a][k];
     r.lo = _mm_min_ps(r.lo, l);
-    r.hi = _mm_max_ps(r.hi, h);
+    r.nhi = _mm_min_ps(r.nhi, nh);
     ++count[a][k];
   }
 
@@ -77,6 +81,8 @@ struct DenseBins {
       alignas(16) std::uint32_t k0[4], k1[4];
       _mm_store_si128(reinterpret_cast<__m128i*>(k0), g.index(l0, h0));
       _mm_store_si128(reinterpret_cast<__m128i*>(k1), g.index(l1, h1));
+      h0 = _mm_xor_ps(h0, g.sign);
+      h1 = _mm_xor_ps(h1, g.sign);
       for (int a = 0; a < 3; ++a) add(a, k0[a], l0, h0);
       for (int a = 0; a < 3; ++a) add(a, k1[a], l1, h1);
     }
@@ -85,6 +91,7 @@ struct DenseBins {
       g.load(p[i], l0, h0);
       alignas(16) std::uint32_t k0[4];
       _mm_store_si128(reinterpret_cast<__m128i*>(k0), g.index(l0, h0));
+      h0 = _mm_xor_ps(h0, g.sign);
       for (int a = 0; a < 3; ++a) add(a, k0[a], l0, h0);
     }
   }
@@ -107,6 +114,7 @@ struct DenseBins {
       for (int q = 0; q < P; ++q) {
         g.load(p[b + std::size_t(q) * n + i], l[q], h[q]);
         _mm_store_si128(reinterpret_cast<__m128i*>(k[q]), g.index(l[q], h[q]));
+        h[q] = _mm_xor_ps(h[q], g.sign);
       }
       for (int a = 0; a < 3; ++a)
         for (int q = 0; q < P; ++q) set[q]->add(a, k[q][a], l[q], h[q]);
@@ -121,23 +129,19 @@ struct DenseBins {
     for (int a = 0; a < 3; ++a)
       for (unsigned k = 0; k < bins; ++k) {
         row[a][k].lo = _mm_min_ps(row[a][k].lo, o.row[a][k].lo);
-        row[a][k].hi = _mm_max_ps(row[a][k].hi, o.row[a][k].hi);
+        row[a][k].nhi = _mm_min_ps(row[a][k].nhi, o.row[a][k].nhi);
         count[a][k] += o.count[a][k];
       }
   }
 
   /// The union of the boxes of the first `bins` bins of axis 0 (every record is in one).
   void bounds(unsigned bins, FastBox& box) const {
-    __m128 l = _mm_set1_ps(INFINITY), h = _mm_set1_ps(-INFINITY);
+    __m128 l = _mm_set1_ps(INFINITY), nh = _mm_set1_ps(INFINITY);
     for (unsigned k = 0; k < bins; ++k) {
       l = _mm_min_ps(l, row[0][k].lo);
-      h = _mm_max_ps(h, row[0][k].hi);
+      nh = _mm_min_ps(nh, row[0][k].nhi);
     }
-    alignas(16) float lo4[4], hi4[4];
-    _mm_store_ps(lo4, l);
-    _mm_store_ps(hi4, h);
-    box = FastBox();
-    box.grow_rows(lo4, hi4);
+    set_rows(box, l, _mm_xor_ps(nh, _mm_set1_ps(-0.0f)));
   }
 
   /// The cheapest split (bins < split to the left) of the three axes, a triangle costing 1:
@@ -150,7 +154,9 @@ struct DenseBins {
     };
     auto rows = [&](unsigned k) {
       __m128 l0 = row[0][k].lo, l1 = row[1][k].lo, l2 = row[2][k].lo, l3 = _mm_setzero_ps();
-      __m128 h0 = row[0][k].hi, h1 = row[1][k].hi, h2 = row[2][k].hi, h3 = _mm_setzero_ps();
+      const __m128 sign = _mm_set1_ps(-0.0f);
+      __m128 h0 = _mm_xor_ps(row[0][k].nhi, sign), h1 = _mm_xor_ps(row[1][k].nhi, sign),
+             h2 = _mm_xor_ps(row[2][k].nhi, sign), h3 = _mm_setzero_ps();
       _MM_TRANSPOSE4_PS(l0, l1, l2, l3);
       _MM_TRANSPOSE4_PS(h0, h1, h2, h3);
       return Rows{l0, l1, l2, h0, h1, h2};

@@ -91,15 +91,6 @@ struct RecordRows {
     r.prim = prim;
     _mm_storeu_ps(r.hi, h);
   }
-  static void store(__m128 l, __m128 h, FastBox& box) {
-    alignas(16) float lr[4], hr[4];
-    _mm_store_ps(lr, l);
-    _mm_store_ps(hr, h);
-    for (int a = 0; a < 3; ++a) {
-      box.lo[a] = lr[a];
-      box.hi[a] = hr[a];
-    }
-  }
 };
 #endif
 
@@ -228,8 +219,8 @@ PrimRefs make_prim_refs(const Scene& scene, unsigned threads, RawVector<PrimRef>
 #endif
       }
 #if defined(__SSE2__)
-      RecordRows::store(rows.lo, rows.hi, box);
-      RecordRows::store(rows.clo, rows.chi, cbox);
+      set_rows(box, rows.lo, rows.hi);
+      set_rows(cbox, rows.clo, rows.chi);
 #endif
       float m = 0;  // the largest magnitude of the records: on each axis, their least lo or greatest hi
       if (o > start)
