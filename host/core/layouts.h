@@ -66,6 +66,8 @@ struct TriPacks {
   const AlignedVector<Tri4>& mt() const;
   /// Makes mt() again from `packs` where it was made (refit moved their vertices).
   void refresh_mt();
+  /// mt()'s bytes where it was made, else 0 (Accel::memory).
+  std::size_t mt_bytes() const { return mt_ ? mt_->packs.size() * sizeof(Tri4) : 0; }
 
 private:
   struct Mt {
