@@ -179,6 +179,28 @@ void check_invariants(const Scene& scene, const Accel& acc) {
         for (int a = 0; a < 3; ++a) REQUIRE(p.v[3 * v + a][k % 4] == vert[v][a]);
     }
   }
+  // -- the fast precision's packs (TriPacks::mt): the same slots, each pass's triangles as v0 and
+  // the edges v1 - v0, v2 - v0 (the same float bits), eight-lane blocks where the leaf's pass is
+  // eight wide (k + 4 < count), a Tri4 slot for its last one to four
+  const AlignedVector<Tri4>& mt = packs.mt();
+  REQUIRE(mt.size() == packs.packs.size());
+  for (std::size_t i = 0; i < packs.leaves.size(); ++i) {
+    const Leaf& l = acc.leaves()[i];
+    for (std::uint32_t k = 0; k < l.count; ++k) {
+      const std::uint32_t block = k / 8 * 8;
+      const bool wide = block + 4 < l.count;
+      const float* slot = reinterpret_cast<const float*>(&mt[packs.leaves[i].first + (wide ? block : k) / 4]);
+      const int lanes = wide ? 8 : 4, lane = static_cast<int>(wide ? k - block : k % 4);
+      const Tri& t = acc.tris()[l.first + k];
+      std::uint32_t id;
+      std::memcpy(&id, slot + 9 * lanes + lane, 4);
+      REQUIRE(id == tri_prim(t));
+      for (int a = 0; a < 3; ++a) {
+        const float want[3] = {t.v0[a], t.v1[a] - t.v0[a], t.v2[a] - t.v0[a]};
+        for (int v = 0; v < 3; ++v) REQUIRE(std::memcmp(&slot[(3 * v + a) * lanes + lane], &want[v], 4) == 0);
+      }
+    }
+  }
 }
 
 

@@ -173,7 +173,7 @@ TEST_CASE("refit: every box of every layout is exact, the same bytes at 1 2 3 th
       const std::uint64_t built = acc->hash();
       for (Layout l : {Layout::mbvh2, Layout::mbvh4, Layout::mbvh8}) acc->make_layout(l);
       acc->mbvh4_wide();
-      acc->tri_packs();
+      acc->tri_packs().mt();
       acc->refit(b);
       const Bvh2& bv = acc->bvh2();
       REQUIRE(bv.nodes.size() > 3 * 4096);  // the refit's parallel cut has subtrees and upper nodes
@@ -209,6 +209,7 @@ TEST_CASE("refit: every box of every layout is exact, the same bytes at 1 2 3 th
         bad += m2.c0[0] != c0.lo.x || m2.c0[1] != c0.hi.x || m2.zz[0] != c0.lo.z || m2.zz[1] != c0.hi.z;
       }
       CHECK(bad == 0);
+      CHECK(same_bytes(acc->tri_packs().mt(), make_mt_packs(acc->tri_packs())));  // the fast packs made again
       CHECK(wide_box_faults(acc->mbvh4(), bv) == 0);
       CHECK(wide_box_faults(acc->mbvh8(), bv) == 0);
       for (std::size_t i = 0; i < acc->mbvh4().nodes.size(); ++i)

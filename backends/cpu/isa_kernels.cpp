@@ -153,13 +153,13 @@ RayQueryKernels query_kernels(const TraceOptions& c, const TraceOptions& a) {
 RayQueryKernels ray_query(const Accel& acc, const TraceOptions& c, const TraceOptions& a, bool mic) {
   auto s = std::make_shared<OneRayState>();
   const TraceOptions* o[2] = {&c, &a};
-  for (int q = 0; q < 2; ++q) {  // the batch's view: packs, packed references (trace_parallel)
-    s->view[q] = trace_view(acc, o[q]->layout, true, o[q]->leaf_block, true, runs_mic(*o[q], mic));
+  // one precision for both: the query's options share it (Backend::ray_query)
+  const bool fast = c.precision == Precision::fast;
+  for (int q = 0; q < 2; ++q) {  // the batch's view: packs (fast: TriPacks::mt), packed references (trace_parallel)
+    s->view[q] = trace_view(acc, o[q]->layout, true, o[q]->leaf_block, true, runs_mic(*o[q], mic), fast);
     s->layout[q] = o[q]->layout;
     s->traversal[q] = o[q]->traversal;
   }
-  // one precision for both: the query's options share it (Backend::ray_query)
-  const bool fast = c.precision == Precision::fast;
   RayQueryKernels k = fast ? query_kernels<SimdKernelsT<true>>(c, a) : query_kernels<SimdKernelsT<false>>(c, a);
 #if MBVH_CPU_ISA_ID == 2
   // the MIC path's query where it traces (an MBVH4 query; the other keeps the 8-lane kernels)

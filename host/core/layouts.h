@@ -61,6 +61,20 @@ struct Mbvh4Wide {
 struct TriPacks {
   AlignedVector<Tri4> packs;
   std::vector<Leaf> leaves;
+  /// The `fast` precision's copy of `packs`, laid out for Möller–Trumbore (make_mt_packs): made on
+  /// first use (thread-safe), so only a fast trace pays its memory.
+  const AlignedVector<Tri4>& mt() const;
+  /// Makes mt() again from `packs` where it was made (refit moved their vertices).
+  void refresh_mt();
+  /// mt()'s bytes where it was made, else 0 (Accel::memory).
+  std::size_t mt_bytes() const { return mt_ ? mt_->packs.size() * sizeof(Tri4) : 0; }
+
+private:
+  struct Mt {
+    std::once_flag once;
+    AlignedVector<Tri4> packs;
+  };
+  std::unique_ptr<Mt> mt_ = std::make_unique<Mt>();
 };
 
 /// A leaf policy's variant of the one build (TraceOptions::leaf_block; leaf_variant.cpp): the
@@ -174,6 +188,14 @@ Mbvh4 make_mbvh4_sah(const Bvh2& bvh, const std::vector<Leaf>& leaves, unsigned 
 Mbvh4Wide make_mbvh4_wide(const Mbvh4& m);
 /// Packs each leaf's triangles four at a time (SoA), in leaf order (views.cpp).
 TriPacks make_tri_packs(const AlignedVector<Tri>& tris, const std::vector<Leaf>& leaves);
+/// The `fast` precision's packs (views.cpp), what Embree's Triangle4 and tinybvh's BVH8_CPU leaves
+/// hold for Möller–Trumbore (1997): each triangle as v0 and its edges e1 = v1 - v0, e2 = v2 - v0
+/// (the subtractions the test made per pass, the same bits), the slots of `p.packs` reused pass
+/// by pass as the SIMD leaves read them (SimdKernelsT::leaf): a leaf's triangles k..k+7 while
+/// k + 4 < count as one eight-lane block over its two slots (rows v0.x, v0.y, v0.z, e1.x, ...,
+/// e2.z of 8 lanes, then the 8 prim ids: 320 bytes, so each row is one aligned load), the last
+/// 1 to 4 as one Tri4 slot with rows v0, e1, e2 and its prim ids.
+AlignedVector<Tri4> make_mt_packs(const TriPacks& p);
 
 /// Structural checks of a layout (host/core/bvh/validate.cpp): every reference in range, every
 /// inner node referenced once by a node of smaller index (so descent always terminates), every

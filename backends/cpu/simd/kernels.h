@@ -161,10 +161,13 @@ struct SimdKernelsT {
   template <class F, bool Any>
   [[gnu::always_inline]] static bool leaf_pass(const Tri4* p, unsigned valid, const Ray& r, float& tmax, Hit& best) {
     constexpr int L = sizeof(typename F::V) / sizeof(float);
-    const auto prim = [p](int lane) { return p[lane >> 2].prim[lane & 3]; };
+    const auto prim = [p](int lane) {
+      if constexpr (Fast) return mt_prim<F>(p, lane);  // TriPacks::mt's layout (the fast view's packs)
+      else return p[lane >> 2].prim[lane & 3];
+    };
     float t[L], u[L], w[L], det[L];
     unsigned fallback = 0, near0 = 0, hit;
-    if constexpr (Fast) hit = tri_test_simd_mt<F, Any>(p, r, valid, tmax, t, u, w, det);
+    if constexpr (Fast) hit = tri_test_simd_mt<F, Any>(p, r, valid, tmax, t, u, w);
     else hit = tri_test_simd<F, Any>(p, r, valid, tmax, t, u, w, det, fallback, near0);
     if constexpr (Any) {
       if (hit != 0) {
@@ -201,7 +204,8 @@ struct SimdKernelsT {
         if (t[s] < t[q] || (t[s] == t[q] && prim(s) < prim(q))) q = s;
       }
       if (t[q] < best.t || prim(q) < best.prim) {  // t[q] <= best.t, as in visit_leaf
-        best = Hit{t[q], u[q] / det[q], w[q] / det[q], prim(q)};
+        if constexpr (Fast) best = Hit{t[q], u[q], w[q], prim(q)};  // tri_test_simd_mt's weights
+        else best = Hit{t[q], u[q] / det[q], w[q] / det[q], prim(q)};
         tmax = t[q];
       }
     }

@@ -179,31 +179,47 @@ template <class F>
   return F::and_(ok, F::and_(F::template cmp<_CMP_GE_OQ>(t, tmin), F::template cmp<_CMP_LE_OQ>(t, tmax)));
 }
 
+/// Row `row` of a fast pass's triangles (make_mt_packs' layout: F4, a Tri4 slot; F8, the
+/// eight-lane block of two slots, one aligned load a row).
+template <class F>
+[[gnu::always_inline]] inline typename F::V mt_row(const Tri4* p, int row) {
+  if constexpr (sizeof(typename F::V) == 16) return F::row(p, row);
+  else return F::load(reinterpret_cast<const float*>(p) + 8 * row);
+}
+
+/// Lane `lane`'s prim id in a fast pass's triangles (make_mt_packs' layout: F4, the slot's; F8,
+/// the block's ids after its 9 rows).
+template <class F>
+[[gnu::always_inline]] inline std::uint32_t mt_prim(const Tri4* p, int lane) {
+  if constexpr (sizeof(typename F::V) == 16) return p->prim[lane];
+  std::uint32_t id;
+  std::memcpy(&id, reinterpret_cast<const char*>(p) + 4 * (72 + lane), 4);
+  return id;
+}
+
 /// The `fast` mode's triangles of one pack (F4) or two (F8) at once: Möller–Trumbore (1997) with
 /// FMA and the reciprocal estimate refined by one Newton step (about 23 bits, not correctly
-/// rounded), as fast SIMD tracers do. Returns the hit lanes of `valid` with t, u, v (det_out = 1:
-/// u, v are the weights already).
+/// rounded), as fast SIMD tracers do, on make_mt_packs' layout (v0 and the edges e1, e2 as they
+/// were subtracted here from the vertices: the same bits as the packets' mt_lanes). Returns the
+/// hit lanes of `valid` with t and the weights u, v.
 template <class F, bool Any = false>
 [[gnu::always_inline]] inline unsigned tri_test_simd_mt(const Tri4* p, const SimdRay& r, unsigned valid, float tmax,
-                                                        float* t_out, float* u_out, float* v_out, float* det_out) {
+                                                        float* t_out, float* u_out, float* v_out) {
   using V4 = typename F::V;
-  V4 v0[3], e1[3], e2[3], d[3], s[3];
+  V4 e1[3], e2[3], d[3], s[3];
   for (int a = 0; a < 3; ++a) {
-    v0[a] = F::row(p, a);
-    e1[a] = F::sub(F::row(p, 3 + a), v0[a]);
-    e2[a] = F::sub(F::row(p, 6 + a), v0[a]);
+    e1[a] = mt_row<F>(p, 3 + a);
+    e2[a] = mt_row<F>(p, 6 + a);
     d[a] = F::bcast(&r.d[a]);
-    s[a] = F::sub(F::bcast(&r.o[a]), v0[a]);
+    s[a] = F::sub(F::bcast(&r.o[a]), mt_row<F>(p, a));
   }
   V4 t, u, v;
   const auto ok = mt_lanes<F>(e1, e2, d, s, F::bcast(&r.tmin), F::set1(tmax), t, u, v);
-  const V4 one = F::set1(1.0f);
   const unsigned hit = valid & F::bits(ok);
   if (Any || hit == 0) return hit;
   F::store(t_out, t);
   F::store(u_out, u);
   F::store(v_out, v);
-  F::store(det_out, one);
   return hit;
 }
 

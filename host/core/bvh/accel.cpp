@@ -285,7 +285,7 @@ Accel::MemoryStats Accel::memory() const {
   s.tree = tree_bytes(m.bvh2_, m.leaves_);
   s.nodes = bytes_of(m.mbvh2_.nodes) + bytes_of(m.mbvh4_.nodes) + bytes_of(m.mbvh8_.nodes) + bytes_of(m.mbvh4w_.nodes);
   s.triangles = bytes_of(m.tris_);
-  s.packs = bytes_of(m.packs_.packs) + bytes_of(m.packs_.leaves);
+  s.packs = bytes_of(m.packs_.packs) + bytes_of(m.packs_.leaves) + m.packs_.mt_bytes();
   std::lock_guard<std::mutex> lock(m.variants_m_);
   for (const auto& [block, v] : m.variants_) {
     const LeafVariant::Bytes b = v->bytes();

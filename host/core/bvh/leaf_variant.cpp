@@ -244,7 +244,7 @@ LeafVariant::Bytes LeafVariant::bytes() const {
   auto of = [](const auto& v) { return v.size() * sizeof(v[0]); };
   Bytes b;
   b.nodes = of(leaves) + of(m2_.nodes) + of(m4_.nodes) + of(m8_.nodes) + of(m4w_.nodes) + of(k2_) + of(k4_) + of(k8_);
-  b.packs = of(packs_.packs) + of(packs_.leaves);
+  b.packs = of(packs_.packs) + of(packs_.leaves) + packs_.mt_bytes();
   return b;
 }
 

@@ -368,6 +368,7 @@ void Accel::refit(const Scene& moved) {
   Bvh2& bvh = impl_->bvh2_;
   std::vector<std::uint64_t> tri_hashes;
   const double leaf_sum = refit_leaves(moved, impl_->tris_, impl_->leaves_, bvh, impl_->packs_, threads, tri_hashes);
+  impl_->packs_.refresh_mt();
   const double node_sum = refit_binary(bvh, impl_->mbvh2_, threads);
   impl_->bounds_ = bvh.nodes[0].box;
   const double root = bvh.nodes[0].box.half_area();

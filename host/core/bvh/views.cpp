@@ -51,4 +51,46 @@ TriPacks make_tri_packs(const AlignedVector<Tri>& tris, const std::vector<Leaf>&
   return p;
 }
 
+AlignedVector<Tri4> make_mt_packs(const TriPacks& p) {
+  AlignedVector<Tri4> out(p.packs.begin(), p.packs.end());  // v0 and the prim ids of the four-lane slots
+  // two slots are one eight-lane block (9 rows of 8 floats and 8 ids), each row 32-byte aligned
+  // (slot k starts 160 k bytes into the cache-aligned array)
+  static_assert(sizeof(Tri4) == 160, "a slot is 5 rows of 32 bytes");
+  for (const Leaf& l : p.leaves) {
+    std::uint32_t k = 0;
+    for (; k + 4 < l.count; k += 8) {  // SimdKernelsT::leaf's eight-lane passes
+      const Tri4* s = &p.packs[l.first + k / 4];
+      float* o = reinterpret_cast<float*>(&out[l.first + k / 4]);
+      for (int lane = 0; lane < 8; ++lane) {
+        const Tri4& t = s[lane >> 2];
+        const int j = lane & 3;
+        for (int a = 0; a < 3; ++a) {
+          o[8 * a + lane] = t.v[a][j];
+          o[8 * (3 + a) + lane] = t.v[3 + a][j] - t.v[a][j];
+          o[8 * (6 + a) + lane] = t.v[6 + a][j] - t.v[a][j];
+        }
+        std::memcpy(o + 72 + lane, &t.prim[j], 4);
+      }
+    }
+    if (k < l.count) {  // the last one to four: one four-lane slot
+      Tri4& o = out[l.first + k / 4];
+      for (int j = 0; j < 4; ++j)
+        for (int a = 0; a < 3; ++a) {
+          o.v[3 + a][j] -= o.v[a][j];
+          o.v[6 + a][j] -= o.v[a][j];
+        }
+    }
+  }
+  return out;
+}
+
+const AlignedVector<Tri4>& TriPacks::mt() const {
+  std::call_once(mt_->once, [this] { mt_->packs = make_mt_packs(*this); });
+  return mt_->packs;
+}
+
+void TriPacks::refresh_mt() {
+  if (!mt_->packs.empty()) mt_->packs = make_mt_packs(*this);
+}
+
 }  // namespace mbvh

@@ -43,8 +43,10 @@ inline void view_nodes(TraceView& v, const Src& src, Layout layout) {
 /// `packed_refs`: nodes whose leaf references locate the packs (TraceView::packed_refs) where the
 /// variant's leaves allow them.
 /// `node4w`: for MBVH4 also the nodes' 16-wide view (TraceView::n4w; a kernel policy's uses_node4w).
+/// `mt`: the packs laid out for the fast precision's Möller–Trumbore (TriPacks::mt) in place of
+/// the watertight test's, the same slots (a fast SIMD kernel policy's).
 inline TraceView trace_view(const Accel& acc, Layout layout, bool packs = false, unsigned leaf_block = 1,
-                            bool packed_refs = false, bool node4w = false) {
+                            bool packed_refs = false, bool node4w = false, bool mt = false) {
   TraceView v;
   v.tris = acc.tris().data();
   const TriPacks* p = nullptr;
@@ -71,7 +73,7 @@ inline TraceView trace_view(const Accel& acc, Layout layout, bool packs = false,
     if (node4w && layout == Layout::mbvh4) v.n4w = acc.mbvh4_wide().nodes.data();
   }
   if (p) {
-    v.tri4 = p->packs.data();
+    v.tri4 = mt ? p->mt().data() : p->packs.data();
     v.leaf4 = p->leaves.data();
   }
   return v;
@@ -244,7 +246,7 @@ inline void trace_parallel(const Accel& acc, std::span<const Ray> rays, const Tr
                            unsigned threads, const std::function<void(std::size_t)>& progress = {}) {
   // counted traversals visit leaves through the reference's visit_leaf (the leaf table)
   const TraceView v = trace_view(acc, opt.layout, K::uses_packs, opt.leaf_block, K::uses_packs && !opt.stats,
-                                    uses_node4w<K>());
+                                    uses_node4w<K>(), K::uses_packs && K::fast);
   const bool any = opt.query == Query::any;
   out.resize_for(rays.size(), opt);  // every ray's entries are written below
   std::atomic<std::size_t> invalid{0}, done{0};
