@@ -122,6 +122,45 @@ struct SimdKernelsT {
 #endif
   }
 
+#if MBVH_CPU_ISA_ID == 2
+  /// The MBVH8 ordered stack's push of three or more hit children (stack.h, OrderedWalk; AVX-512):
+  /// every slot's (node, d) entry sorted in registers by the key (d, slot) — d's bits as an
+  /// ordered integer (the sign flipped into two's complement: the `fast` mode's entries may be
+  /// negative) above the slot, the misses below every hit — farthest first, with a sorting network
+  /// of six layers (19 comparators; Knuth, TAOCP vol. 3, §5.3.4), each one permute, one min and
+  /// one masked max: no branch on the distances (the insertion sort's mispredict often on
+  /// incoherent rays). The row of eight entries is stored whole at `entries`; its first
+  /// popcount(mask) are the hits, the farthest first: the nearest, the child entered now (K::nearest's
+  /// slot: the smallest d, ties to the lower slot), is the last of them and is not counted by
+  /// the caller. Equal distances keep the insertion sort's order (the lower slot popped first).
+  static constexpr bool sorted_push8 = true;
+  [[gnu::always_inline]] static void push_sorted8(void* entries, unsigned mask, const std::int32_t* child, const float* d) {
+    // -0 as +0, so that the integer order is the float compare's (d is never NaN)
+    const __m256 dv = _mm256_add_ps(_mm256_loadu_ps(d), _mm256_setzero_ps());
+    const __m256i bits = _mm256_castps_si256(dv);
+    const __m256i ord = _mm256_xor_si256(bits, _mm256_srli_epi32(_mm256_srai_epi32(bits, 31), 1));
+    const __m512i slot = _mm512_setr_epi64(0, 1, 2, 3, 4, 5, 6, 7);
+    const __m512i hit = _mm512_or_si512(_mm512_slli_epi64(_mm512_cvtepi32_epi64(ord), 32), slot);
+    __m512i v = _mm512_mask_mov_epi64(_mm512_or_si512(_mm512_set1_epi64(INT64_MIN), slot), static_cast<__mmask8>(mask), hit);
+    const auto layer = [&v](__m512i perm, __mmask8 lower) {  // lower: each pair's first lane takes the larger key
+      const __m512i p = _mm512_permutexvar_epi64(perm, v);
+      v = _mm512_mask_max_epi64(_mm512_min_epi64(v, p), lower, v, p);
+    };
+    layer(_mm512_setr_epi64(2, 3, 0, 1, 6, 7, 4, 5), 0x33);
+    layer(_mm512_setr_epi64(4, 5, 6, 7, 0, 1, 2, 3), 0x0F);
+    layer(_mm512_setr_epi64(1, 0, 3, 2, 5, 4, 7, 6), 0x55);
+    layer(_mm512_setr_epi64(0, 1, 4, 5, 2, 3, 6, 7), 0x0C);
+    layer(_mm512_setr_epi64(0, 4, 2, 6, 1, 5, 3, 7), 0x0A);
+    layer(_mm512_setr_epi64(0, 2, 1, 4, 3, 6, 5, 7), 0x2A);
+    // the entries (node in the low half, d in the high half, as stack.h's Entry), in key order
+    const __m512i row = _mm512_permutex2var_epi32(
+        _mm512_castsi256_si512(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(child))),
+        _mm512_setr_epi32(0, 16, 1, 17, 2, 18, 3, 19, 4, 20, 5, 21, 6, 22, 7, 23),
+        _mm512_castsi256_si512(_mm256_castps_si256(_mm256_loadu_ps(d))));
+    _mm512_storeu_si512(entries, _mm512_permutexvar_epi64(_mm512_and_si512(v, _mm512_set1_epi64(7)), row));
+  }
+#endif
+
   /// The octant-ordered push (stack.h, trace_mbvh8_octant): the order's lanes unpacked (one
   /// variable shift), the hit mask permuted into that order (one shift puts slot s's bit in lane
   /// k's sign), the permuted hit lanes compressed into the list of their slots (AVX-512:

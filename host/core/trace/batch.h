@@ -211,7 +211,8 @@ inline bool walked_in_turn(const TraceView& v, std::span<const Ray> rays, std::s
     }
     if (opt.layout != Layout::mbvh8) return false;
     if (any) run_interleaved<true, K, OrderedWalk<true, NoStats, K, Node8>>(v, rays, b, e, out, invalid);
-    else if (coherent_directions(rays, b, e)) run_interleaved<false, K, OrderedWalk<false, NoStats, K, Node8>>(v, rays, b, e, out, invalid);
+    else if (coherent_directions(rays, b, e))  // the insertion sort (OrderedWalk's Sorted off): coherent rays predict it
+      run_interleaved<false, K, OrderedWalk<false, NoStats, K, Node8, false>>(v, rays, b, e, out, invalid);
     else return false;
     return true;
   }

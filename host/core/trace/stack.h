@@ -96,7 +96,18 @@ inline Hit trace_mbvh4_stack(const TraceView& v, const typename K::Ray& r, St& s
 /// a shadow ray test the boxes it only grazes leaving its surface.
 /// The walk's state and one step of it, so that a driver may advance two rays in turn
 /// (batch.h's run_interleaved, closest and any hit) with the single-ray traversal's code.
-template <bool Any, class St, class K, class N>
+/// Where K has a sorted push of an MBVH8 node's hits (K::push_sorted8; closest hit) and Sorted is
+/// on, it replaces the insertion sort of four or more hits (the same order, without a branch on
+/// the distances): for incoherent rays, whose sort branches mispredict; on coherent ones (batch.h
+/// walks them two in turn) the branches predict well and the insertion sort is cheaper.
+template <class K, bool Any, int W>
+constexpr bool sorted_push8() {
+  if constexpr (Any || W != 8) return false;
+  else if constexpr (requires { K::sorted_push8; }) return K::sorted_push8;
+  else return false;
+}
+
+template <bool Any, class St, class K, class N, bool Sorted = true>
 struct OrderedWalk {
   struct Entry {  // 8 bytes, as Embree's (node, distance) entries
     std::int32_t node;
@@ -112,7 +123,7 @@ struct OrderedWalk {
   StepGuard guard;
   unsigned sp;
   std::int32_t cur;
-  Entry stack[kEntries];
+  Entry stack[kEntries + 1];  // + 1: K::push_sorted8 stores a whole row of eight at sp <= kEntries - 7
 
   OrderedWalk(const TraceView& view, const typename K::Ray& ray) : v(view), nodes(detail::nodes_of<N>(view)), r(&ray), guard(view) {
     start();
@@ -151,6 +162,9 @@ struct OrderedWalk {
             stack[sp] = Entry{n.child[under], d[under]};
             stack[sp + 1] = Entry{n.child[over], d[over]};
             sp += 2;
+          } else if constexpr (Sorted && sorted_push8<K, Any, W>()) {
+            K::push_sorted8(stack + sp, m, n.child, d);  // all hits, the nearest (q) last
+            sp += static_cast<unsigned>(std::popcount(m)) - 1;
           } else {
             const unsigned base = sp;
             stack[sp++] = Entry{n.child[a], d[a]};
