@@ -122,19 +122,24 @@ public:
   static constexpr unsigned kOwnLeafBlock = 4;
   unsigned leaf_block(const TraceOptions& opt) const override { return opt.leaf_block ? opt.leaf_block : own_block_; }
   /// Everything made once per build happens here, outside the timed trace: the layout and the
-  /// leaves' SIMD packs of the leaf variant traced, and the copy of its nodes whose leaf
+  /// leaves' SIMD packs of the leaf variant traced (and their `fast` copy), and the copy of its nodes whose leaf
   /// references locate the packs (TraceView::packed_refs; all kept by the Accel; later calls
   /// are free).
   void do_prepare(const Accel& acc, const TraceOptions& opt) override {
     const unsigned block = leaf_block(opt);
+    // the `fast` precision's leaves read their own copy of the packs (TriPacks::mt), counted
+    // traces the leaf table
+    const bool fast_packs = opt.precision == Precision::fast && !opt.stats;
     if (block > 1) {
       const LeafVariant& v = acc.leaf_variant(block);
       v.make_layout(opt.layout);
       v.packed_nodes(opt.layout, acc.tris());  // also the packs
+      if (fast_packs) v.tri_packs(acc.tris()).mt();
       if ((mic_ || mic_auto_) && opt.layout == Layout::mbvh4) v.mbvh4_wide();
     } else {
       acc.make_layout(opt.layout);
-      acc.tri_packs();
+      const TriPacks& packs = acc.tri_packs();
+      if (fast_packs) packs.mt();
       if ((mic_ || mic_auto_) && opt.layout == Layout::mbvh4) acc.mbvh4_wide();
     }
   }

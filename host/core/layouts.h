@@ -195,7 +195,14 @@ TriPacks make_tri_packs(const AlignedVector<Tri>& tris, const std::vector<Leaf>&
 /// k + 4 < count as one eight-lane block over its two slots (rows v0.x, v0.y, v0.z, e1.x, ...,
 /// e2.z of 8 lanes, then the 8 prim ids: 320 bytes, so each row is one aligned load), the last
 /// 1 to 4 as one Tri4 slot with rows v0, e1, e2 and its prim ids.
-AlignedVector<Tri4> make_mt_packs(const TriPacks& p);
+/// write_mt_packs writes it into `out` (resized only where its size differs: a refit rewrites the
+/// copy in place).
+void write_mt_packs(const TriPacks& p, AlignedVector<Tri4>& out);
+inline AlignedVector<Tri4> make_mt_packs(const TriPacks& p) {
+  AlignedVector<Tri4> out;
+  write_mt_packs(p, out);
+  return out;
+}
 
 /// Structural checks of a layout (host/core/bvh/validate.cpp): every reference in range, every
 /// inner node referenced once by a node of smaller index (so descent always terminates), every

@@ -41,7 +41,7 @@ template <class K>
 void trace_packets(const Accel& acc, std::span<const Ray> rays, const TraceOptions& opt, TraceOutput& out, unsigned threads,
                    bool hybrid) {
   const TraceView pv = trace_view(acc, Layout::mbvh2, false, opt.leaf_block, false);
-  const TraceView sv = trace_view(acc, opt.layout, true, opt.leaf_block, !opt.stats, false, K::fast);
+  const TraceView sv = trace_view(acc, opt.layout, true, opt.leaf_block, !opt.stats, false, K::fast && !opt.stats);
   const bool any = opt.query == Query::any;
   // the hybrid's single rays: run_batch's dispatch traces a packet traversal ray by ray as
   // packet_single_ray's traversal, whose bytes every packet ray gives (but for classified ties)

@@ -51,8 +51,9 @@ TriPacks make_tri_packs(const AlignedVector<Tri>& tris, const std::vector<Leaf>&
   return p;
 }
 
-AlignedVector<Tri4> make_mt_packs(const TriPacks& p) {
-  AlignedVector<Tri4> out(p.packs.begin(), p.packs.end());  // v0 and the prim ids of the four-lane slots
+void write_mt_packs(const TriPacks& p, AlignedVector<Tri4>& out) {
+  if (out.size() != p.packs.size()) out = AlignedVector<Tri4>(p.packs.size());
+  std::copy(p.packs.begin(), p.packs.end(), out.begin());  // v0 and the prim ids of the four-lane slots
   // two slots are one eight-lane block (9 rows of 8 floats and 8 ids), each row 32-byte aligned
   // (slot k starts 160 k bytes into the cache-aligned array)
   static_assert(sizeof(Tri4) == 160, "a slot is 5 rows of 32 bytes");
@@ -81,16 +82,16 @@ AlignedVector<Tri4> make_mt_packs(const TriPacks& p) {
         }
     }
   }
-  return out;
 }
 
 const AlignedVector<Tri4>& TriPacks::mt() const {
-  std::call_once(mt_->once, [this] { mt_->packs = make_mt_packs(*this); });
+  std::call_once(mt_->once, [this] { write_mt_packs(*this, mt_->packs); });
   return mt_->packs;
 }
 
 void TriPacks::refresh_mt() {
-  if (!mt_->packs.empty()) mt_->packs = make_mt_packs(*this);
+  // in place (the same leaves, the same size): what points into the copy keeps pointing at it
+  if (mt_ && !mt_->packs.empty()) write_mt_packs(*this, mt_->packs);
 }
 
 }  // namespace mbvh

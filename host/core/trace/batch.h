@@ -247,7 +247,7 @@ inline void trace_parallel(const Accel& acc, std::span<const Ray> rays, const Tr
                            unsigned threads, const std::function<void(std::size_t)>& progress = {}) {
   // counted traversals visit leaves through the reference's visit_leaf (the leaf table)
   const TraceView v = trace_view(acc, opt.layout, K::uses_packs, opt.leaf_block, K::uses_packs && !opt.stats,
-                                    uses_node4w<K>(), K::uses_packs && K::fast);
+                                    uses_node4w<K>(), K::uses_packs && K::fast && !opt.stats);
   const bool any = opt.query == Query::any;
   out.resize_for(rays.size(), opt);  // every ray's entries are written below
   std::atomic<std::size_t> invalid{0}, done{0};

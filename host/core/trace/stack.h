@@ -123,7 +123,8 @@ struct OrderedWalk {
   StepGuard guard;
   unsigned sp;
   std::int32_t cur;
-  Entry stack[kEntries + 1];  // + 1: K::push_sorted8 stores a whole row of eight at sp <= kEntries - 7
+  // + 1 where K::push_sorted8 runs: it stores a whole row of eight at sp <= kEntries - 7
+  Entry stack[kEntries + (Sorted && sorted_push8<K, Any, W>() ? 1 : 0)];
 
   OrderedWalk(const TraceView& view, const typename K::Ray& ray) : v(view), nodes(detail::nodes_of<N>(view)), r(&ray), guard(view) {
     start();

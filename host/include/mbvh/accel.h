@@ -295,7 +295,7 @@ public:
     /// leaf tables and the copies whose leaf references locate the packs.
     std::size_t nodes = 0;
     std::size_t triangles = 0;  ///< the triangle records (tris(), 48 bytes each)
-    std::size_t packs = 0;      ///< the SIMD leaf packs (160 bytes per four triangles) and their leaf tables
+    std::size_t packs = 0;      ///< the SIMD leaf packs (160 bytes per four triangles; the `fast` precision's copy as much again, once a fast trace made it) and their leaf tables
     std::size_t total() const { return tree + nodes + triangles + packs; }
   };
   /// This build's MemoryStats. O(leaf variants); not concurrently with a call that makes a layout,
