@@ -123,7 +123,7 @@ struct SimdKernelsT {
   }
 
 #if MBVH_CPU_ISA_ID == 2
-  /// The MBVH8 ordered stack's push of three or more hit children (stack.h, OrderedWalk; AVX-512):
+  /// The MBVH8 ordered stack's push of four or more hit children (stack.h, OrderedWalk; AVX-512):
   /// every slot's (node, d) entry sorted in registers by the key (d, slot) — d's bits as an
   /// ordered integer (the sign flipped into two's complement: the `fast` mode's entries may be
   /// negative) above the slot, the misses below every hit — farthest first, with a sorting network
