@@ -52,18 +52,22 @@ struct Consts {
   }
 };
 
-// Two records' rows: lo (prim ids dropped) of both, hi of both, and their centroids.
+// Two records' rows (r0, r1: each a whole record, lo with its prim id and hi with its pad) and
+// their centroids (lanes 0-2 the first's, 4-6 the second's).
 struct Pair {
   __m256 r0, r1, ce;
 };
-MBVH_AVX2 inline Pair load_pair(const Consts& k, const PrimRef* p) {
+// Records a and b, anywhere.
+MBVH_AVX2 inline Pair load_two(const Consts& k, const PrimRef* a, const PrimRef* b) {
   Pair q;
-  q.r0 = _mm256_loadu_ps(p[0].lo);
-  q.r1 = _mm256_loadu_ps(p[1].lo);
+  q.r0 = _mm256_loadu_ps(a->lo);
+  q.r1 = _mm256_loadu_ps(b->lo);
   const __m256 lo = _mm256_permute2f128_ps(q.r0, q.r1, 0x20), hi = _mm256_permute2f128_ps(q.r0, q.r1, 0x31);
   q.ce = _mm256_mul_ps(_mm256_add_ps(_mm256_and_ps(lo, k.xyz), hi), k.half);
   return q;
 }
+// Records p[0] and p[1].
+MBVH_AVX2 inline Pair load_pair(const Consts& k, const PrimRef* p) { return load_two(k, p, p + 1); }
 // A single record as a pair's first half (the second half a copy: callers use lanes 0-3 only).
 MBVH_AVX2 inline Pair load_one(const Consts& k, const PrimRef* p) {
   Pair q;
@@ -211,24 +215,20 @@ MBVH_AVX2 [[gnu::noinline]] inline void scatter(const Split& g, int axis, const 
 }
 
 // DenseBins::bin_parts<2>'s steps: record b + i into s0 and record b + n + i into s1 for i in
-// [0, n), one step for both (the bins of DenseBins::Binning: the same float operations).
-MBVH_AVX2 [[gnu::noinline]] inline void bin_pairs(DenseBins& s0, DenseBins& s1, const PrimRef* p, std::size_t b,
-                                                  std::size_t n, const float origin[3], const float scale[3],
-                                                  unsigned last) {
-  const Split g{{origin[0], origin[1], origin[2]}, {scale[0], scale[1], scale[2]}, 0};
+// [0, n), one step for both (the bins of DenseBins::Binning: the same float operations; g's
+// split unused).
+MBVH_AVX2 [[gnu::noinline]] inline void bin_pairs(const Split& g, unsigned last, DenseBins& s0, DenseBins& s1,
+                                                  const PrimRef* p, std::size_t b, std::size_t n) {
   const Consts k(g);
   const __m256 zero = _mm256_setzero_ps();
   const __m256 neg_hi = _mm256_setr_ps(0.0f, 0.0f, 0.0f, 0.0f, -0.0f, -0.0f, -0.0f, -0.0f);
   const __m256i lst = _mm256_set1_epi32(static_cast<int>(last));
   for (std::size_t i = 0; i < n; ++i) {
-    const PrimRef* r[2] = {p + b + i, p + b + n + i};
-    const __m256 r0 = _mm256_loadu_ps(r[0]->lo), r1 = _mm256_loadu_ps(r[1]->lo);
-    const __m256 lo = _mm256_permute2f128_ps(r0, r1, 0x20), hi = _mm256_permute2f128_ps(r0, r1, 0x31);
-    const __m256 ce = _mm256_mul_ps(_mm256_add_ps(_mm256_and_ps(lo, k.xyz), hi), k.half);
-    const __m256 f = _mm256_max_ps(_mm256_mul_ps(_mm256_sub_ps(ce, k.o), k.s), zero);
+    const Pair q = load_two(k, p + b + i, p + b + n + i);
+    const __m256 f = _mm256_max_ps(_mm256_mul_ps(_mm256_sub_ps(q.ce, k.o), k.s), zero);
     alignas(32) std::uint32_t ks[8];  // f <= bins: the 16-bit min is the clamp (DenseBins::Binning)
     _mm256_store_si256(reinterpret_cast<__m256i*>(ks), _mm256_min_epi16(_mm256_cvttps_epi32(f), lst));
-    const __m256 b0 = _mm256_xor_ps(_mm256_and_ps(r0, k.xyz), neg_hi), b1 = _mm256_xor_ps(_mm256_and_ps(r1, k.xyz), neg_hi);
+    const __m256 b0 = _mm256_xor_ps(_mm256_and_ps(q.r0, k.xyz), neg_hi), b1 = _mm256_xor_ps(_mm256_and_ps(q.r1, k.xyz), neg_hi);
     for (int a = 0; a < 3; ++a) {
       float* w0 = reinterpret_cast<float*>(&s0.row[a][ks[a]]);
       _mm256_store_ps(w0, _mm256_min_ps(_mm256_load_ps(w0), b0));

@@ -478,7 +478,7 @@ private:
 #if defined(MBVH_BUILD_AVX2)
     if (use_vec256()) {  // DenseBins::bin_parts<2>'s steps on AVX2, then its remainder and merge
       const std::size_t n = (e - b) / 2;
-      vec256::bin_pairs(out, more, src, b, n, g.origin, g.scale, g.last);
+      vec256::bin_pairs(vec256_split(g.origin, g.scale, 0), g.last, out, more, src, b, n);
       if (b + 2 * n < e) more.bin(src, b + 2 * n, e, g.origin, g.scale, g.last);
       out.merge(more, g.last + 1);
       return;
