@@ -12,7 +12,10 @@
 //    lower (the bottom-up collapse of Karras & Aila, "Fast Parallel Construction of High-Quality
 //    BVHs", HPG 2013, without the treelet rotations).
 // Deterministic: the split positions depend only on the sorted codes, the top of the tree is split
-// breadth-first and the subtrees below are built one per task into their own arenas.
+// breadth-first and the subtrees below are built one per task. A task writes its subtree in the
+// flattened form (Bvh2 nodes depth-first, leaves in record order) numbered from 0 in scratch of
+// its own; once every task's size is known the subtrees are moved into their places and their
+// references shifted there, the bytes flatten would write from arenas of the same tree.
 #include <algorithm>
 #include <array>
 #include <atomic>
@@ -22,6 +25,8 @@
 #include <vector>
 
 #include "host/core/bvh/builder.h"
+#include "host/core/huge_pages.h"
+#include "host/core/layouts.h"
 #include "host/core/parallel.h"
 
 namespace mbvh::build {
@@ -94,17 +99,13 @@ public:
     return mid;
   }
 
+  // Upper node t made a leaf of its records.
   void make_leaf(TmpNode& t) const {
-    FastBox box;
-    for (std::uint32_t i = t.begin; i < t.end; ++i) box.grow(prims_[i]);
-    make_leaf(t, box);
-  }
-  // make_leaf with the records' box known.
-  void make_leaf(TmpNode& t, const FastBox& box) const {
     t.leaf = true;
     t.forced = t.end - t.begin > opt_.max_leaf;
     t.child[0] = t.child[1] = -1;
-    t.box = box;
+    t.box = FastBox();
+    for (std::uint32_t i = t.begin; i < t.end; ++i) t.box.grow(prims_[i]);
   }
 
   // A node of build_small's tree while it is priced (outside the arena): its record range, its
@@ -125,53 +126,83 @@ public:
   };
   static_assert(std::is_trivially_default_constructible_v<Small>);
 
-  // Builds a subtree task's tree from its arena's node 0 (its range and depth set).
-  void build(SubArena& arena) const {
+  // A subtree task's part of the flattened tree, numbered from 0 within the task: its inner nodes
+  // depth-first, its leaves and their boxes in record order, as flatten numbers a subtree's
+  // (root: inner node 0 or leaf 0; the root's parent MBVH_NONE, set when the task is placed).
+  struct Local {
+    Bvh2::Node* nodes;
+    Leaf* leaves;
+    Box* boxes;
+    std::uint32_t node = 0, leaf = 0;
+    std::size_t largest = 0, forced = 0;
+    std::int32_t root = 0;
+    std::uint32_t height = 0;
+    FastBox box;
+  };
+
+  // Builds the subtree of upper node `top` (its range and depth) into `local`.
+  void build(const TmpNode& top, Local& local) const {
     constexpr std::size_t kStack = 64;  // build_small's nodes on the stack: max_leaf up to 32
     Small stack[kStack];
     // room for 2 c nodes, c the largest range build_small sees: max_leaf, or the task's whole range
     // where that is smaller (a caller's max_leaf may be huge); not filled (Small has no initialisers)
-    const std::size_t room = 2 * std::min<std::size_t>(opt_.max_leaf, arena[0].end - arena[0].begin);
+    const std::size_t room = 2 * std::min<std::size_t>(opt_.max_leaf, top.end - top.begin);
     std::unique_ptr<Small[]> heap;
     Small* nodes = stack;
     if (room > kStack) {
       heap.reset(new Small[room]);
       nodes = heap.get();
     }
-    build(arena, 0, nodes);
+    local.root = build(local, top.begin, top.end, top.depth, MBVH_NONE, nodes, local.box, local.height);
   }
 
-  // Builds the subtree of arena node n (its range and depth set); `nodes`: build_small's room.
-  void build(SubArena& arena, std::size_t n, Small* nodes) const {
-    if (arena[n].end - arena[n].begin <= opt_.max_leaf) {
-      build_small(arena, n, nodes);
-      return;
-    }
-    const std::uint32_t mid = split_of(arena[n]);
+  // A leaf of records [b, e) with box `box` appended to `local`: its reference; height 0.
+  std::int32_t leaf(Local& local, std::uint32_t b, std::uint32_t e, const FastBox& box, std::uint32_t& height) const {
+    const std::uint32_t l = local.leaf++;
+    ::new (static_cast<void*>(local.leaves + l)) Leaf{b, e - b};
+    ::new (static_cast<void*>(local.boxes + l)) Box(box.box());
+    local.largest = std::max<std::size_t>(local.largest, e - b);
+    local.forced += e - b > opt_.max_leaf ? 1 : 0;
+    height = 0;
+    return ~static_cast<std::int32_t>(l);
+  }
+
+  // Builds the subtree of records [b, e) at `depth` into `local` depth-first (a node before its
+  // children); `parent`: its parent's local index. Returns its reference; its box and height set.
+  // `nodes`: build_small's room.
+  std::int32_t build(Local& local, std::uint32_t b, std::uint32_t e, std::uint32_t depth, std::int32_t parent, Small* nodes,
+                     FastBox& box, std::uint32_t& height) const {
+    if (e - b <= opt_.max_leaf) return build_small(local, b, e, depth, parent, nodes, box, height);
+    const std::uint32_t mid = split_of(b, e, depth);
     if (mid == 0) {
-      make_leaf(arena[n]);
-      return;
+      box = FastBox();
+      for (std::uint32_t i = b; i < e; ++i) box.grow(prims_[i]);
+      return leaf(local, b, e, box, height);
     }
-    const std::size_t first = arena.size();
-    push_children(arena, n, mid);
-    build(arena, first, nodes);
-    build(arena, first + 1, nodes);
-    TmpNode& t = arena[n];
-    t.box = arena[first].box;
-    t.box.grow(arena[first + 1].box);
+    const std::int32_t self = static_cast<std::int32_t>(local.node++);
+    FastBox c[2];
+    std::uint32_t h[2];
+    const std::int32_t r0 = build(local, b, mid, depth + 1, self, nodes, c[0], h[0]);
+    const std::int32_t r1 = build(local, mid, e, depth + 1, self, nodes, c[1], h[1]);
+    box = c[0];
+    box.grow(c[1]);
+    height = 1 + std::max(h[0], h[1]);
+    ::new (static_cast<void*>(local.nodes + self)) Bvh2::Node{box.box(), {r0, r1}, parent, height};
+    return self;
   }
 
-  // Builds the subtree of arena node n of at most max_leaf records bottom-up: its Morton split is
+  // Builds the subtree of records [b, e), at most max_leaf of them, bottom-up: its Morton split is
   // made first, then undone where one leaf prices no higher, every node below priced once (price()).
   // The pricing runs on `nodes`, room for 2 max_leaf (a range of c records has at most 2c - 1
-  // nodes); only the nodes kept are written to the arena, in the order a depth-first build
-  // pushes them.
-  void build_small(SubArena& arena, std::size_t n, Small* nodes) const {
-    nodes[0].begin = arena[n].begin;
-    nodes[0].end = arena[n].end;
+  // nodes); only the nodes kept are written to `local`, depth-first.
+  std::int32_t build_small(Local& local, std::uint32_t b, std::uint32_t e, std::uint32_t depth, std::int32_t parent,
+                           Small* nodes, FastBox& box, std::uint32_t& height) const {
+    nodes[0].begin = b;
+    nodes[0].end = e;
     std::uint32_t size = 1;
-    price_small(nodes, size, 0, arena[n].depth);
-    emit_small(arena, n, nodes, 0);
+    price_small(nodes, size, 0, depth);
+    box = nodes[0].box();
+    return emit_small(local, nodes, 0, parent, height);
   }
 
   // Prices node `self` of `nodes` (its range set) at `depth` and returns its SAH cost (area units:
@@ -239,24 +270,23 @@ public:
     return cost;
   }
 
-  // Writes priced node `self` into arena node n (its range and depth set), its kept children
-  // pushed after it and written depth-first.
-  void emit_small(SubArena& arena, std::size_t n, const Small* nodes, std::uint32_t self) const {
+  // Writes priced node `self` into `local` depth-first (a node before its kept children);
+  // `parent`: its parent's local index. Returns its reference; its height set.
+  std::int32_t emit_small(Local& local, const Small* nodes, std::uint32_t self, std::int32_t parent,
+                          std::uint32_t& height) const {
     const Small& s = nodes[self];
-    if (s.child < 0) {
-      make_leaf(arena[n], s.box());
-      return;
-    }
-    const std::size_t first = arena.size();
+    if (s.child < 0) return leaf(local, s.begin, s.end, s.box(), height);
+    const std::int32_t id = static_cast<std::int32_t>(local.node++);
     const std::uint32_t c = static_cast<std::uint32_t>(s.child);
-    push_children(arena, n, nodes[c].end);
-    arena[n].box = s.box();
-    emit_small(arena, first, nodes, c);
-    emit_small(arena, first + 1, nodes, c + 1);
+    std::uint32_t h[2];
+    const std::int32_t r0 = emit_small(local, nodes, c, id, h[0]);
+    const std::int32_t r1 = emit_small(local, nodes, c + 1, id, h[1]);
+    height = 1 + std::max(h[0], h[1]);
+    ::new (static_cast<void*>(local.nodes + id)) Bvh2::Node{s.box().box(), {r0, r1}, parent, height};
+    return id;
   }
 
-  template <class Arena>  // the upper arena (a vector) or a subtree's (SubArena)
-  static void push_children(Arena& arena, std::size_t n, std::uint32_t mid) {
+  static void push_children(std::vector<TmpNode>& arena, std::size_t n, std::uint32_t mid) {
     TmpNode c[2];
     c[0].begin = arena[n].begin;
     c[0].end = c[1].begin = mid;
@@ -274,10 +304,93 @@ private:
   const std::uint64_t* items_;
 };
 
+// The top of the tree (the upper arena) in the flattened tree, around the subtrees built apart:
+// place() walks it depth-first to find where each subtree's nodes and leaves start and its root's
+// parent; emit() writes the top's own nodes and leaves (as flatten does an arena's).
+struct UpperWriter {
+  const std::vector<TmpNode>& upper;
+  const std::vector<std::int32_t>& subtree_of;  // per upper node: its subtree task, or -1
+  const std::vector<LbvhBuilder::Local>& local;
+  Bvh2& out;
+  std::vector<Leaf>& leaves;
+  std::vector<std::pair<std::size_t, std::size_t>> at;  // per task: its first node and leaf
+  std::vector<std::int32_t> parent_of;                  // per task: its root's parent
+  std::size_t node = 0, leaf = 0;
+  std::size_t largest = 0, forced = 0;
+
+  void place(std::size_t n, std::int32_t parent) {
+    const TmpNode& t = upper[n];
+    if (subtree_of[n] >= 0) {
+      const std::size_t j = static_cast<std::size_t>(subtree_of[n]);
+      at[j] = {node, leaf};
+      parent_of[j] = parent;
+      node += local[j].node;
+      leaf += local[j].leaf;
+      return;
+    }
+    if (t.leaf) {
+      ++leaf;
+      return;
+    }
+    const std::int32_t self = static_cast<std::int32_t>(node++);
+    for (int side = 0; side < 2; ++side)
+      if (t.child[side] >= 0) place(static_cast<std::size_t>(t.child[side]), self);
+  }
+
+  // The reference of upper node n (a subtree's root: where place() put it).
+  std::int32_t emit(std::size_t n, std::int32_t parent, std::uint32_t& height) {
+    const TmpNode& t = upper[n];
+    if (subtree_of[n] >= 0) {
+      const std::size_t j = static_cast<std::size_t>(subtree_of[n]);
+      const LbvhBuilder::Local& l = local[j];
+      node += l.node;
+      leaf += l.leaf;
+      height = l.height;
+      return l.root >= 0 ? static_cast<std::int32_t>(at[j].first) : ~static_cast<std::int32_t>(at[j].second);
+    }
+    if (t.leaf) {
+      leaves[leaf] = {t.begin, t.end - t.begin};
+      out.leaf_boxes[leaf] = t.box.box();
+      largest = std::max<std::size_t>(largest, t.end - t.begin);
+      forced += t.forced ? 1 : 0;
+      height = 0;
+      return ~static_cast<std::int32_t>(leaf++);
+    }
+    const std::int32_t self = static_cast<std::int32_t>(node++);
+    Bvh2::Node& d = out.nodes[static_cast<std::size_t>(self)];
+    d = {t.box.box(), {MBVH_EMPTY, MBVH_EMPTY}, parent, 0};
+    std::uint32_t h[2] = {0, 0};
+    for (int side = 0; side < 2; ++side)
+      if (t.child[side] >= 0) d.child[side] = emit(static_cast<std::size_t>(t.child[side]), self, h[side]);
+    height = 1 + std::max(h[0], h[1]);
+    d.height = height;
+    return self;
+  }
+};
+
+// v.resize(n) with the new storage's pages first touched on up to `threads` workers (as the
+// flatten's arrays are: resize value-initialises on one thread, and the first touch of a page
+// is the costly part of that).
+template <class V>
+void resize_touched(V& v, std::size_t n, unsigned threads) {
+  if (n > v.capacity()) {
+    v.reserve(n);
+    constexpr std::size_t kPage = 4096;
+    unsigned char* from = reinterpret_cast<unsigned char*>(v.data() + v.size());
+    const std::size_t bytes = (n - v.size()) * sizeof(typename V::value_type);
+    advise_huge_pages(from, bytes);
+    parallel_for((bytes + kPage - 1) / kPage, 64, threads, [&](std::size_t b, std::size_t e, unsigned) {
+      for (std::size_t p = b; p < e; ++p) from[p * kPage] = 0;
+    });
+  }
+  v.resize(n);
+}
+
 }  // namespace
 
 void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& croot, const BuildOptions& opt,
-                Arenas& out, PrimRef* scratch) {
+                Arenas& out, Bvh2& tree, std::vector<Leaf>& leaves, const std::function<void()>& records_done,
+                PrimRef* scratch) {
   const std::size_t n = prims.size();
   // chunks of the passes below: about four per worker (a stable sort has one result whatever
   // the chunks, so they may follow the thread count)
@@ -404,16 +517,81 @@ void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& c
     if (mid == 0) builder.make_leaf(upper[k]);
     else LbvhBuilder::push_children(upper, k, mid);
   }
-  build_subtrees(out, jobs, opt, [&](SubArena& subtree, std::size_t) { builder.build(subtree); });
+  make_root_inner(upper);
+  // -- the subtrees, one task each (largest first: the order only spreads the work), each into
+  //    its records' run of the node block (Arenas::arena_for's: 96 bytes a record, of which its
+  //    nodes, leaves and leaf boxes take 72)
+  static_assert(sizeof(Bvh2::Node) + sizeof(Leaf) + sizeof(Box) <= 2 * sizeof(TmpNode));
+  TmpNode* const block = out.block.ensure(2 * n);  // here, on the calling thread (NodeBlock)
+  std::vector<std::int32_t> subtree_of(upper.size(), -1);
+  for (std::size_t j = 0; j < jobs.size(); ++j) subtree_of[jobs[j]] = static_cast<std::int32_t>(j);
+  std::vector<std::size_t> order(jobs.size());
+  for (std::size_t j = 0; j < jobs.size(); ++j) order[j] = j;
+  std::stable_sort(order.begin(), order.end(), [&](std::size_t x, std::size_t y) {
+    return upper[jobs[x]].end - upper[jobs[x]].begin > upper[jobs[y]].end - upper[jobs[y]].begin;
+  });
+  std::vector<LbvhBuilder::Local> local(jobs.size());
+  std::atomic<std::size_t> built{0};
+  parallel_for(jobs.size(), 1, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
+    for (std::size_t o = b; o < e; ++o) {
+      const std::size_t j = order[o];
+      const TmpNode& top = upper[jobs[j]];
+      const std::size_t count = top.end - top.begin;
+      unsigned char* run = reinterpret_cast<unsigned char*>(static_cast<void*>(block + 2 * std::size_t(top.begin)));
+      LbvhBuilder::Local& l = local[j];
+      l.nodes = reinterpret_cast<Bvh2::Node*>(static_cast<void*>(run));
+      l.leaves = reinterpret_cast<Leaf*>(static_cast<void*>(run + count * sizeof(Bvh2::Node)));
+      l.boxes = reinterpret_cast<Box*>(static_cast<void*>(run + count * (sizeof(Bvh2::Node) + sizeof(Leaf))));
+      builder.build(top, l);
+      if (opt.progress) opt.progress(0.25 + 0.7 * static_cast<double>(++built) / static_cast<double>(jobs.size()));
+    }
+  });
   // -- the top's boxes bottom-up (children follow their parent in the breadth-first arena)
   for (std::size_t k = upper.size(); k-- > 0;) {
     TmpNode& t = upper[k];
-    if (out.subtree_of[k] >= 0) t.box = out.subtrees[static_cast<std::size_t>(out.subtree_of[k])][0].box;
+    if (subtree_of[k] >= 0) t.box = local[static_cast<std::size_t>(subtree_of[k])].box;
     else if (!t.leaf) {
       t.box = FastBox();
       for (int s = 0; s < 2; ++s)
         if (t.child[s] >= 0) t.box.grow(upper[static_cast<std::size_t>(t.child[s])].box);
     }
+  }
+  // -- the records and the scratch are done with: the caller's turn (the triangle records
+  //    written, the records' array freed, so that the flattened tree's arrays can take its memory)
+  records_done();
+  // -- the flattened tree: the subtrees' places in the depth-first order (a walk of the top),
+  //    the top's nodes and leaves written around them, each subtree moved into its place with its
+  //    references shifted there (side by side on the pool)
+  UpperWriter top{upper, subtree_of, local, tree, leaves, std::vector<std::pair<std::size_t, std::size_t>>(jobs.size()),
+                  std::vector<std::int32_t>(jobs.size(), MBVH_NONE)};
+  top.place(0, MBVH_NONE);
+  resize_touched(tree.nodes, top.node, opt.threads);
+  resize_touched(tree.leaf_boxes, top.leaf, opt.threads);
+  resize_touched(leaves, top.leaf, opt.threads);
+  top.node = top.leaf = 0;
+  std::uint32_t height = 0;
+  top.emit(0, MBVH_NONE, height);
+  parallel_for(jobs.size(), 1, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
+    for (std::size_t j = b; j < e; ++j) {
+      const LbvhBuilder::Local& l = local[j];
+      const std::int32_t node0 = static_cast<std::int32_t>(top.at[j].first);
+      const std::int32_t leaf0 = static_cast<std::int32_t>(top.at[j].second);
+      Bvh2::Node* dst = tree.nodes.data() + node0;
+      for (std::uint32_t i = 0; i < l.node; ++i) {
+        Bvh2::Node d = l.nodes[i];
+        for (int s = 0; s < 2; ++s) d.child[s] = d.child[s] >= 0 ? d.child[s] + node0 : d.child[s] - leaf0;
+        d.parent = i == 0 ? top.parent_of[j] : d.parent + node0;
+        dst[i] = d;
+      }
+      std::copy(l.leaves, l.leaves + l.leaf, leaves.begin() + leaf0);
+      std::copy(l.boxes, l.boxes + l.leaf, tree.leaf_boxes.begin() + leaf0);
+    }
+  });
+  tree.largest_leaf = top.largest;
+  tree.forced_leaves = top.forced;
+  for (const LbvhBuilder::Local& l : local) {
+    tree.largest_leaf = std::max(tree.largest_leaf, l.largest);
+    tree.forced_leaves += l.forced;
   }
   (void)root;
 }
