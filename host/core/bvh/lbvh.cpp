@@ -54,6 +54,58 @@ inline std::uint32_t code_of(std::uint64_t item) { return static_cast<std::uint3
 
 static_assert(sizeof(Tri) == 48, "build_lbvh's scratch: 48 bytes a record, the triangle records' array");
 
+// A box as two rows (x, y, z in lanes 0-2), grown and priced as FastBox is, to the same bits (the
+// SSE min and max return their second operand unless the first is smaller, larger: a
+// FastBox::grow's std::min and std::max with the operands swapped), so the subtrees' boxes and
+// SAH decisions are FastBox's: one instruction a row where FastBox takes three.
+#if defined(__SSE2__)
+struct Rows {
+  __m128 lo, hi;
+  static Rows empty() { return {_mm_set1_ps(INFINITY), _mm_set1_ps(-INFINITY)}; }
+  static Rows of(const PrimRef& r) { return {_mm_loadu_ps(r.lo), _mm_loadu_ps(r.hi)}; }
+  void grow(const Rows& o) {
+    lo = _mm_min_ps(o.lo, lo);
+    hi = _mm_max_ps(o.hi, hi);
+  }
+  // FastBox::half_area: e0 e1 + e1 e2 + e2 e0, summed in that order; 0 for an empty box
+  float half_area() const {
+    if (!(_mm_cvtss_f32(lo) <= _mm_cvtss_f32(hi))) return 0.0f;
+    const __m128 e = _mm_sub_ps(hi, lo);
+    alignas(16) float p[4];
+    _mm_store_ps(p, _mm_mul_ps(e, _mm_shuffle_ps(e, e, _MM_SHUFFLE(3, 0, 2, 1))));
+    return p[0] + p[1] + p[2];
+  }
+  Box box() const {
+    alignas(16) float l[4], h[4];
+    _mm_store_ps(l, lo);
+    _mm_store_ps(h, hi);
+    Box b;
+    b.lo = {l[0], l[1], l[2]};
+    b.hi = {h[0], h[1], h[2]};
+    return b;
+  }
+  FastBox fast() const {
+    FastBox f;
+    set_rows(f, lo, hi);
+    return f;
+  }
+};
+#else
+struct Rows {
+  FastBox f;
+  static Rows empty() { return {}; }
+  static Rows of(const PrimRef& r) {
+    Rows x;
+    x.f.grow(r);
+    return x;
+  }
+  void grow(const Rows& o) { f.grow(o.f); }
+  float half_area() const { return f.half_area(); }
+  Box box() const { return f.box(); }
+  FastBox fast() const { return f; }
+};
+#endif
+
 class LbvhBuilder {
 public:
   // `items`: the records' sort items (code_of: their Morton codes), in record order.
@@ -112,17 +164,9 @@ public:
   // box and its first child's index in the same array (the second follows it), -1 for a leaf.
   // (Plain rows, no initialisers: the array is not filled before it is used.)
   struct Small {
-    float lo[3], hi[3];
+    Rows box;
     std::uint32_t begin, end;
     std::int32_t child;
-    FastBox box() const {
-      FastBox f;
-      for (int a = 0; a < 3; ++a) f.lo[a] = lo[a], f.hi[a] = hi[a];
-      return f;
-    }
-    void set_box(const FastBox& f) {
-      for (int a = 0; a < 3; ++a) lo[a] = f.lo[a], hi[a] = f.hi[a];
-    }
   };
   static_assert(std::is_trivially_default_constructible_v<Small>);
 
@@ -137,7 +181,7 @@ public:
     std::size_t largest = 0, forced = 0;
     std::int32_t root = 0;
     std::uint32_t height = 0;
-    FastBox box;
+    Rows box;
   };
 
   // Builds the subtree of upper node `top` (its range and depth) into `local`.
@@ -157,7 +201,7 @@ public:
   }
 
   // A leaf of records [b, e) with box `box` appended to `local`: its reference; height 0.
-  std::int32_t leaf(Local& local, std::uint32_t b, std::uint32_t e, const FastBox& box, std::uint32_t& height) const {
+  std::int32_t leaf(Local& local, std::uint32_t b, std::uint32_t e, const Rows& box, std::uint32_t& height) const {
     const std::uint32_t l = local.leaf++;
     ::new (static_cast<void*>(local.leaves + l)) Leaf{b, e - b};
     ::new (static_cast<void*>(local.boxes + l)) Box(box.box());
@@ -171,16 +215,15 @@ public:
   // children); `parent`: its parent's local index. Returns its reference; its box and height set.
   // `nodes`: build_small's room.
   std::int32_t build(Local& local, std::uint32_t b, std::uint32_t e, std::uint32_t depth, std::int32_t parent, Small* nodes,
-                     FastBox& box, std::uint32_t& height) const {
+                     Rows& box, std::uint32_t& height) const {
     if (e - b <= opt_.max_leaf) return build_small(local, b, e, depth, parent, nodes, box, height);
     const std::uint32_t mid = split_of(b, e, depth);
     if (mid == 0) {
-      box = FastBox();
-      for (std::uint32_t i = b; i < e; ++i) box.grow(prims_[i]);
+      box = records_box(b, e);
       return leaf(local, b, e, box, height);
     }
     const std::int32_t self = static_cast<std::int32_t>(local.node++);
-    FastBox c[2];
+    Rows c[2];
     std::uint32_t h[2];
     const std::int32_t r0 = build(local, b, mid, depth + 1, self, nodes, c[0], h[0]);
     const std::int32_t r1 = build(local, mid, e, depth + 1, self, nodes, c[1], h[1]);
@@ -196,12 +239,12 @@ public:
   // The pricing runs on `nodes`, room for 2 max_leaf (a range of c records has at most 2c - 1
   // nodes); only the nodes kept are written to `local`, depth-first.
   std::int32_t build_small(Local& local, std::uint32_t b, std::uint32_t e, std::uint32_t depth, std::int32_t parent,
-                           Small* nodes, FastBox& box, std::uint32_t& height) const {
+                           Small* nodes, Rows& box, std::uint32_t& height) const {
     nodes[0].begin = b;
     nodes[0].end = e;
     std::uint32_t size = 1;
     price_small(nodes, size, 0, depth);
-    box = nodes[0].box();
+    box = nodes[0].box;
     return emit_small(local, nodes, 0, parent, height);
   }
 
@@ -213,12 +256,10 @@ public:
     Small& t = nodes[self];
     const std::uint32_t b = t.begin, count = t.end - t.begin;
     if (count == 2 && depth < opt_.depth_cap && opt_.max_leaf >= 2) {
-      FastBox c[2];
-      c[0].grow(prims_[b]);
-      c[1].grow(prims_[b + 1]);
-      FastBox box = c[0];
+      const Rows c[2] = {Rows::of(prims_[b]), Rows::of(prims_[b + 1])};
+      Rows box = c[0];
       box.grow(c[1]);
-      t.set_box(box);
+      t.box = box;
       t.child = -1;
       const float area = box.half_area();
       const float leaf = price(2) * area;
@@ -229,7 +270,7 @@ public:
           t.child = static_cast<std::int32_t>(size);
           for (std::uint32_t k = 0; k < 2; ++k) {
             Small& l = nodes[size + k];
-            l.set_box(c[k]);
+            l.box = c[k];
             l.begin = b + k;
             l.end = b + k + 1;
             l.child = -1;
@@ -242,11 +283,9 @@ public:
     }
     const std::uint32_t mid = split_of(b, t.end, depth);
     if (mid == 0) {
-      FastBox box;
-      for (std::uint32_t i = b; i < t.end; ++i) box.grow(prims_[i]);
-      t.set_box(box);
+      t.box = records_box(b, t.end);
       t.child = -1;
-      return price(count) * box.half_area();
+      return price(count) * t.box.half_area();
     }
     const std::uint32_t first = size;
     nodes[first].begin = b;
@@ -255,12 +294,12 @@ public:
     size += 2;
     float split = price_small(nodes, size, first, depth + 1);
     split += price_small(nodes, size, first + 1, depth + 1);
-    FastBox box = nodes[first].box();
-    box.grow(nodes[first + 1].box());
+    Rows box = nodes[first].box;
+    box.grow(nodes[first + 1].box);
     const float area = box.half_area();
     const float cost = split + opt_.traversal_cost * area;
     const float leaf = price(count) * area;
-    t.set_box(box);
+    t.box = box;
     if (leaf <= cost) {
       size = first;  // its descendants were appended after its children
       t.child = -1;
@@ -270,19 +309,26 @@ public:
     return cost;
   }
 
+  // The box of records [b, e).
+  Rows records_box(std::uint32_t b, std::uint32_t e) const {
+    Rows box = Rows::empty();
+    for (std::uint32_t i = b; i < e; ++i) box.grow(Rows::of(prims_[i]));
+    return box;
+  }
+
   // Writes priced node `self` into `local` depth-first (a node before its kept children);
   // `parent`: its parent's local index. Returns its reference; its height set.
   std::int32_t emit_small(Local& local, const Small* nodes, std::uint32_t self, std::int32_t parent,
                           std::uint32_t& height) const {
     const Small& s = nodes[self];
-    if (s.child < 0) return leaf(local, s.begin, s.end, s.box(), height);
+    if (s.child < 0) return leaf(local, s.begin, s.end, s.box, height);
     const std::int32_t id = static_cast<std::int32_t>(local.node++);
     const std::uint32_t c = static_cast<std::uint32_t>(s.child);
     std::uint32_t h[2];
     const std::int32_t r0 = emit_small(local, nodes, c, id, h[0]);
     const std::int32_t r1 = emit_small(local, nodes, c + 1, id, h[1]);
     height = 1 + std::max(h[0], h[1]);
-    ::new (static_cast<void*>(local.nodes + id)) Bvh2::Node{s.box().box(), {r0, r1}, parent, height};
+    ::new (static_cast<void*>(local.nodes + id)) Bvh2::Node{s.box.box(), {r0, r1}, parent, height};
     return id;
   }
 
@@ -549,7 +595,7 @@ void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& c
   // -- the top's boxes bottom-up (children follow their parent in the breadth-first arena)
   for (std::size_t k = upper.size(); k-- > 0;) {
     TmpNode& t = upper[k];
-    if (subtree_of[k] >= 0) t.box = local[static_cast<std::size_t>(subtree_of[k])].box;
+    if (subtree_of[k] >= 0) t.box = local[static_cast<std::size_t>(subtree_of[k])].box.fast();
     else if (!t.leaf) {
       t.box = FastBox();
       for (int s = 0; s < 2; ++s)
