@@ -128,17 +128,15 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
     static_assert(sizeof(Tri) >= sizeof(PrimRef) && alignof(Tri) % alignof(PrimRef) == 0);
     PrimRef* scratch = reinterpret_cast<PrimRef*>(static_cast<void*>(acc->impl_->tris_.data()));
     if (opt.quality == BuildQuality::low) {
-      // -- the LBVH writes the flattened tree itself (leaves in record order); the triangle
-      //    records are written, and the records' array freed, once its splits are made, before
-      //    it sizes the flattened tree's arrays (which can take the records' memory)
+      // -- the LBVH writes the flattened tree itself (leaves in record order), then the triangle
+      //    records (the records are in leaf order once the tree is built)
       out.nodes = build::take_from(opt, &S::nodes);
       out.leaf_boxes = build::take_from(opt, &S::leaf_boxes);
       acc->impl_->leaves_ = build::take_from(opt, &S::leaves);
-      build::build_lbvh(prims, refs.root, refs.croot, opt, arenas, out, acc->impl_->leaves_, [&] {
-        t_tree = Clock::now();
-        build::fill_tris(scene, prims, acc->impl_->tris_, opt.threads);
-        build::give_back(opt, &S::prims, prims);
-      }, scratch);
+      build::build_lbvh(prims, refs.root, refs.croot, opt, arenas, out, acc->impl_->leaves_, scratch);
+      t_tree = Clock::now();
+      build::fill_tris(scene, prims, acc->impl_->tris_, opt.threads);
+      build::give_back(opt, &S::prims, prims);
     } else {
       build::build_binned_sah(prims, refs.root, refs.croot, opt, arenas, scratch);
       t_tree = Clock::now();

@@ -10,7 +10,6 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
-#include <functional>
 #include <memory>
 #include <mutex>
 #include <type_traits>
@@ -434,14 +433,12 @@ void build_binned_sah(RawVector<PrimRef>& prims, const FastBox& root, const Fast
                       Arenas& out, PrimRef* scratch = nullptr);
 /// build_lbvh writes the flattened tree itself, the bytes flatten would write from its arenas:
 /// `tree`'s nodes and leaf boxes, `leaves`, largest_leaf and forced_leaves (each subtree built
-/// straight into the flattened form in its records' run of `out.block`, then moved into place:
-/// no subtree arenas, no flatten walk); `out.upper` holds the top of the tree. It calls
-/// `records_done` once, before it sizes the flattened tree's arrays, when it reads neither `prims`
-/// (in leaf order by then) nor `scratch` again. Its `scratch`: room for 48 bytes a record (e.g.
-/// the triangle records' array, written after the build) for its sort, or null: an array of its
-/// own.
+/// straight into a compact form in spare bytes of `scratch`, then moved into place: no subtree
+/// arenas, no flatten walk; `out.block` only for a subtree too large for its spare bytes);
+/// `out.upper` holds the top of the tree. Its `scratch`: room for 48 bytes a record (e.g. the
+/// triangle records' array, written after the build) for its sort and subtrees, or null: an
+/// array of its own.
 void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& croot, const BuildOptions& opt,
-                Arenas& out, Bvh2& tree, std::vector<Leaf>& leaves, const std::function<void()>& records_done,
-                PrimRef* scratch = nullptr);
+                Arenas& out, Bvh2& tree, std::vector<Leaf>& leaves, PrimRef* scratch = nullptr);
 
 }  // namespace mbvh::build

@@ -108,9 +108,9 @@ struct Rows {
 
 class LbvhBuilder {
 public:
-  // `items`: the records' sort items (code_of: their Morton codes), in record order.
-  LbvhBuilder(const BuildOptions& opt, const RawVector<PrimRef>& prims, const std::uint64_t* items)
-      : opt_(opt), prims_(prims), items_(items) {}
+  // `codes`: the records' Morton codes, in record order.
+  LbvhBuilder(const BuildOptions& opt, const RawVector<PrimRef>& prims, const std::uint32_t* codes)
+      : opt_(opt), prims_(prims), codes_(codes) {}
 
   // blocks(): triangles priced in blocks of leaf_block; the division only where that is not 1.
   float price(std::uint32_t n) const { return opt_.leaf_block <= 1 ? static_cast<float>(n) : blocks(n, opt_.leaf_block); }
@@ -128,22 +128,22 @@ public:
     const std::uint32_t count = e - b;
     if (count <= 1 || depth >= opt_.depth_cap) return 0;
     std::uint32_t mid;
-    const std::uint32_t cb = code_of(items_[b]), ce = code_of(items_[e - 1]);
+    const std::uint32_t cb = codes_[b], ce = codes_[e - 1];
     if (cb == ce) {
       if (count <= opt_.max_leaf) return 0;
       mid = b + count / 2;
     } else {
-      // the first item with the bit set (the range shares the code bits above it, so the clear
-      // ones come first): a binary search without branches on the items, which mispredict half
+      // the first code with the bit set (the range shares the code bits above it, so the clear
+      // ones come first): a binary search without branches on the codes, which mispredict half
       // the time
-      const std::uint64_t bit = std::uint64_t(1) << (63 - std::countl_zero(cb ^ ce));
-      const std::uint64_t* first = items_ + b;
+      const std::uint32_t bit = std::uint32_t(1) << (31 - std::countl_zero(cb ^ ce));
+      const std::uint32_t* first = codes_ + b;
       for (std::uint32_t len = count; len > 1;) {
         const std::uint32_t half = len / 2;
         first += (first[half - 1] & bit) == 0 ? half : 0;
         len -= half;
       }
-      mid = static_cast<std::uint32_t>(first - items_) + ((*first & bit) == 0 ? 1 : 0);
+      mid = static_cast<std::uint32_t>(first - codes_) + ((*first & bit) == 0 ? 1 : 0);
     }
     const unsigned below = opt_.depth_cap - depth - 1;  // levels left under a child
     // (a child never needs more levels than its parent's records would)
@@ -171,17 +171,43 @@ public:
   static_assert(std::is_trivially_default_constructible_v<Small>);
 
   // A subtree task's part of the flattened tree, numbered from 0 within the task: its inner nodes
-  // depth-first, its leaves and their boxes in record order, as flatten numbers a subtree's
-  // (root: inner node 0 or leaf 0; the root's parent MBVH_NONE, set when the task is placed).
+  // depth-first (a box and two child references: the parents and heights are filled in when the
+  // subtree is moved into place), its leaves in record order with their boxes, as flatten numbers
+  // a subtree's (root: inner node 0 or leaf 0). Both in one room of `room` 32-byte entries, the
+  // nodes from its start, the leaves from its end down; a subtree that needs more entries than
+  // the room holds stops writing and is marked `overflow` (built again in a room that holds it).
+  struct LocalNode {
+    Box box;
+    std::int32_t child[2];
+  };
+  struct LocalLeaf {
+    Leaf leaf;
+    Box box;
+  };
+  static_assert(sizeof(LocalNode) == 32 && sizeof(LocalLeaf) == 32);
   struct Local {
-    Bvh2::Node* nodes;
-    Leaf* leaves;
-    Box* boxes;
+    LocalNode* nodes = nullptr;
+    LocalLeaf* leaves_end = nullptr;  // leaf l at leaves_end[-1 - l]
+    std::size_t room = 0;
+    bool overflow = false;
     std::uint32_t node = 0, leaf = 0;
     std::size_t largest = 0, forced = 0;
     std::int32_t root = 0;
     std::uint32_t height = 0;
     Rows box;
+    // Points the room at `bytes` bytes from `p` (4-byte aligned), emptied.
+    void set_room(unsigned char* p, std::size_t bytes) {
+      room = bytes / 32;
+      nodes = reinterpret_cast<LocalNode*>(static_cast<void*>(p));
+      leaves_end = reinterpret_cast<LocalLeaf*>(static_cast<void*>(p + 32 * room));
+      overflow = false;
+      node = leaf = 0;
+      largest = forced = 0;
+    }
+    // Counts one more entry: overflow where the room is full.
+    void take() {
+      if (node + leaf >= room) overflow = true;
+    }
   };
 
   // Builds the subtree of upper node `top` (its range and depth) into `local`.
@@ -197,14 +223,14 @@ public:
       heap.reset(new Small[room]);
       nodes = heap.get();
     }
-    local.root = build(local, top.begin, top.end, top.depth, MBVH_NONE, nodes, local.box, local.height);
+    local.root = build(local, top.begin, top.end, top.depth, nodes, local.box, local.height);
   }
 
   // A leaf of records [b, e) with box `box` appended to `local`: its reference; height 0.
   std::int32_t leaf(Local& local, std::uint32_t b, std::uint32_t e, const Rows& box, std::uint32_t& height) const {
+    local.take();
     const std::uint32_t l = local.leaf++;
-    ::new (static_cast<void*>(local.leaves + l)) Leaf{b, e - b};
-    ::new (static_cast<void*>(local.boxes + l)) Box(box.box());
+    if (!local.overflow) ::new (static_cast<void*>(local.leaves_end - 1 - l)) LocalLeaf{{b, e - b}, box.box()};
     local.largest = std::max<std::size_t>(local.largest, e - b);
     local.forced += e - b > opt_.max_leaf ? 1 : 0;
     height = 0;
@@ -212,25 +238,25 @@ public:
   }
 
   // Builds the subtree of records [b, e) at `depth` into `local` depth-first (a node before its
-  // children); `parent`: its parent's local index. Returns its reference; its box and height set.
-  // `nodes`: build_small's room.
-  std::int32_t build(Local& local, std::uint32_t b, std::uint32_t e, std::uint32_t depth, std::int32_t parent, Small* nodes,
-                     Rows& box, std::uint32_t& height) const {
-    if (e - b <= opt_.max_leaf) return build_small(local, b, e, depth, parent, nodes, box, height);
+  // children). Returns its reference; its box and height set. `nodes`: build_small's room.
+  std::int32_t build(Local& local, std::uint32_t b, std::uint32_t e, std::uint32_t depth, Small* nodes, Rows& box,
+                     std::uint32_t& height) const {
+    if (e - b <= opt_.max_leaf) return build_small(local, b, e, depth, nodes, box, height);
     const std::uint32_t mid = split_of(b, e, depth);
     if (mid == 0) {
       box = records_box(b, e);
       return leaf(local, b, e, box, height);
     }
+    local.take();
     const std::int32_t self = static_cast<std::int32_t>(local.node++);
     Rows c[2];
     std::uint32_t h[2];
-    const std::int32_t r0 = build(local, b, mid, depth + 1, self, nodes, c[0], h[0]);
-    const std::int32_t r1 = build(local, mid, e, depth + 1, self, nodes, c[1], h[1]);
+    const std::int32_t r0 = build(local, b, mid, depth + 1, nodes, c[0], h[0]);
+    const std::int32_t r1 = build(local, mid, e, depth + 1, nodes, c[1], h[1]);
     box = c[0];
     box.grow(c[1]);
     height = 1 + std::max(h[0], h[1]);
-    ::new (static_cast<void*>(local.nodes + self)) Bvh2::Node{box.box(), {r0, r1}, parent, height};
+    if (!local.overflow) ::new (static_cast<void*>(local.nodes + self)) LocalNode{box.box(), {r0, r1}};
     return self;
   }
 
@@ -238,14 +264,14 @@ public:
   // made first, then undone where one leaf prices no higher, every node below priced once (price()).
   // The pricing runs on `nodes`, room for 2 max_leaf (a range of c records has at most 2c - 1
   // nodes); only the nodes kept are written to `local`, depth-first.
-  std::int32_t build_small(Local& local, std::uint32_t b, std::uint32_t e, std::uint32_t depth, std::int32_t parent,
-                           Small* nodes, Rows& box, std::uint32_t& height) const {
+  std::int32_t build_small(Local& local, std::uint32_t b, std::uint32_t e, std::uint32_t depth, Small* nodes, Rows& box,
+                           std::uint32_t& height) const {
     nodes[0].begin = b;
     nodes[0].end = e;
     std::uint32_t size = 1;
     price_small(nodes, size, 0, depth);
     box = nodes[0].box;
-    return emit_small(local, nodes, 0, parent, height);
+    return emit_small(local, nodes, 0, height);
   }
 
   // Prices node `self` of `nodes` (its range set) at `depth` and returns its SAH cost (area units:
@@ -263,7 +289,7 @@ public:
       t.child = -1;
       const float area = box.half_area();
       const float leaf = price(2) * area;
-      if (code_of(items_[b]) != code_of(items_[b + 1])) {
+      if (codes_[b] != codes_[b + 1]) {
         const float one = price(1);
         const float cost = one * c[0].half_area() + one * c[1].half_area() + opt_.traversal_cost * area;
         if (leaf > cost) {
@@ -316,19 +342,19 @@ public:
     return box;
   }
 
-  // Writes priced node `self` into `local` depth-first (a node before its kept children);
-  // `parent`: its parent's local index. Returns its reference; its height set.
-  std::int32_t emit_small(Local& local, const Small* nodes, std::uint32_t self, std::int32_t parent,
-                          std::uint32_t& height) const {
+  // Writes priced node `self` into `local` depth-first (a node before its kept children).
+  // Returns its reference; its height set.
+  std::int32_t emit_small(Local& local, const Small* nodes, std::uint32_t self, std::uint32_t& height) const {
     const Small& s = nodes[self];
     if (s.child < 0) return leaf(local, s.begin, s.end, s.box, height);
+    local.take();
     const std::int32_t id = static_cast<std::int32_t>(local.node++);
     const std::uint32_t c = static_cast<std::uint32_t>(s.child);
     std::uint32_t h[2];
-    const std::int32_t r0 = emit_small(local, nodes, c, id, h[0]);
-    const std::int32_t r1 = emit_small(local, nodes, c + 1, id, h[1]);
+    const std::int32_t r0 = emit_small(local, nodes, c, h[0]);
+    const std::int32_t r1 = emit_small(local, nodes, c + 1, h[1]);
     height = 1 + std::max(h[0], h[1]);
-    ::new (static_cast<void*>(local.nodes + id)) Bvh2::Node{s.box.box(), {r0, r1}, parent, height};
+    if (!local.overflow) ::new (static_cast<void*>(local.nodes + id)) LocalNode{s.box.box(), {r0, r1}};
     return id;
   }
 
@@ -347,7 +373,7 @@ public:
 private:
   const BuildOptions& opt_;
   const RawVector<PrimRef>& prims_;
-  const std::uint64_t* items_;
+  const std::uint32_t* codes_;
 };
 
 // The top of the tree (the upper arena) in the flattened tree, around the subtrees built apart:
@@ -435,8 +461,7 @@ void resize_touched(V& v, std::size_t n, unsigned threads) {
 }  // namespace
 
 void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& croot, const BuildOptions& opt,
-                Arenas& out, Bvh2& tree, std::vector<Leaf>& leaves, const std::function<void()>& records_done,
-                PrimRef* scratch) {
+                Arenas& out, Bvh2& tree, std::vector<Leaf>& leaves, PrimRef* scratch) {
   const std::size_t n = prims.size();
   // chunks of the passes below: about four per worker (a stable sort has one result whatever
   // the chunks, so they may follow the thread count)
@@ -541,11 +566,19 @@ void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& c
       if (src != s) std::copy(src, src + m, s);
     }
   });
-  item = item2;
+  // -- the sorted codes alone (4 bytes a record) at the scratch's start: the splits read them,
+  //    and the rest of the scratch, 44 bytes a record, is the subtrees' room
+  std::uint32_t* const codes = reinterpret_cast<std::uint32_t*>(static_cast<void*>(scratch));
+  parallel_for(n, grain, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
+    for (std::size_t i = b; i < e; ++i) codes[i] = code_of(item2[i]);
+  });
+  unsigned char* const spare = reinterpret_cast<unsigned char*>(static_cast<void*>(scratch)) + 4 * n;
+  constexpr std::size_t kSpare = 44;  // bytes a record
+  static_assert(4 + kSpare == sizeof(Tri));
   if (opt.progress) opt.progress(0.2);
 
   // -- top of the tree breadth-first (splits only: a binary search each), then subtrees per task
-  LbvhBuilder builder(opt, prims, item);
+  LbvhBuilder builder(opt, prims, codes);
   std::vector<TmpNode>& upper = out.upper;
   upper.assign(1, TmpNode());
   upper[0].begin = 0;
@@ -565,10 +598,10 @@ void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& c
   }
   make_root_inner(upper);
   // -- the subtrees, one task each (largest first: the order only spreads the work), each into
-  //    its records' run of the node block (Arenas::arena_for's: 96 bytes a record, of which its
-  //    nodes, leaves and leaf boxes take 72)
-  static_assert(sizeof(Bvh2::Node) + sizeof(Leaf) + sizeof(Box) <= 2 * sizeof(TmpNode));
-  TmpNode* const block = out.block.ensure(2 * n);  // here, on the calling thread (NodeBlock)
+  //    its records' run of the scratch's spare bytes (pages the sort has touched); a subtree of
+  //    more leaves than that holds (above about 0.69 a record: max_leaf 1, say) is built again
+  //    into its records' run of the node block (Arenas::arena_for's, 96 bytes a record: 2 c - 1
+  //    entries of 32 bytes always fit), allocated only then
   std::vector<std::int32_t> subtree_of(upper.size(), -1);
   for (std::size_t j = 0; j < jobs.size(); ++j) subtree_of[jobs[j]] = static_cast<std::int32_t>(j);
   std::vector<std::size_t> order(jobs.size());
@@ -582,16 +615,28 @@ void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& c
     for (std::size_t o = b; o < e; ++o) {
       const std::size_t j = order[o];
       const TmpNode& top = upper[jobs[j]];
-      const std::size_t count = top.end - top.begin;
-      unsigned char* run = reinterpret_cast<unsigned char*>(static_cast<void*>(block + 2 * std::size_t(top.begin)));
-      LbvhBuilder::Local& l = local[j];
-      l.nodes = reinterpret_cast<Bvh2::Node*>(static_cast<void*>(run));
-      l.leaves = reinterpret_cast<Leaf*>(static_cast<void*>(run + count * sizeof(Bvh2::Node)));
-      l.boxes = reinterpret_cast<Box*>(static_cast<void*>(run + count * (sizeof(Bvh2::Node) + sizeof(Leaf))));
-      builder.build(top, l);
+      local[j].set_room(spare + kSpare * top.begin, kSpare * (top.end - top.begin));
+      builder.build(top, local[j]);
       if (opt.progress) opt.progress(0.25 + 0.7 * static_cast<double>(++built) / static_cast<double>(jobs.size()));
     }
   });
+  std::vector<std::size_t> again;
+  for (const std::size_t j : order)
+    if (local[j].overflow) again.push_back(j);
+  if (!again.empty()) {
+    static_assert(3 * sizeof(LbvhBuilder::LocalNode) <= 2 * sizeof(TmpNode));
+    TmpNode* const block = out.block.ensure(2 * n);  // here, on the calling thread (NodeBlock)
+    parallel_for(again.size(), 1, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
+      for (std::size_t o = b; o < e; ++o) {
+        const std::size_t j = again[o];
+        const TmpNode& top = upper[jobs[j]];
+        local[j].set_room(reinterpret_cast<unsigned char*>(static_cast<void*>(block + 2 * std::size_t(top.begin))),
+                          2 * sizeof(TmpNode) * (top.end - top.begin));
+        builder.build(top, local[j]);
+        if (local[j].overflow) throw Error("internal: an LBVH subtree overflows its room in the node block");
+      }
+    });
+  }
   // -- the top's boxes bottom-up (children follow their parent in the breadth-first arena)
   for (std::size_t k = upper.size(); k-- > 0;) {
     TmpNode& t = upper[k];
@@ -602,12 +647,10 @@ void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& c
         if (t.child[s] >= 0) t.box.grow(upper[static_cast<std::size_t>(t.child[s])].box);
     }
   }
-  // -- the records and the scratch are done with: the caller's turn (the triangle records
-  //    written, the records' array freed, so that the flattened tree's arrays can take its memory)
-  records_done();
   // -- the flattened tree: the subtrees' places in the depth-first order (a walk of the top),
   //    the top's nodes and leaves written around them, each subtree moved into its place with its
-  //    references shifted there (side by side on the pool)
+  //    references shifted there (side by side on the pool): its nodes last to first, so that a
+  //    node's children have their heights when it is written and get their parent from it
   UpperWriter top{upper, subtree_of, local, tree, leaves, std::vector<std::pair<std::size_t, std::size_t>>(jobs.size()),
                   std::vector<std::int32_t>(jobs.size(), MBVH_NONE)};
   top.place(0, MBVH_NONE);
@@ -623,14 +666,29 @@ void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& c
       const std::int32_t node0 = static_cast<std::int32_t>(top.at[j].first);
       const std::int32_t leaf0 = static_cast<std::int32_t>(top.at[j].second);
       Bvh2::Node* dst = tree.nodes.data() + node0;
-      for (std::uint32_t i = 0; i < l.node; ++i) {
-        Bvh2::Node d = l.nodes[i];
-        for (int s = 0; s < 2; ++s) d.child[s] = d.child[s] >= 0 ? d.child[s] + node0 : d.child[s] - leaf0;
-        d.parent = i == 0 ? top.parent_of[j] : d.parent + node0;
-        dst[i] = d;
+      for (std::uint32_t i = l.node; i-- > 0;) {
+        const LbvhBuilder::LocalNode& s = l.nodes[i];
+        Bvh2::Node& d = dst[i];
+        d.box = s.box;
+        std::uint32_t h = 0;
+        for (int k = 0; k < 2; ++k) {
+          const std::int32_t c = s.child[k];
+          if (c >= 0) {
+            d.child[k] = c + node0;
+            h = std::max(h, dst[c].height);
+            dst[c].parent = static_cast<std::int32_t>(i) + node0;
+          } else {
+            d.child[k] = c - leaf0;
+          }
+        }
+        d.height = 1 + h;
       }
-      std::copy(l.leaves, l.leaves + l.leaf, leaves.begin() + leaf0);
-      std::copy(l.boxes, l.boxes + l.leaf, tree.leaf_boxes.begin() + leaf0);
+      if (l.node > 0) dst[0].parent = top.parent_of[j];
+      for (std::uint32_t k = 0; k < l.leaf; ++k) {
+        const LbvhBuilder::LocalLeaf& f = l.leaves_end[-1 - static_cast<std::ptrdiff_t>(k)];
+        leaves[leaf0 + k] = f.leaf;
+        tree.leaf_boxes[leaf0 + k] = f.box;
+      }
     }
   });
   tree.largest_leaf = top.largest;
