@@ -179,6 +179,62 @@ TEST_CASE("the depth cap holds on a worst-case scene and the capped tree still t
   check_invariants(bunny, *capped);
 }
 
+TEST_CASE("quality low's flattened tree: depth-first order, parents, heights, leaves in record order", "[build]") {
+  // the LBVH writes the flattened tree itself (subtrees built apart, then moved into place and
+  // their references shifted): every node's first inner child follows it, parents and heights
+  // match the children, leaves come in record order and a depth-first walk meets them in index
+  // order. max_leaf 1 makes every subtree too large for its spare bytes in the scratch (built
+  // again in the node block); 3 threads and 1 give the same bytes
+  for (const std::string& spec : {mbvh_test::scene_path("bun_zipper.ply.zst"), std::string("gen:hairball:50000"),
+                                 std::string("gen:soup:3"), std::string("gen:exponential:200")}) {
+    const Scene s = load_scene(spec);
+    for (unsigned ml : {1u, 8u}) {
+      INFO(spec << " max_leaf " << ml);
+      BuildOptions o;
+      o.quality = BuildQuality::low;
+      o.max_leaf = ml;
+      o.threads = 3;
+      const auto acc = Accel::build(s, o);
+      const Bvh2& b = acc->bvh2();
+      const std::vector<Leaf>& leaves = acc->leaves();
+      REQUIRE(b.nodes[0].parent == MBVH_NONE);
+      std::size_t largest = 0;
+      for (std::size_t k = 0; k < leaves.size(); ++k) {
+        largest = std::max<std::size_t>(largest, leaves[k].count);
+        if (k > 0) REQUIRE(leaves[k].first == leaves[k - 1].first + leaves[k - 1].count);
+      }
+      CHECK(b.largest_leaf == largest);
+      std::size_t next_leaf = 0;
+      std::vector<std::int32_t> stack{0};
+      std::int32_t expect = 0;  // depth-first: the inner nodes in index order
+      while (!stack.empty()) {
+        const std::int32_t ref = stack.back();
+        stack.pop_back();
+        if (ref < 0) {
+          REQUIRE(static_cast<std::size_t>(~ref) == next_leaf++);
+          continue;
+        }
+        REQUIRE(ref == expect++);
+        const Bvh2::Node& n = b.nodes[static_cast<std::size_t>(ref)];
+        std::uint32_t h = 0;
+        for (int k = 0; k < 2; ++k) {
+          const std::int32_t c = n.child[k];
+          if (c == MBVH_EMPTY || c < 0) continue;
+          REQUIRE(b.nodes[static_cast<std::size_t>(c)].parent == ref);
+          h = std::max(h, b.nodes[static_cast<std::size_t>(c)].height);
+        }
+        REQUIRE(n.height == 1 + h);
+        for (int k = 1; k >= 0; --k)
+          if (n.child[k] != MBVH_EMPTY) stack.push_back(n.child[k]);
+      }
+      CHECK(static_cast<std::size_t>(expect) == b.nodes.size());
+      CHECK(next_leaf == leaves.size());
+      o.threads = 1;
+      CHECK(Accel::build(s, o)->hash() == acc->hash());
+    }
+  }
+}
+
 TEST_CASE("the build is deterministic: the same bytes at any thread count", "[build]") {
   // 1 to 3 threads and 7 (more workers than the top levels have nodes: the binned SAH splits the
   // largest nodes with their chunks on every worker until there are as many nodes as workers,

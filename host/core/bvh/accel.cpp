@@ -127,20 +127,31 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
     advise_huge_pages(acc->impl_->tris_.data(), prims.size() * sizeof(Tri));  // written in full
     static_assert(sizeof(Tri) >= sizeof(PrimRef) && alignof(Tri) % alignof(PrimRef) == 0);
     PrimRef* scratch = reinterpret_cast<PrimRef*>(static_cast<void*>(acc->impl_->tris_.data()));
-    if (opt.quality == BuildQuality::low) build::build_lbvh(prims, refs.root, refs.croot, opt, arenas, scratch);
-    else build::build_binned_sah(prims, refs.root, refs.croot, opt, arenas, scratch);
-    t_tree = Clock::now();
+    if (opt.quality == BuildQuality::low) {
+      // -- the LBVH writes the flattened tree itself (leaves in record order), then the triangle
+      //    records (the records are in leaf order once the tree is built)
+      out.nodes = build::take_from(opt, &S::nodes);
+      out.leaf_boxes = build::take_from(opt, &S::leaf_boxes);
+      acc->impl_->leaves_ = build::take_from(opt, &S::leaves);
+      build::build_lbvh(prims, refs.root, refs.croot, opt, arenas, out, acc->impl_->leaves_, scratch);
+      t_tree = Clock::now();
+      build::fill_tris(scene, prims, acc->impl_->tris_, opt.threads);
+      build::give_back(opt, &S::prims, prims);
+    } else {
+      build::build_binned_sah(prims, refs.root, refs.croot, opt, arenas, scratch);
+      t_tree = Clock::now();
 
-    // -- the triangle records (the records are in leaf order once the tree is built), then the
-    //    records' array freed: the flatten's arrays below can take its memory
-    build::fill_tris(scene, prims, acc->impl_->tris_, opt.threads);
-    build::give_back(opt, &S::prims, prims);
+      // -- the triangle records (the records are in leaf order once the tree is built), then the
+      //    records' array freed: the flatten's arrays below can take its memory
+      build::fill_tris(scene, prims, acc->impl_->tris_, opt.threads);
+      build::give_back(opt, &S::prims, prims);
 
-    // -- flatten depth-first; leaves come out in record order
-    out.nodes = build::take_from(opt, &S::nodes);
-    out.leaf_boxes = build::take_from(opt, &S::leaf_boxes);
-    acc->impl_->leaves_ = build::take_from(opt, &S::leaves);
-    build::flatten(arenas, out, acc->impl_->leaves_, opt.threads);
+      // -- flatten depth-first; leaves come out in record order
+      out.nodes = build::take_from(opt, &S::nodes);
+      out.leaf_boxes = build::take_from(opt, &S::leaf_boxes);
+      acc->impl_->leaves_ = build::take_from(opt, &S::leaves);
+      build::flatten(arenas, out, acc->impl_->leaves_, opt.threads);
+    }
 
     if (opt.context) opt.context->impl().give_arenas(std::move(arenas));
     arenas = build::Arenas();

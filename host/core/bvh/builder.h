@@ -431,9 +431,14 @@ void set_sah_kernels(SahKernels k);
 /// array of its own (or the context's).
 void build_binned_sah(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& croot, const BuildOptions& opt,
                       Arenas& out, PrimRef* scratch = nullptr);
-/// build_lbvh's `scratch`: room for 48 bytes a record (e.g. the triangle records' array, written
-/// after the build) for its sort, or null: an array of its own.
+/// build_lbvh writes the flattened tree itself, the bytes flatten would write from its arenas:
+/// `tree`'s nodes and leaf boxes, `leaves`, largest_leaf and forced_leaves (each subtree built
+/// straight into a compact form in spare bytes of `scratch`, then moved into place: no subtree
+/// arenas, no flatten walk; `out.block` only for a subtree too large for its spare bytes);
+/// `out.upper` holds the top of the tree. Its `scratch`: room for 48 bytes a record (e.g. the
+/// triangle records' array, written after the build) for its sort and subtrees, or null: an
+/// array of its own.
 void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& croot, const BuildOptions& opt,
-                Arenas& out, PrimRef* scratch = nullptr);
+                Arenas& out, Bvh2& tree, std::vector<Leaf>& leaves, PrimRef* scratch = nullptr);
 
 }  // namespace mbvh::build

@@ -12,7 +12,10 @@
 //    lower (the bottom-up collapse of Karras & Aila, "Fast Parallel Construction of High-Quality
 //    BVHs", HPG 2013, without the treelet rotations).
 // Deterministic: the split positions depend only on the sorted codes, the top of the tree is split
-// breadth-first and the subtrees below are built one per task into their own arenas.
+// breadth-first and the subtrees below are built one per task. A task writes its subtree in the
+// flattened form (Bvh2 nodes depth-first, leaves in record order) numbered from 0 in scratch of
+// its own; once every task's size is known the subtrees are moved into their places and their
+// references shifted there, the bytes flatten would write from arenas of the same tree.
 #include <algorithm>
 #include <array>
 #include <atomic>
@@ -22,6 +25,8 @@
 #include <vector>
 
 #include "host/core/bvh/builder.h"
+#include "host/core/huge_pages.h"
+#include "host/core/layouts.h"
 #include "host/core/parallel.h"
 
 namespace mbvh::build {
@@ -49,11 +54,63 @@ inline std::uint32_t code_of(std::uint64_t item) { return static_cast<std::uint3
 
 static_assert(sizeof(Tri) == 48, "build_lbvh's scratch: 48 bytes a record, the triangle records' array");
 
+// A box as two rows (x, y, z in lanes 0-2), grown and priced as FastBox is, to the same bits (the
+// SSE min and max return their second operand unless the first is smaller, larger: a
+// FastBox::grow's std::min and std::max with the operands swapped), so the subtrees' boxes and
+// SAH decisions are FastBox's: one instruction a row where FastBox takes three.
+#if defined(__SSE2__)
+struct Rows {
+  __m128 lo, hi;
+  static Rows empty() { return {_mm_set1_ps(INFINITY), _mm_set1_ps(-INFINITY)}; }
+  static Rows of(const PrimRef& r) { return {_mm_loadu_ps(r.lo), _mm_loadu_ps(r.hi)}; }
+  void grow(const Rows& o) {
+    lo = _mm_min_ps(o.lo, lo);
+    hi = _mm_max_ps(o.hi, hi);
+  }
+  // FastBox::half_area: e0 e1 + e1 e2 + e2 e0, summed in that order; 0 for an empty box
+  float half_area() const {
+    if (!(_mm_cvtss_f32(lo) <= _mm_cvtss_f32(hi))) return 0.0f;
+    const __m128 e = _mm_sub_ps(hi, lo);
+    alignas(16) float p[4];
+    _mm_store_ps(p, _mm_mul_ps(e, _mm_shuffle_ps(e, e, _MM_SHUFFLE(3, 0, 2, 1))));
+    return p[0] + p[1] + p[2];
+  }
+  Box box() const {
+    alignas(16) float l[4], h[4];
+    _mm_store_ps(l, lo);
+    _mm_store_ps(h, hi);
+    Box b;
+    b.lo = {l[0], l[1], l[2]};
+    b.hi = {h[0], h[1], h[2]};
+    return b;
+  }
+  FastBox fast() const {
+    FastBox f;
+    set_rows(f, lo, hi);
+    return f;
+  }
+};
+#else
+struct Rows {
+  FastBox f;
+  static Rows empty() { return {}; }
+  static Rows of(const PrimRef& r) {
+    Rows x;
+    x.f.grow(r);
+    return x;
+  }
+  void grow(const Rows& o) { f.grow(o.f); }
+  float half_area() const { return f.half_area(); }
+  Box box() const { return f.box(); }
+  FastBox fast() const { return f; }
+};
+#endif
+
 class LbvhBuilder {
 public:
-  // `items`: the records' sort items (code_of: their Morton codes), in record order.
-  LbvhBuilder(const BuildOptions& opt, const RawVector<PrimRef>& prims, const std::uint64_t* items)
-      : opt_(opt), prims_(prims), items_(items) {}
+  // `codes`: the records' Morton codes, in record order.
+  LbvhBuilder(const BuildOptions& opt, const RawVector<PrimRef>& prims, const std::uint32_t* codes)
+      : opt_(opt), prims_(prims), codes_(codes) {}
 
   // blocks(): triangles priced in blocks of leaf_block; the division only where that is not 1.
   float price(std::uint32_t n) const { return opt_.leaf_block <= 1 ? static_cast<float>(n) : blocks(n, opt_.leaf_block); }
@@ -71,22 +128,22 @@ public:
     const std::uint32_t count = e - b;
     if (count <= 1 || depth >= opt_.depth_cap) return 0;
     std::uint32_t mid;
-    const std::uint32_t cb = code_of(items_[b]), ce = code_of(items_[e - 1]);
+    const std::uint32_t cb = codes_[b], ce = codes_[e - 1];
     if (cb == ce) {
       if (count <= opt_.max_leaf) return 0;
       mid = b + count / 2;
     } else {
-      // the first item with the bit set (the range shares the code bits above it, so the clear
-      // ones come first): a binary search without branches on the items, which mispredict half
+      // the first code with the bit set (the range shares the code bits above it, so the clear
+      // ones come first): a binary search without branches on the codes, which mispredict half
       // the time
-      const std::uint64_t bit = std::uint64_t(1) << (63 - std::countl_zero(cb ^ ce));
-      const std::uint64_t* first = items_ + b;
+      const std::uint32_t bit = std::uint32_t(1) << (31 - std::countl_zero(cb ^ ce));
+      const std::uint32_t* first = codes_ + b;
       for (std::uint32_t len = count; len > 1;) {
         const std::uint32_t half = len / 2;
         first += (first[half - 1] & bit) == 0 ? half : 0;
         len -= half;
       }
-      mid = static_cast<std::uint32_t>(first - items_) + ((*first & bit) == 0 ? 1 : 0);
+      mid = static_cast<std::uint32_t>(first - codes_) + ((*first & bit) == 0 ? 1 : 0);
     }
     const unsigned below = opt_.depth_cap - depth - 1;  // levels left under a child
     // (a child never needs more levels than its parent's records would)
@@ -94,84 +151,127 @@ public:
     return mid;
   }
 
+  // Upper node t made a leaf of its records.
   void make_leaf(TmpNode& t) const {
-    FastBox box;
-    for (std::uint32_t i = t.begin; i < t.end; ++i) box.grow(prims_[i]);
-    make_leaf(t, box);
-  }
-  // make_leaf with the records' box known.
-  void make_leaf(TmpNode& t, const FastBox& box) const {
     t.leaf = true;
     t.forced = t.end - t.begin > opt_.max_leaf;
     t.child[0] = t.child[1] = -1;
-    t.box = box;
+    t.box = FastBox();
+    for (std::uint32_t i = t.begin; i < t.end; ++i) t.box.grow(prims_[i]);
   }
 
   // A node of build_small's tree while it is priced (outside the arena): its record range, its
   // box and its first child's index in the same array (the second follows it), -1 for a leaf.
   // (Plain rows, no initialisers: the array is not filled before it is used.)
   struct Small {
-    float lo[3], hi[3];
+    Rows box;
     std::uint32_t begin, end;
     std::int32_t child;
-    FastBox box() const {
-      FastBox f;
-      for (int a = 0; a < 3; ++a) f.lo[a] = lo[a], f.hi[a] = hi[a];
-      return f;
-    }
-    void set_box(const FastBox& f) {
-      for (int a = 0; a < 3; ++a) lo[a] = f.lo[a], hi[a] = f.hi[a];
-    }
   };
   static_assert(std::is_trivially_default_constructible_v<Small>);
 
-  // Builds a subtree task's tree from its arena's node 0 (its range and depth set).
-  void build(SubArena& arena) const {
+  // A subtree task's part of the flattened tree, numbered from 0 within the task: its inner nodes
+  // depth-first (a box and two child references: the parents and heights are filled in when the
+  // subtree is moved into place), its leaves in record order with their boxes, as flatten numbers
+  // a subtree's (root: inner node 0 or leaf 0). Both in one room of `room` 32-byte entries, the
+  // nodes from its start, the leaves from its end down; a subtree that needs more entries than
+  // the room holds stops writing and is marked `overflow` (built again in a room that holds it).
+  struct LocalNode {
+    Box box;
+    std::int32_t child[2];
+  };
+  struct LocalLeaf {
+    Leaf leaf;
+    Box box;
+  };
+  static_assert(sizeof(LocalNode) == 32 && sizeof(LocalLeaf) == 32);
+  struct Local {
+    LocalNode* nodes = nullptr;
+    LocalLeaf* leaves_end = nullptr;  // leaf l at leaves_end[-1 - l]
+    std::size_t room = 0;
+    bool overflow = false;
+    std::uint32_t node = 0, leaf = 0;
+    std::size_t largest = 0, forced = 0;
+    std::int32_t root = 0;
+    std::uint32_t height = 0;
+    Rows box;
+    // Points the room at `bytes` bytes from `p` (4-byte aligned), emptied.
+    void set_room(unsigned char* p, std::size_t bytes) {
+      room = bytes / 32;
+      nodes = reinterpret_cast<LocalNode*>(static_cast<void*>(p));
+      leaves_end = reinterpret_cast<LocalLeaf*>(static_cast<void*>(p + 32 * room));
+      overflow = false;
+      node = leaf = 0;
+      largest = forced = 0;
+    }
+    // Counts one more entry: overflow where the room is full.
+    void take() {
+      if (node + leaf >= room) overflow = true;
+    }
+  };
+
+  // Builds the subtree of upper node `top` (its range and depth) into `local`.
+  void build(const TmpNode& top, Local& local) const {
     constexpr std::size_t kStack = 64;  // build_small's nodes on the stack: max_leaf up to 32
     Small stack[kStack];
     // room for 2 c nodes, c the largest range build_small sees: max_leaf, or the task's whole range
     // where that is smaller (a caller's max_leaf may be huge); not filled (Small has no initialisers)
-    const std::size_t room = 2 * std::min<std::size_t>(opt_.max_leaf, arena[0].end - arena[0].begin);
+    const std::size_t room = 2 * std::min<std::size_t>(opt_.max_leaf, top.end - top.begin);
     std::unique_ptr<Small[]> heap;
     Small* nodes = stack;
     if (room > kStack) {
       heap.reset(new Small[room]);
       nodes = heap.get();
     }
-    build(arena, 0, nodes);
+    local.root = build(local, top.begin, top.end, top.depth, nodes, local.box, local.height);
   }
 
-  // Builds the subtree of arena node n (its range and depth set); `nodes`: build_small's room.
-  void build(SubArena& arena, std::size_t n, Small* nodes) const {
-    if (arena[n].end - arena[n].begin <= opt_.max_leaf) {
-      build_small(arena, n, nodes);
-      return;
-    }
-    const std::uint32_t mid = split_of(arena[n]);
+  // A leaf of records [b, e) with box `box` appended to `local`: its reference; height 0.
+  std::int32_t leaf(Local& local, std::uint32_t b, std::uint32_t e, const Rows& box, std::uint32_t& height) const {
+    local.take();
+    const std::uint32_t l = local.leaf++;
+    if (!local.overflow) ::new (static_cast<void*>(local.leaves_end - 1 - l)) LocalLeaf{{b, e - b}, box.box()};
+    local.largest = std::max<std::size_t>(local.largest, e - b);
+    local.forced += e - b > opt_.max_leaf ? 1 : 0;
+    height = 0;
+    return ~static_cast<std::int32_t>(l);
+  }
+
+  // Builds the subtree of records [b, e) at `depth` into `local` depth-first (a node before its
+  // children). Returns its reference; its box and height set. `nodes`: build_small's room.
+  std::int32_t build(Local& local, std::uint32_t b, std::uint32_t e, std::uint32_t depth, Small* nodes, Rows& box,
+                     std::uint32_t& height) const {
+    if (e - b <= opt_.max_leaf) return build_small(local, b, e, depth, nodes, box, height);
+    const std::uint32_t mid = split_of(b, e, depth);
     if (mid == 0) {
-      make_leaf(arena[n]);
-      return;
+      box = records_box(b, e);
+      return leaf(local, b, e, box, height);
     }
-    const std::size_t first = arena.size();
-    push_children(arena, n, mid);
-    build(arena, first, nodes);
-    build(arena, first + 1, nodes);
-    TmpNode& t = arena[n];
-    t.box = arena[first].box;
-    t.box.grow(arena[first + 1].box);
+    local.take();
+    const std::int32_t self = static_cast<std::int32_t>(local.node++);
+    Rows c[2];
+    std::uint32_t h[2];
+    const std::int32_t r0 = build(local, b, mid, depth + 1, nodes, c[0], h[0]);
+    const std::int32_t r1 = build(local, mid, e, depth + 1, nodes, c[1], h[1]);
+    box = c[0];
+    box.grow(c[1]);
+    height = 1 + std::max(h[0], h[1]);
+    if (!local.overflow) ::new (static_cast<void*>(local.nodes + self)) LocalNode{box.box(), {r0, r1}};
+    return self;
   }
 
-  // Builds the subtree of arena node n of at most max_leaf records bottom-up: its Morton split is
+  // Builds the subtree of records [b, e), at most max_leaf of them, bottom-up: its Morton split is
   // made first, then undone where one leaf prices no higher, every node below priced once (price()).
   // The pricing runs on `nodes`, room for 2 max_leaf (a range of c records has at most 2c - 1
-  // nodes); only the nodes kept are written to the arena, in the order a depth-first build
-  // pushes them.
-  void build_small(SubArena& arena, std::size_t n, Small* nodes) const {
-    nodes[0].begin = arena[n].begin;
-    nodes[0].end = arena[n].end;
+  // nodes); only the nodes kept are written to `local`, depth-first.
+  std::int32_t build_small(Local& local, std::uint32_t b, std::uint32_t e, std::uint32_t depth, Small* nodes, Rows& box,
+                           std::uint32_t& height) const {
+    nodes[0].begin = b;
+    nodes[0].end = e;
     std::uint32_t size = 1;
-    price_small(nodes, size, 0, arena[n].depth);
-    emit_small(arena, n, nodes, 0);
+    price_small(nodes, size, 0, depth);
+    box = nodes[0].box;
+    return emit_small(local, nodes, 0, height);
   }
 
   // Prices node `self` of `nodes` (its range set) at `depth` and returns its SAH cost (area units:
@@ -182,23 +282,21 @@ public:
     Small& t = nodes[self];
     const std::uint32_t b = t.begin, count = t.end - t.begin;
     if (count == 2 && depth < opt_.depth_cap && opt_.max_leaf >= 2) {
-      FastBox c[2];
-      c[0].grow(prims_[b]);
-      c[1].grow(prims_[b + 1]);
-      FastBox box = c[0];
+      const Rows c[2] = {Rows::of(prims_[b]), Rows::of(prims_[b + 1])};
+      Rows box = c[0];
       box.grow(c[1]);
-      t.set_box(box);
+      t.box = box;
       t.child = -1;
       const float area = box.half_area();
       const float leaf = price(2) * area;
-      if (code_of(items_[b]) != code_of(items_[b + 1])) {
+      if (codes_[b] != codes_[b + 1]) {
         const float one = price(1);
         const float cost = one * c[0].half_area() + one * c[1].half_area() + opt_.traversal_cost * area;
         if (leaf > cost) {
           t.child = static_cast<std::int32_t>(size);
           for (std::uint32_t k = 0; k < 2; ++k) {
             Small& l = nodes[size + k];
-            l.set_box(c[k]);
+            l.box = c[k];
             l.begin = b + k;
             l.end = b + k + 1;
             l.child = -1;
@@ -211,11 +309,9 @@ public:
     }
     const std::uint32_t mid = split_of(b, t.end, depth);
     if (mid == 0) {
-      FastBox box;
-      for (std::uint32_t i = b; i < t.end; ++i) box.grow(prims_[i]);
-      t.set_box(box);
+      t.box = records_box(b, t.end);
       t.child = -1;
-      return price(count) * box.half_area();
+      return price(count) * t.box.half_area();
     }
     const std::uint32_t first = size;
     nodes[first].begin = b;
@@ -224,12 +320,12 @@ public:
     size += 2;
     float split = price_small(nodes, size, first, depth + 1);
     split += price_small(nodes, size, first + 1, depth + 1);
-    FastBox box = nodes[first].box();
-    box.grow(nodes[first + 1].box());
+    Rows box = nodes[first].box;
+    box.grow(nodes[first + 1].box);
     const float area = box.half_area();
     const float cost = split + opt_.traversal_cost * area;
     const float leaf = price(count) * area;
-    t.set_box(box);
+    t.box = box;
     if (leaf <= cost) {
       size = first;  // its descendants were appended after its children
       t.child = -1;
@@ -239,24 +335,30 @@ public:
     return cost;
   }
 
-  // Writes priced node `self` into arena node n (its range and depth set), its kept children
-  // pushed after it and written depth-first.
-  void emit_small(SubArena& arena, std::size_t n, const Small* nodes, std::uint32_t self) const {
-    const Small& s = nodes[self];
-    if (s.child < 0) {
-      make_leaf(arena[n], s.box());
-      return;
-    }
-    const std::size_t first = arena.size();
-    const std::uint32_t c = static_cast<std::uint32_t>(s.child);
-    push_children(arena, n, nodes[c].end);
-    arena[n].box = s.box();
-    emit_small(arena, first, nodes, c);
-    emit_small(arena, first + 1, nodes, c + 1);
+  // The box of records [b, e).
+  Rows records_box(std::uint32_t b, std::uint32_t e) const {
+    Rows box = Rows::empty();
+    for (std::uint32_t i = b; i < e; ++i) box.grow(Rows::of(prims_[i]));
+    return box;
   }
 
-  template <class Arena>  // the upper arena (a vector) or a subtree's (SubArena)
-  static void push_children(Arena& arena, std::size_t n, std::uint32_t mid) {
+  // Writes priced node `self` into `local` depth-first (a node before its kept children).
+  // Returns its reference; its height set.
+  std::int32_t emit_small(Local& local, const Small* nodes, std::uint32_t self, std::uint32_t& height) const {
+    const Small& s = nodes[self];
+    if (s.child < 0) return leaf(local, s.begin, s.end, s.box, height);
+    local.take();
+    const std::int32_t id = static_cast<std::int32_t>(local.node++);
+    const std::uint32_t c = static_cast<std::uint32_t>(s.child);
+    std::uint32_t h[2];
+    const std::int32_t r0 = emit_small(local, nodes, c, h[0]);
+    const std::int32_t r1 = emit_small(local, nodes, c + 1, h[1]);
+    height = 1 + std::max(h[0], h[1]);
+    if (!local.overflow) ::new (static_cast<void*>(local.nodes + id)) LocalNode{s.box.box(), {r0, r1}};
+    return id;
+  }
+
+  static void push_children(std::vector<TmpNode>& arena, std::size_t n, std::uint32_t mid) {
     TmpNode c[2];
     c[0].begin = arena[n].begin;
     c[0].end = c[1].begin = mid;
@@ -271,13 +373,95 @@ public:
 private:
   const BuildOptions& opt_;
   const RawVector<PrimRef>& prims_;
-  const std::uint64_t* items_;
+  const std::uint32_t* codes_;
 };
+
+// The top of the tree (the upper arena) in the flattened tree, around the subtrees built apart:
+// place() walks it depth-first to find where each subtree's nodes and leaves start and its root's
+// parent; emit() writes the top's own nodes and leaves (as flatten does an arena's).
+struct UpperWriter {
+  const std::vector<TmpNode>& upper;
+  const std::vector<std::int32_t>& subtree_of;  // per upper node: its subtree task, or -1
+  const std::vector<LbvhBuilder::Local>& local;
+  Bvh2& out;
+  std::vector<Leaf>& leaves;
+  std::vector<std::pair<std::size_t, std::size_t>> at;  // per task: its first node and leaf
+  std::vector<std::int32_t> parent_of;                  // per task: its root's parent
+  std::size_t node = 0, leaf = 0;
+  std::size_t largest = 0, forced = 0;
+
+  void place(std::size_t n, std::int32_t parent) {
+    const TmpNode& t = upper[n];
+    if (subtree_of[n] >= 0) {
+      const std::size_t j = static_cast<std::size_t>(subtree_of[n]);
+      at[j] = {node, leaf};
+      parent_of[j] = parent;
+      node += local[j].node;
+      leaf += local[j].leaf;
+      return;
+    }
+    if (t.leaf) {
+      ++leaf;
+      return;
+    }
+    const std::int32_t self = static_cast<std::int32_t>(node++);
+    for (int side = 0; side < 2; ++side)
+      if (t.child[side] >= 0) place(static_cast<std::size_t>(t.child[side]), self);
+  }
+
+  // The reference of upper node n (a subtree's root: where place() put it).
+  std::int32_t emit(std::size_t n, std::int32_t parent, std::uint32_t& height) {
+    const TmpNode& t = upper[n];
+    if (subtree_of[n] >= 0) {
+      const std::size_t j = static_cast<std::size_t>(subtree_of[n]);
+      const LbvhBuilder::Local& l = local[j];
+      node += l.node;
+      leaf += l.leaf;
+      height = l.height;
+      return l.root >= 0 ? static_cast<std::int32_t>(at[j].first) : ~static_cast<std::int32_t>(at[j].second);
+    }
+    if (t.leaf) {
+      leaves[leaf] = {t.begin, t.end - t.begin};
+      out.leaf_boxes[leaf] = t.box.box();
+      largest = std::max<std::size_t>(largest, t.end - t.begin);
+      forced += t.forced ? 1 : 0;
+      height = 0;
+      return ~static_cast<std::int32_t>(leaf++);
+    }
+    const std::int32_t self = static_cast<std::int32_t>(node++);
+    Bvh2::Node& d = out.nodes[static_cast<std::size_t>(self)];
+    d = {t.box.box(), {MBVH_EMPTY, MBVH_EMPTY}, parent, 0};
+    std::uint32_t h[2] = {0, 0};
+    for (int side = 0; side < 2; ++side)
+      if (t.child[side] >= 0) d.child[side] = emit(static_cast<std::size_t>(t.child[side]), self, h[side]);
+    height = 1 + std::max(h[0], h[1]);
+    d.height = height;
+    return self;
+  }
+};
+
+// v.resize(n) with the new storage's pages first touched on up to `threads` workers (as the
+// flatten's arrays are: resize value-initialises on one thread, and the first touch of a page
+// is the costly part of that).
+template <class V>
+void resize_touched(V& v, std::size_t n, unsigned threads) {
+  if (n > v.capacity()) {
+    v.reserve(n);
+    constexpr std::size_t kPage = 4096;
+    unsigned char* from = reinterpret_cast<unsigned char*>(v.data() + v.size());
+    const std::size_t bytes = (n - v.size()) * sizeof(typename V::value_type);
+    advise_huge_pages(from, bytes);
+    parallel_for((bytes + kPage - 1) / kPage, 64, threads, [&](std::size_t b, std::size_t e, unsigned) {
+      for (std::size_t p = b; p < e; ++p) from[p * kPage] = 0;
+    });
+  }
+  v.resize(n);
+}
 
 }  // namespace
 
 void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& croot, const BuildOptions& opt,
-                Arenas& out, PrimRef* scratch) {
+                Arenas& out, Bvh2& tree, std::vector<Leaf>& leaves, PrimRef* scratch) {
   const std::size_t n = prims.size();
   // chunks of the passes below: about four per worker (a stable sort has one result whatever
   // the chunks, so they may follow the thread count)
@@ -382,11 +566,19 @@ void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& c
       if (src != s) std::copy(src, src + m, s);
     }
   });
-  item = item2;
+  // -- the sorted codes alone (4 bytes a record) at the scratch's start: the splits read them,
+  //    and the rest of the scratch, 44 bytes a record, is the subtrees' room
+  std::uint32_t* const codes = reinterpret_cast<std::uint32_t*>(static_cast<void*>(scratch));
+  parallel_for(n, grain, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
+    for (std::size_t i = b; i < e; ++i) codes[i] = code_of(item2[i]);
+  });
+  unsigned char* const spare = reinterpret_cast<unsigned char*>(static_cast<void*>(scratch)) + 4 * n;
+  constexpr std::size_t kSpare = 44;  // bytes a record
+  static_assert(4 + kSpare == sizeof(Tri));
   if (opt.progress) opt.progress(0.2);
 
   // -- top of the tree breadth-first (splits only: a binary search each), then subtrees per task
-  LbvhBuilder builder(opt, prims, item);
+  LbvhBuilder builder(opt, prims, codes);
   std::vector<TmpNode>& upper = out.upper;
   upper.assign(1, TmpNode());
   upper[0].begin = 0;
@@ -404,16 +596,106 @@ void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& c
     if (mid == 0) builder.make_leaf(upper[k]);
     else LbvhBuilder::push_children(upper, k, mid);
   }
-  build_subtrees(out, jobs, opt, [&](SubArena& subtree, std::size_t) { builder.build(subtree); });
+  make_root_inner(upper);
+  // -- the subtrees, one task each (largest first: the order only spreads the work), each into
+  //    its records' run of the scratch's spare bytes (pages the sort has touched); a subtree of
+  //    more leaves than that holds (above about 0.69 a record: max_leaf 1, say) is built again
+  //    into its records' run of the node block (Arenas::arena_for's, 96 bytes a record: 2 c - 1
+  //    entries of 32 bytes always fit), allocated only then
+  std::vector<std::int32_t> subtree_of(upper.size(), -1);
+  for (std::size_t j = 0; j < jobs.size(); ++j) subtree_of[jobs[j]] = static_cast<std::int32_t>(j);
+  std::vector<std::size_t> order(jobs.size());
+  for (std::size_t j = 0; j < jobs.size(); ++j) order[j] = j;
+  std::stable_sort(order.begin(), order.end(), [&](std::size_t x, std::size_t y) {
+    return upper[jobs[x]].end - upper[jobs[x]].begin > upper[jobs[y]].end - upper[jobs[y]].begin;
+  });
+  std::vector<LbvhBuilder::Local> local(jobs.size());
+  std::atomic<std::size_t> built{0};
+  parallel_for(jobs.size(), 1, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
+    for (std::size_t o = b; o < e; ++o) {
+      const std::size_t j = order[o];
+      const TmpNode& top = upper[jobs[j]];
+      local[j].set_room(spare + kSpare * top.begin, kSpare * (top.end - top.begin));
+      builder.build(top, local[j]);
+      if (opt.progress) opt.progress(0.25 + 0.7 * static_cast<double>(++built) / static_cast<double>(jobs.size()));
+    }
+  });
+  std::vector<std::size_t> again;
+  for (const std::size_t j : order)
+    if (local[j].overflow) again.push_back(j);
+  if (!again.empty()) {
+    static_assert(3 * sizeof(LbvhBuilder::LocalNode) <= 2 * sizeof(TmpNode));
+    TmpNode* const block = out.block.ensure(2 * n);  // here, on the calling thread (NodeBlock)
+    parallel_for(again.size(), 1, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
+      for (std::size_t o = b; o < e; ++o) {
+        const std::size_t j = again[o];
+        const TmpNode& top = upper[jobs[j]];
+        local[j].set_room(reinterpret_cast<unsigned char*>(static_cast<void*>(block + 2 * std::size_t(top.begin))),
+                          2 * sizeof(TmpNode) * (top.end - top.begin));
+        builder.build(top, local[j]);
+        if (local[j].overflow) throw Error("internal: an LBVH subtree overflows its room in the node block");
+      }
+    });
+  }
   // -- the top's boxes bottom-up (children follow their parent in the breadth-first arena)
   for (std::size_t k = upper.size(); k-- > 0;) {
     TmpNode& t = upper[k];
-    if (out.subtree_of[k] >= 0) t.box = out.subtrees[static_cast<std::size_t>(out.subtree_of[k])][0].box;
+    if (subtree_of[k] >= 0) t.box = local[static_cast<std::size_t>(subtree_of[k])].box.fast();
     else if (!t.leaf) {
       t.box = FastBox();
       for (int s = 0; s < 2; ++s)
         if (t.child[s] >= 0) t.box.grow(upper[static_cast<std::size_t>(t.child[s])].box);
     }
+  }
+  // -- the flattened tree: the subtrees' places in the depth-first order (a walk of the top),
+  //    the top's nodes and leaves written around them, each subtree moved into its place with its
+  //    references shifted there (side by side on the pool): its nodes last to first, so that a
+  //    node's children have their heights when it is written and get their parent from it
+  UpperWriter top{upper, subtree_of, local, tree, leaves, std::vector<std::pair<std::size_t, std::size_t>>(jobs.size()),
+                  std::vector<std::int32_t>(jobs.size(), MBVH_NONE)};
+  top.place(0, MBVH_NONE);
+  resize_touched(tree.nodes, top.node, opt.threads);
+  resize_touched(tree.leaf_boxes, top.leaf, opt.threads);
+  resize_touched(leaves, top.leaf, opt.threads);
+  top.node = top.leaf = 0;
+  std::uint32_t height = 0;
+  top.emit(0, MBVH_NONE, height);
+  parallel_for(jobs.size(), 1, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
+    for (std::size_t j = b; j < e; ++j) {
+      const LbvhBuilder::Local& l = local[j];
+      const std::int32_t node0 = static_cast<std::int32_t>(top.at[j].first);
+      const std::int32_t leaf0 = static_cast<std::int32_t>(top.at[j].second);
+      Bvh2::Node* dst = tree.nodes.data() + node0;
+      for (std::uint32_t i = l.node; i-- > 0;) {
+        const LbvhBuilder::LocalNode& s = l.nodes[i];
+        Bvh2::Node& d = dst[i];
+        d.box = s.box;
+        std::uint32_t h = 0;
+        for (int k = 0; k < 2; ++k) {
+          const std::int32_t c = s.child[k];
+          if (c >= 0) {
+            d.child[k] = c + node0;
+            h = std::max(h, dst[c].height);
+            dst[c].parent = static_cast<std::int32_t>(i) + node0;
+          } else {
+            d.child[k] = c - leaf0;
+          }
+        }
+        d.height = 1 + h;
+      }
+      if (l.node > 0) dst[0].parent = top.parent_of[j];
+      for (std::uint32_t k = 0; k < l.leaf; ++k) {
+        const LbvhBuilder::LocalLeaf& f = l.leaves_end[-1 - static_cast<std::ptrdiff_t>(k)];
+        leaves[leaf0 + k] = f.leaf;
+        tree.leaf_boxes[leaf0 + k] = f.box;
+      }
+    }
+  });
+  tree.largest_leaf = top.largest;
+  tree.forced_leaves = top.forced;
+  for (const LbvhBuilder::Local& l : local) {
+    tree.largest_leaf = std::max(tree.largest_leaf, l.largest);
+    tree.forced_leaves += l.forced;
   }
   (void)root;
 }
