@@ -7,19 +7,24 @@
 #include <catch2/catch.hpp>
 
 #include <algorithm>
+#include <bit>
 #include <cstddef>
 #include <cstring>
 #include <cmath>
 #include <limits>
 #include <map>
+#include <random>
 #include <tuple>
+#include <vector>
 
+#include "backends/cpu/cpu_backends.h"
 #include "host/core/layouts.h"
 #include "host/core/trace/batch.h"
 #include "host/core/trace/traverse.h"
 #include "host/tools/check.h"
 #include "host/tools/raygen.h"
 #include "host/tools/stress.h"
+#include "mbvh/config.h"
 #include "tests/backends.h"
 #include "tests/helpers.h"
 
@@ -330,6 +335,64 @@ TEST_CASE("SIMD leaves of 1 to 24 triangles: eight-wide passes and their tails g
   REQUIRE(trace_view(*plain, Layout::mbvh4, true, 4, true).packed_refs);
   check_simd_cpu_bytes(*plain, features, "sphere feature rays, default build, leaf block 4", "4");
 }
+
+#ifdef MBVH_HAVE_CPU_SIMD
+namespace mbvh {
+extern const CpuKernels cpu_kernels_avx512;
+}
+
+// The MBVH8 ordered stack's sorted push (AVX-512, simd/kernels.h: a sorting network on the keys
+// (d, slot)) against the insertion sort it replaces (stack.h, OrderedWalk: the hits but the nearest
+// pushed in reverse slot order, then a stable sort farthest first), on random masks of every size
+// and random distances drawn from a few values (ties, both zeros, negative entries as the fast
+// mode's): the same entries in the same order, and the nearest (the smallest d, ties to the lower
+// slot: the child entered at once) last.
+TEST_CASE("AVX-512 sorted push of an MBVH8 node's hits: the insertion sort's order, ties included", "[traversal][isa]") {
+  std::string why = "not registered";
+  for (const BackendInfo& b : list_backends())
+    if (b.name == "cpu-avx512") why = b.missing_hardware ? b.missing_hardware() : std::string();
+  if (!why.empty()) {
+    std::printf("skipped: cpu-avx512 cannot run here (%s): its sorted push is not tested on this machine\n", why.c_str());
+    return;
+  }
+  REQUIRE(cpu_kernels_avx512.push_sorted8 != nullptr);
+  struct Entry {
+    std::int32_t node;
+    float d;
+  };
+  const float values[] = {-0.0f, 0.0f, -1.5f, 0.25f, 0.25f, 1.0f, 3.0e-39f, 2.0f, 1.0e30f, -2.0f};
+  std::mt19937 rng(36);
+  for (int iter = 0; iter < 20000; ++iter) {
+    const unsigned mask = 1u + rng() % 255u;
+    const int hits = std::popcount(mask);
+    std::int32_t child[8];
+    float d[8];
+    for (int s = 0; s < 8; ++s) {
+      child[s] = static_cast<std::int32_t>(rng()) ^ (s << 28);
+      // a few draws from a small set (ties), the rest arbitrary floats of either sign
+      d[s] = iter % 3 != 2 ? values[rng() % 10] : std::ldexp(static_cast<float>(rng() % 1000) - 500.0f, static_cast<int>(rng() % 40) - 20);
+    }
+    // the reference: the nearest slot entered, the others in reverse slot order, stable-sorted by d farthest first
+    int q = std::countr_zero(mask);
+    for (int s = q + 1; s < 8; ++s)
+      if (((mask >> s) & 1u) && d[s] < d[q]) q = s;
+    std::vector<Entry> want;
+    for (int s = 7; s >= 0; --s)
+      if (s != q && ((mask >> s) & 1u)) want.push_back(Entry{child[s], d[s]});
+    for (std::size_t i = 1; i < want.size(); ++i)
+      for (std::size_t j = i; j > 0 && want[j - 1].d < want[j].d; --j) std::swap(want[j - 1], want[j]);
+    want.push_back(Entry{child[q], d[q]});
+    Entry got[8];
+    cpu_kernels_avx512.push_sorted8(got, mask, child, d);
+    INFO("mask " << mask << ", iteration " << iter);
+    for (int k = 0; k < hits; ++k) {
+      INFO("entry " << k);
+      CHECK(got[k].node == want[static_cast<std::size_t>(k)].node);
+      CHECK(std::memcmp(&got[k].d, &want[static_cast<std::size_t>(k)].d, sizeof(float)) == 0);
+    }
+  }
+}
+#endif
 
 // The SIMD cpu backends walk MBVH8 closest-hit rays two in turn on a chunk whose directions are
 // coherent (batch.h's coherent_directions): a camera's chunks are, diffuse ones are not, invalid

@@ -2,6 +2,7 @@
 // cpu_backends.h — the CPU backends' registration entry points and the per-ISA kernel table.
 #pragma once
 #include <cstddef>
+#include <cstdint>
 #include <memory>
 #include <vector>
 #include <span>
@@ -54,6 +55,10 @@ struct CpuKernels {
   /// traversal each, leaf blocks resolved, the build prepared): the views of both resolved now,
   /// the kernels a function each (the traversal fixed for the defaults, default_ray_query_options).
   RayQueryKernels (*ray_query)(const Accel&, const TraceOptions& closest, const TraceOptions& any, bool mic);
+  /// The MBVH8 ordered stack's sorted push (simd/kernels.h, SimdKernelsT::push_sorted8: the row of
+  /// eight (node, d) entries stored at `entries`, the hits of `mask` first, farthest first), for
+  /// its unit test against the insertion sort; null where the ISA has none (AVX2).
+  void (*push_sorted8)(void* entries, unsigned mask, const std::int32_t* child, const float* d);
 };
 
 /// What `cpu` and `dacrt` run on this machine (backends/cpu/simd_backend.cpp), from the build

@@ -171,6 +171,15 @@ RayQueryKernels ray_query(const Accel& acc, const TraceOptions& c, const TraceOp
   return k;
 }
 
+#if MBVH_CPU_ISA_ID == 2
+void push_sorted8(void* entries, unsigned mask, const std::int32_t* child, const float* d) {
+  SimdKernelsT<false>::push_sorted8(entries, mask, child, d);
+}
+constexpr auto kPushSorted8 = &push_sorted8;
+#else
+constexpr void (*kPushSorted8)(void*, unsigned, const std::int32_t*, const float*) = nullptr;
+#endif
+
 }  // namespace
 }  // namespace MBVH_ISA_NS
 }  // namespace mbvh
@@ -182,6 +191,6 @@ namespace mbvh {
 extern const CpuKernels MBVH_CPU_KERNELS_NAME;
 const CpuKernels MBVH_CPU_KERNELS_NAME{MBVH_STR(MBVH_CPU_ISA), MBVH_ISA_NS::packet::kPacketRays, MBVH_ISA_NS::packet::kLanes,
                                          &MBVH_ISA_NS::trace, &MBVH_ISA_NS::dacrt::trace_dacrt,
-                                         &MBVH_ISA_NS::ray_query};
+                                         &MBVH_ISA_NS::ray_query, MBVH_ISA_NS::kPushSorted8};
 
 }  // namespace mbvh
