@@ -15,7 +15,7 @@
 #ifdef MBVH_CHECK_TERMINATION
 using namespace mbvh;
 
-TEST_CASE("stress: a checked build bounds the steps of a traversal handed a cyclic tree", "[stress][isa]") {
+TEST_CASE("stress: a checked build bounds the steps of a traversal handed a cyclic tree", "[stress]") {
   const Scene s = load_scene("gen:soup:2000");
   const auto acc = Accel::build(s);
   // a root whose four children are itself, with boxes every ray enters: a cycle
