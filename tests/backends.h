@@ -52,20 +52,19 @@ inline mbvh::VariantGrid all_backends() {
 }
 
 /// all_backends() for the [sanitizer-cpu] tier (the two largest stress tests): under the sanitizers
-/// (MBVH_TEST_SANITIZED) the instrumented cpu backends only (cpu-scalar and the cpu backend of this
+/// (mbvh_test::sanitized()) the instrumented cpu backends only (cpu-scalar and the cpu backend of this
 /// machine's ISA, those MBVH_TEST_BACKENDS selects): the device backends' traversals run in PoCL's
 /// and lavapipe's own code, which the sanitizers do not see, and their host code runs in every other
 /// test; elsewhere every backend.
 inline mbvh::VariantGrid sanitizer_cpu_backends() {
   mbvh::VariantGrid g = all_backends();
-#ifdef MBVH_TEST_SANITIZED
+  if (!sanitized()) return g;
   std::vector<std::string> cpu;
   for (const std::string& name : g.backends)
     if (name.rfind("cpu-", 0) == 0) cpu.push_back(name);
     else std::printf("backend %s left out: a [sanitizer-cpu] test under the sanitizers\n", name.c_str());
   REQUIRE(!cpu.empty());
   g.backends = cpu;
-#endif
   return g;
 }
 

@@ -14,14 +14,20 @@
 
 namespace mbvh_test {
 
-/// A ray count for a test that traces many: under the sanitizers (MBVH_TEST_SANITIZED) a quarter of
-/// `n` (at least 1,000): more rays take no other code path there, only minutes.
-constexpr std::size_t sanitized_rays(std::size_t n) {
-#ifdef MBVH_TEST_SANITIZED
-  return std::max<std::size_t>(n / 4, std::min<std::size_t>(n, 1000));
-#else
-  return n;
-#endif
+// The facts of the build the tests run in (tests/build_config.cpp, compiled in each build: the
+// other test files are the same objects in every build of the same sources, so the sanitizer
+// build can link the Release build's, MBVH_TEST_OBJECTS_FROM in CMakeLists.txt).
+/// The mbvh program of this build.
+const char* built_cli_path();
+/// The shared scenes' directory (../shared/scenes beside the sources).
+const char* scenes_dir();
+/// True in a build with the sanitizers (MBVH_SANITIZE): tests that trace many rays trace fewer.
+bool sanitized();
+
+/// A ray count for a test that traces many: under the sanitizers a quarter of `n` (at least
+/// 1,000): more rays take no other code path there, only minutes.
+inline std::size_t sanitized_rays(std::size_t n) {
+  return sanitized() ? std::max<std::size_t>(n / 4, std::min<std::size_t>(n, 1000)) : n;
 }
 
 /// What `f()` throws as an Error (any type with what(): mbvh::Error), or "(no error)".
@@ -57,7 +63,7 @@ bool zero_area(const Scene& s, std::size_t prim) {
   return n[0] == 0 && n[1] == 0 && n[2] == 0;
 }
 
-inline std::string scene_path(const std::string& file) { return std::string(MBVH_SCENES_DIR) + "/" + file; }
+inline std::string scene_path(const std::string& file) { return std::string(scenes_dir()) + "/" + file; }
 
 /// A fresh temporary directory for one test, removed at scope exit.
 struct TempDir {
@@ -74,11 +80,11 @@ struct TempDir {
   }
 };
 
-/// The mbvh program the CLI tests run: MBVH_CLI_PATH, or the environment's MBVH_TEST_CLI (to run
+/// The mbvh program the CLI tests run: this build's, or the environment's MBVH_TEST_CLI (to run
 /// the same tests against another build, e.g. an older one).
 inline std::string cli_path() {
   const char* other = std::getenv("MBVH_TEST_CLI");
-  return other && *other ? other : MBVH_CLI_PATH;
+  return other && *other ? other : built_cli_path();
 }
 
 struct RunResult {

@@ -25,11 +25,7 @@ using namespace mbvh;
 
 namespace {
 
-#ifdef MBVH_TEST_SANITIZED
-constexpr std::size_t kRays = 5000;
-#else
-constexpr std::size_t kRays = 30000;
-#endif
+const std::size_t kRays = mbvh_test::sanitized() ? 5000 : 30000;
 
 /// The dacrt backends this machine runs (dacrt-scalar always; dacrt where the CPU has AVX2).
 std::vector<std::string> dacrt_backends() {

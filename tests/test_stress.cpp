@@ -16,6 +16,7 @@
 #include <set>
 
 #include "host/core/layouts.h"
+#include "host/core/trace/brute_force.h"
 #include "host/core/trace/traverse.h"
 #include "mbvh/backend.h"
 #include "host/tools/check.h"
@@ -43,12 +44,15 @@ const char* const kTransforms[] = {"", "@scale=1e-3", "@scale=1e3", "@scale=1e6"
 
 // `bo`: the backends' options (by default the adversarial rays as packets, not the hybrid's single rays).
 // `on_trace`: given each variant's output as it is traced (CheckOptions::on_trace).
+// Every ray against the brute force; under the sanitizers a quarter of them, spread over the batch
+// (every ray is still traced and compared across variants): the brute force's double loop over
+// every triangle, instrumented, was two thirds of these tests' time there, on no other code path.
 void require_clean(const Accel& acc, const std::vector<Ray>& rays, const VariantGrid& grid, const std::string& what,
                    const BackendOptions& bo = packets_always(),
                    const std::function<void(const CheckVariant&, const TraceOutput&)>& on_trace = {}) {
   CheckOptions co;
   co.grid = grid;
-  co.brute_rays = SIZE_MAX;
+  co.brute_rays = mbvh_test::sanitized() ? rays.size() / 4 : SIZE_MAX;
   co.backend = bo;
   co.on_trace = on_trace;
   const CheckReport rep = run_check(acc, rays, co);
@@ -247,25 +251,8 @@ TEST_CASE("stress: a corrupt or adversarial tree is refused and cannot make a ra
   Mbvh4 badlink = m4;
   badlink.nodes[1].sib[0] = 12345;
   CHECK_THROWS_WITH(validate_layout(badlink, acc->leaves().size()), Catch::Contains("sibling"));
-#ifdef MBVH_CHECK_TERMINATION
-  // checked builds also bound the steps of a traversal handed a cyclic tree directly
-  TraceView v;
-  v.n4 = cyclic4.nodes.data();
-  v.nodes = cyclic4.nodes.size();
-  v.leaves = acc->leaves().data();
-  v.leaf_count = acc->leaves().size();
-  v.tris = acc->tris().data();
-  RayPre r;
-  const Box b = acc->bounds();
-  const Vec3f c = b.center();
-  REQUIRE(prepare_ray(Ray{c.x, c.y, c.z, 0, 0.3f, 0.5f, 0.8f, INFINITY}, r));
-  NoStats st;
-  CHECK_THROWS_WITH((trace_mbvh4_stack<false>(v, r, st)), Catch::Contains("stack overflow") || Catch::Contains("step bound"));
-  CHECK_THROWS_WITH((trace_mbvh4_bitstack<false>(v, r, st)), Catch::Contains("step bound"));
-  CHECK_THROWS_WITH((trace_mbvh4_bitstack<true>(v, r, st)), Catch::Contains("step bound"));
-#else
-  WARN("release build: the step bound is compiled out (validate_layout guards release builds)");
-#endif
+  // checked builds (Debug, the sanitizers) also bound the steps of a traversal handed a cyclic
+  // tree directly: tests/test_checked_build.cpp
 }
 
 TEST_CASE("stress: accuracy modes: exact is robust bit for bit - fast leaks where robust cannot - a peer refuses exact and maps fast to its default mode",
@@ -347,6 +334,49 @@ TEST_CASE("stress: scenes at the ends of the traced range are exact - beyond it 
   CHECK_THAT(refused("gen:cube:4@scale=1e38@offset=3e38"),
              Catch::Contains("'@offset=3e38' takes a coordinate beyond the float range (inf)"));
   CHECK_THAT(refused("gen:cube:4@scale=1e30@scale=1e30"), Catch::Contains("beyond the float range"));
+}
+
+// The oracle's two loops (host/core/trace/brute_force.cpp): the AVX2 one evaluates four triangles'
+// edge functions at once in the scalar test's double operations and sends the rest to it, so both
+// give the same bytes; here on the rays that decide on those signs: aimed at shared vertices and
+// edges from inside closed meshes, the special rays at every scale and offset, and plain ones.
+TEST_CASE("stress: the brute force's AVX2 loop gives the scalar loop's answers bit for bit", "[stress]") {
+#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
+  const bool vec = __builtin_cpu_supports("avx2");
+#else
+  const bool vec = false;
+#endif
+  if (!vec) {
+    WARN("skipped: this CPU has no AVX2, so brute_force runs its scalar loop only");
+    return;
+  }
+  struct Restore {
+    ~Restore() { set_brute_kernels(BruteKernels::best); }
+  } restore;
+  std::vector<std::string> specs = special_specs();
+  specs.push_back("gen:hairball:20000");
+  std::size_t rays_n = 0, hits = 0;
+  for (const std::string& spec : specs) {
+    const Scene s = load_scene(spec);
+    const auto acc = Accel::build(s);
+    std::vector<Ray> rays = special_rays(s, *acc, 200, 5);
+    const std::vector<Ray> inside = feature_rays(s, inside_point(s), 150, 50, 3);
+    rays.insert(rays.end(), inside.begin(), inside.end());
+    RayGenOptions ro;
+    ro.count = 100;
+    for (const Ray& r : generate_rays(s, *acc, ro)) rays.push_back(r);
+    for (const Ray& r : rays) {
+      set_brute_kernels(BruteKernels::best);
+      const Hit a = brute_force(*acc, r);
+      set_brute_kernels(BruteKernels::scalar);
+      const Hit b = brute_force(*acc, r);
+      INFO(spec << ": ray " << r.ox << " " << r.oy << " " << r.oz << " -> " << r.dx << " " << r.dy << " " << r.dz);
+      REQUIRE(std::memcmp(&a, &b, sizeof(Hit)) == 0);
+      hits += a.prim != MBVH_MISS_PRIM;
+    }
+    rays_n += rays.size();
+  }
+  CHECK(hits > rays_n / 4);  // the loops agree on hits, not only on misses
 }
 
 TEST_CASE("stress: mbvh check counts a lost hit as a genuine mismatch - not a tie - at any scene scale", "[stress][isa]") {

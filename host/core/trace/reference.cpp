@@ -1,6 +1,6 @@
 // SPDX-License-Identifier: MIT
 // reference.cpp — the scalar reference traversals over ray batches (one instantiation per
-// layout x traversal x query x statistics), and the double-precision brute-force oracle.
+// layout x traversal x query x statistics); the brute-force oracle is brute_force.cpp.
 #include <algorithm>
 #include <atomic>
 #include <charconv>
@@ -215,46 +215,6 @@ void trace_reference(const Accel& acc, std::span<const Ray> rays, const TraceOpt
   check_ray_range(acc, rays, "cpu-scalar");
   if (opt.precision == Precision::fast) trace_parallel<ScalarKernelsT<true>>(acc, rays, opt, out, threads, progress);
   else trace_parallel<ScalarKernels>(acc, rays, opt, out, threads, progress);
-}
-
-Hit brute_force(const Accel& acc, const Ray& ray) {
-  RayPre r;
-  if (!prepare_ray(ray, r)) return miss_hit();
-  // the watertight test of Woop et al. evaluated in double from the float inputs
-  const double o[3] = {r.o[0], r.o[1], r.o[2]};
-  const double dk = r.d[r.kz];
-  const double sx = double(r.d[r.kx]) / dk, sy = double(r.d[r.ky]) / dk;
-  double best_t = INFINITY, best_u = 0, best_v = 0;
-  std::uint32_t best_prim = MBVH_MISS_PRIM;
-  for (const Tri& tri : acc.tris()) {
-    const float* P[3] = {tri.v0, tri.v1, tri.v2};
-    double X[3], Y[3];
-    for (int i = 0; i < 3; ++i) {
-      const double ax = double(P[i][r.kx]) - o[r.kx], ay = double(P[i][r.ky]) - o[r.ky], az = double(P[i][r.kz]) - o[r.kz];
-      X[i] = ax - sx * az;
-      Y[i] = ay - sy * az;
-    }
-    const double U = X[2] * Y[1] - Y[2] * X[1];
-    const double V = X[0] * Y[2] - Y[0] * X[2];
-    const double W = X[1] * Y[0] - Y[1] * X[0];
-    if ((U < 0 || V < 0 || W < 0) && (U > 0 || V > 0 || W > 0)) continue;
-    const double det = U + V + W;
-    if (det == 0) continue;
-    // t from the plane equation: the differences and products of float inputs are (nearly) exact
-    // in double, so its sign is right even at t ~ 1e-45, where the sheared T / det is not
-    // (a ray leaving a floor from 1e-45 above it gave T / det = +1e-16).
-    const double t = plane_t_double(r, tri);
-    if (!(t > 0 && t >= r.tmin && t <= double(r.tmax))) continue;
-    const std::uint32_t prim = tri_prim(tri);
-    if (t < best_t || (t == best_t && prim < best_prim)) {
-      best_t = t;
-      best_u = V / det;
-      best_v = W / det;
-      best_prim = prim;
-    }
-  }
-  if (best_prim == MBVH_MISS_PRIM) return miss_hit();
-  return Hit{static_cast<float>(best_t), static_cast<float>(best_u), static_cast<float>(best_v), best_prim};
 }
 
 }  // namespace mbvh
