@@ -172,9 +172,14 @@ RayQueryKernels ray_query(const Accel& acc, const TraceOptions& c, const TraceOp
 }
 
 #if MBVH_CPU_ISA_ID == 2
+// Out of line for the tests, GCC 12 warns -Wuninitialized inside its own avx512fintrin.h here: the
+// `_mm512_undefined_*` idiom of its headers (GCC bug 105593, fixed in GCC 13).
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wuninitialized"
 void push_sorted8(void* entries, unsigned mask, const std::int32_t* child, const float* d) {
   SimdKernelsT<false>::push_sorted8(entries, mask, child, d);
 }
+#pragma GCC diagnostic pop
 constexpr auto kPushSorted8 = &push_sorted8;
 #else
 constexpr void (*kPushSorted8)(void*, unsigned, const std::int32_t*, const float*) = nullptr;
