@@ -45,8 +45,8 @@ const char* const kTransforms[] = {"", "@scale=1e-3", "@scale=1e3", "@scale=1e6"
 // `bo`: the backends' options (by default the adversarial rays as packets, not the hybrid's single rays).
 // `on_trace`: given each variant's output as it is traced (CheckOptions::on_trace).
 // Every ray against the brute force; under the sanitizers a quarter of them, spread over the batch
-// (every ray is still traced and compared across variants): the brute force's double loop over
-// every triangle, instrumented, was two thirds of these tests' time there, on no other code path.
+// (every ray is still traced and compared across variants): more rays through the instrumented
+// brute force's loop over every triangle take no other code path there, only minutes.
 void require_clean(const Accel& acc, const std::vector<Ray>& rays, const VariantGrid& grid, const std::string& what,
                    const BackendOptions& bo = packets_always(),
                    const std::function<void(const CheckVariant&, const TraceOutput&)>& on_trace = {}) {

@@ -34,15 +34,15 @@ namespace {
 
 // Rays a kind: every backend, layout, traversal and query traces them all and is compared ray by
 // ray; the edges (shared vertices and edges, grazing and degenerate rays) are the stress suite's.
-// Under the sanitizers a fifth, and a quarter of the rays against the brute force (its double loop
-// over every triangle, instrumented, was most of these tests' time there): more rays take no other
-// code path there, only minutes.
-const std::size_t kRays = mbvh_test::sanitized() ? 10000 : 50000;
+// Under the sanitizers a fifth, and a quarter as many against the brute force (its loop over every
+// triangle, instrumented): more rays take no other code path there, only minutes.
+constexpr std::size_t kReleaseRays = 50000;
+const std::size_t kRays = mbvh_test::sanitized() ? kReleaseRays / 5 : kReleaseRays;
 const std::size_t kBrute = mbvh_test::sanitized() ? 500 : 2000;
 // The [heavy] scenes (Release only) trace a fifth as many: what they add to the small scenes' checks
 // is their trees (deep, wide, large leaves), which every ray walks; their 2,000 rays a kind against
 // the brute force stay, and no code path depends on the ray count.
-constexpr std::size_t kHeavyRays = 50000 / 5;
+constexpr std::size_t kHeavyRays = kReleaseRays / 5;
 constexpr std::size_t kLeafOrderRays = 3000;
 
 using RefOutputs = std::map<std::tuple<Layout, Traversal, Query, unsigned>, TraceOutput>;

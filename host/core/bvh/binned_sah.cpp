@@ -27,6 +27,7 @@
 #include "host/core/bvh/avx2_kernels.h"
 #include "host/core/bvh/builder.h"
 #include "host/core/bvh/dense_bins.h"
+#include "host/core/bvh/flat_writer.h"
 #include "host/core/huge_pages.h"
 #include "host/core/layouts.h"
 #include "host/core/parallel.h"
@@ -721,91 +722,6 @@ private:
   unsigned bins_;
 };
 
-// Emits arena nodes depth-first at fixed places of `out` (inner nodes from `node`, leaves from
-// `leaf`), so that the subtrees can be emitted side by side once their places are known.
-// `sub_ref`/`sub_height`: what each subtree's root became (the upper arena's last pass).
-struct Flattener {
-  const Arenas& a;
-  Bvh2& out;
-  std::vector<Leaf>& leaves;
-  std::size_t node = 0, leaf = 0;
-  std::size_t largest = 0, forced = 0;
-  const std::vector<std::int32_t>* sub_ref = nullptr;
-  const std::vector<std::uint32_t>* sub_height = nullptr;
-  const std::vector<std::pair<std::size_t, std::size_t>>* sub_size = nullptr;  // inner nodes, leaves
-
-  // Returns the child reference of arena node n.
-  template <class Arena>  // the upper arena (a vector) or a subtree's (SubArena)
-  std::int32_t emit(const Arena& arena, std::size_t n, std::int32_t parent, std::uint32_t& height) {
-    const TmpNode& t = arena[n];
-    if (std::is_same_v<Arena, std::vector<TmpNode>> && a.subtree_of[n] >= 0) {
-      const std::size_t j = static_cast<std::size_t>(a.subtree_of[n]);
-      node += (*sub_size)[j].first;
-      leaf += (*sub_size)[j].second;
-      height = (*sub_height)[j];
-      return (*sub_ref)[j];
-    }
-    if (t.leaf) {
-      leaves[leaf] = {t.begin, t.end - t.begin};
-      out.leaf_boxes[leaf] = t.box.box();
-      largest = std::max<std::size_t>(largest, t.end - t.begin);
-      forced += t.forced ? 1 : 0;
-      height = 0;
-      return ~static_cast<std::int32_t>(leaf++);
-    }
-    const std::int32_t self = static_cast<std::int32_t>(node++);
-    Bvh2::Node& d = out.nodes[static_cast<std::size_t>(self)];
-    d = {t.box.box(), {MBVH_EMPTY, MBVH_EMPTY}, parent, 0};
-    std::uint32_t h[2] = {0, 0};
-    for (int side = 0; side < 2; ++side)
-      if (t.child[side] >= 0) d.child[side] = emit(arena, static_cast<std::size_t>(t.child[side]), self, h[side]);
-    height = 1 + std::max(h[0], h[1]);
-    d.height = height;
-    return self;
-  }
-
-  // Where subtree j's nodes and leaves start and its root's parent, as the depth-first walk of
-  // the upper arena reaches them (nothing written).
-  void place(std::size_t n, std::int32_t parent, std::vector<std::pair<std::size_t, std::size_t>>& at,
-             std::vector<std::int32_t>& parent_of) {
-    const TmpNode& t = a.upper[n];
-    if (a.subtree_of[n] >= 0) {
-      const std::size_t j = static_cast<std::size_t>(a.subtree_of[n]);
-      at[j] = {node, leaf};
-      parent_of[j] = parent;
-      node += (*sub_size)[j].first;
-      leaf += (*sub_size)[j].second;
-      return;
-    }
-    if (t.leaf) {
-      ++leaf;
-      return;
-    }
-    const std::int32_t self = static_cast<std::int32_t>(node++);
-    for (int side = 0; side < 2; ++side)
-      if (t.child[side] >= 0) place(static_cast<std::size_t>(t.child[side]), self, at, parent_of);
-  }
-};
-
-// v.resize(n) with the new storage's pages first touched on up to `threads` workers: resize
-// value-initialises the elements on one thread, and the first touch of a page (a fault) is the
-// costly part of that, so the pages are faulted in parallel beforehand (bytes written into
-// storage the vector has allocated and not yet constructed; resize then writes every element).
-template <class V>
-void resize_touched(V& v, std::size_t n, unsigned threads) {
-  if (n > v.capacity()) {
-    v.reserve(n);
-    constexpr std::size_t kPage = 4096;
-    unsigned char* from = reinterpret_cast<unsigned char*>(v.data() + v.size());
-    const std::size_t bytes = (n - v.size()) * sizeof(typename V::value_type);
-    advise_huge_pages(from, bytes);
-    parallel_for((bytes + kPage - 1) / kPage, 64, threads, [&](std::size_t b, std::size_t e, unsigned) {
-      for (std::size_t p = b; p < e; ++p) from[p * kPage] = 0;
-    });
-  }
-  v.resize(n);
-}
-
 }  // namespace
 
 void set_sah_kernels(SahKernels k) { g_kernels.store(k, std::memory_order_relaxed); }
@@ -820,9 +736,10 @@ void flatten(const Arenas& a, Bvh2& out, std::vector<Leaf>& leaves, unsigned thr
   }
   std::vector<std::int32_t> parent_of(subs, MBVH_NONE), ref(subs, 0);
   std::vector<std::uint32_t> height(subs, 0);
-  Flattener top{a, out, leaves};
+  FlatWriter top{out, leaves};
+  top.subtree_of = &a.subtree_of;
   top.sub_size = &size;
-  top.place(0, MBVH_NONE, at, parent_of);
+  top.place(a.upper, 0, MBVH_NONE, at, parent_of);
   resize_touched(out.nodes, top.node, threads);
   resize_touched(out.leaf_boxes, top.leaf, threads);
   resize_touched(leaves, top.leaf, threads);
@@ -830,7 +747,7 @@ void flatten(const Arenas& a, Bvh2& out, std::vector<Leaf>& leaves, unsigned thr
   std::vector<std::size_t> largest(subs, 0), forced(subs, 0);
   parallel_for(subs, 1, threads, [&](std::size_t b, std::size_t e, unsigned) {
     for (std::size_t j = b; j < e; ++j) {
-      Flattener fl{a, out, leaves, at[j].first, at[j].second};
+      FlatWriter fl{out, leaves, at[j].first, at[j].second};
       ref[j] = fl.emit(a.subtrees[j], 0, parent_of[j], height[j]);
       largest[j] = fl.largest;
       forced[j] = fl.forced;

@@ -269,7 +269,7 @@ void give_back(const BuildOptions& opt, V BuildContext_Store::*slot, V& v) {
   else V().swap(v);
 }
 
-/// The step both builders (binned SAH, LBVH) take after splitting the top levels into `out.upper`:
+/// The binned SAH builder's step after splitting the top levels into `out.upper`:
 /// the root made an inner node (a one-leaf scene gets a root with one leaf child), then every
 /// subtree job (jobs[j]: the top node it starts from) built by `build_one(subtree, jobs[j])` on the pool,
 /// largest first; subtree j starts as a copy of its top node. The bytes do not depend on which

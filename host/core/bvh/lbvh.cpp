@@ -25,6 +25,7 @@
 #include <vector>
 
 #include "host/core/bvh/builder.h"
+#include "host/core/bvh/flat_writer.h"
 #include "host/core/huge_pages.h"
 #include "host/core/layouts.h"
 #include "host/core/parallel.h"
@@ -62,7 +63,12 @@ static_assert(sizeof(Tri) == 48, "build_lbvh's scratch: 48 bytes a record, the t
 struct Rows {
   __m128 lo, hi;
   static Rows empty() { return {_mm_set1_ps(INFINITY), _mm_set1_ps(-INFINITY)}; }
-  static Rows of(const PrimRef& r) { return {_mm_loadu_ps(r.lo), _mm_loadu_ps(r.hi)}; }
+  // lane 3 (the record's prim id and pad) zeroed: as a float a prim id is a subnormal, which
+  // half_area's subtraction and product would carry through
+  static Rows of(const PrimRef& r) {
+    const __m128 xyz = _mm_castsi128_ps(_mm_setr_epi32(-1, -1, -1, 0));
+    return {_mm_and_ps(_mm_loadu_ps(r.lo), xyz), _mm_and_ps(_mm_loadu_ps(r.hi), xyz)};
+  }
   void grow(const Rows& o) {
     lo = _mm_min_ps(o.lo, lo);
     hi = _mm_max_ps(o.hi, hi);
@@ -376,88 +382,6 @@ private:
   const std::uint32_t* codes_;
 };
 
-// The top of the tree (the upper arena) in the flattened tree, around the subtrees built apart:
-// place() walks it depth-first to find where each subtree's nodes and leaves start and its root's
-// parent; emit() writes the top's own nodes and leaves (as flatten does an arena's).
-struct UpperWriter {
-  const std::vector<TmpNode>& upper;
-  const std::vector<std::int32_t>& subtree_of;  // per upper node: its subtree task, or -1
-  const std::vector<LbvhBuilder::Local>& local;
-  Bvh2& out;
-  std::vector<Leaf>& leaves;
-  std::vector<std::pair<std::size_t, std::size_t>> at;  // per task: its first node and leaf
-  std::vector<std::int32_t> parent_of;                  // per task: its root's parent
-  std::size_t node = 0, leaf = 0;
-  std::size_t largest = 0, forced = 0;
-
-  void place(std::size_t n, std::int32_t parent) {
-    const TmpNode& t = upper[n];
-    if (subtree_of[n] >= 0) {
-      const std::size_t j = static_cast<std::size_t>(subtree_of[n]);
-      at[j] = {node, leaf};
-      parent_of[j] = parent;
-      node += local[j].node;
-      leaf += local[j].leaf;
-      return;
-    }
-    if (t.leaf) {
-      ++leaf;
-      return;
-    }
-    const std::int32_t self = static_cast<std::int32_t>(node++);
-    for (int side = 0; side < 2; ++side)
-      if (t.child[side] >= 0) place(static_cast<std::size_t>(t.child[side]), self);
-  }
-
-  // The reference of upper node n (a subtree's root: where place() put it).
-  std::int32_t emit(std::size_t n, std::int32_t parent, std::uint32_t& height) {
-    const TmpNode& t = upper[n];
-    if (subtree_of[n] >= 0) {
-      const std::size_t j = static_cast<std::size_t>(subtree_of[n]);
-      const LbvhBuilder::Local& l = local[j];
-      node += l.node;
-      leaf += l.leaf;
-      height = l.height;
-      return l.root >= 0 ? static_cast<std::int32_t>(at[j].first) : ~static_cast<std::int32_t>(at[j].second);
-    }
-    if (t.leaf) {
-      leaves[leaf] = {t.begin, t.end - t.begin};
-      out.leaf_boxes[leaf] = t.box.box();
-      largest = std::max<std::size_t>(largest, t.end - t.begin);
-      forced += t.forced ? 1 : 0;
-      height = 0;
-      return ~static_cast<std::int32_t>(leaf++);
-    }
-    const std::int32_t self = static_cast<std::int32_t>(node++);
-    Bvh2::Node& d = out.nodes[static_cast<std::size_t>(self)];
-    d = {t.box.box(), {MBVH_EMPTY, MBVH_EMPTY}, parent, 0};
-    std::uint32_t h[2] = {0, 0};
-    for (int side = 0; side < 2; ++side)
-      if (t.child[side] >= 0) d.child[side] = emit(static_cast<std::size_t>(t.child[side]), self, h[side]);
-    height = 1 + std::max(h[0], h[1]);
-    d.height = height;
-    return self;
-  }
-};
-
-// v.resize(n) with the new storage's pages first touched on up to `threads` workers (as the
-// flatten's arrays are: resize value-initialises on one thread, and the first touch of a page
-// is the costly part of that).
-template <class V>
-void resize_touched(V& v, std::size_t n, unsigned threads) {
-  if (n > v.capacity()) {
-    v.reserve(n);
-    constexpr std::size_t kPage = 4096;
-    unsigned char* from = reinterpret_cast<unsigned char*>(v.data() + v.size());
-    const std::size_t bytes = (n - v.size()) * sizeof(typename V::value_type);
-    advise_huge_pages(from, bytes);
-    parallel_for((bytes + kPage - 1) / kPage, 64, threads, [&](std::size_t b, std::size_t e, unsigned) {
-      for (std::size_t p = b; p < e; ++p) from[p * kPage] = 0;
-    });
-  }
-  v.resize(n);
-}
-
 }  // namespace
 
 void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& croot, const BuildOptions& opt,
@@ -651,20 +575,33 @@ void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& c
   //    the top's nodes and leaves written around them, each subtree moved into its place with its
   //    references shifted there (side by side on the pool): its nodes last to first, so that a
   //    node's children have their heights when it is written and get their parent from it
-  UpperWriter top{upper, subtree_of, local, tree, leaves, std::vector<std::pair<std::size_t, std::size_t>>(jobs.size()),
-                  std::vector<std::int32_t>(jobs.size(), MBVH_NONE)};
-  top.place(0, MBVH_NONE);
+  const std::size_t subs = jobs.size();
+  std::vector<std::pair<std::size_t, std::size_t>> size(subs), at(subs);
+  std::vector<std::int32_t> parent_of(subs, MBVH_NONE), ref(subs, 0);
+  std::vector<std::uint32_t> sub_height(subs, 0);
+  for (std::size_t j = 0; j < subs; ++j) {
+    size[j] = {local[j].node, local[j].leaf};
+    sub_height[j] = local[j].height;
+  }
+  FlatWriter top{tree, leaves};
+  top.subtree_of = &subtree_of;
+  top.sub_size = &size;
+  top.place(upper, 0, MBVH_NONE, at, parent_of);
   resize_touched(tree.nodes, top.node, opt.threads);
   resize_touched(tree.leaf_boxes, top.leaf, opt.threads);
   resize_touched(leaves, top.leaf, opt.threads);
+  for (std::size_t j = 0; j < subs; ++j)  // a subtree's root: its first node, or its one leaf
+    ref[j] = local[j].root >= 0 ? static_cast<std::int32_t>(at[j].first) : ~static_cast<std::int32_t>(at[j].second);
   top.node = top.leaf = 0;
+  top.sub_ref = &ref;
+  top.sub_height = &sub_height;
   std::uint32_t height = 0;
-  top.emit(0, MBVH_NONE, height);
+  top.emit(upper, 0, MBVH_NONE, height);
   parallel_for(jobs.size(), 1, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
     for (std::size_t j = b; j < e; ++j) {
       const LbvhBuilder::Local& l = local[j];
-      const std::int32_t node0 = static_cast<std::int32_t>(top.at[j].first);
-      const std::int32_t leaf0 = static_cast<std::int32_t>(top.at[j].second);
+      const std::int32_t node0 = static_cast<std::int32_t>(at[j].first);
+      const std::int32_t leaf0 = static_cast<std::int32_t>(at[j].second);
       Bvh2::Node* dst = tree.nodes.data() + node0;
       for (std::uint32_t i = l.node; i-- > 0;) {
         const LbvhBuilder::LocalNode& s = l.nodes[i];
@@ -683,7 +620,7 @@ void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& c
         }
         d.height = 1 + h;
       }
-      if (l.node > 0) dst[0].parent = top.parent_of[j];
+      if (l.node > 0) dst[0].parent = parent_of[j];
       for (std::uint32_t k = 0; k < l.leaf; ++k) {
         const LbvhBuilder::LocalLeaf& f = l.leaves_end[-1 - static_cast<std::ptrdiff_t>(k)];
         leaves[leaf0 + k] = f.leaf;

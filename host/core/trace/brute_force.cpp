@@ -7,8 +7,7 @@
 // the same double operations in the same order as the scalar test (the float inputs widened
 // exactly, no FMA: the build sets -ffp-contract=off), so a lane's signs are the scalar test's.
 // A triangle whose signs reject it is rejected by the scalar test too; every other one goes through
-// the scalar test, in triangle order: the same answer bit for bit, and the oracle several times
-// faster (on the tests' scenes it was most of the equivalence and stress tests' time).
+// the scalar test, in triangle order: the same answer bit for bit (docs/ci.md has its speed).
 #include "host/core/trace/brute_force.h"
 
 #include <atomic>
@@ -18,7 +17,7 @@
 #include "host/core/trace/intersect.h"
 #include "mbvh/trace.h"
 
-#if defined(__SSE2__) && (defined(__x86_64__) || defined(__i386__)) && (defined(__GNUC__) || defined(__clang__))
+#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))  // (32-bit x86 may run the scalar test on x87)
 #define MBVH_BRUTE_VEC256 1
 #include <immintrin.h>
 #endif

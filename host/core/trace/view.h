@@ -46,7 +46,7 @@ struct TraceView {
   /// dependent load less (Embree's tagged child pointers do the same). Only the SIMD kernels'
   /// uncounted traversals read such a view.
   bool packed_refs = false;
-  std::size_t nodes = 0, leaf_count = 0;  ///< sizes, for the termination guard
+  std::size_t nodes = 0, leaf_count = 0;  ///< sizes, for the termination guard and the prefetch threshold
 };
 
 }  // namespace mbvh

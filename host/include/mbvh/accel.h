@@ -176,8 +176,9 @@ struct LayoutStats {
   std::size_t bytes = 0;         ///< node records (+ leaves and triangles for the binary tree)
   double build_ms = 0;
   /// The binary build's phases, ms (binary stats only): records (boxes, degenerate triangles,
-  /// range check), tree (binning and partition, or Morton codes and splits), flatten (Bvh2 and
-  /// the leaf-ordered triangles), stats (the hash is computed on first use: Accel::hash).
+  /// range check), tree (binning and partition; or, for quality low, Morton codes, splits and the
+  /// Bvh2 written by the LBVH itself), flatten (the Bvh2, except for quality low, and the
+  /// leaf-ordered triangles), stats (the hash is computed on first use: Accel::hash).
   double phase_ms[4] = {0, 0, 0, 0};
   unsigned bitstack_bits = 0;    ///< bits of the bitstack word the deepest path needs
 };

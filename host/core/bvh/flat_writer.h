@@ -1,0 +1,110 @@
+// SPDX-License-Identifier: MIT
+// flat_writer.h — internal to host/core/bvh/: writing a tree built as an upper arena around
+// subtrees built apart (the binned SAH's and the LBVH's parallel builds) into the flattened
+// binary tree, depth-first, each node and leaf at a place fixed before it is written, so the
+// subtrees can be written side by side once their places are known.
+#pragma once
+#include <algorithm>
+#include <cstddef>
+#include <cstdint>
+#include <type_traits>
+#include <utility>
+#include <vector>
+
+#include "host/core/bvh/builder.h"
+#include "host/core/huge_pages.h"
+#include "host/core/parallel.h"
+
+namespace mbvh {
+namespace build {
+
+/// v.resize(n) with the new storage's pages first touched on up to `threads` workers: resize
+/// value-initialises the elements on one thread, and the first touch of a page (a fault) is the
+/// costly part of that, so the pages are faulted in parallel beforehand (bytes written into
+/// storage the vector has allocated and not yet constructed; resize then writes every element).
+template <class V>
+void resize_touched(V& v, std::size_t n, unsigned threads) {
+  if (n > v.capacity()) {
+    v.reserve(n);
+    constexpr std::size_t kPage = 4096;
+    unsigned char* from = reinterpret_cast<unsigned char*>(v.data() + v.size());
+    const std::size_t bytes = (n - v.size()) * sizeof(typename V::value_type);
+    advise_huge_pages(from, bytes);
+    parallel_for((bytes + kPage - 1) / kPage, 64, threads, [&](std::size_t b, std::size_t e, unsigned) {
+      for (std::size_t p = b; p < e; ++p) from[p * kPage] = 0;
+    });
+  }
+  v.resize(n);
+}
+
+/// Writes arena nodes depth-first at fixed places of `out` (inner nodes from `node`, leaves from
+/// `leaf`). On the upper arena (a std::vector<TmpNode>, whose node n holds subtree
+/// (*subtree_of)[n] where that is not -1): place() finds where each subtree's inner nodes and
+/// leaves start (`at`) and its root's parent, writing nothing; emit() writes the upper nodes and
+/// leaves around the subtrees, each subtree root's reference and height taken from sub_ref and
+/// sub_height. On a subtree's own arena, emit() writes it whole.
+struct FlatWriter {
+  Bvh2& out;
+  std::vector<Leaf>& leaves;
+  std::size_t node = 0, leaf = 0;
+  std::size_t largest = 0, forced = 0;
+  const std::vector<std::int32_t>* subtree_of = nullptr;                      // per upper node
+  const std::vector<std::pair<std::size_t, std::size_t>>* sub_size = nullptr;  // per subtree: inner nodes, leaves
+  const std::vector<std::int32_t>* sub_ref = nullptr;                         // per subtree: its root's reference
+  const std::vector<std::uint32_t>* sub_height = nullptr;
+
+  void place(const std::vector<TmpNode>& upper, std::size_t n, std::int32_t parent,
+             std::vector<std::pair<std::size_t, std::size_t>>& at, std::vector<std::int32_t>& parent_of) {
+    const TmpNode& t = upper[n];
+    if ((*subtree_of)[n] >= 0) {
+      const std::size_t j = static_cast<std::size_t>((*subtree_of)[n]);
+      at[j] = {node, leaf};
+      parent_of[j] = parent;
+      node += (*sub_size)[j].first;
+      leaf += (*sub_size)[j].second;
+      return;
+    }
+    if (t.leaf) {
+      ++leaf;
+      return;
+    }
+    const std::int32_t self = static_cast<std::int32_t>(node++);
+    for (int side = 0; side < 2; ++side)
+      if (t.child[side] >= 0) place(upper, static_cast<std::size_t>(t.child[side]), self, at, parent_of);
+  }
+
+  /// Returns the child reference of arena node n.
+  template <class Arena>  // the upper arena (a vector) or a subtree's
+  std::int32_t emit(const Arena& arena, std::size_t n, std::int32_t parent, std::uint32_t& height) {
+    const TmpNode& t = arena[n];
+    if constexpr (std::is_same_v<Arena, std::vector<TmpNode>>) {
+      if (subtree_of && (*subtree_of)[n] >= 0) {
+        const std::size_t j = static_cast<std::size_t>((*subtree_of)[n]);
+        node += (*sub_size)[j].first;
+        leaf += (*sub_size)[j].second;
+        height = (*sub_height)[j];
+        return (*sub_ref)[j];
+      }
+    }
+    if (t.leaf) {
+      leaves[leaf] = {t.begin, t.end - t.begin};
+      out.leaf_boxes[leaf] = t.box.box();
+      largest = std::max<std::size_t>(largest, t.end - t.begin);
+      forced += t.forced ? 1 : 0;
+      height = 0;
+      return ~static_cast<std::int32_t>(leaf++);
+    }
+    const std::int32_t self = static_cast<std::int32_t>(node++);
+    Bvh2::Node& d = out.nodes[static_cast<std::size_t>(self)];
+    d = {t.box.box(), {MBVH_EMPTY, MBVH_EMPTY}, parent, 0};
+    std::uint32_t h[2] = {0, 0};
+    for (int side = 0; side < 2; ++side)
+      if (t.child[side] >= 0) d.child[side] = emit(arena, static_cast<std::size_t>(t.child[side]), self, h[side]);
+    height = 1 + std::max(h[0], h[1]);
+    d.height = height;
+    return self;
+  }
+};
+
+}  // namespace build
+}  // namespace mbvh
