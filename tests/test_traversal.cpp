@@ -361,7 +361,7 @@ TEST_CASE("AVX-512 sorted push of an MBVH8 node's hits: the insertion sort's ord
   const float values[] = {-0.0f, 0.0f, -1.5f, 0.25f, 0.25f, 1.0f, 3.0e-39f, 2.0f, 1.0e30f, -2.0f};
   std::mt19937 rng(36);
   for (int iter = 0; iter < 20000; ++iter) {
-    const unsigned mask = 1u + rng() % 255u;
+    const unsigned mask = 1u + static_cast<unsigned>(rng() % 255u);
     const int hits = std::popcount(mask);
     std::int32_t child[8];
     float d[8];

@@ -174,7 +174,9 @@ public:
     std::uint32_t begin, end;
     std::int32_t child;
   };
+#if defined(__SSE2__)  // (the portable Rows is a FastBox, which initialises itself)
   static_assert(std::is_trivially_default_constructible_v<Small>);
+#endif
 
   // A subtree task's part of the flattened tree, numbered from 0 within the task: its inner nodes
   // depth-first (a box and two child references: the parents and heights are filled in when the
