@@ -269,11 +269,6 @@ void give_back(const BuildOptions& opt, V BuildContext_Store::*slot, V& v) {
   else V().swap(v);
 }
 
-/// The binned SAH builder's step after splitting the top levels into `out.upper`:
-/// the root made an inner node (a one-leaf scene gets a root with one leaf child), then every
-/// subtree job (jobs[j]: the top node it starts from) built by `build_one(subtree, jobs[j])` on the pool,
-/// largest first; subtree j starts as a copy of its top node. The bytes do not depend on which
-/// worker ran a job. Progress goes from 0.25 to 0.95.
 /// The root of `upper` made an inner node: a one-leaf tree gets a root with one leaf child.
 inline void make_root_inner(std::vector<TmpNode>& upper) {
   if (!upper[0].leaf) return;
@@ -285,6 +280,11 @@ inline void make_root_inner(std::vector<TmpNode>& upper) {
   upper.push_back(leaf);
 }
 
+/// The binned SAH builder's step after splitting the top levels into `out.upper`:
+/// the root made an inner node (a one-leaf scene gets a root with one leaf child), then every
+/// subtree job (jobs[j]: the top node it starts from) built by `build_one(subtree, jobs[j])` on the pool,
+/// largest first; subtree j starts as a copy of its top node. The bytes do not depend on which
+/// worker ran a job. Progress goes from 0.25 to 0.95.
 template <class BuildOne>
 void build_subtrees(Arenas& out, const std::vector<std::size_t>& jobs, const BuildOptions& opt, BuildOne&& build_one) {
   std::vector<TmpNode>& upper = out.upper;
