@@ -127,12 +127,17 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
     advise_huge_pages(acc->impl_->tris_.data(), prims.size() * sizeof(Tri));  // written in full
     static_assert(sizeof(Tri) >= sizeof(PrimRef) && alignof(Tri) % alignof(PrimRef) == 0);
     PrimRef* scratch = reinterpret_cast<PrimRef*>(static_cast<void*>(acc->impl_->tris_.data()));
-    if (opt.quality == BuildQuality::low) {
-      // -- the LBVH writes the flattened tree itself (leaves in record order), then the triangle
-      //    records (the records are in leaf order once the tree is built)
+    // the flattened tree's arrays (nodes, leaf boxes, leaves): the LBVH writes them as it builds,
+    // the binned SAH's flatten after the records are given back (it can reuse their memory)
+    auto take_tree_arrays = [&] {
       out.nodes = build::take_from(opt, &S::nodes);
       out.leaf_boxes = build::take_from(opt, &S::leaf_boxes);
       acc->impl_->leaves_ = build::take_from(opt, &S::leaves);
+    };
+    if (opt.quality == BuildQuality::low) {
+      // -- the LBVH writes the flattened tree itself (leaves in record order), then the triangle
+      //    records (the records are in leaf order once the tree is built)
+      take_tree_arrays();
       build::build_lbvh(prims, refs.root, refs.croot, opt, arenas, out, acc->impl_->leaves_, scratch);
       t_tree = Clock::now();
       build::fill_tris(scene, prims, acc->impl_->tris_, opt.threads);
@@ -147,9 +152,7 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
       build::give_back(opt, &S::prims, prims);
 
       // -- flatten depth-first; leaves come out in record order
-      out.nodes = build::take_from(opt, &S::nodes);
-      out.leaf_boxes = build::take_from(opt, &S::leaf_boxes);
-      acc->impl_->leaves_ = build::take_from(opt, &S::leaves);
+      take_tree_arrays();
       build::flatten(arenas, out, acc->impl_->leaves_, opt.threads);
     }
 

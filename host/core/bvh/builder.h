@@ -280,34 +280,56 @@ inline void make_root_inner(std::vector<TmpNode>& upper) {
   upper.push_back(leaf);
 }
 
-/// The binned SAH builder's step after splitting the top levels into `out.upper`:
-/// the root made an inner node (a one-leaf scene gets a root with one leaf child), then every
-/// subtree job (jobs[j]: the top node it starts from) built by `build_one(subtree, jobs[j])` on the pool,
-/// largest first; subtree j starts as a copy of its top node. The bytes do not depend on which
-/// worker ran a job. Progress goes from 0.25 to 0.95.
-template <class BuildOne>
-void build_subtrees(Arenas& out, const std::vector<std::size_t>& jobs, const BuildOptions& opt, BuildOne&& build_one) {
-  std::vector<TmpNode>& upper = out.upper;
-  make_root_inner(upper);
-  out.block.ensure(2 * std::size_t(upper[0].end - upper[0].begin));  // here, on the calling thread (NodeBlock)
-  out.subtree_of.assign(upper.size(), -1);
-  out.subtrees.assign(jobs.size(), SubArena());
-  for (std::size_t j = 0; j < jobs.size(); ++j) out.subtree_of[jobs[j]] = static_cast<std::int32_t>(j);
+/// Which subtree job starts at each of `upper_size` upper nodes: jobs[j]'s entry is j, the
+/// others' -1 (Arenas::subtree_of).
+inline std::vector<std::int32_t> subtree_of_jobs(std::size_t upper_size, const std::vector<std::size_t>& jobs) {
+  std::vector<std::int32_t> of(upper_size, -1);
+  for (std::size_t j = 0; j < jobs.size(); ++j) of[jobs[j]] = static_cast<std::int32_t>(j);
+  return of;
+}
+
+/// The subtree jobs (jobs[j]: the upper node it starts from) largest first by their records,
+/// ties in job order: the order only spreads the work over the pool (a large job started last
+/// would run alone at the end); what a job writes does not depend on it.
+inline std::vector<std::size_t> largest_first(const std::vector<TmpNode>& upper, const std::vector<std::size_t>& jobs) {
   std::vector<std::size_t> order(jobs.size());
   for (std::size_t j = 0; j < jobs.size(); ++j) order[j] = j;
   std::stable_sort(order.begin(), order.end(), [&](std::size_t x, std::size_t y) {
     return upper[jobs[x]].end - upper[jobs[x]].begin > upper[jobs[y]].end - upper[jobs[y]].begin;
   });
+  return order;
+}
+
+/// Runs `run(j)` for every job j of `order` (largest_first's) on the pool, one job a task, in
+/// that order; progress goes from 0.25 to 0.95 as they finish.
+template <class Run>
+void run_subtree_jobs(const std::vector<std::size_t>& order, const BuildOptions& opt, Run&& run) {
   std::atomic<std::size_t> built{0};
-  parallel_for(jobs.size(), 1, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
+  parallel_for(order.size(), 1, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
     for (std::size_t o = b; o < e; ++o) {
-      const std::size_t j = order[o];
-      SubArena& arena = out.subtrees[j];
-      arena = out.arena_for(upper[jobs[j]]);
-      arena.push_back(upper[jobs[j]]);
-      build_one(arena, jobs[j]);
-      if (opt.progress) opt.progress(0.25 + 0.7 * static_cast<double>(++built) / static_cast<double>(jobs.size()));
+      run(order[o]);
+      if (opt.progress) opt.progress(0.25 + 0.7 * static_cast<double>(++built) / static_cast<double>(order.size()));
     }
+  });
+}
+
+/// The binned SAH builder's step after splitting the top levels into `out.upper`:
+/// the root made an inner node (a one-leaf scene gets a root with one leaf child), then every
+/// subtree job (jobs[j]: the top node it starts from) built by `build_one(subtree, jobs[j])` on the pool,
+/// largest first; subtree j starts as a copy of its top node. The bytes do not depend on which
+/// worker ran a job.
+template <class BuildOne>
+void build_subtrees(Arenas& out, const std::vector<std::size_t>& jobs, const BuildOptions& opt, BuildOne&& build_one) {
+  std::vector<TmpNode>& upper = out.upper;
+  make_root_inner(upper);
+  out.block.ensure(2 * std::size_t(upper[0].end - upper[0].begin));  // here, on the calling thread (NodeBlock)
+  out.subtree_of = subtree_of_jobs(upper.size(), jobs);
+  out.subtrees.assign(jobs.size(), SubArena());
+  run_subtree_jobs(largest_first(upper, jobs), opt, [&](std::size_t j) {
+    SubArena& arena = out.subtrees[j];
+    arena = out.arena_for(upper[jobs[j]]);
+    arena.push_back(upper[jobs[j]]);
+    build_one(arena, jobs[j]);
   });
 }
 

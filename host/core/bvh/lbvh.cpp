@@ -18,7 +18,6 @@
 // references shifted there, the bytes flatten would write from arenas of the same tree.
 #include <algorithm>
 #include <array>
-#include <atomic>
 #include <bit>
 #include <memory>
 #include <type_traits>
@@ -528,23 +527,13 @@ void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& c
   //    more leaves than that holds (above about 0.69 a record: max_leaf 1, say) is built again
   //    into its records' run of the node block (Arenas::arena_for's, 96 bytes a record: 2 c - 1
   //    entries of 32 bytes always fit), allocated only then
-  std::vector<std::int32_t> subtree_of(upper.size(), -1);
-  for (std::size_t j = 0; j < jobs.size(); ++j) subtree_of[jobs[j]] = static_cast<std::int32_t>(j);
-  std::vector<std::size_t> order(jobs.size());
-  for (std::size_t j = 0; j < jobs.size(); ++j) order[j] = j;
-  std::stable_sort(order.begin(), order.end(), [&](std::size_t x, std::size_t y) {
-    return upper[jobs[x]].end - upper[jobs[x]].begin > upper[jobs[y]].end - upper[jobs[y]].begin;
-  });
+  const std::vector<std::int32_t> subtree_of = subtree_of_jobs(upper.size(), jobs);
+  const std::vector<std::size_t> order = largest_first(upper, jobs);
   std::vector<LbvhBuilder::Local> local(jobs.size());
-  std::atomic<std::size_t> built{0};
-  parallel_for(jobs.size(), 1, opt.threads, [&](std::size_t b, std::size_t e, unsigned) {
-    for (std::size_t o = b; o < e; ++o) {
-      const std::size_t j = order[o];
-      const TmpNode& top = upper[jobs[j]];
-      local[j].set_room(spare + kSpare * top.begin, kSpare * (top.end - top.begin));
-      builder.build(top, local[j]);
-      if (opt.progress) opt.progress(0.25 + 0.7 * static_cast<double>(++built) / static_cast<double>(jobs.size()));
-    }
+  run_subtree_jobs(order, opt, [&](std::size_t j) {
+    const TmpNode& top = upper[jobs[j]];
+    local[j].set_room(spare + kSpare * top.begin, kSpare * (top.end - top.begin));
+    builder.build(top, local[j]);
   });
   std::vector<std::size_t> again;
   for (const std::size_t j : order)
