@@ -880,8 +880,7 @@ void build_binned_sah(RawVector<PrimRef>& prims, const FastBox& root, const Fast
   });
   // -- the subtrees in the arenas, each named by its top node
   make_root_inner(upper);
-  out.subtree_of.assign(upper.size(), -1);
-  for (std::size_t j = 0; j < subs.size(); ++j) out.subtree_of[jobs[j]] = static_cast<std::int32_t>(j);
+  out.subtree_of = subtree_of_jobs(upper.size(), jobs);
   out.subtrees = std::move(subs);
 }
 

@@ -313,26 +313,6 @@ void run_subtree_jobs(const std::vector<std::size_t>& order, const BuildOptions&
   });
 }
 
-/// The binned SAH builder's step after splitting the top levels into `out.upper`:
-/// the root made an inner node (a one-leaf scene gets a root with one leaf child), then every
-/// subtree job (jobs[j]: the top node it starts from) built by `build_one(subtree, jobs[j])` on the pool,
-/// largest first; subtree j starts as a copy of its top node. The bytes do not depend on which
-/// worker ran a job.
-template <class BuildOne>
-void build_subtrees(Arenas& out, const std::vector<std::size_t>& jobs, const BuildOptions& opt, BuildOne&& build_one) {
-  std::vector<TmpNode>& upper = out.upper;
-  make_root_inner(upper);
-  out.block.ensure(2 * std::size_t(upper[0].end - upper[0].begin));  // here, on the calling thread (NodeBlock)
-  out.subtree_of = subtree_of_jobs(upper.size(), jobs);
-  out.subtrees.assign(jobs.size(), SubArena());
-  run_subtree_jobs(largest_first(upper, jobs), opt, [&](std::size_t j) {
-    SubArena& arena = out.subtrees[j];
-    arena = out.arena_for(upper[jobs[j]]);
-    arena.push_back(upper[jobs[j]]);
-    build_one(arena, jobs[j]);
-  });
-}
-
 /// Flattens the arenas depth-first into `out` (record 0 = root, which is always an inner node)
 /// and `leaves` (in record order: a leaf's triangles are its range of the record array); the
 /// subtrees side by side on up to `threads` workers, the same bytes at any count.
