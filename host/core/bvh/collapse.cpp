@@ -95,7 +95,8 @@ namespace {
 // at any thread count: the top of the tree is walked once to cut it into subtrees of at most
 // kTaskSpan binary nodes, the subtrees' wide nodes are counted on the pool, the top is written
 // with every subtree's index range known, and the subtrees are written into their ranges on the
-// pool. A collapse on one worker writes everything in the top walk.
+// pool (inline on one worker), the node array sized by the count. A tree of at most 2 kTaskSpan
+// binary nodes is written in the top walk alone, into an array of one node a binary node.
 template <class N, unsigned Cap>
 struct Collapser {
   static constexpr int W = node_width<N>();
@@ -209,15 +210,17 @@ struct Collapser {
     if constexpr (W == 4) link_children(out, self);
   }
 
-  // The top walk: children of at most kTaskSpan binary nodes become tasks (in depth-first order).
-  void plan(std::int32_t bref, unsigned level, std::vector<Task>& tasks) const {
+  // The top walk: children of at most kTaskSpan binary nodes become tasks (in depth-first order);
+  // `top_nodes` counts the wide nodes it passes, the ones emit's top walk writes itself.
+  void plan(std::int32_t bref, unsigned level, std::vector<Task>& tasks, std::size_t& top_nodes) const {
     std::int32_t kids[W];
     choose(bref, level, kids);
+    ++top_nodes;
     for (int s = 0; s < W; ++s)
       if (kids[s] >= 0) {
         if (const std::size_t n = span(kids[s]); n <= kTaskSpan)
           tasks.push_back(Task{kids[s], -1, level + 1, 0, {}, n, nullptr});
-        else plan(kids[s], level + 1, tasks);
+        else plan(kids[s], level + 1, tasks, top_nodes);
       }
   }
 
@@ -277,7 +280,8 @@ void collapse(const Bvh2& b, const std::vector<Leaf>& leaves, const char* name, 
   using C = Collapser<N, Cap>;
   C c{b};
   std::vector<typename C::Task> tasks;
-  if (resolve_threads(threads) > 1 && b.nodes.size() > 2 * C::kTaskSpan) c.plan(0, 0, tasks);
+  std::size_t top_nodes = 0;
+  if (b.nodes.size() > 2 * C::kTaskSpan) c.plan(0, 0, tasks, top_nodes);
   // the tasks' memos: runs of one array the calling thread allocates (growing a vector per task,
   // on the workers, would leave small blocks between the build's large arrays that glibc's
   // per-thread caches keep, and the next build's arrays would not fit back in their places)
@@ -291,7 +295,12 @@ void collapse(const Bvh2& b, const std::vector<Leaf>& leaves, const char* name, 
       c.count(tasks[k].bref, tasks[k].level, tasks[k].tally, m);
     }
   });
-  out.nodes.resize(std::max<std::size_t>(b.nodes.size(), 1));
+  // as many nodes as the collapse keeps where the tasks counted theirs (the top walk's counted by
+  // plan), else one a binary node, the most there can be: an array no larger than it needs fits
+  // back into memory the build freed more often (fewer fresh pages to fault in)
+  std::size_t kept = top_nodes;
+  for (const auto& t : tasks) kept += t.tally.nodes;
+  out.nodes.resize(tasks.empty() ? std::max<std::size_t>(b.nodes.size(), 1) : kept);
   build::RawVector<float> area(out.nodes.size());  // written for every node kept (not zeroed: only those pages touched)
   // both written from their start, up to the nodes kept (emit numbers the nodes in order)
   advise_huge_pages(out.nodes.data(), out.nodes.size() * sizeof(N));
@@ -312,6 +321,7 @@ void collapse(const Bvh2& b, const std::vector<Leaf>& leaves, const char* name, 
     }
   });
   for (const std::size_t n : top.nodes) c.links(n);
+  if (!tasks.empty() && next != kept) throw Error("internal: the collapse wrote another count of wide nodes than it counted");
   out.nodes.resize(next);
   unsigned max_level = top_tally.max_level;
   for (const auto& k : tasks) max_level = std::max(max_level, k.tally.max_level);
