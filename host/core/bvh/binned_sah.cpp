@@ -819,6 +819,16 @@ void build_binned_sah(RawVector<PrimRef>& prims, const FastBox& root, const Fast
   out.block.ensure(2 * prims.size());  // here, on the calling thread (NodeBlock)
   std::vector<SubArena> subs;     // job j's arena
   std::vector<std::size_t> jobs;  // job j's top node
+  // the vectors the workers grow, allocated here for the nodes a tree of subtrees of about
+  // `small` records has above them: a vector a worker grows frees its old block on that worker,
+  // whose own cache (glibc's tcache) keeps a small one, then a chunk between the calling thread's
+  // large arrays that the next build's arrays cannot take (fresh pages faulted in instead)
+  const std::size_t expect = upper.size() + 8 * (prims.size() / small + 1);
+  upper.reserve(expect);
+  ucbox.reserve(expect);
+  open.reserve(expect);
+  subs.reserve(expect);
+  jobs.reserve(expect);
   std::mutex m;
   std::condition_variable wake;
   unsigned busy = 0;  // workers splitting a node or building a job
