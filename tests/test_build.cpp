@@ -377,9 +377,10 @@ TEST_CASE("quality low builds a valid tree within the depth cap and max leaf", "
   CHECK(forced->binary_stats().depth <= 6);
   CHECK(forced->bvh2().forced_leaves >= 1);
   check_invariants(bunny, *forced);
-  // max_leaf of 1 (no leaf SAH collapse), the default 8, and beyond the leaf pricing's room on
-  // the stack (32): valid, within max_leaf, none forced, the same bytes at 1 and 2 threads
-  for (unsigned ml : {1u, 8u, 33u, 48u}) {
+  // max_leaf of 1 (no leaf SAH collapse), the default 8, beyond the leaf pricing's room on the
+  // stack (32), and beyond the smallest subtree task (4,096 records, where the top's split and a
+  // task's collapse must agree): valid, within max_leaf, none forced, the same bytes at 1 and 2 threads
+  for (unsigned ml : {1u, 8u, 33u, 48u, 5000u}) {
     INFO("max_leaf " << ml);
     BuildOptions o;
     o.quality = BuildQuality::low;
@@ -397,6 +398,42 @@ TEST_CASE("quality low builds a valid tree within the depth cap and max leaf", "
   }
   CHECK(parse_quality("low") == BuildQuality::low);
   CHECK_THROWS_AS(parse_quality("best"), Error);
+}
+
+// The LBVH's top splits nodes of more records than its smallest subtree task (at least 4,096,
+// more at fewer threads) and hands the rest to tasks; a task prices a node of at most max_leaf
+// records as one leaf or a subtree. Where max_leaf exceeds the task size, a node in between must
+// be priced the same way at every thread count: here 72,000 slivers that each span the unit cube,
+// so every node of at most max_leaf records prices cheapest as one leaf, and their Morton halvings
+// pass through nodes of about 4,500 records.
+TEST_CASE("quality low with max_leaf above the subtree task size: the same nodes at any thread count", "[build]") {
+  Scene s;
+  s.name = "slivers";
+  std::uint64_t state = 12345;
+  const auto next = [&] {  // a uniform float in [0, 1)
+    state = state * 6364136223846793005ull + 1442695040888963407ull;
+    return static_cast<float>(state >> 40) * 0x1p-24f;
+  };
+  for (std::uint32_t i = 0; i < 72000; ++i) {
+    const float j = 1e-3f * next(), k = 1e-3f * next(), l = 1e-3f * next();
+    s.vertices.push_back({j, k, l});
+    s.vertices.push_back({1.0f - k, 1.0f - l, 1.0f - j});
+    s.vertices.push_back({0.5f + l, 0.5f - j, 0.5f + k + 1e-3f * next()});
+    s.triangles.push_back({3 * i, 3 * i + 1, 3 * i + 2});
+  }
+  BuildOptions o;
+  o.quality = BuildQuality::low;
+  o.max_leaf = 5000;
+  std::uint64_t want = 0;
+  for (unsigned t : {1u, 2u, 3u}) {
+    INFO(t << " threads");
+    o.threads = t;
+    const auto acc = Accel::build(s, o);
+    check_invariants(s, *acc);
+    CHECK(acc->bvh2().largest_leaf <= o.max_leaf);
+    if (t == 1) want = acc->hash();
+    else CHECK(acc->hash() == want);
+  }
 }
 
 // The high-quality build's invariants: a leaf's triangles are whole file triangles with their

@@ -510,7 +510,10 @@ void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& c
   upper[0].end = static_cast<std::uint32_t>(n);
   upper[0].depth = 0;
   const unsigned threads = resolve_threads(opt.threads);
-  const std::size_t small = std::max<std::size_t>(4096, n / (8 * std::size_t(threads)));
+  // A node of at most max_leaf records is always a task's: the task prices it as one leaf or a
+  // subtree (build_small), which the top's split would not; so the tree is the same whatever
+  // `small` the thread count makes.
+  const std::size_t small = std::max<std::size_t>({4096, n / (8 * std::size_t(threads)), opt.max_leaf});
   std::vector<std::size_t> jobs;
   for (std::size_t k = 0; k < upper.size(); ++k) {
     if (k > 0 && upper[k].end - upper[k].begin <= small) {

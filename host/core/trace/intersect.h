@@ -31,8 +31,16 @@ struct RayPre {
   float sx, sy, sz;
 };
 
+// The reference's own namespace. Builds that bound each traversal's steps (MBVH_CHECK_TERMINATION:
+// StepGuard, stats.h) name it apart, so no object compiled without the bound (a test file shared
+// between a Release and a sanitizer build: CMakeLists.txt, MBVH_TEST_OBJECTS_FROM) can instantiate
+// a traversal template that the linker would pick for the library's checked one.
 #ifndef MBVH_ISA_NS
+#ifdef MBVH_CHECK_TERMINATION
+#define MBVH_ISA_NS ref_checked
+#else
 #define MBVH_ISA_NS ref
+#endif
 #endif
 inline namespace MBVH_ISA_NS {
 
