@@ -432,6 +432,50 @@ TEST_CASE("MBVH8 closest hit walks two rays in turn on coherent chunks: camera r
   check_simd_cpu_bytes(*acc, mixed, "bunny, camera and diffuse chunks");
 }
 
+// The MBVH8 bitstack's backtrack climbs to the word's lowest non-zero byte in one go, and a level
+// more than eight up lies in the word's upper half. On the deepest tree binning makes
+// (gen:exponential: 14 MBVH8 levels at leaf block 1), rays in the triangles' plane cross every
+// box and hit nothing, so each walks the whole tree and climbs from its deepest levels to the
+// root: the bitstack gives its stack twin's answers and leaf order (cpu-scalar), with climbs of
+// more than eight levels, and every SIMD cpu backend, walking two rays in turn, the reference's
+// bytes; rays crossing the plane hit a triangle part of the way along.
+TEST_CASE("MBVH8 bitstack backtracks over more than eight levels: the stack twin's answers", "[traversal][bitstack]") {
+  const Scene s = load_scene("gen:exponential:200");
+  const auto acc = Accel::build(s);
+  // triangle k spans x_k = 2^(k / 5) to x_k + w_k in the plane y = z, at heights 0 to w_k = 0.1 x_k
+  std::vector<Ray> rays;
+  for (int i = 0; i < 400; ++i) {
+    const float c = std::exp2(-4.0f + 0.07f * static_cast<float>(i % 100));  // a height within the wider triangles
+    if (i < 200) {  // in the plane: no hit
+      rays.push_back(Ray{-1.0f, c, c, 0.0f, 1.0f, 0.0f, 0.0f, INFINITY});
+    } else {  // crossing the plane at x = 1.01 x_k, within triangle k (and no nearer one)
+      const float x = 1.01f * std::exp2(static_cast<float>(60 + i % 120) / 5.0f), e = 0.001f * c;
+      rays.push_back(Ray{-1.0f, c, c + e, 0.0f, 1.0f, 0.0f, -e / (x + 1.0f), INFINITY});
+    }
+  }
+  TraceOutput bit, twin;
+  trace_reference(*acc, rays, TraceOptions{Layout::mbvh8, Traversal::bitstack, Query::closest, true}, bit, 0);
+  trace_reference(*acc, rays, TraceOptions{Layout::mbvh8, Traversal::stack, Query::closest, true}, twin, 0);
+  CHECK(std::memcmp(bit.hits.data(), twin.hits.data(), rays.size() * sizeof(Hit)) == 0);
+  std::size_t deep = 0, hits = 0;
+  for (std::size_t i = 0; i < rays.size(); ++i) {
+    CHECK(bit.stats[i].leaves == twin.stats[i].leaves);
+    CHECK(bit.stats[i].nodes == twin.stats[i].nodes);
+    deep += bit.stats[i].max_depth > 9 && bit.stats[i].climbs > 8;
+    hits += bit.hits[i].prim != MBVH_MISS_PRIM;
+  }
+  CHECK(deep > 0);
+  CHECK(hits > 0);
+  CHECK(hits < rays.size());
+  for (const std::size_t i : {std::size_t{0}, std::size_t{150}, std::size_t{250}, std::size_t{399}}) {
+    std::vector<std::int32_t> log[2];
+    trace_one(*acc, rays[i], TraceOptions{Layout::mbvh8, Traversal::bitstack, Query::closest, false}, nullptr, &log[0]);
+    trace_one(*acc, rays[i], TraceOptions{Layout::mbvh8, Traversal::stack, Query::closest, false}, nullptr, &log[1]);
+    CHECK(log[0] == log[1]);
+  }
+  check_simd_cpu_bytes(*acc, rays, "exponential, rays along the triangles' plane");
+}
+
 // The cpu backend's uncounted traversals read nodes whose leaf references locate the SIMD packs
 // (TraceView::packed_refs): each decodes to its leaf's (first pack, count) in every layout, the
 // references to inner nodes and the empty slots are unchanged, and a variant with a leaf of more

@@ -50,13 +50,10 @@ struct SimdKernelsT {
   /// the leaf's first pack; the node's size in lines either way: a leaf of five or more triangles
   /// reads into its second pack): a branch on the child's kind mispredicts often on incoherent
   /// rays.
-  /// Only on a tree whose nodes take more than kPrefetchNodeBytes: where they fit in the caches a
-  /// pending child is mostly there already, and the prefetches (a node is four lines on MBVH8)
-  /// cost more instructions than the misses they hide (docs/backends.md).
-  static constexpr std::size_t kPrefetchNodeBytes = std::size_t{12} << 20;
+  /// Only on a tree whose nodes take more than kPrefetchNodeBytes (SimdRay::prefetch, ray.h).
   template <class N>
   [[gnu::always_inline]] static void prefetch(const N& n, const Ray& r, unsigned mask) {
-    if (r.view->nodes <= kPrefetchNodeBytes / sizeof(N)) return;
+    if (!r.prefetch) return;
     const char* nodes = reinterpret_cast<const char*>(detail::nodes_of<N>(*r.view));
     if (r.view->packed_refs) {
       const char* packs = reinterpret_cast<const char*>(r.view->tri4);

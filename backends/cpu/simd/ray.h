@@ -26,7 +26,19 @@ struct SimdRay : RayPre {
   float oinv[3];  ///< o * inv per axis: the `fast` box test's FMA form (finish_fast_ray; unset in robust)
   float tol;      ///< `fast`: what the FMA form's distances may exceed the subtraction's by (finish_fast_ray)
   const TraceView* view;  ///< what the ray traverses (for prefetches)
+  bool prefetch;          ///< the closest-hit walks prefetch pending children (prefetches(view))
 };
+
+/// The closest-hit walks prefetch the records of the hit children left for later
+/// (SimdKernelsT::prefetch) only on a tree whose nodes take more than kPrefetchNodeBytes: where
+/// they fit in the caches a pending child is mostly there already, and the prefetches (a node is
+/// four lines on MBVH8) cost more instructions than the misses they hide (docs/backends.md).
+/// Decided once per ray (finish_ray), not at every node the walk tests.
+inline constexpr std::size_t kPrefetchNodeBytes = std::size_t{12} << 20;
+inline bool prefetches(const TraceView& v) {
+  const std::size_t node = v.n8 ? sizeof(Node8) : v.n4 ? sizeof(Node4) : sizeof(Node2);
+  return v.nodes > kPrefetchNodeBytes / node;
+}
 
 /// prepare_ray (intersect.h) in vector registers: the same checks — every component finite
 /// (|x| < inf, false for NaN) but tmax, which may be +inf, tmin in [0, tmax], the largest
@@ -77,6 +89,7 @@ struct SimdRay : RayPre {
 /// Fills SimdRay's constants from its (validated, possibly relaxed) RayPre part.
 inline void finish_ray(SimdRay& r, const TraceView& v) {
   r.view = &v;
+  r.prefetch = prefetches(v);
   // rows lo_x, hi_x, lo_y, ... are W floats apart: near = (2a + neg) * W, far = near ^ W, the
   // three axes at once (neg's fourth lane is tmin's bits: its entries are never read)
   const __m128i near8 = _mm_slli_epi32(_mm_add_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(r.neg)),

@@ -132,52 +132,88 @@ inline Hit trace_mbvh4_bitstack(const TraceView& v, const typename K::Ray& r, St
 /// parent, which stays in a register: a sibling move re-fetches nothing but the parent's child
 /// link; only a climb reads a record (the parent link). State:
 /// node + 128-bit word = 20 bytes against 520 (plain stack twin) and 1032 (ordered stack).
-template <bool Any, class St, class K = ScalarKernels>
-inline Hit trace_mbvh8_bitstack(const TraceView& v, const typename K::Ray& r, St& st) {
-  Hit best = miss_hit();
-  float tmax = r.tmax;
-  StepGuard guard(v);
-  std::int32_t cur = 0;
-  const Node8* par = nullptr;
-  std::uint64_t lo = 0, hi = 0;
-  unsigned level = 0;
-  for (;;) {
+/// The walk's state and one step of it, so that a driver may advance two rays in turn (batch.h's
+/// run_interleaved, closest hit) with the single-ray traversal's code: the state is small, and
+/// the walk's chain of dependent loads (a node, its child; a climb's parent links) leaves the
+/// core idle on incoherent rays.
+template <bool Any, class St, class K>
+struct Mbvh8BitstackWalk {
+  const TraceView& v;
+  const typename K::Ray* r;
+  Hit best;
+  float tmax;
+  StepGuard guard;
+  std::int32_t cur;
+  const Node8* par;
+  std::uint64_t lo, hi;
+  unsigned level;
+
+  Mbvh8BitstackWalk(const TraceView& view, const typename K::Ray& ray) : v(view), r(&ray), guard(view) { start(); }
+  /// Starts the walk of the ray given at construction (its values as they are now).
+  [[gnu::always_inline]] void start() {
+    best = miss_hit();
+    tmax = r->tmax;
+    guard = StepGuard(v);
+    cur = 0;
+    par = nullptr;
+    lo = hi = 0;
+    level = 0;
+  }
+  /// Up one level to the parent's parent (a level with pending bits lies above: never the root's).
+  [[gnu::always_inline]] void climb(St& st) {
+    guard.step();
+    par = &v.n8[par->parent];
+    st.climb();
+    if constexpr (St::on) --level;
+  }
+  /// One node or leaf visit and the move after it; false once the ray is done (its answer in best).
+  [[gnu::always_inline]] bool step(St& st) {
     guard.step();
     if (cur >= 0) {
       const Node8& n = v.n8[cur];
       float d[8];
-      const unsigned m = detail::test_node<K, Any>(n, r, tmax * kCullSlack, d, st);
+      const unsigned m = detail::test_node<K, Any>(n, *r, tmax * kCullSlack, d, st);
       if (m) {
         const int i = Any ? K::template longest<8>(m, d) : K::template nearest<8>(m, d);
-        detail::prefetch_pending<K, Any>(n, r, m, i);
+        detail::prefetch_pending<K, Any>(n, *r, m, i);
         hi = (hi << 8) | (lo >> 56);  // push the pending slots
         lo = (lo << 8) | (m & ~(1u << i));
         if constexpr (St::on) st.depth(++level);
         par = &n;
         cur = n.child[i];
-        continue;
+        return true;
       }
-    } else if (K::template leaf<Any>(v, cur, r, tmax, best, st)) {
-      return best;
+    } else if (K::template leaf<Any>(v, cur, *r, tmax, best, st)) {
+      return false;
     }
-    // -- backtrack: climb while the current level has no pending sibling (parent links only)
-    std::uint64_t code;
-    for (;;) {
-      if ((lo | hi) == 0) return best;
-      code = lo & 0xFFu;
-      if (code != 0) break;
-      guard.step();
-      par = &v.n8[par->parent];  // a level with pending bits lies above: never the root's parent
-      lo = (lo >> 8) | (hi << 56);  // pop
-      hi >>= 8;
-      st.climb();
-      if constexpr (St::on) --level;
+    // -- backtrack: the deepest level with a pending sibling is the word's lowest non-zero byte;
+    // climb to it (parent links only), pop the levels climbed past in one shift, then take that
+    // level's lowest pending slot (the word's lowest set bit)
+    if (lo == 0) {  // none in the lower 8 levels: climb them all (rare; the depth cap is 14)
+      if (hi == 0) return false;
+      for (int j = 0; j < 8; ++j) climb(st);
+      lo = hi;
+      hi = 0;
     }
-    // -- the lowest pending slot of this level
-    const int k = std::countr_zero(code);
-    lo ^= std::uint64_t{1} << k;
-    cur = par->child[k];
+    const int low = std::countr_zero(lo);
+    if (const int up = low >> 3; up != 0) {
+      for (int j = 0; j < up; ++j) climb(st);
+      const int sh = up << 3;  // 8 to 56 bits
+      lo = (lo >> sh) | (hi << (64 - sh));
+      hi >>= sh;
+    }
+    cur = par->child[low & 7];
+    lo &= lo - 1;
+    return true;
   }
+};
+
+template <bool Any, class St, class K = ScalarKernels>
+inline Hit trace_mbvh8_bitstack(const TraceView& v, const typename K::Ray& r, St& st) {
+  Mbvh8BitstackWalk<Any, St, K> w(v, r);
+  while (w.step(st)) {
+  }
+  return w.best;
 }
 
 /// MBVH4 bitstack-retest (TRAVERSAL.md §3.4, §4.4, "variant B"; mbvh's extension of Áfra &
