@@ -28,10 +28,6 @@ struct SimdRay : RayPre {
   const TraceView* view;  ///< what the ray traverses (for prefetches)
 };
 
-/// The watertight test's axes (kx, ky, kz, kz) for each largest axis kz and sign of d[kz] (prepare_ray's
-/// cyclic successors, kx and ky swapped where d[kz] < 0).
-alignas(16) constexpr int kShearAxes[3][2][4] = {{{1, 2, 0, 0}, {2, 1, 0, 0}}, {{2, 0, 1, 1}, {0, 2, 1, 1}}, {{0, 1, 2, 2}, {1, 0, 2, 2}}};
-
 /// prepare_ray (intersect.h) in vector registers: the same checks — every component finite
 /// (|x| < inf, false for NaN) but tmax, which may be +inf, tmin in [0, tmax], the largest
 /// direction component normal — and the same per-ray constants with the same IEEE operations
@@ -46,9 +42,6 @@ template <bool Shear = true>
                     offsetof(RayPre, inv_far) == offsetof(RayPre, inv) + 12 &&
                     offsetof(RayPre, neg) == offsetof(RayPre, inv_far) + 12 && offsetof(RayPre, tmin) == offsetof(RayPre, neg) + 12,
                 "RayPre's rows are written 16 bytes at a time, each store's fourth lane overwritten by the next");
-  static_assert(offsetof(RayPre, ky) == offsetof(RayPre, kx) + 4 && offsetof(RayPre, kz) == offsetof(RayPre, kx) + 8 &&
-                    offsetof(RayPre, sx) == offsetof(RayPre, kx) + 12 && offsetof(RayPre, sz) == offsetof(RayPre, sx) + 8,
-                "kx, ky, kz are written 16 bytes at a time, the fourth lane overwritten by sx");
   const __m128 o = _mm_loadu_ps(&ray.ox), d = _mm_loadu_ps(&ray.dx);  // (o, tmin), (d, tmax)
   const __m128 sign = _mm_set1_ps(-0.0f), inf = _mm_set1_ps(INFINITY);
   const __m128 ad = _mm_andnot_ps(sign, d);
@@ -73,18 +66,16 @@ template <bool Shear = true>
   p.tmax = ray.tmax;
   p.kz = kz;
   if constexpr (!Shear) return true;
-  // (kx, ky, kz) from the table (d[kz] is normal: its sign bit is d[kz] < 0), stored whole (the
-  // fourth lane lands on sx, written below); the shear's operands gathered in registers by
-  // permutes, the same three quotients as the scalar's
-  const int flip = (_mm_movemask_ps(d) >> kz) & 1;
-  const __m128i k = _mm_load_si128(reinterpret_cast<const __m128i*>(kShearAxes[kz][flip]));
-  _mm_storeu_si128(reinterpret_cast<__m128i*>(base + offsetof(RayPre, kx)), k);
-  const __m128 one = _mm_set1_ps(1.0f);
-  const __m128 num = _mm_blend_ps(_mm_permutevar_ps(d, k), one, 0xC);                         // (d[kx], d[ky], 1, 1)
-  const __m128 den = _mm_blend_ps(_mm_permutevar_ps(d, _mm_shuffle_epi32(k, 0xAA)), one, 0x8);  // (d[kz], d[kz], d[kz], 1)
-  const __m128 sh = _mm_div_ps(num, den);
-  _mm_storel_pi(reinterpret_cast<__m64*>(base + offsetof(RayPre, sx)), sh);
-  _mm_store_ss(&p.sz, _mm_movehl_ps(sh, sh));
+  constexpr int next[3] = {1, 2, 0};
+  int kx = next[kz], ky = next[kx];
+  if (p.d[kz] < 0.0f) std::swap(kx, ky);
+  p.kx = kx;
+  p.ky = ky;
+  alignas(16) float sh[4];
+  _mm_store_ps(sh, _mm_div_ps(_mm_setr_ps(p.d[kx], p.d[ky], 1.0f, 1.0f), _mm_setr_ps(p.d[kz], p.d[kz], p.d[kz], 1.0f)));
+  p.sx = sh[0];
+  p.sy = sh[1];
+  p.sz = sh[2];
   return true;
 }
 
@@ -93,11 +84,6 @@ template <bool Shear = true>
 template <bool Shear = true>
 inline void finish_ray(SimdRay& r, const TraceView& v) {
   r.view = &v;
-  if constexpr (Shear) {  // (o[kx], o[ky], o[kz]) by one permute (RayPre's kx, ky, kz, sx read as one row)
-    const __m128 po = _mm_permutevar_ps(_mm_loadu_ps(r.o), _mm_loadu_si128(reinterpret_cast<const __m128i*>(&r.kx)));
-    _mm_storel_pi(reinterpret_cast<__m64*>(r.tri_o), po);
-    _mm_store_ss(&r.tri_o[2], _mm_movehl_ps(po, po));
-  }
   // rows lo_x, hi_x, lo_y, ... are W floats apart: near = (2a + neg) * W, far = near ^ W, the
   // three axes at once (neg's fourth lane is tmin's bits: its entries are never read)
   const __m128i near8 = _mm_slli_epi32(_mm_add_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(r.neg)),
@@ -107,6 +93,10 @@ inline void finish_ray(SimdRay& r, const TraceView& v) {
   _mm_storeu_si128(reinterpret_cast<__m128i*>(r.far8), _mm_xor_si128(near8, _mm_set1_epi32(8)));
   _mm_storeu_si128(reinterpret_cast<__m128i*>(r.near4), near4);
   _mm_storeu_si128(reinterpret_cast<__m128i*>(r.far4), _mm_xor_si128(near4, _mm_set1_epi32(4)));
+  if constexpr (!Shear) return;
+  r.tri_o[0] = r.o[r.kx];
+  r.tri_o[1] = r.o[r.ky];
+  r.tri_o[2] = r.o[r.kz];
 }
 
 /// The `fast` precision's extra constant: o * inv per axis, so the box test's plane distance
