@@ -29,9 +29,9 @@ struct SimdKernelsT {
   static constexpr bool fast = Fast;
   static constexpr bool interleave = true;  // batch.h: two rays in turn (walked_in_turn says where)
   using Ray = SimdRay;
-  [[gnu::always_inline]] static bool prepare(const mbvh::Ray& ray, Ray& r) { return prepare_ray_simd(ray, r); }
+  [[gnu::always_inline]] static bool prepare(const mbvh::Ray& ray, Ray& r) { return prepare_ray_simd<!Fast>(ray, r); }
   static void finish(Ray& r, const TraceView& v) {
-    finish_ray(r, v);
+    finish_ray<!Fast>(r, v);
     if constexpr (Fast) finish_fast_ray(r);
   }
   template <bool Chord = false>

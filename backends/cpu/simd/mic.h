@@ -39,9 +39,9 @@ struct MicKernelsT : SimdKernelsT<Fast> {
   using Base = SimdKernelsT<Fast>;
   using Ray = MicRay;
   static constexpr bool uses_node4w = true;
-  [[gnu::always_inline]] static bool prepare(const mbvh::Ray& ray, Ray& r) { return prepare_ray_simd(ray, r); }
+  [[gnu::always_inline]] static bool prepare(const mbvh::Ray& ray, Ray& r) { return prepare_ray_simd<!Fast>(ray, r); }
   static void finish(Ray& r, const TraceView& v) {
-    finish_ray(r, v);
+    finish_ray<!Fast>(r, v);
     if constexpr (Fast) finish_fast_ray(r);
     r.wide_at = reinterpret_cast<const char*>(v.n4w) - reinterpret_cast<const char*>(v.n4);
     unsigned k = 0;

@@ -45,6 +45,10 @@ inline bool prefetches(const TraceView& v) {
 /// direction component normal — and the same per-ray constants with the same IEEE operations
 /// (1 / d, inv * K, the shear's three quotients in one division), so every bit is the scalar's,
 /// in about half its instructions (the set-up is a large share of a short shadow ray's work).
+/// Shear off (the `fast` precision, whose Möller–Trumbore test reads o, d and tmin only): the
+/// watertight test's constants (kx, ky, sx, sy, sz; finish_ray's permuted origin) are left unset,
+/// and inv_far is inv (relax_ray's); the checks are the same, so the same rays are valid.
+template <bool Shear = true>
 [[gnu::always_inline]] inline bool prepare_ray_simd(const Ray& ray, RayPre& p) {
   static_assert(offsetof(RayPre, d) == offsetof(RayPre, o) + 12 && offsetof(RayPre, inv) == offsetof(RayPre, d) + 12 &&
                     offsetof(RayPre, inv_far) == offsetof(RayPre, inv) + 12 &&
@@ -68,16 +72,17 @@ inline bool prefetches(const TraceView& v) {
   _mm_storeu_ps(reinterpret_cast<float*>(base + offsetof(RayPre, o)), o);
   _mm_storeu_ps(reinterpret_cast<float*>(base + offsetof(RayPre, d)), d);
   _mm_storeu_ps(reinterpret_cast<float*>(base + offsetof(RayPre, inv)), inv);
-  _mm_storeu_ps(reinterpret_cast<float*>(base + offsetof(RayPre, inv_far)), _mm_mul_ps(inv, _mm_set1_ps(kFarFactor)));
+  _mm_storeu_ps(reinterpret_cast<float*>(base + offsetof(RayPre, inv_far)), Shear ? _mm_mul_ps(inv, _mm_set1_ps(kFarFactor)) : inv);
   _mm_storeu_si128(reinterpret_cast<__m128i*>(base + offsetof(RayPre, neg)), _mm_srli_epi32(_mm_castps_si128(d), 31));
   p.tmin = ray.tmin + 0.0f;  // -0 becomes +0
   p.tmax = ray.tmax;
+  p.kz = kz;
+  if constexpr (!Shear) return true;
   constexpr int next[3] = {1, 2, 0};
   int kx = next[kz], ky = next[kx];
   if (p.d[kz] < 0.0f) std::swap(kx, ky);
   p.kx = kx;
   p.ky = ky;
-  p.kz = kz;
   alignas(16) float sh[4];
   _mm_store_ps(sh, _mm_div_ps(_mm_setr_ps(p.d[kx], p.d[ky], 1.0f, 1.0f), _mm_setr_ps(p.d[kz], p.d[kz], p.d[kz], 1.0f)));
   p.sx = sh[0];
@@ -86,7 +91,9 @@ inline bool prefetches(const TraceView& v) {
   return true;
 }
 
-/// Fills SimdRay's constants from its (validated, possibly relaxed) RayPre part.
+/// Fills SimdRay's constants from its (validated, possibly relaxed) RayPre part; Shear as
+/// prepare_ray_simd's (off: no permuted origin).
+template <bool Shear = true>
 inline void finish_ray(SimdRay& r, const TraceView& v) {
   r.view = &v;
   r.prefetch = prefetches(v);
@@ -99,6 +106,7 @@ inline void finish_ray(SimdRay& r, const TraceView& v) {
   _mm_storeu_si128(reinterpret_cast<__m128i*>(r.far8), _mm_xor_si128(near8, _mm_set1_epi32(8)));
   _mm_storeu_si128(reinterpret_cast<__m128i*>(r.near4), near4);
   _mm_storeu_si128(reinterpret_cast<__m128i*>(r.far4), _mm_xor_si128(near4, _mm_set1_epi32(4)));
+  if constexpr (!Shear) return;
   r.tri_o[0] = r.o[r.kx];
   r.tri_o[1] = r.o[r.ky];
   r.tri_o[2] = r.o[r.kz];

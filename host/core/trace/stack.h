@@ -120,6 +120,7 @@ struct OrderedWalk {
   const typename K::Ray* r;
   Hit best;
   float tmax;
+  float tcull;  ///< tmax * S, made once per ray for an occlusion query (its tmax never shrinks)
   StepGuard guard;
   unsigned sp;
   std::int32_t cur;
@@ -133,6 +134,7 @@ struct OrderedWalk {
   [[gnu::always_inline]] void start() {
     best = miss_hit();
     tmax = r->tmax;
+    tcull = tmax * kCullSlack;
     guard = StepGuard(v);
     sp = 0;
     cur = 0;
@@ -143,7 +145,7 @@ struct OrderedWalk {
     if (cur >= 0) {
       const N& n = nodes[cur];
       float d[W];
-      const unsigned m = detail::test_node<K, Any, Any>(n, *r, tmax * kCullSlack, d, st);
+      const unsigned m = detail::test_node<K, Any, Any>(n, *r, Any ? tcull : tmax * kCullSlack, d, st);
       if (m) {
         const int q = Any ? K::template longest<W>(m, d) : K::template nearest<W>(m, d);
         detail::prefetch_pending<K, Any>(n, *r, m, q);
@@ -256,6 +258,7 @@ struct OctantWalk {
   const typename K::Ray* r;
   Hit best;
   float tmax;
+  float tcull;  ///< tmax * S, made once per ray for an occlusion query (its tmax never shrinks)
   StepGuard guard;
   unsigned sp;
   unsigned oct;  ///< the order's byte in Node8::pad: the ray's octant (closest hit) or the opposite one (any hit)
@@ -268,6 +271,7 @@ struct OctantWalk {
   [[gnu::always_inline]] void start() {
     best = miss_hit();
     tmax = r->tmax;
+    tcull = tmax * kCullSlack;
     guard = StepGuard(v);
     sp = 0;
     cur = 0;
@@ -279,7 +283,7 @@ struct OctantWalk {
     if (cur >= 0) {
       const Node8& n = v.n8[cur];
       float d[8];
-      const unsigned m = detail::test_node<K, Any, false>(n, *r, tmax * kCullSlack, d, st);
+      const unsigned m = detail::test_node<K, Any, false>(n, *r, Any ? tcull : tmax * kCullSlack, d, st);
       if (m) {
         if ((m & (m - 1)) == 0) {  // one hit child: entered, nothing pushed
           cur = n.child[std::countr_zero(m)];
