@@ -292,7 +292,7 @@ struct OctantWalk {
         std::uint32_t order;
         std::memcpy(&order, reinterpret_cast<const unsigned char*>(n.pad) + oct, sizeof(order));
         guard.room(sp, 8, MBVH_STACK8_ENTRIES);
-        int top;
+        int top = 0;  // push_octant sets it (GCC 12 cannot see that: -Wmaybe-uninitialized)
         sp = K::template push_octant<!Any>(stack, dist, sp, m, order, n.child, d, top) - 1;
         detail::prefetch_pending<K, Any>(n, *r, m, top);
         cur = n.child[top];
