@@ -425,7 +425,7 @@ TEST_CASE("quality low with max_leaf above the subtree task size: the same nodes
   o.quality = BuildQuality::low;
   o.max_leaf = 5000;
   std::uint64_t want = 0;
-  for (unsigned t : {1u, 2u, 3u}) {
+  for (unsigned t : {1u, 2u, 3u, 4u}) {
     INFO(t << " threads");
     o.threads = t;
     const auto acc = Accel::build(s, o);

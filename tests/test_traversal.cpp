@@ -436,9 +436,10 @@ TEST_CASE("MBVH8 closest hit walks two rays in turn on coherent chunks: camera r
 // more than eight up lies in the word's upper half. On the deepest tree binning makes
 // (gen:exponential: 14 MBVH8 levels at leaf block 1), rays in the triangles' plane cross every
 // box and hit nothing, so each walks the whole tree and climbs from its deepest levels to the
-// root: the bitstack gives its stack twin's answers and leaf order (cpu-scalar), with climbs of
-// more than eight levels, and every SIMD cpu backend, walking two rays in turn, the reference's
-// bytes; rays crossing the plane hit a triangle part of the way along.
+// root: the bitstack gives its stack twin's answers and leaf order (cpu-scalar), with walks that
+// go deeper than nine levels and climb more than eight in all, and every SIMD cpu backend, walking
+// two rays in turn, the reference's bytes; rays crossing the plane hit a triangle part of the way
+// along. (A single backtrack of more than eight levels is checked on the word alone, below.)
 TEST_CASE("MBVH8 bitstack backtracks over more than eight levels: the stack twin's answers", "[traversal][bitstack]") {
   const Scene s = load_scene("gen:exponential:200");
   const auto acc = Accel::build(s);
@@ -474,6 +475,41 @@ TEST_CASE("MBVH8 bitstack backtracks over more than eight levels: the stack twin
     CHECK(log[0] == log[1]);
   }
   check_simd_cpu_bytes(*acc, rays, "exponential, rays along the triangles' plane");
+}
+
+// The MBVH8 bitstack's backtrack (detail::backtrack8) against the per-level pop it replaces (drop
+// empty levels a byte at a time, then take the lowest pending slot), for words whose lowest set
+// bit is each of the 128 positions: every climb length from 0 to 15, the upper half's included.
+TEST_CASE("MBVH8 bitstack: the one-shift backtrack is the per-level pop, at every climb length", "[traversal][bitstack]") {
+  std::mt19937_64 rng(7);
+  for (int p = 0; p < 128; ++p) {
+    for (int k = 0; k < 64; ++k) {
+      // bit p set, those below it clear, those above it random
+      std::uint64_t lo = rng(), hi = rng();
+      if (p < 64) {
+        lo = (lo | 1) << p;
+      } else {
+        lo = 0;
+        hi = (hi | 1) << (p - 64);
+      }
+      std::uint64_t rl = lo, rh = hi;
+      int up = 0;
+      while ((rl & 0xFF) == 0) {
+        rl = (rl >> 8) | (rh << 56);
+        rh >>= 8;
+        ++up;
+      }
+      const int slot = std::countr_zero(rl & 0xFF);
+      rl ^= std::uint64_t{1} << slot;
+      INFO("lowest bit " << p << ", word " << hi << " " << lo);
+      const detail::Backtrack8 b = detail::backtrack8(lo, hi);
+      CHECK(b.up == p / 8);
+      CHECK(b.up == up);
+      CHECK(b.slot == slot);
+      CHECK(lo == rl);
+      CHECK(hi == rh);
+    }
+  }
 }
 
 // The cpu backend's uncounted traversals read nodes whose leaf references locate the SIMD packs

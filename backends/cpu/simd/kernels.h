@@ -207,7 +207,8 @@ struct SimdKernelsT {
       else return p[lane >> 2].prim[lane & 3];
     };
     float t[L], u[L], w[L], det[L];
-    unsigned fallback = 0, near0 = 0, hit;
+    [[maybe_unused]] unsigned fallback = 0, near0 = 0;  // robust only
+    unsigned hit;
     if constexpr (Fast) hit = tri_test_simd_mt<F, Any>(p, r, valid, tmax, t, u, w);
     else hit = tri_test_simd<F, Any>(p, r, valid, tmax, t, u, w, det, fallback, near0);
     if constexpr (Any) {
@@ -216,25 +217,29 @@ struct SimdKernelsT {
         return true;
       }
     }
-    for (unsigned f = near0; f != 0; f &= f - 1) {  // tri_test's last step: t's sign in double
-      const int lane = std::countr_zero(f);
-      if (plane_t_double(r, tri_of(p[lane >> 2], lane & 3)) > 0.0) {
-        if constexpr (Any) {
-          best.prim = prim(lane);
-          return true;
+    // the watertight test's exact steps (robust only: they read the shear, which a fast ray's
+    // set-up leaves out)
+    if constexpr (!Fast) {
+      for (unsigned f = near0; f != 0; f &= f - 1) {  // tri_test's last step: t's sign in double
+        const int lane = std::countr_zero(f);
+        if (plane_t_double(r, tri_of(p[lane >> 2], lane & 3)) > 0.0) {
+          if constexpr (Any) {
+            best.prim = prim(lane);
+            return true;
+          }
+          hit |= 1u << lane;  // t, V, W and det as tri_test's: u = V / det, v = W / det below
         }
-        hit |= 1u << lane;  // t, V, W and det as tri_test's: u = V / det, v = W / det below
       }
-    }
-    for (unsigned f = fallback; f != 0; f &= f - 1) {
-      const int lane = std::countr_zero(f);
-      if (tri_test(r, tri_of(p[lane >> 2], lane & 3), tmax, t[lane], u[lane], w[lane])) {
-        if constexpr (Any) {
-          best.prim = prim(lane);
-          return true;
+      for (unsigned f = fallback; f != 0; f &= f - 1) {
+        const int lane = std::countr_zero(f);
+        if (tri_test(r, tri_of(p[lane >> 2], lane & 3), tmax, t[lane], u[lane], w[lane])) {
+          if constexpr (Any) {
+            best.prim = prim(lane);
+            return true;
+          }
+          hit |= 1u << lane;
+          det[lane] = 1.0f;  // u, w are the quotients already (x / 1 is exact)
         }
-        hit |= 1u << lane;
-        det[lane] = 1.0f;  // u, w are the quotients already (x / 1 is exact)
       }
     }
     if constexpr (!Any) {

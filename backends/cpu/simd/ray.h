@@ -21,7 +21,7 @@ namespace {
 /// from memory is one load, as a load of a stored broadcast is, so stored broadcasts would only
 /// add set-up work).
 struct SimdRay : RayPre {
-  float tri_o[3];  ///< the triangle test's permuted origin (o[kx], o[ky], o[kz])
+  float tri_o[3];  ///< the triangle test's permuted origin (o[kx], o[ky], o[kz]; robust only, unset in fast)
   int near4[4], far4[4], near8[4], far8[4];  ///< three axes (the fourth entry unused)
   float oinv[3];  ///< o * inv per axis: the `fast` box test's FMA form (finish_fast_ray; unset in robust)
   float tol;      ///< `fast`: what the FMA form's distances may exceed the subtraction's by (finish_fast_ray)

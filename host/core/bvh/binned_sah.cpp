@@ -890,7 +890,7 @@ void build_binned_sah(RawVector<PrimRef>& prims, const FastBox& root, const Fast
   });
   // -- the subtrees in the arenas, each named by its top node
   make_root_inner(upper);
-  out.subtree_of = subtree_of_jobs(upper.size(), jobs);
+  subtree_of_jobs(out.subtree_of, upper.size(), jobs);
   out.subtrees = std::move(subs);
 }
 

@@ -282,10 +282,9 @@ inline void make_root_inner(std::vector<TmpNode>& upper) {
 
 /// Which subtree job starts at each of `upper_size` upper nodes: jobs[j]'s entry is j, the
 /// others' -1 (Arenas::subtree_of).
-inline std::vector<std::int32_t> subtree_of_jobs(std::size_t upper_size, const std::vector<std::size_t>& jobs) {
-  std::vector<std::int32_t> of(upper_size, -1);
+inline void subtree_of_jobs(std::vector<std::int32_t>& of, std::size_t upper_size, const std::vector<std::size_t>& jobs) {
+  of.assign(upper_size, -1);  // into `of`'s own capacity (a kept BuildContext's Arenas::subtree_of)
   for (std::size_t j = 0; j < jobs.size(); ++j) of[jobs[j]] = static_cast<std::int32_t>(j);
-  return of;
 }
 
 /// The subtree jobs (jobs[j]: the upper node it starts from) largest first by their records,

@@ -104,6 +104,7 @@ struct Collapser {
   static constexpr std::size_t kTaskSpan = 4096;  // binary nodes of a subtree task (at most)
   const Bvh2& b;
   N* out = nullptr;      // the node array, sized by the count
+  std::size_t cap = 0;   // its size: emit refuses an index past it before writing there
   float* area = nullptr; // per wide node: half area of its box (summed in node order: the SAH stat)
 
   struct Tally {
@@ -238,6 +239,7 @@ struct Collapser {
   std::int32_t emit(std::int32_t bref, std::int32_t parent, unsigned level, std::size_t& next, Tally& t, Top* top,
                     const Kids** memo = nullptr) {
     const std::size_t self = next++;
+    if (self >= cap) throw Error("internal: the collapse writes more wide nodes than it counted");
     std::int32_t kids[W], child[W];
     if (memo) {
       for (int s = 0; s < W; ++s) kids[s] = (*memo)->k[s];
@@ -306,6 +308,7 @@ void collapse(const Bvh2& b, const std::vector<Leaf>& leaves, const char* name, 
   advise_huge_pages(out.nodes.data(), out.nodes.size() * sizeof(N));
   advise_huge_pages(area.data(), area.size() * sizeof(float));
   c.out = out.nodes.data();
+  c.cap = out.nodes.size();
   c.area = area.data();
   typename C::Tally top_tally;
   std::size_t next = 0;

@@ -510,9 +510,9 @@ void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& c
   upper[0].end = static_cast<std::uint32_t>(n);
   upper[0].depth = 0;
   const unsigned threads = resolve_threads(opt.threads);
-  // A node of at most max_leaf records is always a task's: the task prices it as one leaf or a
-  // subtree (build_small), which the top's split would not; so the tree is the same whatever
-  // `small` the thread count makes.
+  // A node of at most max_leaf records is always a task's (but the root, which the top always
+  // splits): the task prices it as one leaf or a subtree (build_small), which the top's split
+  // would not; so the tree is the same whatever `small` the thread count makes.
   const std::size_t small = std::max<std::size_t>({4096, n / (8 * std::size_t(threads)), opt.max_leaf});
   std::vector<std::size_t> jobs;
   for (std::size_t k = 0; k < upper.size(); ++k) {
@@ -530,7 +530,8 @@ void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& c
   //    more leaves than that holds (above about 0.69 a record: max_leaf 1, say) is built again
   //    into its records' run of the node block (Arenas::arena_for's, 96 bytes a record: 2 c - 1
   //    entries of 32 bytes always fit), allocated only then
-  const std::vector<std::int32_t> subtree_of = subtree_of_jobs(upper.size(), jobs);
+  std::vector<std::int32_t> subtree_of;
+  subtree_of_jobs(subtree_of, upper.size(), jobs);
   const std::vector<std::size_t> order = largest_first(upper, jobs);
   std::vector<LbvhBuilder::Local> local(jobs.size());
   run_subtree_jobs(order, opt, [&](std::size_t j) {

@@ -123,6 +123,34 @@ inline Hit trace_mbvh4_bitstack(const TraceView& v, const typename K::Ray& r, St
   }
 }
 
+namespace detail {
+/// The MBVH8 bitstack's backtrack on its 128-bit word (lo, hi; byte j: the pending slots of the
+/// j-th level above the current parent; not both 0): the deepest level with a pending sibling is
+/// the word's lowest non-zero byte. Returns how many levels to climb to it and its lowest pending
+/// slot; the word becomes that level's, the slot's bit cleared (the levels climbed past popped in
+/// one shift rather than a test and shift a level).
+struct Backtrack8 {
+  int up, slot;
+};
+[[gnu::always_inline]] constexpr Backtrack8 backtrack8(std::uint64_t& lo, std::uint64_t& hi) {
+  int up = 0;
+  if (lo == 0) {  // none in the lower 8 levels: all 8 climbed (rare; the depth cap is 14)
+    lo = hi;
+    hi = 0;
+    up = 8;
+  }
+  const int low = std::countr_zero(lo);
+  if (const int u = low >> 3; u != 0) {
+    const int sh = u << 3;  // 8 to 56 bits
+    lo = (lo >> sh) | (hi << (64 - sh));
+    hi >>= sh;
+    up += u;
+  }
+  lo &= lo - 1;
+  return {up, low & 7};
+}
+}  // namespace detail
+
 /// MBVH8 bitstack (Áfra & Szirmay-Kalos 2014, §3 of the paper, on the 8-wide nodes of Áfra's
 /// thesis, ch. 3; the encoding is mbvh's, TRAVERSAL.md does not describe it): 7 skip bits per
 /// level do not fit a 64-bit word at the MBVH8 depth cap (14 levels, 98 bits), so the word is 128
@@ -159,7 +187,7 @@ struct Mbvh8BitstackWalk {
     lo = hi = 0;
     level = 0;
   }
-  /// Up one level to the parent's parent (a level with pending bits lies above: never the root's).
+  /// Up one level: par becomes its own parent (a level with pending bits lies above: never past the root).
   [[gnu::always_inline]] void climb(St& st) {
     guard.step();
     par = &v.n8[par->parent];
@@ -186,24 +214,12 @@ struct Mbvh8BitstackWalk {
     } else if (K::template leaf<Any>(v, cur, *r, tmax, best, st)) {
       return false;
     }
-    // -- backtrack: the deepest level with a pending sibling is the word's lowest non-zero byte;
-    // climb to it (parent links only), pop the levels climbed past in one shift, then take that
-    // level's lowest pending slot (the word's lowest set bit)
-    if (lo == 0) {  // none in the lower 8 levels: climb them all (rare; the depth cap is 14)
-      if (hi == 0) return false;
-      for (int j = 0; j < 8; ++j) climb(st);
-      lo = hi;
-      hi = 0;
-    }
-    const int low = std::countr_zero(lo);
-    if (const int up = low >> 3; up != 0) {
-      for (int j = 0; j < up; ++j) climb(st);
-      const int sh = up << 3;  // 8 to 56 bits
-      lo = (lo >> sh) | (hi << (64 - sh));
-      hi >>= sh;
-    }
-    cur = par->child[low & 7];
-    lo &= lo - 1;
+    // -- backtrack (detail::backtrack8): climb to the deepest level with a pending sibling
+    // (parent links only) and take its lowest pending slot
+    if ((lo | hi) == 0) return false;
+    const detail::Backtrack8 b = detail::backtrack8(lo, hi);
+    for (int j = 0; j < b.up; ++j) climb(st);
+    cur = par->child[b.slot];
     return true;
   }
 };

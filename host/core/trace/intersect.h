@@ -4,7 +4,8 @@
 // JCGT 2013; §6) and the watertight ray/triangle test (Woop, Benthin & Wald, JCGT 2013; §7).
 // Compiled with -ffp-contract=off: the operation order here is the one every backend repeats.
 //
-// The functions live in an inline namespace named by MBVH_ISA_NS (default `ref`): a backend
+// The functions live in an inline namespace named by MBVH_ISA_NS (default `ref`, or `ref_checked`
+// under MBVH_CHECK_TERMINATION, below): a backend
 // that compiles these kernels again with other -m flags (backends/cpu, per ISA) defines its own
 // name, so inline code built for AVX-512 can never be merged into the portable reference.
 #pragma once
