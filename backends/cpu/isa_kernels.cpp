@@ -102,9 +102,7 @@ struct OneRayState {
 template <bool Any, class K, class Trace>
 [[gnu::always_inline]] inline Hit one_ray(const TraceView& v, const Ray& ray, Trace trace) {
   typename K::Ray r;
-  if (!K::prepare(ray, r)) return miss_hit();
-  if constexpr (K::fast) relax_ray(r);
-  K::finish(r, v);
+  if (!ready_ray<K>(v, ray, r)) return miss_hit();
   NoStats st;
   return trace(r, st);
 }

@@ -226,10 +226,7 @@ struct Mbvh8BitstackWalk {
 
 template <bool Any, class St, class K = ScalarKernels>
 inline Hit trace_mbvh8_bitstack(const TraceView& v, const typename K::Ray& r, St& st) {
-  Mbvh8BitstackWalk<Any, St, K> w(v, r);
-  while (w.step(st)) {
-  }
-  return w.best;
+  return walk_to_end<Mbvh8BitstackWalk<Any, St, K>>(v, r, st);
 }
 
 /// MBVH4 bitstack-retest (TRAVERSAL.md §3.4, §4.4, "variant B"; mbvh's extension of Áfra &

@@ -198,10 +198,7 @@ struct OrderedWalk {
 
 template <bool Any, class St, class K = ScalarKernels, class N = Node4>
 inline Hit trace_wide_stack_ordered(const TraceView& v, const typename K::Ray& r, St& st) {
-  OrderedWalk<Any, St, K, N> w(v, r);
-  while (w.step(st)) {
-  }
-  return w.best;
+  return walk_to_end<OrderedWalk<Any, St, K, N>>(v, r, st);
 }
 
 /// MBVH8, stack-based twin of the MBVH8 bitstack below: enter the first child (closest hit: the
@@ -314,10 +311,7 @@ struct OctantWalk {
 
 template <bool Any, class St, class K = ScalarKernels>
 inline Hit trace_mbvh8_octant(const TraceView& v, const typename K::Ray& r, St& st) {
-  OctantWalk<Any, St, K> w(v, r);
-  while (w.step(st)) {
-  }
-  return w.best;
+  return walk_to_end<OctantWalk<Any, St, K>>(v, r, st);
 }
 
 }  // namespace MBVH_ISA_NS

@@ -1,6 +1,7 @@
 // SPDX-License-Identifier: MIT
 // visit.h — what every traversal does at an inner node: test it through the kernel policy, ask for
-// the children left for later, pick the child entered first, encode the pending siblings.
+// the children left for later, pick the child entered first, encode the pending siblings; and a
+// step-struct walk run to its end.
 #pragma once
 #include <bit>
 #include <cstdint>
@@ -71,6 +72,16 @@ template <> inline const Node4* nodes_of<Node4>(const TraceView& v) { return v.n
 template <> inline const Node8* nodes_of<Node8>(const TraceView& v) { return v.n8; }
 
 }  // namespace detail
+
+/// One ray walked to its end by a step struct (`Walk w(v, r); while (w.step(st)) {}`): the
+/// single-ray form of the walks that batch.h also runs two rays in turn.
+template <class Walk, class St, class R>
+[[gnu::always_inline]] inline Hit walk_to_end(const TraceView& v, const R& r, St& st) {
+  Walk w(v, r);
+  while (w.step(st)) {
+  }
+  return w.best;
+}
 
 }  // namespace MBVH_ISA_NS
 }  // namespace mbvh
