@@ -5,16 +5,15 @@
 // condition variable between calls, so a call creates no thread. Before it sleeps, a worker polls
 // for the next call for up to kSpin, and the caller polls for the workers' end the same way: a
 // build makes many short calls in a row, and a thread woken from its condition variable costs a
-// futex wake and a reschedule each time (about 45 µs a call on a 2-core virtual machine, against
-// 1-2 µs polled). The caller is worker 0 and runs
-// chunks too. Chunk semantics are those of the per-call threads before: chunk c covers
-// [c * grain, min(n, (c + 1) * grain)), claimed dynamically, so results may depend only on the
-// chunk index. Safe re-entry: a call made from inside a running parallel_for (a pool worker, or
-// the caller while it works) runs its chunks inline on that thread; a call from another thread
-// while the pool is busy gets threads of its own for that call (the previous behaviour) instead
-// of waiting. At exit the pool's destructor wakes and joins every worker (nothing leaks under
-// ASan/LSan). A task runner set by the caller (mbvh/tasks.h) replaces the pool: the job's workers
-// become its tasks.
+// futex wake and a reschedule each time (far more than a poll on a virtual machine, whose idle
+// cores halt). The caller is worker 0 and runs chunks too. Chunk semantics are those of the
+// per-call threads before: chunk c covers [c * grain, min(n, (c + 1) * grain)), claimed
+// dynamically, so results may depend only on the chunk index. Safe re-entry: a call made from
+// inside a running parallel_for (a pool worker, or the caller while it works) runs its chunks
+// inline on that thread; a call from another thread while the pool is busy gets threads of its
+// own for that call (the previous behaviour) instead of waiting. At exit the pool's destructor
+// wakes and joins every worker (nothing leaks under ASan/LSan). A task runner set by the caller
+// (mbvh/tasks.h) replaces the pool: the job's workers become its tasks.
 #include "host/core/parallel.h"
 
 #include <algorithm>
@@ -71,16 +70,17 @@ struct Job {
 /// between a build's calls, short enough that an idle pool soon stops using its cores.
 constexpr auto kSpin = std::chrono::microseconds(300);
 
-/// Polls `ready` until it holds or kSpin has passed; whether it holds.
+/// Polls `ready` until it holds or kSpin has passed (the caller then waits on its condition
+/// variable, which returns at once where `ready` held).
 template <class Ready>
-bool spin_until(Ready&& ready) {
+void spin_until(Ready&& ready) {
   const auto until = std::chrono::steady_clock::now() + kSpin;
   for (unsigned k = 1;; ++k) {
-    if (ready()) return true;
+    if (ready()) return;
 #if defined(__SSE2__)
     _mm_pause();
 #endif
-    if (k % 64 == 0 && std::chrono::steady_clock::now() >= until) return false;
+    if (k % 64 == 0 && std::chrono::steady_clock::now() >= until) return;
   }
 }
 
