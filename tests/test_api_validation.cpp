@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <atomic>
+#include <chrono>
 #include <cmath>
 #include <cstring>
 #include <limits>
@@ -308,6 +309,16 @@ TEST_CASE("parallel_for on the persistent pool - every chunk once - nested and c
   std::atomic<std::size_t> after{0};
   mbvh::parallel_for(100, 1, 2, [&](std::size_t b, std::size_t e, unsigned) { after += e - b; });
   CHECK(after == 100);
+  // calls back to back (the workers still polling for the next one) and calls apart (2 ms, past
+  // the polling: the workers asleep on their condition variable) each get all their chunks
+  for (const int gap_us : {0, 2000}) {
+    std::atomic<std::size_t> got{0};
+    for (int rep = 0; rep < 10; ++rep) {
+      if (gap_us) std::this_thread::sleep_for(std::chrono::microseconds(gap_us));
+      mbvh::parallel_for(64, 1, 3, [&](std::size_t b, std::size_t e, unsigned) { got += e - b; });
+    }
+    CHECK(got == 10 * 64);
+  }
 }
 
 TEST_CASE("cpu.leaf-block chooses the leaves a cpu backend traces - the reference on the same leaves gives its bytes", "[api]") {

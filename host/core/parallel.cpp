@@ -2,19 +2,23 @@
 // parallel.cpp — parallel_for on a persistent worker pool with an atomic chunk counter.
 //
 // The pool's threads are started once (grown on demand up to the largest request) and sleep on a
-// condition variable between calls, so a call creates no thread. The caller is worker 0 and runs
-// chunks too. Chunk semantics are those of the per-call threads before: chunk c covers
-// [c * grain, min(n, (c + 1) * grain)), claimed dynamically, so results may depend only on the
-// chunk index. Safe re-entry: a call made from inside a running parallel_for (a pool worker, or
-// the caller while it works) runs its chunks inline on that thread; a call from another thread
-// while the pool is busy gets threads of its own for that call (the previous behaviour) instead
-// of waiting. At exit the pool's destructor wakes and joins every worker (nothing leaks under
-// ASan/LSan). A task runner set by the caller (mbvh/tasks.h) replaces the pool: the job's workers
-// become its tasks.
+// condition variable between calls, so a call creates no thread. Before it sleeps, a worker polls
+// for the next call for up to kSpin, and the caller polls for the workers' end the same way: a
+// build makes many short calls in a row, and a thread woken from its condition variable costs a
+// futex wake and a reschedule each time (far more than a poll on a virtual machine, whose idle
+// cores halt). The caller is worker 0 and runs chunks too. Chunk semantics are those of the
+// per-call threads before: chunk c covers [c * grain, min(n, (c + 1) * grain)), claimed
+// dynamically, so results may depend only on the chunk index. Safe re-entry: a call made from
+// inside a running parallel_for (a pool worker, or the caller while it works) runs its chunks
+// inline on that thread; a call from another thread while the pool is busy gets threads of its
+// own for that call (the previous behaviour) instead of waiting. At exit the pool's destructor
+// wakes and joins every worker (nothing leaks under ASan/LSan). A task runner set by the caller
+// (mbvh/tasks.h) replaces the pool: the job's workers become its tasks.
 #include "host/core/parallel.h"
 
 #include <algorithm>
 #include <atomic>
+#include <chrono>
 #include <condition_variable>
 #include <cstdint>
 #include <exception>
@@ -24,6 +28,10 @@
 #include <vector>
 
 #include "mbvh/tasks.h"
+
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
 
 namespace mbvh {
 
@@ -57,6 +65,24 @@ struct Job {
     }
   }
 };
+
+/// How long a pool thread polls before it sleeps (see the top of this file): longer than the gaps
+/// between a build's calls, short enough that an idle pool soon stops using its cores.
+constexpr auto kSpin = std::chrono::microseconds(300);
+
+/// Polls `ready` until it holds or kSpin has passed (the caller then waits on its condition
+/// variable, which returns at once where `ready` held).
+template <class Ready>
+void spin_until(Ready&& ready) {
+  const auto until = std::chrono::steady_clock::now() + kSpin;
+  for (unsigned k = 1;; ++k) {
+    if (ready()) return;
+#if defined(__SSE2__)
+    _mm_pause();
+#endif
+    if (k % 64 == 0 && std::chrono::steady_clock::now() >= until) return;
+  }
+}
 
 /// True on a pool worker, and on a caller while it runs its own share of a job.
 thread_local bool t_in_parallel = false;
@@ -98,6 +124,7 @@ public:
       InParallel inside;
       job.work(0);
     }
+    spin_until([this] { return pending_.load(std::memory_order_acquire) == 0; });
     std::unique_lock<std::mutex> lock(m_);
     done_.wait(lock, [this] { return pending_ == 0; });
     job_ = nullptr;
@@ -110,6 +137,11 @@ private:
     std::uint64_t seen = 0;
     std::unique_lock<std::mutex> lock(m_);
     for (;;) {
+      if (!stop_ && generation_ == seen) {  // poll for the next call before sleeping
+        lock.unlock();
+        spin_until([&] { return stop_.load(std::memory_order_relaxed) || generation_.load(std::memory_order_relaxed) != seen; });
+        lock.lock();
+      }
       wake_.wait(lock, [&] { return stop_ || generation_ != seen; });
       if (stop_) return;
       seen = generation_;
@@ -127,9 +159,10 @@ private:
   std::condition_variable wake_, done_;
   std::vector<std::thread> threads_;
   Job* job_ = nullptr;
-  unsigned pending_ = 0;
-  std::uint64_t generation_ = 0;
-  bool stop_ = false;
+  // written under m_, atomic so that spin_until may read them without it
+  std::atomic<unsigned> pending_{0};
+  std::atomic<std::uint64_t> generation_{0};
+  std::atomic<bool> stop_{false};
 };
 
 Pool& pool() {

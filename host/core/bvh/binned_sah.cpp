@@ -740,9 +740,7 @@ void flatten(const Arenas& a, Bvh2& out, std::vector<Leaf>& leaves, unsigned thr
   top.subtree_of = &a.subtree_of;
   top.sub_size = &size;
   top.place(a.upper, 0, MBVH_NONE, at, parent_of);
-  resize_touched(out.nodes, top.node, threads);
-  resize_touched(out.leaf_boxes, top.leaf, threads);
-  resize_touched(leaves, top.leaf, threads);
+  resize_touched(threads, std::pair{&out.nodes, top.node}, std::pair{&out.leaf_boxes, top.leaf}, std::pair{&leaves, top.leaf});
   // -- the subtrees side by side, then the upper nodes around them
   std::vector<std::size_t> largest(subs, 0), forced(subs, 0);
   parallel_for(subs, 1, threads, [&](std::size_t b, std::size_t e, unsigned) {

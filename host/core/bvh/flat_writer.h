@@ -5,6 +5,7 @@
 // subtrees can be written side by side once their places are known.
 #pragma once
 #include <algorithm>
+#include <array>
 #include <cstddef>
 #include <cstdint>
 #include <type_traits>
@@ -18,23 +19,42 @@
 namespace mbvh {
 namespace build {
 
-/// v.resize(n) with the new storage's pages first touched on up to `threads` workers: resize
-/// value-initialises the elements on one thread, and the first touch of a page (a fault) is the
-/// costly part of that, so the pages are faulted in parallel beforehand (bytes written into
-/// storage the vector has allocated and not yet constructed; resize then writes every element).
-template <class V>
-void resize_touched(V& v, std::size_t n, unsigned threads) {
-  if (n > v.capacity()) {
-    v.reserve(n);
-    constexpr std::size_t kPage = 4096;
-    unsigned char* from = reinterpret_cast<unsigned char*>(v.data() + v.size());
-    const std::size_t bytes = (n - v.size()) * sizeof(typename V::value_type);
-    advise_huge_pages(from, bytes);
-    parallel_for((bytes + kPage - 1) / kPage, 64, threads, [&](std::size_t b, std::size_t e, unsigned) {
-      for (std::size_t p = b; p < e; ++p) from[p * kPage] = 0;
-    });
-  }
-  v.resize(n);
+/// v.resize(n) for each (vector, n) pair, with the new storage's pages first touched on up to
+/// `threads` workers: resize value-initialises the elements on one thread, and the first touch of
+/// a page (a fault) is the costly part of that, so the pages are faulted in parallel beforehand
+/// (bytes written into storage the vector has allocated and not yet constructed; resize then
+/// writes every element). The vectors' pages are touched in one parallel_for, and the vectors are
+/// then resized side by side, one a task (each resize is serial; they are independent).
+template <class... V>
+void resize_touched(unsigned threads, std::pair<V*, std::size_t>... vs) {
+  constexpr std::size_t kPage = 4096;
+  std::array<std::pair<unsigned char*, std::size_t>, sizeof...(V)> runs{};  // first byte, pages
+  std::size_t k = 0, pages = 0;
+  auto reserve = [&](auto* v, std::size_t n) {
+    if (n > v->capacity()) {
+      v->reserve(n);
+      unsigned char* from = reinterpret_cast<unsigned char*>(v->data() + v->size());
+      const std::size_t bytes = (n - v->size()) * sizeof(typename std::remove_pointer_t<decltype(v)>::value_type);
+      advise_huge_pages(from, bytes);
+      runs[k] = {from, (bytes + kPage - 1) / kPage};
+      pages += runs[k].second;
+    }
+    ++k;
+  };
+  (reserve(vs.first, vs.second), ...);
+  parallel_for(pages, 64, threads, [&](std::size_t b, std::size_t e, unsigned) {
+    std::size_t base = 0;  // the runs' pages numbered one after another
+    for (const auto& [from, count] : runs) {
+      for (std::size_t p = std::max(b, base); p < std::min(e, base + count); ++p) from[(p - base) * kPage] = 0;
+      base += count;
+    }
+  });
+  parallel_for(sizeof...(V), 1, threads, [&](std::size_t b, std::size_t e, unsigned) {
+    for (std::size_t i = b; i < e; ++i) {
+      std::size_t at = 0;  // vector i of the pack
+      ((i == at++ ? vs.first->resize(vs.second) : void()), ...);
+    }
+  });
 }
 
 /// Writes arena nodes depth-first at fixed places of `out` (inner nodes from `node`, leaves from

@@ -582,9 +582,7 @@ void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& c
   top.subtree_of = &subtree_of;
   top.sub_size = &size;
   top.place(upper, 0, MBVH_NONE, at, parent_of);
-  resize_touched(tree.nodes, top.node, opt.threads);
-  resize_touched(tree.leaf_boxes, top.leaf, opt.threads);
-  resize_touched(leaves, top.leaf, opt.threads);
+  resize_touched(opt.threads, std::pair{&tree.nodes, top.node}, std::pair{&tree.leaf_boxes, top.leaf}, std::pair{&leaves, top.leaf});
   for (std::size_t j = 0; j < subs; ++j)  // a subtree's root: its first node, or its one leaf
     ref[j] = local[j].root >= 0 ? static_cast<std::int32_t>(at[j].first) : ~static_cast<std::int32_t>(at[j].second);
   top.node = top.leaf = 0;
