@@ -112,6 +112,11 @@ TEST_CASE("single-ray query: every ray equals the batch trace and the reference,
       TraceOptions fast{Layout::mbvh8, Traversal::stack_ordered};
       fast.precision = Precision::fast;
       others.push_back(fast);
+      // fast any hit on the octant stack: the batch walks it per direction octant (simd/occlusion.h),
+      // the query with OctantWalk
+      TraceOptions fast_octant{Layout::mbvh8, Traversal::stack_octant};
+      fast_octant.precision = Precision::fast;
+      others.push_back(fast_octant);
       TraceOptions own{Layout::mbvh4, Traversal::bitstack};
       own.leaf_block = 1;  // the build's own leaves
       others.push_back(own);

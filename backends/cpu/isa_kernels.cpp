@@ -52,6 +52,7 @@ MBVH_ISA_BEGIN
 #include "backends/cpu/simd/box.h"
 #include "backends/cpu/simd/triangle.h"
 #include "backends/cpu/simd/kernels.h"
+#include "backends/cpu/simd/occlusion.h"
 #include "backends/cpu/simd/mic.h"
 #include "backends/cpu/packet/packet.h"
 #include "backends/cpu/packet/frustum.h"

@@ -17,6 +17,9 @@ namespace mbvh {
 inline namespace MBVH_ISA_NS {
 namespace {
 
+void occluded_octant_run(const TraceView& v, std::span<const Ray> rays, std::size_t b, std::size_t e, TraceOutput& out,
+                         std::size_t& invalid);  // occlusion.h (fast precision)
+
 /// The cpu backend's kernels: four or eight boxes per test, four or eight triangles per pass (the
 /// leaves as Tri4 packs).
 /// A leaf's answer is the reference's: any hit takes the first hit triangle in leaf order,
@@ -29,6 +32,13 @@ struct SimdKernelsT {
   static constexpr bool fast = Fast;
   static constexpr bool interleave = true;  // batch.h: two rays in turn (walked_in_turn says where)
   using Ray = SimdRay;
+  /// batch.h: the MBVH8 octant-ordered stack's any hit in `fast` precision walked per direction
+  /// octant (occlusion.h) in place of OctantWalk (robust keeps OctantWalk: measured faster there).
+  static constexpr bool octant_any = Fast;
+  static void trace_octant_any(const TraceView& v, std::span<const mbvh::Ray> rays, std::size_t b, std::size_t e,
+                               TraceOutput& out, std::size_t& invalid) {
+    occluded_octant_run(v, rays, b, e, out, invalid);
+  }
   [[gnu::always_inline]] static bool prepare(const mbvh::Ray& ray, Ray& r) { return prepare_ray_simd<!Fast>(ray, r); }
   static void finish(Ray& r, const TraceView& v) {
     finish_ray<!Fast>(r, v);

@@ -95,6 +95,15 @@ constexpr bool interleaves() {
   else return false;
 }
 
+/// Whether kernel policy K walks the MBVH8 octant-ordered stack's any hit with its own batch walk
+/// (its `octant_any` on: K::trace_octant_any in place of OctantWalk; the SIMD policies' fast
+/// precision, which compiles it per ray direction octant).
+template <class K>
+constexpr bool own_octant_any() {
+  if constexpr (requires { K::octant_any; }) return K::octant_any;
+  else return false;
+}
+
 /// Readies `ray` for a walk in r (K's prepare; the fast mode's relaxed box test; finish): false for
 /// an invalid ray, whose answer is a miss.
 template <class K>
@@ -205,8 +214,10 @@ inline bool walked_in_turn(const TraceView& v, std::span<const Ray> rays, std::s
     }
     if (opt.traversal == Traversal::stack_octant) {  // MBVH8 only
       if (opt.layout != Layout::mbvh8) return false;
-      if (any) run_interleaved<true, K, OctantWalk<true, NoStats, K>>(v, rays, b, e, out, invalid);
-      else run_interleaved<false, K, OctantWalk<false, NoStats, K>>(v, rays, b, e, out, invalid);
+      if (any) {
+        if constexpr (own_octant_any<K>()) K::trace_octant_any(v, rays, b, e, out, invalid);
+        else run_interleaved<true, K, OctantWalk<true, NoStats, K>>(v, rays, b, e, out, invalid);
+      } else run_interleaved<false, K, OctantWalk<false, NoStats, K>>(v, rays, b, e, out, invalid);
       return true;
     }
     if (opt.traversal != Traversal::stack_ordered) return false;
