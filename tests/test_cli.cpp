@@ -90,9 +90,11 @@ TEST_CASE("mbvh check info and bench report - bench writes JSON records", "[cli]
     const bool m8 = rec["layout"] == "mbvh8";
     const int want = rec["traversal"] == "stack" ? (m8 ? 520 : 264)
                      : rec["traversal"] == "stack-ordered" || rec["traversal"] == "stack-octant" ? (m8 ? 1032 : 520)
+                     : rec["traversal"] == "bitstack-octant"                                  ? 24
                                                            : (m8 ? 20 : 12);
     CHECK(rec["state_bytes_per_ray"].get<int>() == want);
-    if (rec["traversal"] == "bitstack" || rec["traversal"] == "bitstack-retest")  // a fixed state: its peak is its size
+    if (rec["traversal"] == "bitstack" || rec["traversal"] == "bitstack-retest" ||
+        rec["traversal"] == "bitstack-octant")  // a fixed state: its peak is its size
       CHECK(rec["peak_state_bytes_per_ray"].get<double>() == want);
     // work histograms: every ray in one bucket of each; the nodes' mean lies within the buckets
     for (const char* h : {"nodes", "leaves", "triangles", "climbs"}) {

@@ -276,6 +276,9 @@ struct Mbvh8OctantBitstackWalk {
   const Node8* par;
   std::uint64_t lo, hi;
   unsigned oct;  ///< the order's byte in Node8::pad: the ray's octant (closest hit) or the opposite one (any hit)
+  /// Closest hit: how many of the deepest levels were pushed since tmax last shrank (their ranks
+  /// were tested against it: no re-test); before the first hit more than the depth cap.
+  int fresh;
   unsigned level;
 
   Mbvh8OctantBitstackWalk(const TraceView& view, const typename K::Ray& ray) : v(view), r(&ray), guard(view) { start(); }
@@ -288,6 +291,7 @@ struct Mbvh8OctantBitstackWalk {
     par = nullptr;
     lo = hi = 0;
     oct = 3u * (static_cast<unsigned>(r->neg[0] | r->neg[1] << 1 | r->neg[2] << 2) ^ (Any ? 7u : 0u));
+    fresh = 64;
     level = 0;
   }
   /// Node n's order for this ray (lane k's slot in bits 3k..3k+2, farthest first).
@@ -312,30 +316,38 @@ struct Mbvh8OctantBitstackWalk {
         detail::prefetch_pending<K, Any>(n, *r, m, i);
         hi = (hi << 8) | (lo >> 56);  // push the pending ranks
         lo = (lo << 8) | (ranks & (ranks - 1));
+        if constexpr (!Any) ++fresh;
         if constexpr (St::on) st.depth(++level);
         par = &n;
         cur = n.child[i];
         return true;
       }
-    } else if (K::template leaf<Any>(v, cur, *r, tmax, best, st)) {
-      return false;
+    } else {
+      const float t0 = tmax;
+      if (K::template leaf<Any>(v, cur, *r, tmax, best, st)) return false;
+      if constexpr (!Any)
+        if (tmax < t0) fresh = 0;
     }
     // -- backtrack: climb to the deepest level with a pending rank (detail::climb8, parent links
-    // only), closest hit drop its ranks now beyond tmax * S (else on up), take the lowest
+    // only), closest hit drop its ranks now beyond tmax * S where tmax shrank since the level's
+    // push (else on up), take the lowest
     for (;;) {
       if ((lo | hi) == 0) return false;
-      for (int j = detail::climb8(lo, hi); j > 0; --j) {
+      const int up = detail::climb8(lo, hi);
+      for (int j = up; j > 0; --j) {
         guard.step();
         par = &v.n8[par->parent];
         st.climb();
         if constexpr (St::on) --level;
       }
       if constexpr (!Any) {
-        if (tmax < r->tmax) {
+        fresh -= up;
+        if (fresh <= 0) {
           float d[8];
           st.retest();
           const unsigned m = K::template test<false>(*par, *r, tmax * kCullSlack, d);
           lo &= ~std::uint64_t{0xff} | K::octant_ranks(m, order(*par));
+          fresh = 1;
           if ((lo & 0xffu) == 0) continue;
         }
       }
