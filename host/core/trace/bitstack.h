@@ -262,7 +262,10 @@ inline Hit trace_mbvh8_bitstack(const TraceView& v, const typename K::Ray& r, St
 /// backtrack here re-tests the parent's eight boxes against tmax * S instead (once a hit has
 /// shrunk tmax: before it nothing can be culled) and drops the pending ranks that now miss — a
 /// box entered at d is hit again exactly while d <= tmax * S, so the visit sequence, the leaves
-/// and the answer are the octant stack's (its stackless twin). Any hit walks the opposite
+/// and the answer are the octant stack's (its stackless twin). The re-test is skipped on the
+/// levels pushed since tmax last shrank (tested against it already), and where the lowest pending
+/// rank survives it the walk goes on to that child on a branch rather than a data dependency on
+/// the re-test, whose latency then overlaps the child's fetch. Any hit walks the opposite
 /// octant's order and culls nothing, as the octant stack. State: node + word + octant = 24 bytes.
 /// The walk's state and one step of it, as Mbvh8BitstackWalk (batch.h's run_interleaved).
 template <bool Any, class St, class K>
@@ -346,8 +349,17 @@ struct Mbvh8OctantBitstackWalk {
           float d[8];
           st.retest();
           const unsigned m = K::template test<false>(*par, *r, tmax * kCullSlack, d);
-          lo &= ~std::uint64_t{0xff} | K::octant_ranks(m, order(*par));
+          const std::uint32_t o = order(*par);
+          const int s = slot(o, std::countr_zero(lo));
+          lo &= ~std::uint64_t{0xff} | K::octant_ranks(m, o);
           fresh = 1;
+          // the lowest pending rank still hit (the usual case) is taken on a branch on the re-test,
+          // not a wait for it: the next node's address comes from the word as it was
+          if ((m >> s) & 1u) {
+            lo &= lo - 1;
+            cur = par->child[s];
+            return true;
+          }
           if ((lo & 0xffu) == 0) continue;
         }
       }
