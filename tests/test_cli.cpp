@@ -76,7 +76,7 @@ TEST_CASE("mbvh check info and bench report - bench writes JSON records", "[cli]
   CHECK_THAT(r.output, Catch::Contains("Mrays/s") && Catch::Contains("bitstack"));
   CHECK_THAT(r.output, !Catch::Contains("dev Mr/s"));  // no record measured device time
   const auto j = nlohmann::json::parse(std::ifstream(json));
-  REQUIRE(j["records"].size() == 2 * 2 * (2 + 4 + 4));  // kinds x queries x (MBVH2: 2 traversals, MBVH4: 4, MBVH8: 4)
+  REQUIRE(j["records"].size() == 2 * 2 * (2 + 4 + 5));  // kinds x queries x (MBVH2: 2 traversals, MBVH4: 4, MBVH8: 5)
   CHECK_FALSE(j["flags"].get<std::string>().empty());  // MBVH_COMPILE_FLAGS: this build type's flags
   for (const auto& rec : j["records"]) {
     for (const char* key : {"backend", "isa", "layout", "traversal", "query", "ray_kind", "rays", "threads",
