@@ -8,7 +8,7 @@ Embree's robust mode (Mrays/s, medians), and the ratios its targets are set on:
   best cpu fast                 / Embree default mode (`embree --precision fast`) >= 1.0,
   best cpu fast                 / best tinybvh layout (BVH4_CPU, BVH8_CPU)        >= 1.0,
   best cpu robust (any variant) / best tinybvh layout                             >= 0.9,
-  bitstack time / its stack twin's time (MBVH4, MBVH8) <= 1.05;
+  bitstack time / its stack twin's time (MBVH4, MBVH8; MBVH8 octant bitstack / octant stack) <= 1.05;
 with a summary line per target counting the rows that meet it; then the thread scaling from 1
 to 2 threads. The tinybvh columns are the `tinybvh` peer's records (`--layout mbvh4` is its
 BVH4_CPU, `mbvh8` its BVH8_CPU; it runs in fast precision only: not watertight), "–" where the
@@ -24,9 +24,9 @@ from benchlib import fmt, records, scene_name, verified
 
 ROBUST = [("cpu", "mbvh4", "stack"), ("cpu", "mbvh4", "bitstack"), ("cpu", "mbvh4", "stack-ordered"),
           ("cpu", "mbvh8", "stack"), ("cpu", "mbvh8", "bitstack"), ("cpu", "mbvh8", "stack-ordered"),
-          ("cpu", "mbvh8", "stack-octant")]
+          ("cpu", "mbvh8", "stack-octant"), ("cpu", "mbvh8", "bitstack-octant")]
 STACK_BASED = [0, 2, 3, 5, 6]
-STACKLESS = [1, 4]
+STACKLESS = [1, 4, 7]
 EMBREE = ("embree", "mbvh4", "stack")
 TINYBVH = [("tinybvh", "mbvh4", "stack"), ("tinybvh", "mbvh8", "stack")]  # BVH4_CPU, BVH8_CPU (fast)
 # the targets the summary counts: (name, ratio column, bound, at least (True) or at most)
@@ -35,7 +35,8 @@ TARGETS = [("best stack-based × embree robust >= 1.0", 0, 1.0, True),
            ("best fast × best tinybvh >= 1.0", 3, 1.0, True),
            ("best robust × best tinybvh >= 0.9", 4, 0.9, True),
            ("MBVH4 bitstack/stack time <= 1.05", 5, 1.05, False),
-           ("MBVH8 bitstack/stack time <= 1.05", 6, 1.05, False)]
+           ("MBVH8 bitstack/stack time <= 1.05", 6, 1.05, False),
+           ("MBVH8 octant bitstack/octant stack time <= 1.05", 7, 1.05, False)]
 KINDS = ["primary", "diffuse", "shadow"]
 
 
@@ -69,12 +70,12 @@ def main(paths):
     order.sort(key=lambda k: (k[0], KINDS.index(k[1]) if k[1] in KINDS else 9, k[2], k[3]))
 
     print("| scene | rays | query | threads | MBVH4 stack | MBVH4 bitstack | MBVH4 ordered | MBVH8 stack "
-          "| MBVH8 bitstack | MBVH8 ordered | MBVH8 octant | embree robust | best cpu fast | embree default "
+          "| MBVH8 bitstack | MBVH8 ordered | MBVH8 octant | MBVH8 octant bitstack | embree robust | best cpu fast | embree default "
           "| tinybvh BVH4_CPU | tinybvh BVH8_CPU "
           "| best stack-based × embree robust | best stackless × embree robust | best fast × embree default "
           "| best fast × best tinybvh | best robust × best tinybvh "
-          "| MBVH4 bitstack/stack time | MBVH8 bitstack/stack time |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+          "| MBVH4 bitstack/stack time | MBVH8 bitstack/stack time | MBVH8 octant bitstack/stack time |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     met = [[0, 0] for _ in TARGETS]  # per target: rows meeting it, rows with the ratio
     for key in order:
         s = [speed.get(key + v + ("robust",)) for v in ROBUST]
@@ -86,11 +87,12 @@ def main(paths):
         ratio = lambda x, e: None if not x or not e else x / e
         slow4 = None if not s[0] or not s[1] else s[0] / s[1]
         slow8 = None if not s[3] or not s[4] else s[3] / s[4]
+        slow8o = None if not s[6] or not s[7] else s[6] / s[7]
         tiny = [speed.get(key + v + ("fast",)) for v in TINYBVH]
         best_tiny = max((x for x in tiny if x), default=None)
         best_robust = max((x for x in s if x), default=None)
         ratios = [ratio(best_stack, emb), ratio(best_less, emb), ratio(fast, emb_fast), ratio(fast, best_tiny),
-                  ratio(best_robust, best_tiny), slow4, slow8]
+                  ratio(best_robust, best_tiny), slow4, slow8, slow8o]
         for m, (_, col, bound, at_least) in zip(met, TARGETS):
             x = ratios[col]
             if x:
@@ -99,7 +101,7 @@ def main(paths):
         print(f"| {key[0]} | {key[1]} | {key[2]} | {key[3]} | " + " | ".join(fmt(x) for x in s) +
               f" | {fmt(emb)} | {fmt(fast)} | {fmt(emb_fast)} | {fmt(tiny[0])} | {fmt(tiny[1])} "
               f"| {fmt(ratios[0])} | {fmt(ratios[1])} | {fmt(ratios[2])} | {fmt(ratios[3])} | {fmt(ratios[4])} "
-              f"| {fmt(slow4, 3)} | {fmt(slow8, 3)} |")
+              f"| {fmt(slow4, 3)} | {fmt(slow8, 3)} | {fmt(slow8o, 3)} |")
     print()
     for (name, *_), (ok, n) in zip(TARGETS, met):
         print(f"- {name}: {ok} of {n} rows" + ("" if n else " (no row has both figures)"))

@@ -3,7 +3,7 @@
 # cpu_vs_embree.sh — the cpu backend beside two Embree peers in one run: Embree's robust mode
 # (`embree`, RTC_SCENE_FLAG_ROBUST) and its default mode (`embree --precision fast`, the flag off),
 # with the cpu backend in robust and fast precision: MBVH4 stack / bitstack / ordered stack and
-# MBVH8 stack / bitstack / ordered stack / octant-ordered stack (stack-octant); primary and diffuse rays as closest hit, shadow rays as
+# MBVH8 stack / bitstack / ordered stack / octant-ordered stack (stack-octant) / octant-ordered bitstack (bitstack-octant); primary and diffuse rays as closest hit, shadow rays as
 # any hit (occlusion); beside them, where this build has it, the tinybvh peer's two CPU layouts
 # (`tinybvh`, fast precision only: BVH4_CPU as --layout mbvh4, BVH8_CPU as mbvh8, each its stack
 # traversal) on the same rays and threads; on 1 and 2 threads (`--scaling` times each variant on one thread too, its
@@ -44,7 +44,7 @@ else
   log "no tinybvh peer in this build (or no AVX2 here): its columns stay empty"
 fi
 # shellcheck disable=SC2054  # the commas are mbvh's lists
-COMMON=(--backend "$BACKENDS" --precision robust,fast --layout mbvh4,mbvh8 --traversal stack,bitstack,stack-ordered,stack-octant
+COMMON=(--backend "$BACKENDS" --precision robust,fast --layout mbvh4,mbvh8 --traversal stack,bitstack,stack-ordered,stack-octant,bitstack-octant
         --count "$RAYS" --threads 2 --scaling --leaf-block "$LEAF_BLOCK")
 while IFS='|' read -r name scene camera; do
   run_queries "$name" "$scene" "$camera" "${COMMON[@]}" "${EXTRA[@]}"

@@ -76,7 +76,7 @@ TEST_CASE("mbvh check info and bench report - bench writes JSON records", "[cli]
   CHECK_THAT(r.output, Catch::Contains("Mrays/s") && Catch::Contains("bitstack"));
   CHECK_THAT(r.output, !Catch::Contains("dev Mr/s"));  // no record measured device time
   const auto j = nlohmann::json::parse(std::ifstream(json));
-  REQUIRE(j["records"].size() == 2 * 2 * (2 + 4 + 4));  // kinds x queries x (MBVH2: 2 traversals, MBVH4: 4, MBVH8: 4)
+  REQUIRE(j["records"].size() == 2 * 2 * (2 + 4 + 5));  // kinds x queries x (MBVH2: 2 traversals, MBVH4: 4, MBVH8: 5)
   CHECK_FALSE(j["flags"].get<std::string>().empty());  // MBVH_COMPILE_FLAGS: this build type's flags
   for (const auto& rec : j["records"]) {
     for (const char* key : {"backend", "isa", "layout", "traversal", "query", "ray_kind", "rays", "threads",
@@ -90,9 +90,11 @@ TEST_CASE("mbvh check info and bench report - bench writes JSON records", "[cli]
     const bool m8 = rec["layout"] == "mbvh8";
     const int want = rec["traversal"] == "stack" ? (m8 ? 520 : 264)
                      : rec["traversal"] == "stack-ordered" || rec["traversal"] == "stack-octant" ? (m8 ? 1032 : 520)
+                     : rec["traversal"] == "bitstack-octant"                                  ? 24
                                                            : (m8 ? 20 : 12);
     CHECK(rec["state_bytes_per_ray"].get<int>() == want);
-    if (rec["traversal"] == "bitstack" || rec["traversal"] == "bitstack-retest")  // a fixed state: its peak is its size
+    if (rec["traversal"] == "bitstack" || rec["traversal"] == "bitstack-retest" ||
+        rec["traversal"] == "bitstack-octant")  // a fixed state: its peak is its size
       CHECK(rec["peak_state_bytes_per_ray"].get<double>() == want);
     // work histograms: every ray in one bucket of each; the nodes' mean lies within the buckets
     for (const char* h : {"nodes", "leaves", "triangles", "climbs"}) {

@@ -121,8 +121,8 @@ TEST_CASE("hostile: enum values cast from out-of-range ints are refused at every
     o.layout = static_cast<Layout>(-1);
     bad.push_back({o, "TraceOptions::layout is -1, not a Layout"});
     o = TraceOptions{Layout::mbvh4, Traversal::stack, Query::closest, false};
-    o.traversal = static_cast<Traversal>(10);  // one past automatic, the last
-    bad.push_back({o, "TraceOptions::traversal is 10, not a Traversal"});
+    o.traversal = static_cast<Traversal>(11);  // one past automatic, the last
+    bad.push_back({o, "TraceOptions::traversal is 11, not a Traversal"});
   }
   for (const Bad& b : bad) {
     INFO(b.says);

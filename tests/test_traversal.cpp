@@ -174,7 +174,8 @@ void check_scene(const std::string& spec, const BuildOptions& bo = {}, std::size
     const std::pair<Layout, Traversal> bitstacks[] = {{Layout::mbvh2, Traversal::bitstack},
                                                       {Layout::mbvh4, Traversal::bitstack},
                                                       {Layout::mbvh4, Traversal::bitstack_retest},
-                                                      {Layout::mbvh8, Traversal::bitstack}};
+                                                      {Layout::mbvh8, Traversal::bitstack},
+                                                      {Layout::mbvh8, Traversal::bitstack_octant}};
     for (const auto& [l, bt] : bitstacks)
       for (Query q : {Query::closest, Query::any}) {
         TraceOutput out[2];
@@ -274,7 +275,8 @@ std::size_t check_simd_cpu_bytes(const Accel& acc, const std::vector<Ray>& rays,
     ++tested;
     auto b = make_backend(name, BackendOptions{}.set("cpu.leaf-block", leaf_block));
     for (Layout l : {Layout::mbvh2, Layout::mbvh4, Layout::mbvh8})
-      for (Traversal t : {Traversal::stack, Traversal::bitstack, Traversal::stack_ordered, Traversal::stack_octant})
+      for (Traversal t : {Traversal::stack, Traversal::bitstack, Traversal::stack_ordered, Traversal::stack_octant,
+                          Traversal::bitstack_octant})
         for (Query q : {Query::closest, Query::any}) {
           if (!reference_supports(l, t)) continue;
           INFO(what << ": " << name << "/" << to_string(l) << "/" << to_string(t) << "/" << to_string(q));
@@ -510,6 +512,64 @@ TEST_CASE("MBVH8 bitstack: the one-shift backtrack is the per-level pop, at ever
       CHECK(hi == rh);
     }
   }
+}
+
+// The octant bitstack's climb (detail::climb8) followed by its take of the lowest pending rank is
+// backtrack8, on the same words.
+TEST_CASE("MBVH8 octant bitstack: the climb and the take are the one-shift backtrack", "[traversal][bitstack]") {
+  std::mt19937_64 rng(11);
+  for (int p = 0; p < 128; ++p) {
+    for (int k = 0; k < 64; ++k) {
+      std::uint64_t lo = rng(), hi = rng();
+      if (p < 64) {
+        lo = (lo | 1) << p;
+      } else {
+        lo = 0;
+        hi = (hi | 1) << (p - 64);
+      }
+      std::uint64_t bl = lo, bh = hi;
+      const detail::Backtrack8 b = detail::backtrack8(bl, bh);
+      INFO("lowest bit " << p << ", word " << hi << " " << lo);
+      CHECK(detail::climb8(lo, hi) == b.up);
+      CHECK((lo & 0xFFu) != 0);
+      CHECK(std::countr_zero(lo) == b.slot);
+      lo &= lo - 1;
+      CHECK(lo == bl);
+      CHECK(hi == bh);
+    }
+  }
+}
+
+// The octant bitstack's ranks (K::octant_ranks) of every hit mask in octant orders of a scene's
+// nodes: taken lowest rank first, they name the slots in the octant stack's pop order
+// (push_octant's stack from its top).
+TEST_CASE("MBVH8 octant bitstack: ranks in the octant order pop as the octant stack", "[traversal][bitstack][layout]") {
+  const Scene s = load_scene(mbvh_test::scene_path("bun_zipper.ply.zst"));
+  const auto acc = Accel::build(s);
+  const Mbvh8& m = acc->mbvh8();
+  REQUIRE(m.nodes.size() > 100);
+  const std::int32_t child[8] = {0, 1, 2, 3, 4, 5, 6, 7};
+  const float d[8] = {};
+  for (std::size_t i = 0; i < m.nodes.size(); i += 97)
+    for (unsigned o = 0; o < 8; ++o) {
+      std::uint32_t order;
+      std::memcpy(&order, reinterpret_cast<const unsigned char*>(m.nodes[i].pad) + 3 * o, sizeof(order));
+      for (unsigned mask = 1; mask < 256; ++mask) {
+        std::int32_t stack[16];
+        float dist[16];
+        int top = -1;
+        const unsigned sp = ScalarKernels::push_octant<false>(stack, dist, 0, mask, order, child, d, top);
+        unsigned ranks = ScalarKernels::octant_ranks(mask, order);
+        INFO("node " << i << ", octant " << o << ", mask " << mask);
+        REQUIRE(std::popcount(ranks) == static_cast<int>(sp));
+        CHECK(((order >> (21 - 3 * std::countr_zero(ranks))) & 7u) == static_cast<unsigned>(top));
+        for (unsigned k = sp; k-- > 0;) {
+          const int j = std::countr_zero(ranks);
+          ranks &= ranks - 1;
+          CHECK(static_cast<std::int32_t>((order >> (21 - 3 * j)) & 7u) == stack[k]);
+        }
+      }
+    }
 }
 
 // The cpu backend's uncounted traversals read nodes whose leaf references locate the SIMD packs
@@ -821,6 +881,11 @@ TEST_CASE("statistics count work and stay out of the answers", "[traversal][isa]
   CHECK_FALSE(reference_supports(Layout::mbvh4, Traversal::stack_octant));
   CHECK_FALSE(reference_supports(Layout::mbvh2, Traversal::stack_octant));
   CHECK(state_bytes_per_ray(Layout::mbvh8, Traversal::stack_octant) == 1032);  // 128 entries and distances
+  CHECK(reference_supports(Layout::mbvh8, Traversal::bitstack_octant));
+  CHECK_FALSE(reference_supports(Layout::mbvh4, Traversal::bitstack_octant));
+  CHECK_FALSE(reference_supports(Layout::mbvh2, Traversal::bitstack_octant));
+  CHECK(stack_twin(Traversal::bitstack_octant) == Traversal::stack_octant);
+  CHECK(state_bytes_per_ray(Layout::mbvh8, Traversal::bitstack_octant) == 24);  // node + 128-bit word + octant
   CHECK(state_bytes_per_ray(Layout::mbvh8, Traversal::bitstack) == 20);  // node + 128-bit word
   CHECK(state_bytes_per_ray(Layout::mbvh8, Traversal::stack) == 520);    // 128 int32 entries
   CHECK(state_bytes_per_ray(Layout::mbvh8, Traversal::stack) / state_bytes_per_ray(Layout::mbvh8, Traversal::bitstack) >= 22);

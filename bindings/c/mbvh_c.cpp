@@ -59,7 +59,8 @@ static_assert(MBVH_TRAVERSAL_STACK == 1 + static_cast<int>(mbvh::Traversal::stac
               MBVH_TRAVERSAL_PACKET_PARTITION == 1 + static_cast<int>(mbvh::Traversal::packet_partition) &&
               MBVH_TRAVERSAL_PACKET == 1 + static_cast<int>(mbvh::Traversal::packet) &&
               MBVH_TRAVERSAL_DACRT == 1 + static_cast<int>(mbvh::Traversal::dacrt) &&
-              MBVH_TRAVERSAL_STACK_OCTANT == 1 + static_cast<int>(mbvh::Traversal::stack_octant));
+              MBVH_TRAVERSAL_STACK_OCTANT == 1 + static_cast<int>(mbvh::Traversal::stack_octant) &&
+              MBVH_TRAVERSAL_BITSTACK_OCTANT == 1 + static_cast<int>(mbvh::Traversal::bitstack_octant));
 static_assert(MBVH_C_API_VERSION == 1, "a new version of the API: accept the sizes of every published options struct");
 
 namespace {
@@ -159,8 +160,8 @@ Variant to_variant(const char* fn, int layout, int traversal) {
     default:
       bad_enum(fn, "layout", layout, "MBVH_LAYOUT_DEFAULT (0), MBVH_LAYOUT_MBVH2 (2), MBVH_LAYOUT_MBVH4 (4), MBVH_LAYOUT_MBVH8 (8)");
   }
-  if (traversal < MBVH_TRAVERSAL_DEFAULT || traversal > MBVH_TRAVERSAL_STACK_OCTANT)
-    bad_enum(fn, "traversal", traversal, "the mbvh_traversal values, MBVH_TRAVERSAL_DEFAULT (0) to MBVH_TRAVERSAL_STACK_OCTANT (9)");
+  if (traversal < MBVH_TRAVERSAL_DEFAULT || traversal > MBVH_TRAVERSAL_BITSTACK_OCTANT)
+    bad_enum(fn, "traversal", traversal, "the mbvh_traversal values, MBVH_TRAVERSAL_DEFAULT (0) to MBVH_TRAVERSAL_BITSTACK_OCTANT (10)");
   v.opt.traversal = traversal == MBVH_TRAVERSAL_DEFAULT ? mbvh::Traversal::automatic
                                                         : static_cast<mbvh::Traversal>(traversal - 1);  // the orders match (the asserts above)
   return v;

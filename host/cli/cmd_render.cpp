@@ -421,7 +421,7 @@ void RenderArgs::add(CLI::App* c) {
   scene.add(c);
   c->add_option("--backend", backend, "backend (see `mbvh devices`)");
   c->add_option("--layout", layout, "mbvh2, mbvh4, mbvh8 or auto (the default: the layout the backend traces fastest with the traversal)");
-  c->add_option("--traversal", traversal, "stack, bitstack, stack-ordered, bitstack-retest, stack-octant (MBVH8), or packet-ranged, packet-partition, packet (cpu: 8x8-tile packets), or dacrt (no hierarchy), or auto (the default: the backend's fastest exact closest-hit traversal, docs/library.md \"Defaults\"; the report names it)");
+  c->add_option("--traversal", traversal, "stack, bitstack, stack-ordered, bitstack-retest, stack-octant, bitstack-octant (MBVH8), or packet-ranged, packet-partition, packet (cpu: 8x8-tile packets), or dacrt (no hierarchy), or auto (the default: the backend's fastest exact closest-hit traversal, docs/library.md \"Defaults\"; the report names it)");
   c->add_option("--mode", mode, "path (8-bounce diffuse, point light and sky), ao or normals");
   c->add_option("--spp", o.spp, "samples per pixel")->check(integer_in(1, 1u << 20));
   c->add_option("--bounces", o.bounces, "path mode: diffuse bounces after the primary hit")->check(integer_in(0, 1024));

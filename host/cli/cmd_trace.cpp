@@ -79,7 +79,7 @@ void TraceArgs::add(CLI::App* c) {
   rays.add(c, true);
   c->add_option("--backend", backend, "backend (see `mbvh devices`)");
   c->add_option("--layout", layout, "mbvh2, mbvh4, mbvh8 or auto (the default: the layout the backend traces fastest with the traversal)");
-  c->add_option("--traversal", traversal, "stack, bitstack, stack-ordered, bitstack-retest (MBVH4 only) or stack-octant (MBVH8 only); packet-ranged, packet-partition or packet (cpu: packets of 64 rays over MBVH2, the layout for the hybrid's single rays); dacrt (no hierarchy, the layout ignored); auto (the default: the backend's fastest exact traversal for the query, docs/library.md \"Defaults\"; the report names it)");
+  c->add_option("--traversal", traversal, "stack, bitstack, stack-ordered, bitstack-retest (MBVH4 only) or stack-octant, bitstack-octant (MBVH8 only); packet-ranged, packet-partition or packet (cpu: packets of 64 rays over MBVH2, the layout for the hybrid's single rays); dacrt (no hierarchy, the layout ignored); auto (the default: the backend's fastest exact traversal for the query, docs/library.md \"Defaults\"; the report names it)");
   c->add_option("--query", query, "closest (writes hits, 16 B/ray) or any (writes occlusion, 1 B/ray)");
   c->add_option("-o,--output", out, "output file ('-': standard output)");
   c->add_flag("--stats", stats, "also count work per ray (slower)");

@@ -268,7 +268,7 @@ void GridArgs::add(CLI::App* c) {
                 "comma-separated backends (see `mbvh devices`), or 'all': every backend this machine runs, once each");
   c->add_option("--layout", layouts, "comma-separated layouts: mbvh2, mbvh4, mbvh8");
   c->add_option("--traversal", traversals,
-                "comma-separated traversals: stack, bitstack, stack-ordered, bitstack-retest (the last two MBVH4/8), stack-octant (MBVH8: the children pushed in the ray octant's order), packet-ranged, packet-partition, packet (cpu packets: 64 rays on AVX2, 128 on AVX-512), dacrt (no hierarchy; a dacrt backend runs it whatever this list says)");
+                "comma-separated traversals: stack, bitstack, stack-ordered, bitstack-retest (the last two MBVH4/8), stack-octant (MBVH8: the children pushed in the ray octant's order), bitstack-octant (MBVH8: the bitstack in that order), packet-ranged, packet-partition, packet (cpu packets: 64 rays on AVX2, 128 on AVX-512), dacrt (no hierarchy; a dacrt backend runs it whatever this list says)");
   c->add_option("--query", queries, "comma-separated queries: closest, any");
   c->add_option("--precision", precisions,
                 "comma-separated accuracy modes: robust (default), exact (the same kernels, refused by embree), fast "

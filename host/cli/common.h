@@ -147,7 +147,7 @@ struct DeviceArgs {
 /// bench), with the device options.
 struct GridArgs {
   DeviceArgs dev;
-  std::string backends = "cpu", layouts = "mbvh2,mbvh4,mbvh8", traversals = "stack,bitstack,stack-ordered,bitstack-retest,stack-octant",
+  std::string backends = "cpu", layouts = "mbvh2,mbvh4,mbvh8", traversals = "stack,bitstack,stack-ordered,bitstack-retest,stack-octant,bitstack-octant",
               queries = "closest,any", precisions = "robust";
   void add(CLI::App* c);
   /// The grid; starts every backend once to fail early, naming it ('all': every backend this

@@ -22,11 +22,11 @@ template <> struct Names<Layout> {
   static constexpr const char* known = "mbvh2, mbvh4, mbvh8";
 };
 template <> struct Names<Traversal> {
-  static constexpr int count = 9;
+  static constexpr int count = 10;
   static constexpr bool has_auto = true;
   static constexpr const char* type = "Traversal";
   static constexpr const char* known =
-      "stack, bitstack, stack-ordered, bitstack-retest, packet-ranged, packet-partition, packet, dacrt, stack-octant";
+      "stack, bitstack, stack-ordered, bitstack-retest, packet-ranged, packet-partition, packet, dacrt, stack-octant, bitstack-octant";
 };
 template <> struct Names<Query> {
   static constexpr bool has_auto = false;

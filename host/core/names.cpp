@@ -73,6 +73,7 @@ const char* to_string(Traversal t) {
     case Traversal::packet: return "packet";
     case Traversal::dacrt: return "dacrt";
     case Traversal::stack_octant: return "stack-octant";
+    case Traversal::bitstack_octant: return "bitstack-octant";
     case Traversal::automatic: return "auto";
   }
   return "?";
@@ -96,10 +97,11 @@ Traversal parse_traversal(const std::string& s) {
   if (s == "packet") return Traversal::packet;
   if (s == "dacrt") return Traversal::dacrt;
   if (s == "stack-octant") return Traversal::stack_octant;
+  if (s == "bitstack-octant") return Traversal::bitstack_octant;
   if (s == "auto") return Traversal::automatic;
   throw Error("unknown traversal '" + s +
               "' (known: stack, bitstack, stack-ordered, bitstack-retest, packet-ranged, packet-partition, packet, dacrt, "
-              "stack-octant, auto)");
+              "stack-octant, bitstack-octant, auto)");
 }
 
 }  // namespace mbvh

@@ -76,13 +76,14 @@ std::vector<std::pair<Layout, Traversal>> Backend::fastest(Query q) const {
             {Layout::mbvh4, Traversal::stack},         {Layout::mbvh4, Traversal::bitstack},
             {Layout::mbvh8, Traversal::stack_ordered}, {Layout::mbvh4, Traversal::stack_ordered},
             {Layout::mbvh2, Traversal::stack},         {Layout::mbvh2, Traversal::bitstack},
-            {Layout::mbvh4, Traversal::bitstack_retest}, {Layout::mbvh4, Traversal::dacrt}};
+            {Layout::mbvh4, Traversal::bitstack_retest}, {Layout::mbvh8, Traversal::bitstack_octant},
+            {Layout::mbvh4, Traversal::dacrt}};
   return {{Layout::mbvh8, Traversal::stack_ordered}, {Layout::mbvh8, Traversal::stack},
           {Layout::mbvh4, Traversal::stack_ordered}, {Layout::mbvh4, Traversal::stack},
           {Layout::mbvh8, Traversal::bitstack},      {Layout::mbvh4, Traversal::bitstack},
           {Layout::mbvh2, Traversal::stack},         {Layout::mbvh2, Traversal::bitstack},
           {Layout::mbvh8, Traversal::stack_octant}, {Layout::mbvh4, Traversal::bitstack_retest},
-          {Layout::mbvh4, Traversal::dacrt}};
+          {Layout::mbvh8, Traversal::bitstack_octant}, {Layout::mbvh4, Traversal::dacrt}};
 }
 
 TraceOptions resolve_options(const Backend& b, TraceOptions opt) {
@@ -103,7 +104,8 @@ namespace {
 constexpr Layout kLayouts[] = {Layout::mbvh2, Layout::mbvh4, Layout::mbvh8};
 constexpr Traversal kTraversals[] = {Traversal::stack,         Traversal::bitstack,         Traversal::stack_ordered,
                                      Traversal::bitstack_retest, Traversal::packet_ranged, Traversal::packet_partition,
-                                     Traversal::packet,        Traversal::dacrt,            Traversal::stack_octant};
+                                     Traversal::packet,        Traversal::dacrt,            Traversal::stack_octant,
+                                     Traversal::bitstack_octant};
 constexpr Precision kPrecisions[] = {Precision::robust, Precision::exact, Precision::fast};
 
 // The names of `all` that `keep` holds for, comma-separated.

@@ -19,7 +19,8 @@ struct VariantGrid {
   std::vector<std::string> backends{"cpu-scalar"};
   std::vector<Layout> layouts{Layout::mbvh2, Layout::mbvh4, Layout::mbvh8};
   std::vector<Traversal> traversals{Traversal::stack, Traversal::bitstack, Traversal::stack_ordered,
-                                    Traversal::bitstack_retest, Traversal::stack_octant};
+                                    Traversal::bitstack_retest, Traversal::stack_octant,
+                                    Traversal::bitstack_octant};
   std::vector<Query> queries{Query::closest, Query::any};
   std::vector<Precision> precisions{Precision::robust};
   std::size_t size() const {

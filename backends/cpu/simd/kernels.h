@@ -201,6 +201,17 @@ struct SimdKernelsT {
     return sp + static_cast<unsigned>(std::popcount(mask));
   }
 
+  /// The octant bitstack's ranks (ScalarKernelsT::octant_ranks): lane j holds the slot of rank j
+  /// (one variable shift), shifted so that slot s's bit of the mask lands in the lane's sign (31 -
+  /// s = 31 ^ s), one movemask.
+  [[gnu::always_inline]] static unsigned octant_ranks(unsigned mask, std::uint32_t order) {
+    const __m256i slots = _mm256_and_si256(_mm256_srlv_epi32(_mm256_set1_epi32(static_cast<int>(order)),
+                                                             _mm256_setr_epi32(21, 18, 15, 12, 9, 6, 3, 0)),
+                                           _mm256_set1_epi32(7));
+    const __m256i bits = _mm256_sllv_epi32(_mm256_set1_epi32(static_cast<int>(mask)), _mm256_xor_si256(slots, _mm256_set1_epi32(31)));
+    return static_cast<unsigned>(_mm256_movemask_ps(_mm256_castsi256_ps(bits)));
+  }
+
   /// One pass of a leaf's test over the pack at p (F4: lanes k..k+3 of the leaf) or the two packs
   /// at p (F8: lanes k..k+7), `valid` its lanes that hold a triangle. Closest hit: keeps the
   /// smallest (t, prim) in best and shrinks tmax; any hit: true at the first certain hit. The

@@ -121,7 +121,8 @@ template <bool Any>
   else out.hits[i] = h;
 }
 
-/// A walk (stack.h's OrderedWalk or OctantWalk, bitstack.h's Mbvh8BitstackWalk) with two rays
+/// A walk (stack.h's OrderedWalk or OctantWalk, bitstack.h's Mbvh8BitstackWalk or
+/// Mbvh8OctantBitstackWalk) with two rays
 /// walked in turn, a node or leaf of one, then of the other: a ray's walk is one chain of
 /// dependent loads and tests (the node, its box test, the child picked, the child's node), and
 /// the other ray's step fills the core while it waits. Each ray's answer is the single-ray walk's
@@ -196,8 +197,8 @@ inline bool coherent_directions(std::span<const Ray> rays, std::size_t b, std::s
 }
 
 /// Walks rays [b, e) two in turn (run_interleaved) where K and `opt` take it, without statistics:
-/// the MBVH4 ordered stack and the MBVH8 octant stack, both queries; the MBVH8 bitstack closest
-/// hit; the MBVH8 ordered stack any hit, and closest hit where the rays are coherent
+/// the MBVH4 ordered stack and the MBVH8 octant stack, both queries; the MBVH8 bitstack and
+/// octant bitstack closest hit; the MBVH8 ordered stack any hit, and closest hit where the rays are coherent
 /// (coherent_directions): on two incoherent rays the ordered stack's sort branches mispredict,
 /// where the octant stack's push has no branch on the order (measurements: docs/backends.md).
 /// False where the rays are left to run_batch.
@@ -210,6 +211,11 @@ inline bool walked_in_turn(const TraceView& v, std::span<const Ray> rays, std::s
     if (opt.traversal == Traversal::bitstack) {  // MBVH8 closest hit
       if (opt.layout != Layout::mbvh8 || any) return false;
       run_interleaved<false, K, Mbvh8BitstackWalk<false, NoStats, K>>(v, rays, b, e, out, invalid);
+      return true;
+    }
+    if (opt.traversal == Traversal::bitstack_octant) {  // MBVH8 only, closest hit
+      if (opt.layout != Layout::mbvh8 || any) return false;
+      run_interleaved<false, K, Mbvh8OctantBitstackWalk<false, NoStats, K>>(v, rays, b, e, out, invalid);
       return true;
     }
     if (opt.traversal == Traversal::stack_octant) {  // MBVH8 only

@@ -5,6 +5,7 @@
 #pragma once
 #include <bit>
 #include <cstdint>
+#include <cstring>
 
 #include "host/core/trace/intersect.h"
 #include "host/core/trace/scalar_kernels.h"
@@ -149,6 +150,24 @@ struct Backtrack8 {
   lo &= lo - 1;
   return {up, low & 7};
 }
+/// The climb of backtrack8 alone (the octant bitstack's, which may re-test the level before it
+/// takes a bit): the word becomes the deepest level's with a pending bit (lowest byte non-zero);
+/// returns the levels climbed.
+[[gnu::always_inline]] constexpr int climb8(std::uint64_t& lo, std::uint64_t& hi) {
+  int up = 0;
+  if (lo == 0) {
+    lo = hi;
+    hi = 0;
+    up = 8;
+  }
+  if (const int u = std::countr_zero(lo) >> 3; u != 0) {
+    const int sh = u << 3;
+    lo = (lo >> sh) | (hi << (64 - sh));
+    hi >>= sh;
+    up += u;
+  }
+  return up;
+}
 }  // namespace detail
 
 /// MBVH8 bitstack (Áfra & Szirmay-Kalos 2014, §3 of the paper, on the 8-wide nodes of Áfra's
@@ -227,6 +246,134 @@ struct Mbvh8BitstackWalk {
 template <bool Any, class St, class K = ScalarKernels>
 inline Hit trace_mbvh8_bitstack(const TraceView& v, const typename K::Ray& r, St& st) {
   return walk_to_end<Mbvh8BitstackWalk<Any, St, K>>(v, r, st);
+}
+
+/// MBVH8 octant bitstack: the MBVH8 bitstack's 128-bit word walked in the octant stack's order
+/// (stack.h, OctantWalk: Fuetterling, Lojewski, Pfreundt & Ebert, HPG 2017, on Áfra &
+/// Szirmay-Kalos's bitstack, CGF 2014). With the visiting order of a node's children fixed by the
+/// ray's direction octant (Node8::pad's orders), a level's byte keeps the pending children by
+/// rank in that order (bit j: the j-th child of the order, nearest first), so the child entered
+/// is the lowest set rank, the next after a backtrack the lowest pending rank, and no distance is
+/// needed to resume: the rank's slot is read back from the parent's order (the parent stays in a
+/// register, its line hot). Closest hit: the octant stack culls a popped entry beyond tmax * S; a
+/// backtrack here re-tests the parent's eight boxes against tmax * S instead (once a hit has
+/// shrunk tmax: before it nothing can be culled) and drops the pending ranks that now miss — a
+/// box entered at d is hit again exactly while d <= tmax * S, so the visit sequence, the leaves
+/// and the answer are the octant stack's (its stackless twin). The re-test is skipped on the
+/// levels pushed since tmax last shrank (tested against it already), and where the lowest pending
+/// rank survives it the walk goes on to that child on a branch rather than a data dependency on
+/// the re-test, whose latency then overlaps the child's fetch. Any hit walks the opposite
+/// octant's order and culls nothing, as the octant stack. State: node + word + octant = 24 bytes.
+/// The walk's state and one step of it, as Mbvh8BitstackWalk (batch.h's run_interleaved).
+template <bool Any, class St, class K>
+struct Mbvh8OctantBitstackWalk {
+  const TraceView& v;
+  const typename K::Ray* r;
+  Hit best;
+  float tmax;
+  StepGuard guard;
+  std::int32_t cur;
+  const Node8* par;
+  std::uint64_t lo, hi;
+  unsigned oct;  ///< the order's byte in Node8::pad: the ray's octant (closest hit) or the opposite one (any hit)
+  /// Closest hit: how many of the deepest levels were pushed since tmax last shrank (their ranks
+  /// were tested against it: no re-test); before the first hit more than the depth cap.
+  int fresh;
+  unsigned level;
+
+  Mbvh8OctantBitstackWalk(const TraceView& view, const typename K::Ray& ray) : v(view), r(&ray), guard(view) { start(); }
+  /// Starts the walk of the ray given at construction (its values as they are now).
+  [[gnu::always_inline]] void start() {
+    best = miss_hit();
+    tmax = r->tmax;
+    guard = StepGuard(v);
+    cur = 0;
+    par = nullptr;
+    lo = hi = 0;
+    oct = 3u * (static_cast<unsigned>(r->neg[0] | r->neg[1] << 1 | r->neg[2] << 2) ^ (Any ? 7u : 0u));
+    fresh = 64;
+    level = 0;
+  }
+  /// Node n's order for this ray (lane k's slot in bits 3k..3k+2, farthest first).
+  [[gnu::always_inline]] std::uint32_t order(const Node8& n) const {
+    std::uint32_t o;
+    std::memcpy(&o, reinterpret_cast<const unsigned char*>(n.pad) + oct, sizeof(o));
+    return o;
+  }
+  /// The slot of rank j (0: the nearest) in `order`.
+  [[gnu::always_inline]] static int slot(std::uint32_t order, int j) { return static_cast<int>((order >> (21 - 3 * j)) & 7u); }
+  /// One node or leaf visit and the move after it; false once the ray is done (its answer in best).
+  [[gnu::always_inline]] bool step(St& st) {
+    guard.step();
+    if (cur >= 0) {
+      const Node8& n = v.n8[cur];
+      float d[8];
+      const unsigned m = detail::test_node<K, Any, false>(n, *r, tmax * kCullSlack, d, st);
+      if (m) {
+        const std::uint32_t o = order(n);
+        const unsigned ranks = K::octant_ranks(m, o);
+        const int i = slot(o, std::countr_zero(ranks));
+        detail::prefetch_pending<K, Any>(n, *r, m, i);
+        hi = (hi << 8) | (lo >> 56);  // push the pending ranks
+        lo = (lo << 8) | (ranks & (ranks - 1));
+        if constexpr (!Any) ++fresh;
+        if constexpr (St::on) st.depth(++level);
+        par = &n;
+        cur = n.child[i];
+        return true;
+      }
+    } else {
+      const float t0 = tmax;
+      if (K::template leaf<Any>(v, cur, *r, tmax, best, st)) return false;
+      if constexpr (!Any)
+        if (tmax < t0) fresh = 0;
+    }
+    // -- backtrack: climb to the deepest level with a pending rank (detail::climb8, parent links
+    // only), closest hit drop its ranks now beyond tmax * S where tmax shrank since the level's
+    // push (else on up), take the lowest
+    for (;;) {
+      if ((lo | hi) == 0) return false;
+      const int up = detail::climb8(lo, hi);
+      for (int j = up; j > 0; --j) {
+        guard.step();
+        par = &v.n8[par->parent];
+        st.climb();
+        if constexpr (St::on) --level;
+      }
+      if constexpr (!Any) {
+        fresh -= up;
+        if (fresh <= 0) {
+          float d[8];
+          st.retest();
+          const unsigned m = K::template test<false>(*par, *r, tmax * kCullSlack, d);
+          const std::uint32_t o = order(*par);
+          const int s = slot(o, std::countr_zero(lo));
+          lo &= ~std::uint64_t{0xff} | K::octant_ranks(m, o);
+          fresh = 1;
+          // the lowest pending rank still hit (the usual case) is taken on a branch on the re-test,
+          // not a wait for it: the next node's address comes from the word as it was
+          if ((m >> s) & 1u) {
+            lo &= lo - 1;
+            cur = par->child[s];
+            return true;
+          }
+          if ((lo & 0xffu) == 0) continue;
+        }
+      }
+      const int j = std::countr_zero(lo);
+      lo &= lo - 1;
+      cur = par->child[slot(order(*par), j)];
+      return true;
+    }
+  }
+};
+
+template <bool Any, class St, class K = ScalarKernels>
+inline Hit trace_mbvh8_bitstack_octant(const TraceView& v, const typename K::Ray& r, St& st) {
+  Mbvh8OctantBitstackWalk<Any, St, K> w(v, r);
+  while (w.step(st)) {
+  }
+  return w.best;
 }
 
 /// MBVH4 bitstack-retest (TRAVERSAL.md §3.4, §4.4, "variant B"; mbvh's extension of Áfra &

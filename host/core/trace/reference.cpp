@@ -20,6 +20,7 @@ namespace mbvh {
 Traversal stack_twin(Traversal t) {
   if (t == Traversal::bitstack) return Traversal::stack;
   if (t == Traversal::bitstack_retest) return Traversal::stack_ordered;
+  if (t == Traversal::bitstack_octant) return Traversal::stack_octant;
   if (is_packet(t)) return Traversal::stack;
   return t;  // a stack traversal, or dacrt (no twin)
 }
@@ -30,7 +31,8 @@ bool reference_supports(Layout layout, Traversal traversal) {
   // is) do not list it, though trace_reference traces it as packet_single_ray's traversal
   if (is_dacrt(traversal)) return false;
   if (layout == Layout::mbvh8) return traversal != Traversal::bitstack_retest;  // no bitstack-retest on MBVH8
-  if (traversal == Traversal::stack_octant) return false;  // MBVH8 only (its nodes hold the octant orders)
+  // MBVH8 only (its nodes hold the octant orders)
+  if (traversal == Traversal::stack_octant || traversal == Traversal::bitstack_octant) return false;
   return layout == Layout::mbvh4 || traversal == Traversal::stack || traversal == Traversal::bitstack;
 }
 
@@ -48,6 +50,8 @@ std::size_t state_bytes_per_ray(Layout layout, Traversal traversal) {
   }
   // MBVH8 bitstack: node + a 128-bit word (8 pending-slot bits per level, bitstack.h)
   if (traversal == Traversal::bitstack && layout == Layout::mbvh8) return 4 + 16;
+  // MBVH8 octant bitstack: the same, and the ray's octant (the order's offset in Node8::pad)
+  if (traversal == Traversal::bitstack_octant) return 4 + 16 + 4;
   if (traversal == Traversal::bitstack || traversal == Traversal::bitstack_retest) return 4 + 8;
   const std::size_t entries = layout == Layout::mbvh2   ? MBVH_STACK2_ENTRIES
                               : layout == Layout::mbvh4 ? MBVH_STACK4_ENTRIES

@@ -122,6 +122,13 @@ struct ScalarKernelsT {
     }
     return sp;
   }
+  /// The hit children of `mask` by rank in `order` (push_octant's): bit j set where the slot of
+  /// lane 7 - j (the j-th nearest) is hit — what the octant bitstack keeps per level.
+  static unsigned octant_ranks(unsigned mask, std::uint32_t order) {
+    unsigned ranks = 0;
+    for (int j = 0; j < 8; ++j) ranks |= ((mask >> ((order >> (21 - 3 * j)) & 7u)) & 1u) << j;
+    return ranks;
+  }
 };
 using ScalarKernels = ScalarKernelsT<false>;
 

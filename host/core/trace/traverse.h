@@ -31,6 +31,7 @@ inline Hit dispatch(const TraceView& v, const typename K::Ray& r, Layout l, Trav
       case Traversal::bitstack: return trace_mbvh8_bitstack<Any, St, K>(v, r, st);
       case Traversal::stack_ordered: return trace_wide_stack_ordered<Any, St, K, Node8>(v, r, st);
       case Traversal::stack_octant: return trace_mbvh8_octant<Any, St, K>(v, r, st);
+      case Traversal::bitstack_octant: return trace_mbvh8_bitstack_octant<Any, St, K>(v, r, st);
       case Traversal::bitstack_retest: return miss_hit();
       case Traversal::packet_ranged: case Traversal::packet_partition: case Traversal::packet: case Traversal::dacrt:
         break;  // mapped above
@@ -43,7 +44,7 @@ inline Hit dispatch(const TraceView& v, const typename K::Ray& r, Layout l, Trav
     case Traversal::bitstack: return trace_mbvh4_bitstack<Any, St, K>(v, r, st);
     case Traversal::stack_ordered: return trace_wide_stack_ordered<Any, St, K>(v, r, st);
     case Traversal::bitstack_retest: return trace_mbvh4_bitstack_retest<Any, St, K>(v, r, st);
-    case Traversal::stack_octant: return miss_hit();  // MBVH8 only (reference_supports)
+    case Traversal::stack_octant: case Traversal::bitstack_octant: return miss_hit();  // MBVH8 only (reference_supports)
     case Traversal::packet_ranged: case Traversal::packet_partition: case Traversal::packet: case Traversal::dacrt:
       break;  // mapped above
     case Traversal::automatic: break;  // resolved at the entry points (resolve_options)

@@ -104,7 +104,8 @@ typedef enum mbvh_traversal {
   MBVH_TRAVERSAL_PACKET_PARTITION = 6,
   MBVH_TRAVERSAL_PACKET = 7,
   MBVH_TRAVERSAL_DACRT = 8,           /* divide-and-conquer, no hierarchy (the dacrt backends) */
-  MBVH_TRAVERSAL_STACK_OCTANT = 9     /* MBVH8 only: the children pushed in the ray octant's order */
+  MBVH_TRAVERSAL_STACK_OCTANT = 9,    /* MBVH8 only: the children pushed in the ray octant's order */
+  MBVH_TRAVERSAL_BITSTACK_OCTANT = 10 /* MBVH8 only: the bitstack in the ray octant's order */
 } mbvh_traversal;
 
 typedef enum mbvh_query {

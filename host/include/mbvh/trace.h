@@ -58,11 +58,15 @@ enum class Query { closest, any };
 /// its ray's octant order, nearest on top, without sorting them; closest hit keeps each entry's
 /// distance and culls it when popped beyond the best hit. The answers are every stack
 /// traversal's.
+/// bitstack_octant (MBVH8 only; MBVH_TRAVERSAL_BITSTACK_OCTANT): stack_octant's walk without a
+/// stack — the MBVH8 bitstack's word keeps each level's pending children by their rank in the
+/// octant order, and closest hit re-tests a parent's boxes on a backtrack (once a hit was found)
+/// where the stack culls its entries: stack_octant's visit sequence (its stack twin).
 /// automatic ("auto"): the backend's fastest exact traversal for the query (on the layout asked, or
 /// with the layout it traces fastest when that is automatic too): Backend::fastest's ranking,
 /// measured per backend and ISA (docs/library.md, "Defaults"), resolved by resolve_options before
 /// anything is prepared or traced. The default of TraceOptions.
-enum class Traversal { stack, bitstack, stack_ordered, bitstack_retest, packet_ranged, packet_partition, packet, dacrt, stack_octant, automatic };
+enum class Traversal { stack, bitstack, stack_ordered, bitstack_retest, packet_ranged, packet_partition, packet, dacrt, stack_octant, bitstack_octant, automatic };
 /// Whether `t` traces packets of rays (the cpu backend's packet traversals).
 inline bool is_packet(Traversal t) {
   return t == Traversal::packet_ranged || t == Traversal::packet_partition || t == Traversal::packet;
