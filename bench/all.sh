@@ -36,7 +36,7 @@ COMMON=(--backend all --count "$RAYS" --warmup "$WARMUP")
 LIST="$(scene_rows "$SCENES" "${SPEED_SCENES[@]}")"
 while IFS='|' read -r name scene camera; do
   OUT="$OUT/speed" CLOSEST_KINDS=primary,diffuse,path run_queries "$name" "$scene" "$camera" "${COMMON[@]}" \
-    --layout mbvh2,mbvh4,mbvh8 --traversal stack,bitstack,stack-ordered,bitstack-retest,stack-octant
+    --layout mbvh2,mbvh4,mbvh8 --traversal stack,bitstack,stack-ordered,bitstack-retest,stack-octant,bitstack-octant
 done <<< "$LIST"
 # the backends `--backend all` ran here, each once: the render step and the check cover these
 BACKENDS="$("$PY" "$ROOT/bench/plots.py" backends "$OUT")"

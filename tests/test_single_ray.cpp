@@ -107,7 +107,8 @@ TEST_CASE("single-ray query: every ray equals the batch trace and the reference,
       // every other single-ray pair, a precision and a leaf block (the kernels chosen per call)
       std::vector<TraceOptions> others;
       for (Layout l : {Layout::mbvh2, Layout::mbvh4, Layout::mbvh8})
-        for (Traversal t : {Traversal::stack, Traversal::bitstack, Traversal::stack_ordered, Traversal::bitstack_retest})
+        for (Traversal t : {Traversal::stack, Traversal::bitstack, Traversal::stack_ordered, Traversal::bitstack_retest,
+                            Traversal::stack_octant, Traversal::bitstack_octant})
           if (backend->supports(l, t)) others.push_back(TraceOptions{l, t});
       TraceOptions fast{Layout::mbvh8, Traversal::stack_ordered};
       fast.precision = Precision::fast;

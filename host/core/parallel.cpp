@@ -2,8 +2,9 @@
 // parallel.cpp — parallel_for on a persistent worker pool with an atomic chunk counter.
 //
 // The pool's threads are started once (grown on demand up to the largest request) and sleep on a
-// condition variable between calls, so a call creates no thread. Before it sleeps, a worker polls
-// for the next call for up to kSpin, and the caller polls for the workers' end the same way: a
+// condition variable between calls, so a call creates no thread. Before it sleeps, a worker that
+// took part in the last call polls for the next one for up to kSpin (yielding its core now and
+// then, for pools larger than the machine), and the caller polls for the workers' end the same way: a
 // build makes many short calls in a row, and a thread woken from its condition variable costs a
 // futex wake and a reschedule each time (far more than a poll on a virtual machine, whose idle
 // cores halt). The caller is worker 0 and runs chunks too. Chunk semantics are those of the
@@ -80,7 +81,9 @@ void spin_until(Ready&& ready) {
 #if defined(__SSE2__)
     _mm_pause();
 #endif
-    if (k % 64 == 0 && std::chrono::steady_clock::now() >= until) return;
+    if (k % 64 != 0) continue;
+    if (std::chrono::steady_clock::now() >= until) return;
+    std::this_thread::yield();  // where threads outnumber cores, let a runnable one have this core
   }
 }
 
@@ -135,9 +138,10 @@ private:
   void loop(unsigned id) {
     t_in_parallel = true;
     std::uint64_t seen = 0;
+    bool worked = false;  // whether this thread took part in the last call: only then it polls
     std::unique_lock<std::mutex> lock(m_);
     for (;;) {
-      if (!stop_ && generation_ == seen) {  // poll for the next call before sleeping
+      if (worked && !stop_ && generation_ == seen) {  // poll for the next call before sleeping
         lock.unlock();
         spin_until([&] { return stop_.load(std::memory_order_relaxed) || generation_.load(std::memory_order_relaxed) != seen; });
         lock.lock();
@@ -146,7 +150,8 @@ private:
       if (stop_) return;
       seen = generation_;
       Job* job = job_;
-      if (job == nullptr || id >= job->workers) continue;
+      worked = job != nullptr && id < job->workers;
+      if (!worked) continue;
       lock.unlock();
       job->work(id);
       lock.lock();

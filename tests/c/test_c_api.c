@@ -643,6 +643,13 @@ static void test_errors(void) {
   o = trace_options(MBVH_QUERY_CLOSEST, 0);
   o.traversal = (mbvh_traversal)99;
   CHECK_FAILS(mbvh_trace(b, accel, rays, 8, &o, hits, NULL), MBVH_ERROR_INVALID_ARGUMENT, "traversal = 99");
+  o.traversal = (mbvh_traversal)(MBVH_TRAVERSAL_BITSTACK_OCTANT + 1); /* one past the last value */
+  CHECK_FAILS(mbvh_trace(b, accel, rays, 8, &o, hits, NULL), MBVH_ERROR_INVALID_ARGUMENT, "traversal = 11");
+  o = trace_options(MBVH_QUERY_CLOSEST, 0);
+  o.layout = MBVH_LAYOUT_MBVH8;
+  o.traversal = MBVH_TRAVERSAL_BITSTACK_OCTANT; /* the last value: accepted, the default's answers */
+  CHECK_OK(mbvh_trace(b, accel, rays, 8, &o, hits, NULL));
+  CHECK(memcmp(hits, before, sizeof hits) == 0);
   o = trace_options(MBVH_QUERY_CLOSEST, 0);
   o.query = (mbvh_query)2;
   CHECK_FAILS(mbvh_trace(b, accel, rays, 8, &o, hits, NULL), MBVH_ERROR_INVALID_ARGUMENT, "options->query = 2");

@@ -18,7 +18,7 @@ inline namespace MBVH_ISA_NS {
 namespace {
 
 void occluded_octant_run(const TraceView& v, std::span<const Ray> rays, std::size_t b, std::size_t e, TraceOutput& out,
-                         std::size_t& invalid);  // occlusion.h (fast precision)
+                         std::size_t& invalid);  // defined in occlusion.h, which isa_kernels.cpp includes after this header
 
 /// The cpu backend's kernels: four or eight boxes per test, four or eight triangles per pass (the
 /// leaves as Tri4 packs).

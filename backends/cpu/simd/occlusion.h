@@ -161,7 +161,8 @@ inline void occluded_bucket(const TraceView& v, std::span<const Ray> rays, const
 /// bucket, not per ray.
 void occluded_octant_run(const TraceView& v, std::span<const Ray> rays, std::size_t b, std::size_t e, TraceOutput& out,
                          std::size_t& invalid) {
-  constexpr std::size_t kPart = 2048;  // rays bucketed at a time (kTraceChunk's)
+  constexpr std::size_t kPart = kTraceChunk;  // rays bucketed at a time
+  static_assert(kPart <= 65536, "idx holds 16-bit indices");
   std::uint16_t idx[kPart];
   std::uint8_t oct[kPart];
   for (std::size_t base = b; base < e; base += kPart) {

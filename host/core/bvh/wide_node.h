@@ -37,8 +37,8 @@ inline void set_slot(N& n, int s, const Box& b) {
 /// negative one), the farthest first, ties to the higher slot first (so the lower pops first),
 /// empty boxes before all (Fuetterling, Lojewski, Pfreundt & Ebert, "Accelerated Single Ray
 /// Tracing for Wide Vector Units", HPG 2017: the order is made once per node, so the walk pushes
-/// its hit children without sorting them). Only the stack-octant traversal reads it, and only
-/// for speed: any order gives the same answers.
+/// its hit children without sorting them). Only the octant traversals (stack-octant,
+/// bitstack-octant) read it, and only for speed: any order gives the same answers.
 inline void set_octant_order(Node8& n) {
   std::uint8_t bytes[sizeof(n.pad)] = {};
   for (unsigned o = 0; o < 8; ++o) {

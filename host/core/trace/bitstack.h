@@ -259,7 +259,10 @@ inline Hit trace_mbvh8_bitstack(const TraceView& v, const typename K::Ray& r, St
 /// backtrack here re-tests the parent's eight boxes against tmax * S instead (once a hit has
 /// shrunk tmax: before it nothing can be culled) and drops the pending ranks that now miss — a
 /// box entered at d is hit again exactly while d <= tmax * S, so the visit sequence, the leaves
-/// and the answer are the octant stack's (its stackless twin). The re-test is skipped on the
+/// and the answer are the octant stack's (its stackless twin) in robust precision; in fast
+/// precision the two bounds (the stack's te - tol against tcull, the re-test's te against
+/// tcull + tol) may differ by a rounding, which can change the nodes visited, never the answer's
+/// distance (both stay above tmax * S). The re-test is skipped on the
 /// levels pushed since tmax last shrank (tested against it already), and where the lowest pending
 /// rank survives it the walk goes on to that child on a branch rather than a data dependency on
 /// the re-test, whose latency then overlaps the child's fetch. Any hit walks the opposite
@@ -370,10 +373,7 @@ struct Mbvh8OctantBitstackWalk {
 
 template <bool Any, class St, class K = ScalarKernels>
 inline Hit trace_mbvh8_bitstack_octant(const TraceView& v, const typename K::Ray& r, St& st) {
-  Mbvh8OctantBitstackWalk<Any, St, K> w(v, r);
-  while (w.step(st)) {
-  }
-  return w.best;
+  return walk_to_end<Mbvh8OctantBitstackWalk<Any, St, K>>(v, r, st);
 }
 
 /// MBVH4 bitstack-retest (TRAVERSAL.md §3.4, §4.4, "variant B"; mbvh's extension of Áfra &

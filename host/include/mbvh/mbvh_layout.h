@@ -210,7 +210,7 @@ MBVH_STRUCT(Node4W) {
 /* MBVH8 node, 256 bytes (thesis ch. 3: 8-wide AVX single-ray traversal): the eight children's
  * slabs SoA, one 32-byte row per plane, then the references; empty slots as in MBVH4. Only the
  * cpu backends trace it (stack-based, no sibling links). pad's first 24 bytes: the children's
- * order per ray octant (Fuetterling et al. 2017), read by the stack-octant traversal: octant
+ * order per ray octant (Fuetterling et al. 2017), read by the octant traversals: octant
  * o = neg.x | neg.y << 1 | neg.z << 2 (a negative direction component) at byte 3 * o, 24 bits
  * little-endian, lane k's slot in bits 3k..3k+2, farthest first along the octant's direction
  * (slots with an empty box first); the other 4 bytes zero. */
