@@ -530,7 +530,9 @@ TEST_CASE("MBVH8 octant bitstack: the climb and the take are the one-shift backt
       std::uint64_t bl = lo, bh = hi;
       const detail::Backtrack8 b = detail::backtrack8(bl, bh);
       INFO("lowest bit " << p << ", word " << hi << " " << lo);
-      CHECK(detail::climb8(lo, hi) == b.up);
+      const detail::Backtrack8 c = detail::climb8(lo, hi);
+      CHECK(c.up == b.up);
+      CHECK(c.slot == b.slot);
       CHECK((lo & 0xFFu) != 0);
       CHECK(std::countr_zero(lo) == b.slot);
       lo &= lo - 1;

@@ -51,7 +51,7 @@ struct OctantOcclusionWalk {
   StepGuard guard;
   unsigned sp;
   std::int32_t cur;
-  bool hit;  ///< the answer, once step() returned false
+  Hit best;  ///< the answer, once step() returned false: a miss, or the occluder's prim
   std::int32_t stack[MBVH_STACK8_ENTRIES];
 
   OctantOcclusionWalk(const TraceView& view, const SimdRay& ray) : v(view), r(&ray), guard(view) {}
@@ -65,10 +65,10 @@ struct OctantOcclusionWalk {
     guard = StepGuard(v);
     sp = 0;
     cur = 0;
-    hit = false;
+    best = miss_hit();
   }
-  /// One node or leaf visit and the pop after it; false once the ray is done (its answer in hit).
-  [[gnu::always_inline]] bool step() {
+  /// One node or leaf visit and the pop after it; false once the ray is done (its answer in best).
+  [[gnu::always_inline]] bool step(NoStats& st) {
     guard.step();
     if (cur >= 0) {
       const Node8& n = v.n8[cur];
@@ -93,67 +93,14 @@ struct OctantOcclusionWalk {
         return true;
       }
     } else {
-      Hit best = miss_hit();
       float tmax = r->tmax;
-      NoStats st;
-      if (K::template leaf<true>(v, cur, *r, tmax, best, st)) {
-        hit = true;
-        return false;
-      }
+      if (K::template leaf<true>(v, cur, *r, tmax, best, st)) return false;
     }
     if (sp == 0) return false;
     cur = stack[--sp];
     return true;
   }
 };
-
-/// One octant's rays of a chunk (idx: their indices from base), two walked in turn as
-/// batch.h's run_interleaved walks them (each ray's answer the single-ray walk's).
-template <unsigned Oct>
-inline void occluded_bucket(const TraceView& v, std::span<const Ray> rays, const std::uint16_t* idx, unsigned count,
-                            std::size_t base, TraceOutput& out, std::size_t& invalid) {
-  using K = SimdKernelsT<true>;
-  using Walk = OctantOcclusionWalk<Oct>;
-  SimdRay r0{}, r1{};
-  Walk w0(v, r0), w1(v, r1);
-  std::size_t id0 = 0, id1 = 0;
-  unsigned next = 0;
-  const auto load = [&](SimdRay& r, Walk& w, std::size_t& id) {  // the next valid ray; false when none is left
-    while (next < count) {
-      const std::size_t i = base + idx[next++];
-      if (!ready_ray<K>(v, rays[i], r)) {
-        ++invalid;
-        out.occluded[i] = 0;
-        continue;
-      }
-      w.start();
-      id = i;
-      return true;
-    }
-    return false;
-  };
-  bool live0 = load(r0, w0, id0), live1 = live0 && load(r1, w1, id1);
-  while (live0 && live1) {
-    if (!w0.step()) {
-      out.occluded[id0] = w0.hit ? 1 : 0;
-      live0 = load(r0, w0, id0);
-    }
-    if (!w1.step()) {
-      out.occluded[id1] = w1.hit ? 1 : 0;
-      live1 = load(r1, w1, id1);
-    }
-  }
-  if (live0) {  // the ray left, alone
-    while (w0.step()) {
-    }
-    out.occluded[id0] = w0.hit ? 1 : 0;
-  }
-  if (live1) {
-    while (w1.step()) {
-    }
-    out.occluded[id1] = w1.hit ? 1 : 0;
-  }
-}
 
 /// Traces the any-hit rays [b, e) of one chunk, `fast` precision, on the MBVH8 octant-ordered stack with
 /// OctantOcclusionWalk: the rays bucketed by octant (a counting sort; ray order kept within an
@@ -177,8 +124,11 @@ void occluded_octant_run(const TraceView& v, std::span<const Ray> rays, std::siz
     std::memcpy(at, start, sizeof(at));
     for (unsigned k = 0; k < n; ++k) idx[at[oct[k]]++] = static_cast<std::uint16_t>(k);
     [&]<unsigned... O>(std::integer_sequence<unsigned, O...>) {
-      ((start[O + 1] > start[O] ? occluded_bucket<O>(v, rays, idx + start[O], start[O + 1] - start[O], base, out, invalid)
-                                : void()),
+      // each octant's rays two in turn (batch.h's run_interleaved), by their indices in the chunk
+      const auto ray_at = [&](std::size_t k) { return base + idx[k]; };
+      ((start[O + 1] > start[O]
+            ? run_interleaved<true, SimdKernelsT<true>, OctantOcclusionWalk<O>>(v, rays, start[O], start[O + 1], out, invalid, ray_at)
+            : void()),
        ...);
     }(std::make_integer_sequence<unsigned, 8>{});
   }

@@ -126,10 +126,15 @@ template <bool Any>
 /// walked in turn, a node or leaf of one, then of the other: a ray's walk is one chain of
 /// dependent loads and tests (the node, its box test, the child picked, the child's node), and
 /// the other ray's step fills the core while it waits. Each ray's answer is the single-ray walk's
-/// (the same steps in the same order); a finished ray's slot takes the next ray of [b, e).
-template <bool Any, class K, class Walk>
+/// (the same steps in the same order); a finished ray's slot takes the next ray of [b, e). `at`
+/// maps a position of [b, e) to its ray's index in `rays` and `out` (by default the position
+/// itself; simd/occlusion.h walks one direction octant's rays of a chunk by their indices).
+struct SameIndex {
+  constexpr std::size_t operator()(std::size_t k) const { return k; }
+};
+template <bool Any, class K, class Walk, class At = SameIndex>
 inline void run_interleaved(const TraceView& v, std::span<const Ray> rays, std::size_t b, std::size_t e, TraceOutput& out,
-                            std::size_t& invalid) {
+                            std::size_t& invalid, At at = {}) {
   typename K::Ray r0{}, r1{};  // defined before a walk is made on them (its start() reads tmax); load() sets them
   Walk w0(v, r0), w1(v, r1);
   std::size_t id0 = 0, id1 = 0, next = b;
@@ -137,7 +142,7 @@ inline void run_interleaved(const TraceView& v, std::span<const Ray> rays, std::
   const auto store = [&](const Walk& w, std::size_t id) { store_answer<Any>(out, id, w.best); };
   const auto load = [&](typename K::Ray& r, Walk& w, std::size_t& id) {  // the next valid ray; false when none is left
     while (next < e) {
-      const std::size_t i = next++;
+      const std::size_t i = at(next++);
       if (!ready_ray<K>(v, rays[i], r)) {
         ++invalid;
         store_answer<Any>(out, i, miss_hit());

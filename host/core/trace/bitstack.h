@@ -125,15 +125,18 @@ inline Hit trace_mbvh4_bitstack(const TraceView& v, const typename K::Ray& r, St
 }
 
 namespace detail {
-/// The MBVH8 bitstack's backtrack on its 128-bit word (lo, hi; byte j: the pending slots of the
-/// j-th level above the current parent; not both 0): the deepest level with a pending sibling is
-/// the word's lowest non-zero byte. Returns how many levels to climb to it and its lowest pending
-/// slot; the word becomes that level's, the slot's bit cleared (the levels climbed past popped in
-/// one shift rather than a test and shift a level).
+/// Where the MBVH8 bitstack's backtrack goes: `up` levels above the current parent, to its lowest
+/// pending slot.
 struct Backtrack8 {
   int up, slot;
 };
-[[gnu::always_inline]] constexpr Backtrack8 backtrack8(std::uint64_t& lo, std::uint64_t& hi) {
+/// The climb of the MBVH8 bitstacks' backtrack on their 128-bit word (lo, hi; byte j: the pending
+/// slots or ranks of the j-th level above the current parent; not both 0): the deepest level with
+/// a pending sibling is the word's lowest non-zero byte. The word becomes that level's (the levels
+/// climbed past popped in one shift rather than a test and shift a level); returns how many
+/// levels to climb and that level's lowest pending bit, left set (the octant bitstack may re-test
+/// the level before it takes one).
+[[gnu::always_inline]] constexpr Backtrack8 climb8(std::uint64_t& lo, std::uint64_t& hi) {
   int up = 0;
   if (lo == 0) {  // none in the lower 8 levels: all 8 climbed (rare; the depth cap is 14)
     lo = hi;
@@ -147,26 +150,13 @@ struct Backtrack8 {
     hi >>= sh;
     up += u;
   }
-  lo &= lo - 1;
   return {up, low & 7};
 }
-/// The climb of backtrack8 alone (the octant bitstack's, which may re-test the level before it
-/// takes a bit): the word becomes the deepest level's with a pending bit (lowest byte non-zero);
-/// returns the levels climbed.
-[[gnu::always_inline]] constexpr int climb8(std::uint64_t& lo, std::uint64_t& hi) {
-  int up = 0;
-  if (lo == 0) {
-    lo = hi;
-    hi = 0;
-    up = 8;
-  }
-  if (const int u = std::countr_zero(lo) >> 3; u != 0) {
-    const int sh = u << 3;
-    lo = (lo >> sh) | (hi << (64 - sh));
-    hi >>= sh;
-    up += u;
-  }
-  return up;
+/// The MBVH8 bitstack's backtrack: climb8, then the slot taken (its bit cleared).
+[[gnu::always_inline]] constexpr Backtrack8 backtrack8(std::uint64_t& lo, std::uint64_t& hi) {
+  const Backtrack8 b = climb8(lo, hi);
+  lo &= lo - 1;
+  return b;
 }
 }  // namespace detail
 
@@ -336,7 +326,7 @@ struct Mbvh8OctantBitstackWalk {
     // push (else on up), take the lowest
     for (;;) {
       if ((lo | hi) == 0) return false;
-      const int up = detail::climb8(lo, hi);
+      const int up = detail::climb8(lo, hi).up;
       for (int j = up; j > 0; --j) {
         guard.step();
         par = &v.n8[par->parent];
