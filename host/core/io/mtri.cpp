@@ -22,7 +22,7 @@ namespace mbvh {
 
 namespace {
 
-struct Header {
+struct MtriHeader {
   char magic[8];
   std::uint32_t version;
   std::uint32_t flags;
@@ -31,10 +31,10 @@ struct Header {
   std::uint64_t content_hash;
   std::uint64_t check;  // hash_bytes of the bytes before it
 };
-static_assert(sizeof(Header) == kMtriHeaderBytes);
+static_assert(sizeof(MtriHeader) == kMtriHeaderBytes);
 static_assert(sizeof(Box) == 24);
 
-std::uint64_t header_check(const Header& h) { return hash_bytes(&h, offsetof(Header, check)); }
+std::uint64_t header_check(const MtriHeader& h) { return hash_bytes(&h, offsetof(MtriHeader, check)); }
 std::uint64_t block_count(std::uint64_t count) { return (count * sizeof(SourceTri) + kMtriBlockBytes - 1) / kMtriBlockBytes; }
 std::uint64_t content_hash(const std::vector<std::uint64_t>& table, std::uint64_t count) {
   return hash_bytes(table.data(), table.size() * sizeof(std::uint64_t), count);
@@ -51,7 +51,7 @@ bool is_mtri(const void* head, std::size_t size) { return size >= 8 && std::memc
 // -- writing
 
 MtriWriter::MtriWriter(const OutputTarget& to) : out_(to) {
-  const Header placeholder{};  // patched by finish()
+  const MtriHeader placeholder{};  // patched by finish()
   out_.write(&placeholder, sizeof placeholder);
   block_.reserve(kMtriBlockBytes);
 }
@@ -82,7 +82,7 @@ void MtriWriter::add(std::span<const SourceTri> tris) {
 
 void MtriWriter::finish() {
   flush_block();
-  Header h{};
+  MtriHeader h{};
   std::memcpy(h.magic, kMtriMagic, 8);
   h.version = kMtriVersion;
   h.flags = 0;
@@ -131,7 +131,7 @@ MtriReader::MtriReader(const std::string& path) : path_(path) {
     if (size_ < kMtriHeaderBytes + 8)
       throw Error(bad + "truncated: " + std::to_string(size_) + " bytes, less than the " + std::to_string(kMtriHeaderBytes + 8) +
                   " of an empty file");
-    Header h;
+    MtriHeader h;
     read_exactly(fd_, path, &h, sizeof h, 0);
     if (std::memcmp(h.magic, kMtriMagic, 8) != 0) throw Error(bad + "magic: no \"MBVHTRI\" header");
     if (h.version != kMtriVersion)

@@ -183,13 +183,13 @@ private:
 
 // Reads the header from `p` (past a byte-order mark) to its end_header line: the format and the
 // elements with their properties, in file order. `p` moves past the header, `line` counts its lines.
-struct Header {
+struct PlyHeader {
   Format format = Format::ascii;
   std::vector<Element> elements;
 };
 
-Header read_header(const std::string& name, const char*& p, const char* end, std::size_t& line) {
-  Header h;
+PlyHeader read_header(const std::string& name, const char*& p, const char* end, std::size_t& line) {
+  PlyHeader h;
   auto next_line = [&](std::string& out) -> bool {
     if (p >= end) return false;
     const char* eol = static_cast<const char*>(std::memchr(p, '\n', static_cast<std::size_t>(end - p)));
@@ -292,7 +292,7 @@ Scene parse_ply(const std::string& name, const char* data, std::size_t size) {
   const char* end = data + size;
   if (size >= 3 && std::memcmp(p, "\xEF\xBB\xBF", 3) == 0) p += 3;  // UTF-8 byte-order mark
   std::size_t line = 0;
-  const Header h = read_header(name, p, end, line);
+  const PlyHeader h = read_header(name, p, end, line);
   const Format format = h.format;
   const std::vector<Element>& elements = h.elements;
 
