@@ -71,7 +71,7 @@ done
 # -- 4. scaling
 log "scaling"
 if [ "$QUICK" = 1 ]; then MAXTRI=30000; SRAYS=4000; else MAXTRI=10000000; SRAYS=100000; fi
-PYTHON="$PY" MBVH="$MBVH" bash "$ROOT/bench/scaling.sh" "$OUT/scaling" "$MAXTRI" "$SRAYS" > "$OUT/scaling/table.md" 2> "$OUT/scaling/log.txt" ||
+PYTHON="$PY" MBVH="$MBVH" bash "$ROOT/bench/scaling.sh" "$OUT/scaling" "$MAXTRI" "$SRAYS" "$WARMUP" > "$OUT/scaling/table.md" 2> "$OUT/scaling/log.txt" ||
   { tail -20 "$OUT/scaling/log.txt" >&2; exit 1; }
 
 # -- plots, tables, checks
