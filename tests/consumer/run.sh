@@ -218,7 +218,9 @@ cmake -S "$CONSUMER" -B "$WORK/sub" -G Ninja -DMBVH_SOURCE_DIR="$ROOT" \
   -DMBVH_INSTALL=ON -DBUILD_SHARED_LIBS=ON -DCMAKE_DISABLE_FIND_PACKAGE_OpenCL=ON -DCMAKE_DISABLE_FIND_PACKAGE_Vulkan=ON \
   -DCMAKE_DISABLE_FIND_PACKAGE_embree=ON `# and the library needs none of the program's, the tests' or Python's:` \
   -DCMAKE_DISABLE_FIND_PACKAGE_CLI11=ON -DCMAKE_DISABLE_FIND_PACKAGE_nlohmann_json=ON -DCMAKE_DISABLE_FIND_PACKAGE_ZLIB=ON \
-  -DCMAKE_DISABLE_FIND_PACKAGE_Catch2=ON -DCMAKE_DISABLE_FIND_PACKAGE_Python3=ON -DCMAKE_DISABLE_FIND_PACKAGE_pybind11=ON | tee "$WORK/sub-configure.log" | grep "mbvh:" || true
+  -DCMAKE_DISABLE_FIND_PACKAGE_Catch2=ON -DCMAKE_DISABLE_FIND_PACKAGE_Python3=ON -DCMAKE_DISABLE_FIND_PACKAGE_pybind11=ON \
+  `# nor MPI (mbvh::mpi is the install's test above), nor the tinybvh peer (bench and check only, and a user's` \
+  `# tree has no ../shared/peers beside it):` -DCMAKE_DISABLE_FIND_PACKAGE_MPI=ON -DMBVH_TINYBVH=OFF | tee "$WORK/sub-configure.log" | grep "mbvh:" || true
 grep -q "the OPENCL backend is not built" "$WORK/sub-configure.log"
 grep -q "the EMBREE backend is not built" "$WORK/sub-configure.log"
 # nothing of mbvh's own leaks into the consumer's cache
