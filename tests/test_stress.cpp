@@ -251,6 +251,46 @@ TEST_CASE("stress: a corrupt or adversarial tree is refused and cannot make a ra
   Mbvh4 badlink = m4;
   badlink.nodes[1].sib[0] = 12345;
   CHECK_THROWS_WITH(validate_layout(badlink, acc->leaves().size()), Catch::Contains("sibling"));
+  // a leaf listed by two nodes and another by none (as many leaf references as leaves)
+  Mbvh4 twice = m4;
+  {
+    std::size_t first = SIZE_MAX;
+    int first_slot = 0;
+    bool done = false;
+    for (std::size_t p = 0; p < twice.nodes.size() && !done; ++p)
+      for (int s = 0; s < 4 && !done; ++s) {
+        const std::int32_t c = twice.nodes[p].child[s];
+        if (c >= 0 || c == MBVH_EMPTY) continue;
+        if (first == SIZE_MAX) {
+          first = p;
+          first_slot = s;
+        } else if (p != first) {
+          twice.nodes[p].child[s] = twice.nodes[first].child[first_slot];
+          done = true;
+        }
+      }
+    REQUIRE(done);
+  }
+  CHECK_THROWS_WITH(validate_layout(twice, acc->leaves().size()), Catch::Contains("referenced twice"));
+  // a node its parent no longer lists (the slot emptied, the siblings' links to it too): every
+  // reference left is consistent, only the count of listed nodes tells
+  Mbvh4 orphan = m4;
+  {
+    std::size_t p = 0;
+    int slot = -1;
+    for (; p < orphan.nodes.size() && slot < 0; ++p)
+      for (int s = 0; s < 4 && slot < 0; ++s)
+        if (orphan.nodes[p].child[s] >= 0) slot = s;
+    REQUIRE(slot >= 0);
+    Node4& n = orphan.nodes[p - 1];
+    n.child[slot] = MBVH_EMPTY;
+    for (int t = 0; t < 4; ++t)
+      if (n.child[t] >= 0) {
+        Node4& sibling = orphan.nodes[static_cast<std::size_t>(n.child[t])];
+        for (int k = 0; k < 3; ++k) sibling.sib[k] = n.child[(t + 1 + k) & 3];
+      }
+  }
+  CHECK_THROWS_WITH(validate_layout(orphan, acc->leaves().size()), Catch::Contains("unreachable"));
   // checked builds (Debug, the sanitizers) also bound the steps of a traversal handed a cyclic
   // tree directly: tests/test_checked_build.cpp
 }

@@ -3,6 +3,7 @@
 // range, every node and leaf referenced once, the parent and sibling links consistent. The wide
 // layouts are checked on the pool first (wide_ok); the serial walk runs only to name a fault.
 #include <atomic>
+#include <cstring>
 #include <memory>
 #include <string>
 #include <vector>
@@ -35,19 +36,24 @@ void check_ref(const char* layout, std::size_t i, std::int32_t c, std::size_t no
 }
 
 // Whether a W-wide layout passes validate_wide, checked on the pool without a per-node count:
-// every child reference of node i is a later node naming i as its parent (with matching links),
-// no node lists a child twice, and every node but the root names an earlier parent that lists
-// it; by induction on the index every node is then reachable from the root, once. Leaves are
-// counted atomically. validate_wide runs only where this fails, for its first fault's message.
+// every child reference of node i is a later node naming i as its parent (with matching links)
+// and no node lists a child twice, so a node is listed by at most one node, its parent; with n - 1
+// such references among n nodes (counted per chunk) every node but the root is listed exactly
+// once, by an earlier node, and by induction on the index is reachable from the root. Likewise
+// each leaf reference in range marks its leaf (a relaxed store, no read-modify-write) and is
+// counted: every leaf marked and as many references as leaves means each leaf is listed once.
+// validate_wide runs only where this fails, for its first fault's message.
 template <class N, class LinksOk>
 bool wide_ok(const AlignedVector<N>& nodes, std::size_t leaf_count, unsigned threads, LinksOk links_ok) {
   constexpr int W = node_width<N>();
   const std::size_t n = nodes.size();
   if (n == 0 || nodes[0].parent != MBVH_NONE) return false;
-  const auto leaf_seen = std::make_unique<std::atomic<std::uint8_t>[]>(leaf_count);  // value-initialised: 0
+  const auto leaf_seen = std::make_unique<std::uint8_t[]>(leaf_count);  // value-initialised: 0
   std::atomic<bool> ok{true};
-  parallel_for(n, 8192, threads, [&](std::size_t b, std::size_t e, unsigned) {
+  std::atomic<std::size_t> node_refs{0}, leaf_refs{0};
+  parallel_for(n, 2048, threads, [&](std::size_t b, std::size_t e, unsigned) {
     bool good = true;
+    std::size_t inner = 0, refs = 0;
     for (std::size_t i = b; i < e && good; ++i) {
       const N& p = nodes[i];
       for (int s = 0; s < W; ++s) {
@@ -57,22 +63,22 @@ bool wide_ok(const AlignedVector<N>& nodes, std::size_t leaf_count, unsigned thr
           const std::size_t ci = static_cast<std::size_t>(c);
           if (ci <= i || ci >= n || nodes[ci].parent != static_cast<std::int32_t>(i) || !links_ok(nodes[ci], p, s)) good = false;
           for (int t = 0; t < s; ++t) good = good && p.child[t] != c;
+          ++inner;
         } else {
           const std::size_t li = static_cast<std::size_t>(~c);
-          good = good && li < leaf_count && leaf_seen[li].exchange(1, std::memory_order_relaxed) == 0;
+          if (li < leaf_count) std::atomic_ref<std::uint8_t>(leaf_seen[li]).store(1, std::memory_order_relaxed);
+          else good = false;
+          ++refs;
         }
       }
-      if (i > 0) {
-        const std::int32_t q = p.parent;
-        bool listed = false;
-        if (q >= 0 && static_cast<std::size_t>(q) < i)
-          for (int s = 0; s < W; ++s) listed = listed || nodes[static_cast<std::size_t>(q)].child[s] == static_cast<std::int32_t>(i);
-        good = good && listed;
-      }
     }
+    node_refs.fetch_add(inner, std::memory_order_relaxed);
+    leaf_refs.fetch_add(refs, std::memory_order_relaxed);
     if (!good) ok = false;
   });
-  return ok;
+  if (!ok || node_refs.load() != n - 1 || leaf_refs.load() != leaf_count) return false;
+  // (parallel_for's end orders the workers' marks before this read)
+  return leaf_count == 0 || std::memchr(leaf_seen.get(), 0, leaf_count) == nullptr;
 }
 
 // The checks of a W-wide layout on up to `threads` workers; `links_ok(child, parent node, slot)`
