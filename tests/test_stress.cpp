@@ -258,14 +258,14 @@ TEST_CASE("stress: a corrupt or adversarial tree is refused and cannot make a ra
     int first_slot = 0;
     bool done = false;
     for (std::size_t p = 0; p < twice.nodes.size() && !done; ++p)
-      for (int s = 0; s < 4 && !done; ++s) {
-        const std::int32_t c = twice.nodes[p].child[s];
+      for (int k = 0; k < 4 && !done; ++k) {
+        const std::int32_t c = twice.nodes[p].child[k];
         if (c >= 0 || c == MBVH_EMPTY) continue;
         if (first == SIZE_MAX) {
           first = p;
-          first_slot = s;
+          first_slot = k;
         } else if (p != first) {
-          twice.nodes[p].child[s] = twice.nodes[first].child[first_slot];
+          twice.nodes[p].child[k] = twice.nodes[first].child[first_slot];
           done = true;
         }
       }
@@ -279,8 +279,8 @@ TEST_CASE("stress: a corrupt or adversarial tree is refused and cannot make a ra
     std::size_t p = 0;
     int slot = -1;
     for (; p < orphan.nodes.size() && slot < 0; ++p)
-      for (int s = 0; s < 4 && slot < 0; ++s)
-        if (orphan.nodes[p].child[s] >= 0) slot = s;
+      for (int k = 0; k < 4 && slot < 0; ++k)
+        if (orphan.nodes[p].child[k] >= 0) slot = k;
     REQUIRE(slot >= 0);
     Node4& n = orphan.nodes[p - 1];
     n.child[slot] = MBVH_EMPTY;

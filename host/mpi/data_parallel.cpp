@@ -284,7 +284,7 @@ void trace_part(Backend& backend, const Part& part, const std::vector<Ray>& rays
 // What trace_data_parallel keeps between calls, so a repeated trace of as many rays touches no
 // fresh memory (on these machines a first-touched page costs microseconds, as much as tracing a
 // ray): the per-ray reach and cursors, a round's sends and receipts, this part's answers.
-struct Scratch {
+struct ForwardScratch {
   Reach rc;
   std::vector<std::size_t> cursor;
   std::vector<std::pair<std::uint32_t, std::uint32_t>> sends;
@@ -294,7 +294,7 @@ struct Scratch {
   std::vector<Hit> hits_back;
   std::vector<std::uint8_t> occluded_back;
 };
-Scratch g_scratch;  // trace_data_parallel is not reentrant (MPI calls from one thread, g_last)
+ForwardScratch g_scratch;  // trace_data_parallel is not reentrant (MPI calls from one thread, g_last)
 
 ForwardStats g_last;  // last_forward_stats: this process's last trace_data_parallel
 
@@ -402,7 +402,7 @@ void trace_data_parallel(const Comm& comm, Backend& backend, const Part& part, s
   out.reset(rays.size(), opt);
 
   // -- per ray, the parts it reaches, nearest entry first; a cursor into them
-  Scratch& sc = g_scratch;
+  ForwardScratch& sc = g_scratch;
   reach(part, rays, out.invalid, sc.rc);
   const Reach& rc = sc.rc;
   std::vector<std::size_t>& cursor = sc.cursor;

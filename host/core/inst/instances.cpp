@@ -71,7 +71,9 @@ Vec3f Affine::apply(const Vec3f& p) const {
   return w;
 }
 
-namespace {
+// a named namespace, not an anonymous one: InstanceScene::Impl, a class of the public header,
+// holds these types (an anonymous one would give the class internal-linkage members)
+namespace instances_detail {
 
 using Clock = std::chrono::steady_clock;
 
@@ -164,7 +166,8 @@ Box world_box(const Affine& a, const Box& b) {
   return o;
 }
 
-}  // namespace
+}  // namespace instances_detail
+using namespace instances_detail;
 
 struct InstanceScene::Impl {
   std::vector<std::shared_ptr<const Accel>> meshes;
