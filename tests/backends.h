@@ -158,7 +158,7 @@ inline void check_bench_beside_cpu(const std::string& backend, const std::string
                                    std::size_t expected, std::initializer_list<const char*> device_words) {
   TempDir dir;
   const std::string json = dir.file("b.json");
-  const auto r = run_cli("bench gen:soup:20000 --count 5000 --kinds primary --backend cpu," + backend + " " + args +
+  const auto r = run_cli("bench gen:soup:20000 --count 5000 --warmup 0 --kinds primary --backend cpu," + backend + " " + args +
                          " --query closest,any --json " + json);
   INFO(r.output);
   REQUIRE(r.code == 0);
