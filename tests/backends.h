@@ -51,7 +51,7 @@ inline mbvh::VariantGrid all_backends() {
   return g;
 }
 
-/// all_backends() for the [sanitizer-cpu] tier (the two largest stress tests): under the sanitizers
+/// all_backends() for the [sanitizer-cpu] tier (the largest stress and range tests): under the sanitizers
 /// (mbvh_test::sanitized()) the instrumented cpu backends only (cpu-scalar and the cpu backend of this
 /// machine's ISA, those MBVH_TEST_BACKENDS selects): the device backends' traversals run in PoCL's
 /// and lavapipe's own code, which the sanitizers do not see, and their host code runs in every other

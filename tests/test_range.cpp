@@ -22,10 +22,11 @@ using namespace mbvh;
 namespace {
 
 // The genuine mismatches against the brute force of every backend of this build (all layouts,
-// traversals, queries, packets too) on `rays`; a peer library's are printed, not counted.
+// traversals, queries, packets too) on `rays`; a peer library's are printed, not counted. Under
+// the sanitizers the cpu backends only (a [sanitizer-cpu] test: tests/backends.h).
 std::size_t mismatches_vs_brute(const Accel& acc, const std::vector<Ray>& rays, const std::string& what) {
   CheckOptions co;
-  co.grid = mbvh_test::with_packets(mbvh_test::all_backends());
+  co.grid = mbvh_test::with_packets(mbvh_test::sanitizer_cpu_backends());
   co.brute_rays = SIZE_MAX;
   co.backend = mbvh_test::packets_always();
   const CheckReport rep = run_check(acc, rays, co);
@@ -95,11 +96,12 @@ std::vector<Ray> rays_near_tiny(float s, float z, std::size_t n, std::uint64_t s
 }
 
 // Per non-peer backend x layout x traversal x query, rays whose answer differs from the brute
-// force's: another prim, a t more than 4 ulp away, or (any hit) another occlusion.
+// force's: another prim, a t more than 4 ulp away, or (any hit) another occlusion. Under the
+// sanitizers the cpu backends only (as mismatches_vs_brute).
 std::size_t differ_from_brute(const Accel& acc, const std::vector<Ray>& rays, const std::string& what, bool check_t = true) {
   std::vector<Hit> brute(rays.size());
   for (std::size_t i = 0; i < rays.size(); ++i) brute[i] = brute_force(acc, rays[i]);
-  const VariantGrid grid = mbvh_test::with_packets(mbvh_test::all_backends());
+  const VariantGrid grid = mbvh_test::with_packets(mbvh_test::sanitizer_cpu_backends());
   std::size_t total = 0;
   for (const std::string& name : grid.backends) {
     auto b = make_backend(name, mbvh_test::packets_always());
@@ -168,7 +170,7 @@ TEST_CASE("range: a triangle with an area below 2^-110 is refused by build and r
 }
 
 TEST_CASE("range: triangles just above 2^-110 beside a unit triangle are hit exactly on every backend",
-          "[reliability][range]") {
+          "[reliability][range][sanitizer-cpu]") {
   for (float s : {std::ldexp(1.5f, -55), std::ldexp(1.0f, -50), std::ldexp(1.0f, -40), std::ldexp(1.0f, -30)}) {
     for (float z : {0.5f, 0.0f}) {
       const Scene sc = tiny_beside_unit(s, z);
@@ -229,7 +231,7 @@ std::vector<Ray> scaled_directions(std::vector<Ray> rays, int k) {
 // such a ray is refused by every backend and the reference, naming it and the limits; inside the
 // limits, at the ends of the scene range, every backend is exact.
 TEST_CASE("range: rays whose direction leaves the traced range are refused by every backend - inside it they are exact",
-          "[reliability][range]") {
+          "[reliability][range][sanitizer-cpu]") {
   const Scene unit = load_scene("gen:sphere:24");
   const auto acc = Accel::build(unit);
   RayGenOptions ro;
