@@ -202,8 +202,8 @@ inline bool coherent_directions(std::span<const Ray> rays, std::size_t b, std::s
 }
 
 /// Walks rays [b, e) two in turn (run_interleaved) where K and `opt` take it, without statistics:
-/// the MBVH4 ordered stack and the MBVH8 octant stack, both queries; the MBVH8 bitstack and
-/// octant bitstack closest hit; the MBVH8 ordered stack any hit, and closest hit where the rays are coherent
+/// the MBVH4 ordered stack and the MBVH8 octant stack and octant bitstack, both queries; the MBVH8
+/// bitstack closest hit; the MBVH8 ordered stack any hit, and closest hit where the rays are coherent
 /// (coherent_directions): on two incoherent rays the ordered stack's sort branches mispredict,
 /// where the octant stack's push has no branch on the order (measurements: docs/backends.md).
 /// False where the rays are left to run_batch.
@@ -218,9 +218,10 @@ inline bool walked_in_turn(const TraceView& v, std::span<const Ray> rays, std::s
       run_interleaved<false, K, Mbvh8BitstackWalk<false, NoStats, K>>(v, rays, b, e, out, invalid);
       return true;
     }
-    if (opt.traversal == Traversal::bitstack_octant) {  // MBVH8 only, closest hit
-      if (opt.layout != Layout::mbvh8 || any) return false;
-      run_interleaved<false, K, Mbvh8OctantBitstackWalk<false, NoStats, K>>(v, rays, b, e, out, invalid);
+    if (opt.traversal == Traversal::bitstack_octant) {  // MBVH8 only, both queries
+      if (opt.layout != Layout::mbvh8) return false;
+      if (any) run_interleaved<true, K, Mbvh8OctantBitstackWalk<true, NoStats, K>>(v, rays, b, e, out, invalid);
+      else run_interleaved<false, K, Mbvh8OctantBitstackWalk<false, NoStats, K>>(v, rays, b, e, out, invalid);
       return true;
     }
     if (opt.traversal == Traversal::stack_octant) {  // MBVH8 only
