@@ -40,6 +40,7 @@ struct MicKernelsT : SimdKernelsT<Fast> {
   using Ray = MicRay;
   static constexpr bool uses_node4w = true;
   static constexpr bool octant_any = false;  // the per-octant any hit prepares SimdRays, not MicRays
+  static constexpr bool mbvh4_only = true;  // batch.h: runs_mic (isa_kernels.cpp) traces MBVH4 alone with it
   [[gnu::always_inline]] static bool prepare(const mbvh::Ray& ray, Ray& r) { return prepare_ray_simd<!Fast>(ray, r); }
   static void finish(Ray& r, const TraceView& v) {
     finish_ray<!Fast>(r, v);

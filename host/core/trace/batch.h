@@ -95,6 +95,15 @@ constexpr bool interleaves() {
   else return false;
 }
 
+/// Whether kernel policy K may trace MBVH8 (its `mbvh4_only` off; the MIC policy, which the cpu
+/// backend runs on MBVH4 alone, has it on: walked_in_turn then makes none of the MBVH8 walks for
+/// it, code that would never run).
+template <class K>
+constexpr bool walks_mbvh8() {
+  if constexpr (requires { K::mbvh4_only; }) return !K::mbvh4_only;
+  else return true;
+}
+
 /// Whether kernel policy K walks the MBVH8 octant-ordered stack's any hit with its own batch walk
 /// (its `octant_any` on: K::trace_octant_any in place of OctantWalk; the SIMD policies' fast
 /// precision, which compiles it per ray direction octant).
@@ -202,47 +211,49 @@ inline bool coherent_directions(std::span<const Ray> rays, std::size_t b, std::s
 }
 
 /// Walks rays [b, e) two in turn (run_interleaved) where K and `opt` take it, without statistics:
-/// the MBVH4 ordered stack and the MBVH8 octant stack, both queries; the MBVH8 bitstack and
-/// octant bitstack closest hit; the MBVH8 ordered stack any hit, and closest hit where the rays are coherent
+/// the MBVH4 ordered stack and the MBVH8 octant stack and octant bitstack, both queries; the MBVH8
+/// bitstack closest hit; the MBVH8 ordered stack any hit, and closest hit where the rays are coherent
 /// (coherent_directions): on two incoherent rays the ordered stack's sort branches mispredict,
 /// where the octant stack's push has no branch on the order (measurements: docs/backends.md).
-/// False where the rays are left to run_batch.
+/// False where the rays are left to run_batch (and for MBVH8 where K is MBVH4's only: walks_mbvh8).
 template <class K>
 inline bool walked_in_turn(const TraceView& v, std::span<const Ray> rays, std::size_t b, std::size_t e,
                            const TraceOptions& opt, TraceOutput& out, std::size_t& invalid) {
   if constexpr (interleaves<K>()) {
     if (opt.stats) return false;
     const bool any = opt.query == Query::any;
-    if (opt.traversal == Traversal::bitstack) {  // MBVH8 closest hit
-      if (opt.layout != Layout::mbvh8 || any) return false;
-      run_interleaved<false, K, Mbvh8BitstackWalk<false, NoStats, K>>(v, rays, b, e, out, invalid);
-      return true;
-    }
-    if (opt.traversal == Traversal::bitstack_octant) {  // MBVH8 only, closest hit
-      if (opt.layout != Layout::mbvh8 || any) return false;
-      run_interleaved<false, K, Mbvh8OctantBitstackWalk<false, NoStats, K>>(v, rays, b, e, out, invalid);
-      return true;
-    }
-    if (opt.traversal == Traversal::stack_octant) {  // MBVH8 only
-      if (opt.layout != Layout::mbvh8) return false;
-      if (any) {
-        if constexpr (own_octant_any<K>()) K::trace_octant_any(v, rays, b, e, out, invalid);
-        else run_interleaved<true, K, OctantWalk<true, NoStats, K>>(v, rays, b, e, out, invalid);
-      } else run_interleaved<false, K, OctantWalk<false, NoStats, K>>(v, rays, b, e, out, invalid);
-      return true;
-    }
-    if (opt.traversal != Traversal::stack_ordered) return false;
     if (opt.layout == Layout::mbvh4) {
+      if (opt.traversal != Traversal::stack_ordered) return false;
       if (any) run_interleaved<true, K, OrderedWalk<true, NoStats, K, Node4>>(v, rays, b, e, out, invalid);
       else run_interleaved<false, K, OrderedWalk<false, NoStats, K, Node4>>(v, rays, b, e, out, invalid);
       return true;
     }
     if (opt.layout != Layout::mbvh8) return false;
-    if (any) run_interleaved<true, K, OrderedWalk<true, NoStats, K, Node8>>(v, rays, b, e, out, invalid);
-    else if (coherent_directions(rays, b, e))  // the insertion sort (OrderedWalk's Sorted off): coherent rays predict it
-      run_interleaved<false, K, OrderedWalk<false, NoStats, K, Node8, false>>(v, rays, b, e, out, invalid);
-    else return false;
-    return true;
+    if constexpr (walks_mbvh8<K>()) {
+      if (opt.traversal == Traversal::bitstack) {  // closest hit
+        if (any) return false;
+        run_interleaved<false, K, Mbvh8BitstackWalk<false, NoStats, K>>(v, rays, b, e, out, invalid);
+        return true;
+      }
+      if (opt.traversal == Traversal::bitstack_octant) {
+        if (any) run_interleaved<true, K, Mbvh8OctantBitstackWalk<true, NoStats, K>>(v, rays, b, e, out, invalid);
+        else run_interleaved<false, K, Mbvh8OctantBitstackWalk<false, NoStats, K>>(v, rays, b, e, out, invalid);
+        return true;
+      }
+      if (opt.traversal == Traversal::stack_octant) {
+        if (any) {
+          if constexpr (own_octant_any<K>()) K::trace_octant_any(v, rays, b, e, out, invalid);
+          else run_interleaved<true, K, OctantWalk<true, NoStats, K>>(v, rays, b, e, out, invalid);
+        } else run_interleaved<false, K, OctantWalk<false, NoStats, K>>(v, rays, b, e, out, invalid);
+        return true;
+      }
+      if (opt.traversal != Traversal::stack_ordered) return false;
+      if (any) run_interleaved<true, K, OrderedWalk<true, NoStats, K, Node8>>(v, rays, b, e, out, invalid);
+      else if (coherent_directions(rays, b, e))  // the insertion sort (OrderedWalk's Sorted off): coherent rays predict it
+        run_interleaved<false, K, OrderedWalk<false, NoStats, K, Node8, false>>(v, rays, b, e, out, invalid);
+      else return false;
+      return true;
+    }
   }
   return false;
 }
