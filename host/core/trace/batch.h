@@ -211,8 +211,8 @@ inline bool coherent_directions(std::span<const Ray> rays, std::size_t b, std::s
 }
 
 /// Walks rays [b, e) two in turn (run_interleaved) where K and `opt` take it, without statistics:
-/// the MBVH4 ordered stack and the MBVH8 octant stack and octant bitstack, both queries; the MBVH8
-/// bitstack closest hit; the MBVH8 ordered stack any hit, and closest hit where the rays are coherent
+/// the MBVH4 ordered stack and the MBVH8 bitstack, octant stack and octant bitstack, both queries;
+/// the MBVH8 ordered stack any hit, and closest hit where the rays are coherent
 /// (coherent_directions): on two incoherent rays the ordered stack's sort branches mispredict,
 /// where the octant stack's push has no branch on the order (measurements: docs/backends.md).
 /// False where the rays are left to run_batch (and for MBVH8 where K is MBVH4's only: walks_mbvh8).
@@ -230,9 +230,9 @@ inline bool walked_in_turn(const TraceView& v, std::span<const Ray> rays, std::s
     }
     if (opt.layout != Layout::mbvh8) return false;
     if constexpr (walks_mbvh8<K>()) {
-      if (opt.traversal == Traversal::bitstack) {  // closest hit
-        if (any) return false;
-        run_interleaved<false, K, Mbvh8BitstackWalk<false, NoStats, K>>(v, rays, b, e, out, invalid);
+      if (opt.traversal == Traversal::bitstack) {
+        if (any) run_interleaved<true, K, Mbvh8BitstackWalk<true, NoStats, K>>(v, rays, b, e, out, invalid);
+        else run_interleaved<false, K, Mbvh8BitstackWalk<false, NoStats, K>>(v, rays, b, e, out, invalid);
         return true;
       }
       if (opt.traversal == Traversal::bitstack_octant) {
