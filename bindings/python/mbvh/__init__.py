@@ -107,7 +107,7 @@ class Accel:
         occlusion file's bytes). stats=True: a tuple (answers, STATS_DTYPE counters per ray).
         backend: a name of backends() ("cpu", "cpu-scalar", "opencl", "vulkan", "dacrt", ...);
         threads: CPU workers, 0 for every core; layout ("mbvh2", "mbvh4", "mbvh8"), traversal
-        ("bitstack", "stack", "stack_ordered", "packet", ...) and precision ("robust", "exact",
+        ("bitstack", "stack", "stack-ordered", "packet", ...) and precision ("robust", "exact",
         "fast") default as ``mbvh trace`` does; settings: backend settings ({"opencl.device": "cpu"}).
         """
         return self._a.trace(_ray_array(rays_or_origins, directions, tmin, tmax), backend, query, threads, layout,
