@@ -29,7 +29,7 @@
 
 namespace mbvh {
 
-namespace {
+namespace output_detail {  // named, not anonymous: StreamedOutput::Impl holds Staged (-Wsubobject-linkage in unity builds)
 
 // -- temporaries the signal handler removes: a fixed table of paths, no allocation in the handler
 
@@ -342,7 +342,8 @@ private:
   struct stat written_ {};
 };
 
-}  // namespace
+}  // namespace output_detail
+using namespace output_detail;
 
 void check_outputs(std::span<const OutputTarget> outputs, std::span<const InputFile> inputs) {
   struct Seen {

@@ -36,7 +36,7 @@ namespace mbvh::lod {
 
 using namespace format;
 
-namespace {
+namespace block_cache_detail {  // named, not anonymous: BlockCache::Impl holds its types (-Wsubobject-linkage in unity builds)
 
 std::string num(std::uint64_t x) { return std::to_string(x); }
 
@@ -230,7 +230,8 @@ Buffer aligned_buffer(std::uint64_t bytes) {
 
 enum class IoMode : int { direct = 0, fadvise = 1, cached = 2 };
 
-}  // namespace
+}  // namespace block_cache_detail
+using namespace block_cache_detail;
 
 // -- the checks of one block
 
@@ -341,7 +342,7 @@ ModelInfo model_info(const std::string& path, const FileHeader& h) {
 
 // -- the cache
 
-namespace {
+namespace block_cache_detail {
 
 enum class State : std::uint8_t { absent, queued, loading, resident, damaged };
 
@@ -382,7 +383,8 @@ struct Transient {
   std::string what;
 };
 
-}  // namespace
+}  // namespace block_cache_detail
+using namespace block_cache_detail;
 
 struct BlockCache::Impl {
   std::string path;
