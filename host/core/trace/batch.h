@@ -130,17 +130,19 @@ template <bool Any>
   else out.hits[i] = h;
 }
 
-/// A walk (stack.h's OrderedWalk or OctantWalk, bitstack.h's Mbvh8BitstackWalk or
-/// Mbvh8OctantBitstackWalk) with two rays
-/// walked in turn, a node or leaf of one, then of the other: a ray's walk is one chain of
-/// dependent loads and tests (the node, its box test, the child picked, the child's node), and
-/// the other ray's step fills the core while it waits. Each ray's answer is the single-ray walk's
-/// (the same steps in the same order); a finished ray's slot takes the next ray of [b, e). `at`
-/// maps a position of [b, e) to its ray's index in `rays` and `out` (by default the position
-/// itself; simd/occlusion.h walks one direction octant's rays of a chunk by their indices).
+/// run_interleaved's default position-to-index map: position k is ray k.
 struct SameIndex {
   constexpr std::size_t operator()(std::size_t k) const { return k; }
 };
+
+/// A walk (stack.h's OrderedWalk or OctantWalk, bitstack.h's Mbvh8BitstackWalk or
+/// Mbvh8OctantBitstackWalk) with two rays walked in turn, a node or leaf of one, then of the
+/// other: a ray's walk is one chain of dependent loads and tests (the node, its box test, the
+/// child picked, the child's node), and the other ray's step fills the core while it waits. Each
+/// ray's answer is the single-ray walk's (the same steps in the same order); a finished ray's slot
+/// takes the next ray of [b, e). `at` maps a position of [b, e) to its ray's index in `rays` and
+/// `out` (by default the position itself; simd/occlusion.h walks one direction octant's rays of a
+/// chunk by their indices).
 template <bool Any, class K, class Walk, class At = SameIndex>
 inline void run_interleaved(const TraceView& v, std::span<const Ray> rays, std::size_t b, std::size_t e, TraceOutput& out,
                             std::size_t& invalid, At at = {}) {
