@@ -39,7 +39,7 @@ namespace {
 
 constexpr unsigned kMaxBins = 64;
 constexpr float kAlpha = 1e-5f;   // SBVH §4.4: spatial splits only where children overlap this much
-constexpr double kGrowth = 0.3;   // at most 30 % more references than triangles
+constexpr double kGrowth = 0.1;   // at most 10 % more references than triangles
 // Binning clips a reference against the triangle at each bin plane it crosses when it crosses at
 // most this many; a longer one (a large triangle in a small node, where the clipping would cost
 // most) is binned as its box cut at the planes: an upper bound of the chopped boxes' SAH. The

@@ -92,7 +92,7 @@ constexpr double kMaxRayRatio = 0x1p100;
 
 /// Which builder makes the binary BVH (`--quality`). low, medium and high produce the same
 /// structures (Bvh2, leaves, leaf-ordered triangles), so every layout and backend traces any of
-/// them. With `high` a triangle may sit in more than one leaf (never twice in one; up to 30 % more
+/// them. With `high` a triangle may sit in more than one leaf (never twice in one; up to 10 % more
 /// references), for fewer node visits and triangle tests per ray.
 /// `none` builds no hierarchy, for the backends that trace without one (BackendInfo::
 /// needs_hierarchy false: dacrt, divide-and-conquer ray tracing). Scene::validate, the coordinate
