@@ -105,4 +105,5 @@ TEST_CASE("mbvh build-bench --rebuild reports rebuilds in a kept context and pag
   REQUIRE(r.code == 0);
   CHECK_THAT(r.output, Catch::Contains("rebuild in a kept BuildContext") && Catch::Contains("minor page faults"));
   CHECK_THAT(r.output, Catch::Contains("\"rebuild_speedup\"") && Catch::Contains("\"faults_per_triangle\""));
+  CHECK_THAT(r.output, Catch::Contains("\"faults_all\"") && Catch::Contains("\"rebuild_faults_all\""));
 }
