@@ -14,6 +14,7 @@
 #include "host/core/enum_check.h"
 #include "host/core/huge_pages.h"
 #include "host/core/layouts.h"
+#include "host/core/parallel.h"
 #include "host/core/resources.h"
 #include "mbvh/error.h"
 
@@ -21,12 +22,29 @@ namespace mbvh {
 
 namespace build {
 
-double sah_of_binary(const Bvh2& b, const std::vector<Leaf>& leaves, float ct) {
+double sah_of_binary(const Bvh2& b, const std::vector<Leaf>& leaves, float ct, unsigned threads) {
   const double root = b.nodes[0].box.half_area();
   if (!(root > 0)) return 0;
+  // summed in runs of kSahRun nodes, then of kSahRun leaves, on the pool, the runs' sums added in
+  // run order: the same bits at any thread count (and in Accel::load's recount)
+  const std::size_t node_runs = (b.nodes.size() + kSahRun - 1) / kSahRun;
+  const std::size_t leaf_runs = (leaves.size() + kSahRun - 1) / kSahRun;
+  std::vector<double> part(node_runs + leaf_runs);
+  parallel_for(part.size(), 1, threads, [&](std::size_t lo, std::size_t hi, unsigned) {
+    for (std::size_t r = lo; r < hi; ++r) {
+      double c = 0;
+      if (r < node_runs) {
+        const std::size_t e = std::min(b.nodes.size(), (r + 1) * kSahRun);
+        for (std::size_t i = r * kSahRun; i < e; ++i) c += ct * b.nodes[i].box.half_area() / root;
+      } else {
+        const std::size_t f = (r - node_runs) * kSahRun, e = std::min(leaves.size(), f + kSahRun);
+        for (std::size_t i = f; i < e; ++i) c += double(leaves[i].count) * b.leaf_boxes[i].half_area() / root;
+      }
+      part[r] = c;
+    }
+  });
   double cost = 0;
-  for (const auto& n : b.nodes) cost += ct * n.box.half_area() / root;
-  for (std::size_t i = 0; i < leaves.size(); ++i) cost += double(leaves[i].count) * b.leaf_boxes[i].half_area() / root;
+  for (const double c : part) cost += c;
   return cost;
 }
 
@@ -168,7 +186,7 @@ std::unique_ptr<Accel> Accel::build(const Scene& scene, const BuildOptions& opt_
   st.nodes = out.nodes.size();
   st.leaves = acc->impl_->leaves_.size();
   st.depth = out.nodes[0].height;
-  st.sah_cost = build::sah_of_binary(out, acc->impl_->leaves_, opt.traversal_cost);
+  st.sah_cost = build::sah_of_binary(out, acc->impl_->leaves_, opt.traversal_cost, opt.threads);
   st.bytes = out.nodes.size() * sizeof(Bvh2::Node) + acc->impl_->leaves_.size() * (sizeof(Leaf) + sizeof(Box)) +
              acc->impl_->tris_.size() * sizeof(Tri);
   st.bitstack_bits = st.depth;

@@ -413,8 +413,13 @@ inline constexpr std::size_t kHashBlock = std::size_t(1) << 20;
 std::uint64_t hash_build(const Bvh2& b, const std::vector<Leaf>& leaves, const AlignedVector<Tri>& tris, unsigned threads,
                          const std::uint64_t* tri_hashes = nullptr);
 
-/// LayoutStats::sah_cost of a binary tree: nodes priced at `ct`, triangles at 1.
-double sah_of_binary(const Bvh2& b, const std::vector<Leaf>& leaves, float ct);
+/// Nodes (or leaves) a run of the SAH statistics' sums holds: each run summed on its own, the
+/// runs' sums added in order, so a statistic has the same bits at any thread count.
+inline constexpr std::size_t kSahRun = 16384;
+
+/// LayoutStats::sah_cost of a binary tree: nodes priced at `ct`, triangles at 1 (summed in runs
+/// of kSahRun on up to `threads` workers).
+double sah_of_binary(const Bvh2& b, const std::vector<Leaf>& leaves, float ct, unsigned threads = 1);
 
 /// make_mbvh4 (layouts.h) into `storage` (emptied; its capacity reused: BuildContext).
 Mbvh4 make_mbvh4(const Bvh2& b, const std::vector<Leaf>& leaves, unsigned threads, AlignedVector<Node4>&& storage);

@@ -476,7 +476,7 @@ std::unique_ptr<Accel> Accel::build_cached(const Scene& scene, const BuildOption
       im.opt_.quality = q;
       im.opt_.depth_cap = std::clamp(opt.depth_cap, 1u, static_cast<unsigned>(MBVH_BINARY_DEPTH_CAP));
       im.opt_.max_leaf = std::max(opt.max_leaf, 1u);
-      im.binary_stats_.sah_cost = build::sah_of_binary(im.bvh2_, im.leaves_, im.opt_.traversal_cost);
+      im.binary_stats_.sah_cost = build::sah_of_binary(im.bvh2_, im.leaves_, im.opt_.traversal_cost, im.opt_.threads);
       im.binary_stats_.build_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
       rep.loaded = true;
       ::utimensat(AT_FDCWD, rep.path.c_str(), nullptr, AT_SYMLINK_NOFOLLOW);  // recently used (the size bound's order); may fail read-only

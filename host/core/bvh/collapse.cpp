@@ -38,6 +38,32 @@ double leaf_sah(const Bvh2& b, const std::vector<Leaf>& leaves, double root) {
   return c;
 }
 
+// The SAH statistic of a wide layout: its nodes' half areas (`area`, `nodes` of them) and its
+// leaves', over the root's, summed in runs of build::kSahRun on up to `threads` workers, the runs'
+// sums added in order (the same bits at any thread count).
+double wide_sah(const float* area, std::size_t nodes, const Bvh2& b, const std::vector<Leaf>& leaves, double root,
+                unsigned threads) {
+  constexpr std::size_t R = build::kSahRun;
+  const std::size_t node_runs = (nodes + R - 1) / R, leaf_runs = (leaves.size() + R - 1) / R;
+  std::vector<double> part(node_runs + leaf_runs);
+  parallel_for(part.size(), 1, threads, [&](std::size_t lo, std::size_t hi, unsigned) {
+    for (std::size_t r = lo; r < hi; ++r) {
+      double c = 0;
+      if (r < node_runs) {
+        const std::size_t e = std::min(nodes, (r + 1) * R);
+        for (std::size_t i = r * R; i < e; ++i) c += area[i] / root;
+      } else {
+        const std::size_t f = (r - node_runs) * R, e = std::min(leaves.size(), f + R);
+        for (std::size_t i = f; i < e; ++i) c += double(leaves[i].count) * b.leaf_boxes[i].half_area() / root;
+      }
+      part[r] = c;
+    }
+  });
+  double cost = 0;
+  for (const double c : part) cost += c;
+  return cost;
+}
+
 }  // namespace
 
 // MBVH2: the binary tree itself, both child boxes in the parent (Aila & Laine 2009).
@@ -329,14 +355,12 @@ void collapse(const Bvh2& b, const std::vector<Leaf>& leaves, const char* name, 
   unsigned max_level = top_tally.max_level;
   for (const auto& k : tasks) max_level = std::max(max_level, k.tally.max_level);
   const double root_area = std::max(1e-30, static_cast<double>(b.nodes[0].box.half_area()));
-  double cost = 0;
-  for (std::size_t i = 0; i < next; ++i) cost += area[i] / root_area;  // summed in node order
   LayoutStats& st = out.stats;
   st.layout = name;
   st.nodes = out.nodes.size();
   st.leaves = leaves.size();
   st.depth = max_level;
-  st.sah_cost = cost + leaf_sah(b, leaves, root_area);
+  st.sah_cost = wide_sah(area.data(), next, b, leaves, root_area, threads);
   st.bytes = out.nodes.size() * sizeof(N);
   if (st.depth > Cap) throw Error(std::string("internal: ") + name + " depth exceeds its level cap");
 }
