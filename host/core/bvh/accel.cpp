@@ -25,27 +25,9 @@ namespace build {
 double sah_of_binary(const Bvh2& b, const std::vector<Leaf>& leaves, float ct, unsigned threads) {
   const double root = b.nodes[0].box.half_area();
   if (!(root > 0)) return 0;
-  // summed in runs of kSahRun nodes, then of kSahRun leaves, on the pool, the runs' sums added in
-  // run order: the same bits at any thread count (and in Accel::load's recount)
-  const std::size_t node_runs = (b.nodes.size() + kSahRun - 1) / kSahRun;
-  const std::size_t leaf_runs = (leaves.size() + kSahRun - 1) / kSahRun;
-  std::vector<double> part(node_runs + leaf_runs);
-  parallel_for(part.size(), 1, threads, [&](std::size_t lo, std::size_t hi, unsigned) {
-    for (std::size_t r = lo; r < hi; ++r) {
-      double c = 0;
-      if (r < node_runs) {
-        const std::size_t e = std::min(b.nodes.size(), (r + 1) * kSahRun);
-        for (std::size_t i = r * kSahRun; i < e; ++i) c += ct * b.nodes[i].box.half_area() / root;
-      } else {
-        const std::size_t f = (r - node_runs) * kSahRun, e = std::min(leaves.size(), f + kSahRun);
-        for (std::size_t i = f; i < e; ++i) c += double(leaves[i].count) * b.leaf_boxes[i].half_area() / root;
-      }
-      part[r] = c;
-    }
-  });
-  double cost = 0;
-  for (const double c : part) cost += c;
-  return cost;
+  return sum_in_runs(
+      b.nodes.size(), [&](std::size_t i) { return ct * b.nodes[i].box.half_area() / root; }, leaves.size(),
+      [&](std::size_t i) { return double(leaves[i].count) * b.leaf_boxes[i].half_area() / root; }, threads);
 }
 
 }  // namespace build

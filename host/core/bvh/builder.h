@@ -417,6 +417,30 @@ std::uint64_t hash_build(const Bvh2& b, const std::vector<Leaf>& leaves, const A
 /// runs' sums added in order, so a statistic has the same bits at any thread count.
 inline constexpr std::size_t kSahRun = 16384;
 
+/// The sum of node(i) for i < nodes and leaf(i) for i < leaves, in runs of kSahRun on up to
+/// `threads` workers, the runs' sums added in order (the SAH statistics of every layout).
+template <class NodeTerm, class LeafTerm>
+double sum_in_runs(std::size_t nodes, NodeTerm node, std::size_t leaves, LeafTerm leaf, unsigned threads) {
+  const std::size_t node_runs = (nodes + kSahRun - 1) / kSahRun, leaf_runs = (leaves + kSahRun - 1) / kSahRun;
+  std::vector<double> part(node_runs + leaf_runs);
+  parallel_for(part.size(), 1, threads, [&](std::size_t lo, std::size_t hi, unsigned) {
+    for (std::size_t r = lo; r < hi; ++r) {
+      double c = 0;
+      if (r < node_runs) {
+        const std::size_t e = std::min(nodes, (r + 1) * kSahRun);
+        for (std::size_t i = r * kSahRun; i < e; ++i) c += node(i);
+      } else {
+        const std::size_t f = (r - node_runs) * kSahRun, e = std::min(leaves, f + kSahRun);
+        for (std::size_t i = f; i < e; ++i) c += leaf(i);
+      }
+      part[r] = c;
+    }
+  });
+  double cost = 0;
+  for (const double c : part) cost += c;
+  return cost;
+}
+
 /// LayoutStats::sah_cost of a binary tree: nodes priced at `ct`, triangles at 1 (summed in runs
 /// of kSahRun on up to `threads` workers).
 double sah_of_binary(const Bvh2& b, const std::vector<Leaf>& leaves, float ct, unsigned threads = 1);

@@ -32,36 +32,13 @@ void link_children(Node4* nodes, std::size_t p) {
       for (int k = 0; k < 3; ++k) nodes[static_cast<std::size_t>(n.child[s])].sib[k] = n.child[(s + 1 + k) & 3];
 }
 
-double leaf_sah(const Bvh2& b, const std::vector<Leaf>& leaves, double root) {
-  double c = 0;
-  for (std::size_t i = 0; i < leaves.size(); ++i) c += double(leaves[i].count) * b.leaf_boxes[i].half_area() / root;
-  return c;
-}
-
 // The SAH statistic of a wide layout: its nodes' half areas (`area`, `nodes` of them) and its
-// leaves', over the root's, summed in runs of build::kSahRun on up to `threads` workers, the runs'
-// sums added in order (the same bits at any thread count).
+// leaves', over the root's (build::sum_in_runs: the same bits at any thread count).
 double wide_sah(const float* area, std::size_t nodes, const Bvh2& b, const std::vector<Leaf>& leaves, double root,
                 unsigned threads) {
-  constexpr std::size_t R = build::kSahRun;
-  const std::size_t node_runs = (nodes + R - 1) / R, leaf_runs = (leaves.size() + R - 1) / R;
-  std::vector<double> part(node_runs + leaf_runs);
-  parallel_for(part.size(), 1, threads, [&](std::size_t lo, std::size_t hi, unsigned) {
-    for (std::size_t r = lo; r < hi; ++r) {
-      double c = 0;
-      if (r < node_runs) {
-        const std::size_t e = std::min(nodes, (r + 1) * R);
-        for (std::size_t i = r * R; i < e; ++i) c += area[i] / root;
-      } else {
-        const std::size_t f = (r - node_runs) * R, e = std::min(leaves.size(), f + R);
-        for (std::size_t i = f; i < e; ++i) c += double(leaves[i].count) * b.leaf_boxes[i].half_area() / root;
-      }
-      part[r] = c;
-    }
-  });
-  double cost = 0;
-  for (const double c : part) cost += c;
-  return cost;
+  return build::sum_in_runs(
+      nodes, [&](std::size_t i) { return area[i] / root; }, leaves.size(),
+      [&](std::size_t i) { return double(leaves[i].count) * b.leaf_boxes[i].half_area() / root; }, threads);
 }
 
 }  // namespace
@@ -92,13 +69,7 @@ Mbvh2 make_mbvh2(const Bvh2& b, const std::vector<Leaf>& leaves) {
   st.nodes = out.nodes.size();
   st.leaves = leaves.size();
   st.depth = b.nodes[0].height;
-  const double root = b.nodes[0].box.half_area();
-  double cost = 0;
-  if (root > 0) {
-    for (const auto& n : b.nodes) cost += n.box.half_area() / root;
-    cost += leaf_sah(b, leaves, root);
-  }
-  st.sah_cost = cost;
+  st.sah_cost = build::sah_of_binary(b, leaves, 1.0f);  // nodes priced at 1, as the wide layouts' are
   st.bytes = out.nodes.size() * sizeof(Node2);
   st.bitstack_bits = st.depth;
   if (st.depth > MBVH_MBVH2_LEVEL_CAP) throw Error("internal: MBVH2 depth exceeds the 64-bit bitstack");
