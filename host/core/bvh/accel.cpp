@@ -233,7 +233,7 @@ std::size_t BuildContext::Impl::bytes() const {
   auto cap = [](const auto& v) { return v.capacity() * sizeof(typename std::decay_t<decltype(v)>::value_type); };
   std::size_t b = cap(s.prims) + cap(s.scratch) + cap(s.nodes) + cap(s.leaf_boxes) + cap(s.leaves) + cap(s.tris) +
                   cap(s.node4) + cap(s.arenas.upper) + cap(s.arenas.subtree_of) + cap(s.arenas.subtrees) +
-                  s.arenas.block.capacity() * sizeof(build::TmpNode);
+                  s.arenas.block.capacity_bytes();
   return b;
 }
 

@@ -167,8 +167,7 @@ public:
   // `threads`: workers for a large node's chunks (1 inside a subtree task).
   // `work`: the task's sparse bins.
   // `cbox`: the centroid bounds of node n; the children's into `cc` (when split).
-  template <class Arena>  // the upper arena (a vector) or a subtree's (SubArena)
-  bool split(Arena& arena, std::size_t n, const FastBox& cbox, FastBox (&cc)[2], unsigned threads, Bins& work) {
+  bool split(std::vector<TmpNode>& arena, std::size_t n, const FastBox& cbox, FastBox (&cc)[2], unsigned threads, Bins& work) {
     TmpNode c[2];
     if (!split_node(arena[n], cbox, c, cc, threads, work)) return false;
     for (int side = 0; side < 2; ++side) {
@@ -263,25 +262,33 @@ public:
     return opt_.leaf_block <= 1 ? static_cast<float>(n) : build::blocks(n, opt_.leaf_block);
   }
 
-  // Builds the subtree of arena node 0 (centroid bounds `cbox`) depth first: the centroid bounds
-  // of the nodes still to split are kept on the stack, not in the arena (its nodes are smaller
-  // so). The arena's order is not the tree's: flatten follows the child links.
-  void build_subtree(SubArena& arena, const FastBox& cbox) {
+  // Builds the subtree of upper node `top` (centroid bounds `cbox`) into `arena`, depth first,
+  // its root at arena node 0: the nodes still to split are kept on the stack with their ranges,
+  // depths and centroid bounds, and each is written to the arena once, when split (an inner
+  // node and its two children's places, next to each other) or made a leaf. The arena's order is
+  // not the tree's: flatten follows the child links.
+  void build_subtree(SubArena& arena, const TmpNode& top, const FastBox& cbox) {
     Bins work;
     struct Pending {
-      std::size_t n;
+      TmpNode t;
+      std::size_t at;  // its place in the arena
       FastBox cbox;
     };
     std::vector<Pending> stack;
     stack.reserve(2 * std::size_t(opt_.depth_cap) + 2);
-    stack.push_back({0, cbox});
+    stack.push_back({top, arena.add(1), cbox});
     while (!stack.empty()) {
-      const Pending p = stack.back();
+      Pending p = stack.back();
       stack.pop_back();
+      TmpNode c[2];
       FastBox cc[2];
-      if (!split(arena, p.n, p.cbox, cc, 1, work)) continue;
-      for (int side = 1; side >= 0; --side)
-        stack.push_back({static_cast<std::size_t>(arena[p.n].child[side]), cc[side]});
+      if (!split_node(p.t, p.cbox, c, cc, 1, work)) {
+        arena[p.at] = SubNode::leaf(p.t.box, p.t.begin, p.t.end - p.t.begin, p.t.forced);
+        continue;
+      }
+      const std::size_t first = arena.add(2);
+      arena[p.at] = SubNode::inner(p.t.box, first);
+      for (int side = 1; side >= 0; --side) stack.push_back({c[side], first + std::size_t(side), cc[side]});
     }
   }
 
@@ -814,7 +821,7 @@ void build_binned_sah(RawVector<PrimRef>& prims, const FastBox& root, const Fast
   //    upper arena's and the jobs' order depend on the timing; the tree does not: flatten follows
   //    the child links, and every node is split the same way by whichever worker (split_node
   //    with its chunks on one worker makes the same choice and order as on many).
-  out.block.ensure(2 * prims.size());  // here, on the calling thread (NodeBlock)
+  out.block.ensure_bytes(2 * sizeof(SubNode) * prims.size());  // here, on the calling thread (NodeBlock)
   std::vector<SubArena> subs;     // job j's arena
   std::vector<std::size_t> jobs;  // job j's top node
   // the vectors the workers grow, allocated here for the nodes a tree of subtrees of about
@@ -861,8 +868,7 @@ void build_binned_sah(RawVector<PrimRef>& prims, const FastBox& root, const Fast
         subs.emplace_back();
         lock.unlock();
         SubArena subtree = out.arena_for(t);
-        subtree.push_back(t);
-        builder.build_subtree(subtree, cbox);
+        builder.build_subtree(subtree, t, cbox);
         const std::size_t done = built += t.end - t.begin;
         if (opt.progress) opt.progress(0.25 + 0.7 * static_cast<double>(done) / total);
         lock.lock();

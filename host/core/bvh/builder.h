@@ -131,6 +131,45 @@ struct TmpNode {
 };
 static_assert(sizeof(TmpNode) == 48);
 
+/// A node of a subtree's arena, 32 bytes (TmpNode's 48 less what only the builder needs: the
+/// depth, kept on its stack, and the range of an inner node): its box, and an inner node's
+/// first child (the two children sit next to each other) or a leaf's range of the record array.
+struct SubNode {
+  static constexpr std::uint32_t kInner = ~0u;  // b of an inner node
+  float lo[3];
+  std::uint32_t a;  // inner: the first child's index in the arena; leaf: the first record
+  float hi[3];
+  std::uint32_t b;  // inner: kInner; leaf: count << 1 | forced
+  static SubNode inner(const FastBox& box, std::size_t first_child) {
+    return make(box, static_cast<std::uint32_t>(first_child), kInner);
+  }
+  static SubNode leaf(const FastBox& box, std::uint32_t begin, std::uint32_t count, bool forced) {
+    return make(box, begin, count << 1 | (forced ? 1u : 0u));
+  }
+  bool is_leaf() const { return b != kInner; }
+  std::uint32_t count() const { return b >> 1; }
+  bool forced() const { return (b & 1u) != 0; }
+  Box box() const {
+    Box r;
+    r.lo = {lo[0], lo[1], lo[2]};
+    r.hi = {hi[0], hi[1], hi[2]};
+    return r;
+  }
+
+private:
+  static SubNode make(const FastBox& box, std::uint32_t a, std::uint32_t b) {
+    SubNode n;
+    for (int k = 0; k < 3; ++k) {
+      n.lo[k] = box.lo[k];
+      n.hi[k] = box.hi[k];
+    }
+    n.a = a;
+    n.b = b;
+    return n;
+  }
+};
+static_assert(sizeof(SubNode) == 32 && std::is_trivially_copyable_v<SubNode>);
+
 /// The build's storage for its subtrees' nodes: raw memory (no node written until a subtree
 /// task writes it, so its pages are first touched there), allocated by the thread that calls the
 /// builder. The subtree tasks run on the pool's workers; arenas of their own would come from the
@@ -146,50 +185,52 @@ public:
     cap_ = std::exchange(o.cap_, 0);
     return *this;
   }
-  /// Room for `n` nodes (the contents not kept when it grows).
-  TmpNode* ensure(std::size_t n) {
-    if (n > cap_) {
+  /// Room for `bytes` bytes (the contents not kept when it grows).
+  void* ensure_bytes(std::size_t bytes) {
+    if (bytes > cap_) {
       p_.reset();
-      p_.reset(static_cast<TmpNode*>(::operator new(n * sizeof(TmpNode))));
-      cap_ = n;
+      p_.reset(static_cast<unsigned char*>(::operator new(bytes)));
+      cap_ = bytes;
     }
     return p_.get();
   }
-  TmpNode* data() const { return p_.get(); }
-  std::size_t capacity() const { return cap_; }
+  /// Room for `n` TmpNodes.
+  TmpNode* ensure(std::size_t n) { return static_cast<TmpNode*>(ensure_bytes(n * sizeof(TmpNode))); }
+  void* data() const { return p_.get(); }
+  std::size_t capacity_bytes() const { return cap_; }
 
 private:
   struct Free {
-    void operator()(TmpNode* p) const { ::operator delete(static_cast<void*>(p)); }
+    void operator()(unsigned char* p) const { ::operator delete(static_cast<void*>(p)); }
   };
-  std::unique_ptr<TmpNode, Free> p_;
+  std::unique_ptr<unsigned char, Free> p_;
   std::size_t cap_ = 0;
 };
 static_assert(std::is_trivially_copyable_v<TmpNode> && std::is_trivially_destructible_v<TmpNode>);
 
-/// A subtree task's arena: up to `cap` nodes of the build's NodeBlock, grown by push_back and
-/// never moved. A binary tree over n records has at most 2n - 1 nodes, so the subtree of records
+/// A subtree task's arena: up to `cap` nodes of the build's NodeBlock, grown by add and never
+/// moved. A binary tree over n records has at most 2n - 1 nodes, so the subtree of records
 /// [b, e) takes the block's nodes [2b, 2e) (Arenas::arena_for): the subtrees' ranges are
 /// disjoint, and where a subtree's nodes lie does not depend on which task built it or when.
 class SubArena {
 public:
   SubArena() = default;
-  SubArena(TmpNode* p, std::size_t cap) : p_(p), cap_(cap) {}
+  SubArena(SubNode* p, std::size_t cap) : p_(p), cap_(cap) {}
   std::size_t size() const { return n_; }
   bool empty() const { return n_ == 0; }
-  TmpNode& operator[](std::size_t i) { return p_[i]; }
-  const TmpNode& operator[](std::size_t i) const { return p_[i]; }
-  TmpNode& back() { return p_[n_ - 1]; }
-  void push_back(const TmpNode& t) {
-    if (n_ == cap_) throw Error("internal: a subtree's arena holds more than 2n - 1 nodes");
-    ::new (static_cast<void*>(p_ + n_++)) TmpNode(t);
+  SubNode& operator[](std::size_t i) { return p_[i]; }
+  const SubNode& operator[](std::size_t i) const { return p_[i]; }
+  /// Appends `k` nodes, unwritten (the caller writes each), and returns the first one's index.
+  std::size_t add(std::size_t k) {
+    if (cap_ - n_ < k) throw Error("internal: a subtree's arena holds more than 2n - 1 nodes");
+    const std::size_t first = n_;
+    n_ += k;
+    return first;
   }
-  /// Drops the nodes from `n` on (never grows).
-  void resize(std::size_t n) { n_ = std::min(n, n_); }
   void clear() { n_ = 0; }
 
 private:
-  TmpNode* p_ = nullptr;
+  SubNode* p_ = nullptr;
   std::size_t n_ = 0, cap_ = 0;
 };
 
@@ -198,7 +239,7 @@ private:
 /// node 0 stands for it. Every inner node of a subtree's arena has two children (the builders
 /// split a node into two or make it a leaf), so an arena of n nodes holds (n - 1) / 2 inner
 /// nodes and (n + 1) / 2 leaves (flatten counts so); only the upper root may have one child.
-/// The subtrees' arenas are runs of `block` (2 nodes a record, 96 bytes: BuildContext keeps it).
+/// The subtrees' arenas are runs of `block` (2 SubNodes a record, 64 bytes: BuildContext keeps it).
 struct Arenas {
   std::vector<TmpNode> upper;
   NodeBlock block;
@@ -207,7 +248,7 @@ struct Arenas {
   /// The arena of the subtree below upper node `top` (its records' run of `block`, which must
   /// have room for 2 nodes a record of the build), empty.
   SubArena arena_for(const TmpNode& top) const {
-    return SubArena(block.data() + 2 * std::size_t(top.begin), 2 * std::size_t(top.end - top.begin));
+    return SubArena(static_cast<SubNode*>(block.data()) + 2 * std::size_t(top.begin), 2 * std::size_t(top.end - top.begin));
   }
 };
 

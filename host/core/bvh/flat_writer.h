@@ -93,18 +93,36 @@ struct FlatWriter {
       if (t.child[side] >= 0) place(upper, static_cast<std::size_t>(t.child[side]), self, at, parent_of);
   }
 
-  /// Returns the child reference of arena node n.
-  template <class Arena>  // the upper arena (a vector) or a subtree's
-  std::int32_t emit(const Arena& arena, std::size_t n, std::int32_t parent, std::uint32_t& height) {
+  /// Writes a subtree's arena (SubNodes) whole; returns the child reference of its node n.
+  std::int32_t emit(const SubArena& arena, std::size_t n, std::int32_t parent, std::uint32_t& height) {
+    const SubNode& t = arena[n];
+    if (t.is_leaf()) {
+      leaves[leaf] = {t.a, t.count()};
+      out.leaf_boxes[leaf] = t.box();
+      largest = std::max<std::size_t>(largest, t.count());
+      forced += t.forced() ? 1 : 0;
+      height = 0;
+      return ~static_cast<std::int32_t>(leaf++);
+    }
+    const std::int32_t self = static_cast<std::int32_t>(node++);
+    Bvh2::Node& d = out.nodes[static_cast<std::size_t>(self)];
+    d = {t.box(), {MBVH_EMPTY, MBVH_EMPTY}, parent, 0};
+    std::uint32_t h[2] = {0, 0};
+    for (int side = 0; side < 2; ++side) d.child[side] = emit(arena, std::size_t(t.a) + std::size_t(side), self, h[side]);
+    height = 1 + std::max(h[0], h[1]);
+    d.height = height;
+    return self;
+  }
+
+  /// Returns the child reference of node n of the upper arena (or of the LBVH's).
+  std::int32_t emit(const std::vector<TmpNode>& arena, std::size_t n, std::int32_t parent, std::uint32_t& height) {
     const TmpNode& t = arena[n];
-    if constexpr (std::is_same_v<Arena, std::vector<TmpNode>>) {
-      if (subtree_of && (*subtree_of)[n] >= 0) {
-        const std::size_t j = static_cast<std::size_t>((*subtree_of)[n]);
-        node += (*sub_size)[j].first;
-        leaf += (*sub_size)[j].second;
-        height = (*sub_height)[j];
-        return (*sub_ref)[j];
-      }
+    if (subtree_of && (*subtree_of)[n] >= 0) {
+      const std::size_t j = static_cast<std::size_t>((*subtree_of)[n]);
+      node += (*sub_size)[j].first;
+      leaf += (*sub_size)[j].second;
+      height = (*sub_height)[j];
+      return (*sub_ref)[j];
     }
     if (t.leaf) {
       leaves[leaf] = {t.begin, t.end - t.begin};

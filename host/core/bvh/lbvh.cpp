@@ -528,7 +528,7 @@ void build_lbvh(RawVector<PrimRef>& prims, const FastBox& root, const FastBox& c
   // -- the subtrees, one task each (largest first: the order only spreads the work), each into
   //    its records' run of the scratch's spare bytes (pages the sort has touched); a subtree of
   //    more leaves than that holds (above about 0.69 a record: max_leaf 1, say) is built again
-  //    into its records' run of the node block (Arenas::arena_for's, 96 bytes a record: 2 c - 1
+  //    into its records' run of the node block (2 TmpNodes a record, 96 bytes: 2 c - 1
   //    entries of 32 bytes always fit), allocated only then
   std::vector<std::int32_t> subtree_of;
   subtree_of_jobs(subtree_of, upper.size(), jobs);
