@@ -303,21 +303,15 @@ struct Mbvh8OctantBitstackWalk {
       float d[8];
       const unsigned m = detail::test_node<K, Any, false>(n, *r, tmax * kCullSlack, d, st);
       if (m) {
-        // push the level's empty byte: nothing pending
-        hi = (hi << 8) | (lo >> 56);
-        lo <<= 8;
-        if constexpr (!Any) ++fresh;
-        if constexpr (St::on) st.depth(++level);
-        par = &n;
-        if ((m & (m - 1)) == 0) {  // one hit child: entered, no order read, no rank pending
-          cur = n.child[std::countr_zero(m)];
-          return true;
-        }
         const std::uint32_t o = order(n);
         const unsigned ranks = K::octant_ranks(m, o);
         const int i = slot(o, std::countr_zero(ranks));
         detail::prefetch_pending<K, Any>(n, *r, m, i);
-        lo |= ranks & (ranks - 1);  // the level's pending ranks
+        hi = (hi << 8) | (lo >> 56);  // push the pending ranks
+        lo = (lo << 8) | (ranks & (ranks - 1));
+        if constexpr (!Any) ++fresh;
+        if constexpr (St::on) st.depth(++level);
+        par = &n;
         cur = n.child[i];
         return true;
       }
