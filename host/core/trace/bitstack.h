@@ -272,10 +272,6 @@ struct Mbvh8OctantBitstackWalk {
   /// Closest hit: how many of the deepest levels were pushed since tmax last shrank (their ranks
   /// were tested against it: no re-test); before the first hit more than the depth cap.
   int fresh;
-  /// The child of the deepest level's lowest pending rank (lo's low byte, when it has one), read
-  /// when the rank is pushed or the one before it taken: a backtrack that takes it without a climb
-  /// has the next node's address at once, not after a read of the parent's order and a child link.
-  std::int32_t next;
   unsigned level;
 
   Mbvh8OctantBitstackWalk(const TraceView& view, const typename K::Ray& ray) : v(view), r(&ray), guard(view) { start(); }
@@ -289,7 +285,6 @@ struct Mbvh8OctantBitstackWalk {
     lo = hi = 0;
     oct = 3u * (static_cast<unsigned>(r->neg[0] | r->neg[1] << 1 | r->neg[2] << 2) ^ (Any ? 7u : 0u));
     fresh = 64;
-    next = 0;
     level = 0;
   }
   /// Node n's order for this ray (lane k's slot in bits 3k..3k+2, farthest first).
@@ -300,9 +295,6 @@ struct Mbvh8OctantBitstackWalk {
   }
   /// The slot of rank j (0: the nearest) in `order`.
   [[gnu::always_inline]] static int slot(std::uint32_t order, int j) { return static_cast<int>((order >> (21 - 3 * j)) & 7u); }
-  /// next for the ranks pending in lo's low byte of the level whose node is p (order o); when none
-  /// is pending, a child of p that is never read.
-  [[gnu::always_inline]] void set_next(const Node8& p, std::uint32_t o) { next = p.child[slot(o, std::countr_zero(lo) & 7)]; }
   /// One node or leaf visit and the move after it; false once the ray is done (its answer in best).
   [[gnu::always_inline]] bool step(St& st) {
     guard.step();
@@ -321,7 +313,6 @@ struct Mbvh8OctantBitstackWalk {
         if constexpr (St::on) st.depth(++level);
         par = &n;
         cur = n.child[i];
-        set_next(n, o);
         return true;
       }
     } else {
@@ -342,7 +333,6 @@ struct Mbvh8OctantBitstackWalk {
         st.climb();
         if constexpr (St::on) --level;
       }
-      bool known = up == 0;  // next is the lowest pending rank's child
       if constexpr (!Any) {
         fresh -= up;
         if (fresh <= 0) {
@@ -357,23 +347,15 @@ struct Mbvh8OctantBitstackWalk {
           // not a wait for it: the next node's address comes from the word as it was
           if ((m >> s) & 1u) {
             lo &= lo - 1;
-            if (known) cur = next;
-            else cur = par->child[s];
-            set_next(*par, o);
+            cur = par->child[s];
             return true;
           }
           if ((lo & 0xffu) == 0) continue;
-          known = false;
         }
       }
-      const std::uint32_t o = order(*par);
-      if (known) {
-        cur = next;
-      } else {
-        cur = par->child[slot(o, std::countr_zero(lo))];
-      }
+      const int j = std::countr_zero(lo);
       lo &= lo - 1;
-      set_next(*par, o);
+      cur = par->child[slot(order(*par), j)];
       return true;
     }
   }
