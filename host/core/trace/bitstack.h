@@ -144,12 +144,13 @@ struct Backtrack8 {
     up = 8;
   }
   const int low = std::countr_zero(lo);
-  // without a branch on whether a level is climbed (0 to 56 bits; hi << 1 << (63 - sh) is
-  // hi << (64 - sh), 0 at sh = 0)
-  const int sh = low & ~7;
-  lo = (lo >> sh) | ((hi << 1) << (63 - sh));
-  hi >>= sh;
-  return {up + (low >> 3), low & 7};
+  if (const int u = low >> 3; u != 0) {
+    const int sh = u << 3;  // 8 to 56 bits
+    lo = (lo >> sh) | (hi << (64 - sh));
+    hi >>= sh;
+    up += u;
+  }
+  return {up, low & 7};
 }
 /// The MBVH8 bitstack's backtrack: climb8, then the slot taken (its bit cleared).
 [[gnu::always_inline]] constexpr Backtrack8 backtrack8(std::uint64_t& lo, std::uint64_t& hi) {
