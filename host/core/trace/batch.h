@@ -236,8 +236,8 @@ inline bool walked_in_turn(const TraceView& v, std::span<const Ray> rays, std::s
         return true;
       }
       if (opt.traversal == Traversal::bitstack_octant) {
-        if (!any) return false;
-        run_interleaved<true, K, Mbvh8OctantBitstackWalk<true, NoStats, K>>(v, rays, b, e, out, invalid);
+        if (any) run_interleaved<true, K, Mbvh8OctantBitstackWalk<true, NoStats, K>>(v, rays, b, e, out, invalid);
+        else run_interleaved<false, K, Mbvh8OctantBitstackWalk<false, NoStats, K>>(v, rays, b, e, out, invalid);
         return true;
       }
       if (opt.traversal == Traversal::stack_octant) {
