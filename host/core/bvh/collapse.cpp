@@ -4,8 +4,11 @@
 // Szirmay-Kalos, "Stackless Multi-BVH Traversal for CPU, MIC and GPU Ray Tracing", CGF 2014;
 // TRAVERSAL.md §2).
 #include <algorithm>
+#include <atomic>
 #include <bit>
 #include <chrono>
+#include <cstring>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -103,6 +106,8 @@ struct Collapser {
   N* out = nullptr;      // the node array, sized by the count
   std::size_t cap = 0;   // its size: emit refuses an index past it before writing there
   float* area = nullptr; // per wide node: half area of its box (summed in node order: the SAH stat)
+  std::uint8_t* leaf_seen = nullptr;  // per leaf: referenced (zeroed; marked by check())
+  std::size_t leaf_count = 0;
 
   struct Tally {
     std::size_t nodes = 0;
@@ -110,6 +115,14 @@ struct Collapser {
   };
   struct Kids {
     std::int32_t k[W];
+  };
+  // validate_layout's check folded into the write (wide_ok's argument, validate.cpp), per writer:
+  // every child reference of a node checked is a node of its own subtree (a later index below the
+  // writer's next one, so already written by this writer) naming it as parent, with matching
+  // sibling links and no child listed twice; its leaf references are in range, marked and counted.
+  struct Check {
+    bool good = true;
+    std::size_t inner = 0, leaf_refs = 0;
   };
   struct Task {
     std::int32_t bref;
@@ -119,6 +132,7 @@ struct Collapser {
     Tally tally;
     std::size_t span = 0;   // its binary inner nodes: a bound on its wide nodes
     Kids* kids = nullptr;   // choose()'s answer for each of its wide nodes, in the write's order
+    Check check;
   };
 
   bool violates(std::int32_t ref, unsigned level) const {
@@ -208,6 +222,34 @@ struct Collapser {
     if constexpr (W == 4) link_children(out, self);
   }
 
+  // Checks written node `self` once its children's links are written, every node in (self, end)
+  // written already (its subtree).
+  void check(std::size_t self, std::size_t end, Check& k) const {
+    const N& p = out[self];
+    bool good = true;
+    for (int s = 0; s < W; ++s) {
+      const std::int32_t c = p.child[s];
+      if (c == MBVH_EMPTY) continue;
+      if (c >= 0) {
+        const std::size_t ci = static_cast<std::size_t>(c);
+        if (ci <= self || ci >= end || out[ci].parent != static_cast<std::int32_t>(self)) {
+          good = false;
+          continue;
+        }
+        if constexpr (W == 4)
+          for (int j = 0; j < 3; ++j) good = good && out[ci].sib[j] == p.child[(s + 1 + j) & 3];
+        for (int t = 0; t < s; ++t) good = good && p.child[t] != c;
+        ++k.inner;
+      } else {
+        const std::size_t li = static_cast<std::size_t>(~c);
+        if (li < leaf_count) std::atomic_ref<std::uint8_t>(leaf_seen[li]).store(1, std::memory_order_relaxed);
+        else good = false;
+        ++k.leaf_refs;
+      }
+    }
+    k.good = k.good && good;
+  }
+
   // The top walk: children of at most kTaskSpan binary nodes become tasks (in depth-first order);
   // `top_nodes` counts the wide nodes it passes, the ones emit's top walk writes itself.
   void plan(std::int32_t bref, unsigned level, std::vector<Task>& tasks, std::size_t& top_nodes) const {
@@ -217,7 +259,7 @@ struct Collapser {
     for (int s = 0; s < W; ++s)
       if (kids[s] >= 0) {
         if (const std::size_t n = span(kids[s]); n <= kTaskSpan)
-          tasks.push_back(Task{kids[s], -1, level + 1, 0, {}, n, nullptr});
+          tasks.push_back(Task{kids[s], -1, level + 1, 0, {}, n, nullptr, {}});
         else plan(kids[s], level + 1, tasks, top_nodes);
       }
   }
@@ -228,14 +270,18 @@ struct Collapser {
     std::vector<Task>& tasks;
     std::size_t cursor = 0;
     std::vector<std::size_t> nodes;
+    std::vector<std::size_t> unchecked;  // its nodes with a task in their subtree: checked after the tasks
   };
 
   // Writes the subtree of bref depth-first from index `next` and returns its root's index. With
   // `top` (the top walk), a child that is the next task gets that task's range and parent
   // instead of being written. With `memo` (a task's write), the children count() chose, in order.
+  // Each node is checked (check()) as written, or, in the top walk where its subtree holds a task
+  // (written later), listed in top->unchecked.
   std::int32_t emit(std::int32_t bref, std::int32_t parent, unsigned level, std::size_t& next, Tally& t, Top* top,
-                    const Kids** memo = nullptr) {
+                    Check& chk, const Kids** memo = nullptr) {
     const std::size_t self = next++;
+    const std::size_t cursor0 = top ? top->cursor : 0;
     if (self >= cap) throw Error("internal: the collapse writes more wide nodes than it counted");
     std::int32_t kids[W], child[W];
     if (memo) {
@@ -258,7 +304,7 @@ struct Collapser {
           child[s] = static_cast<std::int32_t>(k.first);
           task_child = true;
         } else {
-          child[s] = emit(kids[s], static_cast<std::int32_t>(self), level + 1, next, t, walk, memo);
+          child[s] = emit(kids[s], static_cast<std::int32_t>(self), level + 1, next, t, walk, chk, memo);
         }
       } else if (kids[s] != MBVH_EMPTY) {
         t.max_level = std::max(t.max_level, level + 1);
@@ -267,14 +313,18 @@ struct Collapser {
     write(self, kids, child, parent);
     if (task_child) top->nodes.push_back(self);
     else links(self);
+    if (top && top->cursor != cursor0) top->unchecked.push_back(self);  // a task's range in its subtree, unwritten
+    else check(self, next, chk);
     return static_cast<std::int32_t>(self);
   }
 };
 
 // Collapses `b` into `out` (nodes and stats of a wide layout named `name`; every word of a node
-// written) on up to `threads` workers.
+// written) on up to `threads` workers. Returns whether the layout passed validate_layout's checks,
+// made as each node was written (Collapser::check); where it did not, the caller's
+// validate_layout names the fault.
 template <unsigned Cap, class M>
-void collapse(const Bvh2& b, const std::vector<Leaf>& leaves, const char* name, M& out, unsigned threads) {
+bool collapse(const Bvh2& b, const std::vector<Leaf>& leaves, const char* name, M& out, unsigned threads) {
   using N = typename decltype(out.nodes)::value_type;
   using C = Collapser<N, Cap>;
   C c{b};
@@ -307,21 +357,40 @@ void collapse(const Bvh2& b, const std::vector<Leaf>& leaves, const char* name, 
   c.out = out.nodes.data();
   c.cap = out.nodes.size();
   c.area = area.data();
+  const auto leaf_seen = std::make_unique<std::uint8_t[]>(leaves.size());  // value-initialised: 0
+  c.leaf_seen = leaf_seen.get();
+  c.leaf_count = leaves.size();
   typename C::Tally top_tally;
+  typename C::Check top_check;
   std::size_t next = 0;
-  typename C::Top top{tasks, 0, {}};
-  c.emit(0, MBVH_NONE, 0, next, top_tally, &top);
+  typename C::Top top{tasks, 0, {}, {}};
+  c.emit(0, MBVH_NONE, 0, next, top_tally, &top, top_check);
   parallel_for(tasks.size(), 1, threads, [&](std::size_t lo, std::size_t hi, unsigned) {
     for (std::size_t k = lo; k < hi; ++k) {
       auto& t = tasks[k];
       std::size_t at = t.first;
       typename C::Tally tally;
       const typename C::Kids* m = t.kids;
-      c.emit(t.bref, t.parent, t.level, at, tally, nullptr, &m);
+      c.emit(t.bref, t.parent, t.level, at, tally, nullptr, t.check, &m);
+      // its range written exactly (so every node of the array is written once, by one writer)
+      t.check.good = t.check.good && at == t.first + t.tally.nodes;
     }
   });
   for (const std::size_t n : top.nodes) c.links(n);
   if (!tasks.empty() && next != kept) throw Error("internal: the collapse wrote another count of wide nodes than it counted");
+  for (const std::size_t n : top.unchecked) c.check(n, next, top_check);
+  // wide_ok's conclusion (validate.cpp): n - 1 child references, each to a later node naming its
+  // parent, make a tree from node 0; as many leaf references as leaves, all marked, each leaf once
+  typename C::Check all = top_check;
+  for (const auto& t : tasks) {
+    all.good = all.good && t.check.good;
+    all.inner += t.check.inner;
+    all.leaf_refs += t.check.leaf_refs;
+  }
+  // (parallel_for's end orders the workers' marks before this read)
+  const bool checked = all.good && next > 0 && out.nodes[0].parent == MBVH_NONE && all.inner == next - 1 &&
+                       all.leaf_refs == leaves.size() &&
+                       (leaves.empty() || std::memchr(leaf_seen.get(), 0, leaves.size()) == nullptr);
   out.nodes.resize(next);
   unsigned max_level = top_tally.max_level;
   for (const auto& k : tasks) max_level = std::max(max_level, k.tally.max_level);
@@ -334,6 +403,7 @@ void collapse(const Bvh2& b, const std::vector<Leaf>& leaves, const char* name, 
   st.sah_cost = wide_sah(area.data(), next, b, leaves, root_area, threads);
   st.bytes = out.nodes.size() * sizeof(N);
   if (st.depth > Cap) throw Error(std::string("internal: ") + name + " depth exceeds its level cap");
+  return checked;
 }
 
 }  // namespace
@@ -355,9 +425,9 @@ Mbvh4 build::make_mbvh4(const Bvh2& b, const std::vector<Leaf>& leaves, unsigned
   Mbvh4 out;
   out.nodes = std::move(storage);  // empty; every node the collapse keeps is written
   out.nodes.clear();
-  collapse<MBVH_MBVH4_LEVEL_CAP>(b, leaves, "mbvh4", out, threads);  // with the sibling links
+  const bool checked = collapse<MBVH_MBVH4_LEVEL_CAP>(b, leaves, "mbvh4", out, threads);  // with the sibling links
   out.stats.bitstack_bits = 3 * out.stats.depth;
-  validate_layout(out, leaves.size(), threads);
+  if (!checked) validate_layout(out, leaves.size(), threads);
   out.stats.build_ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
   return out;
 }
@@ -365,9 +435,9 @@ Mbvh4 build::make_mbvh4(const Bvh2& b, const std::vector<Leaf>& leaves, unsigned
 Mbvh8 make_mbvh8(const Bvh2& b, const std::vector<Leaf>& leaves, unsigned threads) {
   const auto t0 = Clock::now();
   Mbvh8 out;
-  collapse<MBVH_MBVH8_LEVEL_CAP>(b, leaves, "mbvh8", out, threads);
+  const bool checked = collapse<MBVH_MBVH8_LEVEL_CAP>(b, leaves, "mbvh8", out, threads);
   out.stats.bitstack_bits = 8 * out.stats.depth;  // 8 pending-slot bits per level, in a 128-bit word
-  validate_layout(out, leaves.size(), threads);
+  if (!checked) validate_layout(out, leaves.size(), threads);
   out.stats.build_ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
   return out;
 }

@@ -2,6 +2,8 @@
 // validate.cpp — the structural checks of the layouts (validate_layout): every reference in
 // range, every node and leaf referenced once, the parent and sibling links consistent. The wide
 // layouts are checked on the pool first (wide_ok); the serial walk runs only to name a fault.
+// The greedy collapse (collapse.cpp, Collapser::check) makes wide_ok's checks as it writes each
+// node and calls validate_layout only where they fail.
 #include <atomic>
 #include <cstring>
 #include <memory>
