@@ -304,6 +304,12 @@ struct Mbvh8OctantBitstackWalk {
   }
   /// The slot of rank j (0: the nearest) in `order`.
   [[gnu::always_inline]] static int slot(std::uint32_t order, int j) { return static_cast<int>((order >> (21 - 3 * j)) & 7u); }
+  /// Closest hit: the ranks (in order o) of p's children hit within tcull, the re-test of a stale
+  /// level; out of line, so that the two walks in turn (run_interleaved) hold no registers for it.
+  [[gnu::noinline]] static unsigned retest(const Node8& p, const typename K::Ray& r, float tcull, std::uint32_t o) {
+    float d[8];
+    return K::octant_ranks(K::template test<false>(p, r, tcull, d), o);
+  }
   /// One node or leaf visit and the move after it; false once the ray is done (its answer in best).
   [[gnu::always_inline]] bool step(St& st) {
     guard.step();
@@ -346,17 +352,16 @@ struct Mbvh8OctantBitstackWalk {
       }
       if constexpr (!Any) {
         if (lo & 1u) {
-          float d[8];
           st.retest();
-          const unsigned m = K::template test<false>(*par, *r, tmax * kCullSlack, d);
           const std::uint32_t o = order(*par);
-          const int s = slot(o, detail::ctz_set(lo & ~std::uint64_t{1}));
-          lo &= ~std::uint64_t{0xff} | (K::octant_ranks(m, o) & 0xfeu);  // the stale bit cleared
+          const int j = detail::ctz_set(lo & ~std::uint64_t{1});
+          const unsigned live = retest(*par, *r, tmax * kCullSlack, o);
+          lo &= ~std::uint64_t{0xff} | (live & 0xfeu);  // the stale bit cleared
           // the lowest pending rank still hit (the usual case) is taken on a branch on the re-test,
           // not a wait for it: the next node's address comes from the word as it was
-          if ((m >> s) & 1u) {
+          if ((live >> j) & 1u) {
             lo &= lo - 1;
-            cur = par->child[s];
+            cur = par->child[slot(o, j)];
             return true;
           }
           if ((lo & 0xffu) == 0) continue;
