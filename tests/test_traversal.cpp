@@ -542,29 +542,6 @@ TEST_CASE("MBVH8 octant bitstack: the climb and the take are the one-shift backt
   }
 }
 
-// The octant bitstack's stale marks (Mbvh8OctantBitstackWalk::stale): bit 0 set on exactly the
-// bytes with a pending rank (bits 1-7), the ranks and any marks already set unchanged.
-TEST_CASE("MBVH8 octant bitstack: a shrunk tmax marks stale exactly the levels with pending ranks", "[traversal][bitstack]") {
-  using W = Mbvh8OctantBitstackWalk<false, NoStats, ScalarKernels>;
-  std::mt19937_64 rng(13);
-  for (int k = 0; k < 4096; ++k) {
-    std::uint64_t x = 0;
-    for (int b = 0; b < 8; ++b) {
-      const std::uint64_t r = rng();
-      std::uint64_t byte = (r & 3) == 0 ? 0 : (r >> 8) & 0xFE;  // a quarter empty
-      if (byte != 0 && ((r >> 16) & 1)) byte |= 1;              // some already stale
-      x |= byte << (8 * b);
-    }
-    std::uint64_t want = x;
-    for (int b = 0; b < 8; ++b)
-      if ((x >> (8 * b)) & 0xFE) want |= std::uint64_t{1} << (8 * b);
-    INFO("word " << x);
-    CHECK(W::stale(x) == want);
-  }
-  CHECK(W::stale(0) == 0);
-  CHECK(W::stale(0xFEFEFEFEFEFEFEFEull) == ~std::uint64_t{0});
-}
-
 // The octant bitstack's ranks (K::octant_ranks) of every hit mask in octant orders of a scene's
 // nodes: taken lowest rank first, they name the slots in the octant stack's pop order
 // (push_octant's stack from its top).

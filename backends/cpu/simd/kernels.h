@@ -201,14 +201,14 @@ struct SimdKernelsT {
     return sp + static_cast<unsigned>(std::popcount(mask));
   }
 
-  /// The octant bitstack's ranks (ScalarKernelsT::octant_ranks): lane j holds the slot s of rank
-  /// j (one variable shift) as 7 - s (an and-not with 7: one constant), the mask's bits raised by
-  /// 24 so that slot s's bit lands in the lane's sign, one movemask.
+  /// The octant bitstack's ranks (ScalarKernelsT::octant_ranks): lane j holds the slot of rank j
+  /// (one variable shift), shifted so that slot s's bit of the mask lands in the lane's sign (31 -
+  /// s = 31 ^ s), one movemask.
   [[gnu::always_inline]] static unsigned octant_ranks(unsigned mask, std::uint32_t order) {
-    const __m256i up = _mm256_andnot_si256(_mm256_srlv_epi32(_mm256_set1_epi32(static_cast<int>(order)),
+    const __m256i slots = _mm256_and_si256(_mm256_srlv_epi32(_mm256_set1_epi32(static_cast<int>(order)),
                                                              _mm256_setr_epi32(21, 18, 15, 12, 9, 6, 3, 0)),
                                            _mm256_set1_epi32(7));
-    const __m256i bits = _mm256_sllv_epi32(_mm256_set1_epi32(static_cast<int>(mask << 24)), up);
+    const __m256i bits = _mm256_sllv_epi32(_mm256_set1_epi32(static_cast<int>(mask)), _mm256_xor_si256(slots, _mm256_set1_epi32(31)));
     return static_cast<unsigned>(_mm256_movemask_ps(_mm256_castsi256_ps(bits)));
   }
 

@@ -125,10 +125,6 @@ inline Hit trace_mbvh4_bitstack(const TraceView& v, const typename K::Ray& r, St
 }
 
 namespace detail {
-/// The index of x's lowest set bit, x not 0 (std::countr_zero without its case of 0, a branch and
-/// a move on each of the MBVH8 bitstacks' steps where the operand is known set).
-[[gnu::always_inline]] constexpr int ctz_set(std::uint32_t x) { return __builtin_ctz(x); }
-[[gnu::always_inline]] constexpr int ctz_set(std::uint64_t x) { return __builtin_ctzll(x); }
 /// Where the MBVH8 bitstack's backtrack goes: `up` levels above the current parent, to its lowest
 /// pending slot.
 struct Backtrack8 {
@@ -147,7 +143,7 @@ struct Backtrack8 {
     hi = 0;
     up = 8;
   }
-  const int low = ctz_set(lo);
+  const int low = std::countr_zero(lo);
   if (const int u = low >> 3; u != 0) {
     const int sh = u << 3;  // 8 to 56 bits
     lo = (lo >> sh) | (hi << (64 - sh));
@@ -257,11 +253,7 @@ inline Hit trace_mbvh8_bitstack(const TraceView& v, const typename K::Ray& r, St
 /// precision the two bounds (the stack's te - tol against tcull, the re-test's te against
 /// tcull + tol) may differ by a rounding, which can change the nodes visited, never the answer's
 /// distance (both stay above tmax * S). The re-test is skipped on the
-/// levels pushed since tmax last shrank (tested against it already): bit 0 of a level's byte (rank
-/// 0, never pending: the entered child is the lowest hit rank) marks it stale, set on every level
-/// with pending ranks when a leaf shrinks tmax and cleared by the re-test, so that the walk keeps no
-/// count of fresh levels beside the word (one live value less on two walks in turn, whose state
-/// otherwise spills). Where the lowest pending
+/// levels pushed since tmax last shrank (tested against it already), and where the lowest pending
 /// rank survives it the walk goes on to that child on a branch rather than a data dependency on
 /// the re-test, whose latency then overlaps the child's fetch. Any hit walks the opposite
 /// octant's order and culls nothing, as the octant stack. State: node + word + octant = 24 bytes.
@@ -277,6 +269,9 @@ struct Mbvh8OctantBitstackWalk {
   const Node8* par;
   std::uint64_t lo, hi;
   unsigned oct;  ///< the order's byte in Node8::pad: the ray's octant (closest hit) or the opposite one (any hit)
+  /// Closest hit: how many of the deepest levels were pushed since tmax last shrank (their ranks
+  /// were tested against it: no re-test); before the first hit more than the depth cap.
+  int fresh;
   unsigned level;
 
   Mbvh8OctantBitstackWalk(const TraceView& view, const typename K::Ray& ray) : v(view), r(&ray), guard(view) { start(); }
@@ -289,6 +284,7 @@ struct Mbvh8OctantBitstackWalk {
     par = nullptr;
     lo = hi = 0;
     oct = 3u * (static_cast<unsigned>(r->neg[0] | r->neg[1] << 1 | r->neg[2] << 2) ^ (Any ? 7u : 0u));
+    fresh = 64;
     level = 0;
   }
   /// Node n's order for this ray (lane k's slot in bits 3k..3k+2, farthest first).
@@ -297,19 +293,8 @@ struct Mbvh8OctantBitstackWalk {
     std::memcpy(&o, reinterpret_cast<const unsigned char*>(n.pad) + oct, sizeof(o));
     return o;
   }
-  /// Marks stale (bit 0) every byte of x with a pending rank (bits 1-7; a stale byte has some).
-  [[gnu::always_inline]] static std::uint64_t stale(std::uint64_t x) {
-    constexpr std::uint64_t k7f = 0x7f7f7f7f7f7f7f7full, k80 = 0x8080808080808080ull;
-    return x | ((((x >> 1) & k7f) + k7f) & k80) >> 7;
-  }
   /// The slot of rank j (0: the nearest) in `order`.
   [[gnu::always_inline]] static int slot(std::uint32_t order, int j) { return static_cast<int>((order >> (21 - 3 * j)) & 7u); }
-  /// Closest hit: the ranks (in order o) of p's children hit within tcull, the re-test of a stale
-  /// level; out of line, so that the two walks in turn (run_interleaved) hold no registers for it.
-  [[gnu::noinline]] static unsigned retest(const Node8& p, const typename K::Ray& r, float tcull, std::uint32_t o) {
-    float d[8];
-    return K::octant_ranks(K::template test<false>(p, r, tcull, d), o);
-  }
   /// One node or leaf visit and the move after it; false once the ray is done (its answer in best).
   [[gnu::always_inline]] bool step(St& st) {
     guard.step();
@@ -320,10 +305,11 @@ struct Mbvh8OctantBitstackWalk {
       if (m) {
         const std::uint32_t o = order(n);
         const unsigned ranks = K::octant_ranks(m, o);
-        const int i = slot(o, detail::ctz_set(ranks));
+        const int i = slot(o, std::countr_zero(ranks));
         detail::prefetch_pending<K, Any>(n, *r, m, i);
         hi = (hi << 8) | (lo >> 56);  // push the pending ranks
-        lo = (lo << 8) | (ranks & (ranks - 1));  // fresh: bit 0 clear
+        lo = (lo << 8) | (ranks & (ranks - 1));
+        if constexpr (!Any) ++fresh;
         if constexpr (St::on) st.depth(++level);
         par = &n;
         cur = n.child[i];
@@ -333,14 +319,11 @@ struct Mbvh8OctantBitstackWalk {
       const float t0 = tmax;
       if (K::template leaf<Any>(v, cur, *r, tmax, best, st)) return false;
       if constexpr (!Any)
-        if (tmax < t0) {
-          lo = stale(lo);
-          hi = stale(hi);
-        }
+        if (tmax < t0) fresh = 0;
     }
     // -- backtrack: climb to the deepest level with a pending rank (detail::climb8, parent links
-    // only), closest hit drop its ranks now beyond tmax * S where the level is stale (else on up),
-    // take the lowest
+    // only), closest hit drop its ranks now beyond tmax * S where tmax shrank since the level's
+    // push (else on up), take the lowest
     for (;;) {
       if ((lo | hi) == 0) return false;
       const int up = detail::climb8(lo, hi).up;
@@ -351,23 +334,26 @@ struct Mbvh8OctantBitstackWalk {
         if constexpr (St::on) --level;
       }
       if constexpr (!Any) {
-        if (lo & 1u) {
+        fresh -= up;
+        if (fresh <= 0) {
+          float d[8];
           st.retest();
+          const unsigned m = K::template test<false>(*par, *r, tmax * kCullSlack, d);
           const std::uint32_t o = order(*par);
-          const int j = detail::ctz_set(lo & ~std::uint64_t{1});
-          const unsigned live = retest(*par, *r, tmax * kCullSlack, o);
-          lo &= ~std::uint64_t{0xff} | (live & 0xfeu);  // the stale bit cleared
+          const int s = slot(o, std::countr_zero(lo));
+          lo &= ~std::uint64_t{0xff} | K::octant_ranks(m, o);
+          fresh = 1;
           // the lowest pending rank still hit (the usual case) is taken on a branch on the re-test,
           // not a wait for it: the next node's address comes from the word as it was
-          if ((live >> j) & 1u) {
+          if ((m >> s) & 1u) {
             lo &= lo - 1;
-            cur = par->child[slot(o, j)];
+            cur = par->child[s];
             return true;
           }
           if ((lo & 0xffu) == 0) continue;
         }
       }
-      const int j = detail::ctz_set(lo);
+      const int j = std::countr_zero(lo);
       lo &= lo - 1;
       cur = par->child[slot(order(*par), j)];
       return true;
