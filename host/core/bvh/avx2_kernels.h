@@ -11,7 +11,8 @@
 //   - side_count / scatter: partition_chunked's count pass and its stable scatter;
 //   - bin_pairs: the dense bins' update (DenseBins::bin_parts) with each bin kept as one register,
 //     [lo | -hi], so one min grows both rows (min(-a, -b) = -max(a, b), ties and signed zeros
-//     included: both take the second operand).
+//     included: both take the second operand);
+//   - bin_rows: the sparse bins' update (SahBuilder::bin_range), their bins the same rows.
 // The children's centroid bounds are reduced from two halves at the end, an order the SSE2 loop
 // does not take: a bound may differ from it only in the sign of a zero, which no split decision
 // sees (the bins' origin and scale, and the side test, are the same for +0 and -0).
@@ -237,6 +238,42 @@ MBVH_AVX2 [[gnu::noinline]] inline void bin_pairs(const Split& g, unsigned last,
       _mm256_store_ps(w1, _mm256_min_ps(_mm256_load_ps(w1), b1));
       ++s1.count[a][ks[4 + a]];
     }
+  }
+}
+
+/// The sparse bins' update (SahBuilder::bin_range): records [b, e) into `rows` (3 axes of
+/// `stride` bins, each a row of 8 floats [lo | -hi], 32-byte aligned) and `count` (3 axes of
+/// `stride`); the index and the rows are bin_pairs', a record a step. The caller marks the
+/// occupied bins.
+MBVH_AVX2 [[gnu::noinline]] inline void bin_rows(const Split& g, unsigned last, float* rows, std::uint32_t* count,
+                                                 unsigned stride, const PrimRef* p, std::size_t b, std::size_t e) {
+  const Consts k(g);
+  const __m128 zero = _mm_setzero_ps(), half = _mm256_castps256_ps128(k.half), xyz = _mm256_castps256_ps128(k.xyz),
+               o = _mm256_castps256_ps128(k.o), s = _mm256_castps256_ps128(k.s);
+  const __m256 neg_hi = _mm256_setr_ps(0.0f, 0.0f, 0.0f, 0.0f, -0.0f, -0.0f, -0.0f, -0.0f);
+  const __m128i lst = _mm_set1_epi32(static_cast<int>(last));
+  float* const row1 = rows + 8 * std::size_t(stride);
+  float* const row2 = rows + 16 * std::size_t(stride);
+  std::uint32_t* const count1 = count + stride;
+  std::uint32_t* const count2 = count + 2 * std::size_t(stride);
+  for (std::size_t i = b; i < e; ++i) {
+    const __m256 r = _mm256_loadu_ps(p[i].lo);
+    const __m128 lo = _mm_and_ps(_mm256_castps256_ps128(r), xyz), hi = _mm256_extractf128_ps(r, 1);
+    const __m128 f = _mm_max_ps(_mm_mul_ps(_mm_sub_ps(_mm_mul_ps(_mm_add_ps(lo, hi), half), o), s), zero);
+    const __m128i ks = _mm_min_epi16(_mm_cvttps_epi32(f), lst);  // f <= bins (DenseBins::Binning)
+    const __m256 row = _mm256_xor_ps(_mm256_and_ps(r, k.xyz), neg_hi);
+    const unsigned k0 = static_cast<unsigned>(_mm_cvtsi128_si32(ks)),
+                   k1 = static_cast<unsigned>(_mm_extract_epi32(ks, 1)),
+                   k2 = static_cast<unsigned>(_mm_extract_epi32(ks, 2));
+    float* w0 = rows + 8 * std::size_t(k0);
+    _mm256_store_ps(w0, _mm256_min_ps(_mm256_load_ps(w0), row));
+    ++count[k0];
+    float* w1 = row1 + 8 * std::size_t(k1);
+    _mm256_store_ps(w1, _mm256_min_ps(_mm256_load_ps(w1), row));
+    ++count1[k1];
+    float* w2 = row2 + 8 * std::size_t(k2);
+    _mm256_store_ps(w2, _mm256_min_ps(_mm256_load_ps(w2), row));
+    ++count2[k2];
   }
 }
 

@@ -109,16 +109,30 @@ void for_chunks(std::size_t count, unsigned threads, Fn&& fn) {
   });
 }
 
-struct Bin {  // lane 3 unused
-  alignas(16) float lo[4];
-  alignas(16) float hi[4];
+// A sparse bin's box as lo and -hi (lane 3 unused), so that both rows grow by a min (as the
+// dense bins' rows, dense_bins.h: min(-a, -b) = -max(a, b), ties and signed zeros included) and
+// the pair, 32 bytes, is one 256-bit row for the AVX2 binning (avx2_kernels.h bin_rows).
+struct Bin {
+  alignas(32) float lo[4];
+  alignas(16) float nhi[4];  // -hi
+  // grows by another bin's rows (std::min keeps this bin's bound on ties, as std::max on hi did)
+  void grow(const Bin& o) {
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = std::min(lo[a], o.lo[a]);
+      nhi[a] = std::min(nhi[a], o.nhi[a]);
+    }
+  }
   void grow(const float* l, const float* h) {
     for (int a = 0; a < 3; ++a) {
       lo[a] = std::min(lo[a], l[a]);
-      hi[a] = std::max(hi[a], h[a]);
+      nhi[a] = std::min(nhi[a], -h[a]);
     }
   }
+  void hi(float (&h)[3]) const {
+    for (int a = 0; a < 3; ++a) h[a] = -nhi[a];
+  }
 };
+static_assert(sizeof(Bin) == 32);
 
 // Sparse bins of the three axes, one set per task, reused from node to node: every bin is empty
 // between nodes (the sweep, or reset(), empties only the bins `mask` marks occupied), so binning a record
@@ -134,7 +148,7 @@ struct Bins {
   void empty(int a, unsigned k) {
     for (int d = 0; d < 4; ++d) {
       bin[a][k].lo[d] = INFINITY;
-      bin[a][k].hi[d] = -INFINITY;
+      bin[a][k].nhi[d] = INFINITY;
     }
     count[a][k] = 0;
   }
@@ -144,7 +158,27 @@ struct Bins {
       mask[a] = 0;
     }
   }
+  // Marks the occupied bins among the first `bins` of each axis in `mask` (a bin is occupied
+  // when its count is not 0: every other bin is empty).
+  void mark(unsigned bins) {
+    for (int a = 0; a < 3; ++a) {
+#if defined(__SSE2__)
+      std::uint64_t m = 0;
+      const __m128i zero = _mm_setzero_si128();
+      for (unsigned k = 0; k < bins; k += 4) {
+        const __m128i c = _mm_loadu_si128(reinterpret_cast<const __m128i*>(count[a] + k));
+        const unsigned empty4 = static_cast<unsigned>(_mm_movemask_ps(_mm_castsi128_ps(_mm_cmpeq_epi32(c, zero))));
+        m |= std::uint64_t(~empty4 & 15u) << k;
+      }
+      mask[a] |= m;
+#else
+      for (unsigned k = 0; k < bins; ++k)
+        if (count[a][k] != 0) mask[a] |= std::uint64_t(1) << k;
+#endif
+    }
+  }
 };
+static_assert(kMaxBins % 4 == 0);
 
 class SahBuilder {
 public:
@@ -356,18 +390,34 @@ private:
         for (int a = 0; a < 3; ++a)
           for (std::uint64_t m = partial[c].mask[a]; m; m &= m - 1) {
             const unsigned k = static_cast<unsigned>(std::countr_zero(m));
-            bins.bin[a][k].grow(partial[c].bin[a][k].lo, partial[c].bin[a][k].hi);
+            bins.bin[a][k].grow(partial[c].bin[a][k]);
             bins.count[a][k] += partial[c].count[a][k];
             bins.mask[a] |= std::uint64_t(1) << k;
           }
     } else {
       bin_range(g, records(node.depth), node.begin, node.end, bins);
     }
-    box = FastBox();  // every record is in one bin of axis 0
+    // every record is in one bin of axis 0: the node's box, FastBox::grow_rows's operations
+    // (std::min(acc, l) is _mm_min_ps(l, acc), bit for bit; on -hi, std::max(acc, h) likewise)
+#if defined(__SSE2__)
+    {
+      __m128 lo = _mm_set1_ps(INFINITY), nhi = lo;
+      for (std::uint64_t m = bins.mask[0]; m; m &= m - 1) {
+        const Bin& b = bins.bin[0][std::countr_zero(m)];
+        lo = _mm_min_ps(_mm_load_ps(b.lo), lo);
+        nhi = _mm_min_ps(_mm_load_ps(b.nhi), nhi);
+      }
+      set_rows(box, lo, _mm_xor_ps(nhi, _mm_set1_ps(-0.0f)));
+    }
+#else
+    box = FastBox();
     for (std::uint64_t m = bins.mask[0]; m; m &= m - 1) {
       const Bin& b = bins.bin[0][std::countr_zero(m)];
-      box.grow_rows(b.lo, b.hi);
+      float h[3];
+      b.hi(h);
+      box.grow_rows(b.lo, h);
     }
+#endif
     // the plain count or blocks of records, chosen once (not per bin: best_* may alias opt_ as
     // far as the compiler knows, so a call in the loop reloads and tests opt_.leaf_block)
     if (opt_.leaf_block <= 1)
@@ -391,13 +441,13 @@ private:
     // a running box as two rows; its half area with FastBox::half_area's operations in order:
     // (e0 e1 + e1 e2) + e2 e0
     struct Acc {
-      __m128 lo = _mm_set1_ps(INFINITY), hi = _mm_set1_ps(-INFINITY);
+      __m128 lo = _mm_set1_ps(INFINITY), nhi = _mm_set1_ps(INFINITY);  // nhi: -hi
       void grow(const Bin& b) {
         lo = _mm_min_ps(lo, _mm_load_ps(b.lo));
-        hi = _mm_max_ps(hi, _mm_load_ps(b.hi));
+        nhi = _mm_min_ps(nhi, _mm_load_ps(b.nhi));
       }
       float half_area() const {
-        const __m128 e = _mm_sub_ps(hi, lo);
+        const __m128 e = _mm_sub_ps(_mm_xor_ps(nhi, _mm_set1_ps(-0.0f)), lo);
         const __m128 p = _mm_mul_ps(e, _mm_shuffle_ps(e, e, _MM_SHUFFLE(3, 0, 2, 1)));
         const __m128 s = _mm_add_ss(p, _mm_shuffle_ps(p, p, _MM_SHUFFLE(1, 1, 1, 1)));
         return _mm_cvtss_f32(_mm_add_ss(s, _mm_shuffle_ps(p, p, _MM_SHUFFLE(2, 2, 2, 2))));
@@ -406,7 +456,11 @@ private:
 #else
     struct Acc {
       FastBox box;
-      void grow(const Bin& b) { box.grow_rows(b.lo, b.hi); }
+      void grow(const Bin& b) {
+        float h[3];
+        b.hi(h);
+        box.grow_rows(b.lo, h);
+      }
       float half_area() const { return box.half_area(); }
     };
 #endif
@@ -497,29 +551,36 @@ private:
   }
 #endif
 
-  // Out of line (as partition()), so that profiles show binning and partitioning apart.
+  // Out of line (as partition()), so that profiles show binning and partitioning apart. The
+  // occupied bins are marked from the counts afterwards (Bins::mark), not per record.
   [[gnu::noinline]] void bin_range(const Geometry& g, const PrimRef* src, std::size_t b, std::size_t e,
                                    Bins& out) const {
+#if defined(MBVH_BUILD_AVX2)
+    if (use_vec256()) {
+      vec256::bin_rows(vec256_split(g.origin, g.scale, 0), g.last, &out.bin[0][0].lo[0], &out.count[0][0], kMaxBins, src,
+                       b, e);
+      out.mark(g.last + 1);
+      return;
+    }
+#endif
 #if defined(__SSE2__)
     // Four lanes at once: the centroid, its bin on each axis (the dense bins' index, the same
-    // float operations as Geometry::bin, so the same bins) and the bin's box as one min and one max.
+    // float operations as Geometry::bin, so the same bins) and the bin's rows as two mins.
     const DenseBins::Binning bg(g.origin, g.scale, g.last);
-    std::uint64_t mask[3] = {out.mask[0], out.mask[1], out.mask[2]};
     for (std::size_t i = b; i < e; ++i) {
       __m128 lo, hi;  // hi's lane 3: pad = 0
       bg.load(src[i], lo, hi);
       alignas(16) std::uint32_t ks[4];
       _mm_store_si128(reinterpret_cast<__m128i*>(ks), bg.index(lo, hi));
+      const __m128 nhi = _mm_xor_ps(hi, bg.sign);
       for (int a = 0; a < 3; ++a) {
         const unsigned kb = ks[a];
         Bin& bn = out.bin[a][kb];
         _mm_store_ps(bn.lo, _mm_min_ps(_mm_load_ps(bn.lo), lo));
-        _mm_store_ps(bn.hi, _mm_max_ps(_mm_load_ps(bn.hi), hi));
+        _mm_store_ps(bn.nhi, _mm_min_ps(_mm_load_ps(bn.nhi), nhi));
         ++out.count[a][kb];
-        mask[a] |= std::uint64_t(1) << kb;
       }
     }
-    for (int a = 0; a < 3; ++a) out.mask[a] = mask[a];
 #else
     for (std::size_t i = b; i < e; ++i) {
       const PrimRef& r = src[i];
@@ -527,10 +588,10 @@ private:
         const unsigned k = g.bin(r, a);
         out.bin[a][k].grow(r.lo, r.hi);
         ++out.count[a][k];
-        out.mask[a] |= std::uint64_t(1) << k;
       }
     }
 #endif
+    out.mark(g.last + 1);
   }
 
 #if defined(__SSE2__)
