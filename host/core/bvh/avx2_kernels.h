@@ -243,10 +243,11 @@ MBVH_AVX2 [[gnu::noinline]] inline void bin_pairs(const Split& g, unsigned last,
 
 /// The sparse bins' update (SahBuilder::bin_range): records [b, e) into `rows` (3 axes of
 /// `stride` bins, each a row of 8 floats [lo | -hi], 32-byte aligned) and `count` (3 axes of
-/// `stride`); the index and the rows are bin_pairs', a record a step. The caller marks the
-/// occupied bins.
+/// `stride`, a multiple of 8); the index and the rows are bin_pairs', a record a step. Then marks
+/// the occupied bins (count not 0) among the first last + 1 of axis a in mask[a].
 MBVH_AVX2 [[gnu::noinline]] inline void bin_rows(const Split& g, unsigned last, float* rows, std::uint32_t* count,
-                                                 unsigned stride, const PrimRef* p, std::size_t b, std::size_t e) {
+                                                 unsigned stride, std::uint64_t (&mask)[3], const PrimRef* p,
+                                                 std::size_t b, std::size_t e) {
   const Consts k(g);
   const __m128 zero = _mm_setzero_ps(), half = _mm256_castps256_ps128(k.half), xyz = _mm256_castps256_ps128(k.xyz),
                o = _mm256_castps256_ps128(k.o), s = _mm256_castps256_ps128(k.s);
@@ -274,6 +275,16 @@ MBVH_AVX2 [[gnu::noinline]] inline void bin_rows(const Split& g, unsigned last, 
     float* w2 = row2 + 8 * std::size_t(k2);
     _mm256_store_ps(w2, _mm256_min_ps(_mm256_load_ps(w2), row));
     ++count2[k2];
+  }
+  const __m256i none = _mm256_setzero_si256();
+  for (int a = 0; a < 3; ++a) {
+    std::uint64_t m = 0;
+    for (unsigned j = 0; j <= last; j += 8) {
+      const __m256i c = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(count + a * std::size_t(stride) + j));
+      const unsigned empty8 = static_cast<unsigned>(_mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(c, none))));
+      m |= std::uint64_t(~empty8 & 0xffu) << j;
+    }
+    mask[a] |= m;
   }
 }
 

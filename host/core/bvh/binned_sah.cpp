@@ -552,14 +552,14 @@ private:
 #endif
 
   // Out of line (as partition()), so that profiles show binning and partitioning apart. The
-  // occupied bins are marked from the counts afterwards (Bins::mark), not per record.
+  // occupied bins are marked from the counts afterwards (as Bins::mark), not per record.
   [[gnu::noinline]] void bin_range(const Geometry& g, const PrimRef* src, std::size_t b, std::size_t e,
                                    Bins& out) const {
 #if defined(MBVH_BUILD_AVX2)
     if (use_vec256()) {
-      vec256::bin_rows(vec256_split(g.origin, g.scale, 0), g.last, &out.bin[0][0].lo[0], &out.count[0][0], kMaxBins, src,
-                       b, e);
-      out.mark(g.last + 1);
+      static_assert(kMaxBins % 8 == 0);
+      vec256::bin_rows(vec256_split(g.origin, g.scale, 0), g.last, &out.bin[0][0].lo[0], &out.count[0][0], kMaxBins,
+                       out.mask, src, b, e);
       return;
     }
 #endif
