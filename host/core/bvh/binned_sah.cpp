@@ -303,26 +303,31 @@ public:
   // not the tree's: flatten follows the child links.
   void build_subtree(SubArena& arena, const TmpNode& top, const FastBox& cbox) {
     Bins work;
+    // 40 bytes: what splitting a node needs, and its place in the arena (< 2n: 32 bits)
     struct Pending {
-      TmpNode t;
-      std::size_t at;  // its place in the arena
       FastBox cbox;
+      std::uint32_t begin, end, depth, at;
     };
     std::vector<Pending> stack;
     stack.reserve(2 * std::size_t(opt_.depth_cap) + 2);
-    stack.push_back({top, arena.add(1), cbox});
+    stack.push_back({cbox, top.begin, top.end, top.depth, static_cast<std::uint32_t>(arena.add(1))});
     while (!stack.empty()) {
-      Pending p = stack.back();
+      const Pending p = stack.back();
       stack.pop_back();
+      TmpNode t;
+      t.begin = p.begin;
+      t.end = p.end;
+      t.depth = p.depth;
       TmpNode c[2];
       FastBox cc[2];
-      if (!split_node(p.t, p.cbox, c, cc, 1, work)) {
-        arena[p.at] = SubNode::leaf(p.t.box, p.t.begin, p.t.end - p.t.begin, p.t.forced);
+      if (!split_node(t, p.cbox, c, cc, 1, work)) {
+        arena[p.at] = SubNode::leaf(t.box, t.begin, t.end - t.begin, t.forced);
         continue;
       }
       const std::size_t first = arena.add(2);
-      arena[p.at] = SubNode::inner(p.t.box, first);
-      for (int side = 1; side >= 0; --side) stack.push_back({c[side], first + std::size_t(side), cc[side]});
+      arena[p.at] = SubNode::inner(t.box, first);
+      for (int side = 1; side >= 0; --side)
+        stack.push_back({cc[side], c[side].begin, c[side].end, c[side].depth, static_cast<std::uint32_t>(first + std::size_t(side))});
     }
   }
 
