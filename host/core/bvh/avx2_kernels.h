@@ -224,19 +224,30 @@ MBVH_AVX2 [[gnu::noinline]] inline void bin_pairs(const Split& g, unsigned last,
   const __m256 zero = _mm256_setzero_ps();
   const __m256 neg_hi = _mm256_setr_ps(0.0f, 0.0f, 0.0f, 0.0f, -0.0f, -0.0f, -0.0f, -0.0f);
   const __m256i lst = _mm256_set1_epi32(static_cast<int>(last));
+  // a bin's index into the flat count[3][kMax] (axis a's bins from a kMax on), and its row's
+  // byte offset (32 bytes a row), computed for all six at once
+  constexpr int M = int(DenseBins::kMax);
+  const __m256i axis_base = _mm256_setr_epi32(0, M, 2 * M, 0, 0, M, 2 * M, 0);
+  char* const rows0 = reinterpret_cast<char*>(&s0.row[0][0]);
+  char* const rows1 = reinterpret_cast<char*>(&s1.row[0][0]);
+  std::uint32_t* const count0 = &s0.count[0][0];
+  std::uint32_t* const count1 = &s1.count[0][0];
   for (std::size_t i = 0; i < n; ++i) {
     const Pair q = load_two(k, p + b + i, p + b + n + i);
     const __m256 f = _mm256_max_ps(_mm256_mul_ps(_mm256_sub_ps(q.ce, k.o), k.s), zero);
-    alignas(32) std::uint32_t ks[8];  // f <= bins: the 16-bit min is the clamp (DenseBins::Binning)
-    _mm256_store_si256(reinterpret_cast<__m256i*>(ks), _mm256_min_epi16(_mm256_cvttps_epi32(f), lst));
+    // f <= bins: the 16-bit min is the clamp (DenseBins::Binning)
+    const __m256i ki = _mm256_add_epi32(_mm256_min_epi16(_mm256_cvttps_epi32(f), lst), axis_base);
+    alignas(32) std::uint32_t ks[8], ko[8];
+    _mm256_store_si256(reinterpret_cast<__m256i*>(ks), ki);
+    _mm256_store_si256(reinterpret_cast<__m256i*>(ko), _mm256_slli_epi32(ki, 5));
     const __m256 b0 = _mm256_xor_ps(_mm256_and_ps(q.r0, k.xyz), neg_hi), b1 = _mm256_xor_ps(_mm256_and_ps(q.r1, k.xyz), neg_hi);
     for (int a = 0; a < 3; ++a) {
-      float* w0 = reinterpret_cast<float*>(&s0.row[a][ks[a]]);
+      float* w0 = reinterpret_cast<float*>(rows0 + ko[a]);
       _mm256_store_ps(w0, _mm256_min_ps(_mm256_load_ps(w0), b0));
-      ++s0.count[a][ks[a]];
-      float* w1 = reinterpret_cast<float*>(&s1.row[a][ks[4 + a]]);
+      ++count0[ks[a]];
+      float* w1 = reinterpret_cast<float*>(rows1 + ko[4 + a]);
       _mm256_store_ps(w1, _mm256_min_ps(_mm256_load_ps(w1), b1));
-      ++s1.count[a][ks[4 + a]];
+      ++count1[ks[4 + a]];
     }
   }
 }
