@@ -481,8 +481,8 @@ private:
       // occupied bins from the top, all but the lowest (never the first bin right of a split):
       // bounds of bins >= k; the records right of a split are the node's less those left of it
       for (std::uint64_t m = mask; m & (m - 1);) {
-        const unsigned k = 63u - static_cast<unsigned>(std::countl_zero(m));
-        m &= ~(std::uint64_t(1) << k);
+        const unsigned k = static_cast<unsigned>(std::bit_width(m)) - 1u;
+        m ^= std::uint64_t(1) << k;
         acc.grow(bins.bin[a][k]);
         right_area[k] = acc.half_area();
       }
