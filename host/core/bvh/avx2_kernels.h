@@ -252,40 +252,50 @@ MBVH_AVX2 [[gnu::noinline]] inline void bin_pairs(const Split& g, unsigned last,
   }
 }
 
+// bin_rows' steps: both records' bins as indices into the flat count (axis_base: axis a's
+// bins from a stride on), and one record's update of bin kb.
+MBVH_AVX2 inline void sparse_index(const Consts& k, const Pair& q, __m256 zero, __m256i lst, __m256i axis_base,
+                                   std::uint32_t (&ks)[8]) {
+  const __m256 f = _mm256_max_ps(_mm256_mul_ps(_mm256_sub_ps(q.ce, k.o), k.s), zero);
+  _mm256_store_si256(reinterpret_cast<__m256i*>(ks), _mm256_add_epi32(_mm256_min_epi16(_mm256_cvttps_epi32(f), lst), axis_base));
+}
+MBVH_AVX2 inline void sparse_add(float* rows, std::uint32_t* count, std::uint32_t kb, __m256 row) {
+  float* w = rows + 8 * std::size_t(kb);
+  _mm256_store_ps(w, _mm256_min_ps(_mm256_load_ps(w), row));
+  ++count[kb];
+}
+
 /// The sparse bins' update (SahBuilder::bin_range): records [b, e) into `rows` (3 axes of
 /// `stride` bins, each a row of 8 floats [lo | -hi], 32-byte aligned) and `count` (3 axes of
-/// `stride`, a multiple of 8); the index and the rows are bin_pairs', a record a step. Then marks
-/// the occupied bins (count not 0) among the first last + 1 of axis a in mask[a].
+/// `stride`, a multiple of 8); the index and the rows are bin_pairs', two records a step (the
+/// first's update of a bin before the second's: the bits of one record a step). Then marks the
+/// occupied bins (count not 0) among the first last + 1 of axis a in mask[a].
 MBVH_AVX2 [[gnu::noinline]] inline void bin_rows(const Split& g, unsigned last, float* rows, std::uint32_t* count,
                                                  unsigned stride, std::uint64_t (&mask)[3], const PrimRef* p,
                                                  std::size_t b, std::size_t e) {
   const Consts k(g);
-  const __m128 zero = _mm_setzero_ps(), half = _mm256_castps256_ps128(k.half), xyz = _mm256_castps256_ps128(k.xyz),
-               o = _mm256_castps256_ps128(k.o), s = _mm256_castps256_ps128(k.s);
+  const __m256 zero = _mm256_setzero_ps();
   const __m256 neg_hi = _mm256_setr_ps(0.0f, 0.0f, 0.0f, 0.0f, -0.0f, -0.0f, -0.0f, -0.0f);
-  const __m128i lst = _mm_set1_epi32(static_cast<int>(last));
-  float* const row1 = rows + 8 * std::size_t(stride);
-  float* const row2 = rows + 16 * std::size_t(stride);
-  std::uint32_t* const count1 = count + stride;
-  std::uint32_t* const count2 = count + 2 * std::size_t(stride);
-  for (std::size_t i = b; i < e; ++i) {
-    const __m256 r = _mm256_loadu_ps(p[i].lo);
-    const __m128 lo = _mm_and_ps(_mm256_castps256_ps128(r), xyz), hi = _mm256_extractf128_ps(r, 1);
-    const __m128 f = _mm_max_ps(_mm_mul_ps(_mm_sub_ps(_mm_mul_ps(_mm_add_ps(lo, hi), half), o), s), zero);
-    const __m128i ks = _mm_min_epi16(_mm_cvttps_epi32(f), lst);  // f <= bins (DenseBins::Binning)
-    const __m256 row = _mm256_xor_ps(_mm256_and_ps(r, k.xyz), neg_hi);
-    const unsigned k0 = static_cast<unsigned>(_mm_cvtsi128_si32(ks)),
-                   k1 = static_cast<unsigned>(_mm_extract_epi32(ks, 1)),
-                   k2 = static_cast<unsigned>(_mm_extract_epi32(ks, 2));
-    float* w0 = rows + 8 * std::size_t(k0);
-    _mm256_store_ps(w0, _mm256_min_ps(_mm256_load_ps(w0), row));
-    ++count[k0];
-    float* w1 = row1 + 8 * std::size_t(k1);
-    _mm256_store_ps(w1, _mm256_min_ps(_mm256_load_ps(w1), row));
-    ++count1[k1];
-    float* w2 = row2 + 8 * std::size_t(k2);
-    _mm256_store_ps(w2, _mm256_min_ps(_mm256_load_ps(w2), row));
-    ++count2[k2];
+  const __m256i lst = _mm256_set1_epi32(static_cast<int>(last));
+  const int st = static_cast<int>(stride);
+  const __m256i axis_base = _mm256_setr_epi32(0, st, 2 * st, 0, 0, st, 2 * st, 0);
+  std::size_t i = b;
+  for (; i + 2 <= e; i += 2) {
+    const Pair q = load_pair(k, p + i);
+    alignas(32) std::uint32_t ks[8];
+    sparse_index(k, q, zero, lst, axis_base, ks);
+    const __m256 b0 = _mm256_xor_ps(_mm256_and_ps(q.r0, k.xyz), neg_hi), b1 = _mm256_xor_ps(_mm256_and_ps(q.r1, k.xyz), neg_hi);
+    for (int a = 0; a < 3; ++a) {
+      sparse_add(rows, count, ks[a], b0);
+      sparse_add(rows, count, ks[4 + a], b1);
+    }
+  }
+  if (i < e) {
+    const Pair q = load_one(k, p + i);
+    alignas(32) std::uint32_t ks[8];
+    sparse_index(k, q, zero, lst, axis_base, ks);
+    const __m256 b0 = _mm256_xor_ps(_mm256_and_ps(q.r0, k.xyz), neg_hi);
+    for (int a = 0; a < 3; ++a) sparse_add(rows, count, ks[a], b0);
   }
   const __m256i none = _mm256_setzero_si256();
   for (int a = 0; a < 3; ++a) {
