@@ -131,6 +131,12 @@ struct Bin {
   void hi(float (&h)[3]) const {
     for (int a = 0; a < 3; ++a) h[a] = -nhi[a];
   }
+  void clear() {
+    for (int d = 0; d < 4; ++d) {
+      lo[d] = INFINITY;
+      nhi[d] = INFINITY;
+    }
+  }
 };
 static_assert(sizeof(Bin) == 32);
 
@@ -146,10 +152,7 @@ struct Bins {
       for (unsigned k = 0; k < kMaxBins; ++k) empty(a, k);
   }
   void empty(int a, unsigned k) {
-    for (int d = 0; d < 4; ++d) {
-      bin[a][k].lo[d] = INFINITY;
-      bin[a][k].nhi[d] = INFINITY;
-    }
+    bin[a][k].clear();
     count[a][k] = 0;
   }
   void reset() {
@@ -476,6 +479,12 @@ private:
         for (std::uint64_t m = mask; m; m &= m - 1) bins.empty(a, static_cast<unsigned>(std::countr_zero(m)));
         continue;
       }
+      Bin* const row = bins.bin[a];
+      std::uint32_t* const counts = bins.count[a];
+      auto empty = [&](unsigned k) {  // Bins::empty, through this axis's pointers
+        row[k].clear();
+        counts[k] = 0;
+      };
       float right_area[kMaxBins];
       Acc acc;
       // occupied bins from the top, all but the lowest (never the first bin right of a split):
@@ -483,7 +492,7 @@ private:
       for (std::uint64_t m = mask; m & (m - 1);) {
         const unsigned k = static_cast<unsigned>(std::bit_width(m)) - 1u;
         m ^= std::uint64_t(1) << k;
-        acc.grow(bins.bin[a][k]);
+        acc.grow(row[k]);
         right_area[k] = acc.half_area();
       }
       acc = Acc();
@@ -492,12 +501,12 @@ private:
         const unsigned k = static_cast<unsigned>(std::countr_zero(m));
         m &= m - 1;
         if (m == 0) {  // the last occupied bin: nothing to its right
-          bins.empty(a, k);
+          empty(k);
           break;
         }
-        acc.grow(bins.bin[a][k]);
-        cnt += bins.count[a][k];
-        bins.empty(a, k);
+        acc.grow(row[k]);
+        cnt += counts[k];
+        empty(k);
         const unsigned next = static_cast<unsigned>(std::countr_zero(m));
         const float cost = acc.half_area() * cost_of(cnt) + right_area[next] * cost_of(count - cnt);
         if (cost < best_cost) {
