@@ -11,8 +11,7 @@
 //   - side_count / scatter: partition_chunked's count pass and its stable scatter;
 //   - bin_pairs: the dense bins' update (DenseBins::bin_parts) with each bin kept as one register,
 //     [lo | -hi], so one min grows both rows (min(-a, -b) = -max(a, b), ties and signed zeros
-//     included: both take the second operand);
-//   - bin_rows: the sparse bins' update (SahBuilder::bin_range), their bins the same rows.
+//     included: both take the second operand).
 // The children's centroid bounds are reduced from two halves at the end, an order the SSE2 loop
 // does not take: a bound may differ from it only in the sign of a zero, which no split decision
 // sees (the bins' origin and scale, and the side test, are the same for +0 and -0).
@@ -224,88 +223,20 @@ MBVH_AVX2 [[gnu::noinline]] inline void bin_pairs(const Split& g, unsigned last,
   const __m256 zero = _mm256_setzero_ps();
   const __m256 neg_hi = _mm256_setr_ps(0.0f, 0.0f, 0.0f, 0.0f, -0.0f, -0.0f, -0.0f, -0.0f);
   const __m256i lst = _mm256_set1_epi32(static_cast<int>(last));
-  // a bin's index into the flat count[3][kMax] (axis a's bins from a kMax on), and its row's
-  // byte offset (32 bytes a row), computed for all six at once
-  constexpr int M = int(DenseBins::kMax);
-  const __m256i axis_base = _mm256_setr_epi32(0, M, 2 * M, 0, 0, M, 2 * M, 0);
-  char* const rows0 = reinterpret_cast<char*>(&s0.row[0][0]);
-  char* const rows1 = reinterpret_cast<char*>(&s1.row[0][0]);
-  std::uint32_t* const count0 = &s0.count[0][0];
-  std::uint32_t* const count1 = &s1.count[0][0];
   for (std::size_t i = 0; i < n; ++i) {
     const Pair q = load_two(k, p + b + i, p + b + n + i);
     const __m256 f = _mm256_max_ps(_mm256_mul_ps(_mm256_sub_ps(q.ce, k.o), k.s), zero);
-    // f <= bins: the 16-bit min is the clamp (DenseBins::Binning)
-    const __m256i ki = _mm256_add_epi32(_mm256_min_epi16(_mm256_cvttps_epi32(f), lst), axis_base);
-    alignas(32) std::uint32_t ks[8], ko[8];
-    _mm256_store_si256(reinterpret_cast<__m256i*>(ks), ki);
-    _mm256_store_si256(reinterpret_cast<__m256i*>(ko), _mm256_slli_epi32(ki, 5));
+    alignas(32) std::uint32_t ks[8];  // f <= bins: the 16-bit min is the clamp (DenseBins::Binning)
+    _mm256_store_si256(reinterpret_cast<__m256i*>(ks), _mm256_min_epi16(_mm256_cvttps_epi32(f), lst));
     const __m256 b0 = _mm256_xor_ps(_mm256_and_ps(q.r0, k.xyz), neg_hi), b1 = _mm256_xor_ps(_mm256_and_ps(q.r1, k.xyz), neg_hi);
     for (int a = 0; a < 3; ++a) {
-      float* w0 = reinterpret_cast<float*>(rows0 + ko[a]);
+      float* w0 = reinterpret_cast<float*>(&s0.row[a][ks[a]]);
       _mm256_store_ps(w0, _mm256_min_ps(_mm256_load_ps(w0), b0));
-      ++count0[ks[a]];
-      float* w1 = reinterpret_cast<float*>(rows1 + ko[4 + a]);
+      ++s0.count[a][ks[a]];
+      float* w1 = reinterpret_cast<float*>(&s1.row[a][ks[4 + a]]);
       _mm256_store_ps(w1, _mm256_min_ps(_mm256_load_ps(w1), b1));
-      ++count1[ks[4 + a]];
+      ++s1.count[a][ks[4 + a]];
     }
-  }
-}
-
-// bin_rows' steps: both records' bins as indices into the flat count (axis_base: axis a's
-// bins from a stride on), and one record's update of bin kb.
-MBVH_AVX2 inline void sparse_index(const Consts& k, const Pair& q, __m256 zero, __m256i lst, __m256i axis_base,
-                                   std::uint32_t (&ks)[8]) {
-  const __m256 f = _mm256_max_ps(_mm256_mul_ps(_mm256_sub_ps(q.ce, k.o), k.s), zero);
-  _mm256_store_si256(reinterpret_cast<__m256i*>(ks), _mm256_add_epi32(_mm256_min_epi16(_mm256_cvttps_epi32(f), lst), axis_base));
-}
-MBVH_AVX2 inline void sparse_add(float* rows, std::uint32_t* count, std::uint32_t kb, __m256 row) {
-  float* w = rows + 8 * std::size_t(kb);
-  _mm256_store_ps(w, _mm256_min_ps(_mm256_load_ps(w), row));
-  ++count[kb];
-}
-
-/// The sparse bins' update (SahBuilder::bin_range): records [b, e) into `rows` (3 axes of
-/// `stride` bins, each a row of 8 floats [lo | -hi], 32-byte aligned) and `count` (3 axes of
-/// `stride`, a multiple of 8); the index and the rows are bin_pairs', two records a step (the
-/// first's update of a bin before the second's: the bits of one record a step). Then marks the
-/// occupied bins (count not 0) among the first last + 1 of axis a in mask[a].
-MBVH_AVX2 [[gnu::noinline]] inline void bin_rows(const Split& g, unsigned last, float* rows, std::uint32_t* count,
-                                                 unsigned stride, std::uint64_t (&mask)[3], const PrimRef* p,
-                                                 std::size_t b, std::size_t e) {
-  const Consts k(g);
-  const __m256 zero = _mm256_setzero_ps();
-  const __m256 neg_hi = _mm256_setr_ps(0.0f, 0.0f, 0.0f, 0.0f, -0.0f, -0.0f, -0.0f, -0.0f);
-  const __m256i lst = _mm256_set1_epi32(static_cast<int>(last));
-  const int st = static_cast<int>(stride);
-  const __m256i axis_base = _mm256_setr_epi32(0, st, 2 * st, 0, 0, st, 2 * st, 0);
-  std::size_t i = b;
-  for (; i + 2 <= e; i += 2) {
-    const Pair q = load_pair(k, p + i);
-    alignas(32) std::uint32_t ks[8];
-    sparse_index(k, q, zero, lst, axis_base, ks);
-    const __m256 b0 = _mm256_xor_ps(_mm256_and_ps(q.r0, k.xyz), neg_hi), b1 = _mm256_xor_ps(_mm256_and_ps(q.r1, k.xyz), neg_hi);
-    for (int a = 0; a < 3; ++a) {
-      sparse_add(rows, count, ks[a], b0);
-      sparse_add(rows, count, ks[4 + a], b1);
-    }
-  }
-  if (i < e) {
-    const Pair q = load_one(k, p + i);
-    alignas(32) std::uint32_t ks[8];
-    sparse_index(k, q, zero, lst, axis_base, ks);
-    const __m256 b0 = _mm256_xor_ps(_mm256_and_ps(q.r0, k.xyz), neg_hi);
-    for (int a = 0; a < 3; ++a) sparse_add(rows, count, ks[a], b0);
-  }
-  const __m256i none = _mm256_setzero_si256();
-  for (int a = 0; a < 3; ++a) {
-    std::uint64_t m = 0;
-    for (unsigned j = 0; j <= last; j += 8) {
-      const __m256i c = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(count + a * std::size_t(stride) + j));
-      const unsigned empty8 = static_cast<unsigned>(_mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(c, none))));
-      m |= std::uint64_t(~empty8 & 0xffu) << j;
-    }
-    mask[a] |= m;
   }
 }
 

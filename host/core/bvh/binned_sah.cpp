@@ -109,36 +109,16 @@ void for_chunks(std::size_t count, unsigned threads, Fn&& fn) {
   });
 }
 
-// A sparse bin's box as lo and -hi (lane 3 unused), so that both rows grow by a min (as the
-// dense bins' rows, dense_bins.h: min(-a, -b) = -max(a, b), ties and signed zeros included) and
-// the pair, 32 bytes, is one 256-bit row for the AVX2 binning (avx2_kernels.h bin_rows).
-struct Bin {
-  alignas(32) float lo[4];
-  alignas(16) float nhi[4];  // -hi
-  // grows by another bin's rows (std::min keeps this bin's bound on ties, as std::max on hi did)
-  void grow(const Bin& o) {
-    for (int a = 0; a < 3; ++a) {
-      lo[a] = std::min(lo[a], o.lo[a]);
-      nhi[a] = std::min(nhi[a], o.nhi[a]);
-    }
-  }
+struct Bin {  // lane 3 unused
+  alignas(16) float lo[4];
+  alignas(16) float hi[4];
   void grow(const float* l, const float* h) {
     for (int a = 0; a < 3; ++a) {
       lo[a] = std::min(lo[a], l[a]);
-      nhi[a] = std::min(nhi[a], -h[a]);
-    }
-  }
-  void hi(float (&h)[3]) const {
-    for (int a = 0; a < 3; ++a) h[a] = -nhi[a];
-  }
-  void clear() {
-    for (int d = 0; d < 4; ++d) {
-      lo[d] = INFINITY;
-      nhi[d] = INFINITY;
+      hi[a] = std::max(hi[a], h[a]);
     }
   }
 };
-static_assert(sizeof(Bin) == 32);
 
 // Sparse bins of the three axes, one set per task, reused from node to node: every bin is empty
 // between nodes (the sweep, or reset(), empties only the bins `mask` marks occupied), so binning a record
@@ -152,7 +132,10 @@ struct Bins {
       for (unsigned k = 0; k < kMaxBins; ++k) empty(a, k);
   }
   void empty(int a, unsigned k) {
-    bin[a][k].clear();
+    for (int d = 0; d < 4; ++d) {
+      bin[a][k].lo[d] = INFINITY;
+      bin[a][k].hi[d] = -INFINITY;
+    }
     count[a][k] = 0;
   }
   void reset() {
@@ -161,27 +144,7 @@ struct Bins {
       mask[a] = 0;
     }
   }
-  // Marks the occupied bins among the first `bins` of each axis in `mask` (a bin is occupied
-  // when its count is not 0: every other bin is empty).
-  void mark(unsigned bins) {
-    for (int a = 0; a < 3; ++a) {
-#if defined(__SSE2__)
-      std::uint64_t m = 0;
-      const __m128i zero = _mm_setzero_si128();
-      for (unsigned k = 0; k < bins; k += 4) {
-        const __m128i c = _mm_loadu_si128(reinterpret_cast<const __m128i*>(count[a] + k));
-        const unsigned empty4 = static_cast<unsigned>(_mm_movemask_ps(_mm_castsi128_ps(_mm_cmpeq_epi32(c, zero))));
-        m |= std::uint64_t(~empty4 & 15u) << k;
-      }
-      mask[a] |= m;
-#else
-      for (unsigned k = 0; k < bins; ++k)
-        if (count[a][k] != 0) mask[a] |= std::uint64_t(1) << k;
-#endif
-    }
-  }
 };
-static_assert(kMaxBins % 4 == 0);
 
 class SahBuilder {
 public:
@@ -306,31 +269,26 @@ public:
   // not the tree's: flatten follows the child links.
   void build_subtree(SubArena& arena, const TmpNode& top, const FastBox& cbox) {
     Bins work;
-    // 40 bytes: what splitting a node needs, and its place in the arena (< 2n: 32 bits)
     struct Pending {
+      TmpNode t;
+      std::size_t at;  // its place in the arena
       FastBox cbox;
-      std::uint32_t begin, end, depth, at;
     };
     std::vector<Pending> stack;
     stack.reserve(2 * std::size_t(opt_.depth_cap) + 2);
-    stack.push_back({cbox, top.begin, top.end, top.depth, static_cast<std::uint32_t>(arena.add(1))});
+    stack.push_back({top, arena.add(1), cbox});
     while (!stack.empty()) {
-      const Pending p = stack.back();
+      Pending p = stack.back();
       stack.pop_back();
-      TmpNode t;
-      t.begin = p.begin;
-      t.end = p.end;
-      t.depth = p.depth;
       TmpNode c[2];
       FastBox cc[2];
-      if (!split_node(t, p.cbox, c, cc, 1, work)) {
-        arena[p.at] = SubNode::leaf(t.box, t.begin, t.end - t.begin, t.forced);
+      if (!split_node(p.t, p.cbox, c, cc, 1, work)) {
+        arena[p.at] = SubNode::leaf(p.t.box, p.t.begin, p.t.end - p.t.begin, p.t.forced);
         continue;
       }
       const std::size_t first = arena.add(2);
-      arena[p.at] = SubNode::inner(t.box, first);
-      for (int side = 1; side >= 0; --side)
-        stack.push_back({cc[side], c[side].begin, c[side].end, c[side].depth, static_cast<std::uint32_t>(first + std::size_t(side))});
+      arena[p.at] = SubNode::inner(p.t.box, first);
+      for (int side = 1; side >= 0; --side) stack.push_back({c[side], first + std::size_t(side), cc[side]});
     }
   }
 
@@ -398,34 +356,18 @@ private:
         for (int a = 0; a < 3; ++a)
           for (std::uint64_t m = partial[c].mask[a]; m; m &= m - 1) {
             const unsigned k = static_cast<unsigned>(std::countr_zero(m));
-            bins.bin[a][k].grow(partial[c].bin[a][k]);
+            bins.bin[a][k].grow(partial[c].bin[a][k].lo, partial[c].bin[a][k].hi);
             bins.count[a][k] += partial[c].count[a][k];
             bins.mask[a] |= std::uint64_t(1) << k;
           }
     } else {
       bin_range(g, records(node.depth), node.begin, node.end, bins);
     }
-    // every record is in one bin of axis 0: the node's box, FastBox::grow_rows's operations
-    // (std::min(acc, l) is _mm_min_ps(l, acc), bit for bit; on -hi, std::max(acc, h) likewise)
-#if defined(__SSE2__)
-    {
-      __m128 lo = _mm_set1_ps(INFINITY), nhi = lo;
-      for (std::uint64_t m = bins.mask[0]; m; m &= m - 1) {
-        const Bin& b = bins.bin[0][std::countr_zero(m)];
-        lo = _mm_min_ps(_mm_load_ps(b.lo), lo);
-        nhi = _mm_min_ps(_mm_load_ps(b.nhi), nhi);
-      }
-      set_rows(box, lo, _mm_xor_ps(nhi, _mm_set1_ps(-0.0f)));
-    }
-#else
-    box = FastBox();
+    box = FastBox();  // every record is in one bin of axis 0
     for (std::uint64_t m = bins.mask[0]; m; m &= m - 1) {
       const Bin& b = bins.bin[0][std::countr_zero(m)];
-      float h[3];
-      b.hi(h);
-      box.grow_rows(b.lo, h);
+      box.grow_rows(b.lo, b.hi);
     }
-#endif
     // the plain count or blocks of records, chosen once (not per bin: best_* may alias opt_ as
     // far as the compiler knows, so a call in the loop reloads and tests opt_.leaf_block)
     if (opt_.leaf_block <= 1)
@@ -449,13 +391,13 @@ private:
     // a running box as two rows; its half area with FastBox::half_area's operations in order:
     // (e0 e1 + e1 e2) + e2 e0
     struct Acc {
-      __m128 lo = _mm_set1_ps(INFINITY), nhi = _mm_set1_ps(INFINITY);  // nhi: -hi
+      __m128 lo = _mm_set1_ps(INFINITY), hi = _mm_set1_ps(-INFINITY);
       void grow(const Bin& b) {
         lo = _mm_min_ps(lo, _mm_load_ps(b.lo));
-        nhi = _mm_min_ps(nhi, _mm_load_ps(b.nhi));
+        hi = _mm_max_ps(hi, _mm_load_ps(b.hi));
       }
       float half_area() const {
-        const __m128 e = _mm_sub_ps(_mm_xor_ps(nhi, _mm_set1_ps(-0.0f)), lo);
+        const __m128 e = _mm_sub_ps(hi, lo);
         const __m128 p = _mm_mul_ps(e, _mm_shuffle_ps(e, e, _MM_SHUFFLE(3, 0, 2, 1)));
         const __m128 s = _mm_add_ss(p, _mm_shuffle_ps(p, p, _MM_SHUFFLE(1, 1, 1, 1)));
         return _mm_cvtss_f32(_mm_add_ss(s, _mm_shuffle_ps(p, p, _MM_SHUFFLE(2, 2, 2, 2))));
@@ -464,11 +406,7 @@ private:
 #else
     struct Acc {
       FastBox box;
-      void grow(const Bin& b) {
-        float h[3];
-        b.hi(h);
-        box.grow_rows(b.lo, h);
-      }
+      void grow(const Bin& b) { box.grow_rows(b.lo, b.hi); }
       float half_area() const { return box.half_area(); }
     };
 #endif
@@ -479,20 +417,14 @@ private:
         for (std::uint64_t m = mask; m; m &= m - 1) bins.empty(a, static_cast<unsigned>(std::countr_zero(m)));
         continue;
       }
-      Bin* const row = bins.bin[a];
-      std::uint32_t* const counts = bins.count[a];
-      auto empty = [&](unsigned k) {  // Bins::empty, through this axis's pointers
-        row[k].clear();
-        counts[k] = 0;
-      };
       float right_area[kMaxBins];
       Acc acc;
       // occupied bins from the top, all but the lowest (never the first bin right of a split):
       // bounds of bins >= k; the records right of a split are the node's less those left of it
       for (std::uint64_t m = mask; m & (m - 1);) {
-        const unsigned k = static_cast<unsigned>(std::bit_width(m)) - 1u;
-        m ^= std::uint64_t(1) << k;
-        acc.grow(row[k]);
+        const unsigned k = 63u - static_cast<unsigned>(std::countl_zero(m));
+        m &= ~(std::uint64_t(1) << k);
+        acc.grow(bins.bin[a][k]);
         right_area[k] = acc.half_area();
       }
       acc = Acc();
@@ -501,12 +433,12 @@ private:
         const unsigned k = static_cast<unsigned>(std::countr_zero(m));
         m &= m - 1;
         if (m == 0) {  // the last occupied bin: nothing to its right
-          empty(k);
+          bins.empty(a, k);
           break;
         }
-        acc.grow(row[k]);
-        cnt += counts[k];
-        empty(k);
+        acc.grow(bins.bin[a][k]);
+        cnt += bins.count[a][k];
+        bins.empty(a, k);
         const unsigned next = static_cast<unsigned>(std::countr_zero(m));
         const float cost = acc.half_area() * cost_of(cnt) + right_area[next] * cost_of(count - cnt);
         if (cost < best_cost) {
@@ -565,36 +497,29 @@ private:
   }
 #endif
 
-  // Out of line (as partition()), so that profiles show binning and partitioning apart. The
-  // occupied bins are marked from the counts afterwards (as Bins::mark), not per record.
+  // Out of line (as partition()), so that profiles show binning and partitioning apart.
   [[gnu::noinline]] void bin_range(const Geometry& g, const PrimRef* src, std::size_t b, std::size_t e,
                                    Bins& out) const {
-#if defined(MBVH_BUILD_AVX2)
-    if (use_vec256()) {
-      static_assert(kMaxBins % 8 == 0);
-      vec256::bin_rows(vec256_split(g.origin, g.scale, 0), g.last, &out.bin[0][0].lo[0], &out.count[0][0], kMaxBins,
-                       out.mask, src, b, e);
-      return;
-    }
-#endif
 #if defined(__SSE2__)
     // Four lanes at once: the centroid, its bin on each axis (the dense bins' index, the same
-    // float operations as Geometry::bin, so the same bins) and the bin's rows as two mins.
+    // float operations as Geometry::bin, so the same bins) and the bin's box as one min and one max.
     const DenseBins::Binning bg(g.origin, g.scale, g.last);
+    std::uint64_t mask[3] = {out.mask[0], out.mask[1], out.mask[2]};
     for (std::size_t i = b; i < e; ++i) {
       __m128 lo, hi;  // hi's lane 3: pad = 0
       bg.load(src[i], lo, hi);
       alignas(16) std::uint32_t ks[4];
       _mm_store_si128(reinterpret_cast<__m128i*>(ks), bg.index(lo, hi));
-      const __m128 nhi = _mm_xor_ps(hi, bg.sign);
       for (int a = 0; a < 3; ++a) {
         const unsigned kb = ks[a];
         Bin& bn = out.bin[a][kb];
         _mm_store_ps(bn.lo, _mm_min_ps(_mm_load_ps(bn.lo), lo));
-        _mm_store_ps(bn.nhi, _mm_min_ps(_mm_load_ps(bn.nhi), nhi));
+        _mm_store_ps(bn.hi, _mm_max_ps(_mm_load_ps(bn.hi), hi));
         ++out.count[a][kb];
+        mask[a] |= std::uint64_t(1) << kb;
       }
     }
+    for (int a = 0; a < 3; ++a) out.mask[a] = mask[a];
 #else
     for (std::size_t i = b; i < e; ++i) {
       const PrimRef& r = src[i];
@@ -602,10 +527,10 @@ private:
         const unsigned k = g.bin(r, a);
         out.bin[a][k].grow(r.lo, r.hi);
         ++out.count[a][k];
+        out.mask[a] |= std::uint64_t(1) << k;
       }
     }
 #endif
-    out.mark(g.last + 1);
   }
 
 #if defined(__SSE2__)
