@@ -209,6 +209,43 @@ inline AlignedVector<Tri4> make_mt_packs(const TriPacks& p) {
 /// leaf once, parent and sibling links consistent. Throws Error naming the first broken node.
 /// O(nodes). The wide layouts are checked on up to `threads` workers (0: every hardware thread;
 /// a build passes its own count).
+/// Whether an MBVH4 child's sibling links match its parent's other slots (the child in slot `s`).
+inline bool sibling_links_ok(const Node4& ch, const Node4& p, int s) {
+  for (int k = 0; k < 3; ++k)
+    if (ch.sib[k] != p.child[(s + 1 + k) & 3]) return false;
+  return true;
+}
+inline bool sibling_links_ok(const Node8&, const Node8&, int) { return true; }  // MBVH8 keeps none
+
+/// validate_layout's check of wide node i (validate.cpp's wide_ok on the pool; the collapse as it
+/// writes each node): every child is a node in (i, end) naming i as its parent, with matching
+/// sibling links, listed once by i; every leaf reference is below `leaf_count` and marks its leaf
+/// in `leaf_seen` (a relaxed store). Adds i's child and leaf references to `inner` and `leaf_refs`.
+template <class N>
+bool wide_node_ok(const N* nodes, std::size_t i, std::size_t end, std::uint8_t* leaf_seen, std::size_t leaf_count,
+                  std::size_t& inner, std::size_t& leaf_refs) {
+  constexpr int W = sizeof(N::child) / sizeof(N::child[0]);
+  const N& p = nodes[i];
+  bool good = true;
+  for (int s = 0; s < W; ++s) {
+    const std::int32_t c = p.child[s];
+    if (c == MBVH_EMPTY) continue;
+    if (c >= 0) {
+      const std::size_t ci = static_cast<std::size_t>(c);
+      if (ci <= i || ci >= end || nodes[ci].parent != static_cast<std::int32_t>(i) || !sibling_links_ok(nodes[ci], p, s))
+        good = false;
+      for (int t = 0; t < s; ++t) good = good && p.child[t] != c;
+      ++inner;
+    } else {
+      const std::size_t li = static_cast<std::size_t>(~c);
+      if (li < leaf_count) std::atomic_ref<std::uint8_t>(leaf_seen[li]).store(1, std::memory_order_relaxed);
+      else good = false;
+      ++leaf_refs;
+    }
+  }
+  return good;
+}
+
 void validate_layout(const Mbvh2& m, std::size_t leaf_count);
 void validate_layout(const Mbvh4& m, std::size_t leaf_count, unsigned threads = 0);
 void validate_layout(const Mbvh8& m, std::size_t leaf_count, unsigned threads = 0);

@@ -14,7 +14,6 @@
 #include "host/core/enum_check.h"
 #include "host/core/huge_pages.h"
 #include "host/core/layouts.h"
-#include "host/core/parallel.h"
 #include "host/core/resources.h"
 #include "mbvh/error.h"
 

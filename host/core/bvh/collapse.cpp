@@ -4,7 +4,6 @@
 // Szirmay-Kalos, "Stackless Multi-BVH Traversal for CPU, MIC and GPU Ray Tracing", CGF 2014;
 // TRAVERSAL.md §2).
 #include <algorithm>
-#include <atomic>
 #include <bit>
 #include <chrono>
 #include <cstring>
@@ -222,32 +221,10 @@ struct Collapser {
     if constexpr (W == 4) link_children(out, self);
   }
 
-  // Checks written node `self` once its children's links are written, every node in (self, end)
-  // written already (its subtree).
+  // Checks written node `self` (wide_node_ok) once its children's links are written, every node
+  // in (self, end) written already (its subtree).
   void check(std::size_t self, std::size_t end, Check& k) const {
-    const N& p = out[self];
-    bool good = true;
-    for (int s = 0; s < W; ++s) {
-      const std::int32_t c = p.child[s];
-      if (c == MBVH_EMPTY) continue;
-      if (c >= 0) {
-        const std::size_t ci = static_cast<std::size_t>(c);
-        if (ci <= self || ci >= end || out[ci].parent != static_cast<std::int32_t>(self)) {
-          good = false;
-          continue;
-        }
-        if constexpr (W == 4)
-          for (int j = 0; j < 3; ++j) good = good && out[ci].sib[j] == p.child[(s + 1 + j) & 3];
-        for (int t = 0; t < s; ++t) good = good && p.child[t] != c;
-        ++k.inner;
-      } else {
-        const std::size_t li = static_cast<std::size_t>(~c);
-        if (li < leaf_count) std::atomic_ref<std::uint8_t>(leaf_seen[li]).store(1, std::memory_order_relaxed);
-        else good = false;
-        ++k.leaf_refs;
-      }
-    }
-    k.good = k.good && good;
+    k.good = wide_node_ok(out, self, end, leaf_seen, leaf_count, k.inner, k.leaf_refs) && k.good;
   }
 
   // The top walk: children of at most kTaskSpan binary nodes become tasks (in depth-first order);

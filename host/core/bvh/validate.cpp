@@ -45,9 +45,8 @@ void check_ref(const char* layout, std::size_t i, std::int32_t c, std::size_t no
 // each leaf reference in range marks its leaf (a relaxed store, no read-modify-write) and is
 // counted: every leaf marked and as many references as leaves means each leaf is listed once.
 // validate_wide runs only where this fails, for its first fault's message.
-template <class N, class LinksOk>
-bool wide_ok(const AlignedVector<N>& nodes, std::size_t leaf_count, unsigned threads, LinksOk links_ok) {
-  constexpr int W = node_width<N>();
+template <class N>
+bool wide_ok(const AlignedVector<N>& nodes, std::size_t leaf_count, unsigned threads) {
   const std::size_t n = nodes.size();
   if (n == 0 || nodes[0].parent != MBVH_NONE) return false;
   const auto leaf_seen = std::make_unique<std::uint8_t[]>(leaf_count);  // value-initialised: 0
@@ -56,24 +55,7 @@ bool wide_ok(const AlignedVector<N>& nodes, std::size_t leaf_count, unsigned thr
   parallel_for(n, 2048, threads, [&](std::size_t b, std::size_t e, unsigned) {
     bool good = true;
     std::size_t inner = 0, refs = 0;
-    for (std::size_t i = b; i < e && good; ++i) {
-      const N& p = nodes[i];
-      for (int s = 0; s < W; ++s) {
-        const std::int32_t c = p.child[s];
-        if (c == MBVH_EMPTY) continue;
-        if (c >= 0) {
-          const std::size_t ci = static_cast<std::size_t>(c);
-          if (ci <= i || ci >= n || nodes[ci].parent != static_cast<std::int32_t>(i) || !links_ok(nodes[ci], p, s)) good = false;
-          for (int t = 0; t < s; ++t) good = good && p.child[t] != c;
-          ++inner;
-        } else {
-          const std::size_t li = static_cast<std::size_t>(~c);
-          if (li < leaf_count) std::atomic_ref<std::uint8_t>(leaf_seen[li]).store(1, std::memory_order_relaxed);
-          else good = false;
-          ++refs;
-        }
-      }
-    }
+    for (std::size_t i = b; i < e && good; ++i) good = wide_node_ok(nodes.data(), i, n, leaf_seen.get(), leaf_count, inner, refs);
     node_refs.fetch_add(inner, std::memory_order_relaxed);
     leaf_refs.fetch_add(refs, std::memory_order_relaxed);
     if (!good) ok = false;
@@ -83,12 +65,10 @@ bool wide_ok(const AlignedVector<N>& nodes, std::size_t leaf_count, unsigned thr
   return leaf_count == 0 || std::memchr(leaf_seen.get(), 0, leaf_count) == nullptr;
 }
 
-// The checks of a W-wide layout on up to `threads` workers; `links_ok(child, parent node, slot)`
-// checks a child's own links.
-template <class N, class LinksOk>
-void validate_wide(const AlignedVector<N>& nodes, const char* name, std::size_t leaf_count, unsigned threads,
-                   LinksOk links_ok) {
-  if (wide_ok(nodes, leaf_count, threads, links_ok)) return;
+// The checks of a W-wide layout on up to `threads` workers (a child's own links: sibling_links_ok).
+template <class N>
+void validate_wide(const AlignedVector<N>& nodes, const char* name, std::size_t leaf_count, unsigned threads) {
+  if (wide_ok(nodes, leaf_count, threads)) return;
   const std::size_t n = nodes.size();
   if (n == 0) corrupt(name, 0, "no root");
   if (nodes[0].parent != MBVH_NONE) corrupt(name, 0, "the root has a parent");
@@ -99,7 +79,7 @@ void validate_wide(const AlignedVector<N>& nodes, const char* name, std::size_t 
       check_ref(name, i, c, n, leaf_count, seen, leaf_seen);
       if (c >= 0) {
         const N& ch = nodes[static_cast<std::size_t>(c)];
-        if (ch.parent != static_cast<std::int32_t>(i) || !links_ok(ch, nodes[i], s))
+        if (ch.parent != static_cast<std::int32_t>(i) || !sibling_links_ok(ch, nodes[i], s))
           corrupt(name, static_cast<std::size_t>(c), "parent or sibling links do not match its parent");
       }
     }
@@ -130,15 +110,11 @@ void validate_layout(const Mbvh2& m, std::size_t leaf_count) {
 }
 
 void validate_layout(const Mbvh4& m, std::size_t leaf_count, unsigned threads) {
-  validate_wide(m.nodes, "MBVH4", leaf_count, threads, [](const Node4& ch, const Node4& p, int s) {
-    for (int k = 0; k < 3; ++k)
-      if (ch.sib[k] != p.child[(s + 1 + k) & 3]) return false;
-    return true;
-  });
+  validate_wide(m.nodes, "MBVH4", leaf_count, threads);
 }
 
 void validate_layout(const Mbvh8& m, std::size_t leaf_count, unsigned threads) {
-  validate_wide(m.nodes, "MBVH8", leaf_count, threads, [](const Node8&, const Node8&, int) { return true; });
+  validate_wide(m.nodes, "MBVH8", leaf_count, threads);
 }
 
 }  // namespace mbvh
